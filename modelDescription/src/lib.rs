@@ -1,0 +1,21 @@
+//! The typed FMI 2.0 model description (`modelDescription.xml`).
+//!
+//! - [`types`]: one Rust type per schema element, lossless for everything it models.
+//! - [`write`]: [`ModelDescription::to_xml`] writes elements and attributes in schema order,
+//!   deterministically (the same value always gives the same bytes).
+//! - [`read`]: [`ModelDescription::from_xml`] reads descriptions from any exporter: unknown
+//!   attributes and vendor annotations are tolerated, malformed documents are refused with an
+//!   error that says where and why.
+//! - [`check`]: semantic checks beyond the schema (unique names and value references, a
+//!   consistent `ModelStructure`, legal causality/variability/initial combinations).
+
+#![warn(missing_docs)]
+
+pub mod check;
+pub mod read;
+pub mod types;
+pub mod write;
+
+pub use check::Problem;
+pub use read::ParseError;
+pub use types::*;
