@@ -16,6 +16,6 @@ pub mod read;
 pub mod types;
 pub mod write;
 
-pub use check::Problem;
+pub use check::{BaseType, Problem};
 pub use read::ParseError;
 pub use types::*;
