@@ -1,0 +1,753 @@
+//! The exported C functions: every common and co-simulation function of FMI 2.0.
+//!
+//! Each entry point checks its pointers, runs the call inside `catch_unwind` (a panic must
+//! never cross `extern "C"`: it would abort the importer), checks the call sequence, and
+//! converts C arguments into slices and `&str`s before the generic [`FmiInstance`] sees them.
+//! This is the only module with `unsafe` pointer handling.
+
+#![allow(non_snake_case, clippy::missing_safety_doc)]
+
+use std::ffi::{CStr, c_char, c_int};
+use std::panic::{AssertUnwindSafe, catch_unwind};
+
+use super::instance::{FmiInstance, Func};
+use super::logging::{Category, Logger};
+use super::types::*;
+use crate::registry;
+
+use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK};
+
+/// The component handed to the importer: a thin pointer to the boxed instance.
+type Component = Box<dyn FmiInstance>;
+
+/// Runs `body` on the instance behind `c`, unless `c` is NULL or the call is out of sequence.
+/// A panic is caught, logged, and answered with `fmi2Error` (the instance enters the error
+/// state, from which `fmi2Reset` recovers).
+fn with_instance(
+    c: fmi2Component,
+    name: &'static str,
+    func: Option<Func>,
+    body: impl FnOnce(&mut dyn FmiInstance) -> fmi2Status,
+) -> fmi2Status {
+    if c.is_null() {
+        return fmi2Error;
+    }
+    // SAFETY: a non-NULL component was returned by fmi2Instantiate (a leaked Box<Component>)
+    // and not yet freed; the importer calls an instance from one thread at a time.
+    let component: &mut Component = unsafe { &mut *c.cast::<Component>() };
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        if let Some(func) = func
+            && !component.allow(func, name)
+        {
+            return fmi2Error;
+        }
+        body(component.as_mut())
+    }));
+    match result {
+        Ok(status) => status,
+        Err(payload) => {
+            let what = panic_message(&payload);
+            component.poison();
+            component.refuse(name, &format!("internal error (panic): {what}"))
+        }
+    }
+}
+
+fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "unknown panic".into()
+    }
+}
+
+/// A slice from a C array; NULL is accepted only for an empty array.
+///
+/// # Safety
+/// `ptr` must point to `n` valid elements when it is not NULL.
+unsafe fn slice<'a, T>(ptr: *const T, n: usize) -> Option<&'a [T]> {
+    if n == 0 {
+        Some(&[])
+    } else if ptr.is_null() {
+        None
+    } else {
+        // SAFETY: guaranteed by the caller (the FMI contract on array arguments).
+        Some(unsafe { std::slice::from_raw_parts(ptr, n) })
+    }
+}
+
+/// A mutable slice from a C array; NULL is accepted only for an empty array.
+///
+/// # Safety
+/// `ptr` must point to `n` writable elements when it is not NULL.
+unsafe fn slice_mut<'a, T>(ptr: *mut T, n: usize) -> Option<&'a mut [T]> {
+    if n == 0 {
+        Some(&mut [])
+    } else if ptr.is_null() {
+        None
+    } else {
+        // SAFETY: guaranteed by the caller (the FMI contract on array arguments).
+        Some(unsafe { std::slice::from_raw_parts_mut(ptr, n) })
+    }
+}
+
+fn null_arg(inst: &dyn FmiInstance, function: &str, what: &str) -> fmi2Status {
+    inst.refuse(function, &format!("{what} is NULL"))
+}
+
+/// The FMI 2.0 function `fmi2GetTypesPlatform`: see the module documentation.
+#[unsafe(no_mangle)]
+pub extern "C" fn fmi2GetTypesPlatform() -> *const c_char {
+    fmi2TypesPlatform.as_ptr()
+}
+
+/// The FMI 2.0 function `fmi2GetVersion`: see the module documentation.
+#[unsafe(no_mangle)]
+pub extern "C" fn fmi2GetVersion() -> *const c_char {
+    fmi2Version.as_ptr()
+}
+
+/// The FMI 2.0 function `fmi2SetDebugLogging`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SetDebugLogging(
+    c: fmi2Component,
+    loggingOn: fmi2Boolean,
+    nCategories: usize,
+    categories: *const fmi2String,
+) -> fmi2Status {
+    let f = "fmi2SetDebugLogging";
+    with_instance(c, f, Some(Func::SetDebugLogging), |inst| {
+        // SAFETY: FMI contract: `categories` holds nCategories strings.
+        let Some(raw) = (unsafe { slice(categories, nCategories) }) else {
+            return null_arg(inst, f, "categories");
+        };
+        let mut names = Vec::with_capacity(raw.len());
+        for &p in raw {
+            if p.is_null() {
+                return null_arg(inst, f, "a category name");
+            }
+            // SAFETY: non-NULL, NUL-terminated by the FMI contract.
+            match unsafe { CStr::from_ptr(p) }.to_str() {
+                Ok(s) => names.push(s),
+                Err(_) => return inst.refuse(f, "a category name is not UTF-8"),
+            }
+        }
+        inst.set_debug_logging(loggingOn != 0, &names)
+    })
+}
+
+/// The FMI 2.0 function `fmi2Instantiate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2Instantiate(
+    instanceName: fmi2String,
+    fmuType: c_int,
+    fmuGUID: fmi2String,
+    _fmuResourceLocation: fmi2String,
+    functions: *const fmi2CallbackFunctions,
+    _visible: fmi2Boolean,
+    loggingOn: fmi2Boolean,
+) -> fmi2Component {
+    let result = catch_unwind(|| {
+        if functions.is_null() {
+            return std::ptr::null_mut();
+        }
+        // SAFETY: non-NULL; points to the importer's callback struct for this call.
+        let callbacks = unsafe { *functions };
+        let name = if instanceName.is_null() {
+            c"(unnamed)"
+        } else {
+            // SAFETY: non-NULL, NUL-terminated by the FMI contract.
+            unsafe { CStr::from_ptr(instanceName) }
+        };
+        let logger = Logger::new(
+            callbacks.logger,
+            callbacks.componentEnvironment,
+            name,
+            loggingOn != 0,
+        );
+        let refuse = |why: &str| {
+            logger.log(
+                fmi2Error,
+                Category::Error,
+                &format!("fmi2Instantiate: {why}"),
+            );
+            std::ptr::null_mut()
+        };
+        if instanceName.is_null() || name.is_empty() {
+            return refuse("instanceName must be a non-empty string");
+        }
+        if fmuType != fmi2Type::fmi2CoSimulation as c_int {
+            return refuse(&format!(
+                "fmuType {fmuType} requested; this FMU implements co-simulation ({}) only",
+                fmi2Type::fmi2CoSimulation as c_int
+            ));
+        }
+        if fmuGUID.is_null() {
+            return refuse("fmuGUID is NULL");
+        }
+        // SAFETY: non-NULL, NUL-terminated by the FMI contract.
+        let guid = unsafe { CStr::from_ptr(fmuGUID) }.to_string_lossy();
+        let Some(entry) = registry::find_by_guid(&guid) else {
+            return refuse(&format!(
+                "no model with GUID {guid} in this binary (models: {})",
+                crate::MODELS
+                    .iter()
+                    .map(|m| format!("{} {}", m.identifier, m.info().guid))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        };
+        let component: Box<Component> = Box::new(entry.instantiate(logger));
+        Box::into_raw(component).cast()
+    });
+    result.unwrap_or(std::ptr::null_mut())
+}
+
+/// The FMI 2.0 function `fmi2FreeInstance`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2FreeInstance(c: fmi2Component) {
+    if c.is_null() {
+        return;
+    }
+    let _ = catch_unwind(|| {
+        // SAFETY: c came from Box::into_raw in fmi2Instantiate and is freed exactly once
+        // (the importer must not use it afterwards).
+        drop(unsafe { Box::from_raw(c.cast::<Component>()) });
+    });
+}
+
+/// The FMI 2.0 function `fmi2SetupExperiment`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SetupExperiment(
+    c: fmi2Component,
+    toleranceDefined: fmi2Boolean,
+    tolerance: fmi2Real,
+    startTime: fmi2Real,
+    stopTimeDefined: fmi2Boolean,
+    stopTime: fmi2Real,
+) -> fmi2Status {
+    with_instance(
+        c,
+        "fmi2SetupExperiment",
+        Some(Func::SetupExperiment),
+        |inst| {
+            inst.setup_experiment(
+                startTime,
+                (stopTimeDefined != 0).then_some(stopTime),
+                (toleranceDefined != 0).then_some(tolerance),
+            )
+        },
+    )
+}
+
+/// The FMI 2.0 function `fmi2EnterInitializationMode`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2EnterInitializationMode(c: fmi2Component) -> fmi2Status {
+    with_instance(
+        c,
+        "fmi2EnterInitializationMode",
+        Some(Func::EnterInitializationMode),
+        |inst| inst.enter_initialization_mode(),
+    )
+}
+
+/// The FMI 2.0 function `fmi2ExitInitializationMode`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2ExitInitializationMode(c: fmi2Component) -> fmi2Status {
+    with_instance(
+        c,
+        "fmi2ExitInitializationMode",
+        Some(Func::ExitInitializationMode),
+        |inst| inst.exit_initialization_mode(),
+    )
+}
+
+/// The FMI 2.0 function `fmi2Terminate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2Terminate(c: fmi2Component) -> fmi2Status {
+    with_instance(c, "fmi2Terminate", Some(Func::Terminate), |inst| {
+        inst.terminate()
+    })
+}
+
+/// The FMI 2.0 function `fmi2Reset`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2Reset(c: fmi2Component) -> fmi2Status {
+    with_instance(c, "fmi2Reset", Some(Func::Reset), |inst| inst.reset())
+}
+
+macro_rules! getter {
+    ($name:ident, $ty:ty, $method:ident) => {
+        #[doc = concat!("The FMI 2.0 function `", stringify!($name), "`: see the module documentation.")]
+        #[unsafe(no_mangle)]
+        pub unsafe extern "C" fn $name(
+            c: fmi2Component,
+            vr: *const fmi2ValueReference,
+            nvr: usize,
+            value: *mut $ty,
+        ) -> fmi2Status {
+            let f = stringify!($name);
+            with_instance(c, f, Some(Func::Get), |inst| {
+                // SAFETY: FMI contract: vr and value hold nvr elements.
+                let (Some(vrs), Some(out)) = (unsafe { slice(vr, nvr) }, unsafe {
+                    slice_mut(value, nvr)
+                }) else {
+                    return null_arg(inst, f, "vr or value");
+                };
+                inst.$method(vrs, out)
+            })
+        }
+    };
+}
+
+getter!(fmi2GetReal, fmi2Real, get_real);
+getter!(fmi2GetInteger, fmi2Integer, get_integer);
+getter!(fmi2GetBoolean, fmi2Boolean, get_boolean);
+getter!(fmi2GetString, fmi2String, get_string);
+
+macro_rules! setter {
+    ($name:ident, $ty:ty, $method:ident) => {
+        #[doc = concat!("The FMI 2.0 function `", stringify!($name), "`: see the module documentation.")]
+        #[unsafe(no_mangle)]
+        pub unsafe extern "C" fn $name(
+            c: fmi2Component,
+            vr: *const fmi2ValueReference,
+            nvr: usize,
+            value: *const $ty,
+        ) -> fmi2Status {
+            let f = stringify!($name);
+            with_instance(c, f, Some(Func::Set), |inst| {
+                // SAFETY: FMI contract: vr and value hold nvr elements.
+                let (Some(vrs), Some(values)) =
+                    (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
+                else {
+                    return null_arg(inst, f, "vr or value");
+                };
+                inst.$method(vrs, values)
+            })
+        }
+    };
+}
+
+setter!(fmi2SetReal, fmi2Real, set_real);
+setter!(fmi2SetInteger, fmi2Integer, set_integer);
+setter!(fmi2SetBoolean, fmi2Boolean, set_boolean);
+
+/// The FMI 2.0 function `fmi2SetString`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SetString(
+    c: fmi2Component,
+    vr: *const fmi2ValueReference,
+    nvr: usize,
+    value: *const fmi2String,
+) -> fmi2Status {
+    let f = "fmi2SetString";
+    with_instance(c, f, Some(Func::Set), |inst| {
+        // SAFETY: FMI contract: vr and value hold nvr elements.
+        let (Some(vrs), Some(raw)) = (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
+        else {
+            return null_arg(inst, f, "vr or value");
+        };
+        let mut values = Vec::with_capacity(raw.len());
+        for &p in raw {
+            if p.is_null() {
+                return null_arg(inst, f, "a string value");
+            }
+            // SAFETY: non-NULL, NUL-terminated by the FMI contract.
+            match unsafe { CStr::from_ptr(p) }.to_str() {
+                Ok(s) => values.push(s),
+                Err(_) => return inst.refuse(f, "a string value is not UTF-8"),
+            }
+        }
+        inst.set_string(vrs, &values)
+    })
+}
+
+/// The bytes behind an `fmi2FMUstate`.
+type SavedState = Vec<u8>;
+
+/// The FMI 2.0 function `fmi2GetFMUstate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetFMUstate(
+    c: fmi2Component,
+    FMUstate: *mut fmi2FMUstate,
+) -> fmi2Status {
+    let f = "fmi2GetFMUstate";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() {
+            return null_arg(inst, f, "FMUstate");
+        }
+        let bytes = inst.save_state();
+        // SAFETY: FMUstate is a valid out-pointer. If it already holds a state of ours, the
+        // standard says to overwrite that state in place.
+        unsafe {
+            let existing = *FMUstate;
+            if existing.is_null() {
+                *FMUstate = Box::into_raw(Box::new(bytes)).cast();
+            } else {
+                *existing.cast::<SavedState>() = bytes;
+            }
+        }
+        fmi2OK
+    })
+}
+
+/// The FMI 2.0 function `fmi2SetFMUstate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SetFMUstate(c: fmi2Component, FMUstate: fmi2FMUstate) -> fmi2Status {
+    let f = "fmi2SetFMUstate";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() {
+            return null_arg(inst, f, "FMUstate");
+        }
+        // SAFETY: a non-NULL FMUstate was made by fmi2GetFMUstate or fmi2DeSerializeFMUstate.
+        let bytes: &SavedState = unsafe { &*FMUstate.cast::<SavedState>() };
+        match inst.restore_state(bytes) {
+            Ok(()) => fmi2OK,
+            Err(e) => inst.refuse(f, &e.to_string()),
+        }
+    })
+}
+
+/// The FMI 2.0 function `fmi2FreeFMUstate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2FreeFMUstate(
+    c: fmi2Component,
+    FMUstate: *mut fmi2FMUstate,
+) -> fmi2Status {
+    let f = "fmi2FreeFMUstate";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() {
+            return null_arg(inst, f, "FMUstate");
+        }
+        // SAFETY: *FMUstate is NULL or a state made by us, freed exactly once here.
+        unsafe {
+            let state = *FMUstate;
+            if !state.is_null() {
+                drop(Box::from_raw(state.cast::<SavedState>()));
+                *FMUstate = std::ptr::null_mut();
+            }
+        }
+        fmi2OK
+    })
+}
+
+/// The FMI 2.0 function `fmi2SerializedFMUstateSize`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SerializedFMUstateSize(
+    c: fmi2Component,
+    FMUstate: fmi2FMUstate,
+    size: *mut usize,
+) -> fmi2Status {
+    let f = "fmi2SerializedFMUstateSize";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() || size.is_null() {
+            return null_arg(inst, f, "FMUstate or size");
+        }
+        // SAFETY: FMUstate was made by us; size is a valid out-pointer.
+        unsafe { *size = (*FMUstate.cast::<SavedState>()).len() };
+        fmi2OK
+    })
+}
+
+/// The FMI 2.0 function `fmi2SerializeFMUstate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SerializeFMUstate(
+    c: fmi2Component,
+    FMUstate: fmi2FMUstate,
+    serializedState: *mut fmi2Byte,
+    size: usize,
+) -> fmi2Status {
+    let f = "fmi2SerializeFMUstate";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() || serializedState.is_null() {
+            return null_arg(inst, f, "FMUstate or serializedState");
+        }
+        // SAFETY: FMUstate was made by us.
+        let bytes: &SavedState = unsafe { &*FMUstate.cast::<SavedState>() };
+        if size < bytes.len() {
+            return inst.refuse(
+                f,
+                &format!(
+                    "buffer of {size} bytes is too small: the state needs {}",
+                    bytes.len()
+                ),
+            );
+        }
+        // SAFETY: the buffer holds at least `size` >= bytes.len() bytes.
+        unsafe {
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), serializedState.cast::<u8>(), bytes.len())
+        };
+        fmi2OK
+    })
+}
+
+/// The FMI 2.0 function `fmi2DeSerializeFMUstate`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2DeSerializeFMUstate(
+    c: fmi2Component,
+    serializedState: *const fmi2Byte,
+    size: usize,
+    FMUstate: *mut fmi2FMUstate,
+) -> fmi2Status {
+    let f = "fmi2DeSerializeFMUstate";
+    with_instance(c, f, Some(Func::FmuState), |inst| {
+        if FMUstate.is_null() {
+            return null_arg(inst, f, "FMUstate");
+        }
+        // SAFETY: FMI contract: serializedState holds `size` bytes.
+        let Some(bytes) = (unsafe { slice(serializedState.cast::<u8>(), size) }) else {
+            return null_arg(inst, f, "serializedState");
+        };
+        if let Err(e) = inst.check_state(bytes) {
+            return inst.refuse(f, &e.to_string());
+        }
+        // SAFETY: FMUstate is a valid out-pointer; an existing state of ours is overwritten.
+        unsafe {
+            let existing = *FMUstate;
+            if existing.is_null() {
+                *FMUstate = Box::into_raw(Box::new(bytes.to_vec())).cast();
+            } else {
+                *existing.cast::<SavedState>() = bytes.to_vec();
+            }
+        }
+        fmi2OK
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetDirectionalDerivative`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetDirectionalDerivative(
+    c: fmi2Component,
+    _vUnknown_ref: *const fmi2ValueReference,
+    _nUnknown: usize,
+    _vKnown_ref: *const fmi2ValueReference,
+    _nKnown: usize,
+    _dvKnown: *const fmi2Real,
+    _dvUnknown: *mut fmi2Real,
+) -> fmi2Status {
+    let f = "fmi2GetDirectionalDerivative";
+    with_instance(c, f, Some(Func::GetDirectionalDerivative), |inst| {
+        inst.refuse(f, "not provided (providesDirectionalDerivative=\"false\")")
+    })
+}
+
+/// The FMI 2.0 function `fmi2SetRealInputDerivatives`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2SetRealInputDerivatives(
+    c: fmi2Component,
+    _vr: *const fmi2ValueReference,
+    _nvr: usize,
+    _order: *const fmi2Integer,
+    _value: *const fmi2Real,
+) -> fmi2Status {
+    let f = "fmi2SetRealInputDerivatives";
+    with_instance(c, f, Some(Func::SetRealInputDerivatives), |inst| {
+        inst.refuse(
+            f,
+            "inputs are held constant over a step (canInterpolateInputs=\"false\")",
+        )
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetRealOutputDerivatives`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetRealOutputDerivatives(
+    c: fmi2Component,
+    vr: *const fmi2ValueReference,
+    nvr: usize,
+    order: *const fmi2Integer,
+    value: *mut fmi2Real,
+) -> fmi2Status {
+    let f = "fmi2GetRealOutputDerivatives";
+    with_instance(c, f, Some(Func::GetRealOutputDerivatives), |inst| {
+        // SAFETY: FMI contract: vr, order and value hold nvr elements.
+        let (Some(vrs), Some(orders), Some(out)) = (
+            unsafe { slice(vr, nvr) },
+            unsafe { slice(order, nvr) },
+            unsafe { slice_mut(value, nvr) },
+        ) else {
+            return null_arg(inst, f, "vr, order or value");
+        };
+        inst.get_real_output_derivatives(vrs, orders, out)
+    })
+}
+
+/// The FMI 2.0 function `fmi2DoStep`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2DoStep(
+    c: fmi2Component,
+    currentCommunicationPoint: fmi2Real,
+    communicationStepSize: fmi2Real,
+    _noSetFMUStatePriorToCurrentPoint: fmi2Boolean,
+) -> fmi2Status {
+    with_instance(c, "fmi2DoStep", Some(Func::DoStep), |inst| {
+        inst.do_step(currentCommunicationPoint, communicationStepSize)
+    })
+}
+
+/// The FMI 2.0 function `fmi2CancelStep`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2CancelStep(c: fmi2Component) -> fmi2Status {
+    // Allowed only while a step is in progress, which never happens: the sequence check
+    // answers fmi2Error with the reason.
+    with_instance(c, "fmi2CancelStep", Some(Func::CancelStep), |_| fmi2Error)
+}
+
+fn status_kind_name(s: c_int) -> String {
+    match s {
+        0 => "fmi2DoStepStatus".into(),
+        1 => "fmi2PendingStatus".into(),
+        2 => "fmi2LastSuccessfulTime".into(),
+        3 => "fmi2Terminated".into(),
+        other => format!("status kind {other}"),
+    }
+}
+
+fn discard_kind(inst: &dyn FmiInstance, function: &str, s: c_int) -> fmi2Status {
+    inst.logger().log(
+        fmi2Discard,
+        Category::Discard,
+        &format!(
+            "{function}: {} is not available here (steps are synchronous)",
+            status_kind_name(s)
+        ),
+    );
+    fmi2Discard
+}
+
+/// The FMI 2.0 function `fmi2GetStatus`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetStatus(
+    c: fmi2Component,
+    s: c_int,
+    value: *mut fmi2Status,
+) -> fmi2Status {
+    let f = "fmi2GetStatus";
+    with_instance(c, f, Some(Func::GetStatus), |inst| {
+        if value.is_null() {
+            return null_arg(inst, f, "value");
+        }
+        discard_kind(inst, f, s)
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetRealStatus`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetRealStatus(
+    c: fmi2Component,
+    s: c_int,
+    value: *mut fmi2Real,
+) -> fmi2Status {
+    let f = "fmi2GetRealStatus";
+    with_instance(c, f, Some(Func::GetStatus), |inst| {
+        if value.is_null() {
+            return null_arg(inst, f, "value");
+        }
+        if s == fmi2StatusKind::fmi2LastSuccessfulTime as c_int {
+            // SAFETY: non-NULL out-pointer.
+            unsafe { *value = inst.last_successful_time() };
+            fmi2OK
+        } else {
+            discard_kind(inst, f, s)
+        }
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetIntegerStatus`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetIntegerStatus(
+    c: fmi2Component,
+    s: c_int,
+    value: *mut fmi2Integer,
+) -> fmi2Status {
+    let f = "fmi2GetIntegerStatus";
+    with_instance(c, f, Some(Func::GetStatus), |inst| {
+        if value.is_null() {
+            return null_arg(inst, f, "value");
+        }
+        discard_kind(inst, f, s)
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetBooleanStatus`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetBooleanStatus(
+    c: fmi2Component,
+    s: c_int,
+    value: *mut fmi2Boolean,
+) -> fmi2Status {
+    let f = "fmi2GetBooleanStatus";
+    with_instance(c, f, Some(Func::GetStatus), |inst| {
+        if value.is_null() {
+            return null_arg(inst, f, "value");
+        }
+        if s == fmi2StatusKind::fmi2Terminated as c_int {
+            // SAFETY: non-NULL out-pointer.
+            unsafe { *value = fmi2Boolean::from(inst.terminated()) };
+            fmi2OK
+        } else {
+            discard_kind(inst, f, s)
+        }
+    })
+}
+
+/// The FMI 2.0 function `fmi2GetStringStatus`: see the module documentation.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fmi2GetStringStatus(
+    c: fmi2Component,
+    s: c_int,
+    value: *mut fmi2String,
+) -> fmi2Status {
+    let f = "fmi2GetStringStatus";
+    with_instance(c, f, Some(Func::GetStatus), |inst| {
+        if value.is_null() {
+            return null_arg(inst, f, "value");
+        }
+        discard_kind(inst, f, s)
+    })
+}
+
+// The catalog the packager reads (not part of FMI; harmless extra symbols).
+
+/// Number of models this binary serves.
+#[unsafe(no_mangle)]
+pub extern "C" fn kneebench_model_count() -> usize {
+    crate::MODELS.len()
+}
+
+/// A generated file of model `index`: 0 identifier, 1 modelDescription.xml,
+/// 2 documentation/index.html, 3 reference-run inputs CSV (NULL if none). NULL when out of
+/// range. The strings live as long as the library is loaded.
+#[unsafe(no_mangle)]
+pub extern "C" fn kneebench_model_file(index: usize, kind: c_int) -> *const c_char {
+    catch_unwind(|| catalog_file(index, kind)).unwrap_or(std::ptr::null())
+}
+
+fn catalog_file(index: usize, kind: c_int) -> *const c_char {
+    use std::ffi::CString;
+    use std::sync::OnceLock;
+    static FILES: OnceLock<Vec<[Option<CString>; 4]>> = OnceLock::new();
+    let files = FILES.get_or_init(|| {
+        crate::MODELS
+            .iter()
+            .map(|m| {
+                let info = m.info();
+                let c = |s: &str| CString::new(s).ok();
+                [
+                    c(m.identifier),
+                    c(&info.xml),
+                    c(&info.documentation),
+                    (m.reference_inputs)().and_then(|s| c(&s)),
+                ]
+            })
+            .collect()
+    });
+    files
+        .get(index)
+        .and_then(|f| usize::try_from(kind).ok().and_then(|k| f.get(k)))
+        .and_then(|s| s.as_ref())
+        .map_or(std::ptr::null(), |s| s.as_ptr())
+}

@@ -1,0 +1,936 @@
+//! One FMU instance: the call-sequence state machine of FMI 2.0 co-simulation, get/set by value
+//! reference from the model's declaration, stepping, and FMU states.
+//!
+//! Error policy (documented in every FMU's page): a call that is not allowed in the current
+//! state, or that carries a bad argument (unknown value reference, NaN, a value outside
+//! min/max, a variable that may not be set now), answers `fmi2Error` with a log line and
+//! changes nothing, so the importer loses nothing and may correct the call. A failure of the
+//! model's own computation answers `fmi2Error` and moves the instance to the error state.
+
+use std::collections::HashMap;
+use std::ffi::CString;
+
+use super::logging::{Category, Logger};
+use super::types::{fmi2Boolean, fmi2Status, fmi2String};
+use crate::model::{
+    Access, Model, Phase, StateError, StateReader, StateWriter, StepOutcome, Variable,
+};
+use crate::registry::ModelInfo;
+
+use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK};
+
+/// The states of the FMI 2.0 co-simulation state machine (standard, section 4.2.4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// After `fmi2Instantiate` or `fmi2Reset`.
+    Instantiated = 0,
+    /// Between enter and exit initialization mode.
+    InitializationMode = 1,
+    /// At a communication point, ready to step.
+    StepComplete = 2,
+    /// After `fmi2DoStep` answered `fmi2Discard`.
+    StepFailed = 3,
+    /// After `fmi2CancelStep` (never reached: steps are synchronous).
+    StepCanceled = 4,
+    /// After `fmi2Terminate`.
+    Terminated = 5,
+    /// After a model computation failed.
+    Error = 6,
+}
+
+impl State {
+    fn from_u8(v: u8) -> Option<State> {
+        Some(match v {
+            0 => State::Instantiated,
+            1 => State::InitializationMode,
+            2 => State::StepComplete,
+            3 => State::StepFailed,
+            4 => State::StepCanceled,
+            5 => State::Terminated,
+            6 => State::Error,
+            _ => return None,
+        })
+    }
+    fn bit(self) -> u16 {
+        1 << self as u16
+    }
+}
+
+const INST: u16 = 1 << State::Instantiated as u16;
+const INIT: u16 = 1 << State::InitializationMode as u16;
+const DONE: u16 = 1 << State::StepComplete as u16;
+const FAIL: u16 = 1 << State::StepFailed as u16;
+const CANC: u16 = 1 << State::StepCanceled as u16;
+const TERM: u16 = 1 << State::Terminated as u16;
+const ERR: u16 = 1 << State::Error as u16;
+
+/// Every function the call-sequence table governs, with the states it is allowed in
+/// (the table of the FMI 2.0 standard, section 4.2.4, for co-simulation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Func {
+    /// `fmi2SetDebugLogging`.
+    SetDebugLogging,
+    /// `fmi2SetupExperiment`.
+    SetupExperiment,
+    /// `fmi2EnterInitializationMode`.
+    EnterInitializationMode,
+    /// `fmi2ExitInitializationMode`.
+    ExitInitializationMode,
+    /// `fmi2Terminate`.
+    Terminate,
+    /// `fmi2Reset`.
+    Reset,
+    /// `fmi2Get{Real,Integer,Boolean,String}`.
+    Get,
+    /// `fmi2Set{Real,Integer,Boolean,String}`.
+    Set,
+    /// `fmi2{Get,Set,Free}FMUstate`, serialization.
+    FmuState,
+    /// `fmi2GetDirectionalDerivative`.
+    GetDirectionalDerivative,
+    /// `fmi2SetRealInputDerivatives`.
+    SetRealInputDerivatives,
+    /// `fmi2GetRealOutputDerivatives`.
+    GetRealOutputDerivatives,
+    /// `fmi2DoStep`.
+    DoStep,
+    /// `fmi2CancelStep`.
+    CancelStep,
+    /// `fmi2Get*Status`.
+    GetStatus,
+}
+
+impl Func {
+    /// States in which the function may be called.
+    pub fn allowed(self) -> u16 {
+        match self {
+            Func::SetDebugLogging | Func::Reset | Func::FmuState => {
+                INST | INIT | DONE | FAIL | CANC | TERM | ERR
+            }
+            Func::SetupExperiment | Func::EnterInitializationMode => INST,
+            Func::ExitInitializationMode => INIT,
+            Func::Terminate => DONE | FAIL,
+            Func::Get | Func::GetDirectionalDerivative => INIT | DONE | FAIL | CANC | TERM | ERR,
+            Func::Set | Func::SetRealInputDerivatives => INST | INIT | DONE,
+            Func::GetRealOutputDerivatives => DONE | FAIL | CANC | TERM | ERR,
+            Func::DoStep => DONE,
+            // Only in "step in progress", which a synchronous slave never enters.
+            Func::CancelStep => 0,
+            Func::GetStatus => DONE | FAIL | TERM,
+        }
+    }
+}
+
+fn describe_states(mask: u16) -> String {
+    let names = [
+        "instantiated",
+        "initializationMode",
+        "stepComplete",
+        "stepFailed",
+        "stepCanceled",
+        "terminated",
+        "error",
+    ];
+    let allowed: Vec<&str> = names
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| mask & (1 << i) != 0)
+        .map(|(_, n)| *n)
+        .collect();
+    if allowed.is_empty() {
+        "no state this FMU reaches (no asynchronous steps)".into()
+    } else {
+        allowed.join(" or ")
+    }
+}
+
+fn state_name(s: State) -> &'static str {
+    match s {
+        State::Instantiated => "instantiated",
+        State::InitializationMode => "initializationMode",
+        State::StepComplete => "stepComplete",
+        State::StepFailed => "stepFailed",
+        State::StepCanceled => "stepCanceled",
+        State::Terminated => "terminated",
+        State::Error => "error",
+    }
+}
+
+/// Relative tolerance on communication points: importers send values such as
+/// 0.20000000000000107 for 0.2.
+pub const TIME_TOLERANCE: f64 = 1e-9;
+
+fn same_time(a: f64, b: f64) -> bool {
+    (a - b).abs() <= TIME_TOLERANCE * a.abs().max(b.abs()).max(1.0)
+}
+
+/// The instance operations the C functions call, independent of the model type.
+pub trait FmiInstance: Send {
+    /// The logger (for messages the export layer produces itself).
+    fn logger(&self) -> &Logger;
+    /// Checks that `func` (named `name`) may be called now; logs "expected vs actual" if not.
+    fn allow(&self, func: Func, name: &str) -> bool;
+    /// `fmi2SetDebugLogging`.
+    fn set_debug_logging(&mut self, on: bool, categories: &[&str]) -> fmi2Status;
+    /// `fmi2SetupExperiment`.
+    fn setup_experiment(
+        &mut self,
+        start: f64,
+        stop: Option<f64>,
+        tolerance: Option<f64>,
+    ) -> fmi2Status;
+    /// `fmi2EnterInitializationMode`.
+    fn enter_initialization_mode(&mut self) -> fmi2Status;
+    /// `fmi2ExitInitializationMode`.
+    fn exit_initialization_mode(&mut self) -> fmi2Status;
+    /// `fmi2Terminate`.
+    fn terminate(&mut self) -> fmi2Status;
+    /// `fmi2Reset`.
+    fn reset(&mut self) -> fmi2Status;
+    /// `fmi2GetReal`.
+    fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status;
+    /// `fmi2GetInteger`.
+    fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status;
+    /// `fmi2GetBoolean`.
+    fn get_boolean(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status;
+    /// `fmi2GetString`: the strings stay valid until the next call on this instance.
+    fn get_string(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status;
+    /// `fmi2SetReal`.
+    fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status;
+    /// `fmi2SetInteger`.
+    fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status;
+    /// `fmi2SetBoolean`.
+    fn set_boolean(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status;
+    /// `fmi2SetString` (already converted from C strings).
+    fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status;
+    /// `fmi2GetFMUstate` / serialization: the whole state as versioned bytes.
+    fn save_state(&mut self) -> Vec<u8>;
+    /// `fmi2SetFMUstate` / deserialization check: restores bytes made by [`Self::save_state`].
+    fn restore_state(&mut self, bytes: &[u8]) -> Result<(), StateError>;
+    /// Checks bytes without restoring them (for `fmi2DeSerializeFMUstate`).
+    fn check_state(&self, bytes: &[u8]) -> Result<(), StateError>;
+    /// `fmi2GetRealOutputDerivatives`.
+    fn get_real_output_derivatives(
+        &mut self,
+        vrs: &[u32],
+        orders: &[i32],
+        out: &mut [f64],
+    ) -> fmi2Status;
+    /// `fmi2DoStep`.
+    fn do_step(&mut self, t: f64, h: f64) -> fmi2Status;
+    /// `fmi2Terminated` status.
+    fn terminated(&self) -> bool;
+    /// `fmi2LastSuccessfulTime` status.
+    fn last_successful_time(&self) -> f64;
+    /// Logs an error about a call and answers `fmi2Error` (state unchanged).
+    fn refuse(&self, function: &str, why: &str) -> fmi2Status {
+        self.logger()
+            .log(fmi2Error, Category::Error, &format!("{function}: {why}"));
+        fmi2Error
+    }
+    /// Moves the instance to the error state (after a panic inside a call).
+    fn poison(&mut self);
+}
+
+/// The generic instance of model `M`.
+pub struct Instance<M: Model> {
+    model: M,
+    info: &'static ModelInfo,
+    logger: Logger,
+    state: State,
+    start_time: f64,
+    stop_time: Option<f64>,
+    time: f64,
+    last_successful_time: f64,
+    terminated: bool,
+    /// Outputs must be recomputed before the next get (after a set or a step).
+    dirty: bool,
+    /// Value reference -> index in the declaration, per base type.
+    index: HashMap<(u8, u32), usize>,
+    /// Strings handed out by the last `fmi2GetString`.
+    strings: Vec<CString>,
+}
+
+fn base_type_tag<M>(v: &Variable<M>) -> u8 {
+    match v.access {
+        Access::Real(..) => 0,
+        Access::Integer(..) | Access::Enumeration(..) => 1,
+        Access::Boolean(..) => 2,
+        Access::String(..) => 3,
+    }
+}
+
+const TYPE_NAMES: [&str; 4] = ["Real", "Integer", "Boolean", "String"];
+
+impl<M: Model> Instance<M> {
+    /// A new instance with every start value applied.
+    pub fn new(info: &'static ModelInfo, logger: Logger) -> Self {
+        let index = M::variables()
+            .iter()
+            .enumerate()
+            .map(|(i, v)| ((base_type_tag(v), v.value_reference), i))
+            .collect();
+        Self {
+            model: fresh_model::<M>(),
+            info,
+            logger,
+            state: State::Instantiated,
+            start_time: 0.0,
+            stop_time: None,
+            time: 0.0,
+            last_successful_time: 0.0,
+            terminated: false,
+            dirty: true,
+            index,
+            strings: Vec::new(),
+        }
+    }
+
+    fn phase(&self) -> Phase {
+        match self.state {
+            State::Instantiated => Phase::Instantiated,
+            State::InitializationMode => Phase::Initialization,
+            _ => Phase::Stepping,
+        }
+    }
+
+    fn fail(&mut self, function: &str, message: &str) -> fmi2Status {
+        self.state = State::Error;
+        self.logger.log(
+            fmi2Error,
+            Category::Error,
+            &format!("{function}: {message}"),
+        );
+        fmi2Error
+    }
+
+    /// Recomputes outputs if a set or a step made them stale.
+    fn refresh(&mut self, function: &str) -> Result<(), fmi2Status> {
+        if self.dirty {
+            if let Err(e) = self.model.calculate(self.time) {
+                return Err(self.fail(function, &e.message));
+            }
+            self.dirty = false;
+        }
+        Ok(())
+    }
+
+    /// Looks up every value reference for a get or set of type `tag`; all or nothing.
+    fn lookup(&self, function: &str, tag: u8, vrs: &[u32]) -> Result<Vec<usize>, fmi2Status> {
+        vrs.iter()
+            .map(|vr| {
+                self.index.get(&(tag, *vr)).copied().ok_or_else(|| {
+                    self.refuse(
+                        function,
+                        &format!(
+                            "unknown value reference {vr} for type {} in model {}",
+                            TYPE_NAMES[tag as usize],
+                            M::IDENTIFIER
+                        ),
+                    )
+                })
+            })
+            .collect()
+    }
+
+    /// Checks that every variable may be set now, before anything is changed.
+    fn check_settable(&self, function: &str, idx: &[usize]) -> Result<(), fmi2Status> {
+        let phase = self.phase();
+        for &i in idx {
+            let v = &M::variables()[i];
+            if !v.settable(phase) {
+                return Err(self.refuse(
+                    function,
+                    &format!(
+                        "variable {} (causality {:?}, variability {:?}) cannot be set in state {}",
+                        v.name,
+                        v.causality,
+                        v.variability,
+                        state_name(self.state)
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn check_range(&self, function: &str, v: &Variable<M>, x: f64) -> Result<(), fmi2Status> {
+        if !x.is_finite() {
+            return Err(self.refuse(
+                function,
+                &format!("{} = {x} refused: values must be finite", v.name),
+            ));
+        }
+        if v.min.is_some_and(|lo| x < lo) || v.max.is_some_and(|hi| x > hi) {
+            return Err(self.refuse(
+                function,
+                &format!(
+                    "{} = {x} refused: outside [{}, {}]",
+                    v.name,
+                    v.min.unwrap_or(f64::NEG_INFINITY),
+                    v.max.unwrap_or(f64::INFINITY)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn check_enumeration(&self, function: &str, v: &Variable<M>, x: i32) -> Result<(), fmi2Status> {
+        let Some(ty) = v.declared_type else {
+            return Ok(());
+        };
+        let items = M::enumerations()
+            .iter()
+            .find(|e| e.name == ty)
+            .map(|e| e.items)
+            .unwrap_or(&[]);
+        if items.iter().any(|(_, value, _)| *value == x) {
+            Ok(())
+        } else {
+            Err(self.refuse(
+                function,
+                &format!(
+                    "{} = {x} refused: not an item of {ty} ({})",
+                    v.name,
+                    items
+                        .iter()
+                        .map(|(n, val, _)| format!("{val}={n}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ))
+        }
+    }
+
+    fn after_set(&mut self) {
+        self.dirty = true;
+    }
+
+    fn encode(&mut self) -> Vec<u8> {
+        let mut w = StateWriter::default();
+        w.bytes.extend_from_slice(STATE_MAGIC);
+        w.u32(STATE_FORMAT_VERSION);
+        w.string(&self.info.guid);
+        w.string(M::IDENTIFIER);
+        w.u8(self.state as u8);
+        w.f64(self.start_time);
+        w.bool(self.stop_time.is_some());
+        w.f64(self.stop_time.unwrap_or(0.0));
+        w.f64(self.time);
+        w.f64(self.last_successful_time);
+        w.bool(self.terminated);
+        let vars = M::variables();
+        w.u32(vars.len() as u32);
+        for v in vars {
+            match &v.access {
+                Access::Real(get, _) => w.f64(get(&self.model)),
+                Access::Integer(get, _) | Access::Enumeration(get, _) => w.i32(get(&self.model)),
+                Access::Boolean(get, _) => w.bool(get(&self.model)),
+                Access::String(get, _) => w.string(get(&self.model)),
+            }
+        }
+        let mut internal = StateWriter::default();
+        self.model.save_internal(&mut internal);
+        w.u32(internal.bytes.len() as u32);
+        w.bytes.extend_from_slice(&internal.bytes);
+        w.bytes
+    }
+
+    /// Decodes `bytes` into a fresh model and instance fields, without touching `self`.
+    fn decode(&self, bytes: &[u8]) -> Result<Decoded<M>, StateError> {
+        let mut r = StateReader::new(bytes);
+        let magic = r.take(STATE_MAGIC.len())?;
+        if magic != STATE_MAGIC {
+            return Err(StateError("not a kneebench FMU state (bad magic)".into()));
+        }
+        let version = r.u32()?;
+        if version != STATE_FORMAT_VERSION {
+            return Err(StateError(format!(
+                "state format version {version}, this binary reads version {STATE_FORMAT_VERSION}"
+            )));
+        }
+        let guid = r.string()?;
+        let identifier = r.string()?;
+        if guid != self.info.guid {
+            return Err(StateError(format!(
+                "the state belongs to model {identifier} with GUID {guid}, this instance is {} with GUID {}",
+                M::IDENTIFIER,
+                self.info.guid
+            )));
+        }
+        let state = State::from_u8(r.u8()?).ok_or_else(|| StateError("bad state code".into()))?;
+        let start_time = r.f64()?;
+        let has_stop = r.bool()?;
+        let stop = r.f64()?;
+        let time = r.f64()?;
+        let last_successful_time = r.f64()?;
+        let terminated = r.bool()?;
+        let vars = M::variables();
+        let n = r.u32()? as usize;
+        if n != vars.len() {
+            return Err(StateError(format!(
+                "state holds {n} variables, model has {}",
+                vars.len()
+            )));
+        }
+        let mut model = fresh_model::<M>();
+        for v in vars {
+            match &v.access {
+                Access::Real(_, set) => set(&mut model, r.f64()?),
+                Access::Integer(_, set) | Access::Enumeration(_, set) => set(&mut model, r.i32()?),
+                Access::Boolean(_, set) => set(&mut model, r.bool()?),
+                Access::String(_, set) => set(&mut model, &r.string()?),
+            }
+        }
+        let len = r.u32()? as usize;
+        let internal = r.take(len)?;
+        let mut ir = StateReader::new(internal);
+        model.load_internal(&mut ir)?;
+        if !ir.remaining().is_empty() || !r.remaining().is_empty() {
+            return Err(StateError("trailing bytes after the state".into()));
+        }
+        Ok(Decoded {
+            model,
+            state,
+            start_time,
+            stop_time: has_stop.then_some(stop),
+            time,
+            last_successful_time,
+            terminated,
+        })
+    }
+}
+
+struct Decoded<M> {
+    model: M,
+    state: State,
+    start_time: f64,
+    stop_time: Option<f64>,
+    time: f64,
+    last_successful_time: f64,
+    terminated: bool,
+}
+
+/// First bytes of every serialized FMU state.
+pub const STATE_MAGIC: &[u8; 8] = b"KNEEBNCH";
+/// Version of the FMU-state byte format; bumped whenever the layout changes.
+pub const STATE_FORMAT_VERSION: u32 = 1;
+
+/// A model with every declared start value applied.
+pub fn fresh_model<M: Model>() -> M {
+    use crate::model::Start;
+    let mut m = M::default();
+    for v in M::variables() {
+        match (&v.access, &v.start) {
+            (Access::Real(_, set), Start::Real(x)) => set(&mut m, *x),
+            (Access::Integer(_, set), Start::Integer(x))
+            | (Access::Enumeration(_, set), Start::Integer(x)) => set(&mut m, *x),
+            (Access::Boolean(_, set), Start::Boolean(x)) => set(&mut m, *x),
+            (Access::String(_, set), Start::String(x)) => set(&mut m, x),
+            _ => {}
+        }
+    }
+    m
+}
+
+impl<M: Model> FmiInstance for Instance<M> {
+    fn logger(&self) -> &Logger {
+        &self.logger
+    }
+
+    fn allow(&self, func: Func, name: &str) -> bool {
+        if func.allowed() & self.state.bit() != 0 {
+            if self.logger.enabled(Category::Calls) {
+                self.logger.log(fmi2OK, Category::Calls, name);
+            }
+            return true;
+        }
+        self.refuse(
+            name,
+            &format!(
+                "not allowed in state {}; expected {}",
+                state_name(self.state),
+                describe_states(func.allowed())
+            ),
+        );
+        false
+    }
+
+    fn set_debug_logging(&mut self, on: bool, categories: &[&str]) -> fmi2Status {
+        match self.logger.set_debug_logging(on, categories) {
+            Ok(()) => fmi2OK,
+            Err(why) => self.refuse("fmi2SetDebugLogging", &why),
+        }
+    }
+
+    fn setup_experiment(
+        &mut self,
+        start: f64,
+        stop: Option<f64>,
+        tolerance: Option<f64>,
+    ) -> fmi2Status {
+        let f = "fmi2SetupExperiment";
+        if !start.is_finite() {
+            return self.refuse(f, &format!("startTime {start} is not finite"));
+        }
+        if let Some(stop) = stop
+            && !(stop.is_finite() && stop >= start)
+        {
+            return self.refuse(
+                f,
+                &format!("stopTime {stop} must be finite and >= startTime {start}"),
+            );
+        }
+        if let Some(tol) = tolerance
+            && !(tol.is_finite() && tol > 0.0)
+        {
+            return self.refuse(f, &format!("tolerance {tol} must be finite and positive"));
+        }
+        self.start_time = start;
+        self.stop_time = stop;
+        self.time = start;
+        self.last_successful_time = start;
+        self.dirty = true;
+        fmi2OK
+    }
+
+    fn enter_initialization_mode(&mut self) -> fmi2Status {
+        self.state = State::InitializationMode;
+        self.dirty = true;
+        fmi2OK
+    }
+
+    fn exit_initialization_mode(&mut self) -> fmi2Status {
+        if let Err(e) = self.model.initialize(self.start_time) {
+            // Parameters that do not fit together: stay in initialization mode so the
+            // importer can correct them.
+            return self.refuse("fmi2ExitInitializationMode", &e.message);
+        }
+        self.state = State::StepComplete;
+        self.dirty = true;
+        fmi2OK
+    }
+
+    fn terminate(&mut self) -> fmi2Status {
+        self.state = State::Terminated;
+        fmi2OK
+    }
+
+    fn reset(&mut self) -> fmi2Status {
+        self.model = fresh_model::<M>();
+        self.state = State::Instantiated;
+        self.start_time = 0.0;
+        self.stop_time = None;
+        self.time = 0.0;
+        self.last_successful_time = 0.0;
+        self.terminated = false;
+        self.dirty = true;
+        fmi2OK
+    }
+
+    fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status {
+        let f = "fmi2GetReal";
+        let idx = match self.lookup(f, 0, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        let vars = M::variables();
+        for (o, i) in out.iter_mut().zip(idx) {
+            if let Access::Real(get, _) = vars[i].access {
+                *o = get(&self.model);
+            }
+        }
+        fmi2OK
+    }
+
+    fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
+        let f = "fmi2GetInteger";
+        let idx = match self.lookup(f, 1, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        let vars = M::variables();
+        for (o, i) in out.iter_mut().zip(idx) {
+            if let Access::Integer(get, _) | Access::Enumeration(get, _) = vars[i].access {
+                *o = get(&self.model);
+            }
+        }
+        fmi2OK
+    }
+
+    fn get_boolean(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status {
+        let f = "fmi2GetBoolean";
+        let idx = match self.lookup(f, 2, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        let vars = M::variables();
+        for (o, i) in out.iter_mut().zip(idx) {
+            if let Access::Boolean(get, _) = vars[i].access {
+                *o = fmi2Boolean::from(get(&self.model));
+            }
+        }
+        fmi2OK
+    }
+
+    fn get_string(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status {
+        let f = "fmi2GetString";
+        let idx = match self.lookup(f, 3, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        let vars = M::variables();
+        self.strings.clear();
+        for i in idx {
+            if let Access::String(get, _) = vars[i].access {
+                let s = get(&self.model).replace('\0', "");
+                self.strings.push(CString::new(s).unwrap_or_default());
+            }
+        }
+        for (o, s) in out.iter_mut().zip(&self.strings) {
+            *o = s.as_ptr();
+        }
+        fmi2OK
+    }
+
+    fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
+        let f = "fmi2SetReal";
+        let idx = match self.lookup(f, 0, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.check_settable(f, &idx) {
+            return s;
+        }
+        let vars = M::variables();
+        for (&i, &x) in idx.iter().zip(values) {
+            if let Err(s) = self.check_range(f, &vars[i], x) {
+                return s;
+            }
+        }
+        for (&i, &x) in idx.iter().zip(values) {
+            if let Access::Real(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status {
+        let f = "fmi2SetInteger";
+        let idx = match self.lookup(f, 1, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.check_settable(f, &idx) {
+            return s;
+        }
+        let vars = M::variables();
+        for (&i, &x) in idx.iter().zip(values) {
+            let v = &vars[i];
+            let check = match v.access {
+                Access::Enumeration(..) => self.check_enumeration(f, v, x),
+                _ => self.check_range(f, v, f64::from(x)),
+            };
+            if let Err(s) = check {
+                return s;
+            }
+        }
+        for (&i, &x) in idx.iter().zip(values) {
+            if let Access::Integer(_, set) | Access::Enumeration(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    fn set_boolean(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status {
+        let f = "fmi2SetBoolean";
+        let idx = match self.lookup(f, 2, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.check_settable(f, &idx) {
+            return s;
+        }
+        let vars = M::variables();
+        for (&i, &x) in idx.iter().zip(values) {
+            if let Access::Boolean(_, set) = vars[i].access {
+                set(&mut self.model, x != 0);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status {
+        let f = "fmi2SetString";
+        let idx = match self.lookup(f, 3, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        if let Err(s) = self.check_settable(f, &idx) {
+            return s;
+        }
+        let vars = M::variables();
+        for (&i, &x) in idx.iter().zip(values) {
+            if let Access::String(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    fn save_state(&mut self) -> Vec<u8> {
+        self.encode()
+    }
+
+    fn restore_state(&mut self, bytes: &[u8]) -> Result<(), StateError> {
+        let d = self.decode(bytes)?;
+        self.model = d.model;
+        self.state = d.state;
+        self.start_time = d.start_time;
+        self.stop_time = d.stop_time;
+        self.time = d.time;
+        self.last_successful_time = d.last_successful_time;
+        self.terminated = d.terminated;
+        self.dirty = true;
+        Ok(())
+    }
+
+    fn check_state(&self, bytes: &[u8]) -> Result<(), StateError> {
+        self.decode(bytes).map(|_| ())
+    }
+
+    fn get_real_output_derivatives(
+        &mut self,
+        vrs: &[u32],
+        orders: &[i32],
+        out: &mut [f64],
+    ) -> fmi2Status {
+        let f = "fmi2GetRealOutputDerivatives";
+        let idx = match self.lookup(f, 0, vrs) {
+            Ok(i) => i,
+            Err(s) => return s,
+        };
+        let vars = M::variables();
+        for (&i, &order) in idx.iter().zip(orders) {
+            let v = &vars[i];
+            if v.causality != crate::model::Causality::Output {
+                return self.refuse(f, &format!("{} is not an output", v.name));
+            }
+            if order < 1 || order as u32 > M::MAX_OUTPUT_DERIVATIVE_ORDER {
+                return self.refuse(
+                    f,
+                    &format!(
+                        "order {order} for {} is outside 1..={} (maxOutputDerivativeOrder)",
+                        v.name,
+                        M::MAX_OUTPUT_DERIVATIVE_ORDER
+                    ),
+                );
+            }
+        }
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        for ((o, &i), &order) in out.iter_mut().zip(&idx).zip(orders) {
+            let v = &vars[i];
+            match self
+                .model
+                .output_derivative(v.value_reference, order as u32)
+            {
+                Some(d) => *o = d,
+                None => {
+                    return self
+                        .refuse(f, &format!("{} has no derivative of order {order}", v.name));
+                }
+            }
+        }
+        fmi2OK
+    }
+
+    fn do_step(&mut self, t: f64, h: f64) -> fmi2Status {
+        let f = "fmi2DoStep";
+        if !(t.is_finite() && h.is_finite()) {
+            return self.refuse(
+                f,
+                &format!(
+                    "currentCommunicationPoint {t} and communicationStepSize {h} must be finite"
+                ),
+            );
+        }
+        if h <= 0.0 {
+            return self.refuse(f, &format!("communicationStepSize {h} must be positive"));
+        }
+        if !same_time(t, self.time) {
+            return self.refuse(
+                f,
+                &format!(
+                    "currentCommunicationPoint {t} is not the last communication point {}",
+                    self.time
+                ),
+            );
+        }
+        if let Some(stop) = self.stop_time
+            && t + h > stop
+            && !same_time(t + h, stop)
+        {
+            return self.refuse(
+                f,
+                &format!(
+                    "the step to {} ends after the stopTime {stop} given in fmi2SetupExperiment",
+                    t + h
+                ),
+            );
+        }
+        match self.model.do_step(t, h) {
+            Ok(StepOutcome::Completed) => {
+                self.time = t + h;
+                self.last_successful_time = self.time;
+                self.dirty = true;
+                fmi2OK
+            }
+            Ok(StepOutcome::Terminated { at, reason }) => {
+                self.time = at;
+                self.last_successful_time = at;
+                self.terminated = true;
+                self.dirty = true;
+                self.state = State::StepFailed;
+                self.logger.log(
+                    fmi2Discard,
+                    Category::Discard,
+                    &format!("{f}: simulation ended at t = {at}: {reason}"),
+                );
+                fmi2Discard
+            }
+            Err(e) => self.fail(f, &e.message),
+        }
+    }
+
+    fn terminated(&self) -> bool {
+        self.terminated
+    }
+
+    fn last_successful_time(&self) -> f64 {
+        self.last_successful_time
+    }
+
+    fn poison(&mut self) {
+        self.state = State::Error;
+    }
+}

@@ -1,0 +1,7 @@
+//! The generic FMI 2.0 co-simulation glue: C types, exported functions, instance state machine
+//! and logging. Models never see anything in here.
+
+pub mod export;
+pub mod instance;
+pub mod logging;
+pub mod types;

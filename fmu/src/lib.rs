@@ -1,0 +1,15 @@
+//! kneebench FMUs: the FMI 2.0 co-simulation export layer and the bench models.
+//!
+//! One cdylib serves every model; `fmi2Instantiate` picks the model by GUID. Models are plain
+//! Rust structs implementing [`model::Model`] with one declaration of their variables, from
+//! which everything else (value references, get/set, `modelDescription.xml`, `ModelStructure`,
+//! units, GUID, FMU-state layout, documentation) is generated.
+
+#![warn(missing_docs)]
+
+pub mod fmi2;
+pub mod model;
+pub mod models;
+pub mod registry;
+
+export_models!(models::gait::GaitReference);

@@ -1,0 +1,847 @@
+//! How a model is declared: a plain Rust struct plus one table of its variables.
+//!
+//! From that one table come the value-reference dispatch of get/set, the
+//! `modelDescription.xml` (variables, units, type definitions, `ModelStructure` with
+//! dependencies), the GUID (a hash of the generated description) and the FMU-state layout.
+//! Nothing about a variable is written twice.
+//!
+//! A model knows nothing of C: it implements [`Model`] and returns its [`Variable`] table; the
+//! generic glue in [`crate::fmi2`] does the rest.
+
+use std::collections::BTreeSet;
+use std::fmt::Write as _;
+
+use model_description as md;
+use sha2::{Digest, Sha256};
+
+pub use md::{Causality, Initial, Variability};
+
+/// The license every model description declares.
+pub const LICENSE: &str = "MIT OR Apache-2.0";
+/// The author every model description declares.
+pub const AUTHOR: &str = "The kneebench developers";
+/// The model version every description declares: the crate version.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+/// The `generationTool` string.
+pub const GENERATION_TOOL: &str = concat!("kneebench ", env!("CARGO_PKG_VERSION"));
+
+/// An error a model reports; the glue logs it and answers with the status given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct ModelError {
+    /// What went wrong, for the log.
+    pub message: String,
+}
+
+impl ModelError {
+    /// A new error with this message.
+    pub fn new(message: impl Into<String>) -> Self {
+        Self {
+            message: message.into(),
+        }
+    }
+}
+
+/// What a completed call to [`Model::do_step`] reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StepOutcome {
+    /// The model advanced to the end of the step.
+    Completed,
+    /// The model stopped early and wants the simulation to end (a safety trip, the end of a
+    /// sweep): it advanced to `at` (the last successful time, inside the step) and the glue
+    /// answers `fmi2Discard` with `fmi2Terminated = true`. `reason` goes to the log.
+    Terminated {
+        /// The last time the model reached.
+        at: f64,
+        /// Why it stopped.
+        reason: &'static str,
+    },
+}
+
+/// Reads a model's internal (non-variable) state back from the FMU-state byte format.
+#[derive(Debug)]
+pub struct StateReader<'a> {
+    bytes: &'a [u8],
+}
+
+/// A malformed or foreign FMU state.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid FMU state: {0}")]
+pub struct StateError(pub String);
+
+impl<'a> StateReader<'a> {
+    /// A reader over `bytes`.
+    pub fn new(bytes: &'a [u8]) -> Self {
+        Self { bytes }
+    }
+
+    /// Bytes not read yet.
+    pub fn remaining(&self) -> &'a [u8] {
+        self.bytes
+    }
+
+    /// Reads `n` raw bytes.
+    pub fn take(&mut self, n: usize) -> Result<&'a [u8], StateError> {
+        if self.bytes.len() < n {
+            return Err(StateError(format!(
+                "truncated: wanted {n} more bytes, {} left",
+                self.bytes.len()
+            )));
+        }
+        let (head, tail) = self.bytes.split_at(n);
+        self.bytes = tail;
+        Ok(head)
+    }
+
+    /// Reads a little-endian `u8`.
+    pub fn u8(&mut self) -> Result<u8, StateError> {
+        Ok(self.take(1)?[0])
+    }
+
+    /// Reads a little-endian `u32`.
+    pub fn u32(&mut self) -> Result<u32, StateError> {
+        let b = self.take(4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+
+    /// Reads a little-endian `u64`.
+    pub fn u64(&mut self) -> Result<u64, StateError> {
+        let b = self.take(8)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(u64::from_le_bytes(a))
+    }
+
+    /// Reads an `f64` stored by its bits.
+    pub fn f64(&mut self) -> Result<f64, StateError> {
+        Ok(f64::from_bits(self.u64()?))
+    }
+
+    /// Reads an `i32`.
+    pub fn i32(&mut self) -> Result<i32, StateError> {
+        Ok(self.u32()? as i32)
+    }
+
+    /// Reads a boolean stored as one byte (0 or 1).
+    pub fn bool(&mut self) -> Result<bool, StateError> {
+        match self.u8()? {
+            0 => Ok(false),
+            1 => Ok(true),
+            other => Err(StateError(format!(
+                "boolean byte {other} is neither 0 nor 1"
+            ))),
+        }
+    }
+
+    /// Reads a length-prefixed UTF-8 string.
+    pub fn string(&mut self) -> Result<String, StateError> {
+        let len = self.u32()? as usize;
+        let raw = self.take(len)?;
+        String::from_utf8(raw.to_vec()).map_err(|_| StateError("string is not UTF-8".into()))
+    }
+}
+
+/// Writes a model's internal state in the FMU-state byte format (little endian, no pointers).
+#[derive(Debug, Default)]
+pub struct StateWriter {
+    /// The bytes written so far.
+    pub bytes: Vec<u8>,
+}
+
+impl StateWriter {
+    /// Appends a `u8`.
+    pub fn u8(&mut self, v: u8) {
+        self.bytes.push(v);
+    }
+    /// Appends a `u32`.
+    pub fn u32(&mut self, v: u32) {
+        self.bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    /// Appends a `u64`.
+    pub fn u64(&mut self, v: u64) {
+        self.bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    /// Appends an `f64` by its bits (NaN payloads and signed zeros survive).
+    pub fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    /// Appends an `i32`.
+    pub fn i32(&mut self, v: i32) {
+        self.u32(v as u32);
+    }
+    /// Appends a boolean as one byte.
+    pub fn bool(&mut self, v: bool) {
+        self.u8(u8::from(v));
+    }
+    /// Appends a length-prefixed UTF-8 string.
+    pub fn string(&mut self, v: &str) {
+        self.u32(v.len() as u32);
+        self.bytes.extend_from_slice(v.as_bytes());
+    }
+}
+
+/// A model that can be exported as an FMI 2.0 co-simulation FMU.
+///
+/// The struct holds every variable as a plain field; [`Model::variables`] declares them once.
+/// Start values come from the declaration (the glue applies them after [`Default`]).
+pub trait Model: Default + Clone + Send + 'static {
+    /// `modelIdentifier` and `modelName`: also the binary's name inside the FMU.
+    const IDENTIFIER: &'static str;
+    /// One-line description for the model description.
+    const DESCRIPTION: &'static str;
+    /// Highest order `fmi2GetRealOutputDerivatives` answers (0 = none).
+    const MAX_OUTPUT_DERIVATIVE_ORDER: u32 = 0;
+    /// The `DefaultExperiment`: (start, stop, step size).
+    const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 10.0, 1e-3);
+
+    /// The one declaration of the model's variables.
+    fn variables() -> &'static [Variable<Self>];
+
+    /// Enumeration types used by the variables (name, items as (name, value, description)).
+    fn enumerations() -> &'static [EnumerationType] {
+        &[]
+    }
+
+    /// Called by `fmi2ExitInitializationMode`: check parameters together and set up internal
+    /// state for the start time.
+    fn initialize(&mut self, start_time: f64) -> Result<(), ModelError>;
+
+    /// Computes the outputs at time `t` from parameters, inputs and state (no state change).
+    /// The glue calls it lazily before a get that follows a set or a step.
+    fn calculate(&mut self, t: f64) -> Result<(), ModelError>;
+
+    /// Advances the state from `t` to `t + h` with the inputs held.
+    fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError>;
+
+    /// First-order (or higher) time derivative of an output at the current communication point,
+    /// `None` when the model does not provide it.
+    fn output_derivative(&self, _value_reference: u32, _order: u32) -> Option<f64> {
+        None
+    }
+
+    /// Appends the state that is not a variable (integrators, latches) to `w`.
+    fn save_internal(&self, _w: &mut StateWriter) {}
+
+    /// Restores what [`Model::save_internal`] wrote.
+    fn load_internal(&mut self, _r: &mut StateReader<'_>) -> Result<(), StateError> {
+        Ok(())
+    }
+
+    /// Body of `documentation/index.html` (HTML), beyond the generated variable table.
+    fn documentation() -> &'static str;
+}
+
+/// An enumeration type shared by variables (a `SimpleType` with `Enumeration`).
+#[derive(Debug, Clone, Copy)]
+pub struct EnumerationType {
+    /// The type's name (`declaredType` of its variables).
+    pub name: &'static str,
+    /// What it selects.
+    pub description: &'static str,
+    /// (name, value, description) of each item.
+    pub items: &'static [(&'static str, i32, &'static str)],
+}
+
+/// How a variable's value is read from and written to the model struct.
+pub enum Access<M> {
+    /// A `Real`.
+    Real(fn(&M) -> f64, fn(&mut M, f64)),
+    /// An `Integer`.
+    Integer(fn(&M) -> i32, fn(&mut M, i32)),
+    /// An `Enumeration` (stored as an integer; the type is named in [`Variable::declared_type`]).
+    Enumeration(fn(&M) -> i32, fn(&mut M, i32)),
+    /// A `Boolean`.
+    Boolean(fn(&M) -> bool, fn(&mut M, bool)),
+    /// A `String`.
+    String(fn(&M) -> &str, fn(&mut M, &str)),
+}
+
+/// A start value, typed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Start {
+    /// No start value (calculated variables).
+    None,
+    /// Real.
+    Real(f64),
+    /// Integer or enumeration.
+    Integer(i32),
+    /// Boolean.
+    Boolean(bool),
+    /// String.
+    String(&'static str),
+}
+
+/// One variable of a model: everything the model description says about it, and its accessor.
+pub struct Variable<M> {
+    /// Name, e.g. `kneeAngleReference`.
+    pub name: &'static str,
+    /// Value reference: explicit and stable, never derived from field order.
+    pub value_reference: u32,
+    /// Description.
+    pub description: &'static str,
+    /// Causality.
+    pub causality: Causality,
+    /// Variability.
+    pub variability: Variability,
+    /// `initial`, when it is written explicitly.
+    pub initial: Option<Initial>,
+    /// Start value.
+    pub start: Start,
+    /// Unit (a name from [`unit_definition`]).
+    pub unit: Option<&'static str>,
+    /// Display unit (a display unit of that unit).
+    pub display_unit: Option<&'static str>,
+    /// Lower bound, enforced on set.
+    pub min: Option<f64>,
+    /// Upper bound, enforced on set.
+    pub max: Option<f64>,
+    /// `declaredType` for enumerations.
+    pub declared_type: Option<&'static str>,
+    /// For outputs: the inputs and parameters this variable depends on, by name; `None` means
+    /// "all knowns" (the attribute is then omitted).
+    pub depends_on: Option<&'static [&'static str]>,
+    /// Read/write access.
+    pub access: Access<M>,
+}
+
+impl<M> Variable<M> {
+    fn new(name: &'static str, value_reference: u32, access: Access<M>) -> Self {
+        Self {
+            name,
+            value_reference,
+            description: "",
+            causality: Causality::Local,
+            variability: Variability::Continuous,
+            initial: None,
+            start: Start::None,
+            unit: None,
+            display_unit: None,
+            min: None,
+            max: None,
+            declared_type: None,
+            depends_on: None,
+            access,
+        }
+    }
+
+    /// A `Real` variable.
+    pub fn real(name: &'static str, vr: u32, get: fn(&M) -> f64, set: fn(&mut M, f64)) -> Self {
+        Self::new(name, vr, Access::Real(get, set))
+    }
+    /// An `Integer` variable.
+    pub fn integer(name: &'static str, vr: u32, get: fn(&M) -> i32, set: fn(&mut M, i32)) -> Self {
+        Self::new(name, vr, Access::Integer(get, set))
+    }
+    /// An `Enumeration` variable of type `declared_type`.
+    pub fn enumeration(
+        name: &'static str,
+        vr: u32,
+        declared_type: &'static str,
+        get: fn(&M) -> i32,
+        set: fn(&mut M, i32),
+    ) -> Self {
+        let mut v = Self::new(name, vr, Access::Enumeration(get, set));
+        v.declared_type = Some(declared_type);
+        v
+    }
+    /// A `Boolean` variable.
+    pub fn boolean(
+        name: &'static str,
+        vr: u32,
+        get: fn(&M) -> bool,
+        set: fn(&mut M, bool),
+    ) -> Self {
+        Self::new(name, vr, Access::Boolean(get, set))
+    }
+    /// A `String` variable.
+    pub fn string(name: &'static str, vr: u32, get: fn(&M) -> &str, set: fn(&mut M, &str)) -> Self {
+        Self::new(name, vr, Access::String(get, set))
+    }
+
+    /// Sets the description.
+    pub fn describe(mut self, description: &'static str) -> Self {
+        self.description = description;
+        self
+    }
+    /// A fixed parameter with this start value.
+    pub fn parameter(mut self, start: Start) -> Self {
+        self.causality = Causality::Parameter;
+        self.variability = Variability::Fixed;
+        self.initial = Some(Initial::Exact);
+        self.start = start;
+        self
+    }
+    /// A tunable parameter (may change between steps) with this start value.
+    pub fn tunable(self, start: Start) -> Self {
+        let mut v = self.parameter(start);
+        v.variability = Variability::Tunable;
+        v
+    }
+    /// An input with this start value (continuous for Real, discrete otherwise).
+    pub fn input(mut self, start: Start) -> Self {
+        self.causality = Causality::Input;
+        self.variability = if matches!(self.access, Access::Real(..)) {
+            Variability::Continuous
+        } else {
+            Variability::Discrete
+        };
+        self.start = start;
+        self
+    }
+    /// An output computed by the model; `depends_on` names the inputs and parameters it depends
+    /// on (`&[]` for none besides time and state).
+    pub fn output(mut self, depends_on: &'static [&'static str]) -> Self {
+        self.causality = Causality::Output;
+        self.variability = if matches!(self.access, Access::Real(..)) {
+            Variability::Continuous
+        } else {
+            Variability::Discrete
+        };
+        self.initial = Some(Initial::Calculated);
+        self.depends_on = Some(depends_on);
+        self
+    }
+    /// Marks a discrete-time Real output (changes only at communication points).
+    pub fn discrete(mut self) -> Self {
+        self.variability = Variability::Discrete;
+        self
+    }
+    /// Sets the unit (and optionally display unit).
+    pub fn unit(mut self, unit: &'static str) -> Self {
+        self.unit = Some(unit);
+        self
+    }
+    /// Sets the display unit.
+    pub fn display(mut self, display_unit: &'static str) -> Self {
+        self.display_unit = Some(display_unit);
+        self
+    }
+    /// Sets the allowed range, enforced on set.
+    pub fn range(mut self, min: f64, max: f64) -> Self {
+        self.min = Some(min);
+        self.max = Some(max);
+        self
+    }
+    /// Sets the lower bound only.
+    pub fn min(mut self, min: f64) -> Self {
+        self.min = Some(min);
+        self
+    }
+
+    /// The base type's name, as in `fmi2Get<Type>`.
+    pub fn type_name(&self) -> &'static str {
+        match self.access {
+            Access::Real(..) => "Real",
+            Access::Integer(..) | Access::Enumeration(..) => "Integer",
+            Access::Boolean(..) => "Boolean",
+            Access::String(..) => "String",
+        }
+    }
+
+    /// Whether the model can be given a value for this variable in the instance's phase.
+    pub fn settable(&self, phase: Phase) -> bool {
+        match (self.causality, self.variability) {
+            (_, Variability::Constant) => false,
+            (Causality::Parameter, Variability::Fixed) => {
+                matches!(phase, Phase::Instantiated | Phase::Initialization)
+            }
+            (Causality::Parameter, Variability::Tunable) => matches!(
+                phase,
+                Phase::Instantiated | Phase::Initialization | Phase::Stepping
+            ),
+            (Causality::Input, _) => matches!(
+                phase,
+                Phase::Instantiated | Phase::Initialization | Phase::Stepping
+            ),
+            _ => false,
+        }
+    }
+}
+
+/// The phase of an instance, as far as setting variables is concerned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// After `fmi2Instantiate`.
+    Instantiated,
+    /// Between `fmi2EnterInitializationMode` and `fmi2ExitInitializationMode`.
+    Initialization,
+    /// At a communication point between steps.
+    Stepping,
+}
+
+/// A unit the models may use: its `BaseUnit` exponents/factor and display units.
+pub fn unit_definition(name: &str) -> Option<md::Unit> {
+    // (kg, m, s, A, rad) exponents; display units as (name, factor).
+    let (kg, m, s, a, rad, display): (i32, i32, i32, i32, i32, &[(&str, f64)]) = match name {
+        "rad" => (0, 0, 0, 0, 1, &[("deg", 180.0 / std::f64::consts::PI)]),
+        "rad/s" => (0, 0, -1, 0, 1, &[("deg/s", 180.0 / std::f64::consts::PI)]),
+        "rad/s2" => (0, 0, -2, 0, 1, &[("deg/s2", 180.0 / std::f64::consts::PI)]),
+        "rad/s3" => (0, 0, -3, 0, 1, &[]),
+        "s" => (0, 0, 1, 0, 0, &[("ms", 1e3)]),
+        "Hz" => (0, 0, -1, 0, 0, &[]),
+        "N.m" => (1, 2, -2, 0, 0, &[]),
+        "N.m/s" => (1, 2, -3, 0, 0, &[]),
+        "N.m/rad" => (1, 2, -2, 0, -1, &[]),
+        "N.m.s/rad" => (1, 2, -1, 0, -1, &[]),
+        "kg.m2" => (1, 2, 0, 0, 0, &[]),
+        "A" => (0, 0, 0, 1, 0, &[]),
+        "V" => (1, 2, -3, -1, 0, &[]),
+        "V/A" | "Ohm" => (1, 2, -3, -2, 0, &[]),
+        "H" => (1, 2, -2, -2, 0, &[]),
+        "N.m/A" => (1, 2, -2, -1, 0, &[]),
+        "V.s/rad" => (1, 2, -2, -1, -1, &[]),
+        "W" => (1, 2, -3, 0, 0, &[]),
+        "J" => (1, 2, -2, 0, 0, &[]),
+        _ => return None,
+    };
+    let nz = |e: i32| (e != 0).then_some(e);
+    Some(md::Unit {
+        name: name.to_string(),
+        base_unit: Some(md::BaseUnit {
+            kg: nz(kg),
+            m: nz(m),
+            s: nz(s),
+            a: nz(a),
+            rad: nz(rad),
+            ..Default::default()
+        }),
+        display_units: display
+            .iter()
+            .map(|(n, f)| md::DisplayUnit {
+                name: (*n).to_string(),
+                factor: Some(*f),
+                offset: None,
+            })
+            .collect(),
+    })
+}
+
+/// The log categories every kneebench FMU declares, with their meaning.
+pub const LOG_CATEGORIES: &[(&str, &str)] = &[
+    (
+        "logEvents",
+        "Events inside a step: clutch, stick/slip, sweep stages",
+    ),
+    (
+        "logStatusWarning",
+        "Messages logged with status fmi2Warning",
+    ),
+    (
+        "logStatusDiscard",
+        "Messages logged with status fmi2Discard",
+    ),
+    ("logStatusError", "Messages logged with status fmi2Error"),
+    ("logStatusFatal", "Messages logged with status fmi2Fatal"),
+    ("logCalls", "Every FMI function call with its arguments"),
+];
+
+/// Builds the model description of `M` (the `guid` is filled in: a hash of the rest).
+pub fn model_description<M: Model>() -> md::ModelDescription {
+    let mut desc = description_without_guid::<M>();
+    desc.guid = guid_of(&desc);
+    desc
+}
+
+/// The GUID of a description: SHA-256 of its XML with an empty `guid`, shaped as a UUID.
+fn guid_of(desc: &md::ModelDescription) -> String {
+    debug_assert!(desc.guid.is_empty());
+    let digest = Sha256::digest(desc.to_xml().as_bytes());
+    let h: Vec<String> = digest.iter().take(16).map(|b| format!("{b:02x}")).collect();
+    let h = h.concat();
+    format!(
+        "{{{}-{}-{}-{}-{}}}",
+        &h[0..8],
+        &h[8..12],
+        &h[12..16],
+        &h[16..20],
+        &h[20..32]
+    )
+}
+
+fn start_attr_real(start: &Start) -> Option<f64> {
+    match start {
+        Start::Real(v) => Some(*v),
+        _ => None,
+    }
+}
+
+fn description_without_guid<M: Model>() -> md::ModelDescription {
+    let vars = M::variables();
+    let index_of = |name: &str| -> u32 {
+        vars.iter()
+            .position(|v| v.name == name)
+            .map(|i| i as u32 + 1)
+            .unwrap_or_else(|| panic!("{}: dependency on unknown variable {name}", M::IDENTIFIER))
+    };
+
+    let mut units: BTreeSet<&str> = BTreeSet::new();
+    let mut model_variables = Vec::with_capacity(vars.len());
+    for v in vars {
+        if let Some(u) = v.unit {
+            units.insert(u);
+        }
+        let kind = match &v.access {
+            Access::Real(..) => md::VariableKind::Real {
+                declared_type: None,
+                attributes: md::RealAttributes {
+                    unit: v.unit.map(str::to_string),
+                    display_unit: v.display_unit.map(str::to_string),
+                    min: v.min,
+                    max: v.max,
+                    ..Default::default()
+                },
+                start: start_attr_real(&v.start),
+                derivative: None,
+                reinit: None,
+            },
+            Access::Integer(..) => md::VariableKind::Integer {
+                declared_type: None,
+                attributes: md::IntegerAttributes {
+                    quantity: None,
+                    min: v.min.map(|x| x as i32),
+                    max: v.max.map(|x| x as i32),
+                },
+                start: match v.start {
+                    Start::Integer(i) => Some(i),
+                    _ => None,
+                },
+            },
+            Access::Enumeration(..) => md::VariableKind::Enumeration {
+                declared_type: v.declared_type.unwrap_or_default().to_string(),
+                quantity: None,
+                min: None,
+                max: None,
+                start: match v.start {
+                    Start::Integer(i) => Some(i),
+                    _ => None,
+                },
+            },
+            Access::Boolean(..) => md::VariableKind::Boolean {
+                declared_type: None,
+                start: match v.start {
+                    Start::Boolean(b) => Some(b),
+                    _ => None,
+                },
+            },
+            Access::String(..) => md::VariableKind::String {
+                declared_type: None,
+                start: match v.start {
+                    Start::String(s) => Some(s.to_string()),
+                    _ => None,
+                },
+            },
+        };
+        model_variables.push(md::ScalarVariable {
+            name: v.name.to_string(),
+            value_reference: v.value_reference,
+            description: (!v.description.is_empty()).then(|| v.description.to_string()),
+            causality: Some(v.causality),
+            variability: Some(v.variability),
+            initial: v.initial,
+            can_handle_multiple_set_per_time_instant: None,
+            kind,
+            annotations: Vec::new(),
+        });
+    }
+
+    // ModelStructure: at communication points outputs depend only on inputs (the knowns of
+    // co-simulation); during initialization also on parameters given with initial="exact".
+    let mut outputs = Vec::new();
+    let mut initial_unknowns = Vec::new();
+    for (i, v) in vars.iter().enumerate() {
+        let index = i as u32 + 1;
+        let deps = v.depends_on.map(|names| {
+            let mut idx: Vec<u32> = names.iter().map(|n| index_of(n)).collect();
+            idx.sort_unstable();
+            idx
+        });
+        let only = |pred: &dyn Fn(&Variable<M>) -> bool| {
+            deps.as_ref().map(|d| {
+                d.iter()
+                    .copied()
+                    .filter(|&j| pred(&vars[j as usize - 1]))
+                    .collect::<Vec<u32>>()
+            })
+        };
+        let kinds = |d: &Option<Vec<u32>>| {
+            d.as_ref()
+                .map(|d| vec![md::DependencyKind::Dependent; d.len()])
+        };
+        if v.causality == Causality::Output {
+            let d = only(&|k| k.causality == Causality::Input);
+            outputs.push(md::Unknown {
+                index,
+                dependencies_kind: kinds(&d),
+                dependencies: d,
+            });
+        }
+        let is_initial_unknown = (v.causality == Causality::Output
+            && matches!(v.initial, Some(Initial::Calculated) | Some(Initial::Approx)))
+            || v.causality == Causality::CalculatedParameter;
+        if is_initial_unknown {
+            let d = only(&|k| {
+                k.causality == Causality::Input
+                    || (k.causality == Causality::Parameter && k.initial == Some(Initial::Exact))
+            });
+            initial_unknowns.push(md::Unknown {
+                index,
+                dependencies_kind: kinds(&d),
+                dependencies: d,
+            });
+        }
+    }
+
+    let (start, stop, step) = M::DEFAULT_EXPERIMENT;
+    md::ModelDescription {
+        fmi_version: "2.0".into(),
+        model_name: M::IDENTIFIER.into(),
+        guid: String::new(),
+        description: Some(M::DESCRIPTION.into()),
+        author: Some(AUTHOR.into()),
+        version: Some(VERSION.into()),
+        copyright: Some(format!("Copyright (c) {AUTHOR}")),
+        license: Some(LICENSE.into()),
+        generation_tool: Some(GENERATION_TOOL.into()),
+        generation_date_and_time: None,
+        variable_naming_convention: Some(md::VariableNamingConvention::Flat),
+        number_of_event_indicators: Some(0),
+        model_exchange: None,
+        co_simulation: Some(md::CoSimulation {
+            model_identifier: M::IDENTIFIER.into(),
+            needs_execution_tool: Some(false),
+            can_handle_variable_communication_step_size: Some(true),
+            can_interpolate_inputs: Some(false),
+            max_output_derivative_order: Some(M::MAX_OUTPUT_DERIVATIVE_ORDER),
+            can_run_asynchronuously: Some(false),
+            can_be_instantiated_only_once_per_process: Some(false),
+            can_not_use_memory_management_functions: Some(true),
+            can_get_and_set_fmu_state: Some(true),
+            can_serialize_fmu_state: Some(true),
+            provides_directional_derivative: Some(false),
+            source_files: Vec::new(),
+        }),
+        unit_definitions: units
+            .iter()
+            .map(|u| {
+                unit_definition(u)
+                    .unwrap_or_else(|| panic!("{}: unit {u} is not defined", M::IDENTIFIER))
+            })
+            .collect(),
+        type_definitions: M::enumerations()
+            .iter()
+            .map(|e| md::SimpleType {
+                name: e.name.into(),
+                description: Some(e.description.into()),
+                kind: md::SimpleTypeKind::Enumeration {
+                    quantity: None,
+                    items: e
+                        .items
+                        .iter()
+                        .map(|(n, v, d)| md::EnumerationItem {
+                            name: (*n).into(),
+                            value: *v,
+                            description: Some((*d).into()),
+                        })
+                        .collect(),
+                },
+            })
+            .collect(),
+        log_categories: LOG_CATEGORIES
+            .iter()
+            .map(|(n, d)| md::LogCategory {
+                name: (*n).into(),
+                description: Some((*d).into()),
+            })
+            .collect(),
+        default_experiment: Some(md::DefaultExperiment {
+            start_time: Some(start),
+            stop_time: Some(stop),
+            tolerance: None,
+            step_size: Some(step),
+        }),
+        vendor_annotations: Vec::new(),
+        model_variables,
+        model_structure: md::ModelStructure {
+            outputs,
+            derivatives: Vec::new(),
+            initial_unknowns,
+        },
+    }
+}
+
+/// The `documentation/index.html` of `M`: the model's own text plus a generated table of its
+/// variables (from the same declaration as everything else).
+pub fn documentation_html<M: Model>() -> String {
+    let desc = model_description::<M>();
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{id}</title>\n\
+         <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}}\
+         table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:left}}\
+         code{{background:#f4f4f4}}</style>\n</head>\n<body>\n<h1>{id}</h1>\n<p>{d}</p>\n",
+        id = M::IDENTIFIER,
+        d = escape_html(M::DESCRIPTION)
+    );
+    html.push_str(M::documentation());
+    html.push_str("\n<h2>Variables</h2>\n<table>\n<tr><th>Name</th><th>VR</th><th>Causality</th><th>Variability</th><th>Type</th><th>Start</th><th>Unit</th><th>Range</th><th>Description</th></tr>\n");
+    for v in M::variables() {
+        let start = match &v.start {
+            Start::None => String::new(),
+            Start::Real(x) => format!("{x}"),
+            Start::Integer(i) => format!("{i}"),
+            Start::Boolean(b) => format!("{b}"),
+            Start::String(s) => escape_html(s),
+        };
+        let range = match (v.min, v.max) {
+            (None, None) => String::new(),
+            (lo, hi) => format!(
+                "[{}, {}]",
+                lo.map_or("-inf".into(), |x| x.to_string()),
+                hi.map_or("inf".into(), |x| x.to_string())
+            ),
+        };
+        let _ = writeln!(
+            html,
+            "<tr><td><code>{}</code></td><td>{}</td><td>{:?}</td><td>{:?}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            v.name,
+            v.value_reference,
+            v.causality,
+            v.variability,
+            v.declared_type.unwrap_or(v.type_name()),
+            start,
+            v.unit.unwrap_or(""),
+            range,
+            escape_html(v.description)
+        );
+    }
+    html.push_str("</table>\n");
+    for e in M::enumerations() {
+        let _ = writeln!(
+            html,
+            "<h3>{}</h3>\n<p>{}</p>\n<ul>",
+            e.name,
+            escape_html(e.description)
+        );
+        for (n, val, d) in e.items {
+            let _ = writeln!(html, "<li><code>{val}</code> {n}: {}</li>", escape_html(d));
+        }
+        html.push_str("</ul>\n");
+    }
+    let _ = write!(
+        html,
+        "<h2>Interface facts</h2>\n<ul>\n<li>GUID: <code>{}</code></li>\n<li>FMI 2.0 co-simulation; variable communication step size; \
+         get/set and serialize FMU state; output derivatives up to order {}.</li>\n<li>Generated by {}; license {}.</li>\n</ul>\n</body>\n</html>\n",
+        desc.guid,
+        M::MAX_OUTPUT_DERIVATIVE_ORDER,
+        GENERATION_TOOL,
+        LICENSE
+    );
+    html
+}
+
+fn escape_html(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}

@@ -1,0 +1,905 @@
+//! `GaitReference`: the bench's reference generator (bench model facts, section 5).
+//!
+//! Two channels, each with its own waveform:
+//! - the **motion** channel gives the knee-angle reference and its analytic velocity,
+//!   acceleration (and jerk, as the acceleration's output derivative);
+//! - the **torque** channel gives the knee-torque reference; the load motor applies the
+//!   ground reaction, i.e. the inverted knee torque (`loadTorqueReference = -kneeTorqueReference`).
+//!
+//! Every output is a closed-form function of time and the parameters, so steps of any size
+//! give exact values and the FMU state is just the time.
+
+use std::f64::consts::{PI, TAU};
+
+use crate::model::{EnumerationType, Model, ModelError, Start, StepOutcome, Variable};
+use crate::registry::ReferenceInputs;
+
+/// Number of harmonics of the gait series.
+pub const HARMONICS: usize = 8;
+
+/// Fourier coefficients (a_n, b_n), n = 0..=8, of the normalised knee angle
+/// (from `shared/data/gait-fourier.csv`, columns `angle_a`, `angle_b`).
+pub const ANGLE_SERIES: [(f64, f64); HARMONICS + 1] = [
+    (0.3884, 0.0),
+    (-0.07603, -0.326),
+    (-0.1943, 0.1141),
+    (0.008267, 0.07186),
+    (-0.001994, 0.005746),
+    (-0.004342, 0.01286),
+    (0.003985, 0.002147),
+    (-0.0005321, 0.0009002),
+    (0.001249, 0.0008244),
+];
+
+/// Fourier coefficients (a_n, b_n) of the normalised knee torque
+/// (columns `torque_a`, `torque_b` of the same file).
+pub const TORQUE_SERIES: [(f64, f64); HARMONICS + 1] = [
+    (-0.1507, 0.0),
+    (-0.221, -0.3977),
+    (0.04218, -0.9473),
+    (0.4108, 0.03786),
+    (0.01918, -0.1118),
+    (0.09149, 0.06741),
+    (0.002324, -0.01246),
+    (0.002467, 0.01965),
+    (0.006651, 0.004735),
+];
+
+/// Value, time derivatives and time integral (from t = 0) of a normalised waveform.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Shape {
+    /// s(t).
+    pub value: f64,
+    /// ds/dt.
+    pub d1: f64,
+    /// d²s/dt².
+    pub d2: f64,
+    /// d³s/dt³.
+    pub d3: f64,
+    /// ∫₀ᵗ s dτ.
+    pub integral: f64,
+}
+
+/// The Fourier series f(x) = a0 + Σ a_n cos(nωx) + b_n sin(nωx), ω = 2π, x = t/period.
+pub fn fourier(series: &[(f64, f64); HARMONICS + 1], t: f64, period: f64) -> Shape {
+    let mut s = Shape {
+        value: series[0].0,
+        integral: series[0].0 * t,
+        ..Shape::default()
+    };
+    for (n, &(a, b)) in series.iter().enumerate().skip(1) {
+        let k = TAU * n as f64 / period; // rad/s of harmonic n
+        let (sin, cos) = (k * t).sin_cos();
+        s.value += a * cos + b * sin;
+        s.d1 += k * (-a * sin + b * cos);
+        s.d2 += -k * k * (a * cos + b * sin);
+        s.d3 += k * k * k * (a * sin - b * cos);
+        s.integral += (a * sin + b * (1.0 - cos)) / k;
+    }
+    s
+}
+
+/// The waveforms the bench UI offers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Waveform {
+    /// The gait Fourier series of the channel.
+    Gait = 1,
+    /// A constant (the amplitude).
+    Constant = 2,
+    /// 0 before `stepTime`, the amplitude from then on.
+    Step = 3,
+    /// sin(2πt/period).
+    Sine = 4,
+    /// ½[sin(2πt/period) + sin(4πt/period)].
+    DoubleSine = 5,
+    /// A triangle of the period, starting at 0 and rising.
+    Triangle = 6,
+    /// The stepped sine (frequency sweep) of the bench's Bode tests.
+    SteppedSine = 7,
+}
+
+impl Waveform {
+    fn from_i32(v: i32) -> Option<Self> {
+        Some(match v {
+            1 => Self::Gait,
+            2 => Self::Constant,
+            3 => Self::Step,
+            4 => Self::Sine,
+            5 => Self::DoubleSine,
+            6 => Self::Triangle,
+            7 => Self::SteppedSine,
+            _ => return None,
+        })
+    }
+}
+
+/// The stepped-sine sweep: frequency f0·rⁿ during stage n = ⌊t/dwell⌋, phase continuous.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sweep {
+    /// Start frequency [Hz].
+    pub start_frequency: f64,
+    /// Frequency ratio between stages.
+    pub ratio: f64,
+    /// Duration of a stage [s].
+    pub dwell: f64,
+}
+
+impl Sweep {
+    /// The stage index at time t (t >= 0).
+    pub fn stage(&self, t: f64) -> u32 {
+        (t.max(0.0) / self.dwell).floor().min(u32::MAX as f64) as u32
+    }
+    /// The frequency of stage n [Hz].
+    pub fn frequency(&self, stage: u32) -> f64 {
+        self.start_frequency * self.ratio.powi(stage as i32)
+    }
+    /// Phase [rad] at the start of stage n.
+    fn stage_phase(&self, stage: u32) -> f64 {
+        let cycles = if self.ratio == 1.0 {
+            self.start_frequency * self.dwell * stage as f64
+        } else {
+            self.start_frequency * self.dwell * (self.ratio.powi(stage as i32) - 1.0)
+                / (self.ratio - 1.0)
+        };
+        TAU * cycles
+    }
+    /// The normalised sweep at t.
+    pub fn shape(&self, t: f64) -> Shape {
+        let n = self.stage(t);
+        let f = self.frequency(n);
+        let w = TAU * f;
+        let phase = self.stage_phase(n) + w * (t - n as f64 * self.dwell);
+        let (sin, cos) = phase.sin_cos();
+        // The integral sums the closed stages, then the open one.
+        let mut integral = 0.0;
+        for j in 0..n {
+            let wj = TAU * self.frequency(j);
+            integral += (self.stage_phase(j).cos() - self.stage_phase(j + 1).cos()) / wj;
+        }
+        integral += (self.stage_phase(n).cos() - cos) / w;
+        Shape {
+            value: sin,
+            d1: w * cos,
+            d2: -w * w * sin,
+            d3: -w * w * w * cos,
+            integral,
+        }
+    }
+}
+
+/// Whether the motion channel's waveform gives the angle or the velocity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MotionQuantity {
+    /// The waveform is the knee angle; velocity and acceleration are its derivatives.
+    Position = 1,
+    /// The waveform is the knee velocity; the angle is its integral from `kneeAngleOffset`.
+    Velocity = 2,
+}
+
+/// The reference generator. Fields are the FMU's variables (see [`Model::variables`]).
+#[derive(Debug, Clone, Default)]
+pub struct GaitReference {
+    period: f64,
+    angle_amplitude: f64,
+    angle_offset: f64,
+    velocity_amplitude: f64,
+    torque_amplitude: f64,
+    torque_offset: f64,
+    motion_waveform: i32,
+    torque_waveform: i32,
+    motion_quantity: i32,
+    step_time: f64,
+    sweep_start_frequency: f64,
+    sweep_ratio: f64,
+    sweep_dwell: f64,
+    sweep_end_frequency: f64,
+    stance_start: f64,
+    stance_end: f64,
+
+    knee_angle: f64,
+    knee_velocity: f64,
+    knee_acceleration: f64,
+    knee_jerk: f64,
+    knee_torque: f64,
+    knee_torque_rate: f64,
+    load_torque: f64,
+    gait_phase: f64,
+    stance: bool,
+    sweep_frequency: f64,
+}
+
+/// Value references (stable; never reuse a retired number).
+mod vr {
+    pub const PERIOD: u32 = 1;
+    pub const ANGLE_AMPLITUDE: u32 = 2;
+    pub const ANGLE_OFFSET: u32 = 3;
+    pub const VELOCITY_AMPLITUDE: u32 = 4;
+    pub const TORQUE_AMPLITUDE: u32 = 5;
+    pub const TORQUE_OFFSET: u32 = 6;
+    pub const MOTION_WAVEFORM: u32 = 7;
+    pub const TORQUE_WAVEFORM: u32 = 8;
+    pub const MOTION_QUANTITY: u32 = 9;
+    pub const STEP_TIME: u32 = 10;
+    pub const SWEEP_START: u32 = 11;
+    pub const SWEEP_RATIO: u32 = 12;
+    pub const SWEEP_DWELL: u32 = 13;
+    pub const SWEEP_END: u32 = 14;
+    pub const STANCE_START: u32 = 15;
+    pub const STANCE_END: u32 = 16;
+    pub const KNEE_ANGLE: u32 = 100;
+    pub const KNEE_VELOCITY: u32 = 101;
+    pub const KNEE_ACCELERATION: u32 = 102;
+    pub const KNEE_TORQUE: u32 = 103;
+    pub const LOAD_TORQUE: u32 = 104;
+    pub const GAIT_PHASE: u32 = 105;
+    pub const STANCE: u32 = 106;
+    pub const SWEEP_FREQUENCY: u32 = 107;
+}
+
+/// Every parameter the outputs depend on (for the ModelStructure's InitialUnknowns).
+const ALL_PARAMETERS: &[&str] = &[
+    "gaitPeriod",
+    "kneeAngleAmplitude",
+    "kneeAngleOffset",
+    "kneeVelocityAmplitude",
+    "kneeTorqueAmplitude",
+    "kneeTorqueOffset",
+    "motionWaveform",
+    "torqueWaveform",
+    "motionQuantity",
+    "stepTime",
+    "sweepStartFrequency",
+    "sweepFrequencyRatio",
+    "sweepDwellTime",
+    "sweepEndFrequency",
+    "stanceStart",
+    "stanceEnd",
+];
+
+static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync::LazyLock::new(
+    || {
+        use Start::{Integer, Real};
+        type V = Variable<GaitReference>;
+        let deg = PI / 180.0;
+        vec![
+            V::real("gaitPeriod", vr::PERIOD, |m| m.period, |m, v| m.period = v)
+                .tunable(Real(2.5))
+                .unit("s")
+                .range(0.01, 1e4)
+                .describe("Period of the gait and of every periodic waveform (frequency = 1/period)"),
+            V::real("kneeAngleAmplitude", vr::ANGLE_AMPLITUDE, |m| m.angle_amplitude, |m, v| m.angle_amplitude = v)
+                .tunable(Real(60.0 * deg))
+                .unit("rad")
+                .display("deg")
+                .range(0.0, PI)
+                .describe("Knee-angle amplitude: the normalised gait angle (peak 1.0) is scaled by it"),
+            V::real("kneeAngleOffset", vr::ANGLE_OFFSET, |m| m.angle_offset, |m, v| m.angle_offset = v)
+                .tunable(Real(0.0))
+                .unit("rad")
+                .display("deg")
+                .range(-PI, PI)
+                .describe("Added to the knee-angle reference (the start angle in velocity mode)"),
+            V::real("kneeVelocityAmplitude", vr::VELOCITY_AMPLITUDE, |m| m.velocity_amplitude, |m, v| m.velocity_amplitude = v)
+                .tunable(Real(30.0 * deg))
+                .unit("rad/s")
+                .display("deg/s")
+                .range(-10.0, 10.0)
+                .describe("Velocity amplitude used when motionQuantity = Velocity"),
+            V::real("kneeTorqueAmplitude", vr::TORQUE_AMPLITUDE, |m| m.torque_amplitude, |m, v| m.torque_amplitude = v)
+                .tunable(Real(9.0))
+                .unit("N.m")
+                .range(-200.0, 200.0)
+                .describe("Knee-torque amplitude: the normalised gait torque (peak +1.0, min -1.94) is scaled by it"),
+            V::real("kneeTorqueOffset", vr::TORQUE_OFFSET, |m| m.torque_offset, |m, v| m.torque_offset = v)
+                .tunable(Real(0.0))
+                .unit("N.m")
+                .range(-200.0, 200.0)
+                .describe("Added to the knee-torque reference"),
+            V::enumeration("motionWaveform", vr::MOTION_WAVEFORM, "Waveform", |m| m.motion_waveform, |m, v| m.motion_waveform = v)
+                .tunable(Integer(Waveform::Gait as i32))
+                .describe("Waveform of the motion channel"),
+            V::enumeration("torqueWaveform", vr::TORQUE_WAVEFORM, "Waveform", |m| m.torque_waveform, |m, v| m.torque_waveform = v)
+                .tunable(Integer(Waveform::Gait as i32))
+                .describe("Waveform of the torque channel"),
+            V::enumeration("motionQuantity", vr::MOTION_QUANTITY, "MotionQuantity", |m| m.motion_quantity, |m, v| m.motion_quantity = v)
+                .tunable(Integer(MotionQuantity::Position as i32))
+                .describe("Whether the motion waveform is the angle or the velocity"),
+            V::real("stepTime", vr::STEP_TIME, |m| m.step_time, |m, v| m.step_time = v)
+                .tunable(Real(0.0))
+                .unit("s")
+                .describe("Time of the step of the Step waveform"),
+            V::real("sweepStartFrequency", vr::SWEEP_START, |m| m.sweep_start_frequency, |m, v| m.sweep_start_frequency = v)
+                .tunable(Real(0.05))
+                .unit("Hz")
+                .range(1e-4, 1e3)
+                .describe("Stepped sine: frequency of the first stage"),
+            V::real("sweepFrequencyRatio", vr::SWEEP_RATIO, |m| m.sweep_ratio, |m, v| m.sweep_ratio = v)
+                .tunable(Real(10f64.powf(1.0 / 30.0)))
+                .range(1.0, 10.0)
+                .describe("Stepped sine: frequency ratio between stages (10^(1/30) on the bench)"),
+            V::real("sweepDwellTime", vr::SWEEP_DWELL, |m| m.sweep_dwell, |m, v| m.sweep_dwell = v)
+                .tunable(Real(20.0))
+                .unit("s")
+                .range(1e-3, 1e5)
+                .describe("Stepped sine: duration of each stage"),
+            V::real("sweepEndFrequency", vr::SWEEP_END, |m| m.sweep_end_frequency, |m, v| m.sweep_end_frequency = v)
+                .tunable(Real(0.0))
+                .unit("Hz")
+                .range(0.0, 1e3)
+                .describe("Stepped sine: the run ends (fmi2Discard, terminated) when the next stage would exceed this frequency; 0 = never"),
+            V::real("stanceStart", vr::STANCE_START, |m| m.stance_start, |m, v| m.stance_start = v)
+                .tunable(Real(0.0))
+                .range(0.0, 1.0)
+                .describe("Gait phase at which stance begins"),
+            V::real("stanceEnd", vr::STANCE_END, |m| m.stance_end, |m, v| m.stance_end = v)
+                .tunable(Real(0.6))
+                .range(0.0, 1.0)
+                .describe("Gait phase at which stance ends (toe-off)"),
+            V::real("kneeAngleReference", vr::KNEE_ANGLE, |m| m.knee_angle, |m, v| m.knee_angle = v)
+                .output(ALL_PARAMETERS)
+                .unit("rad")
+                .display("deg")
+                .describe("Knee-angle reference"),
+            V::real("kneeVelocityReference", vr::KNEE_VELOCITY, |m| m.knee_velocity, |m, v| m.knee_velocity = v)
+                .output(ALL_PARAMETERS)
+                .unit("rad/s")
+                .display("deg/s")
+                .describe("Knee angular velocity reference (analytic derivative)"),
+            V::real("kneeAccelerationReference", vr::KNEE_ACCELERATION, |m| m.knee_acceleration, |m, v| m.knee_acceleration = v)
+                .output(ALL_PARAMETERS)
+                .unit("rad/s2")
+                .display("deg/s2")
+                .describe("Knee angular acceleration reference (analytic second derivative)"),
+            V::real("kneeTorqueReference", vr::KNEE_TORQUE, |m| m.knee_torque, |m, v| m.knee_torque = v)
+                .output(ALL_PARAMETERS)
+                .unit("N.m")
+                .describe("Knee-torque reference (extension positive)"),
+            V::real("loadTorqueReference", vr::LOAD_TORQUE, |m| m.load_torque, |m, v| m.load_torque = v)
+                .output(ALL_PARAMETERS)
+                .unit("N.m")
+                .describe("Load-motor torque reference: the ground reaction, -kneeTorqueReference"),
+            V::real("gaitPhase", vr::GAIT_PHASE, |m| m.gait_phase, |m, v| m.gait_phase = v)
+                .output(ALL_PARAMETERS)
+                .describe("Phase of the gait cycle in [0, 1)"),
+            V::boolean("stance", vr::STANCE, |m| m.stance, |m, v| m.stance = v)
+                .output(ALL_PARAMETERS)
+                .describe("True while the gait phase is inside [stanceStart, stanceEnd)"),
+            V::real("sweepFrequency", vr::SWEEP_FREQUENCY, |m| m.sweep_frequency, |m, v| m.sweep_frequency = v)
+                .output(ALL_PARAMETERS)
+                .discrete()
+                .unit("Hz")
+                .describe("Frequency of the current stepped-sine stage (0 when no channel sweeps)"),
+        ]
+    },
+);
+
+static ENUMERATIONS: &[EnumerationType] = &[
+    EnumerationType {
+        name: "Waveform",
+        description: "Reference waveforms of the bench UI",
+        items: &[
+            ("Gait", 1, "8th-order Fourier gait series of the channel"),
+            ("Constant", 2, "The amplitude, constant"),
+            (
+                "Step",
+                3,
+                "0 before stepTime, the amplitude from stepTime on",
+            ),
+            ("Sine", 4, "amplitude*sin(2*pi*t/period)"),
+            (
+                "DoubleSine",
+                5,
+                "amplitude/2*(sin(2*pi*t/period) + sin(4*pi*t/period))",
+            ),
+            (
+                "Triangle",
+                6,
+                "Triangle of the period between -amplitude and amplitude, rising from 0 at t=0",
+            ),
+            (
+                "SteppedSine",
+                7,
+                "Frequency sweep: sweepStartFrequency*sweepFrequencyRatio^n during stage n of sweepDwellTime",
+            ),
+        ],
+    },
+    EnumerationType {
+        name: "MotionQuantity",
+        description: "What the motion channel's waveform describes",
+        items: &[
+            ("Position", 1, "The waveform is the knee angle"),
+            (
+                "Velocity",
+                2,
+                "The waveform is the knee velocity; the angle is its integral",
+            ),
+        ],
+    },
+];
+
+impl GaitReference {
+    fn sweep(&self) -> Sweep {
+        Sweep {
+            start_frequency: self.sweep_start_frequency,
+            ratio: self.sweep_ratio,
+            dwell: self.sweep_dwell,
+        }
+    }
+
+    fn sweeping(&self) -> bool {
+        self.motion_waveform == Waveform::SteppedSine as i32
+            || self.torque_waveform == Waveform::SteppedSine as i32
+    }
+
+    /// The normalised waveform `w` at time t; `series` is the channel's gait series.
+    fn shape(
+        &self,
+        w: i32,
+        series: &[(f64, f64); HARMONICS + 1],
+        t: f64,
+    ) -> Result<Shape, ModelError> {
+        let wave = Waveform::from_i32(w)
+            .ok_or_else(|| ModelError::new(format!("waveform {w} is not an item of Waveform")))?;
+        let p = self.period;
+        let w1 = TAU / p;
+        Ok(match wave {
+            Waveform::Gait => fourier(series, t, p),
+            Waveform::Constant => Shape {
+                value: 1.0,
+                integral: t,
+                ..Shape::default()
+            },
+            Waveform::Step => {
+                let on = t >= self.step_time;
+                Shape {
+                    value: if on { 1.0 } else { 0.0 },
+                    integral: (t - self.step_time.max(0.0)).max(0.0),
+                    ..Shape::default()
+                }
+            }
+            Waveform::Sine => {
+                let (s, c) = (w1 * t).sin_cos();
+                Shape {
+                    value: s,
+                    d1: w1 * c,
+                    d2: -w1 * w1 * s,
+                    d3: -w1 * w1 * w1 * c,
+                    integral: (1.0 - c) / w1,
+                }
+            }
+            Waveform::DoubleSine => {
+                let (s1, c1) = (w1 * t).sin_cos();
+                let w2 = 2.0 * w1;
+                let (s2, c2) = (w2 * t).sin_cos();
+                Shape {
+                    value: 0.5 * (s1 + s2),
+                    d1: 0.5 * (w1 * c1 + w2 * c2),
+                    d2: -0.5 * (w1 * w1 * s1 + w2 * w2 * s2),
+                    d3: -0.5 * (w1.powi(3) * c1 + w2.powi(3) * c2),
+                    integral: 0.5 * ((1.0 - c1) / w1 + (1.0 - c2) / w2),
+                }
+            }
+            Waveform::Triangle => triangle(t, p),
+            Waveform::SteppedSine => self.sweep().shape(t),
+        })
+    }
+}
+
+/// The triangle wave of period p, in [-1, 1], 0 and rising at t = 0.
+pub fn triangle(t: f64, p: f64) -> Shape {
+    let cycles = (t / p).floor();
+    let r = t - cycles * p; // time into the current period, [0, p)
+    let q = p / 4.0;
+    let (value, d1, integral) = if r < q {
+        (r / q, 1.0 / q, 2.0 * r * r / p)
+    } else if r < 3.0 * q {
+        let u = r - q;
+        (1.0 - u / q, -1.0 / q, p / 8.0 + u - 2.0 * u * u / p)
+    } else {
+        let v = r - p;
+        (v / q, 1.0 / q, 2.0 * v * v / p)
+    };
+    Shape {
+        value,
+        d1,
+        d2: 0.0,
+        d3: 0.0,
+        integral,
+    }
+}
+
+impl ReferenceInputs for GaitReference {}
+
+impl Model for GaitReference {
+    const IDENTIFIER: &'static str = "GaitReference";
+    const DESCRIPTION: &'static str = "Reference generator of the knee-actuator bench: gait (8th-order Fourier series), constant, step, sine, double sine, triangle and stepped-sine references for the test motor's knee angle and the load motor's torque";
+    const MAX_OUTPUT_DERIVATIVE_ORDER: u32 = 1;
+    const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 5.0, 1e-3);
+
+    fn variables() -> &'static [Variable<Self>] {
+        &VARIABLES
+    }
+
+    fn enumerations() -> &'static [EnumerationType] {
+        ENUMERATIONS
+    }
+
+    fn initialize(&mut self, _start_time: f64) -> Result<(), ModelError> {
+        if self.stance_start == self.stance_end {
+            return Err(ModelError::new(
+                "stanceStart equals stanceEnd: the stance window would be empty",
+            ));
+        }
+        Ok(())
+    }
+
+    fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
+        let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, t)?;
+        let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, t)?;
+        match self.motion_quantity {
+            1 => {
+                let a = self.angle_amplitude;
+                self.knee_angle = self.angle_offset + a * motion.value;
+                self.knee_velocity = a * motion.d1;
+                self.knee_acceleration = a * motion.d2;
+                self.knee_jerk = a * motion.d3;
+            }
+            2 => {
+                let a = self.velocity_amplitude;
+                self.knee_angle = self.angle_offset + a * motion.integral;
+                self.knee_velocity = a * motion.value;
+                self.knee_acceleration = a * motion.d1;
+                self.knee_jerk = a * motion.d2;
+            }
+            other => {
+                return Err(ModelError::new(format!(
+                    "motionQuantity {other} is not an item of MotionQuantity"
+                )));
+            }
+        }
+        self.knee_torque = self.torque_offset + self.torque_amplitude * torque.value;
+        self.knee_torque_rate = self.torque_amplitude * torque.d1;
+        self.load_torque = -self.knee_torque;
+        let x = t / self.period;
+        self.gait_phase = (x - x.floor()).clamp(0.0, 1.0 - f64::EPSILON);
+        self.stance = if self.stance_start < self.stance_end {
+            (self.stance_start..self.stance_end).contains(&self.gait_phase)
+        } else {
+            self.gait_phase >= self.stance_start || self.gait_phase < self.stance_end
+        };
+        self.sweep_frequency = if self.sweeping() {
+            self.sweep().frequency(self.sweep().stage(t))
+        } else {
+            0.0
+        };
+        Ok(())
+    }
+
+    fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
+        // The outputs are closed-form in time: only the end of a sweep can interrupt a step.
+        if self.sweeping() && self.sweep_end_frequency > 0.0 {
+            let sweep = self.sweep();
+            let end = t + h;
+            // First stage whose frequency exceeds the end frequency.
+            let mut stage = sweep.stage(t);
+            while sweep.frequency(stage) <= self.sweep_end_frequency {
+                stage += 1;
+            }
+            let stop_at = stage as f64 * sweep.dwell;
+            if stop_at <= t {
+                return Ok(StepOutcome::Terminated {
+                    at: t,
+                    reason: "the stepped-sine sweep passed sweepEndFrequency",
+                });
+            }
+            if stop_at < end {
+                return Ok(StepOutcome::Terminated {
+                    at: stop_at,
+                    reason: "the stepped-sine sweep reached sweepEndFrequency",
+                });
+            }
+        }
+        Ok(StepOutcome::Completed)
+    }
+
+    fn output_derivative(&self, value_reference: u32, order: u32) -> Option<f64> {
+        if order != 1 {
+            return None;
+        }
+        match value_reference {
+            vr::KNEE_ANGLE => Some(self.knee_velocity),
+            vr::KNEE_VELOCITY => Some(self.knee_acceleration),
+            vr::KNEE_ACCELERATION => Some(self.knee_jerk),
+            vr::KNEE_TORQUE => Some(self.knee_torque_rate),
+            vr::LOAD_TORQUE => Some(-self.knee_torque_rate),
+            vr::GAIT_PHASE => Some(1.0 / self.period),
+            vr::SWEEP_FREQUENCY => Some(0.0),
+            _ => None,
+        }
+    }
+
+    fn documentation() -> &'static str {
+        include_str!("gait.html")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fmi2::instance::fresh_model;
+
+    fn model() -> GaitReference {
+        fresh_model::<GaitReference>()
+    }
+
+    /// Parses shared/data/gait-fourier.csv (the spec's table) independently of the constants.
+    fn table() -> Vec<[f64; 5]> {
+        include_str!("../../../../shared/data/gait-fourier.csv")
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.starts_with('n'))
+            .map(|l| {
+                let v: Vec<f64> = l.split(',').map(|x| x.trim().parse().unwrap()).collect();
+                [v[0], v[1], v[2], v[3], v[4]]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn constants_equal_the_coefficient_table() {
+        let t = table();
+        assert_eq!(t.len(), HARMONICS + 1);
+        for (n, row) in t.iter().enumerate() {
+            assert_eq!(row[0], n as f64);
+            assert_eq!((row[1], row[2]), ANGLE_SERIES[n], "angle n={n}");
+            assert_eq!((row[3], row[4]), TORQUE_SERIES[n], "torque n={n}");
+        }
+    }
+
+    #[test]
+    fn series_matches_the_table_at_many_points() {
+        let t = table();
+        for i in 0..=1000 {
+            let x = i as f64 / 1000.0;
+            let direct = |ca: usize, cb: usize| {
+                t.iter()
+                    .map(|r| r[ca] * (TAU * r[0] * x).cos() + r[cb] * (TAU * r[0] * x).sin())
+                    .sum::<f64>()
+            };
+            let a = fourier(&ANGLE_SERIES, x * 2.5, 2.5).value;
+            let q = fourier(&TORQUE_SERIES, x * 2.5, 2.5).value;
+            assert!((a - direct(1, 2)).abs() < 1e-12, "angle at x={x}");
+            assert!((q - direct(3, 4)).abs() < 1e-12, "torque at x={x}");
+        }
+    }
+
+    #[test]
+    fn normalised_gait_has_the_documented_extremes() {
+        let (mut amax, mut amin, mut tmax, mut tmin, mut at) =
+            (f64::MIN, f64::MAX, f64::MIN, f64::MAX, 0.0);
+        for i in 0..10000 {
+            let x = i as f64 / 10000.0;
+            let a = fourier(&ANGLE_SERIES, x, 1.0).value;
+            let q = fourier(&TORQUE_SERIES, x, 1.0).value;
+            if a > amax {
+                amax = a;
+                at = x;
+            }
+            amin = amin.min(a);
+            tmax = tmax.max(q);
+            tmin = tmin.min(q);
+        }
+        assert!(
+            (amax - 1.0).abs() < 0.01 && (at - 0.715).abs() < 0.01,
+            "{amax} at {at}"
+        );
+        assert!((amin - 0.10).abs() < 0.01, "{amin}");
+        assert!(
+            (tmax - 1.0).abs() < 0.01 && (tmin + 1.94).abs() < 0.01,
+            "{tmax} {tmin}"
+        );
+    }
+
+    fn outputs(m: &mut GaitReference, t: f64) -> [f64; 6] {
+        m.calculate(t).unwrap();
+        [
+            m.knee_angle,
+            m.knee_velocity,
+            m.knee_acceleration,
+            m.knee_jerk,
+            m.knee_torque,
+            m.knee_torque_rate,
+        ]
+    }
+
+    fn check_derivatives(m: &mut GaitReference, times: &[f64]) {
+        let h = 1e-6;
+        for &t in times {
+            let lo = outputs(m, t - h);
+            let hi = outputs(m, t + h);
+            let mid = outputs(m, t);
+            for (k, (d_idx, name)) in [(1, "velocity"), (2, "acceleration"), (3, "jerk")]
+                .iter()
+                .enumerate()
+            {
+                let fd = (hi[k] - lo[k]) / (2.0 * h);
+                let scale = 1.0 + mid[*d_idx].abs();
+                assert!(
+                    (fd - mid[*d_idx]).abs() < 1e-5 * scale,
+                    "{name} at t={t}: fd {fd} vs {}",
+                    mid[*d_idx]
+                );
+            }
+            let fd = (hi[4] - lo[4]) / (2.0 * h);
+            assert!(
+                (fd - mid[5]).abs() < 1e-5 * (1.0 + mid[5].abs()),
+                "torque rate at t={t}"
+            );
+        }
+    }
+
+    #[test]
+    fn analytic_derivatives_agree_with_finite_differences() {
+        let times: Vec<f64> = (0..50).map(|i| 0.013 + i as f64 * 0.0917).collect();
+        for wave in [
+            Waveform::Gait,
+            Waveform::Sine,
+            Waveform::DoubleSine,
+            Waveform::SteppedSine,
+        ] {
+            let mut m = model();
+            m.motion_waveform = wave as i32;
+            m.torque_waveform = wave as i32;
+            m.sweep_dwell = 0.7; // several stages within the sampled times
+            check_derivatives(&mut m, &times);
+        }
+    }
+
+    #[test]
+    fn velocity_mode_angle_is_the_integral_of_velocity() {
+        for wave in [
+            Waveform::Gait,
+            Waveform::Constant,
+            Waveform::Step,
+            Waveform::Sine,
+            Waveform::DoubleSine,
+            Waveform::Triangle,
+            Waveform::SteppedSine,
+        ] {
+            let mut m = model();
+            m.motion_quantity = MotionQuantity::Velocity as i32;
+            m.motion_waveform = wave as i32;
+            m.sweep_dwell = 0.9;
+            m.angle_offset = 0.1;
+            // Trapezoidal integration of the velocity on a fine grid.
+            let (n, t_end) = (200_000, 4.3);
+            let dt = t_end / n as f64;
+            // Mid-interval, so that the trapezoid rule integrates the jump exactly.
+            m.step_time = 20_000.5 * dt;
+            let mut angle = 0.1;
+            let mut prev = outputs(&mut m, 0.0)[1];
+            for i in 1..=n {
+                let v = outputs(&mut m, i as f64 * dt)[1];
+                angle += 0.5 * (prev + v) * dt;
+                prev = v;
+            }
+            let exact = outputs(&mut m, t_end)[0];
+            assert!((angle - exact).abs() < 1e-6, "{wave:?}: {angle} vs {exact}");
+        }
+    }
+
+    #[test]
+    fn one_period_later_every_output_repeats() {
+        for wave in [
+            Waveform::Gait,
+            Waveform::Sine,
+            Waveform::DoubleSine,
+            Waveform::Triangle,
+        ] {
+            let mut m = model();
+            m.motion_waveform = wave as i32;
+            m.torque_waveform = wave as i32;
+            for i in 0..100 {
+                let t = 0.0371 * i as f64;
+                m.calculate(t).unwrap();
+                let a = (
+                    m.knee_angle,
+                    m.knee_velocity,
+                    m.knee_acceleration,
+                    m.load_torque,
+                    m.gait_phase,
+                    m.stance,
+                );
+                m.calculate(t + m.period).unwrap();
+                let b = (
+                    m.knee_angle,
+                    m.knee_velocity,
+                    m.knee_acceleration,
+                    m.load_torque,
+                    m.gait_phase,
+                    m.stance,
+                );
+                assert!(
+                    (a.0 - b.0).abs() < 1e-12
+                        && (a.1 - b.1).abs() < 1e-11
+                        && (a.2 - b.2).abs() < 1e-10,
+                    "{wave:?} t={t}"
+                );
+                assert!(
+                    (a.3 - b.3).abs() < 1e-12 && (a.4 - b.4).abs() < 1e-9 && a.5 == b.5,
+                    "{wave:?} t={t}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn default_gait_has_the_bench_scaling_and_inverted_load_torque() {
+        let mut m = model();
+        let mut peak = f64::MIN;
+        for i in 0..25_000 {
+            m.calculate(i as f64 * 1e-4).unwrap();
+            peak = peak.max(m.knee_angle);
+            assert_eq!(m.load_torque, -m.knee_torque);
+        }
+        assert!((peak.to_degrees() - 60.0).abs() < 0.1, "peak {peak}");
+    }
+
+    #[test]
+    fn triangle_is_continuous_and_bounded() {
+        let p = 2.0;
+        let mut prev = triangle(0.0, p);
+        assert_eq!(prev.value, 0.0);
+        for i in 1..=4000 {
+            let s = triangle(i as f64 * 1e-3, p);
+            assert!(s.value.abs() <= 1.0 + 1e-12);
+            assert!((s.value - prev.value).abs() <= 2.0 * 1e-3 * 2.0 + 1e-12);
+            assert!((s.integral - prev.integral).abs() <= 1.1e-3);
+            prev = s;
+        }
+    }
+
+    #[test]
+    fn stepped_sine_frequency_steps_by_the_ratio_every_dwell() {
+        let s = Sweep {
+            start_frequency: 0.05,
+            ratio: 10f64.powf(1.0 / 30.0),
+            dwell: 20.0,
+        };
+        assert_eq!(s.stage(19.999), 0);
+        assert_eq!(s.stage(20.0), 1);
+        assert!((s.frequency(30) - 0.5).abs() < 1e-12);
+        // Phase is continuous at a stage boundary.
+        let a = s.shape(20.0 - 1e-9).value;
+        let b = s.shape(20.0 + 1e-9).value;
+        assert!((a - b).abs() < 1e-7);
+    }
+
+    #[test]
+    fn sweep_terminates_at_the_stage_that_passes_the_end_frequency() {
+        let mut m = model();
+        m.torque_waveform = Waveform::SteppedSine as i32;
+        m.sweep_dwell = 1.0;
+        m.sweep_start_frequency = 1.0;
+        m.sweep_ratio = 2.0;
+        m.sweep_end_frequency = 4.0; // stages 0,1,2 at 1,2,4 Hz; stage 3 (8 Hz) is past the end
+        assert_eq!(m.do_step(0.0, 2.5).unwrap(), StepOutcome::Completed);
+        assert_eq!(
+            m.do_step(2.5, 1.0).unwrap(),
+            StepOutcome::Terminated {
+                at: 3.0,
+                reason: "the stepped-sine sweep reached sweepEndFrequency"
+            }
+        );
+    }
+
+    #[test]
+    fn stance_window_wraps_around() {
+        let mut m = model();
+        m.stance_start = 0.9;
+        m.stance_end = 0.2;
+        m.calculate(0.95 * m.period).unwrap();
+        assert!(m.stance);
+        m.calculate(0.5 * m.period).unwrap();
+        assert!(!m.stance);
+    }
+}

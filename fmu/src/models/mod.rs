@@ -1,0 +1,3 @@
+//! The bench models: plain Rust structs that know nothing of C.
+
+pub mod gait;
