@@ -1,0 +1,729 @@
+//! Loading an FMU: safe extraction, model description, binary and FMI functions.
+//!
+//! An FMU archive is untrusted input. [`Fmu::load`] extracts it into a private temporary
+//! directory (mode 0700, removed when the last handle to the FMU is dropped) and refuses, with a
+//! [`LoadError`] that names the entry:
+//!
+//! - entry names that could escape the directory: `..` components, absolute paths, Windows drive
+//!   prefixes (`C:`), backslashes, NUL bytes;
+//! - symbolic links (Unix mode `S_IFLNK` in the entry's external attributes);
+//! - more than [`ArchiveLimits::max_entries`] entries, an entry larger than
+//!   [`ArchiveLimits::max_entry_bytes`] or a total larger than [`ArchiveLimits::max_total_bytes`]:
+//!   the limits are checked against the bytes actually decompressed, not only the sizes the
+//!   archive claims (a zip bomb is stopped after `limit + 1` bytes);
+//! - duplicate entries (files are created with `O_EXCL`, so nothing is ever overwritten and no
+//!   pre-existing link is followed).
+//!
+//! Then `modelDescription.xml` is parsed with the `model_description` crate, a `CoSimulation`
+//! element is required, and `binaries/linux64/<modelIdentifier>.so` is loaded with
+//! `RTLD_NOW | RTLD_LOCAL` (as fmpy's ctypes does). Every common and co-simulation function is
+//! resolved; the FMU-state, serialization and derivative functions are optional.
+//!
+//! FMUs whose binary needs symbols of a host runtime (PythonFMU exports need libpython) can be
+//! loaded after preloading that runtime globally: [`LoadOptions::preload`].
+
+use std::ffi::{CStr, CString, c_void};
+use std::fs;
+use std::io::{self, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use model_description::ModelDescription;
+
+use crate::fmi2::*;
+
+/// Bounds on what an archive may contain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ArchiveLimits {
+    /// Maximum number of entries (files and directories).
+    pub max_entries: usize,
+    /// Maximum decompressed size of one entry, in bytes.
+    pub max_entry_bytes: u64,
+    /// Maximum decompressed size of all entries together, in bytes.
+    pub max_total_bytes: u64,
+}
+
+impl Default for ArchiveLimits {
+    /// 10 000 entries, 1 GiB per entry, 2 GiB in total.
+    fn default() -> Self {
+        ArchiveLimits {
+            max_entries: 10_000,
+            max_entry_bytes: 1 << 30,
+            max_total_bytes: 2 << 30,
+        }
+    }
+}
+
+/// Options of [`Fmu::load`].
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    /// Bounds on the archive.
+    pub limits: ArchiveLimits,
+    /// Shared libraries opened with `RTLD_NOW | RTLD_GLOBAL` before the FMU's binary, so that
+    /// their symbols resolve the binary's undefined ones (for example the `libpython3.x.so` a
+    /// PythonFMU export expects from its host). They stay loaded while the FMU is.
+    pub preload: Vec<PathBuf>,
+}
+
+/// Why an FMU could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    /// Reading or writing a file failed.
+    #[error("{context} '{}': {source}", path.display())]
+    Io {
+        /// What was being done.
+        context: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: io::Error,
+    },
+    /// The file is not a readable zip archive, or an entry could not be read.
+    #[error("'{}' is not a valid FMU archive{}: {source}", archive.display(), entry.as_ref().map(|e| format!(" (entry '{e}')")).unwrap_or_default())]
+    Zip {
+        /// The archive.
+        archive: PathBuf,
+        /// The entry being read, if any.
+        entry: Option<String>,
+        /// The cause.
+        source: zip::result::ZipError,
+    },
+    /// An entry name that could escape the extraction directory.
+    #[error("refusing archive entry '{entry}': {reason}")]
+    UnsafeEntryName {
+        /// The entry name as stored (lossily decoded).
+        entry: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// A symbolic link entry.
+    #[error("refusing archive entry '{entry}': symbolic links are not allowed in an FMU")]
+    Symlink {
+        /// The entry name.
+        entry: String,
+    },
+    /// An entry that decompresses to more than the per-entry limit.
+    #[error("refusing archive entry '{entry}': it decompresses to more than {limit} bytes")]
+    EntryTooLarge {
+        /// The entry name.
+        entry: String,
+        /// The limit in bytes.
+        limit: u64,
+    },
+    /// The entries together decompress to more than the total limit.
+    #[error("refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total")]
+    TotalTooLarge {
+        /// The entry at which the limit was passed.
+        entry: String,
+        /// The limit in bytes.
+        limit: u64,
+    },
+    /// Too many entries.
+    #[error("refusing archive: {count} entries (limit {limit})")]
+    TooManyEntries {
+        /// Number of entries in the archive.
+        count: usize,
+        /// The limit.
+        limit: usize,
+    },
+    /// The same path appears twice (or a file and a directory share a path).
+    #[error("refusing archive entry '{entry}': duplicate path")]
+    DuplicateEntry {
+        /// The entry name.
+        entry: String,
+    },
+    /// No `modelDescription.xml` at the root of the archive.
+    #[error("the archive has no modelDescription.xml at its root")]
+    MissingModelDescription,
+    /// `modelDescription.xml` could not be parsed.
+    #[error("modelDescription.xml: {0}")]
+    ModelDescription(String),
+    /// The model description has no `CoSimulation` element.
+    #[error("the FMU does not support co-simulation (no CoSimulation element in modelDescription.xml)")]
+    NoCoSimulation,
+    /// The binary for this platform is not in the archive.
+    #[error("the FMU has no binary for linux64: expected '{expected}' in the archive")]
+    MissingBinary {
+        /// The path inside the archive.
+        expected: String,
+    },
+    /// `dlopen` failed (of the FMU binary or of a preloaded library).
+    #[error("cannot load shared library '{}': {source}{hint}", path.display())]
+    Library {
+        /// The library.
+        path: PathBuf,
+        /// The cause.
+        source: libloading::Error,
+        /// A hint for the user.
+        hint: &'static str,
+    },
+    /// A required FMI function is not exported by the binary.
+    #[error("the FMU binary does not export the required function {name}")]
+    MissingFunction {
+        /// The function name.
+        name: &'static str,
+    },
+    /// `fmi2GetVersion` does not return "2.0".
+    #[error("the FMU binary reports FMI version '{0}', expected '2.0'")]
+    WrongVersion(String),
+}
+
+fn io_err<'a>(context: &'static str, path: &'a Path) -> impl FnOnce(io::Error) -> LoadError + 'a {
+    move |source| LoadError::Io {
+        context,
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Checks one archive entry name and returns the relative path it maps to (`None` for the
+/// archive root, e.g. an entry `./`).
+///
+/// Refuses `..` components, absolute paths, drive prefixes, backslashes and NUL bytes.
+pub fn sanitize_entry_name(name: &str) -> Result<Option<PathBuf>, LoadError> {
+    let refuse = |reason| LoadError::UnsafeEntryName {
+        entry: name.to_string(),
+        reason,
+    };
+    if name.is_empty() {
+        return Err(refuse("empty name"));
+    }
+    if name.contains('\0') {
+        return Err(refuse("NUL byte in the name"));
+    }
+    if name.contains('\\') {
+        return Err(refuse("backslash in the name (Windows path separator)"));
+    }
+    if name.starts_with('/') {
+        return Err(refuse("absolute path"));
+    }
+    let bytes = name.as_bytes();
+    if bytes.len() >= 2 && bytes[0].is_ascii_alphabetic() && bytes[1] == b':' {
+        return Err(refuse("drive prefix (absolute Windows path)"));
+    }
+    let mut out = PathBuf::new();
+    for component in name.split('/') {
+        match component {
+            "" | "." => {}
+            ".." => return Err(refuse("'..' component escapes the extraction directory")),
+            c => out.push(c),
+        }
+    }
+    Ok(if out.as_os_str().is_empty() {
+        None
+    } else {
+        Some(out)
+    })
+}
+
+const S_IFMT: u32 = 0o170000;
+const S_IFLNK: u32 = 0o120000;
+
+/// Extracts `archive` into `dest` (an existing, empty, private directory) within `limits`.
+///
+/// Returns the relative paths of the extracted files.
+pub fn extract_archive(
+    archive: &Path,
+    dest: &Path,
+    limits: &ArchiveLimits,
+) -> Result<Vec<PathBuf>, LoadError> {
+    let file = fs::File::open(archive).map_err(io_err("cannot open", archive))?;
+    let zip_err = |entry: Option<String>| {
+        move |source| LoadError::Zip {
+            archive: archive.to_path_buf(),
+            entry,
+            source,
+        }
+    };
+    let mut zip = zip::ZipArchive::new(io::BufReader::new(file)).map_err(zip_err(None))?;
+    if zip.len() > limits.max_entries {
+        return Err(LoadError::TooManyEntries {
+            count: zip.len(),
+            limit: limits.max_entries,
+        });
+    }
+    let mut total: u64 = 0;
+    let mut files = Vec::new();
+    for i in 0..zip.len() {
+        let mut entry = zip.by_index(i).map_err(zip_err(None))?;
+        let name = String::from_utf8_lossy(entry.name_raw()).into_owned();
+        let Some(rel) = sanitize_entry_name(&name)? else {
+            continue;
+        };
+        if let Some(mode) = entry.unix_mode()
+            && mode & S_IFMT == S_IFLNK
+        {
+            return Err(LoadError::Symlink { entry: name });
+        }
+        let target = dest.join(&rel);
+        if entry.is_dir() || name.ends_with('/') {
+            fs::create_dir_all(&target).map_err(io_err("cannot create directory", &target))?;
+            continue;
+        }
+        if entry.size() > limits.max_entry_bytes {
+            return Err(LoadError::EntryTooLarge {
+                entry: name,
+                limit: limits.max_entry_bytes,
+            });
+        }
+        if let Some(parent) = target.parent() {
+            fs::create_dir_all(parent).map_err(io_err("cannot create directory", parent))?;
+        }
+        let out = fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&target)
+            .map_err(|e| {
+                if e.kind() == io::ErrorKind::AlreadyExists {
+                    LoadError::DuplicateEntry {
+                        entry: name.clone(),
+                    }
+                } else {
+                    LoadError::Io {
+                        context: "cannot create",
+                        path: target.clone(),
+                        source: e,
+                    }
+                }
+            })?;
+        let mut out = io::BufWriter::new(out);
+        // Copy at most limit + 1 bytes: more means the entry is too large, whatever it claims.
+        let remaining_total = limits.max_total_bytes.saturating_sub(total);
+        let cap = limits.max_entry_bytes.min(remaining_total);
+        let copied = copy_bounded(&mut entry, &mut out, cap + 1).map_err(|e| {
+            if e.kind() == io::ErrorKind::InvalidData || e.kind() == io::ErrorKind::UnexpectedEof
+            {
+                LoadError::Zip {
+                    archive: archive.to_path_buf(),
+                    entry: Some(name.clone()),
+                    source: zip::result::ZipError::Io(e),
+                }
+            } else {
+                LoadError::Io {
+                    context: "cannot extract to",
+                    path: target.clone(),
+                    source: e,
+                }
+            }
+        })?;
+        if copied > cap {
+            drop(out);
+            let _ = fs::remove_file(&target);
+            return Err(if copied > limits.max_entry_bytes {
+                LoadError::EntryTooLarge {
+                    entry: name,
+                    limit: limits.max_entry_bytes,
+                }
+            } else {
+                LoadError::TotalTooLarge {
+                    entry: name,
+                    limit: limits.max_total_bytes,
+                }
+            });
+        }
+        out.flush().map_err(io_err("cannot write", &target))?;
+        total += copied;
+        files.push(rel);
+    }
+    Ok(files)
+}
+
+fn copy_bounded(r: &mut impl Read, w: &mut impl Write, max: u64) -> io::Result<u64> {
+    let mut buf = [0u8; 64 * 1024];
+    let mut n: u64 = 0;
+    loop {
+        let want = (max - n).min(buf.len() as u64) as usize;
+        if want == 0 {
+            return Ok(n);
+        }
+        let got = match r.read(&mut buf[..want]) {
+            Ok(0) => return Ok(n),
+            Ok(k) => k,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        w.write_all(&buf[..got])?;
+        n += got as u64;
+    }
+}
+
+/// Percent-encodes an absolute path as a `file://` URI, as Python's `pathlib.Path.as_uri`
+/// does: unreserved characters and `/` stay, every other byte becomes `%XX`.
+pub fn file_uri(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut uri = String::from("file://");
+    for &b in path.as_os_str().as_bytes() {
+        if b.is_ascii_alphanumeric() || matches!(b, b'/' | b'-' | b'_' | b'.' | b'~') {
+            uri.push(b as char);
+        } else {
+            uri.push_str(&format!("%{b:02X}"));
+        }
+    }
+    uri
+}
+
+/// The resolved FMI 2.0 functions of a binary.
+///
+/// Required functions are plain function pointers (loading fails without them); the FMU-state,
+/// serialization and derivative functions are `Option`s.
+#[allow(missing_docs)]
+#[derive(Clone, Copy)]
+pub struct Functions {
+    pub get_types_platform: fmi2GetTypesPlatformTYPE,
+    pub get_version: fmi2GetVersionTYPE,
+    pub set_debug_logging: fmi2SetDebugLoggingTYPE,
+    pub instantiate: fmi2InstantiateTYPE,
+    pub free_instance: fmi2FreeInstanceTYPE,
+    pub setup_experiment: fmi2SetupExperimentTYPE,
+    pub enter_initialization_mode: fmi2ComponentOnlyTYPE,
+    pub exit_initialization_mode: fmi2ComponentOnlyTYPE,
+    pub terminate: fmi2ComponentOnlyTYPE,
+    pub reset: fmi2ComponentOnlyTYPE,
+    pub get_real: fmi2GetRealTYPE,
+    pub get_integer: fmi2GetIntegerTYPE,
+    pub get_boolean: fmi2GetBooleanTYPE,
+    pub get_string: fmi2GetStringTYPE,
+    pub set_real: fmi2SetRealTYPE,
+    pub set_integer: fmi2SetIntegerTYPE,
+    pub set_boolean: fmi2SetBooleanTYPE,
+    pub set_string: fmi2SetStringTYPE,
+    pub do_step: fmi2DoStepTYPE,
+    pub cancel_step: fmi2ComponentOnlyTYPE,
+    pub get_status: fmi2GetStatusTYPE,
+    pub get_real_status: fmi2GetRealStatusTYPE,
+    pub get_integer_status: fmi2GetIntegerStatusTYPE,
+    pub get_boolean_status: fmi2GetBooleanStatusTYPE,
+    pub get_string_status: fmi2GetStringStatusTYPE,
+    pub get_fmu_state: Option<fmi2GetFMUstateTYPE>,
+    pub set_fmu_state: Option<fmi2SetFMUstateTYPE>,
+    pub free_fmu_state: Option<fmi2GetFMUstateTYPE>,
+    pub serialized_fmu_state_size: Option<fmi2SerializedFMUstateSizeTYPE>,
+    pub serialize_fmu_state: Option<fmi2SerializeFMUstateTYPE>,
+    pub deserialize_fmu_state: Option<fmi2DeSerializeFMUstateTYPE>,
+    pub get_directional_derivative: Option<fmi2GetDirectionalDerivativeTYPE>,
+    pub set_real_input_derivatives: Option<fmi2SetRealInputDerivativesTYPE>,
+    pub get_real_output_derivatives: Option<fmi2GetRealOutputDerivativesTYPE>,
+}
+
+impl std::fmt::Debug for Functions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Functions").finish_non_exhaustive()
+    }
+}
+
+/// Names of the functions every FMI 2.0 co-simulation binary must export.
+pub const REQUIRED_FUNCTIONS: &[&str] = &[
+    "fmi2GetTypesPlatform",
+    "fmi2GetVersion",
+    "fmi2SetDebugLogging",
+    "fmi2Instantiate",
+    "fmi2FreeInstance",
+    "fmi2SetupExperiment",
+    "fmi2EnterInitializationMode",
+    "fmi2ExitInitializationMode",
+    "fmi2Terminate",
+    "fmi2Reset",
+    "fmi2GetReal",
+    "fmi2GetInteger",
+    "fmi2GetBoolean",
+    "fmi2GetString",
+    "fmi2SetReal",
+    "fmi2SetInteger",
+    "fmi2SetBoolean",
+    "fmi2SetString",
+    "fmi2DoStep",
+    "fmi2CancelStep",
+    "fmi2GetStatus",
+    "fmi2GetRealStatus",
+    "fmi2GetIntegerStatus",
+    "fmi2GetBooleanStatus",
+    "fmi2GetStringStatus",
+];
+
+/// Names of the optional functions (FMU state, serialization, derivatives).
+pub const OPTIONAL_FUNCTIONS: &[&str] = &[
+    "fmi2GetFMUstate",
+    "fmi2SetFMUstate",
+    "fmi2FreeFMUstate",
+    "fmi2SerializedFMUstateSize",
+    "fmi2SerializeFMUstate",
+    "fmi2DeSerializeFMUstate",
+    "fmi2GetDirectionalDerivative",
+    "fmi2SetRealInputDerivatives",
+    "fmi2GetRealOutputDerivatives",
+];
+
+impl Functions {
+    fn resolve(lib: &libloading::Library) -> Result<Functions, LoadError> {
+        /// # Safety
+        /// `T` must be the function-pointer type of the symbol `name`.
+        unsafe fn req<T: Copy>(
+            lib: &libloading::Library,
+            name: &'static str,
+        ) -> Result<T, LoadError> {
+            let cname = format!("{name}\0");
+            // SAFETY: the caller names the FMI function whose typedef is T.
+            unsafe { lib.get::<T>(cname.as_bytes()) }
+                .map(|s| *s)
+                .map_err(|_| LoadError::MissingFunction { name })
+        }
+        /// # Safety
+        /// As for `req`.
+        unsafe fn opt<T: Copy>(lib: &libloading::Library, name: &'static str) -> Option<T> {
+            // SAFETY: as for `req`.
+            unsafe { req(lib, name) }.ok()
+        }
+        // SAFETY: every symbol is read with the function-pointer type of fmi2FunctionTypes.h.
+        unsafe {
+            Ok(Functions {
+                get_types_platform: req(lib, "fmi2GetTypesPlatform")?,
+                get_version: req(lib, "fmi2GetVersion")?,
+                set_debug_logging: req(lib, "fmi2SetDebugLogging")?,
+                instantiate: req(lib, "fmi2Instantiate")?,
+                free_instance: req(lib, "fmi2FreeInstance")?,
+                setup_experiment: req(lib, "fmi2SetupExperiment")?,
+                enter_initialization_mode: req(lib, "fmi2EnterInitializationMode")?,
+                exit_initialization_mode: req(lib, "fmi2ExitInitializationMode")?,
+                terminate: req(lib, "fmi2Terminate")?,
+                reset: req(lib, "fmi2Reset")?,
+                get_real: req(lib, "fmi2GetReal")?,
+                get_integer: req(lib, "fmi2GetInteger")?,
+                get_boolean: req(lib, "fmi2GetBoolean")?,
+                get_string: req(lib, "fmi2GetString")?,
+                set_real: req(lib, "fmi2SetReal")?,
+                set_integer: req(lib, "fmi2SetInteger")?,
+                set_boolean: req(lib, "fmi2SetBoolean")?,
+                set_string: req(lib, "fmi2SetString")?,
+                do_step: req(lib, "fmi2DoStep")?,
+                cancel_step: req(lib, "fmi2CancelStep")?,
+                get_status: req(lib, "fmi2GetStatus")?,
+                get_real_status: req(lib, "fmi2GetRealStatus")?,
+                get_integer_status: req(lib, "fmi2GetIntegerStatus")?,
+                get_boolean_status: req(lib, "fmi2GetBooleanStatus")?,
+                get_string_status: req(lib, "fmi2GetStringStatus")?,
+                get_fmu_state: opt(lib, "fmi2GetFMUstate"),
+                set_fmu_state: opt(lib, "fmi2SetFMUstate"),
+                free_fmu_state: opt(lib, "fmi2FreeFMUstate"),
+                serialized_fmu_state_size: opt(lib, "fmi2SerializedFMUstateSize"),
+                serialize_fmu_state: opt(lib, "fmi2SerializeFMUstate"),
+                deserialize_fmu_state: opt(lib, "fmi2DeSerializeFMUstate"),
+                get_directional_derivative: opt(lib, "fmi2GetDirectionalDerivative"),
+                set_real_input_derivatives: opt(lib, "fmi2SetRealInputDerivatives"),
+                get_real_output_derivatives: opt(lib, "fmi2GetRealOutputDerivatives"),
+            })
+        }
+    }
+}
+
+/// What an instance keeps alive: the binary (and the libraries preloaded for it) and the
+/// extraction directory with its resources.
+pub(crate) struct FmuShared {
+    pub(crate) functions: Functions,
+    pub(crate) md: ModelDescription,
+    pub(crate) resource_uri: CString,
+    pub(crate) guid: CString,
+    pub(crate) source: PathBuf,
+    pub(crate) binary: PathBuf,
+    pub(crate) missing_optional: Vec<&'static str>,
+    // Drop order: the binary first, then the preloaded libraries, then the directory.
+    _library: libloading::Library,
+    _preloaded: Vec<libloading::os::unix::Library>,
+    dir: tempfile::TempDir,
+}
+
+/// A loaded FMU: extracted archive, parsed model description and resolved functions.
+///
+/// Cheap to clone (a shared handle). The extraction directory and the binary stay alive while
+/// any clone or any [`Instance`](crate::Instance) of it exists.
+#[derive(Clone)]
+pub struct Fmu {
+    pub(crate) shared: Arc<FmuShared>,
+}
+
+impl std::fmt::Debug for Fmu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Fmu")
+            .field("source", &self.shared.source)
+            .field("model_name", &self.shared.md.model_name)
+            .field("dir", &self.shared.dir.path())
+            .finish()
+    }
+}
+
+/// Extracts an archive into a fresh private directory and parses its model description,
+/// without loading the binary. Used by [`Fmu::load`] and by validation.
+pub fn extract_and_parse(
+    path: &Path,
+    limits: &ArchiveLimits,
+) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
+    let dir = tempfile::Builder::new()
+        .prefix("kneebench-fmu-")
+        .tempdir()
+        .map_err(io_err("cannot create a temporary directory for", path))?;
+    {
+        use std::os::unix::fs::PermissionsExt;
+        fs::set_permissions(dir.path(), fs::Permissions::from_mode(0o700))
+            .map_err(io_err("cannot restrict permissions of", dir.path()))?;
+    }
+    extract_archive(path, dir.path(), limits)?;
+    let md_path = dir.path().join("modelDescription.xml");
+    let bytes = match fs::read(&md_path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {
+            return Err(LoadError::MissingModelDescription);
+        }
+        Err(e) => return Err(io_err("cannot read", &md_path)(e)),
+    };
+    let md = parse_model_description(&bytes)?;
+    Ok((dir, md))
+}
+
+/// Parses `modelDescription.xml` bytes (UTF-8, a leading byte-order mark is skipped).
+pub fn parse_model_description(bytes: &[u8]) -> Result<ModelDescription, LoadError> {
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| LoadError::ModelDescription(format!("not UTF-8: {e}")))?;
+    ModelDescription::from_xml(text).map_err(|e| LoadError::ModelDescription(e.to_string()))
+}
+
+impl Fmu {
+    /// Extracts, parses and loads the FMU at `path`.
+    pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Fmu, LoadError> {
+        let path = path.as_ref();
+        let mut preloaded = Vec::new();
+        for lib in &options.preload {
+            // SAFETY: loading a library runs its initializers; the user asked for it.
+            let handle = unsafe {
+                libloading::os::unix::Library::open(
+                    Some(lib),
+                    libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_GLOBAL,
+                )
+            }
+            .map_err(|source| LoadError::Library {
+                path: lib.clone(),
+                source,
+                hint: "",
+            })?;
+            preloaded.push(handle);
+        }
+        let (dir, md) = extract_and_parse(path, &options.limits)?;
+        let cs = md.co_simulation.as_ref().ok_or(LoadError::NoCoSimulation)?;
+        let rel = format!("binaries/linux64/{}.so", cs.model_identifier);
+        let binary = dir.path().join(&rel);
+        if sanitize_entry_name(&rel).is_err() || !binary.is_file() {
+            return Err(LoadError::MissingBinary { expected: rel });
+        }
+        // SAFETY: loading the FMU's binary runs its initializers; this is what importing an FMU
+        // means. RTLD_LOCAL keeps its symbols from clashing with other FMUs.
+        let library: libloading::Library = unsafe {
+            libloading::os::unix::Library::open(
+                Some(&binary),
+                libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_LOCAL,
+            )
+        }
+        .map_err(|source| LoadError::Library {
+            path: binary.clone(),
+            source,
+            hint: " (if the binary expects symbols from a host runtime such as libpython, preload \
+                   that library: LoadOptions::preload / --preload)",
+        })?
+        .into();
+        let functions = Functions::resolve(&library)?;
+        // SAFETY: fmi2GetVersion takes no arguments and returns a static string.
+        let version = unsafe { cstr_lossy((functions.get_version)()) };
+        if version != "2.0" {
+            return Err(LoadError::WrongVersion(version));
+        }
+        let missing_optional = OPTIONAL_FUNCTIONS
+            .iter()
+            .copied()
+            .filter(|name| {
+                let cname = format!("{name}\0");
+                // SAFETY: only checks that the symbol exists.
+                unsafe { library.get::<*const c_void>(cname.as_bytes()) }.is_err()
+            })
+            .collect();
+        let resource_uri = CString::new(file_uri(&dir.path().join("resources")))
+            .expect("a path has no NUL byte");
+        let guid = CString::new(md.guid.clone())
+            .map_err(|_| LoadError::ModelDescription("the guid contains a NUL byte".into()))?;
+        Ok(Fmu {
+            shared: Arc::new(FmuShared {
+                functions,
+                md,
+                resource_uri,
+                guid,
+                source: path.to_path_buf(),
+                binary,
+                missing_optional,
+                _library: library,
+                _preloaded: preloaded,
+                dir,
+            }),
+        })
+    }
+
+    /// The parsed model description.
+    pub fn model_description(&self) -> &ModelDescription {
+        &self.shared.md
+    }
+
+    /// The directory the archive was extracted to (removed when the FMU is dropped).
+    pub fn directory(&self) -> &Path {
+        self.shared.dir.path()
+    }
+
+    /// The path of the loaded binary inside [`directory`](Self::directory).
+    pub fn binary_path(&self) -> &Path {
+        &self.shared.binary
+    }
+
+    /// The `fmuResourceLocation` passed to `fmi2Instantiate`: a percent-encoded `file://` URI of
+    /// the extracted `resources` directory (no trailing slash, as fmpy passes it).
+    pub fn resource_uri(&self) -> &str {
+        self.shared.resource_uri.to_str().expect("built from a String")
+    }
+
+    /// The archive this FMU was loaded from.
+    pub fn source_path(&self) -> &Path {
+        &self.shared.source
+    }
+
+    /// The resolved functions.
+    pub fn functions(&self) -> &Functions {
+        &self.shared.functions
+    }
+
+    /// Optional FMI functions the binary does not export.
+    pub fn missing_optional_functions(&self) -> &[&'static str] {
+        &self.shared.missing_optional
+    }
+
+    /// What `fmi2GetTypesPlatform` returns (should be `"default"`).
+    pub fn types_platform(&self) -> String {
+        // SAFETY: no arguments, returns a static string.
+        unsafe { cstr_lossy((self.shared.functions.get_types_platform)()) }
+    }
+
+    /// Looks up a variable by name.
+    pub fn variable(&self, name: &str) -> Option<&model_description::ScalarVariable> {
+        self.shared
+            .md
+            .model_variables
+            .iter()
+            .find(|v| v.name == name)
+    }
+}
+
+/// Copies a C string (NULL gives an empty string).
+///
+/// # Safety
+/// `p` is NULL or points to a NUL-terminated string.
+pub(crate) unsafe fn cstr_lossy(p: *const std::ffi::c_char) -> String {
+    if p.is_null() {
+        String::new()
+    } else {
+        // SAFETY: per the contract.
+        unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned()
+    }
+}

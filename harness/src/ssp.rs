@@ -1,0 +1,1022 @@
+//! SSP 1.0 system structure: read and write `.ssp` archives and bare `.ssd` files.
+//!
+//! What is modelled ([`Ssd`]): one `System` with `Component`s (name, source URI, connectors,
+//! inline parameter values), `Connection`s, and the `DefaultExperiment` (start and stop time).
+//! SSP 1.0 has no place for the master's step size, so it is written as an annotation of the
+//! default experiment (`<ssc:Annotation type="org.kneebench.master">` holding
+//! `<kb:Master stepSize="..." algorithm="..."/>`), and a component's step multiple as an
+//! annotation of the component (`<kb:Component stepMultiple="..."/>`); other tools ignore both.
+//!
+//! Writing follows `SystemStructureDescription.xsd` version 1.0 (the `ssd:`, `ssc:` and `ssv:`
+//! namespaces, `version="1.0"`, elements in schema order) and only writes `Real`, `Integer` and
+//! `Boolean` connector types, so fmpy's `read_ssd` (which validates against the 1.0 schema),
+//! OMSimulator, libcosim and ecos load it. Parameter values are written inline as an
+//! `ssv:ParameterSet` inside `ssd:ParameterValues`.
+//!
+//! Reading matches elements by local name (any prefix), accepts parameter values inline or in an
+//! `.ssv` file referenced by `source`, and refuses what the master cannot run (nested systems,
+//! connections to system-level connectors) with a clear error.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use quick_xml::events::{BytesStart, Event};
+
+use crate::load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
+use crate::master::{Algorithm, MasterError, RunConfig, System, Value, VarType};
+
+/// SSD namespace.
+pub const NS_SSD: &str = "http://ssp-standard.org/SSP1/SystemStructureDescription";
+/// SSC (common) namespace.
+pub const NS_SSC: &str = "http://ssp-standard.org/SSP1/SystemStructureCommon";
+/// SSV (parameter values) namespace.
+pub const NS_SSV: &str = "http://ssp-standard.org/SSP1/SystemStructureParameterValues";
+/// The namespace of kneebench's annotations.
+pub const NS_KB: &str = "https://github.com/kneebench/kneebench/ssp";
+/// The annotation type of kneebench's annotations.
+pub const ANNOTATION_TYPE: &str = "org.kneebench.master";
+
+/// A system structure description.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Ssd {
+    /// `name` of the description.
+    pub name: String,
+    /// `version` (written as `1.0`).
+    pub version: String,
+    /// The system.
+    pub system: SspSystem,
+    /// `DefaultExperiment` (and the master settings in its annotation).
+    pub default_experiment: Option<SspExperiment>,
+}
+
+/// `DefaultExperiment` plus the master's settings.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SspExperiment {
+    /// `startTime`.
+    pub start_time: Option<f64>,
+    /// `stopTime`.
+    pub stop_time: Option<f64>,
+    /// The base step (kneebench annotation).
+    pub step_size: Option<f64>,
+    /// The algorithm (kneebench annotation).
+    pub algorithm: Option<Algorithm>,
+}
+
+/// The `System` element.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SspSystem {
+    /// `name`.
+    pub name: String,
+    /// `Elements/Component`.
+    pub components: Vec<SspComponent>,
+    /// `Connections/Connection`.
+    pub connections: Vec<SspConnection>,
+}
+
+/// A `Component`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SspComponent {
+    /// `name`.
+    pub name: String,
+    /// `source`: URI of the FMU, relative to the SSD's location (e.g. `resources/a.fmu`).
+    pub source: String,
+    /// `Connectors/Connector`.
+    pub connectors: Vec<SspConnector>,
+    /// Inline parameter values.
+    pub parameters: Vec<SspParameter>,
+    /// The step multiple (kneebench annotation).
+    pub step_multiple: Option<u64>,
+}
+
+/// A `Connector`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SspConnector {
+    /// `name` (the FMU variable's name).
+    pub name: String,
+    /// `kind`.
+    pub kind: ConnectorKind,
+    /// The type element, if any.
+    pub ty: Option<ConnectorType>,
+}
+
+/// `kind` of a connector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConnectorKind {
+    /// `input`.
+    Input,
+    /// `output`.
+    Output,
+    /// `parameter`.
+    Parameter,
+    /// `calculatedParameter`.
+    CalculatedParameter,
+    /// `inout`.
+    Inout,
+}
+
+impl ConnectorKind {
+    fn as_str(self) -> &'static str {
+        match self {
+            ConnectorKind::Input => "input",
+            ConnectorKind::Output => "output",
+            ConnectorKind::Parameter => "parameter",
+            ConnectorKind::CalculatedParameter => "calculatedParameter",
+            ConnectorKind::Inout => "inout",
+        }
+    }
+    fn parse(s: &str) -> Option<ConnectorKind> {
+        Some(match s {
+            "input" => ConnectorKind::Input,
+            "output" => ConnectorKind::Output,
+            "parameter" => ConnectorKind::Parameter,
+            "calculatedParameter" => ConnectorKind::CalculatedParameter,
+            "inout" => ConnectorKind::Inout,
+            _ => return None,
+        })
+    }
+}
+
+/// The type of a connector (only `Real`, `Integer` and `Boolean` are written).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ConnectorType {
+    /// `Real` with an optional `unit`.
+    Real {
+        /// `unit`.
+        unit: Option<String>,
+    },
+    /// `Integer`.
+    Integer,
+    /// `Boolean`.
+    Boolean,
+    /// `String` (read only).
+    String,
+    /// `Enumeration` (read only).
+    Enumeration,
+}
+
+/// A parameter value of a component.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SspParameter {
+    /// The parameter (connector / variable) name.
+    pub name: String,
+    /// The value.
+    pub value: Value,
+}
+
+/// A `Connection`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SspConnection {
+    /// `startElement` (absent: a connector of the system itself).
+    pub start_element: Option<String>,
+    /// `startConnector`.
+    pub start_connector: String,
+    /// `endElement`.
+    pub end_element: Option<String>,
+    /// `endConnector`.
+    pub end_connector: String,
+}
+
+/// Errors of reading, writing and loading SSP files.
+#[derive(Debug, thiserror::Error)]
+pub enum SspError {
+    /// File I/O.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: io::Error,
+    },
+    /// Malformed XML.
+    #[error("{file}: malformed XML at byte {position}: {message}")]
+    Xml {
+        /// The file (name inside the archive or path).
+        file: String,
+        /// Byte offset.
+        position: u64,
+        /// The parser's message.
+        message: String,
+    },
+    /// Valid XML but not a usable SSD.
+    #[error("{file}: {problem}")]
+    Invalid {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A feature the master does not run.
+    #[error("{file}: unsupported: {what}")]
+    Unsupported {
+        /// The file.
+        file: String,
+        /// What.
+        what: String,
+    },
+    /// The archive could not be extracted, or a component's FMU could not be loaded.
+    #[error("{context}: {source}")]
+    Load {
+        /// What was being loaded.
+        context: String,
+        /// The cause.
+        source: LoadError,
+    },
+    /// Building the system failed.
+    #[error(transparent)]
+    System(#[from] MasterError),
+    /// Writing the archive failed.
+    #[error("writing {}: {message}", path.display())]
+    Write {
+        /// The archive.
+        path: PathBuf,
+        /// The cause.
+        message: String,
+    },
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writing
+
+fn esc(s: &str) -> String {
+    let mut o = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => o.push_str("&amp;"),
+            '<' => o.push_str("&lt;"),
+            '>' => o.push_str("&gt;"),
+            '"' => o.push_str("&quot;"),
+            '\'' => o.push_str("&apos;"),
+            '\n' => o.push_str("&#10;"),
+            '\r' => o.push_str("&#13;"),
+            '\t' => o.push_str("&#9;"),
+            c => o.push(c),
+        }
+    }
+    o
+}
+
+/// Formats a double as xs:double, round-trip exact.
+fn xs_double(v: f64) -> String {
+    if v.is_nan() {
+        "NaN".into()
+    } else if v.is_infinite() {
+        if v > 0.0 { "INF".into() } else { "-INF".into() }
+    } else {
+        format!("{v:?}")
+    }
+}
+
+fn algorithm_str(a: Algorithm) -> &'static str {
+    match a {
+        Algorithm::GaussSeidel => "gauss-seidel",
+        Algorithm::Jacobi => "jacobi",
+    }
+}
+
+impl Ssd {
+    /// Writes the description as `SystemStructure.ssd` XML (SSP 1.0).
+    pub fn to_xml(&self) -> String {
+        let mut x = String::new();
+        x.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
+        let _ = writeln!(
+            x,
+            "<ssd:SystemStructureDescription xmlns:ssd=\"{NS_SSD}\" xmlns:ssc=\"{NS_SSC}\" xmlns:ssv=\"{NS_SSV}\" xmlns:kb=\"{NS_KB}\" version=\"1.0\" name=\"{}\" generationTool=\"kneebench\">",
+            esc(&self.name)
+        );
+        let s = &self.system;
+        let _ = writeln!(x, "  <ssd:System name=\"{}\">", esc(&s.name));
+        if !s.components.is_empty() {
+            x.push_str("    <ssd:Elements>\n");
+            for c in &s.components {
+                write_component(&mut x, c);
+            }
+            x.push_str("    </ssd:Elements>\n");
+        }
+        if !s.connections.is_empty() {
+            x.push_str("    <ssd:Connections>\n");
+            for c in &s.connections {
+                x.push_str("      <ssd:Connection");
+                if let Some(e) = &c.start_element {
+                    let _ = write!(x, " startElement=\"{}\"", esc(e));
+                }
+                let _ = write!(x, " startConnector=\"{}\"", esc(&c.start_connector));
+                if let Some(e) = &c.end_element {
+                    let _ = write!(x, " endElement=\"{}\"", esc(e));
+                }
+                let _ = writeln!(x, " endConnector=\"{}\"/>", esc(&c.end_connector));
+            }
+            x.push_str("    </ssd:Connections>\n");
+        }
+        x.push_str("  </ssd:System>\n");
+        if let Some(d) = &self.default_experiment {
+            x.push_str("  <ssd:DefaultExperiment");
+            if let Some(t) = d.start_time {
+                let _ = write!(x, " startTime=\"{}\"", xs_double(t));
+            }
+            if let Some(t) = d.stop_time {
+                let _ = write!(x, " stopTime=\"{}\"", xs_double(t));
+            }
+            if d.step_size.is_none() && d.algorithm.is_none() {
+                x.push_str("/>\n");
+            } else {
+                x.push_str(">\n    <ssc:Annotations>\n");
+                let _ = write!(
+                    x,
+                    "      <ssc:Annotation type=\"{ANNOTATION_TYPE}\">\n        <kb:Master"
+                );
+                if let Some(h) = d.step_size {
+                    let _ = write!(x, " stepSize=\"{}\"", xs_double(h));
+                }
+                if let Some(a) = d.algorithm {
+                    let _ = write!(x, " algorithm=\"{}\"", algorithm_str(a));
+                }
+                x.push_str("/>\n      </ssc:Annotation>\n    </ssc:Annotations>\n");
+                x.push_str("  </ssd:DefaultExperiment>\n");
+            }
+        }
+        x.push_str("</ssd:SystemStructureDescription>\n");
+        x
+    }
+}
+
+fn write_component(x: &mut String, c: &SspComponent) {
+    let _ = writeln!(
+        x,
+        "      <ssd:Component name=\"{}\" type=\"application/x-fmu-sharedlibrary\" source=\"{}\">",
+        esc(&c.name),
+        esc(&c.source)
+    );
+    let typed: Vec<&SspConnector> = c.connectors.iter().collect();
+    if !typed.is_empty() {
+        x.push_str("        <ssd:Connectors>\n");
+        for k in typed {
+            let _ = write!(
+                x,
+                "          <ssd:Connector name=\"{}\" kind=\"{}\"",
+                esc(&k.name),
+                k.kind.as_str()
+            );
+            match &k.ty {
+                Some(ConnectorType::Real { unit }) => {
+                    x.push_str(">\n            <ssc:Real");
+                    if let Some(u) = unit {
+                        let _ = write!(x, " unit=\"{}\"", esc(u));
+                    }
+                    x.push_str("/>\n          </ssd:Connector>\n");
+                }
+                Some(ConnectorType::Integer) => {
+                    x.push_str(">\n            <ssc:Integer/>\n          </ssd:Connector>\n")
+                }
+                Some(ConnectorType::Boolean) => {
+                    x.push_str(">\n            <ssc:Boolean/>\n          </ssd:Connector>\n")
+                }
+                // Only Real/Integer/Boolean types are written (what every SSP importer handles).
+                _ => x.push_str("/>\n"),
+            }
+        }
+        x.push_str("        </ssd:Connectors>\n");
+    }
+    if !c.parameters.is_empty() {
+        x.push_str("        <ssd:ParameterBindings>\n          <ssd:ParameterBinding>\n            <ssd:ParameterValues>\n");
+        let _ = writeln!(
+            x,
+            "              <ssv:ParameterSet version=\"1.0\" name=\"{}\">\n                <ssv:Parameters>",
+            esc(&c.name)
+        );
+        for p in &c.parameters {
+            let _ = write!(
+                x,
+                "                  <ssv:Parameter name=\"{}\">\n                    ",
+                esc(&p.name)
+            );
+            match &p.value {
+                Value::Real(v) => {
+                    let _ = write!(x, "<ssv:Real value=\"{}\"/>", xs_double(*v));
+                }
+                Value::Integer(v) => {
+                    let _ = write!(x, "<ssv:Integer value=\"{v}\"/>");
+                }
+                Value::Boolean(v) => {
+                    let _ = write!(x, "<ssv:Boolean value=\"{v}\"/>");
+                }
+                Value::String(v) => {
+                    let _ = write!(x, "<ssv:String value=\"{}\"/>", esc(v));
+                }
+            }
+            x.push_str("\n                  </ssv:Parameter>\n");
+        }
+        x.push_str("                </ssv:Parameters>\n              </ssv:ParameterSet>\n            </ssd:ParameterValues>\n          </ssd:ParameterBinding>\n        </ssd:ParameterBindings>\n");
+    }
+    if let Some(m) = c.step_multiple {
+        let _ = writeln!(
+            x,
+            "        <ssc:Annotations>\n          <ssc:Annotation type=\"{ANNOTATION_TYPE}\">\n            <kb:Component stepMultiple=\"{m}\"/>\n          </ssc:Annotation>\n        </ssc:Annotations>"
+        );
+    }
+    x.push_str("      </ssd:Component>\n");
+}
+
+/// Writes a bare `.ssd` file.
+pub fn write_ssd_file(ssd: &Ssd, path: &Path) -> Result<(), SspError> {
+    std::fs::write(path, ssd.to_xml()).map_err(|source| SspError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Writes an `.ssp` archive: `SystemStructure.ssd` plus the given files, each as
+/// `(name in the archive, file on disk)`, e.g. `("resources/a.fmu", "/tmp/a.fmu")`.
+pub fn write_ssp(ssd: &Ssd, files: &[(String, PathBuf)], path: &Path) -> Result<(), SspError> {
+    let werr = |m: String| SspError::Write {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let f = std::fs::File::create(path).map_err(|source| SspError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut z = zip::ZipWriter::new(io::BufWriter::new(f));
+    let opts = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated)
+        .unix_permissions(0o644);
+    z.start_file("SystemStructure.ssd", opts)
+        .map_err(|e| werr(e.to_string()))?;
+    z.write_all(ssd.to_xml().as_bytes())
+        .map_err(|e| werr(e.to_string()))?;
+    for (name, src) in files {
+        crate::load::sanitize_entry_name(name).map_err(|e| werr(e.to_string()))?;
+        let bytes = std::fs::read(src).map_err(|source| SspError::Io {
+            path: src.clone(),
+            source,
+        })?;
+        // FMUs are already compressed.
+        let o = opts.compression_method(zip::CompressionMethod::Stored);
+        z.start_file(name.as_str(), o)
+            .map_err(|e| werr(e.to_string()))?;
+        z.write_all(&bytes).map_err(|e| werr(e.to_string()))?;
+    }
+    z.finish().map_err(|e| werr(e.to_string()))?;
+    Ok(())
+}
+
+impl SspComponent {
+    /// A component for `fmu` with one connector per input, output and tunable/fixed parameter
+    /// of type `Real`, `Integer` or `Boolean`.
+    pub fn from_model_description(
+        name: &str,
+        source: &str,
+        md: &model_description::ModelDescription,
+    ) -> SspComponent {
+        use model_description::{Causality, VariableKind};
+        let connectors = md
+            .model_variables
+            .iter()
+            .filter_map(|v| {
+                let kind = match v.causality? {
+                    Causality::Input => ConnectorKind::Input,
+                    Causality::Output => ConnectorKind::Output,
+                    Causality::Parameter => ConnectorKind::Parameter,
+                    _ => return None,
+                };
+                let ty = match &v.kind {
+                    VariableKind::Real { attributes, .. } => ConnectorType::Real {
+                        unit: attributes.unit.clone(),
+                    },
+                    VariableKind::Integer { .. } => ConnectorType::Integer,
+                    VariableKind::Boolean { .. } => ConnectorType::Boolean,
+                    _ => return None,
+                };
+                Some(SspConnector {
+                    name: v.name.clone(),
+                    kind,
+                    ty: Some(ty),
+                })
+            })
+            .collect();
+        SspComponent {
+            name: name.to_string(),
+            source: source.to_string(),
+            connectors,
+            parameters: Vec::new(),
+            step_multiple: None,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading
+
+fn attrs(e: &BytesStart<'_>, file: &str) -> Result<HashMap<String, String>, SspError> {
+    let mut m = HashMap::new();
+    for a in e.attributes() {
+        let a = a.map_err(|err| SspError::Invalid {
+            file: file.to_string(),
+            problem: format!("bad attribute: {err}"),
+        })?;
+        let key = a.key.local_name().as_ref().to_string();
+        let v = a
+            .normalized_value(quick_xml::XmlVersion::Implicit1_0)
+            .map_err(|err| SspError::Invalid {
+                file: file.to_string(),
+                problem: format!("bad attribute value: {err}"),
+            })?
+            .into_owned();
+        m.insert(key, v);
+    }
+    Ok(m)
+}
+
+fn parse_f64(file: &str, what: &str, s: &str) -> Result<f64, SspError> {
+    match s.trim() {
+        "INF" => Ok(f64::INFINITY),
+        "-INF" => Ok(f64::NEG_INFINITY),
+        t => t.parse().map_err(|_| SspError::Invalid {
+            file: file.to_string(),
+            problem: format!("{what}: '{s}' is not a number"),
+        }),
+    }
+}
+
+/// Reads parameter values from an `ssv:ParameterSet` document or fragment.
+fn read_parameter_set(xml: &str, file: &str) -> Result<Vec<SspParameter>, SspError> {
+    let mut r = quick_xml::Reader::from_str(xml);
+    r.config_mut().trim_text(true);
+    let mut out = Vec::new();
+    let mut current: Option<String> = None;
+    loop {
+        let ev = r.read_event().map_err(|e| SspError::Xml {
+            file: file.to_string(),
+            position: r.buffer_position(),
+            message: e.to_string(),
+        })?;
+        match ev {
+            Event::Start(e) | Event::Empty(e) => {
+                let local = e.local_name();
+                let a = attrs(&e, file)?;
+                match local.as_ref().as_bytes() {
+                    b"Parameter" => current = a.get("name").cloned(),
+                    t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
+                        let Some(name) = current.clone() else { continue };
+                        let v = a.get("value").cloned().unwrap_or_default();
+                        let value = match t {
+                            b"Real" => Value::Real(parse_f64(file, &name, &v)?),
+                            b"Integer" => Value::Integer(v.trim().parse().map_err(|_| {
+                                SspError::Invalid {
+                                    file: file.to_string(),
+                                    problem: format!("parameter {name}: '{v}' is not an Integer"),
+                                }
+                            })?),
+                            b"Boolean" => Value::Boolean(matches!(v.trim(), "true" | "1")),
+                            b"String" => Value::String(v),
+                            _ => {
+                                return Err(SspError::Unsupported {
+                                    file: file.to_string(),
+                                    what: format!("Enumeration parameter value ({name})"),
+                                });
+                            }
+                        };
+                        out.push(SspParameter { name, value });
+                    }
+                    _ => {}
+                }
+            }
+            Event::End(e) if e.local_name().as_ref().as_bytes() == b"Parameter" => current = None,
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// Reads an SSD document. `read_file` resolves `source` references of parameter bindings
+/// (relative to the SSD's location).
+pub fn read_ssd_with(
+    xml: &str,
+    file: &str,
+    read_file: &mut dyn FnMut(&str) -> Result<String, SspError>,
+) -> Result<Ssd, SspError> {
+    let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
+    let mut r = quick_xml::Reader::from_str(xml);
+    r.config_mut().trim_text(true);
+    let mut ssd = Ssd::default();
+    let mut stack: Vec<Vec<u8>> = Vec::new();
+    let mut saw_root = false;
+    let mut system_depth: Option<usize> = None;
+    let mut comp: Option<SspComponent> = None;
+    let mut connector: Option<SspConnector> = None;
+    let mut binding_prefix = String::new();
+    let invalid = |p: String| SspError::Invalid {
+        file: file.to_string(),
+        problem: p,
+    };
+    loop {
+        let pos = r.buffer_position();
+        let ev = r.read_event().map_err(|e| SspError::Xml {
+            file: file.to_string(),
+            position: pos,
+            message: e.to_string(),
+        })?;
+        let (e, empty) = match ev {
+            Event::Start(e) => (e, false),
+            Event::Empty(e) => (e, true),
+            Event::End(e) => {
+                let name = e.local_name().as_ref().as_bytes().to_vec();
+                stack.pop();
+                let parent = stack.last().map(Vec::as_slice).unwrap_or_default();
+                match name.as_slice() {
+                    b"Component" if parent == b"Elements" => {
+                        if let Some(c) = comp.take() {
+                            ssd.system.components.push(c);
+                        }
+                    }
+                    b"Connector" => {
+                        if let (Some(k), Some(c)) = (connector.take(), comp.as_mut()) {
+                            c.connectors.push(k);
+                        }
+                    }
+                    _ => {}
+                }
+                continue;
+            }
+            Event::Eof => break,
+            _ => continue,
+        };
+        let local = e.local_name().as_ref().as_bytes().to_vec();
+        let a = attrs(&e, file)?;
+        let parent = stack.last().cloned().unwrap_or_default();
+        let in_annotation = parent.as_slice() == b"Annotation";
+        match local.as_slice() {
+            // kb:Component in a component's annotation: the step multiple.
+            b"Component" if in_annotation => {
+                if let (Some(c), Some(m)) = (comp.as_mut(), a.get("stepMultiple")) {
+                    c.step_multiple = Some(m.trim().parse().map_err(|_| {
+                        invalid(format!("stepMultiple '{m}' is not a positive integer"))
+                    })?);
+                }
+            }
+            b"SystemStructureDescription" if stack.is_empty() => {
+                saw_root = true;
+                ssd.name = a.get("name").cloned().unwrap_or_default();
+                ssd.version = a.get("version").cloned().unwrap_or_default();
+                if !ssd.version.starts_with("1.") {
+                    return Err(invalid(format!(
+                        "version '{}' is not an SSP 1.x version",
+                        ssd.version
+                    )));
+                }
+            }
+            b"System" => {
+                if system_depth.is_some() {
+                    return Err(SspError::Unsupported {
+                        file: file.to_string(),
+                        what: "nested systems".into(),
+                    });
+                }
+                system_depth = Some(stack.len());
+                ssd.system.name = a.get("name").cloned().unwrap_or_default();
+            }
+            b"Component" if parent.as_slice() == b"Elements" => {
+                let name = a
+                    .get("name")
+                    .cloned()
+                    .ok_or_else(|| invalid("a Component has no name".into()))?;
+                let source = a
+                    .get("source")
+                    .cloned()
+                    .ok_or_else(|| invalid(format!("Component '{name}' has no source")))?;
+                if let Some(t) = a.get("type")
+                    && t != "application/x-fmu-sharedlibrary"
+                {
+                    return Err(SspError::Unsupported {
+                        file: file.to_string(),
+                        what: format!("component '{name}' of type '{t}' (only FMUs)"),
+                    });
+                }
+                let c = SspComponent {
+                    name,
+                    source,
+                    ..SspComponent::default()
+                };
+                if empty {
+                    ssd.system.components.push(c);
+                } else {
+                    comp = Some(c);
+                }
+            }
+            b"Connector" => {
+                let name = a.get("name").cloned().unwrap_or_default();
+                let kind = a
+                    .get("kind")
+                    .and_then(|k| ConnectorKind::parse(k))
+                    .ok_or_else(|| invalid(format!("connector '{name}' has no valid kind")))?;
+                let k = SspConnector {
+                    name,
+                    kind,
+                    ty: None,
+                };
+                if comp.is_some() {
+                    if empty {
+                        comp.as_mut().expect("checked").connectors.push(k);
+                    } else {
+                        connector = Some(k);
+                    }
+                }
+            }
+            t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration")
+                if parent.as_slice() == b"Connector" =>
+            {
+                if let Some(k) = connector.as_mut() {
+                    k.ty = Some(match t {
+                        b"Real" => ConnectorType::Real {
+                            unit: a.get("unit").cloned(),
+                        },
+                        b"Integer" => ConnectorType::Integer,
+                        b"Boolean" => ConnectorType::Boolean,
+                        b"String" => ConnectorType::String,
+                        _ => ConnectorType::Enumeration,
+                    });
+                }
+            }
+            b"ParameterBinding" => {
+                binding_prefix = a.get("prefix").cloned().unwrap_or_default();
+                if let Some(src) = a.get("source") {
+                    let text = read_file(src)?;
+                    let params = read_parameter_set(&text, src)?;
+                    push_params(comp.as_mut(), params, &binding_prefix, file)?;
+                }
+            }
+            b"ParameterSet" if !empty => {
+                // Inline: parse the fragment from here to its end.
+                let start = pos as usize;
+                let end_tag = r
+                    .read_to_end(e.name())
+                    .map_err(|err| SspError::Xml {
+                        file: file.to_string(),
+                        position: r.buffer_position(),
+                        message: err.to_string(),
+                    })?;
+                let _ = end_tag;
+                let end = r.buffer_position() as usize;
+                let fragment = &xml[start..end];
+                let params = read_parameter_set(fragment, file)?;
+                push_params(comp.as_mut(), params, &binding_prefix, file)?;
+                continue; // the end tag was consumed
+            }
+            b"Connection" => {
+                let c = SspConnection {
+                    start_element: a.get("startElement").cloned(),
+                    start_connector: a.get("startConnector").cloned().unwrap_or_default(),
+                    end_element: a.get("endElement").cloned(),
+                    end_connector: a.get("endConnector").cloned().unwrap_or_default(),
+                };
+                ssd.system.connections.push(c);
+            }
+            b"DefaultExperiment" => {
+                let d = ssd.default_experiment.get_or_insert_with(Default::default);
+                if let Some(v) = a.get("startTime") {
+                    d.start_time = Some(parse_f64(file, "startTime", v)?);
+                }
+                if let Some(v) = a.get("stopTime") {
+                    d.stop_time = Some(parse_f64(file, "stopTime", v)?);
+                }
+            }
+            b"Master" => {
+                let d = ssd.default_experiment.get_or_insert_with(Default::default);
+                if let Some(v) = a.get("stepSize") {
+                    d.step_size = Some(parse_f64(file, "stepSize", v)?);
+                }
+                d.algorithm = match a.get("algorithm").map(String::as_str) {
+                    Some("jacobi") => Some(Algorithm::Jacobi),
+                    Some("gauss-seidel") => Some(Algorithm::GaussSeidel),
+                    _ => d.algorithm,
+                };
+            }
+            _ => {}
+        }
+        if !empty {
+            stack.push(local);
+        }
+    }
+    if !saw_root {
+        return Err(invalid("the root element is not SystemStructureDescription".into()));
+    }
+    if system_depth.is_none() {
+        return Err(invalid("no System element".into()));
+    }
+    Ok(ssd)
+}
+
+fn push_params(
+    comp: Option<&mut SspComponent>,
+    params: Vec<SspParameter>,
+    prefix: &str,
+    file: &str,
+) -> Result<(), SspError> {
+    let Some(c) = comp else {
+        return Err(SspError::Unsupported {
+            file: file.to_string(),
+            what: "parameter bindings on the system (only on components)".into(),
+        });
+    };
+    for mut p in params {
+        if !prefix.is_empty() {
+            p.name = format!("{prefix}{}", p.name);
+        }
+        c.parameters.push(p);
+    }
+    Ok(())
+}
+
+/// Reads an SSD document whose parameter bindings are all inline.
+pub fn read_ssd(xml: &str) -> Result<Ssd, SspError> {
+    read_ssd_with(xml, "SystemStructure.ssd", &mut |src| {
+        Err(SspError::Unsupported {
+            file: "SystemStructure.ssd".into(),
+            what: format!("parameter binding source '{src}' (no file access)"),
+        })
+    })
+}
+
+fn read_text(path: &Path) -> Result<String, SspError> {
+    std::fs::read_to_string(path).map_err(|source| SspError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// A relative reference inside an SSP (no `..`, not absolute, no scheme other than none).
+fn relative_ref(base: &Path, reference: &str, file: &str) -> Result<PathBuf, SspError> {
+    let r = reference.strip_prefix("./").unwrap_or(reference);
+    if r.contains("://") || r.starts_with("file:") {
+        return Err(SspError::Unsupported {
+            file: file.to_string(),
+            what: format!("source URI '{reference}' (only relative references)"),
+        });
+    }
+    let rel = crate::load::sanitize_entry_name(r)
+        .map_err(|e| SspError::Invalid {
+            file: file.to_string(),
+            problem: format!("source '{reference}': {e}"),
+        })?
+        .ok_or_else(|| SspError::Invalid {
+            file: file.to_string(),
+            problem: format!("empty source '{reference}'"),
+        })?;
+    Ok(base.join(rel))
+}
+
+/// A system read from an SSP file, ready to run.
+pub struct LoadedSystem {
+    /// The description as read.
+    pub ssd: Ssd,
+    /// The system built from it (components, connections, parameter values, step multiples).
+    pub system: System,
+    /// A run configuration from the default experiment (fields not given keep the defaults of
+    /// [`RunConfig::default`]).
+    pub config: RunConfig,
+    // The extracted archive (kept while the system may still refer to files in it).
+    _dir: Option<tempfile::TempDir>,
+}
+
+impl std::fmt::Debug for LoadedSystem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LoadedSystem")
+            .field("ssd", &self.ssd)
+            .field("config", &self.config)
+            .finish()
+    }
+}
+
+/// Reads an `.ssp` archive (extracted safely with the limits of `options`) or a bare `.ssd`
+/// file (component sources relative to its directory).
+pub fn read_file(path: &Path, limits: &ArchiveLimits) -> Result<(Ssd, PathBuf, Option<tempfile::TempDir>), SspError> {
+    let is_ssd = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ssd"));
+    let (base, dir) = if is_ssd {
+        (
+            path.parent().map(Path::to_path_buf).unwrap_or_default(),
+            None,
+        )
+    } else {
+        let dir = tempfile::Builder::new()
+            .prefix("kneebench-ssp-")
+            .tempdir()
+            .map_err(|source| SspError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        crate::load::extract_archive(path, dir.path(), limits).map_err(|source| {
+            SspError::Load {
+                context: format!("extracting {}", path.display()),
+                source,
+            }
+        })?;
+        (dir.path().to_path_buf(), Some(dir))
+    };
+    let ssd_path = if is_ssd {
+        path.to_path_buf()
+    } else {
+        base.join("SystemStructure.ssd")
+    };
+    let xml = read_text(&ssd_path)?;
+    let file = ssd_path.display().to_string();
+    let ssd = read_ssd_with(&xml, &file, &mut |src| {
+        read_text(&relative_ref(&base, src, &file)?)
+    })?;
+    Ok((ssd, base, dir))
+}
+
+/// Reads an SSP (`.ssp` or `.ssd`) and builds the [`System`]: loads each distinct FMU once,
+/// adds the components, connections (component to component only) and parameter values.
+pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, SspError> {
+    let (ssd, base, dir) = read_file(path, &options.limits)?;
+    let file = path.display().to_string();
+    let mut system = System::new();
+    let mut fmus: HashMap<String, Fmu> = HashMap::new();
+    for c in &ssd.system.components {
+        let fmu = match fmus.get(&c.source) {
+            Some(f) => f.clone(),
+            None => {
+                let p = relative_ref(&base, &c.source, &file)?;
+                let f = Fmu::load(&p, options).map_err(|source| SspError::Load {
+                    context: format!("component '{}' ({})", c.name, c.source),
+                    source,
+                })?;
+                fmus.insert(c.source.clone(), f.clone());
+                f
+            }
+        };
+        system.add_component(&c.name, fmu)?;
+        if let Some(m) = c.step_multiple {
+            system.set_step_multiple(&c.name, m)?;
+        }
+        for p in &c.parameters {
+            let reference = format!("{}.{}", c.name, p.name);
+            // Integer parameters may be written for Real variables (and vice versa) by other
+            // tools: convert through text.
+            let text = match &p.value {
+                Value::Real(v) => format!("{v:?}"),
+                Value::Integer(v) => v.to_string(),
+                Value::Boolean(v) => v.to_string(),
+                Value::String(v) => v.clone(),
+            };
+            match system.set_value(&reference, p.value.clone()) {
+                Ok(()) => {}
+                Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }
+    for c in &ssd.system.connections {
+        let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) else {
+            return Err(SspError::Unsupported {
+                file: file.clone(),
+                what: format!(
+                    "connection {}.{} -> {}.{} to a connector of the system itself",
+                    c.start_element.as_deref().unwrap_or(""),
+                    c.start_connector,
+                    c.end_element.as_deref().unwrap_or(""),
+                    c.end_connector
+                ),
+            });
+        };
+        system.connect(
+            &format!("{se}.{}", c.start_connector),
+            &format!("{ee}.{}", c.end_connector),
+        )?;
+    }
+    let mut config = RunConfig::default();
+    if let Some(d) = &ssd.default_experiment {
+        if let Some(t) = d.start_time {
+            config.start_time = t;
+        }
+        if let Some(t) = d.stop_time {
+            config.stop_time = t;
+        }
+        if let Some(h) = d.step_size {
+            config.step_size = h;
+        }
+        if let Some(a) = d.algorithm {
+            config.algorithm = a;
+        }
+    }
+    Ok(LoadedSystem {
+        ssd,
+        system,
+        config,
+        _dir: dir,
+    })
+}
+
+/// The variable type a connector type stands for.
+pub fn connector_var_type(t: &ConnectorType) -> VarType {
+    match t {
+        ConnectorType::Real { .. } => VarType::Real,
+        ConnectorType::Integer | ConnectorType::Enumeration => VarType::Integer,
+        ConnectorType::Boolean => VarType::Boolean,
+        ConnectorType::String => VarType::String,
+    }
+}
