@@ -1,0 +1,251 @@
+//! Hostile and malformed archives: each is refused with a clear error, and nothing is written
+//! outside the extraction directory.
+
+mod common;
+
+use std::io::Write;
+use std::path::Path;
+
+use common::FmuSpec;
+use kneebench_harness::load::{ArchiveLimits, extract_archive};
+use kneebench_harness::{Fmu, LoadError, LoadOptions};
+use zip::write::SimpleFileOptions;
+
+fn opts() -> SimpleFileOptions {
+    SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated)
+}
+
+/// Writes an archive with a valid FMU's content plus whatever `extra` adds.
+fn archive(path: &Path, extra: impl FnOnce(&mut zip::ZipWriter<std::fs::File>)) {
+    let f = std::fs::File::create(path).unwrap();
+    let mut z = zip::ZipWriter::new(f);
+    z.start_file("modelDescription.xml", opts()).unwrap();
+    z.write_all(common::model_description(common::GUID).as_bytes())
+        .unwrap();
+    extra(&mut z);
+    z.start_file("binaries/linux64/kbtest.so", opts()).unwrap();
+    z.write_all(&std::fs::read(common::kbtest_so()).unwrap())
+        .unwrap();
+    z.finish().unwrap();
+}
+
+/// Extracts into `sandbox/dest` and checks that nothing but `dest` appeared in the sandbox
+/// (and nothing named `evil*` anywhere in it).
+fn extract_in_sandbox(fmu: &Path, limits: &ArchiveLimits) -> Result<(), LoadError> {
+    let sandbox = tempfile::tempdir().unwrap();
+    let dest = sandbox.path().join("dest");
+    std::fs::create_dir(&dest).unwrap();
+    let r = extract_archive(fmu, &dest, limits).map(|_| ());
+    let top: Vec<_> = std::fs::read_dir(sandbox.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(top, vec![std::ffi::OsString::from("dest")]);
+    fn walk(p: &Path) {
+        for e in std::fs::read_dir(p).unwrap() {
+            let e = e.unwrap();
+            let name = e.file_name().to_string_lossy().into_owned();
+            assert!(!name.starts_with("evil"), "{} was written", e.path().display());
+            let ft = e.file_type().unwrap();
+            assert!(!ft.is_symlink(), "a symlink was created: {}", e.path().display());
+            if ft.is_dir() {
+                walk(&e.path());
+            }
+        }
+    }
+    walk(sandbox.path());
+    r
+}
+
+fn load_err(path: &Path) -> LoadError {
+    Fmu::load(path, &LoadOptions::default()).unwrap_err()
+}
+
+#[test]
+fn dotdot_path_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("dotdot.fmu");
+    archive(&p, |z| {
+        z.start_file("resources/../../evil.txt", opts()).unwrap();
+        z.write_all(b"escaped").unwrap();
+    });
+    let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+    assert!(matches!(e, LoadError::UnsafeEntryName { .. }), "{e}");
+    let msg = load_err(&p).to_string();
+    assert!(
+        msg.contains("'resources/../../evil.txt'") && msg.contains("'..'"),
+        "{msg}"
+    );
+    assert!(!d.path().join("evil.txt").exists());
+}
+
+#[test]
+fn absolute_paths_backslashes_and_drive_prefixes_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let abs = std::env::temp_dir().join(format!("evil-kneebench-{}.txt", std::process::id()));
+    for (i, name) in [
+        abs.to_string_lossy().into_owned(),
+        "..\\evil.txt".to_string(),
+        "C:/evil.txt".to_string(),
+        "resources\\..\\..\\evil.txt".to_string(),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let p = d.path().join(format!("bad{i}.fmu"));
+        archive(&p, |z| {
+            z.start_file(name.as_str(), opts()).unwrap();
+            z.write_all(b"escaped").unwrap();
+        });
+        let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+        assert!(
+            matches!(&e, LoadError::UnsafeEntryName { entry, .. } if *entry == name),
+            "{name}: {e}"
+        );
+    }
+    assert!(!abs.exists(), "the absolute path was written");
+}
+
+#[test]
+fn symlink_entry_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("symlink.fmu");
+    archive(&p, |z| {
+        z.add_symlink("resources/evil-link", "/etc/passwd", opts())
+            .unwrap();
+    });
+    let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+    assert!(matches!(e, LoadError::Symlink { .. }), "{e}");
+    assert!(load_err(&p).to_string().contains("symbolic link"));
+}
+
+#[test]
+fn zip_bomb_entry_is_stopped_by_the_decompressed_size() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("bomb.fmu");
+    // 64 MiB of zeros compress to about 64 KiB.
+    archive(&p, |z| {
+        z.start_file("resources/evil-bomb.bin", opts()).unwrap();
+        let chunk = vec![0u8; 1 << 20];
+        for _ in 0..64 {
+            z.write_all(&chunk).unwrap();
+        }
+    });
+    assert!(std::fs::metadata(&p).unwrap().len() < 2 << 20);
+    let limits = ArchiveLimits {
+        max_entry_bytes: 16 << 20,
+        ..ArchiveLimits::default()
+    };
+    let e = extract_in_sandbox(&p, &limits).unwrap_err();
+    assert!(
+        matches!(&e, LoadError::EntryTooLarge { entry, .. } if entry == "resources/evil-bomb.bin"),
+        "{e}"
+    );
+    let total = ArchiveLimits {
+        max_total_bytes: 32 << 20,
+        ..ArchiveLimits::default()
+    };
+    let e = extract_in_sandbox(&p, &total).unwrap_err();
+    assert!(matches!(e, LoadError::TotalTooLarge { .. }), "{e}");
+    let many = ArchiveLimits {
+        max_entries: 2,
+        ..ArchiveLimits::default()
+    };
+    let e = extract_in_sandbox(&p, &many).unwrap_err();
+    assert!(matches!(e, LoadError::TooManyEntries { count: 3, .. }), "{e}");
+    let e = Fmu::load(
+        &p,
+        &LoadOptions {
+            limits,
+            ..LoadOptions::default()
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("decompresses to more than"), "{e}");
+}
+
+#[test]
+fn missing_binary_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("nobinary.fmu");
+    common::write_fmu(
+        &p,
+        &FmuSpec {
+            binary: false,
+            ..FmuSpec::default()
+        },
+    );
+    let e = load_err(&p);
+    assert!(
+        matches!(&e, LoadError::MissingBinary { expected } if expected == "binaries/linux64/kbtest.so"),
+        "{e}"
+    );
+}
+
+#[test]
+fn malformed_or_missing_model_description_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("badxml.fmu");
+    common::write_fmu(
+        &p,
+        &FmuSpec {
+            model_description: Some("<fmiModelDescription fmiVersion=\"2.0\" <<".into()),
+            ..FmuSpec::default()
+        },
+    );
+    let e = load_err(&p);
+    assert!(matches!(e, LoadError::ModelDescription(_)), "{e}");
+    assert!(e.to_string().starts_with("modelDescription.xml: "), "{e}");
+
+    let p = d.path().join("nomd.fmu");
+    common::write_fmu(
+        &p,
+        &FmuSpec {
+            model_description: None,
+            ..FmuSpec::default()
+        },
+    );
+    assert!(matches!(load_err(&p), LoadError::MissingModelDescription));
+
+    let p = d.path().join("notazip.fmu");
+    std::fs::write(&p, b"this is not a zip archive").unwrap();
+    let e = load_err(&p);
+    assert!(matches!(e, LoadError::Zip { .. }), "{e}");
+}
+
+#[test]
+fn guid_mismatch_is_refused_at_instantiation() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("guid.fmu");
+    common::write_fmu(
+        &p,
+        &FmuSpec {
+            model_description: Some(common::model_description("{another-guid}")),
+            ..FmuSpec::default()
+        },
+    );
+    let fmu = Fmu::load(&p, &LoadOptions::default()).unwrap();
+    let e = fmu
+        .instantiate("x", &kneebench_harness::InstanceOptions::default())
+        .unwrap_err();
+    let m = e.to_string();
+    assert!(m.contains("fmi2Instantiate returned NULL"), "{m}");
+    assert!(
+        m.contains("GUID mismatch: the binary expects {kbtest-0001} but got {another-guid}"),
+        "{m}"
+    );
+}
+
+#[test]
+fn extraction_directory_is_private_and_removed() {
+    let d = tempfile::tempdir().unwrap();
+    let p = common::kbtest_fmu(d.path());
+    let fmu = Fmu::load(&p, &LoadOptions::default()).unwrap();
+    let dir = fmu.directory().to_path_buf();
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&dir).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700);
+    assert!(dir.join("resources/readme.txt").is_file());
+    drop(fmu);
+    assert!(!dir.exists());
+}

@@ -1,0 +1,353 @@
+//! The master: algorithms against hand-computed sequences, the recording rule, multi-rate,
+//! the time grid, early termination and errors, and the instance API.
+
+mod common;
+
+use kneebench_harness::master::Signal;
+use kneebench_harness::{Algorithm, Fmu, InstanceOptions, LoadOptions, Outcome, RunConfig, System};
+
+fn fmu() -> (tempfile::TempDir, Fmu) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = common::kbtest_fmu(dir.path());
+    let fmu = Fmu::load(&path, &LoadOptions::default()).unwrap();
+    (dir, fmu)
+}
+
+/// `a.x` (a counter: x += u with u = 1, no direct feedthrough) feeds `b.u`; `b.y = 2 u + 0.5`
+/// has direct feedthrough. `b` is declared first so the order must come from the connections.
+fn two_fmu_system(fmu: &Fmu) -> System {
+    let mut s = System::new();
+    s.add_component("b", fmu.clone()).unwrap();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.set_value_str("a.u", "1").unwrap();
+    s.set_value_str("b.k", "2").unwrap();
+    s.set_value_str("b.b", "0.5").unwrap();
+    s.connect("a.x", "b.u").unwrap();
+    s.record(&["a.x", "b.u", "b.y", "b.steps"]).unwrap();
+    s
+}
+
+fn config(algorithm: Algorithm, stop: f64) -> RunConfig {
+    RunConfig {
+        stop_time: stop,
+        step_size: 0.1,
+        algorithm,
+        ..RunConfig::default()
+    }
+}
+
+#[test]
+fn gauss_seidel_matches_hand_computed_sequence() {
+    let (_d, fmu) = fmu();
+    let s = two_fmu_system(&fmu);
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.5)).unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { stop_time } if stop_time == 0.5));
+    let r = &out.results;
+    assert_eq!(r.names(), ["a.x", "b.u", "b.y", "b.steps"]);
+    assert_eq!(r.len(), 6);
+    for n in 0..6 {
+        let row = r.row(n);
+        let x = n as f64;
+        // Row n is recorded after the step ending at t(n): a stepped first (x = n), then b
+        // read it (u = n) and computed y = 2 n + 0.5.
+        assert_eq!(row, [n as f64 / 10.0, x, x, 2.0 * x + 0.5, n as f64], "row {n}");
+    }
+    assert_eq!(out.steps_per_component, vec![5, 5]);
+}
+
+#[test]
+fn jacobi_matches_hand_computed_sequence() {
+    let (_d, fmu) = fmu();
+    let s = two_fmu_system(&fmu);
+    let out = s.run(&config(Algorithm::Jacobi, 0.5)).unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { .. }));
+    let r = &out.results;
+    assert_eq!(r.len(), 6);
+    for n in 0..6 {
+        let row = r.row(n);
+        // Jacobi: b's input for the step ending at t(n) was a.x at t(n-1).
+        let u = n.saturating_sub(1) as f64;
+        assert_eq!(
+            row,
+            [n as f64 / 10.0, n as f64, u, 2.0 * u + 0.5, n as f64],
+            "row {n}"
+        );
+    }
+}
+
+#[test]
+fn parallel_stepping_gives_the_same_rows() {
+    let (_d, fmu) = fmu();
+    let s = two_fmu_system(&fmu);
+    for alg in [Algorithm::GaussSeidel, Algorithm::Jacobi] {
+        let seq = s.run(&config(alg, 1.0)).unwrap();
+        let par = s
+            .run(&RunConfig {
+                parallel: true,
+                ..config(alg, 1.0)
+            })
+            .unwrap();
+        assert_eq!(seq.results, par.results, "{alg:?}");
+    }
+}
+
+#[test]
+fn multi_rate_holds_values_between_communication_points() {
+    let (_d, fmu) = fmu();
+    let mut s = two_fmu_system(&fmu);
+    s.set_step_multiple("b", 2).unwrap();
+    s.record(&["a.x", "b.u", "b.steps", "b.t"]).unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.6)).unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { .. }));
+    let r = &out.results;
+    assert_eq!(r.len(), 7);
+    assert_eq!(out.steps_per_component, vec![3, 6]);
+    for n in 0..7usize {
+        let row = r.row(n);
+        let b_steps = n.div_ceil(2);
+        assert_eq!(row[1], n as f64, "a.x row {n}");
+        assert_eq!(row[3], b_steps as f64, "b.steps row {n}");
+        // b steps at n = 0, 2, 4 over 0.2 s, after a: it reads a.x = n + 1.
+        let u = if n == 0 { 0.0 } else { (2 * ((n - 1) / 2) + 1) as f64 };
+        assert_eq!(row[2], u, "b.u row {n}");
+        assert!((row[4] - 0.2 * b_steps as f64).abs() < 1e-12, "b.t row {n}");
+    }
+    // A multiple that does not divide the run is refused before anything runs.
+    assert!(s.run(&config(Algorithm::GaussSeidel, 0.5)).is_err());
+}
+
+#[test]
+fn algebraic_loop_is_refused_by_gauss_seidel_and_run_by_jacobi() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.add_component("b", fmu.clone()).unwrap();
+    s.connect("a.y", "b.u").unwrap();
+    s.connect("b.y", "a.u").unwrap();
+    let err = s.run(&config(Algorithm::GaussSeidel, 0.3)).unwrap_err();
+    assert!(err.to_string().contains("algebraic loop"), "{err}");
+    let out = s.run(&config(Algorithm::Jacobi, 0.3)).unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { .. }));
+}
+
+#[test]
+fn feedback_through_a_non_feedthrough_output_is_ordered() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.add_component("b", fmu.clone()).unwrap();
+    s.set_value_str("b.b", "1").unwrap();
+    // a.x has no direct feedthrough: the cycle a -> b -> a is not an algebraic loop.
+    s.connect("a.x", "b.u").unwrap();
+    s.connect("b.y", "a.u").unwrap();
+    let (order, _) = s.dependency_order().unwrap();
+    assert_eq!(order, vec![1, 0], "b (fed by the delayed a.x) first, then a");
+    s.record(&["a.x", "b.y"]).unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.3)).unwrap();
+    // b first: y = x(n) + 1; then a: x(n+1) = x(n) + y.  x: 0, 1, 3, 7; y recorded = x(n-1) + 1.
+    let xs = out.results.column("a.x").unwrap();
+    let ys = out.results.column("b.y").unwrap();
+    assert_eq!(xs, [0.0, 1.0, 3.0, 7.0]);
+    assert_eq!(ys, [1.0, 1.0, 2.0, 4.0]);
+}
+
+#[test]
+fn integer_and_boolean_connections_and_signals() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.add_component("b", fmu.clone()).unwrap();
+    s.connect("a.i_out", "b.i_in").unwrap();
+    s.connect("a.b_out", "b.b_in").unwrap();
+    s.add_signal(
+        "a.i_in",
+        Signal {
+            times: vec![0.0, 0.2],
+            values: vec![1.0, 5.0],
+            interpolate: false,
+        },
+    )
+    .unwrap();
+    s.add_signal(
+        "a.u",
+        Signal {
+            times: vec![0.0, 1.0],
+            values: vec![0.0, 10.0],
+            interpolate: true,
+        },
+    )
+    .unwrap();
+    s.record(&["a.i_out", "b.i_out", "b.b_out", "a.y"]).unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.3)).unwrap();
+    let r = &out.results;
+    assert_eq!(r.column("a.i_out").unwrap(), [2.0, 2.0, 2.0, 10.0]);
+    assert_eq!(r.column("b.i_out").unwrap(), [4.0, 4.0, 4.0, 20.0]);
+    // a.b_out = !false = true, b.b_out = !true = false.
+    assert_eq!(r.column("b.b_out").unwrap(), [0.0; 4]);
+    // a.u is the interpolated signal at the start of the step: y(row n) = u(t(n-1)).
+    let y = r.column("a.y").unwrap();
+    assert_eq!(y[0], 0.0);
+    assert!((y[2] - 1.0).abs() < 1e-12 && (y[3] - 2.0).abs() < 1e-12, "{y:?}");
+}
+
+#[test]
+fn a_million_millisecond_steps_end_exactly_at_1000_s() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu).unwrap();
+    s.record(&["a.steps", "a.t"]).unwrap();
+    let out = s
+        .run(&RunConfig {
+            stop_time: 1000.0,
+            step_size: 1e-3,
+            record_every: 1000,
+            ..RunConfig::default()
+        })
+        .unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { stop_time } if stop_time == 1000.0));
+    assert_eq!(out.steps_per_component, vec![1_000_000]);
+    let r = &out.results;
+    assert_eq!(r.len(), 1001);
+    let last = r.row(r.len() - 1);
+    assert_eq!(last[0], 1000.0, "the last row is at exactly 1000 s");
+    assert_eq!(last[1], 1_000_000.0, "the FMU counted 1e6 doStep calls");
+    assert!((last[2] - 1000.0).abs() < 1e-9, "the FMU's own time {}", last[2]);
+    // Every row time is the double nearest to the decimal time.
+    for (k, row) in r.rows().enumerate() {
+        assert_eq!(row[0], k as f64, "row {k}");
+    }
+}
+
+#[test]
+fn discard_with_terminated_ends_the_run_cleanly_and_keeps_every_row() {
+    let (d, fmu) = fmu();
+    let mut s = two_fmu_system(&fmu);
+    s.set_value_str("b.discard_at", "0.35").unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 1.0)).unwrap();
+    match &out.outcome {
+        Outcome::Terminated {
+            component,
+            last_successful_time,
+            last_row_time,
+        } => {
+            assert_eq!(component, "b");
+            assert!((last_successful_time - 0.3).abs() < 1e-12);
+            assert!((last_row_time - 0.3).abs() < 1e-12);
+        }
+        o => panic!("expected Terminated, got {o:?}"),
+    }
+    assert_eq!(out.results.len(), 4, "rows at 0, 0.1, 0.2, 0.3");
+    let csv = d.path().join("terminated.csv");
+    out.results.write_csv_file(&csv).unwrap();
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(text.lines().count(), 5);
+    assert!(text.starts_with("time,a.x,b.u,b.y,b.steps\n"));
+    assert_eq!(text.lines().last().unwrap(), "0.3,3.0,3.0,6.5,3");
+}
+
+#[test]
+fn error_mid_run_stops_with_the_fmu_message_and_keeps_every_row() {
+    let (d, fmu) = fmu();
+    let mut s = two_fmu_system(&fmu);
+    s.set_value_str("a.error_at", "0.25").unwrap();
+    let out = s.run(&config(Algorithm::Jacobi, 1.0)).unwrap();
+    match &out.outcome {
+        Outcome::Failed(e) => {
+            let m = e.to_string();
+            assert!(m.contains("component 'a'"), "{m}");
+            assert!(m.contains("fmi2DoStep returned Error"), "{m}");
+            assert!(
+                m.contains("error requested: t + h = 0.3 passes error_at = 0.25"),
+                "{m}"
+            );
+        }
+        o => panic!("expected Failed, got {o:?}"),
+    }
+    assert_eq!(out.results.len(), 3, "rows at 0, 0.1, 0.2");
+    let csv = d.path().join("failed.csv");
+    out.results.write_csv_file(&csv).unwrap();
+    let back = kneebench_harness::Results::read_csv_file(&csv).unwrap();
+    assert_eq!(back.len(), 3);
+    assert_eq!(back.row(2), out.results.row(2));
+}
+
+#[test]
+fn csv_round_trips_every_float_exactly() {
+    let mut r = kneebench_harness::Results::with_capacity(
+        vec!["a".into(), "n".into()],
+        vec![
+            kneebench_harness::results::ColumnKind::Real,
+            kneebench_harness::results::ColumnKind::Integer,
+        ],
+        4,
+    );
+    let vals = [0.1 + 0.2, 1e-300, -2.5e17, std::f64::consts::PI];
+    for (i, v) in vals.iter().enumerate() {
+        r.push_row(i as f64 * 0.1, &[*v, i as f64]);
+    }
+    let mut buf = Vec::new();
+    r.write_csv(&mut buf).unwrap();
+    let back =
+        kneebench_harness::Results::read_csv(&buf[..], std::path::Path::new("mem")).unwrap();
+    assert_eq!(back, r);
+    let table = r.summary_table();
+    assert!(table.contains("signal") && table.contains("final"), "{table}");
+}
+
+#[test]
+fn instance_api_state_serialization_and_logging() {
+    use std::sync::{Arc, Mutex};
+    let (_d, fmu) = fmu();
+    assert!(fmu.resource_uri().starts_with("file:///"));
+    assert!(fmu.resource_uri().ends_with("/resources"));
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let seen2 = seen.clone();
+    let opts = InstanceOptions {
+        log_handler: Some(Arc::new(move |m: &kneebench_harness::LogMessage| {
+            seen2.lock().unwrap().push(m.message.clone())
+        })),
+        ..InstanceOptions::default()
+    };
+    let mut i = fmu.instantiate("one", &opts).unwrap();
+    {
+        let log = seen.lock().unwrap();
+        assert!(
+            log[0].starts_with("instantiated one with resources at file:///"),
+            "{log:?}"
+        );
+    }
+    i.setup_experiment(None, 0.0, None).unwrap();
+    i.set_real(&[0], &[2.0]).unwrap();
+    i.enter_initialization_mode().unwrap();
+    i.exit_initialization_mode().unwrap();
+    i.do_step(0.0, 0.1).unwrap();
+    let state = i.get_fmu_state().unwrap();
+    let bytes = i.serialize_fmu_state(&state).unwrap();
+    i.do_step(0.1, 0.1).unwrap();
+    let mut x = [0.0];
+    i.get_real(&[4], &mut x).unwrap();
+    assert_eq!(x[0], 4.0);
+    i.set_fmu_state(&state).unwrap();
+    i.get_real(&[4], &mut x).unwrap();
+    assert_eq!(x[0], 2.0);
+    i.free_fmu_state(state).unwrap();
+    i.do_step(0.1, 0.1).unwrap();
+    let restored = i.deserialize_fmu_state(&bytes).unwrap();
+    i.set_fmu_state(&restored).unwrap();
+    i.get_real(&[4], &mut x).unwrap();
+    assert_eq!(x[0], 2.0);
+    i.free_fmu_state(restored).unwrap();
+    let mut n = [0];
+    i.get_integer(&[0], &mut n).unwrap();
+    assert_eq!(n[0], 1);
+    // Output derivatives are not exported by kbtest: a typed error, not a crash.
+    assert!(
+        i.get_real_output_derivatives(&[1], &[1], &mut [0.0])
+            .is_err()
+    );
+    assert!(!i.terminated());
+    assert_eq!(i.last_successful_time(), Some(0.1));
+    // A wrong value reference is an fmi2Error with the instance name.
+    let e = i.get_real(&[99], &mut x).unwrap_err();
+    assert!(e.to_string().contains("fmi2GetReal returned Error (instance 'one')"), "{e}");
+}
