@@ -401,6 +401,14 @@ impl<M> Variable<M> {
         self.depends_on = Some(depends_on);
         self
     }
+    /// A constant, local to the model: visible to importers, never settable.
+    pub fn constant(mut self, value: Start) -> Self {
+        self.causality = Causality::Local;
+        self.variability = Variability::Constant;
+        self.initial = Some(Initial::Exact);
+        self.start = value;
+        self
+    }
     /// Marks a discrete-time Real output (changes only at communication points).
     pub fn discrete(mut self) -> Self {
         self.variability = Variability::Discrete;

@@ -206,6 +206,7 @@ pub struct GaitReference {
     gait_phase: f64,
     stance: bool,
     sweep_frequency: f64,
+    harmonics: i32,
 }
 
 /// Value references (stable; never reuse a retired number).
@@ -234,6 +235,7 @@ mod vr {
     pub const GAIT_PHASE: u32 = 105;
     pub const STANCE: u32 = 106;
     pub const SWEEP_FREQUENCY: u32 = 107;
+    pub const HARMONICS: u32 = 200;
 }
 
 /// Every parameter the outputs depend on (for the ModelStructure's InitialUnknowns).
@@ -369,6 +371,9 @@ static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync:
                 .discrete()
                 .unit("Hz")
                 .describe("Frequency of the current stepped-sine stage (0 when no channel sweeps)"),
+            V::integer("gaitHarmonics", vr::HARMONICS, |m| m.harmonics, |m, v| m.harmonics = v)
+                .constant(Integer(HARMONICS as i32))
+                .describe("Number of harmonics of the gait Fourier series"),
         ]
     },
 );
