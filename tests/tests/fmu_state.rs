@@ -1,0 +1,140 @@
+//! FMU state: get/set and serialization continue bit-identically in the same instance, a fresh
+//! instance and a fresh process; foreign, truncated and corrupted states are refused.
+
+use std::process::Command;
+
+use kneebench_tests::*;
+
+use fmi2Status::{fmi2Error, fmi2OK};
+
+const OUTPUTS: [u32; 6] = [100, 101, 102, 103, 104, 105];
+const H: f64 = 0.001;
+
+/// A run with a non-default parameter, so that the state must carry it.
+fn started(f: &Raw) -> RawInstance<'_> {
+    let mut i = RawInstance::new(f, "state", &guid_of("GaitReference"));
+    // SAFETY: valid component and arrays.
+    unsafe {
+        assert_eq!((f.set_real)(i.c, [1u32].as_ptr(), 1, [1.7].as_ptr()), fmi2OK);
+        assert_eq!((f.set_integer)(i.c, [8u32].as_ptr(), 1, [7].as_ptr()), fmi2OK);
+    }
+    i.initialize(0.0, None);
+    i
+}
+
+/// Steps from step index k0 for n steps; returns the bits of every output after each step.
+fn continue_run(i: &mut RawInstance, k0: u64, n: u64) -> Vec<u64> {
+    let mut bits = Vec::new();
+    for k in k0..k0 + n {
+        assert_eq!(i.step(k as f64 * H, H), fmi2OK, "{}", i.log_text());
+        bits.extend(i.reals(&OUTPUTS).iter().map(|v| v.to_bits()));
+    }
+    bits
+}
+
+#[test]
+fn get_set_round_trip_continues_bit_identically() {
+    let f = Raw::load(&fmu_library());
+    let mut i = started(&f);
+    continue_run(&mut i, 0, 700);
+    let saved = i.serialized_state();
+    let first = continue_run(&mut i, 700, 500);
+    assert_eq!(i.restore(&saved), fmi2OK, "{}", i.log_text());
+    let again = continue_run(&mut i, 700, 500);
+    assert_eq!(first, again);
+
+    // In a fresh instance of the same binary.
+    let mut fresh = RawInstance::new(&f, "fresh", &guid_of("GaitReference"));
+    assert_eq!(fresh.restore(&saved), fmi2OK, "{}", fresh.log_text());
+    assert_eq!(continue_run(&mut fresh, 700, 500), first);
+}
+
+#[test]
+fn serialized_state_continues_bit_identically_in_a_fresh_process() {
+    if std::env::var_os("KNEEBENCH_STATE_CHILD").is_some() {
+        return; // the child runs `child_process_continues_a_state` only
+    }
+    let f = Raw::load(&fmu_library());
+    let mut i = started(&f);
+    continue_run(&mut i, 0, 700);
+    let saved = i.serialized_state();
+    let expected = continue_run(&mut i, 700, 500);
+    let dir = tempfile::tempdir().unwrap();
+    let state_file = dir.path().join("state.bin");
+    let out_file = dir.path().join("out.bin");
+    std::fs::write(&state_file, &saved).unwrap();
+    let status = Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "child_process_continues_a_state", "--nocapture", "--test-threads=1"])
+        .env("KNEEBENCH_STATE_CHILD", &state_file)
+        .env("KNEEBENCH_STATE_OUT", &out_file)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let bytes = std::fs::read(&out_file).expect("the child wrote its results");
+    let got: Vec<u64> = bytes
+        .chunks_exact(8)
+        .map(|c| u64::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    assert_eq!(got, expected);
+}
+
+/// Runs only inside the child process started by the test above.
+#[test]
+fn child_process_continues_a_state() {
+    let (Some(state), Some(out)) = (
+        std::env::var_os("KNEEBENCH_STATE_CHILD"),
+        std::env::var_os("KNEEBENCH_STATE_OUT"),
+    ) else {
+        return;
+    };
+    let f = Raw::load(&fmu_library());
+    let mut i = RawInstance::new(&f, "child", &guid_of("GaitReference"));
+    assert_eq!(i.restore(&std::fs::read(state).unwrap()), fmi2OK, "{}", i.log_text());
+    let bits = continue_run(&mut i, 700, 500);
+    let bytes: Vec<u8> = bits.iter().flat_map(|b| b.to_le_bytes()).collect();
+    std::fs::write(out, bytes).unwrap();
+}
+
+#[test]
+fn foreign_truncated_and_corrupted_states_are_refused() {
+    let f = Raw::load(&fmu_library());
+    let mut i = started(&f);
+    continue_run(&mut i, 0, 10);
+    let saved = i.serialized_state();
+    let guid = guid_of("GaitReference");
+    // A state of another model: same layout, another GUID.
+    let pos = saved
+        .windows(guid.len())
+        .position(|w| w == guid.as_bytes())
+        .expect("the state embeds the GUID");
+    let mut foreign = saved.clone();
+    foreign[pos + 1] = if foreign[pos + 1] == b'0' { b'1' } else { b'0' };
+    assert_eq!(i.restore(&foreign), fmi2Error);
+    assert!(i.log_text().contains("belongs to model"), "{}", i.log_text());
+    // Truncated, bad magic, future version, trailing garbage.
+    assert_eq!(i.restore(&saved[..saved.len() - 3]), fmi2Error);
+    let mut magic = saved.clone();
+    magic[0] = b'X';
+    assert_eq!(i.restore(&magic), fmi2Error);
+    let mut version = saved.clone();
+    version[8] = 99;
+    assert_eq!(i.restore(&version), fmi2Error);
+    let mut longer = saved.clone();
+    longer.push(0);
+    assert_eq!(i.restore(&longer), fmi2Error);
+    let log = i.log_text();
+    for needle in ["truncated", "bad magic", "format version 99", "trailing bytes"] {
+        assert!(log.contains(needle), "log lacks {needle:?}: {log}");
+    }
+    // Nothing was lost: the instance continues from where it was.
+    assert_eq!(i.step(10.0 * H, H), fmi2OK);
+    // A too-small serialization buffer is refused.
+    // SAFETY: valid component; the state is freed.
+    unsafe {
+        let mut st = std::ptr::null_mut();
+        assert_eq!((f.get_fmu_state)(i.c, &mut st), fmi2OK);
+        let mut buf = [0i8; 4];
+        assert_eq!((f.serialize)(i.c, st, buf.as_mut_ptr(), 4), fmi2Error);
+        assert_eq!((f.free_fmu_state)(i.c, &mut st), fmi2OK);
+    }
+}
