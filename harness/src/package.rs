@@ -191,3 +191,128 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>, PackageError> {
         source,
     })
 }
+
+/// What [`export_all`] wrote for one model.
+#[derive(Debug, Clone)]
+pub struct ExportedFmu {
+    /// `modelIdentifier`.
+    pub identifier: String,
+    /// The `.fmu` file.
+    pub path: PathBuf,
+}
+
+/// Writes one `.fmu` per model of `library` into `out`, each with the reference results of its
+/// documented run (the model's default experiment, run by this harness's master at the default
+/// step size, recorded at every step) under `extra/`.
+pub fn export_all(library: &Path, out: &Path) -> Result<Vec<ExportedFmu>, PackageError> {
+    let catalog = read_catalog(library)?;
+    let binary = read_file(library)?;
+    std::fs::create_dir_all(out).map_err(|source| PackageError::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let mut written = Vec::new();
+    for entry in &catalog {
+        let path = out.join(format!("{}.fmu", entry.identifier));
+        let mut files = fmu_files(entry, &binary);
+        // First the archive without extra/, which the reference run loads like any importer.
+        write_archive(&path, &files)?;
+        files.extend(reference_run(entry, &path)?);
+        write_archive(&path, &files)?;
+        written.push(ExportedFmu {
+            identifier: entry.identifier.clone(),
+            path,
+        });
+    }
+    Ok(written)
+}
+
+/// Runs the documented reference run of a packaged FMU; returns the `extra/` files.
+fn reference_run(
+    entry: &CatalogEntry,
+    fmu_path: &Path,
+) -> Result<Vec<(String, Vec<u8>, bool)>, PackageError> {
+    use crate::master::{RunConfig, Signal, System};
+    let fail = |message: String| PackageError::ReferenceRun {
+        model: entry.identifier.clone(),
+        message,
+    };
+    let fmu = crate::Fmu::load(fmu_path, &crate::LoadOptions::default())
+        .map_err(|e| fail(e.to_string()))?;
+    let md = fmu.model_description().clone();
+    let experiment = md.default_experiment.clone().unwrap_or_default();
+    let start = experiment.start_time.unwrap_or(0.0);
+    let stop = experiment.stop_time.unwrap_or(1.0);
+    let step = experiment.step_size.unwrap_or(1e-3);
+    let mut system = System::new();
+    system.set_column_prefix(false);
+    system
+        .add_component(&entry.identifier, fmu)
+        .map_err(|e| fail(e.to_string()))?;
+    let mut extra = Vec::new();
+    if let Some(csv) = &entry.reference_inputs {
+        let inputs = crate::results::Results::read_csv(csv.as_bytes(), Path::new("inputs.csv"))
+            .map_err(|e| fail(e.to_string()))?;
+        let times = inputs.times();
+        for name in inputs.names() {
+            let values = inputs.column(name).unwrap_or_default();
+            system
+                .add_signal(
+                    &format!("{}.{name}", entry.identifier),
+                    Signal {
+                        times: times.clone(),
+                        values,
+                        interpolate: false,
+                    },
+                )
+                .map_err(|e| fail(e.to_string()))?;
+        }
+        extra.push(("extra/reference-inputs.csv".to_string(), csv.as_bytes().to_vec(), false));
+    }
+    let outputs: Vec<String> = md
+        .model_variables
+        .iter()
+        .filter(|v| v.causality == Some(model_description::Causality::Output))
+        .map(|v| format!("{}.{}", entry.identifier, v.name))
+        .collect();
+    let refs: Vec<&str> = outputs.iter().map(String::as_str).collect();
+    system.record(&refs).map_err(|e| fail(e.to_string()))?;
+    let config = RunConfig {
+        start_time: start,
+        stop_time: stop,
+        step_size: step,
+        ..RunConfig::default()
+    };
+    let output = system.run(&config).map_err(|e| fail(e.to_string()))?;
+    if let crate::Outcome::Failed(e) = &output.outcome {
+        return Err(fail(e.to_string()));
+    }
+    let mut csv = Vec::new();
+    output
+        .results
+        .write_csv(&mut csv)
+        .map_err(|e| fail(e.to_string()))?;
+    extra.push(("extra/reference-outputs.csv".to_string(), csv, false));
+    let readme = format!(
+        "Reference run of {id}\n\n\
+         Tool: {tool} (this repository's harness), fixed-step co-simulation master.\n\
+         Grid: start {start} s, stop {stop} s, communication step {step} s; one row per step,\n\
+         outputs recorded after each fmi2DoStep, start values as in modelDescription.xml.\n\
+         Inputs: {inputs}.\n\
+         Files: reference-outputs.csv (time and every output){more}.\n",
+        id = entry.identifier,
+        tool = concat!("kneebench ", env!("CARGO_PKG_VERSION")),
+        inputs = if entry.reference_inputs.is_some() {
+            "reference-inputs.csv, held constant between samples (sample-and-hold)"
+        } else {
+            "none (the model has no inputs)"
+        },
+        more = if entry.reference_inputs.is_some() {
+            ", reference-inputs.csv"
+        } else {
+            ""
+        },
+    );
+    extra.push(("extra/README.txt".to_string(), readme.into_bytes(), false));
+    Ok(extra)
+}
