@@ -464,11 +464,7 @@ impl Instance {
     }
 
     /// `fmi2SetDebugLogging` with the given categories (empty: all).
-    pub fn set_debug_logging(
-        &mut self,
-        on: bool,
-        categories: &[&str],
-    ) -> Result<Status, FmuError> {
+    pub fn set_debug_logging(&mut self, on: bool, categories: &[&str]) -> Result<Status, FmuError> {
         self.alive()?;
         let owned: Vec<CString> = categories
             .iter()
@@ -780,7 +776,15 @@ impl Instance {
             ));
         }
         // SAFETY: arrays of the given length.
-        let s = unsafe { f(self.c, vrs.as_ptr(), vrs.len(), orders.as_ptr(), values.as_ptr()) };
+        let s = unsafe {
+            f(
+                self.c,
+                vrs.as_ptr(),
+                vrs.len(),
+                orders.as_ptr(),
+                values.as_ptr(),
+            )
+        };
         self.check("fmi2SetRealInputDerivatives", s)
     }
 
@@ -874,7 +878,14 @@ impl Instance {
             .ok_or(FmuError::Unsupported("fmi2DeSerializeFMUstate"))?;
         let mut ptr: fmi2FMUstate = std::ptr::null_mut();
         // SAFETY: buffer of the given length, out pointer NULL (asks for a new state).
-        let s = unsafe { f(self.c, bytes.as_ptr() as *const fmi2Byte, bytes.len(), &mut ptr) };
+        let s = unsafe {
+            f(
+                self.c,
+                bytes.as_ptr() as *const fmi2Byte,
+                bytes.len(),
+                &mut ptr,
+            )
+        };
         self.check("fmi2DeSerializeFMUstate", s)?;
         Ok(FmuState { ptr })
     }

@@ -42,7 +42,9 @@ pub mod results;
 pub mod ssp;
 pub mod time;
 
-pub use instance::{FmuError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status};
+pub use instance::{
+    FmuError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
+};
 pub use load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
 pub use master::{Algorithm, MasterError, Outcome, RunConfig, RunOutput, System, Value};
 pub use results::Results;

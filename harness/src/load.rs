@@ -111,7 +111,9 @@ pub enum LoadError {
         limit: u64,
     },
     /// The entries together decompress to more than the total limit.
-    #[error("refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total")]
+    #[error(
+        "refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total"
+    )]
     TotalTooLarge {
         /// The entry at which the limit was passed.
         entry: String,
@@ -139,7 +141,9 @@ pub enum LoadError {
     #[error("modelDescription.xml: {0}")]
     ModelDescription(String),
     /// The model description has no `CoSimulation` element.
-    #[error("the FMU does not support co-simulation (no CoSimulation element in modelDescription.xml)")]
+    #[error(
+        "the FMU does not support co-simulation (no CoSimulation element in modelDescription.xml)"
+    )]
     NoCoSimulation,
     /// The binary for this platform is not in the archive.
     #[error("the FMU has no binary for linux64: expected '{expected}' in the archive")]
@@ -291,8 +295,7 @@ pub fn extract_archive(
         let remaining_total = limits.max_total_bytes.saturating_sub(total);
         let cap = limits.max_entry_bytes.min(remaining_total);
         let copied = copy_bounded(&mut entry, &mut out, cap + 1).map_err(|e| {
-            if e.kind() == io::ErrorKind::InvalidData || e.kind() == io::ErrorKind::UnexpectedEof
-            {
+            if e.kind() == io::ErrorKind::InvalidData || e.kind() == io::ErrorKind::UnexpectedEof {
                 LoadError::Zip {
                     archive: archive.to_path_buf(),
                     entry: Some(name.clone()),
@@ -643,8 +646,8 @@ impl Fmu {
                 unsafe { library.get::<*const c_void>(cname.as_bytes()) }.is_err()
             })
             .collect();
-        let resource_uri = CString::new(file_uri(&dir.path().join("resources")))
-            .expect("a path has no NUL byte");
+        let resource_uri =
+            CString::new(file_uri(&dir.path().join("resources"))).expect("a path has no NUL byte");
         let guid = CString::new(md.guid.clone())
             .map_err(|_| LoadError::ModelDescription("the guid contains a NUL byte".into()))?;
         Ok(Fmu {
@@ -681,7 +684,10 @@ impl Fmu {
     /// The `fmuResourceLocation` passed to `fmi2Instantiate`: a percent-encoded `file://` URI of
     /// the extracted `resources` directory (no trailing slash, as fmpy passes it).
     pub fn resource_uri(&self) -> &str {
-        self.shared.resource_uri.to_str().expect("built from a String")
+        self.shared
+            .resource_uri
+            .to_str()
+            .expect("built from a String")
     }
 
     /// The archive this FMU was loaded from.

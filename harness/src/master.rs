@@ -651,11 +651,9 @@ impl System {
     /// Whether output `vr` of component `comp` depends directly on an input of its component.
     fn feedthrough(&self, comp: usize, vr: u32, ty: VarType) -> bool {
         let md = self.components[comp].fmu.model_description();
-        let Some(index) = md
-            .model_variables
-            .iter()
-            .position(|v| v.value_reference == vr && VarType::of(v) == ty && causality(v) == Causality::Output)
-        else {
+        let Some(index) = md.model_variables.iter().position(|v| {
+            v.value_reference == vr && VarType::of(v) == ty && causality(v) == Causality::Output
+        }) else {
             return true;
         };
         let Some(unknown) = md
@@ -719,8 +717,11 @@ impl System {
         let (order, edges) = match kahn(&every) {
             Ok(o) => (o, every),
             Err(_) => {
-                let ft: Vec<(usize, usize)> =
-                    all.iter().filter(|e| e.2).map(|&(s, d, _)| (s, d)).collect();
+                let ft: Vec<(usize, usize)> = all
+                    .iter()
+                    .filter(|e| e.2)
+                    .map(|&(s, d, _)| (s, d))
+                    .collect();
                 match kahn(&ft) {
                     Ok(o) => (o, ft),
                     Err(cycle) => {
@@ -752,7 +753,7 @@ impl System {
         }
         let grid = Grid::new(config.start_time, config.stop_time, config.step_size)?;
         for c in &self.components {
-            if grid.n_steps % c.step_multiple != 0 {
+            if !grid.n_steps.is_multiple_of(c.step_multiple) {
                 return Err(MasterError::BadStepMultiple {
                     component: c.name.clone(),
                     multiple: c.step_multiple,
@@ -826,10 +827,7 @@ impl System {
             let slot = slot_of(s.comp, s.ty, s.vr);
             let t = ty_index(d.ty);
             inbufs[d.comp].vrs[t].push(d.vr);
-            inbufs[d.comp].src[t].push(Src::Out {
-                comp: s.comp,
-                slot,
-            });
+            inbufs[d.comp].src[t].push(Src::Out { comp: s.comp, slot });
         }
         let signals: Vec<Signal> = self.signals.iter().map(|(_, s)| s.clone()).collect();
         for (i, (d, _)) in self.signals.iter().enumerate() {
@@ -1047,11 +1045,11 @@ impl Run<'_> {
             if let Err(stop) = r {
                 return self.finish(stop, results);
             }
-            if (n + 1) % record_every == 0 {
+            if (n + 1).is_multiple_of(record_every) {
                 self.record(results, self.grid.time(n + 1));
             }
             if let Some(p) = &config.progress
-                && (n + 1) % stride == 0
+                && (n + 1).is_multiple_of(stride)
             {
                 p(n + 1, total);
             }
@@ -1149,7 +1147,7 @@ impl Run<'_> {
     #[inline]
     fn step_gauss_seidel(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
         for &i in order {
-            if n % self.rts[i].multiple != 0 {
+            if !n.is_multiple_of(self.rts[i].multiple) {
                 continue;
             }
             gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
@@ -1165,12 +1163,12 @@ impl Run<'_> {
     #[inline]
     fn step_jacobi(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
         for &i in order {
-            if n % self.rts[i].multiple == 0 {
+            if n.is_multiple_of(self.rts[i].multiple) {
                 gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
             }
         }
         for &i in order {
-            if n % self.rts[i].multiple != 0 {
+            if !n.is_multiple_of(self.rts[i].multiple) {
                 continue;
             }
             match self.rts[i].set_step_read(&self.inbufs[i], t) {
@@ -1187,7 +1185,7 @@ impl Run<'_> {
             let due: Vec<usize> = group
                 .iter()
                 .copied()
-                .filter(|&i| n % self.rts[i].multiple == 0)
+                .filter(|&i| n.is_multiple_of(self.rts[i].multiple))
                 .collect();
             for &i in &due {
                 gather(&mut self.inbufs[i], &self.rts, &self.signals, t);

@@ -166,10 +166,9 @@ impl Results {
         let idx: Vec<usize> = names
             .iter()
             .map(|n| {
-                self.names
-                    .iter()
-                    .position(|x| x == n)
-                    .ok_or_else(|| ResultsError::UnknownSignal(n.to_string(), self.names.join(", ")))
+                self.names.iter().position(|x| x == n).ok_or_else(|| {
+                    ResultsError::UnknownSignal(n.to_string(), self.names.join(", "))
+                })
             })
             .collect::<Result<_, _>>()?;
         let mut out = Results::with_capacity(
@@ -266,11 +265,8 @@ impl Results {
             return Err(csv_err(1, "no columns".into()));
         }
         let names = cols[1..].to_vec();
-        let mut res = Results::with_capacity(
-            names.clone(),
-            vec![ColumnKind::Real; names.len()],
-            1024,
-        );
+        let mut res =
+            Results::with_capacity(names.clone(), vec![ColumnKind::Real; names.len()], 1024);
         let mut integral = vec![true; names.len()];
         for (i, l) in lines {
             let l = l.map_err(|e| csv_err(i + 1, e.to_string()))?;
@@ -430,7 +426,11 @@ pub mod plot {
             .and_then(|e| e.to_str())
             .map(|e| e.to_ascii_lowercase());
         match ext.as_deref() {
-            Some("svg") => draw(SVGBackend::new(out, size).into_drawing_area(), results, signals),
+            Some("svg") => draw(
+                SVGBackend::new(out, size).into_drawing_area(),
+                results,
+                signals,
+            ),
             Some("png") => draw(
                 BitMapBackend::new(out, size).into_drawing_area(),
                 results,
@@ -456,9 +456,9 @@ pub mod plot {
         let times = results.times();
         let mut series = Vec::new();
         for s in signals {
-            let col = results
-                .column(s)
-                .ok_or_else(|| ResultsError::UnknownSignal(s.to_string(), results.names().join(", ")))?;
+            let col = results.column(s).ok_or_else(|| {
+                ResultsError::UnknownSignal(s.to_string(), results.names().join(", "))
+            })?;
             series.push((s.to_string(), col));
         }
         let (t0, t1) = match (times.first(), times.last()) {
@@ -466,7 +466,10 @@ pub mod plot {
             (Some(&a), _) => (a, a + 1.0),
             _ => (0.0, 1.0),
         };
-        let finite = series.iter().flat_map(|(_, c)| c.iter().copied()).filter(|v| v.is_finite());
+        let finite = series
+            .iter()
+            .flat_map(|(_, c)| c.iter().copied())
+            .filter(|v| v.is_finite());
         let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
             (l.min(v), h.max(v))
         });
@@ -495,12 +498,18 @@ pub mod plot {
             let color = Palette99::pick(k).to_rgba();
             chart
                 .draw_series(LineSeries::new(
-                    times.iter().copied().zip(col.iter().copied()).filter(|(_, v)| v.is_finite()),
+                    times
+                        .iter()
+                        .copied()
+                        .zip(col.iter().copied())
+                        .filter(|(_, v)| v.is_finite()),
                     color.stroke_width(2),
                 ))
                 .map_err(|x| e(&x))?
                 .label(name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                });
         }
         chart
             .configure_series_labels()

@@ -3,7 +3,7 @@
 //! What is modelled ([`Ssd`]): one `System` with `Component`s (name, source URI, connectors,
 //! inline parameter values), `Connection`s, and the `DefaultExperiment` (start and stop time).
 //! SSP 1.0 has no place for the master's step size, so it is written as an annotation of the
-//! default experiment (`<ssc:Annotation type="org.kneebench.master">` holding
+//! default experiment (`<ssd:Annotations><ssc:Annotation type="org.kneebench.master">` holding
 //! `<kb:Master stepSize="..." algorithm="..."/>`), and a component's step multiple as an
 //! annotation of the component (`<kb:Component stepMultiple="..."/>`); other tools ignore both.
 //!
@@ -321,7 +321,7 @@ impl Ssd {
             if d.step_size.is_none() && d.algorithm.is_none() {
                 x.push_str("/>\n");
             } else {
-                x.push_str(">\n    <ssc:Annotations>\n");
+                x.push_str(">\n    <ssd:Annotations>\n");
                 let _ = write!(
                     x,
                     "      <ssc:Annotation type=\"{ANNOTATION_TYPE}\">\n        <kb:Master"
@@ -332,7 +332,7 @@ impl Ssd {
                 if let Some(a) = d.algorithm {
                     let _ = write!(x, " algorithm=\"{}\"", algorithm_str(a));
                 }
-                x.push_str("/>\n      </ssc:Annotation>\n    </ssc:Annotations>\n");
+                x.push_str("/>\n      </ssc:Annotation>\n    </ssd:Annotations>\n");
                 x.push_str("  </ssd:DefaultExperiment>\n");
             }
         }
@@ -412,7 +412,7 @@ fn write_component(x: &mut String, c: &SspComponent) {
     if let Some(m) = c.step_multiple {
         let _ = writeln!(
             x,
-            "        <ssc:Annotations>\n          <ssc:Annotation type=\"{ANNOTATION_TYPE}\">\n            <kb:Component stepMultiple=\"{m}\"/>\n          </ssc:Annotation>\n        </ssc:Annotations>"
+            "        <ssd:Annotations>\n          <ssc:Annotation type=\"{ANNOTATION_TYPE}\">\n            <kb:Component stepMultiple=\"{m}\"/>\n          </ssc:Annotation>\n        </ssd:Annotations>"
         );
     }
     x.push_str("      </ssd:Component>\n");
@@ -459,6 +459,27 @@ pub fn write_ssp(ssd: &Ssd, files: &[(String, PathBuf)], path: &Path) -> Result<
     }
     z.finish().map_err(|e| werr(e.to_string()))?;
     Ok(())
+}
+
+impl SspSystem {
+    /// Removes input connectors that no connection ends at. fmpy's `get_connections` (used by
+    /// its SSP simulation) fails on an unconnected input connector, so call this before writing
+    /// for fmpy.
+    pub fn drop_unconnected_inputs(&mut self) {
+        let conns = self.connections.clone();
+        for c in &mut self.components {
+            let name = c.name.clone();
+            c.connectors.retain(|k| {
+                k.kind != ConnectorKind::Input
+                    || conns.iter().any(|x| {
+                        (x.end_element.as_deref() == Some(name.as_str())
+                            && x.end_connector == k.name)
+                            || (x.start_element.as_deref() == Some(name.as_str())
+                                && x.start_connector == k.name)
+                    })
+            });
+        }
+    }
 }
 
 impl SspComponent {
@@ -558,16 +579,18 @@ fn read_parameter_set(xml: &str, file: &str) -> Result<Vec<SspParameter>, SspErr
                 match local.as_ref().as_bytes() {
                     b"Parameter" => current = a.get("name").cloned(),
                     t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
-                        let Some(name) = current.clone() else { continue };
+                        let Some(name) = current.clone() else {
+                            continue;
+                        };
                         let v = a.get("value").cloned().unwrap_or_default();
                         let value = match t {
                             b"Real" => Value::Real(parse_f64(file, &name, &v)?),
-                            b"Integer" => Value::Integer(v.trim().parse().map_err(|_| {
-                                SspError::Invalid {
+                            b"Integer" => {
+                                Value::Integer(v.trim().parse().map_err(|_| SspError::Invalid {
                                     file: file.to_string(),
                                     problem: format!("parameter {name}: '{v}' is not an Integer"),
-                                }
-                            })?),
+                                })?)
+                            }
                             b"Boolean" => Value::Boolean(matches!(v.trim(), "true" | "1")),
                             b"String" => Value::String(v),
                             _ => {
@@ -716,9 +739,9 @@ pub fn read_ssd_with(
                     kind,
                     ty: None,
                 };
-                if comp.is_some() {
+                if let Some(c) = comp.as_mut() {
                     if empty {
-                        comp.as_mut().expect("checked").connectors.push(k);
+                        c.connectors.push(k);
                     } else {
                         connector = Some(k);
                     }
@@ -750,13 +773,11 @@ pub fn read_ssd_with(
             b"ParameterSet" if !empty => {
                 // Inline: parse the fragment from here to its end.
                 let start = pos as usize;
-                let end_tag = r
-                    .read_to_end(e.name())
-                    .map_err(|err| SspError::Xml {
-                        file: file.to_string(),
-                        position: r.buffer_position(),
-                        message: err.to_string(),
-                    })?;
+                let end_tag = r.read_to_end(e.name()).map_err(|err| SspError::Xml {
+                    file: file.to_string(),
+                    position: r.buffer_position(),
+                    message: err.to_string(),
+                })?;
                 let _ = end_tag;
                 let end = r.buffer_position() as usize;
                 let fragment = &xml[start..end];
@@ -800,7 +821,9 @@ pub fn read_ssd_with(
         }
     }
     if !saw_root {
-        return Err(invalid("the root element is not SystemStructureDescription".into()));
+        return Err(invalid(
+            "the root element is not SystemStructureDescription".into(),
+        ));
     }
     if system_depth.is_none() {
         return Err(invalid("no System element".into()));
@@ -891,7 +914,10 @@ impl std::fmt::Debug for LoadedSystem {
 
 /// Reads an `.ssp` archive (extracted safely with the limits of `options`) or a bare `.ssd`
 /// file (component sources relative to its directory).
-pub fn read_file(path: &Path, limits: &ArchiveLimits) -> Result<(Ssd, PathBuf, Option<tempfile::TempDir>), SspError> {
+pub fn read_file(
+    path: &Path,
+    limits: &ArchiveLimits,
+) -> Result<(Ssd, PathBuf, Option<tempfile::TempDir>), SspError> {
     let is_ssd = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("ssd"));

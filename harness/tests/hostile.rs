@@ -45,9 +45,17 @@ fn extract_in_sandbox(fmu: &Path, limits: &ArchiveLimits) -> Result<(), LoadErro
         for e in std::fs::read_dir(p).unwrap() {
             let e = e.unwrap();
             let name = e.file_name().to_string_lossy().into_owned();
-            assert!(!name.starts_with("evil"), "{} was written", e.path().display());
+            assert!(
+                !name.starts_with("evil"),
+                "{} was written",
+                e.path().display()
+            );
             let ft = e.file_type().unwrap();
-            assert!(!ft.is_symlink(), "a symlink was created: {}", e.path().display());
+            assert!(
+                !ft.is_symlink(),
+                "a symlink was created: {}",
+                e.path().display()
+            );
             if ft.is_dir() {
                 walk(&e.path());
             }
@@ -152,7 +160,10 @@ fn zip_bomb_entry_is_stopped_by_the_decompressed_size() {
         ..ArchiveLimits::default()
     };
     let e = extract_in_sandbox(&p, &many).unwrap_err();
-    assert!(matches!(e, LoadError::TooManyEntries { count: 3, .. }), "{e}");
+    assert!(
+        matches!(e, LoadError::TooManyEntries { count: 3, .. }),
+        "{e}"
+    );
     let e = Fmu::load(
         &p,
         &LoadOptions {

@@ -50,7 +50,11 @@ fn gauss_seidel_matches_hand_computed_sequence() {
         let x = n as f64;
         // Row n is recorded after the step ending at t(n): a stepped first (x = n), then b
         // read it (u = n) and computed y = 2 n + 0.5.
-        assert_eq!(row, [n as f64 / 10.0, x, x, 2.0 * x + 0.5, n as f64], "row {n}");
+        assert_eq!(
+            row,
+            [n as f64 / 10.0, x, x, 2.0 * x + 0.5, n as f64],
+            "row {n}"
+        );
     }
     assert_eq!(out.steps_per_component, vec![5, 5]);
 }
@@ -108,7 +112,11 @@ fn multi_rate_holds_values_between_communication_points() {
         assert_eq!(row[1], n as f64, "a.x row {n}");
         assert_eq!(row[3], b_steps as f64, "b.steps row {n}");
         // b steps at n = 0, 2, 4 over 0.2 s, after a: it reads a.x = n + 1.
-        let u = if n == 0 { 0.0 } else { (2 * ((n - 1) / 2) + 1) as f64 };
+        let u = if n == 0 {
+            0.0
+        } else {
+            (2 * ((n - 1) / 2) + 1) as f64
+        };
         assert_eq!(row[2], u, "b.u row {n}");
         assert!((row[4] - 0.2 * b_steps as f64).abs() < 1e-12, "b.t row {n}");
     }
@@ -141,7 +149,11 @@ fn feedback_through_a_non_feedthrough_output_is_ordered() {
     s.connect("a.x", "b.u").unwrap();
     s.connect("b.y", "a.u").unwrap();
     let (order, _) = s.dependency_order().unwrap();
-    assert_eq!(order, vec![1, 0], "b (fed by the delayed a.x) first, then a");
+    assert_eq!(
+        order,
+        vec![1, 0],
+        "b (fed by the delayed a.x) first, then a"
+    );
     s.record(&["a.x", "b.y"]).unwrap();
     let out = s.run(&config(Algorithm::GaussSeidel, 0.3)).unwrap();
     // b first: y = x(n) + 1; then a: x(n+1) = x(n) + y.  x: 0, 1, 3, 7; y recorded = x(n-1) + 1.
@@ -187,7 +199,10 @@ fn integer_and_boolean_connections_and_signals() {
     // a.u is the interpolated signal at the start of the step: y(row n) = u(t(n-1)).
     let y = r.column("a.y").unwrap();
     assert_eq!(y[0], 0.0);
-    assert!((y[2] - 1.0).abs() < 1e-12 && (y[3] - 2.0).abs() < 1e-12, "{y:?}");
+    assert!(
+        (y[2] - 1.0).abs() < 1e-12 && (y[3] - 2.0).abs() < 1e-12,
+        "{y:?}"
+    );
 }
 
 #[test]
@@ -211,7 +226,11 @@ fn a_million_millisecond_steps_end_exactly_at_1000_s() {
     let last = r.row(r.len() - 1);
     assert_eq!(last[0], 1000.0, "the last row is at exactly 1000 s");
     assert_eq!(last[1], 1_000_000.0, "the FMU counted 1e6 doStep calls");
-    assert!((last[2] - 1000.0).abs() < 1e-9, "the FMU's own time {}", last[2]);
+    assert!(
+        (last[2] - 1000.0).abs() < 1e-9,
+        "the FMU's own time {}",
+        last[2]
+    );
     // Every row time is the double nearest to the decimal time.
     for (k, row) in r.rows().enumerate() {
         assert_eq!(row[0], k as f64, "row {k}");
@@ -287,11 +306,13 @@ fn csv_round_trips_every_float_exactly() {
     }
     let mut buf = Vec::new();
     r.write_csv(&mut buf).unwrap();
-    let back =
-        kneebench_harness::Results::read_csv(&buf[..], std::path::Path::new("mem")).unwrap();
+    let back = kneebench_harness::Results::read_csv(&buf[..], std::path::Path::new("mem")).unwrap();
     assert_eq!(back, r);
     let table = r.summary_table();
-    assert!(table.contains("signal") && table.contains("final"), "{table}");
+    assert!(
+        table.contains("signal") && table.contains("final"),
+        "{table}"
+    );
 }
 
 #[test]
@@ -349,5 +370,9 @@ fn instance_api_state_serialization_and_logging() {
     assert_eq!(i.last_successful_time(), Some(0.1));
     // A wrong value reference is an fmi2Error with the instance name.
     let e = i.get_real(&[99], &mut x).unwrap_err();
-    assert!(e.to_string().contains("fmi2GetReal returned Error (instance 'one')"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("fmi2GetReal returned Error (instance 'one')"),
+        "{e}"
+    );
 }

@@ -57,7 +57,8 @@ pub fn model_description(guid: &str) -> String {
 fn build_dir() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let d = std::env::temp_dir().join(format!("kneebench-harness-tests-{}", std::process::id()));
+        let d =
+            std::env::temp_dir().join(format!("kneebench-harness-tests-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
         d
     })

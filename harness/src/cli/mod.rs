@@ -1,0 +1,56 @@
+//! The command line: one module per subcommand, each with an `Args` struct and a `run`
+//! function returning the process exit code.
+
+use clap::{Parser, Subcommand};
+
+pub mod info;
+pub mod plot;
+pub mod run;
+pub mod validate;
+
+/// Success.
+pub const EXIT_OK: i32 = 0;
+/// A run, validation or I/O error.
+pub const EXIT_ERROR: i32 = 1;
+/// The run was ended early by an FMU (fmi2Discard with fmi2Terminated).
+pub const EXIT_TERMINATED: i32 = 3;
+
+const EXIT_CODES: &str = "\
+Exit codes:
+  0  success
+  1  run error (an FMU failed, a file could not be read or written), or validation problems
+  2  usage error (bad arguments)
+  3  the run was ended early by an FMU (fmi2Discard with fmi2Terminated); the results up to
+     the last completed communication point are written";
+
+/// kneebench: a co-simulation harness for FMI 2.0 FMUs and SSP 1.0 systems.
+#[derive(Debug, Parser)]
+#[command(name = "kneebench", version, about, long_about = None, after_help = EXIT_CODES)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run an SSP system (.ssp, .ssd) or a single FMU (.fmu) and write the results as CSV.
+    Run(run::Args),
+    /// Check an FMU archive: safe extraction, model description, binary, symbols, GUID.
+    Validate(validate::Args),
+    /// Show an FMU's model description: capabilities, default experiment, variables.
+    Info(info::Args),
+    /// Plot signals of a results CSV against time (SVG or PNG).
+    Plot(plot::Args),
+}
+
+/// Runs a parsed command line; returns the exit code.
+pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
+    match cli.command {
+        Command::Run(a) => run::run(a),
+        Command::Validate(a) => validate::run(a),
+        Command::Info(a) => info::run(a),
+        Command::Plot(a) => plot::run(a),
+    }
+}

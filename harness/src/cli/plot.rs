@@ -1,0 +1,46 @@
+//! `kneebench plot`.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use kneebench_harness::Results;
+use kneebench_harness::results::plot::plot_signals;
+
+/// Arguments of `kneebench plot`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  kneebench plot results.csv --signals knee.angle,knee.torque --out knee.svg
+  kneebench plot results.csv --out all.png          # every column
+The format follows the extension of --out (.svg or .png). Text uses an embedded font, so no
+system font library is needed.")]
+pub struct Args {
+    /// A results CSV (header `time,<names>`, as written by `kneebench run`).
+    pub results: PathBuf,
+    /// Comma-separated column names to plot (default: every column).
+    #[arg(long, value_delimiter = ',')]
+    pub signals: Vec<String>,
+    /// Output image: .svg or .png.
+    #[arg(long, default_value = "plot.svg")]
+    pub out: PathBuf,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 1024)]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 640)]
+    pub height: u32,
+}
+
+/// Runs `kneebench plot`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let r = Results::read_csv_file(&a.results)?;
+    let names: Vec<&str> = if a.signals.is_empty() {
+        r.names().iter().map(String::as_str).collect()
+    } else {
+        a.signals.iter().map(String::as_str).collect()
+    };
+    plot_signals(&r, &names, &a.out, (a.width, a.height))
+        .with_context(|| format!("plotting into {}", a.out.display()))?;
+    eprintln!("wrote {}", a.out.display());
+    Ok(super::EXIT_OK)
+}

@@ -1,0 +1,123 @@
+//! `kneebench validate`.
+
+use std::path::PathBuf;
+
+use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
+use kneebench_harness::{Fmu, InstanceOptions, LoadOptions};
+
+/// Arguments of `kneebench validate`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Checks, in order (the first failing step stops):
+  1. the archive extracts safely (no path escapes, no symlinks, bounded sizes)
+  2. modelDescription.xml parses, and its semantic checks pass (names, value references,
+     causality/variability/initial, ModelStructure)
+  3. a CoSimulation element and binaries/linux64/<modelIdentifier>.so exist
+  4. the binary loads and exports every required FMI 2.0 function (and the optional ones its
+     capability flags promise), and reports version 2.0 and types platform 'default'
+  5. fmi2Instantiate accepts the description's GUID
+
+Examples:
+  kneebench validate GaitReference.fmu
+  kneebench validate --preload /usr/lib/x86_64-linux-gnu/libpython3.11.so.1.0 PythonSlave.fmu
+Exit code 0 when valid, 1 when a problem was found.")]
+pub struct Args {
+    /// The FMU archive.
+    pub fmu: PathBuf,
+    /// Shared libraries to load globally first (host runtimes such as libpython).
+    #[arg(long)]
+    pub preload: Vec<PathBuf>,
+}
+
+/// Runs `kneebench validate`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let mut problems: Vec<String> = Vec::new();
+    let limits = ArchiveLimits::default();
+    let md = match extract_and_parse(&a.fmu, &limits) {
+        Ok((_dir, md)) => md,
+        Err(e) => {
+            println!("INVALID: {e}");
+            return Ok(super::EXIT_ERROR);
+        }
+    };
+    println!("ok: archive extracted safely; modelDescription.xml parsed");
+    for p in md.check() {
+        problems.push(format!("model description: {}", p.message));
+    }
+    let fmu = match Fmu::load(
+        &a.fmu,
+        &LoadOptions {
+            limits,
+            preload: a.preload.clone(),
+        },
+    ) {
+        Ok(f) => f,
+        Err(e) => {
+            problems.push(e.to_string());
+            return report(problems);
+        }
+    };
+    println!(
+        "ok: {} loaded; every required FMI 2.0 function is exported",
+        fmu.binary_path()
+            .strip_prefix(fmu.directory())
+            .unwrap_or(fmu.binary_path())
+            .display()
+    );
+    let platform = fmu.types_platform();
+    if platform != "default" {
+        problems.push(format!(
+            "fmi2GetTypesPlatform returns '{platform}', expected 'default'"
+        ));
+    }
+    let cs = md.co_simulation.clone().unwrap_or_default();
+    let missing = fmu.missing_optional_functions();
+    let mut promised: Vec<&str> = Vec::new();
+    if cs.can_get_and_set_fmu_state == Some(true) {
+        promised.extend(["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"]);
+    }
+    if cs.can_serialize_fmu_state == Some(true) {
+        promised.extend([
+            "fmi2SerializedFMUstateSize",
+            "fmi2SerializeFMUstate",
+            "fmi2DeSerializeFMUstate",
+        ]);
+    }
+    if cs.provides_directional_derivative == Some(true) {
+        promised.push("fmi2GetDirectionalDerivative");
+    }
+    if cs.max_output_derivative_order.unwrap_or(0) > 0 {
+        promised.push("fmi2GetRealOutputDerivatives");
+    }
+    if cs.can_interpolate_inputs == Some(true) {
+        promised.push("fmi2SetRealInputDerivatives");
+    }
+    for f in promised {
+        if missing.contains(&f) {
+            problems.push(format!(
+                "the capability flags promise {f}, which the binary does not export"
+            ));
+        }
+    }
+    match fmu.instantiate("validate", &InstanceOptions::default()) {
+        Ok(i) => {
+            drop(i);
+            println!("ok: fmi2Instantiate accepted GUID {}", md.guid);
+        }
+        Err(e) => problems.push(e.to_string()),
+    }
+    report(problems)
+}
+
+fn report(problems: Vec<String>) -> anyhow::Result<i32> {
+    if problems.is_empty() {
+        println!("VALID");
+        Ok(super::EXIT_OK)
+    } else {
+        for p in &problems {
+            println!("problem: {p}");
+        }
+        println!("INVALID: {} problem(s)", problems.len());
+        Ok(super::EXIT_ERROR)
+    }
+}
