@@ -56,9 +56,8 @@ impl SideLaw {
             (FrictionModel::CoulombViscous, Side::Actuation) => {
                 coulomb(params.actuation_static_friction)
             }
-            (FrictionModel::CoulombViscous, Side::Load) | (FrictionModel::HdLossSurface, Side::Load) => {
-                coulomb(params.load_static_friction)
-            }
+            (FrictionModel::CoulombViscous, Side::Load)
+            | (FrictionModel::HdLossSurface, Side::Load) => coulomb(params.load_static_friction),
             (FrictionModel::Exponential, Side::Actuation) => SideLaw::Stribeck(StribeckLaw {
                 a0: params.actuation_stribeck_a0,
                 a1: params.actuation_stribeck_a1,
@@ -85,7 +84,12 @@ impl SideLaw {
 
     /// Signed torque on a body sliding in `direction` (+1/-1) at `speed` >= 0, and whether the
     /// loss surface had to be clamped.
-    pub(crate) fn sliding_torque(&self, params: &BenchParameters, direction: f64, speed: f64) -> (f64, bool) {
+    pub(crate) fn sliding_torque(
+        &self,
+        params: &BenchParameters,
+        direction: f64,
+        speed: f64,
+    ) -> (f64, bool) {
         match *self {
             SideLaw::None => (0.0, false),
             SideLaw::Coulomb(level) => (-direction * level, false),
@@ -95,7 +99,10 @@ impl SideLaw {
                 speed,
                 direction,
                 params.hd_surface_max_speed,
-                (params.hd_surface_min_load_torque, params.hd_surface_max_load_torque),
+                (
+                    params.hd_surface_min_load_torque,
+                    params.hd_surface_max_load_torque,
+                ),
             ),
         }
     }
@@ -108,9 +115,14 @@ impl SideLaw {
 }
 
 fn coulomb(level: f64) -> SideLaw {
-    if level > 0.0 { SideLaw::Coulomb(level) } else { SideLaw::None }
+    if level > 0.0 {
+        SideLaw::Coulomb(level)
+    } else {
+        SideLaw::None
+    }
 }
 
+#[cfg(test)]
 /// `J(z) = integral_0^{pi/2} exp(-z sin(phi)) sin(phi) dphi`, the first-harmonic weight of an
 /// exponential term under sinusoidal motion (midpoint rule, accurate to ~1e-9 for z < 100).
 pub(crate) fn first_harmonic_weight(z: f64) -> f64 {

@@ -127,7 +127,12 @@ mod tests {
     fn zero_load_reproduces_the_header_check() {
         // Header: at x = 0, surface / i_HD gives the no-load running torque at the motor side.
         let i_hd = 160.0;
-        for (y, expected) in [(0.33, -0.038), (-0.33, 0.034), (2.29, -0.052), (-2.29, 0.054)] {
+        for (y, expected) in [
+            (0.33, -0.038),
+            (-0.33, 0.034),
+            (2.29, -0.052),
+            (-2.29, 0.054),
+        ] {
             let direction: f64 = if y >= 0.0 { 1.0 } else { -1.0 };
             let (torque, clamped) = clamped_torque(0.0, y.abs(), direction, 2.618, (-20.0, 20.0));
             assert!(!clamped);

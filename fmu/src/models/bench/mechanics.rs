@@ -190,7 +190,8 @@ impl Discretization {
         let mut gramians = [[0.0; NPACK]; 6];
         for (g, &(a, b)) in gramians.iter_mut().zip(PRODUCTS.iter()) {
             let mut big = SMatrix::<f64, 20, 20>::zeros();
-            big.fixed_view_mut::<NZ, NZ>(0, 0).copy_from(&(-m.transpose()));
+            big.fixed_view_mut::<NZ, NZ>(0, 0)
+                .copy_from(&(-m.transpose()));
             big.fixed_view_mut::<NZ, NZ>(NZ, NZ).copy_from(m);
             big[(a, NZ + b)] += 0.5;
             big[(b, NZ + a)] += 0.5;
@@ -201,12 +202,22 @@ impl Discretization {
             let mut k = 0;
             for i in 0..NZ {
                 for j in i..NZ {
-                    g[k] = if i == j { full[(i, i)] } else { full[(i, j)] + full[(j, i)] };
+                    g[k] = if i == j {
+                        full[(i, i)]
+                    } else {
+                        full[(i, j)] + full[(j, i)]
+                    };
                     k += 1;
                 }
             }
         }
-        Self { key, step: h, transition, current_integrals, gramians }
+        Self {
+            key,
+            step: h,
+            transition,
+            current_integrals,
+            gramians,
+        }
     }
 
     /// State at the end of the step.
@@ -259,7 +270,10 @@ impl Piece {
 
     /// Polynomial (in s) of component `index`.
     pub(crate) fn component(&self, index: usize) -> Vec<f64> {
-        self.coefficients[..self.terms].iter().map(|c| c[index]).collect()
+        self.coefficients[..self.terms]
+            .iter()
+            .map(|c| c[index])
+            .collect()
     }
 }
 
@@ -267,7 +281,6 @@ impl Piece {
 #[derive(Debug, Clone)]
 pub(crate) struct TaylorSegment {
     pub pieces: Vec<Piece>,
-    pub duration: f64,
 }
 
 impl TaylorSegment {
@@ -318,7 +331,7 @@ impl TaylorSegment {
                 z = piece.eval(1.0);
                 pieces.push(piece);
             }
-            return Self { pieces, duration };
+            return Self { pieces };
         }
     }
 
@@ -395,7 +408,10 @@ mod tests {
     use super::*;
 
     fn test_mode() -> LinearMode {
-        LinearMode { stuck: [false, false], voltage_row: [true, false] }
+        LinearMode {
+            stuck: [false, false],
+            voltage_row: [true, false],
+        }
     }
 
     #[test]
@@ -408,7 +424,10 @@ mod tests {
         let exact = d.advance(&z0);
         let taylor = TaylorSegment::new(&m, rate_scale(&m), &z0, h).state_at(h);
         for k in 0..NZ {
-            assert!((exact[k] - taylor[k]).abs() < 1e-12 * (1.0 + exact[k].abs()), "{k}");
+            assert!(
+                (exact[k] - taylor[k]).abs() < 1e-12 * (1.0 + exact[k].abs()),
+                "{k}"
+            );
         }
         let reference = (m * h).exp() * to_vector(&z0);
         for k in 0..NZ {
@@ -430,7 +449,10 @@ mod tests {
                 let prod = poly_mul(&piece.component(a), &piece.component(b));
                 total += piece.len * poly_integral(&prod, 0.0, 1.0);
             }
-            assert!((total - cached.products[k]).abs() < 1e-12 * (1e-6 + total.abs()), "{k}");
+            assert!(
+                (total - cached.products[k]).abs() < 1e-12 * (1e-6 + total.abs()),
+                "{k}"
+            );
         }
     }
 }

@@ -331,39 +331,69 @@ impl BenchParameters {
             ("load_stribeck_a2", self.load_stribeck_a2),
             ("load_stribeck_b2", self.load_stribeck_b2),
             ("hd_surface_max_speed", self.hd_surface_max_speed),
-            ("hd_surface_min_load_torque", self.hd_surface_min_load_torque),
-            ("hd_surface_max_load_torque", self.hd_surface_max_load_torque),
+            (
+                "hd_surface_min_load_torque",
+                self.hd_surface_min_load_torque,
+            ),
+            (
+                "hd_surface_max_load_torque",
+                self.hd_surface_max_load_torque,
+            ),
             ("test_motor_resistance", self.test_motor_resistance),
             ("test_motor_inductance", self.test_motor_inductance),
-            ("test_motor_torque_constant", self.test_motor_torque_constant),
-            ("test_motor_back_emf_constant", self.test_motor_back_emf_constant),
+            (
+                "test_motor_torque_constant",
+                self.test_motor_torque_constant,
+            ),
+            (
+                "test_motor_back_emf_constant",
+                self.test_motor_back_emf_constant,
+            ),
             ("test_motor_rotor_inertia", self.test_motor_rotor_inertia),
             ("load_motor_resistance", self.load_motor_resistance),
             ("load_motor_inductance", self.load_motor_inductance),
-            ("load_motor_torque_constant", self.load_motor_torque_constant),
-            ("load_motor_back_emf_constant", self.load_motor_back_emf_constant),
+            (
+                "load_motor_torque_constant",
+                self.load_motor_torque_constant,
+            ),
+            (
+                "load_motor_back_emf_constant",
+                self.load_motor_back_emf_constant,
+            ),
             ("load_motor_rotor_inertia", self.load_motor_rotor_inertia),
             ("test_supply_voltage", self.test_supply_voltage),
             ("load_supply_voltage", self.load_supply_voltage),
             ("test_current_limit", self.test_current_limit),
             ("load_current_limit", self.load_current_limit),
-            ("current_loop_time_constant", self.current_loop_time_constant),
+            (
+                "current_loop_time_constant",
+                self.current_loop_time_constant,
+            ),
             ("load_regen_power_limit", self.load_regen_power_limit),
             ("clutch_motor_torque", self.clutch_motor_torque),
             ("clutch_power", self.clutch_power),
             ("hardware_offset_power", self.hardware_offset_power),
-            ("encoder_counts_per_revolution", self.encoder_counts_per_revolution),
+            (
+                "encoder_counts_per_revolution",
+                self.encoder_counts_per_revolution,
+            ),
             ("transducer_offset", self.transducer_offset),
             ("transducer_gain", self.transducer_gain),
             ("transducer_phase", self.transducer_phase),
             ("load_cell_offset", self.load_cell_offset),
             ("load_cell_gain", self.load_cell_gain),
             ("load_cell_phase", self.load_cell_phase),
-            ("calibration_pendulum_moment", self.calibration_pendulum_moment),
+            (
+                "calibration_pendulum_moment",
+                self.calibration_pendulum_moment,
+            ),
             ("divider_offset", self.divider_offset),
             ("divider_gain", self.divider_gain),
             ("current_sensor_offset", self.current_sensor_offset),
-            ("current_sensor_sensitivity", self.current_sensor_sensitivity),
+            (
+                "current_sensor_sensitivity",
+                self.current_sensor_sensitivity,
+            ),
             ("spring_deflection_limit", self.spring_deflection_limit),
             ("motor_torque_limit", self.motor_torque_limit),
             ("max_internal_step", self.max_internal_step),
@@ -378,20 +408,34 @@ impl BenchParameters {
         for ((name, value), &(limit_name, min, max)) in fields.iter().zip(Self::PARAMETER_LIMITS) {
             debug_assert_eq!(*name, limit_name);
             if !value.is_finite() {
-                return Err(ParameterError::NotFinite { name, value: *value });
+                return Err(ParameterError::NotFinite {
+                    name,
+                    value: *value,
+                });
             }
             if *value < min || *value > max {
-                return Err(ParameterError::OutOfRange { name, value: *value, min, max });
+                return Err(ParameterError::OutOfRange {
+                    name,
+                    value: *value,
+                    min,
+                    max,
+                });
             }
         }
         if self.transducer_gain == 0.0 || self.load_cell_gain == 0.0 {
-            return Err(ParameterError::Inconsistent("sensor calibration gains must be nonzero"));
+            return Err(ParameterError::Inconsistent(
+                "sensor calibration gains must be nonzero",
+            ));
         }
         if self.encoder_counts_per_revolution.fract() != 0.0 {
-            return Err(ParameterError::Inconsistent("encoder counts per revolution must be an integer"));
+            return Err(ParameterError::Inconsistent(
+                "encoder counts per revolution must be an integer",
+            ));
         }
         if self.hd_surface_min_load_torque >= self.hd_surface_max_load_torque {
-            return Err(ParameterError::Inconsistent("loss-surface load-torque range is empty"));
+            return Err(ParameterError::Inconsistent(
+                "loss-surface load-torque range is empty",
+            ));
         }
         Ok(())
     }
@@ -418,7 +462,10 @@ mod tests {
     fn defaults_validate_and_limits_cover_every_field() {
         let p = BenchParameters::default();
         assert_eq!(p.validate(), Ok(()));
-        assert_eq!(p.real_fields().len(), BenchParameters::PARAMETER_LIMITS.len());
+        assert_eq!(
+            p.real_fields().len(),
+            BenchParameters::PARAMETER_LIMITS.len()
+        );
         for (name, _, _) in BenchParameters::PARAMETER_LIMITS {
             assert!(p.real(name).is_some(), "{name}");
         }
@@ -429,9 +476,15 @@ mod tests {
     fn invalid_values_are_rejected() {
         let mut p = BenchParameters::default();
         p.actuation_inertia = -1.0;
-        assert!(matches!(p.validate(), Err(ParameterError::OutOfRange { .. })));
+        assert!(matches!(
+            p.validate(),
+            Err(ParameterError::OutOfRange { .. })
+        ));
         p.actuation_inertia = f64::NAN;
-        assert!(matches!(p.validate(), Err(ParameterError::NotFinite { .. })));
+        assert!(matches!(
+            p.validate(),
+            Err(ParameterError::NotFinite { .. })
+        ));
         let mut q = BenchParameters::default();
         q.encoder_counts_per_revolution = 2000.5;
         assert!(matches!(q.validate(), Err(ParameterError::Inconsistent(_))));

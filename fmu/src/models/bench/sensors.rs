@@ -65,7 +65,13 @@ mod tests {
         let p = BenchParameters::default();
         let moment = p.calibration_pendulum_moment;
         let torque = 12.0;
-        let v = calibrated_sensor_voltage(torque, p.transducer_offset, p.transducer_gain, p.transducer_phase, moment);
+        let v = calibrated_sensor_voltage(
+            torque,
+            p.transducer_offset,
+            p.transducer_gain,
+            p.transducer_phase,
+            moment,
+        );
         let back = calibrated_sensor_torque(v, p.transducer_offset, p.transducer_gain, moment);
         let expected = torque * p.transducer_phase.cos() + moment * p.transducer_phase.sin();
         assert!((back - expected).abs() < 1e-12);

@@ -1,0 +1,369 @@
+//! # BenchPlant: the knee-actuator test bench
+//!
+//! Plain-Rust physics of the bench of `shared/bench-model.md` (sections 1-4 and 7-9), without
+//! FMI. One model covers the three configurations DA, SEA and CSEA.
+//!
+//! ## Equations
+//! Two rotational bodies reflected to the knee axis (positive = extension):
+//!
+//! ```text
+//! I1 w1' + c1 w1 + k (theta1 - theta2) = i_HD Km1 i1 + F1      (actuation side)
+//! I2 w2' + c2 w2 + k (theta2 - theta1) = i_RED Km2 i2 + F2     (load side)
+//! L1 i1' = V1 - R1 i1 - Ke1 i_HD w1,   L2 i2' = V2 - R2 i2 - Ke2 i_RED w2
+//! ```
+//!
+//! `F1`, `F2` are the friction torques (below) and, on side 1, the clutch. The viscous terms
+//! c1, c2 are always present. **DA** is modelled as a stiff coupling: the blocked spring leaves
+//! the harmonic drive's torsional stiffness, `k_DA` = 1.3e4 N m/rad (parameter
+//! `direct_coupling_stiffness`), between the halves; the exact discretisation handles the
+//! resulting 193 rad/s mode at any step, and below ~20 rad/s the response equals the rigid
+//! body `1/((I1+I2)s + c1+c2)` to within 1 %. SEA and CSEA use `k` = 340.54 N m/rad; CSEA is
+//! SEA with the clutch available (the clutch input acts in every configuration; it is the
+//! scheduler's job to use it in CSEA only).
+//!
+//! ## Drivers
+//! * **Voltage mode**: the command is the armature voltage [V], clipped to +-supply (24 V test,
+//!   48 V load). The driver does not regulate current; the actual current exceeding the driver
+//!   limit (15 A / 6 A) trips the `TestCurrent` / `LoadCurrent` interlock (over-current fault).
+//! * **Current mode**: the command is the current set value [A], clipped to +-limit. The
+//!   driver's current loop is an ideal first-order loop, `tau_c i' = i_ref - i`
+//!   (`current_loop_time_constant`, default 0.25 ms, i.e. ~640 Hz bandwidth, realised by a
+//!   PI-with-back-emf-feed-forward loop), with the voltage it needs,
+//!   `V = R i + Ke w_m + (L/tau_c)(i_ref - i)`, limited to +-supply: when the demand exceeds
+//!   the supply the armature runs at +-supply (a saturation mode entered and left as located
+//!   events). A torque set value is converted with [`current_for_motor_torque`].
+//! * A **disabled** driver holds zero current through its loop (so its current decays with
+//!   tau_c).
+//! * The load driver's **regenerated power** `max(-V2 i2, 0)` above `load_regen_power_limit`
+//!   (5 W) trips `RegenPower`. The spec gives no braking limit for the test driver.
+//! * The load motor's published `Ke2` = 0.145 V s/rad differs from `Km2` = 0.114 N m/A; both
+//!   are used as published, so its electrical conversion power `Ke2 w_m i2` exceeds the
+//!   mechanical `Km2 w_m i2` (the electrical and mechanical balances each close on their own).
+//!
+//! ## Friction ([`FrictionModel`])
+//! * `Off`: no friction elements (viscous c1, c2 and the clutch remain).
+//! * `CoulombViscous`: Coulomb friction `Tfr,static1` = 5 N m on side 1 and `Tfr,static2` =
+//!   0.35 N m on side 2, equal static and sliding levels.
+//! * `Exponential`: `T = [a0 + a1 e^{-b1|w|} + a2 (1 - e^{-b2|w|})] sign(w)` on both sides,
+//!   replacing the Coulomb term (c stays in the mechanics). Fit of the defaults: stiction
+//!   `a0 + a1 = Tfr,static`, a 20 % Stribeck drop (`a1 = 0.2 Tfr,static`, `b1` = 20 s/rad, i.e.
+//!   a Stribeck speed of 0.05 rad/s), growth rate `b2` = 2 s/rad, and `a2` chosen so that for a
+//!   0.5 Hz sinusoid of 30 deg amplitude (peak 1.645 rad/s) the first harmonic of the law equals
+//!   that of Coulomb `Tfr,static`: `a2 = a1 (1 - J(b1 W))/(1 - J(b2 W))`, `J(z) =
+//!   int_0^{pi/2} e^{-z sin p} sin p dp`. The law then dissipates the same energy per 0.5 Hz
+//!   cycle as Coulomb `Tfr,static`, and with c unchanged the identified pair (Tfr, c) is
+//!   reproduced at 0.5 Hz. Side 1: a0 = 4, a1 = 1, a2 = 1.117927; side 2: a0 = 0.28, a1 = 0.07,
+//!   a2 = 0.07825489.
+//! * `HdLossSurface`: side 1 uses the steady-state harmonic-drive loss surface of
+//!   `shared/data/hd-loss-surface.csv` (`x` = load torque at the output, `i_RED Km2 i2`; `y` =
+//!   omega1); side 2 keeps Coulomb `Tfr,static2`. Arguments are clamped to |y| <= 150 deg/s and
+//!   -10 <= x <= 15 N m (the largest box around the gait's load range, -9..17.5 N m, in which the
+//!   fitted surface stays dissipative; at |x| = 20 it turns positive), and every clamped
+//!   evaluation is counted (`hd_surface_clamp_count`). The study's dynamic term
+//!   `(I_test + I_load) alpha` is not added: the inertias are already in the mechanics. The
+//!   surface's own speed growth overlaps c1; set c1 lower if the surface alone should carry the
+//!   losses.
+//!
+//! ## Stick-slip
+//! A switched model per body: **sliding** with friction of sign `-direction`, or **stuck**
+//! (`w = 0` exactly, angle frozen bit for bit). A sliding body whose velocity reaches zero
+//! (a located event) sticks if the net non-friction torque `D` on it is within its static
+//! capacity (friction stiction plus, on side 1, the clutch's 120 N m), else it slides on in the
+//! direction of `D`. A stuck body breaks away when `D` exceeds the capacity (located event).
+//! Both bodies are coupled through the spring inside each segment, so one can be stuck while
+//! the other moves. There is no velocity deadband, so nothing drifts or chatters at any step.
+//! Speed-dependent friction laws are held over a segment at the average of their start and
+//! predicted end values (second order in the internal step); Coulomb friction is exact.
+//!
+//! ## Clutch
+//! `clutch_engage` is sampled at the start of each communication step (engage and release take
+//! effect there). Engaged, it is a friction element on side 1 of `0.75 N m x i_HD = 120 N m`
+//! (motor side x ratio) with the stick-slip treatment above, so a sliding clutched body comes to
+//! rest at a located instant inside the step. It draws `clutch_power` (6 W) while engaged.
+//!
+//! ## Numerics
+//! Within a segment the plant is linear with constant inputs (driver inputs are sampled and held
+//! over the communication step, friction held as above). Each internal sub-step (communication
+//! step split into equal parts of at most `max_internal_step`, 1 ms) is integrated exactly:
+//! `exp(M h)` and Van Loan Gramians for the quadratic energy integrals are cached per (mode, h).
+//! Events (stick, break-away, current-loop saturation, interlocks) are tested at the end of the
+//! sub-step; when one fires, the sub-step is re-done with a Taylor expansion of the exact flow,
+//! the event is located with the Illinois method to rounding, and integration restarts from the
+//! event in the new mode. The electrical time constants (0.2-0.8 ms) are therefore no stability
+//! or accuracy issue at 1 ms or 0.1 s steps.
+//!
+//! ## Interlocks ([`Interlock`])
+//! Each trips when its quantity strictly exceeds the threshold, located inside the step; the
+//! state is stopped at the trip instant and latched, after which `step` returns the trip and
+//! does nothing (safe state: commands zeroed, drivers disabled, clutch released).
+//! * `SpringDeflection`: |theta1 - theta2| > 5 deg.
+//! * `TestMotorTorque` / `LoadMotorTorque`: the **output-side** motor torque |i_HD Km1 i1|,
+//!   |i_RED Km2 i2| > 20 N m. (Motor-shaft torques never reach 20 N m: 15 A x 0.037 = 0.56 N m;
+//!   at the output the drivers could give 88.8 and 45 N m.) With the defaults this trips at
+//!   3.38 A / 2.66 A, before the current limits.
+//! * `TestCurrent` / `LoadCurrent`: |i| > 15 A / 6 A (reachable in voltage mode, or when a
+//!   saturated current loop is back-driven).
+//! * `RegenPower`: load driver absorbing more than 5 W.
+//! * `EmergencyStop`: the input, at the start of the step.
+//! The watchdog ("a control period missed") belongs to the hardware FMU, not the plant.
+//!
+//! ## Sensors
+//! See [`sensors`](self::sensors) docs: quantised encoders (2000 counts per motor revolution),
+//! torque transducer on the spring torque and load cell on the test motor's output torque, both
+//! as raw volts and as torque by the bench's calibration; supply dividers; ACS712 voltages.
+//!
+//! ## Energy (§9)
+//! `P_test + P_load + P_HD = dE_k/dt + dE_p/dt` with `P_test = i_HD Km1 i1 w1`,
+//! `P_load = i_RED Km2 i2 w2`, `P_HD = -c1 w1^2 - c2 w2^2 + F1 w1 + F2 w2 <= 0`; electrical
+//! `P_el = V i = R i^2 + d(L i^2/2)/dt + Ke w_m i` per driver, total = both + 7 W offset + 6 W
+//! clutch. Integrals since the start are exact (Gramians / polynomial integrals of the exact
+//! flow); "consumed" is the integral of the positive part, split at sign changes of the power
+//! (sign changes are detected at sub-step ends; a double sign change inside one sub-step is
+//! treated as none). `kinetic_energy_change` / `potential_energy_change` are relative to the
+//! start at rest.
+
+mod friction;
+mod hd_loss;
+mod mechanics;
+mod outputs;
+mod params;
+mod plant;
+mod sensors;
+mod state;
+
+#[cfg(test)]
+mod tests;
+
+pub use self::outputs::{BenchOutputDerivatives, BenchOutputs};
+pub use self::params::{BenchParameters, ParameterError};
+pub use self::plant::BenchPlant;
+pub use self::state::StateError;
+
+use thiserror::Error;
+
+/// Actuator configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Configuration {
+    /// Direct actuation: spring blocked, halves coupled by the harmonic drive's stiffness.
+    Da,
+    /// Series elastic actuation.
+    Sea,
+    /// Clutched series elastic actuation.
+    Csea,
+}
+
+impl Configuration {
+    /// From the FMU's Integer parameter (0 DA, 1 SEA, 2 CSEA).
+    pub fn from_i32(value: i32) -> Option<Self> {
+        match value {
+            0 => Some(Self::Da),
+            1 => Some(Self::Sea),
+            2 => Some(Self::Csea),
+            _ => None,
+        }
+    }
+
+    /// The FMU's Integer value.
+    pub fn as_i32(self) -> i32 {
+        self as i32
+    }
+}
+
+/// Friction law (module docs, "Friction").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrictionModel {
+    /// No friction elements on either side (viscous c1, c2 and clutch remain).
+    Off,
+    /// Coulomb Tfr,static1 on side 1 and Tfr,static2 on side 2, with stick-slip.
+    CoulombViscous,
+    /// Exponential Stribeck-like law on both sides, with stick-slip.
+    Exponential,
+    /// Harmonic-drive loss surface on side 1, Coulomb Tfr,static2 on side 2.
+    HdLossSurface,
+}
+
+impl FrictionModel {
+    /// From the FMU's Integer parameter (0 Off, 1 CoulombViscous, 2 Exponential, 3 HdLossSurface).
+    pub fn from_i32(value: i32) -> Option<Self> {
+        match value {
+            0 => Some(Self::Off),
+            1 => Some(Self::CoulombViscous),
+            2 => Some(Self::Exponential),
+            3 => Some(Self::HdLossSurface),
+            _ => None,
+        }
+    }
+
+    /// The FMU's Integer value.
+    pub fn as_i32(self) -> i32 {
+        self as i32
+    }
+}
+
+/// Driver operating mode (module docs, "Drivers").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DriverMode {
+    /// Command = armature voltage [V].
+    Voltage,
+    /// Command = current set value [A].
+    Current,
+}
+
+impl DriverMode {
+    /// From the FMU's Integer parameter (0 Voltage, 1 Current).
+    pub fn from_i32(value: i32) -> Option<Self> {
+        match value {
+            0 => Some(Self::Voltage),
+            1 => Some(Self::Current),
+            _ => None,
+        }
+    }
+
+    /// The FMU's Integer value.
+    pub fn as_i32(self) -> i32 {
+        self as i32
+    }
+}
+
+/// Current set value [A] that makes a motor deliver the motor-shaft torque `torque` [N m]:
+/// `torque / Km`. For an output-side torque divide by the gear ratio first.
+pub fn current_for_motor_torque(torque: f64, torque_constant: f64) -> f64 {
+    torque / torque_constant
+}
+
+/// Inputs, sampled at the start of a communication step and held over it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BenchInputs {
+    /// Test-motor command: armature voltage [V] in voltage mode, current set value [A] in
+    /// current mode.
+    pub test_command: f64,
+    /// Load-motor command, same meaning per the load driver's mode.
+    pub load_command: f64,
+    /// Test driver enabled (a disabled driver holds zero current).
+    pub test_enable: bool,
+    /// Load driver enabled.
+    pub load_enable: bool,
+    /// Clutch engaged.
+    pub clutch_engage: bool,
+    /// Emergency stop pressed (trips at the start of the step).
+    pub emergency_stop: bool,
+}
+
+/// Inputs or a step size the plant cannot use.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+pub enum InputError {
+    /// A command is NaN or infinite.
+    #[error("input `{name}` is not finite: {value}")]
+    NotFinite {
+        /// Input name.
+        name: &'static str,
+        /// Offending value.
+        value: f64,
+    },
+    /// The communication step is not a positive finite number.
+    #[error("step size must be positive and finite, got {0}")]
+    StepSize(f64),
+}
+
+impl BenchInputs {
+    /// Checks the commands are finite.
+    pub fn validate(&self) -> Result<(), InputError> {
+        for (name, value) in [
+            ("test_command", self.test_command),
+            ("load_command", self.load_command),
+        ] {
+            if !value.is_finite() {
+                return Err(InputError::NotFinite { name, value });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A safety interlock of bench-model.md §7.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Interlock {
+    /// |theta1 - theta2| above the limit (5 deg).
+    SpringDeflection,
+    /// Test motor's output-side torque outside +-20 N m.
+    TestMotorTorque,
+    /// Load motor's output-side torque outside +-20 N m.
+    LoadMotorTorque,
+    /// Test motor current above the driver limit (15 A).
+    TestCurrent,
+    /// Load motor current above the driver limit (6 A).
+    LoadCurrent,
+    /// Load driver absorbing more regenerated power than its limit (5 W).
+    RegenPower,
+    /// Emergency-stop input.
+    EmergencyStop,
+}
+
+impl Interlock {
+    /// Interlocks checked continuously during integration.
+    pub(crate) const CHECKED: [Interlock; 6] = [
+        Interlock::SpringDeflection,
+        Interlock::TestMotorTorque,
+        Interlock::LoadMotorTorque,
+        Interlock::TestCurrent,
+        Interlock::LoadCurrent,
+        Interlock::RegenPower,
+    ];
+
+    /// Status code reported by the FMU (0 means no trip).
+    pub fn code(self) -> i32 {
+        match self {
+            Interlock::SpringDeflection => 1,
+            Interlock::TestMotorTorque => 2,
+            Interlock::LoadMotorTorque => 3,
+            Interlock::TestCurrent => 4,
+            Interlock::LoadCurrent => 5,
+            Interlock::RegenPower => 6,
+            Interlock::EmergencyStop => 7,
+        }
+    }
+
+    /// Inverse of [`Self::code`].
+    pub fn from_code(code: i32) -> Option<Self> {
+        match code {
+            1 => Some(Interlock::SpringDeflection),
+            2 => Some(Interlock::TestMotorTorque),
+            3 => Some(Interlock::LoadMotorTorque),
+            4 => Some(Interlock::TestCurrent),
+            5 => Some(Interlock::LoadCurrent),
+            6 => Some(Interlock::RegenPower),
+            7 => Some(Interlock::EmergencyStop),
+            _ => None,
+        }
+    }
+
+    /// Human-readable name for log messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Interlock::SpringDeflection => "spring deflection above limit",
+            Interlock::TestMotorTorque => "test motor torque outside limit",
+            Interlock::LoadMotorTorque => "load motor torque outside limit",
+            Interlock::TestCurrent => "test motor current above driver limit",
+            Interlock::LoadCurrent => "load motor current above driver limit",
+            Interlock::RegenPower => "load driver regenerated power above limit",
+            Interlock::EmergencyStop => "emergency stop",
+        }
+    }
+}
+
+/// Result of [`BenchPlant::step`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StepOutcome {
+    /// The step completed; time advanced by h.
+    Completed,
+    /// An interlock tripped at `time` (inside this or an earlier step); the state is stopped
+    /// there and latched.
+    Tripped {
+        /// Which interlock.
+        interlock: Interlock,
+        /// Trip time [s].
+        time: f64,
+    },
+    /// Nothing was done: a command was not finite or h was not a positive finite number.
+    Rejected(InputError),
+}

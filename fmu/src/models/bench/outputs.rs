@@ -1,0 +1,409 @@
+//! Output values and their first derivatives.
+
+use super::mechanics::{CURRENT1, CURRENT2, OMEGA1, OMEGA2, THETA1, THETA2};
+use super::{BenchPlant, sensors};
+
+/// Every output of the plant at the current time. Angles in rad and torques in N m at the output
+/// (knee) axis unless the name says `motor`; powers in W (positive = into the named element's
+/// port from its source: motor power delivered to the shaft, electrical power drawn from the
+/// supply); energies in J since the start.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BenchOutputs {
+    /// theta1, actuation-side angle [rad].
+    pub actuation_angle: f64,
+    /// theta2, load-side angle [rad].
+    pub load_angle: f64,
+    /// omega1 [rad/s].
+    pub actuation_velocity: f64,
+    /// omega2 [rad/s].
+    pub load_velocity: f64,
+    /// d omega1/dt [rad/s^2].
+    pub actuation_acceleration: f64,
+    /// d omega2/dt [rad/s^2].
+    pub load_acceleration: f64,
+    /// theta1 - theta2 [rad].
+    pub spring_deflection: f64,
+    /// Torque in the coupling, k (theta1 - theta2) [N m].
+    pub spring_torque: f64,
+    /// Test-motor armature current i1 [A].
+    pub test_motor_current: f64,
+    /// Load-motor armature current i2 [A].
+    pub load_motor_current: f64,
+    /// Test-motor armature voltage [V].
+    pub test_motor_voltage: f64,
+    /// Load-motor armature voltage [V].
+    pub load_motor_voltage: f64,
+    /// Test-motor shaft torque Km1 i1 [N m, motor side].
+    pub test_motor_torque: f64,
+    /// Load-motor shaft torque Km2 i2 [N m, motor side].
+    pub load_motor_torque: f64,
+    /// Test-motor torque at the output, i_HD Km1 i1 [N m].
+    pub test_output_torque: f64,
+    /// Load-motor torque at the output, i_RED Km2 i2 [N m].
+    pub load_output_torque: f64,
+    /// Friction torque acting on the actuation side (incl. clutch) while sliding [N m].
+    pub actuation_friction_torque: f64,
+    /// Friction torque acting on the load side while sliding [N m].
+    pub load_friction_torque: f64,
+    /// Actuation encoder angle, quantised [rad].
+    pub actuation_encoder_angle: f64,
+    /// Load encoder angle, quantised [rad].
+    pub load_encoder_angle: f64,
+    /// Actuation encoder count [-].
+    pub actuation_encoder_counts: f64,
+    /// Load encoder count [-].
+    pub load_encoder_counts: f64,
+    /// Load-cell raw voltage [V].
+    pub load_cell_voltage: f64,
+    /// Load-cell torque by the bench's calibration [N m].
+    pub load_cell_torque: f64,
+    /// Torque-transducer raw voltage [V].
+    pub transducer_voltage: f64,
+    /// Torque-transducer torque by the bench's calibration [N m].
+    pub transducer_torque: f64,
+    /// Test supply divider voltage [V].
+    pub test_supply_sense_voltage: f64,
+    /// Load supply divider voltage [V].
+    pub load_supply_sense_voltage: f64,
+    /// Test current-sensor voltage [V].
+    pub test_current_sense_voltage: f64,
+    /// Load current-sensor voltage [V].
+    pub load_current_sense_voltage: f64,
+    /// Clutch engaged.
+    pub clutch_engaged: bool,
+    /// Actuation side held by static friction.
+    pub actuation_stuck: bool,
+    /// Load side held by static friction.
+    pub load_stuck: bool,
+    /// Test current loop saturated at the supply.
+    pub test_driver_saturated: bool,
+    /// Load current loop saturated at the supply.
+    pub load_driver_saturated: bool,
+    /// P_test = i_HD Km1 i1 omega1 [W].
+    pub test_mechanical_power: f64,
+    /// P_load = i_RED Km2 i2 omega2 [W].
+    pub load_mechanical_power: f64,
+    /// P_HD: all mechanical losses (viscous, friction, clutch), <= 0 [W].
+    pub loss_power: f64,
+    /// Actuation-side part of P_HD [W].
+    pub actuation_loss_power: f64,
+    /// Load-side part of P_HD [W].
+    pub load_loss_power: f64,
+    /// dE_k/dt [W].
+    pub kinetic_energy_rate: f64,
+    /// dE_p/dt [W].
+    pub potential_energy_rate: f64,
+    /// Test driver electrical power V1 i1 [W].
+    pub test_electrical_power: f64,
+    /// Load driver electrical power V2 i2 [W] (negative = regenerating).
+    pub load_electrical_power: f64,
+    /// Power regenerated into the load driver, max(-V2 i2, 0) [W].
+    pub load_regenerated_power: f64,
+    /// Clutch electrical power [W].
+    pub clutch_power: f64,
+    /// Hardware offset power [W].
+    pub offset_power: f64,
+    /// Total electrical power incl. offset and clutch [W].
+    pub total_electrical_power: f64,
+    /// E_k = (I1 w1^2 + I2 w2^2)/2 [J].
+    pub kinetic_energy: f64,
+    /// E_p = k (theta1 - theta2)^2 / 2 [J].
+    pub potential_energy: f64,
+    /// Integral of P_test [J].
+    pub test_mechanical_energy: f64,
+    /// Integral of max(P_test, 0) [J].
+    pub test_mechanical_energy_consumed: f64,
+    /// Integral of P_load [J].
+    pub load_mechanical_energy: f64,
+    /// Integral of max(P_load, 0) [J].
+    pub load_mechanical_energy_consumed: f64,
+    /// Integral of P_HD [J] (<= 0).
+    pub loss_energy: f64,
+    /// Integral of the actuation-side losses [J].
+    pub actuation_loss_energy: f64,
+    /// Integral of the load-side losses [J].
+    pub load_loss_energy: f64,
+    /// E_k(t) - E_k(0) [J].
+    pub kinetic_energy_change: f64,
+    /// E_p(t) - E_p(0) [J].
+    pub potential_energy_change: f64,
+    /// Integral of V1 i1 [J].
+    pub test_electrical_energy: f64,
+    /// Integral of max(V1 i1, 0) [J].
+    pub test_electrical_energy_consumed: f64,
+    /// Integral of V2 i2 [J].
+    pub load_electrical_energy: f64,
+    /// Integral of max(V2 i2, 0) [J].
+    pub load_electrical_energy_consumed: f64,
+    /// Clutch electrical energy [J].
+    pub clutch_energy: f64,
+    /// Hardware offset energy [J].
+    pub offset_energy: f64,
+    /// Total electrical energy incl. offset and clutch [J].
+    pub total_electrical_energy: f64,
+    /// Integral of the positive part of the total electrical power [J].
+    pub total_electrical_energy_consumed: f64,
+    /// Copper loss of the test motor, integral of R1 i1^2 [J].
+    pub test_copper_loss_energy: f64,
+    /// Copper loss of the load motor [J].
+    pub load_copper_loss_energy: f64,
+    /// Electrical conversion energy of the test motor, integral of Ke1 w_m1 i1 [J].
+    pub test_back_emf_energy: f64,
+    /// Electrical conversion energy of the load motor [J].
+    pub load_back_emf_energy: f64,
+    /// Number of loss-surface evaluations that had to be clamped [-].
+    pub hd_surface_clamp_count: f64,
+    /// The last loss-surface evaluation was clamped.
+    pub hd_surface_clamped: bool,
+    /// Trip status: 0 running, else [`super::Interlock::code`].
+    pub trip_code: i32,
+}
+
+/// First time derivatives of the continuous outputs of [`BenchOutputs`] (same names). Values
+/// that are piecewise constant or quantised (encoders, flags) have no entry here.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BenchOutputDerivatives {
+    /// d theta1/dt [rad/s].
+    pub actuation_angle: f64,
+    /// d theta2/dt [rad/s].
+    pub load_angle: f64,
+    /// d omega1/dt [rad/s^2].
+    pub actuation_velocity: f64,
+    /// d omega2/dt [rad/s^2].
+    pub load_velocity: f64,
+    /// Jerk of the actuation side [rad/s^3].
+    pub actuation_acceleration: f64,
+    /// Jerk of the load side [rad/s^3].
+    pub load_acceleration: f64,
+    /// d(theta1 - theta2)/dt [rad/s].
+    pub spring_deflection: f64,
+    /// d(spring torque)/dt [N m/s].
+    pub spring_torque: f64,
+    /// di1/dt [A/s].
+    pub test_motor_current: f64,
+    /// di2/dt [A/s].
+    pub load_motor_current: f64,
+    /// d(test output torque)/dt [N m/s].
+    pub test_output_torque: f64,
+    /// d(load output torque)/dt [N m/s].
+    pub load_output_torque: f64,
+    /// d(load-cell voltage)/dt [V/s].
+    pub load_cell_voltage: f64,
+    /// d(load-cell torque)/dt [N m/s].
+    pub load_cell_torque: f64,
+    /// d(transducer voltage)/dt [V/s].
+    pub transducer_voltage: f64,
+    /// d(transducer torque)/dt [N m/s].
+    pub transducer_torque: f64,
+    /// dE_k/dt [W].
+    pub kinetic_energy: f64,
+    /// dE_p/dt [W].
+    pub potential_energy: f64,
+    /// Test mechanical energy rate = P_test [W].
+    pub test_mechanical_energy: f64,
+    /// Load mechanical energy rate = P_load [W].
+    pub load_mechanical_energy: f64,
+    /// Loss energy rate = P_HD [W].
+    pub loss_energy: f64,
+    /// Test electrical energy rate [W].
+    pub test_electrical_energy: f64,
+    /// Load electrical energy rate [W].
+    pub load_electrical_energy: f64,
+    /// Total electrical energy rate [W].
+    pub total_electrical_energy: f64,
+}
+
+impl BenchPlant {
+    /// All outputs at the current time (state at the end of the last step, inputs of that step).
+    pub fn outputs(&self) -> BenchOutputs {
+        let p = &self.params;
+        let held = self.held_for_outputs();
+        let (z, rate, _) = self.rates(&held);
+        let k = p.coupling_stiffness();
+        let tpa = self.output_torque_per_ampere();
+        let powers = self.powers_at(&held, &z);
+        let deflection = z[THETA1] - z[THETA2];
+        let spring_torque = k * deflection;
+        let friction = [
+            if self.state.stuck[0] {
+                0.0
+            } else {
+                held.friction[0]
+            },
+            if self.state.stuck[1] {
+                0.0
+            } else {
+                held.friction[1]
+            },
+        ];
+        let loss = [
+            -p.actuation_damping * z[OMEGA1] * z[OMEGA1] + friction[0] * z[OMEGA1],
+            -p.load_damping * z[OMEGA2] * z[OMEGA2] + friction[1] * z[OMEGA2],
+        ];
+        let (enc1_counts, enc1) = sensors::encoder(
+            z[THETA1],
+            p.harmonic_drive_ratio,
+            p.encoder_counts_per_revolution,
+        );
+        let (enc2_counts, enc2) = sensors::encoder(
+            z[THETA2],
+            p.reduction_ratio,
+            p.encoder_counts_per_revolution,
+        );
+        let moment = p.calibration_pendulum_moment;
+        let test_output_torque = tpa[0] * z[CURRENT1];
+        let load_cell_voltage = sensors::calibrated_sensor_voltage(
+            test_output_torque,
+            p.load_cell_offset,
+            p.load_cell_gain,
+            p.load_cell_phase,
+            moment,
+        );
+        let transducer_voltage = sensors::calibrated_sensor_voltage(
+            spring_torque,
+            p.transducer_offset,
+            p.transducer_gain,
+            p.transducer_phase,
+            moment,
+        );
+        let e = &self.state.energy;
+        let kinetic =
+            0.5 * (p.actuation_inertia * z[OMEGA1].powi(2) + p.load_inertia * z[OMEGA2].powi(2));
+        let potential = 0.5 * k * deflection * deflection;
+        let clutch_power = if self.state.clutch {
+            p.clutch_power
+        } else {
+            0.0
+        };
+        BenchOutputs {
+            actuation_angle: z[THETA1],
+            load_angle: z[THETA2],
+            actuation_velocity: z[OMEGA1],
+            load_velocity: z[OMEGA2],
+            actuation_acceleration: rate[OMEGA1],
+            load_acceleration: rate[OMEGA2],
+            spring_deflection: deflection,
+            spring_torque,
+            test_motor_current: z[CURRENT1],
+            load_motor_current: z[CURRENT2],
+            test_motor_voltage: self.armature_voltage_at(&held, 0, &z),
+            load_motor_voltage: self.armature_voltage_at(&held, 1, &z),
+            test_motor_torque: p.test_motor_torque_constant * z[CURRENT1],
+            load_motor_torque: p.load_motor_torque_constant * z[CURRENT2],
+            test_output_torque,
+            load_output_torque: tpa[1] * z[CURRENT2],
+            actuation_friction_torque: friction[0],
+            load_friction_torque: friction[1],
+            actuation_encoder_angle: enc1,
+            load_encoder_angle: enc2,
+            actuation_encoder_counts: enc1_counts,
+            load_encoder_counts: enc2_counts,
+            load_cell_voltage,
+            load_cell_torque: sensors::calibrated_sensor_torque(
+                load_cell_voltage,
+                p.load_cell_offset,
+                p.load_cell_gain,
+                moment,
+            ),
+            transducer_voltage,
+            transducer_torque: sensors::calibrated_sensor_torque(
+                transducer_voltage,
+                p.transducer_offset,
+                p.transducer_gain,
+                moment,
+            ),
+            test_supply_sense_voltage: sensors::divider_voltage(p, p.test_supply_voltage),
+            load_supply_sense_voltage: sensors::divider_voltage(p, p.load_supply_voltage),
+            test_current_sense_voltage: sensors::current_sensor_voltage(p, z[CURRENT1]),
+            load_current_sense_voltage: sensors::current_sensor_voltage(p, z[CURRENT2]),
+            clutch_engaged: self.state.clutch,
+            actuation_stuck: self.state.stuck[0],
+            load_stuck: self.state.stuck[1],
+            test_driver_saturated: self.state.saturation[0] != 0.0,
+            load_driver_saturated: self.state.saturation[1] != 0.0,
+            test_mechanical_power: powers[0],
+            load_mechanical_power: powers[1],
+            loss_power: loss[0] + loss[1],
+            actuation_loss_power: loss[0],
+            load_loss_power: loss[1],
+            kinetic_energy_rate: p.actuation_inertia * z[OMEGA1] * rate[OMEGA1]
+                + p.load_inertia * z[OMEGA2] * rate[OMEGA2],
+            potential_energy_rate: k * deflection * (z[OMEGA1] - z[OMEGA2]),
+            test_electrical_power: powers[2],
+            load_electrical_power: powers[3],
+            load_regenerated_power: (-powers[3]).max(0.0),
+            clutch_power,
+            offset_power: p.hardware_offset_power,
+            total_electrical_power: powers[4],
+            kinetic_energy: kinetic,
+            potential_energy: potential,
+            test_mechanical_energy: e.test_mechanical,
+            test_mechanical_energy_consumed: e.test_mechanical_consumed,
+            load_mechanical_energy: e.load_mechanical,
+            load_mechanical_energy_consumed: e.load_mechanical_consumed,
+            loss_energy: e.actuation_loss + e.load_loss,
+            actuation_loss_energy: e.actuation_loss,
+            load_loss_energy: e.load_loss,
+            kinetic_energy_change: kinetic,
+            potential_energy_change: potential,
+            test_electrical_energy: e.test_electrical,
+            test_electrical_energy_consumed: e.test_electrical_consumed,
+            load_electrical_energy: e.load_electrical,
+            load_electrical_energy_consumed: e.load_electrical_consumed,
+            clutch_energy: e.clutch,
+            offset_energy: e.offset,
+            total_electrical_energy: e.total_electrical,
+            total_electrical_energy_consumed: e.total_electrical_consumed,
+            test_copper_loss_energy: e.test_copper_loss,
+            load_copper_loss_energy: e.load_copper_loss,
+            test_back_emf_energy: e.test_back_emf,
+            load_back_emf_energy: e.load_back_emf,
+            hd_surface_clamp_count: self.state.clamp_count as f64,
+            hd_surface_clamped: self.state.last_clamped,
+            trip_code: self.state.trip.map_or(0, |(i, _)| i.code()),
+        }
+    }
+
+    /// First derivatives of the continuous outputs at the current time (inputs of the last step
+    /// held, the current mode of stick/slip and saturation).
+    pub fn output_derivatives(&self) -> BenchOutputDerivatives {
+        let p = &self.params;
+        let held = self.held_for_outputs();
+        let (z, rate, jerk) = self.rates(&held);
+        let k = p.coupling_stiffness();
+        let tpa = self.output_torque_per_ampere();
+        let powers = self.powers_at(&held, &z);
+        let out = self.outputs();
+        let moment = p.calibration_pendulum_moment;
+        let spring_rate = k * (rate[THETA1] - rate[THETA2]);
+        let test_torque_rate = tpa[0] * rate[CURRENT1];
+        let cell_gain = p.load_cell_gain * p.load_cell_phase.cos() / moment;
+        let transducer_gain = p.transducer_gain * p.transducer_phase.cos() / moment;
+        BenchOutputDerivatives {
+            actuation_angle: rate[THETA1],
+            load_angle: rate[THETA2],
+            actuation_velocity: rate[OMEGA1],
+            load_velocity: rate[OMEGA2],
+            actuation_acceleration: jerk[OMEGA1],
+            load_acceleration: jerk[OMEGA2],
+            spring_deflection: rate[THETA1] - rate[THETA2],
+            spring_torque: spring_rate,
+            test_motor_current: rate[CURRENT1],
+            load_motor_current: rate[CURRENT2],
+            test_output_torque: test_torque_rate,
+            load_output_torque: tpa[1] * rate[CURRENT2],
+            load_cell_voltage: cell_gain * test_torque_rate,
+            load_cell_torque: moment / p.load_cell_gain * cell_gain * test_torque_rate,
+            transducer_voltage: transducer_gain * spring_rate,
+            transducer_torque: moment / p.transducer_gain * transducer_gain * spring_rate,
+            kinetic_energy: out.kinetic_energy_rate,
+            potential_energy: out.potential_energy_rate,
+            test_mechanical_energy: powers[0],
+            load_mechanical_energy: powers[1],
+            loss_energy: out.loss_power,
+            test_electrical_energy: powers[2],
+            load_electrical_energy: powers[3],
+            total_electrical_energy: powers[4],
+        }
+    }
+}

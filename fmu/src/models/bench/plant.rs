@@ -1,0 +1,1009 @@
+//! The switched, exactly discretised plant: modes, events, energy accounting and state.
+
+use super::friction::{Side, SideLaw};
+use super::mechanics::{
+    AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization, FRICTION1, FRICTION2,
+    LinearMode, OMEGA1, OMEGA2, SegmentIntegrals, THETA1, THETA2, TaylorSegment, poly_combine,
+    poly_eval, poly_integral, poly_mul, rate_scale, system_matrix,
+};
+use super::{
+    BenchInputs, BenchParameters, DriverMode, InputError, Interlock, ParameterError, StepOutcome,
+};
+
+/// Largest number of located events inside one internal sub-step before switching is frozen
+/// for the rest of that sub-step (guards against Zeno chattering at a tangency).
+const EVENT_BUDGET: usize = 64;
+/// Cached discretisations kept (modes x step sizes).
+const CACHE_CAPACITY: usize = 32;
+
+/// Energy integrals since the start [J], signed and positive part ("consumed").
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct EnergyAccount {
+    pub test_mechanical: f64,
+    pub test_mechanical_consumed: f64,
+    pub load_mechanical: f64,
+    pub load_mechanical_consumed: f64,
+    pub actuation_loss: f64,
+    pub load_loss: f64,
+    pub test_electrical: f64,
+    pub test_electrical_consumed: f64,
+    pub load_electrical: f64,
+    pub load_electrical_consumed: f64,
+    pub clutch: f64,
+    pub offset: f64,
+    pub total_electrical: f64,
+    pub total_electrical_consumed: f64,
+    pub test_copper_loss: f64,
+    pub load_copper_loss: f64,
+    pub test_back_emf: f64,
+    pub load_back_emf: f64,
+}
+
+impl EnergyAccount {
+    pub(crate) const COUNT: usize = 18;
+
+    pub(crate) fn to_array(self) -> [f64; Self::COUNT] {
+        [
+            self.test_mechanical,
+            self.test_mechanical_consumed,
+            self.load_mechanical,
+            self.load_mechanical_consumed,
+            self.actuation_loss,
+            self.load_loss,
+            self.test_electrical,
+            self.test_electrical_consumed,
+            self.load_electrical,
+            self.load_electrical_consumed,
+            self.clutch,
+            self.offset,
+            self.total_electrical,
+            self.total_electrical_consumed,
+            self.test_copper_loss,
+            self.load_copper_loss,
+            self.test_back_emf,
+            self.load_back_emf,
+        ]
+    }
+
+    pub(crate) fn from_array(a: [f64; Self::COUNT]) -> Self {
+        Self {
+            test_mechanical: a[0],
+            test_mechanical_consumed: a[1],
+            load_mechanical: a[2],
+            load_mechanical_consumed: a[3],
+            actuation_loss: a[4],
+            load_loss: a[5],
+            test_electrical: a[6],
+            test_electrical_consumed: a[7],
+            load_electrical: a[8],
+            load_electrical_consumed: a[9],
+            clutch: a[10],
+            offset: a[11],
+            total_electrical: a[12],
+            total_electrical_consumed: a[13],
+            test_copper_loss: a[14],
+            load_copper_loss: a[15],
+            test_back_emf: a[16],
+            load_back_emf: a[17],
+        }
+    }
+}
+
+/// Values held constant over a segment.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Held {
+    pub mode: LinearMode,
+    /// Driver input slot value (voltage or current set value).
+    pub drive: [f64; 2],
+    /// Current set value of a current-type driver (0 for a disabled one).
+    pub reference: [f64; 2],
+    /// Whether the motor's driver runs its current loop (current mode or disabled).
+    pub current_loop: [bool; 2],
+    /// Friction torque applied to each body while sliding (incl. clutch) [N m].
+    pub friction: [f64; 2],
+    pub laws: [SideLaw; 2],
+    /// Static capacity per body against + and - motion [N m].
+    pub capacity: [[f64; 2]; 2],
+    pub clutch: bool,
+}
+
+/// What an event function describes; positive value = happened.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Event {
+    Reversal(usize),
+    BreakAway(usize, f64),
+    SaturationEnter(usize, f64),
+    SaturationExit(usize),
+    Trip(Interlock),
+}
+
+/// Everything that evolves.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct DynamicState {
+    pub time: f64,
+    pub z: AugVector,
+    pub stuck: [bool; 2],
+    pub direction: [f64; 2],
+    pub saturation: [f64; 2],
+    pub clutch: bool,
+    pub trip: Option<(Interlock, f64)>,
+    pub energy: EnergyAccount,
+    pub clamp_count: u64,
+    pub last_clamped: bool,
+    pub inputs: BenchInputs,
+}
+
+/// The plant (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct BenchPlant {
+    pub(crate) params: BenchParameters,
+    pub(crate) state: DynamicState,
+    matrices: Vec<(u8, AugMatrix, f64)>,
+    cache: Vec<Discretization>,
+}
+
+fn sign(x: f64) -> f64 {
+    if x >= 0.0 { 1.0 } else { -1.0 }
+}
+
+impl BenchPlant {
+    /// A plant at rest at angle 0, time 0, both bodies held by friction where there is any.
+    pub fn new(params: BenchParameters) -> Result<Self, ParameterError> {
+        params.validate()?;
+        Ok(Self {
+            params,
+            state: DynamicState {
+                time: 0.0,
+                z: [0.0; 10],
+                stuck: [false; 2],
+                direction: [1.0; 2],
+                saturation: [0.0; 2],
+                clutch: false,
+                trip: None,
+                energy: EnergyAccount::default(),
+                clamp_count: 0,
+                last_clamped: false,
+                inputs: BenchInputs::default(),
+            },
+            matrices: Vec::new(),
+            cache: Vec::new(),
+        })
+    }
+
+    /// Replaces the parameters; they take effect at the next step. The state is kept.
+    pub fn set_parameters(&mut self, params: BenchParameters) -> Result<(), ParameterError> {
+        params.validate()?;
+        self.params = params;
+        self.matrices.clear();
+        self.cache.clear();
+        Ok(())
+    }
+
+    /// The parameters in force.
+    pub fn parameters(&self) -> &BenchParameters {
+        &self.params
+    }
+
+    /// Simulation time [s].
+    pub fn time(&self) -> f64 {
+        self.state.time
+    }
+
+    /// The latched trip, if any: interlock and the time it tripped.
+    pub fn trip(&self) -> Option<(Interlock, f64)> {
+        self.state.trip
+    }
+
+    /// Advances by the communication step `h` [s] with `inputs` held over the step.
+    pub fn step(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
+        if let Some((interlock, time)) = self.state.trip {
+            return StepOutcome::Tripped { interlock, time };
+        }
+        if !(h.is_finite() && h > 0.0) {
+            return StepOutcome::Rejected(InputError::StepSize(h));
+        }
+        if let Err(e) = inputs.validate() {
+            return StepOutcome::Rejected(e);
+        }
+        self.state.inputs = *inputs;
+        if inputs.emergency_stop {
+            return self.latch(Interlock::EmergencyStop, self.state.time);
+        }
+        self.state.clutch = inputs.clutch_engage;
+        let start = self.state.time;
+        let substeps = (h / self.params.max_internal_step * (1.0 - 1e-12))
+            .ceil()
+            .max(1.0);
+        let sub_h = h / substeps;
+        let n = substeps as u64;
+        for k in 0..n {
+            if let Err((interlock, time)) = self.substep(sub_h) {
+                return self.latch(interlock, time);
+            }
+            self.state.time = start + h * ((k + 1) as f64 / substeps);
+        }
+        self.state.time = start + h;
+        StepOutcome::Completed
+    }
+
+    fn latch(&mut self, interlock: Interlock, time: f64) -> StepOutcome {
+        self.state.trip = Some((interlock, time));
+        self.state.time = time;
+        self.state.clutch = false;
+        self.state.inputs = BenchInputs::default();
+        StepOutcome::Tripped { interlock, time }
+    }
+
+    fn matrix(&mut self, mode: LinearMode) -> (AugMatrix, f64) {
+        let key = mode.key();
+        if let Some((_, m, r)) = self.matrices.iter().find(|(k, _, _)| *k == key) {
+            return (*m, *r);
+        }
+        let m = system_matrix(&self.params, mode);
+        let r = rate_scale(&m);
+        self.matrices.push((key, m, r));
+        (m, r)
+    }
+
+    fn discretization(&mut self, mode: LinearMode, h: f64) -> usize {
+        let key = mode.key();
+        if let Some(i) = self.cache.iter().position(|d| d.key == key && d.step == h) {
+            return i;
+        }
+        let (m, _) = self.matrix(mode);
+        if self.cache.len() >= CACHE_CAPACITY {
+            self.cache.clear();
+        }
+        self.cache.push(Discretization::new(&m, key, h));
+        self.cache.len() - 1
+    }
+
+    /// Output-side torque of each motor per ampere.
+    fn torque_per_ampere(&self) -> [f64; 2] {
+        let p = &self.params;
+        [
+            p.harmonic_drive_ratio * p.test_motor_torque_constant,
+            p.reduction_ratio * p.load_motor_torque_constant,
+        ]
+    }
+
+    /// (R, L, Ke*G, supply, current limit, driver mode, command, enable) per motor.
+    fn motor(&self, n: usize) -> (f64, f64, f64, f64, f64) {
+        let p = &self.params;
+        if n == 0 {
+            (
+                p.test_motor_resistance,
+                p.test_motor_inductance,
+                p.test_motor_back_emf_constant * p.harmonic_drive_ratio,
+                p.test_supply_voltage,
+                p.test_current_limit,
+            )
+        } else {
+            (
+                p.load_motor_resistance,
+                p.load_motor_inductance,
+                p.load_motor_back_emf_constant * p.reduction_ratio,
+                p.load_supply_voltage,
+                p.load_current_limit,
+            )
+        }
+    }
+
+    /// Voltage the current loop of motor `n` asks for at state `z`.
+    fn voltage_demand(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
+        let (r, l, ke, _, _) = self.motor(n);
+        let (i, w) = (z[CURRENT1 + n], z[OMEGA1 + n]);
+        r * i + ke * w + l / self.params.current_loop_time_constant * (held.reference[n] - i)
+    }
+
+    /// Armature voltage applied to motor `n` at state `z`.
+    fn armature_voltage(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
+        if held.mode.voltage_row[n] {
+            held.drive[n]
+        } else {
+            self.voltage_demand(held, n, z)
+        }
+    }
+
+    /// Net non-friction torque on body `j` at rest.
+    fn drive_torque(&self, j: usize, z: &AugVector) -> f64 {
+        let k = self.params.coupling_stiffness();
+        let tpa = self.torque_per_ampere();
+        let spring = k * (z[THETA1] - z[THETA2]);
+        if j == 0 {
+            tpa[0] * z[CURRENT1] - spring
+        } else {
+            tpa[1] * z[CURRENT2] + spring
+        }
+    }
+
+    /// Builds the held values for the current discrete state and inputs.
+    fn hold(&mut self) -> Held {
+        let inputs = self.state.inputs;
+        let p = &self.params;
+        let load_torque = self.torque_per_ampere()[1] * self.state.z[CURRENT2];
+        let laws = [
+            SideLaw::of(p, Side::Actuation, load_torque),
+            SideLaw::of(p, Side::Load, load_torque),
+        ];
+        let clutch_torque = if self.state.clutch {
+            p.clutch_output_torque()
+        } else {
+            0.0
+        };
+        let mut capacity = [[0.0; 2]; 2];
+        for j in 0..2 {
+            let extra = if j == 0 { clutch_torque } else { 0.0 };
+            capacity[j] = [
+                laws[j].capacity(p, 1.0) + extra,
+                laws[j].capacity(p, -1.0) + extra,
+            ];
+        }
+        let mut held = Held {
+            mode: LinearMode {
+                stuck: self.state.stuck,
+                voltage_row: [false; 2],
+            },
+            drive: [0.0; 2],
+            reference: [0.0; 2],
+            current_loop: [true; 2],
+            friction: [0.0; 2],
+            laws,
+            capacity,
+            clutch: self.state.clutch,
+        };
+        for n in 0..2 {
+            let (_, _, _, supply, limit) = self.motor(n);
+            let (mode, command, enabled) = if n == 0 {
+                (p.test_driver_mode, inputs.test_command, inputs.test_enable)
+            } else {
+                (p.load_driver_mode, inputs.load_command, inputs.load_enable)
+            };
+            if enabled && mode == DriverMode::Voltage {
+                held.current_loop[n] = false;
+                held.mode.voltage_row[n] = true;
+                held.drive[n] = command.clamp(-supply, supply);
+            } else {
+                held.reference[n] = if enabled {
+                    command.clamp(-limit, limit)
+                } else {
+                    0.0
+                };
+                if self.state.saturation[n] != 0.0 {
+                    held.mode.voltage_row[n] = true;
+                    held.drive[n] = self.state.saturation[n] * supply;
+                } else {
+                    held.drive[n] = held.reference[n];
+                }
+            }
+        }
+        held
+    }
+
+    fn has_friction(held: &Held, j: usize) -> bool {
+        held.capacity[j][0] > 0.0 && held.capacity[j][1] > 0.0
+    }
+
+    /// Makes the discrete state consistent at the start of a segment and reports an interlock
+    /// already beyond its threshold.
+    fn resolve(&mut self) -> Result<Held, (Interlock, f64)> {
+        let mut held = self.hold();
+        for j in 0..2 {
+            let w = self.state.z[OMEGA1 + j];
+            let d = self.drive_torque(j, &self.state.z);
+            let can_stick = Self::has_friction(&held, j);
+            if self.state.stuck[j] {
+                if !can_stick || d > held.capacity[j][0] || -d > held.capacity[j][1] {
+                    self.state.stuck[j] = false;
+                    self.state.direction[j] = sign(d);
+                }
+            } else if w == 0.0 {
+                if can_stick && d <= held.capacity[j][0] && -d <= held.capacity[j][1] {
+                    self.state.stuck[j] = true;
+                } else {
+                    self.state.direction[j] = sign(d);
+                }
+            } else {
+                self.state.direction[j] = sign(w);
+            }
+            if self.state.stuck[j] {
+                self.state.z[OMEGA1 + j] = 0.0;
+            }
+        }
+        held.mode.stuck = self.state.stuck;
+        for n in 0..2 {
+            if !held.current_loop[n] {
+                self.state.saturation[n] = 0.0;
+                continue;
+            }
+            let (_, _, _, supply, _) = self.motor(n);
+            let demand = self.voltage_demand(&held, n, &self.state.z);
+            let s = self.state.saturation[n];
+            let new = if s != 0.0 && s * demand >= supply {
+                s
+            } else if demand.abs() > supply {
+                sign(demand)
+            } else {
+                0.0
+            };
+            self.state.saturation[n] = new;
+            if new != 0.0 {
+                held.mode.voltage_row[n] = true;
+                held.drive[n] = new * supply;
+            } else {
+                held.mode.voltage_row[n] = false;
+                held.drive[n] = held.reference[n];
+            }
+        }
+        self.set_friction(&mut held, None);
+        self.state.last_clamped = false;
+        if held.laws[0].speed_dependent() || held.laws[1].speed_dependent() {
+            self.state.last_clamped = self.friction_clamped(&held);
+            if self.state.last_clamped {
+                self.state.clamp_count += 1;
+            }
+        }
+        let z = self.input_state(&held);
+        for interlock in Interlock::CHECKED {
+            if self.event_value(&held, Event::Trip(interlock), &z) > 0.0 {
+                return Err((interlock, self.state.time));
+            }
+        }
+        Ok(held)
+    }
+
+    fn friction_clamped(&self, held: &Held) -> bool {
+        (0..2).any(|j| {
+            !self.state.stuck[j]
+                && held.laws[j]
+                    .sliding_torque(
+                        &self.params,
+                        self.state.direction[j],
+                        self.state.z[OMEGA1 + j].abs(),
+                    )
+                    .1
+        })
+    }
+
+    /// Friction held over the segment: the law at the start speed, or the average of the start
+    /// and predicted end speeds (`end`) for speed-dependent laws.
+    fn set_friction(&self, held: &mut Held, end: Option<&AugVector>) {
+        let clutch = if held.clutch {
+            self.params.clutch_output_torque()
+        } else {
+            0.0
+        };
+        for j in 0..2 {
+            if self.state.stuck[j] {
+                held.friction[j] = 0.0;
+                continue;
+            }
+            let s = self.state.direction[j];
+            let law = held.laws[j];
+            let start_speed = self.state.z[OMEGA1 + j].abs();
+            let mut torque = law.sliding_torque(&self.params, s, start_speed).0;
+            if let (Some(z1), true) = (end, law.speed_dependent()) {
+                let end_speed = (s * z1[OMEGA1 + j]).max(0.0);
+                torque = 0.5 * (torque + law.sliding_torque(&self.params, s, end_speed).0);
+            }
+            held.friction[j] = torque - s * if j == 0 { clutch } else { 0.0 };
+        }
+    }
+
+    fn input_state(&self, held: &Held) -> AugVector {
+        let mut z = self.state.z;
+        z[DRIVE1] = held.drive[0];
+        z[DRIVE2] = held.drive[1];
+        z[FRICTION1] = held.friction[0];
+        z[FRICTION2] = held.friction[1];
+        z
+    }
+
+    fn event_value(&self, held: &Held, event: Event, z: &AugVector) -> f64 {
+        let p = &self.params;
+        let tpa = self.torque_per_ampere();
+        match event {
+            Event::Reversal(j) => -self.state.direction[j] * z[OMEGA1 + j],
+            Event::BreakAway(j, dir) => {
+                let d = self.drive_torque(j, z);
+                let cap = held.capacity[j][if dir > 0.0 { 0 } else { 1 }];
+                dir * d - cap
+            }
+            Event::SaturationEnter(n, dir) => {
+                dir * self.voltage_demand(held, n, z) - self.motor(n).3
+            }
+            Event::SaturationExit(n) => {
+                self.motor(n).3 - self.state.saturation[n] * self.voltage_demand(held, n, z)
+            }
+            Event::Trip(interlock) => match interlock {
+                Interlock::SpringDeflection => {
+                    (z[THETA1] - z[THETA2]).abs() - p.spring_deflection_limit
+                }
+                Interlock::TestMotorTorque => (tpa[0] * z[CURRENT1]).abs() - p.motor_torque_limit,
+                Interlock::LoadMotorTorque => (tpa[1] * z[CURRENT2]).abs() - p.motor_torque_limit,
+                Interlock::TestCurrent => z[CURRENT1].abs() - p.test_current_limit,
+                Interlock::LoadCurrent => z[CURRENT2].abs() - p.load_current_limit,
+                Interlock::RegenPower => {
+                    -self.armature_voltage(held, 1, z) * z[CURRENT2] - p.load_regen_power_limit
+                }
+                Interlock::EmergencyStop => -1.0,
+            },
+        }
+    }
+
+    /// Active event functions for the held mode.
+    fn events(&self, held: &Held) -> ([Event; 16], usize) {
+        let mut list = [Event::Trip(Interlock::EmergencyStop); 16];
+        let mut count = 0;
+        let mut push = |e: Event| {
+            list[count] = e;
+            count += 1;
+        };
+        for interlock in Interlock::CHECKED {
+            push(Event::Trip(interlock));
+        }
+        for j in 0..2 {
+            if self.state.stuck[j] {
+                push(Event::BreakAway(j, 1.0));
+                push(Event::BreakAway(j, -1.0));
+            } else if Self::has_friction(held, j) || held.friction[j] != 0.0 {
+                push(Event::Reversal(j));
+            }
+        }
+        for n in 0..2 {
+            if held.current_loop[n] {
+                if self.state.saturation[n] != 0.0 {
+                    push(Event::SaturationExit(n));
+                } else {
+                    push(Event::SaturationEnter(n, 1.0));
+                    push(Event::SaturationEnter(n, -1.0));
+                }
+            }
+        }
+        (list, count)
+    }
+
+    /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
+    /// electrical.
+    fn powers(&self, held: &Held, z: &AugVector) -> [f64; 5] {
+        let tpa = self.torque_per_ampere();
+        let el1 = self.armature_voltage(held, 0, z) * z[CURRENT1];
+        let el2 = self.armature_voltage(held, 1, z) * z[CURRENT2];
+        [
+            tpa[0] * z[CURRENT1] * z[OMEGA1],
+            tpa[1] * z[CURRENT2] * z[OMEGA2],
+            el1,
+            el2,
+            el1 + el2 + self.constant_power(held),
+        ]
+    }
+
+    fn constant_power(&self, held: &Held) -> f64 {
+        self.params.hardware_offset_power
+            + if held.clutch {
+                self.params.clutch_power
+            } else {
+                0.0
+            }
+    }
+
+    fn commit(&mut self, z: AugVector) {
+        let start = self.state.z;
+        self.state.z = z;
+        for j in 0..2 {
+            if self.state.stuck[j] {
+                self.state.z[OMEGA1 + j] = 0.0;
+                self.state.z[THETA1 + j] = start[THETA1 + j];
+            }
+        }
+    }
+
+    /// One internal sub-step of length `h`; returns a trip with its time.
+    fn substep(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
+        let mut remaining = h;
+        let mut budget = EVENT_BUDGET;
+        let mut regular = true;
+        let start_time = self.state.time;
+        let mut elapsed = 0.0;
+        while remaining > 0.0 {
+            self.state.time = start_time + elapsed;
+            let mut held = self.resolve()?;
+            let speed_dependent =
+                (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
+            let (list, count) = self.events(&held);
+            let events = &list[..count];
+            if regular {
+                let index = self.discretization(held.mode, h);
+                let mut z0 = self.input_state(&held);
+                let mut z1 = self.cache[index].advance(&z0);
+                if speed_dependent {
+                    self.set_friction(&mut held, Some(&z1));
+                    z0 = self.input_state(&held);
+                    z1 = self.cache[index].advance(&z0);
+                }
+                let fired = events
+                    .iter()
+                    .any(|&e| self.event_value(&held, e, &z1) > 0.0);
+                let p0 = self.powers(&held, &z0);
+                let p1 = self.powers(&held, &z1);
+                let sign_change = p0.iter().zip(p1.iter()).any(|(a, b)| a * b < 0.0);
+                if !fired && !sign_change {
+                    let integrals = self.cache[index].integrals(&z0);
+                    self.accumulate_regular(&held, &z0, &z1, &integrals, &p0, h);
+                    self.commit(z1);
+                    return Ok(());
+                }
+            }
+            regular = false;
+            let (m, rate) = self.matrix(held.mode);
+            let mut z0 = self.input_state(&held);
+            let mut segment = TaylorSegment::new(&m, rate, &z0, remaining);
+            if speed_dependent {
+                let z1 = segment.state_at(remaining);
+                self.set_friction(&mut held, Some(&z1));
+                z0 = self.input_state(&held);
+                segment = TaylorSegment::new(&m, rate, &z0, remaining);
+            }
+            let earliest = if budget > 0 {
+                self.earliest_event(&held, events, &segment)
+            } else {
+                None
+            };
+            let stop = earliest.map_or(remaining, |(t, _)| t);
+            self.accumulate_segment(&held, &segment, stop);
+            let z1 = segment.state_at(stop);
+            self.commit(z1);
+            elapsed += stop;
+            remaining -= stop;
+            match earliest {
+                None => break,
+                Some((_, event)) => {
+                    budget = budget.saturating_sub(1);
+                    if let Event::Trip(interlock) = event {
+                        return Err((interlock, start_time + elapsed));
+                    }
+                    self.apply_event(&held, event);
+                }
+            }
+            if remaining <= h * 1e-13 {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    fn apply_event(&mut self, held: &Held, event: Event) {
+        match event {
+            Event::Reversal(j) => {
+                self.state.z[OMEGA1 + j] = 0.0;
+                let d = self.drive_torque(j, &self.state.z);
+                if Self::has_friction(held, j)
+                    && d <= held.capacity[j][0]
+                    && -d <= held.capacity[j][1]
+                {
+                    self.state.stuck[j] = true;
+                } else {
+                    self.state.direction[j] = sign(d);
+                }
+            }
+            Event::BreakAway(j, dir) => {
+                self.state.stuck[j] = false;
+                self.state.direction[j] = dir;
+            }
+            Event::SaturationEnter(n, dir) => self.state.saturation[n] = dir,
+            Event::SaturationExit(n) => self.state.saturation[n] = 0.0,
+            Event::Trip(_) => {}
+        }
+    }
+
+    /// Earliest event in the segment: scan the piece ends for a function turning positive, then
+    /// locate its root with the Illinois method on the exact flow.
+    fn earliest_event(
+        &self,
+        held: &Held,
+        events: &[Event],
+        segment: &TaylorSegment,
+    ) -> Option<(f64, Event)> {
+        let mut best: Option<(f64, Event)> = None;
+        let z0 = segment.state_at(0.0);
+        for &event in events {
+            let mut a = 0.0;
+            let mut ga = self.event_value(held, event, &z0).min(0.0);
+            for b in segment.piece_ends() {
+                if let Some((t, _)) = best {
+                    if a >= t {
+                        break;
+                    }
+                }
+                let gb = self.event_value(held, event, &segment.state_at(b));
+                if gb > 0.0 {
+                    let root = self.locate_root(held, event, segment, (a, ga), (b, gb));
+                    if best.is_none_or(|(t, _)| root < t) {
+                        best = Some((root, event));
+                    }
+                    break;
+                }
+                a = b;
+                ga = gb;
+            }
+        }
+        best
+    }
+
+    /// Root of an event function bracketed by `g(a) <= 0 < g(b)`; returns the first time at
+    /// which it is positive or zero to within rounding (the right end of the final bracket).
+    fn locate_root(
+        &self,
+        held: &Held,
+        event: Event,
+        segment: &TaylorSegment,
+        (mut a, mut ga): (f64, f64),
+        (mut b, mut gb): (f64, f64),
+    ) -> f64 {
+        let mut side = 0;
+        for _ in 0..200 {
+            if b - a <= 4.0 * f64::EPSILON * b.max(1e-300) {
+                break;
+            }
+            let mut t = if gb - ga > 0.0 {
+                b - gb * (b - a) / (gb - ga)
+            } else {
+                0.5 * (a + b)
+            };
+            if !(t > a && t < b) {
+                t = 0.5 * (a + b);
+            }
+            let g = self.event_value(held, event, &segment.state_at(t));
+            if g > 0.0 {
+                b = t;
+                gb = g;
+                if side == 1 {
+                    ga *= 0.5;
+                }
+                side = 1;
+            } else {
+                a = t;
+                ga = g;
+                if side == -1 {
+                    gb *= 0.5;
+                }
+                side = -1;
+            }
+            if g == 0.0 {
+                return t;
+            }
+        }
+        b
+    }
+
+    fn accumulate_regular(
+        &mut self,
+        held: &Held,
+        z0: &AugVector,
+        z1: &AugVector,
+        integrals: &SegmentIntegrals,
+        p0: &[f64; 5],
+        h: f64,
+    ) {
+        let mut electrical = [0.0; 2];
+        for (n, e) in electrical.iter_mut().enumerate() {
+            let current_integral = if n == 0 {
+                integrals.current1
+            } else {
+                integrals.current2
+            };
+            *e = if held.mode.voltage_row[n] {
+                held.drive[n] * current_integral
+            } else {
+                let (r, l, ke, _, _) = self.motor(n);
+                let gain = l / self.params.current_loop_time_constant;
+                (r - gain) * integrals.products[2 + n]
+                    + ke * integrals.products[4 + n]
+                    + gain * held.reference[n] * current_integral
+            };
+        }
+        let tpa = self.torque_per_ampere();
+        let signed = [
+            tpa[0] * integrals.products[4],
+            tpa[1] * integrals.products[5],
+            electrical[0],
+            electrical[1],
+            electrical[0] + electrical[1] + self.constant_power(held) * h,
+        ];
+        let p1 = self.powers(held, z1);
+        let mut positive = [0.0; 5];
+        for k in 0..5 {
+            positive[k] = if p0[k] > 0.0 || (p0[k] == 0.0 && p1[k] > 0.0) {
+                signed[k]
+            } else {
+                0.0
+            };
+        }
+        let squares = [integrals.products[0], integrals.products[1]];
+        let copper = [integrals.products[2], integrals.products[3]];
+        let emf = [integrals.products[4], integrals.products[5]];
+        self.add_energy(held, z0, z1, signed, positive, squares, copper, emf, h);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn add_energy(
+        &mut self,
+        held: &Held,
+        z0: &AugVector,
+        z1: &AugVector,
+        signed: [f64; 5],
+        positive: [f64; 5],
+        squares: [f64; 2],
+        copper: [f64; 2],
+        emf: [f64; 2],
+        duration: f64,
+    ) {
+        let p = &self.params;
+        let (r1, _, ke1, _, _) = self.motor(0);
+        let (r2, _, ke2, _, _) = self.motor(1);
+        let damping = [p.actuation_damping, p.load_damping];
+        let mut loss = [0.0; 2];
+        for j in 0..2 {
+            let travel = z1[THETA1 + j] - z0[THETA1 + j];
+            loss[j] = if held.mode.stuck[j] {
+                0.0
+            } else {
+                -damping[j] * squares[j] + held.friction[j] * travel
+            };
+        }
+        let clutch = if held.clutch {
+            p.clutch_power * duration
+        } else {
+            0.0
+        };
+        let offset = p.hardware_offset_power * duration;
+        let e = &mut self.state.energy;
+        e.test_mechanical += signed[0];
+        e.test_mechanical_consumed += positive[0];
+        e.load_mechanical += signed[1];
+        e.load_mechanical_consumed += positive[1];
+        e.actuation_loss += loss[0];
+        e.load_loss += loss[1];
+        e.test_electrical += signed[2];
+        e.test_electrical_consumed += positive[2];
+        e.load_electrical += signed[3];
+        e.load_electrical_consumed += positive[3];
+        e.clutch += clutch;
+        e.offset += offset;
+        e.total_electrical += signed[4];
+        e.total_electrical_consumed += positive[4];
+        e.test_copper_loss += r1 * copper[0];
+        e.load_copper_loss += r2 * copper[1];
+        e.test_back_emf += ke1 * emf[0];
+        e.load_back_emf += ke2 * emf[1];
+    }
+
+    /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes.
+    fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
+        let tpa = self.torque_per_ampere();
+        let mut signed = [0.0; 5];
+        let mut positive = [0.0; 5];
+        let mut squares = [0.0; 2];
+        let mut copper = [0.0; 2];
+        let mut emf = [0.0; 2];
+        let constant = self.constant_power(held);
+        for piece in &segment.pieces {
+            if piece.start >= stop {
+                break;
+            }
+            let s_end = ((stop - piece.start) / piece.len).min(1.0);
+            let w = [piece.component(OMEGA1), piece.component(OMEGA2)];
+            let i = [piece.component(CURRENT1), piece.component(CURRENT2)];
+            let mut voltage: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
+            for n in 0..2 {
+                voltage[n] = if held.mode.voltage_row[n] {
+                    vec![held.drive[n]]
+                } else {
+                    let (r, l, ke, _, _) = self.motor(n);
+                    let gain = l / self.params.current_loop_time_constant;
+                    poly_combine(&[(r - gain, &i[n]), (ke, &w[n])], gain * held.reference[n])
+                };
+            }
+            let wi = [poly_mul(&i[0], &w[0]), poly_mul(&i[1], &w[1])];
+            let el = [poly_mul(&voltage[0], &i[0]), poly_mul(&voltage[1], &i[1])];
+            let powers = [
+                poly_combine(&[(tpa[0], &wi[0])], 0.0),
+                poly_combine(&[(tpa[1], &wi[1])], 0.0),
+                el[0].clone(),
+                el[1].clone(),
+                poly_combine(&[(1.0, &el[0]), (1.0, &el[1])], constant),
+            ];
+            for k in 0..5 {
+                signed[k] += piece.len * poly_integral(&powers[k], 0.0, s_end);
+                positive[k] += piece.len * positive_integral(&powers[k], s_end);
+            }
+            for j in 0..2 {
+                squares[j] += piece.len * poly_integral(&poly_mul(&w[j], &w[j]), 0.0, s_end);
+                copper[j] += piece.len * poly_integral(&poly_mul(&i[j], &i[j]), 0.0, s_end);
+                emf[j] += piece.len * poly_integral(&wi[j], 0.0, s_end);
+            }
+        }
+        let z0 = segment.state_at(0.0);
+        let z1 = segment.state_at(stop);
+        self.add_energy(held, &z0, &z1, signed, positive, squares, copper, emf, stop);
+    }
+
+    /// Current discrete and continuous values needed for outputs.
+    pub(crate) fn held_for_outputs(&self) -> Held {
+        let mut copy = self.clone();
+        let mut held = copy.hold();
+        held.mode.stuck = self.state.stuck;
+        for n in 0..2 {
+            if held.current_loop[n] && self.state.saturation[n] != 0.0 {
+                held.mode.voltage_row[n] = true;
+                held.drive[n] = self.state.saturation[n] * self.motor(n).3;
+            }
+        }
+        copy.set_friction(&mut held, None);
+        held
+    }
+
+    /// `z` with the held inputs, and `z' = M z`, `z'' = M^2 z` at the current state.
+    pub(crate) fn rates(&self, held: &Held) -> (AugVector, AugVector, AugVector) {
+        let z = self.input_state(held);
+        let m = system_matrix(&self.params, held.mode);
+        let v = super::mechanics::to_vector(&z);
+        let d1 = m * v;
+        let d2 = m * d1;
+        let mut a = [0.0; 10];
+        let mut b = [0.0; 10];
+        for k in 0..10 {
+            a[k] = d1[k];
+            b[k] = d2[k];
+        }
+        (z, a, b)
+    }
+
+    pub(crate) fn powers_at(&self, held: &Held, z: &AugVector) -> [f64; 5] {
+        self.powers(held, z)
+    }
+
+    pub(crate) fn armature_voltage_at(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
+        self.armature_voltage(held, n, z)
+    }
+
+    pub(crate) fn output_torque_per_ampere(&self) -> [f64; 2] {
+        self.torque_per_ampere()
+    }
+}
+
+/// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan
+/// (refined by bisection).
+fn positive_integral(p: &[f64], s_end: f64) -> f64 {
+    const SCAN: usize = 16;
+    let mut total = 0.0;
+    let mut a = 0.0;
+    let mut pa = poly_eval(p, 0.0);
+    for k in 1..=SCAN {
+        let b = s_end * k as f64 / SCAN as f64;
+        let pb = poly_eval(p, b);
+        if pa * pb < 0.0 {
+            let (mut lo, mut hi) = (a, b);
+            for _ in 0..80 {
+                let mid = 0.5 * (lo + hi);
+                if poly_eval(p, mid) * pa > 0.0 {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            let root = 0.5 * (lo + hi);
+            let first = poly_integral(p, a, root);
+            let second = poly_integral(p, root, b);
+            total += first.max(0.0) + second.max(0.0);
+        } else {
+            let part = poly_integral(p, a, b);
+            if pa > 0.0 || pb > 0.0 {
+                total += part.max(0.0);
+            }
+        }
+        a = b;
+        pa = pb;
+    }
+    total
+}

@@ -1,0 +1,1 @@
+//! Acceptance tests of issue 3 for the plant.
