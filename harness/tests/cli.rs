@@ -1,0 +1,75 @@
+//! The `kneebench` binary: exit codes and files written.
+
+mod common;
+
+use std::process::Command;
+
+fn kneebench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_kneebench"))
+}
+
+#[test]
+fn exit_codes_and_partial_results() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let csv = d.path().join("r.csv");
+    let run = |extra: &[&str]| {
+        kneebench()
+            .arg("run")
+            .arg(&fmu)
+            .args(["--stop-time", "1", "--step", "0.1", "--param", "u=1", "-q"])
+            .arg("--output")
+            .arg(&csv)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let ok = run(&[]);
+    assert_eq!(
+        ok.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 12);
+
+    let term = run(&["--param", "discard_at=0.45", "--variables", "x"]);
+    assert_eq!(term.status.code(), Some(3));
+    assert_eq!(
+        std::fs::read_to_string(&csv).unwrap(),
+        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n0.3,3.0\n0.4,4.0\n"
+    );
+
+    let err = run(&["--param", "error_at=0.25", "--variables", "x"]);
+    assert_eq!(err.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&err.stderr).contains("error requested"));
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 4);
+
+    let usage = kneebench().args(["run", "--bogus"]).output().unwrap();
+    assert_eq!(usage.status.code(), Some(2));
+
+    let valid = kneebench().arg("validate").arg(&fmu).output().unwrap();
+    assert_eq!(valid.status.code(), Some(0));
+    let bad = d.path().join("guid.fmu");
+    common::write_fmu(
+        &bad,
+        &common::FmuSpec {
+            model_description: Some(common::model_description("{other}")),
+            ..common::FmuSpec::default()
+        },
+    );
+    let invalid = kneebench().arg("validate").arg(&bad).output().unwrap();
+    assert_eq!(invalid.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&invalid.stdout).contains("GUID mismatch"));
+
+    let svg = d.path().join("p.svg");
+    let plot = kneebench()
+        .arg("plot")
+        .arg(&csv)
+        .args(["--signals", "x", "--out"])
+        .arg(&svg)
+        .output()
+        .unwrap();
+    assert_eq!(plot.status.code(), Some(0));
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+}
