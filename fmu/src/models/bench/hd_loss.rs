@@ -128,7 +128,7 @@ mod tests {
         // Header: at x = 0, surface / i_HD gives the no-load running torque at the motor side.
         let i_hd = 160.0;
         for (y, expected) in [
-            (0.33, -0.038),
+            (0.33f64, -0.038),
             (-0.33, 0.034),
             (2.29, -0.052),
             (-2.29, 0.054),

@@ -229,8 +229,9 @@ impl BenchPlant {
     fn latch(&mut self, interlock: Interlock, time: f64) -> StepOutcome {
         self.state.trip = Some((interlock, time));
         self.state.time = time;
+        // Safe state: nothing runs any more and the clutch is released. The inputs of the
+        // tripping step are kept so the outputs show the values at the trip instant.
         self.state.clutch = false;
-        self.state.inputs = BenchInputs::default();
         StepOutcome::Tripped { interlock, time }
     }
 
@@ -398,7 +399,8 @@ impl BenchPlant {
                     self.state.direction[j] = sign(d);
                 }
             } else if w == 0.0 {
-                if can_stick && d <= held.capacity[j][0] && -d <= held.capacity[j][1] {
+                // Strict: a body that has just broken away sits exactly at its capacity.
+                if can_stick && d < held.capacity[j][0] && -d < held.capacity[j][1] {
                     self.state.stuck[j] = true;
                 } else {
                     self.state.direction[j] = sign(d);
@@ -484,7 +486,14 @@ impl BenchPlant {
             let mut torque = law.sliding_torque(&self.params, s, start_speed).0;
             if let (Some(z1), true) = (end, law.speed_dependent()) {
                 let end_speed = (s * z1[OMEGA1 + j]).max(0.0);
-                torque = 0.5 * (torque + law.sliding_torque(&self.params, s, end_speed).0);
+                // The loss surface also moves with the load torque: use its end value too.
+                let end_law = match law {
+                    SideLaw::Surface { .. } => SideLaw::Surface {
+                        load_torque: self.torque_per_ampere()[1] * z1[CURRENT2],
+                    },
+                    other => other,
+                };
+                torque = 0.5 * (torque + end_law.sliding_torque(&self.params, s, end_speed).0);
             }
             held.friction[j] = torque - s * if j == 0 { clutch } else { 0.0 };
         }
@@ -754,7 +763,7 @@ impl BenchPlant {
                 t = 0.5 * (a + b);
             }
             let g = self.event_value(held, event, &segment.state_at(t));
-            if g > 0.0 {
+            if g >= 0.0 {
                 b = t;
                 gb = g;
                 if side == 1 {
@@ -768,9 +777,6 @@ impl BenchPlant {
                     gb *= 0.5;
                 }
                 side = -1;
-            }
-            if g == 0.0 {
-                return t;
             }
         }
         b
