@@ -7,7 +7,8 @@ out=${1:-$root/out}
 cargo build --release --locked --workspace --bins --lib
 bin=target/release/kneebench
 "$bin" export --out "$out/fmus"
-"$bin" run "$out/fmus/GaitReference.fmu" --stop-time 5 --step 0.001 --output "$out/gait.csv" --plot "$out/gait.svg"
+"$bin" run "$out/fmus/GaitReference.fmu" --stop-time 5 --step 0.001 --output "$out/gait.csv"
+"$bin" plot "$out/gait.csv" --signals kneeAngleReference,kneeVelocityReference,loadTorqueReference --out "$out/gait.svg"
 echo "FMUs:    $out/fmus"
 echo "Results: $out/gait.csv"
 echo "Plot:    $out/gait.svg"

@@ -12,6 +12,7 @@
 //!   master on an integer time base, Gauss-Seidel or Jacobi, multi-rate, with early termination.
 //! - [`ssp`]: SSP 1.0 system structure files (`.ssp` archives and bare `.ssd`), read and written.
 //! - [`results`]: the recorded rows: CSV with round-trip floats, a summary table, plots.
+//! - [`package`]: turns the kneebench FMU binary into one reproducible `.fmu` per model.
 //!
 //! ```no_run
 //! use kneebench_harness::{Fmu, LoadOptions, System, RunConfig, Algorithm};
@@ -38,6 +39,7 @@ pub mod fmi2;
 pub mod instance;
 pub mod load;
 pub mod master;
+pub mod package;
 pub mod results;
 pub mod ssp;
 pub mod time;

@@ -97,7 +97,8 @@ pub fn read_catalog(library: &Path) -> Result<Vec<CatalogEntry>, PackageError> {
     (0..n)
         .map(|i| {
             Ok(CatalogEntry {
-                identifier: text(i, 0).ok_or_else(|| err(format!("model {i} has no identifier")))?,
+                identifier: text(i, 0)
+                    .ok_or_else(|| err(format!("model {i} has no identifier")))?,
                 model_description: text(i, 1)
                     .ok_or_else(|| err(format!("model {i} has no model description")))?,
                 documentation: text(i, 2)
@@ -127,7 +128,14 @@ pub fn write_archive(path: &Path, files: &[(String, Vec<u8>, bool)]) -> Result<(
         for (name, data, executable) in sorted {
             // Directory entries first, for tools that expect them.
             let mut prefix = String::new();
-            for part in name.split('/').rev().skip(1).collect::<Vec<_>>().into_iter().rev() {
+            for part in name
+                .split('/')
+                .rev()
+                .skip(1)
+                .collect::<Vec<_>>()
+                .into_iter()
+                .rev()
+            {
                 prefix.push_str(part);
                 prefix.push('/');
                 if !dirs.contains(&prefix) {
@@ -136,8 +144,11 @@ pub fn write_archive(path: &Path, files: &[(String, Vec<u8>, bool)]) -> Result<(
                         .map_err(zerr)?;
                 }
             }
-            zip.start_file(name.as_str(), options(if *executable { 0o755 } else { 0o644 }))
-                .map_err(zerr)?;
+            zip.start_file(
+                name.as_str(),
+                options(if *executable { 0o755 } else { 0o644 }),
+            )
+            .map_err(zerr)?;
             zip.write_all(data).map_err(ioerr)?;
         }
         zip.finish().map_err(zerr)?;
@@ -158,9 +169,12 @@ fn options(mode: u32) -> SimpleFileOptions {
 pub fn default_library() -> Option<PathBuf> {
     let exe = std::env::current_exe().ok()?;
     let dir = exe.parent()?;
-    [dir.join("libkneebench_fmu.so"), dir.join("../libkneebench_fmu.so")]
-        .into_iter()
-        .find(|p| p.is_file())
+    [
+        dir.join("libkneebench_fmu.so"),
+        dir.join("../libkneebench_fmu.so"),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
 }
 
 /// The files of one FMU archive without `extra/`.
@@ -267,7 +281,11 @@ fn reference_run(
                 )
                 .map_err(|e| fail(e.to_string()))?;
         }
-        extra.push(("extra/reference-inputs.csv".to_string(), csv.as_bytes().to_vec(), false));
+        extra.push((
+            "extra/reference-inputs.csv".to_string(),
+            csv.as_bytes().to_vec(),
+            false,
+        ));
     }
     let outputs: Vec<String> = md
         .model_variables

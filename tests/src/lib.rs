@@ -31,10 +31,13 @@ pub fn profile_dir() -> PathBuf {
 /// of a dependency, so the cdylib lands in `deps/`).
 pub fn fmu_library() -> PathBuf {
     let dir = profile_dir();
-    [dir.join("deps/libkneebench_fmu.so"), dir.join("libkneebench_fmu.so")]
-        .into_iter()
-        .find(|p| p.is_file())
-        .unwrap_or_else(|| panic!("libkneebench_fmu.so missing under {}", dir.display()))
+    [
+        dir.join("deps/libkneebench_fmu.so"),
+        dir.join("libkneebench_fmu.so"),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
+    .unwrap_or_else(|| panic!("libkneebench_fmu.so missing under {}", dir.display()))
 }
 
 /// The Python of the project's venv (pinned fmpy), created on first use.
@@ -79,7 +82,11 @@ pub fn run_python(script: &str, args: &[&str]) -> String {
 /// fmpy's package directory (headers under `c-code/`).
 pub fn fmpy_dir() -> PathBuf {
     PathBuf::from(
-        run_python("import fmpy, os; print(os.path.dirname(fmpy.__file__))", &[]).trim(),
+        run_python(
+            "import fmpy, os; print(os.path.dirname(fmpy.__file__))",
+            &[],
+        )
+        .trim(),
     )
 }
 
@@ -141,7 +148,14 @@ pub fn test_logger() -> fmi2CallbackLogger {
     // enum, passed identically.
     Some(unsafe {
         std::mem::transmute::<
-            unsafe extern "C" fn(*mut c_void, *const c_char, c_int, *const c_char, *const c_char, ...),
+            unsafe extern "C" fn(
+                *mut c_void,
+                *const c_char,
+                c_int,
+                *const c_char,
+                *const c_char,
+                ...
+            ),
             unsafe extern "C" fn(
                 fmi2ComponentEnvironment,
                 fmi2String,
@@ -351,8 +365,14 @@ impl<'a> RawInstance<'a> {
                 ),
                 fmi2Status::fmi2OK
             );
-            assert_eq!((self.f.enter_initialization_mode)(self.c), fmi2Status::fmi2OK);
-            assert_eq!((self.f.exit_initialization_mode)(self.c), fmi2Status::fmi2OK);
+            assert_eq!(
+                (self.f.enter_initialization_mode)(self.c),
+                fmi2Status::fmi2OK
+            );
+            assert_eq!(
+                (self.f.exit_initialization_mode)(self.c),
+                fmi2Status::fmi2OK
+            );
         }
     }
 
@@ -376,15 +396,24 @@ impl<'a> RawInstance<'a> {
         // SAFETY: valid component and out-pointers; the state is freed before returning.
         unsafe {
             let mut state: fmi2FMUstate = std::ptr::null_mut();
-            assert_eq!((self.f.get_fmu_state)(self.c, &mut state), fmi2Status::fmi2OK);
+            assert_eq!(
+                (self.f.get_fmu_state)(self.c, &mut state),
+                fmi2Status::fmi2OK
+            );
             let mut size = 0usize;
-            assert_eq!((self.f.serialized_size)(self.c, state, &mut size), fmi2Status::fmi2OK);
+            assert_eq!(
+                (self.f.serialized_size)(self.c, state, &mut size),
+                fmi2Status::fmi2OK
+            );
             let mut bytes = vec![0u8; size];
             assert_eq!(
                 (self.f.serialize)(self.c, state, bytes.as_mut_ptr().cast(), size),
                 fmi2Status::fmi2OK
             );
-            assert_eq!((self.f.free_fmu_state)(self.c, &mut state), fmi2Status::fmi2OK);
+            assert_eq!(
+                (self.f.free_fmu_state)(self.c, &mut state),
+                fmi2Status::fmi2OK
+            );
             assert!(state.is_null());
             bytes
         }

@@ -15,7 +15,14 @@ fn compile_and_run() -> HashMap<String, String> {
     let dir = tempfile::tempdir().unwrap();
     let exe = dir.path().join("abi_check");
     let out = Command::new("cc")
-        .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter", "-o"])
+        .args([
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-Wno-unused-parameter",
+            "-o",
+        ])
         .arg(&exe)
         .arg(repo_root().join("tests/c/abi_check.c"))
         .arg(format!("-I{}", headers.display()))
@@ -28,7 +35,10 @@ fn compile_and_run() -> HashMap<String, String> {
         "compiling against the official headers failed:\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let run = Command::new(&exe).arg(guid_of("GaitReference")).output().unwrap();
+    let run = Command::new(&exe)
+        .arg(guid_of("GaitReference"))
+        .output()
+        .unwrap();
     let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
     assert!(run.status.success(), "abi_check failed:\n{stdout}");
     assert!(!stdout.contains("bad-environment"), "{stdout}");
@@ -48,26 +58,53 @@ fn exported_functions_match_the_official_headers_and_run() {
     assert_eq!(n("sizeof_fmi2Boolean"), size_of::<fmi2Boolean>());
     assert_eq!(n("sizeof_fmi2Integer"), size_of::<fmi2Integer>());
     assert_eq!(n("sizeof_fmi2Real"), size_of::<fmi2Real>());
-    assert_eq!(n("sizeof_fmi2ValueReference"), size_of::<fmi2ValueReference>());
+    assert_eq!(
+        n("sizeof_fmi2ValueReference"),
+        size_of::<fmi2ValueReference>()
+    );
     assert_eq!(n("sizeof_fmi2Status"), size_of::<fmi2Status>());
     assert_eq!(n("sizeof_fmi2Type"), size_of::<fmi2Type>());
     assert_eq!(n("sizeof_fmi2StatusKind"), size_of::<fmi2StatusKind>());
     assert_eq!(n("sizeof_fmi2Byte"), size_of::<fmi2Byte>());
-    assert_eq!(n("sizeof_fmi2CallbackFunctions"), size_of::<fmi2CallbackFunctions>());
-    assert_eq!(n("offsetof_logger"), offset_of!(fmi2CallbackFunctions, logger));
-    assert_eq!(n("offsetof_allocateMemory"), offset_of!(fmi2CallbackFunctions, allocateMemory));
-    assert_eq!(n("offsetof_freeMemory"), offset_of!(fmi2CallbackFunctions, freeMemory));
-    assert_eq!(n("offsetof_stepFinished"), offset_of!(fmi2CallbackFunctions, stepFinished));
+    assert_eq!(
+        n("sizeof_fmi2CallbackFunctions"),
+        size_of::<fmi2CallbackFunctions>()
+    );
+    assert_eq!(
+        n("offsetof_logger"),
+        offset_of!(fmi2CallbackFunctions, logger)
+    );
+    assert_eq!(
+        n("offsetof_allocateMemory"),
+        offset_of!(fmi2CallbackFunctions, allocateMemory)
+    );
+    assert_eq!(
+        n("offsetof_freeMemory"),
+        offset_of!(fmi2CallbackFunctions, freeMemory)
+    );
+    assert_eq!(
+        n("offsetof_stepFinished"),
+        offset_of!(fmi2CallbackFunctions, stepFinished)
+    );
     assert_eq!(
         n("offsetof_componentEnvironment"),
         offset_of!(fmi2CallbackFunctions, componentEnvironment)
     );
     assert_eq!(n("sizeof_fmi2EventInfo"), size_of::<fmi2EventInfo>());
-    assert_eq!(n("offsetof_nextEventTime"), offset_of!(fmi2EventInfo, nextEventTime));
+    assert_eq!(
+        n("offsetof_nextEventTime"),
+        offset_of!(fmi2EventInfo, nextEventTime)
+    );
     assert_eq!(n("value_fmi2OK"), fmi2Status::fmi2OK as usize);
     assert_eq!(n("value_fmi2Pending"), fmi2Status::fmi2Pending as usize);
-    assert_eq!(n("value_fmi2CoSimulation"), fmi2Type::fmi2CoSimulation as usize);
-    assert_eq!(n("value_fmi2Terminated"), fmi2StatusKind::fmi2Terminated as usize);
+    assert_eq!(
+        n("value_fmi2CoSimulation"),
+        fmi2Type::fmi2CoSimulation as usize
+    );
+    assert_eq!(
+        n("value_fmi2Terminated"),
+        fmi2StatusKind::fmi2Terminated as usize
+    );
     assert_eq!(
         n("value_fmi2LastSuccessfulTime"),
         fmi2StatusKind::fmi2LastSuccessfulTime as usize
@@ -76,7 +113,10 @@ fn exported_functions_match_the_official_headers_and_run() {
     assert_eq!(c["version"], "2.0");
 
     // The run through the header's pointer types.
-    assert_eq!(c["early_doStep"], "3", "doStep before initialization is fmi2Error");
+    assert_eq!(
+        c["early_doStep"], "3",
+        "doStep before initialization is fmi2Error"
+    );
     for k in ["setup", "enter", "exit", "terminate", "derivative_status"] {
         assert_eq!(c[k], "0", "{k}");
     }
@@ -84,18 +124,26 @@ fn exported_functions_match_the_official_headers_and_run() {
     let last: Vec<&str> = c["last_status"].split(' ').collect();
     assert_eq!(last[0], "0");
     assert!((last[1].parse::<f64>().unwrap() - 2.5).abs() < 1e-12);
-    assert_eq!(c["dostep_status_kind"], "2", "fmi2DoStepStatus is fmi2Discard");
+    assert_eq!(
+        c["dostep_status_kind"], "2",
+        "fmi2DoStepStatus is fmi2Discard"
+    );
     assert_eq!(c["directional"], "3", "directional derivatives are refused");
     // After exactly one gait period the angle is back to its start value and matches the
     // model's plain Rust evaluation.
     let values: Vec<f64> = c["values"].split(' ').map(|v| v.parse().unwrap()).collect();
-    let angle0 = 60f64.to_radians() * kneebench_fmu::models::gait::fourier(
-        &kneebench_fmu::models::gait::ANGLE_SERIES,
-        0.0,
-        2.5,
-    )
-    .value;
-    assert!((values[0] - angle0).abs() < 1e-12, "{} vs {angle0}", values[0]);
+    let angle0 = 60f64.to_radians()
+        * kneebench_fmu::models::gait::fourier(
+            &kneebench_fmu::models::gait::ANGLE_SERIES,
+            0.0,
+            2.5,
+        )
+        .value;
+    assert!(
+        (values[0] - angle0).abs() < 1e-12,
+        "{} vs {angle0}",
+        values[0]
+    );
     let d: f64 = c["derivative"].parse().unwrap();
     assert_eq!(d, values[1], "d(angle)/dt is the velocity output");
     // Every refusal was logged through the importer's logger with its environment.

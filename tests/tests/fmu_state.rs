@@ -15,8 +15,14 @@ fn started(f: &Raw) -> RawInstance<'_> {
     let mut i = RawInstance::new(f, "state", &guid_of("GaitReference"));
     // SAFETY: valid component and arrays.
     unsafe {
-        assert_eq!((f.set_real)(i.c, [1u32].as_ptr(), 1, [1.7].as_ptr()), fmi2OK);
-        assert_eq!((f.set_integer)(i.c, [8u32].as_ptr(), 1, [7].as_ptr()), fmi2OK);
+        assert_eq!(
+            (f.set_real)(i.c, [1u32].as_ptr(), 1, [1.7].as_ptr()),
+            fmi2OK
+        );
+        assert_eq!(
+            (f.set_integer)(i.c, [8u32].as_ptr(), 1, [7].as_ptr()),
+            fmi2OK
+        );
     }
     i.initialize(0.0, None);
     i
@@ -64,7 +70,12 @@ fn serialized_state_continues_bit_identically_in_a_fresh_process() {
     let out_file = dir.path().join("out.bin");
     std::fs::write(&state_file, &saved).unwrap();
     let status = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "child_process_continues_a_state", "--nocapture", "--test-threads=1"])
+        .args([
+            "--exact",
+            "child_process_continues_a_state",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env("KNEEBENCH_STATE_CHILD", &state_file)
         .env("KNEEBENCH_STATE_OUT", &out_file)
         .status()
@@ -89,7 +100,12 @@ fn child_process_continues_a_state() {
     };
     let f = Raw::load(&fmu_library());
     let mut i = RawInstance::new(&f, "child", &guid_of("GaitReference"));
-    assert_eq!(i.restore(&std::fs::read(state).unwrap()), fmi2OK, "{}", i.log_text());
+    assert_eq!(
+        i.restore(&std::fs::read(state).unwrap()),
+        fmi2OK,
+        "{}",
+        i.log_text()
+    );
     let bits = continue_run(&mut i, 700, 500);
     let bytes: Vec<u8> = bits.iter().flat_map(|b| b.to_le_bytes()).collect();
     std::fs::write(out, bytes).unwrap();
@@ -110,7 +126,11 @@ fn foreign_truncated_and_corrupted_states_are_refused() {
     let mut foreign = saved.clone();
     foreign[pos + 1] = if foreign[pos + 1] == b'0' { b'1' } else { b'0' };
     assert_eq!(i.restore(&foreign), fmi2Error);
-    assert!(i.log_text().contains("belongs to model"), "{}", i.log_text());
+    assert!(
+        i.log_text().contains("belongs to model"),
+        "{}",
+        i.log_text()
+    );
     // Truncated, bad magic, future version, trailing garbage.
     assert_eq!(i.restore(&saved[..saved.len() - 3]), fmi2Error);
     let mut magic = saved.clone();
@@ -123,7 +143,12 @@ fn foreign_truncated_and_corrupted_states_are_refused() {
     longer.push(0);
     assert_eq!(i.restore(&longer), fmi2Error);
     let log = i.log_text();
-    for needle in ["truncated", "bad magic", "format version 99", "trailing bytes"] {
+    for needle in [
+        "truncated",
+        "bad magic",
+        "format version 99",
+        "trailing bytes",
+    ] {
         assert!(log.contains(needle), "log lacks {needle:?}: {log}");
     }
     // Nothing was lost: the instance continues from where it was.

@@ -118,20 +118,62 @@ fn call_sequence_table_is_enforced() {
         ("fmi2EnterInitializationMode", &[Instantiated]),
         ("fmi2ExitInitializationMode", &[Initialization]),
         ("fmi2Terminate", &[StepComplete, StepFailed]),
-        ("fmi2Reset", &[Instantiated, Initialization, StepComplete, StepFailed, Terminated]),
-        ("fmi2GetReal", &[Initialization, StepComplete, StepFailed, Terminated]),
+        (
+            "fmi2Reset",
+            &[
+                Instantiated,
+                Initialization,
+                StepComplete,
+                StepFailed,
+                Terminated,
+            ],
+        ),
+        (
+            "fmi2GetReal",
+            &[Initialization, StepComplete, StepFailed, Terminated],
+        ),
         ("fmi2SetReal", &[Instantiated, Initialization, StepComplete]),
-        ("fmi2GetRealOutputDerivatives", &[StepComplete, StepFailed, Terminated]),
+        (
+            "fmi2GetRealOutputDerivatives",
+            &[StepComplete, StepFailed, Terminated],
+        ),
         ("fmi2DoStep", &[StepComplete]),
         ("fmi2CancelStep", &[]),
-        ("fmi2GetBooleanStatus", &[StepComplete, StepFailed, Terminated]),
-        ("fmi2GetFMUstate", &[Instantiated, Initialization, StepComplete, StepFailed, Terminated]),
-        ("fmi2SetDebugLogging", &[Instantiated, Initialization, StepComplete, StepFailed, Terminated]),
+        (
+            "fmi2GetBooleanStatus",
+            &[StepComplete, StepFailed, Terminated],
+        ),
+        (
+            "fmi2GetFMUstate",
+            &[
+                Instantiated,
+                Initialization,
+                StepComplete,
+                StepFailed,
+                Terminated,
+            ],
+        ),
+        (
+            "fmi2SetDebugLogging",
+            &[
+                Instantiated,
+                Initialization,
+                StepComplete,
+                StepFailed,
+                Terminated,
+            ],
+        ),
     ];
     let f = raw();
     let mut checked = 0;
     for (name, allowed) in table {
-        for s in [Instantiated, Initialization, StepComplete, StepFailed, Terminated] {
+        for s in [
+            Instantiated,
+            Initialization,
+            StepComplete,
+            StepFailed,
+            Terminated,
+        ] {
             let mut i = instance_in(&f, s);
             let status = call(&mut i, name);
             let log = i.log_text();
@@ -144,7 +186,9 @@ fn call_sequence_table_is_enforced() {
             } else {
                 assert_eq!(status, fmi2Error, "{name} in {s:?} must be refused");
                 assert!(
-                    log.contains(name) && log.contains("not allowed in state") && log.contains("expected"),
+                    log.contains(name)
+                        && log.contains("not allowed in state")
+                        && log.contains("expected"),
                     "{name} in {s:?}: log must say expected vs actual: {log}"
                 );
                 checked += 1;
@@ -161,7 +205,11 @@ fn refused_call_leaves_the_instance_usable() {
     i.initialize(0.0, Some(1.0));
     // Not at the last communication point.
     assert_eq!(i.step(0.5, 0.1), fmi2Error);
-    assert!(i.log_text().contains("not the last communication point"), "{}", i.log_text());
+    assert!(
+        i.log_text().contains("not the last communication point"),
+        "{}",
+        i.log_text()
+    );
     // Past the stop time.
     assert_eq!(i.step(0.0, 1.5), fmi2Error);
     assert!(i.log_text().contains("stopTime"), "{}", i.log_text());
@@ -201,7 +249,11 @@ fn null_pointers_are_refused_without_a_crash() {
         };
         let c = (f.instantiate)(c"x".as_ptr(), 1, guid.as_ptr(), null(), &cb, 0, 0);
         assert!(!c.is_null());
-        assert_eq!((f.do_step)(c, 0.0, 0.1, 1), fmi2Error, "out of sequence, no logger");
+        assert_eq!(
+            (f.do_step)(c, 0.0, 0.1, 1),
+            fmi2Error,
+            "out of sequence, no logger"
+        );
         (f.free_instance)(c);
     }
     let mut i = RawInstance::new(&f, "nulls", &gait());
@@ -217,11 +269,18 @@ fn null_pointers_are_refused_without_a_crash() {
         assert_eq!((f.set_fmu_state)(i.c, null_mut()), fmi2Error);
         assert_eq!((f.deserialize)(i.c, null(), 10, null_mut()), fmi2Error);
         assert_eq!((f.get_boolean_status)(i.c, 3, null_mut()), fmi2Error);
-        assert_eq!((f.set_string)(i.c, [1u32].as_ptr(), 1, [null()].as_ptr()), fmi2Error);
+        assert_eq!(
+            (f.set_string)(i.c, [1u32].as_ptr(), 1, [null()].as_ptr()),
+            fmi2Error
+        );
         // Zero-length arrays may be NULL.
         assert_eq!((f.get_real)(i.c, null(), 0, null_mut()), fmi2OK);
     }
-    assert!(i.log_text().matches("is NULL").count() >= 7, "{}", i.log_text());
+    assert!(
+        i.log_text().matches("is NULL").count() >= 7,
+        "{}",
+        i.log_text()
+    );
 }
 
 #[test]
@@ -229,7 +288,11 @@ fn wrong_guid_and_model_exchange_are_refused_with_a_log_line() {
     let f = raw();
     let i = RawInstance::new(&f, "wrong", "{00000000-0000-0000-0000-000000000000}");
     assert!(i.c.is_null());
-    assert!(i.log_text().contains("no model with GUID"), "{}", i.log_text());
+    assert!(
+        i.log_text().contains("no model with GUID"),
+        "{}",
+        i.log_text()
+    );
     let i = RawInstance::with_type(&f, "me", &gait(), fmi2Type::fmi2ModelExchange as c_int);
     assert!(i.c.is_null());
     assert!(i.log_text().contains("co-simulation"), "{}", i.log_text());
@@ -248,25 +311,52 @@ fn bad_values_are_refused_and_change_nothing() {
     let before = i.reals(&[PERIOD, AMPLITUDE]);
     // SAFETY: valid component and arrays.
     unsafe {
-        let set = |vrs: &[u32], vals: &[f64]| (f.set_real)(i.c, vrs.as_ptr(), vrs.len(), vals.as_ptr());
+        let set =
+            |vrs: &[u32], vals: &[f64]| (f.set_real)(i.c, vrs.as_ptr(), vrs.len(), vals.as_ptr());
         assert_eq!(set(&[PERIOD], &[f64::NAN]), fmi2Error);
         assert_eq!(set(&[PERIOD], &[f64::INFINITY]), fmi2Error);
         assert_eq!(set(&[PERIOD], &[-1.0]), fmi2Error, "below min");
         // All or nothing: a good value next to a bad one is not applied either.
-        assert_eq!(set(&[PERIOD, AMPLITUDE], &[3.0, 10.0]), fmi2Error, "above max");
+        assert_eq!(
+            set(&[PERIOD, AMPLITUDE], &[3.0, 10.0]),
+            fmi2Error,
+            "above max"
+        );
         assert_eq!(set(&[9999], &[1.0]), fmi2Error, "unknown value reference");
         assert_eq!(set(&[ANGLE], &[1.0]), fmi2Error, "calculated output");
         let vrs = [HARMONICS];
-        assert_eq!((f.set_integer)(i.c, vrs.as_ptr(), 1, [3].as_ptr()), fmi2Error, "constant");
+        assert_eq!(
+            (f.set_integer)(i.c, vrs.as_ptr(), 1, [3].as_ptr()),
+            fmi2Error,
+            "constant"
+        );
         let vrs = [MOTION_WAVEFORM];
-        assert_eq!((f.set_integer)(i.c, vrs.as_ptr(), 1, [42].as_ptr()), fmi2Error, "enum item");
+        assert_eq!(
+            (f.set_integer)(i.c, vrs.as_ptr(), 1, [42].as_ptr()),
+            fmi2Error,
+            "enum item"
+        );
         let mut v = [0.0];
-        assert_eq!((f.get_real)(i.c, [9999u32].as_ptr(), 1, v.as_mut_ptr()), fmi2Error);
-        assert_eq!((f.set_debug_logging)(i.c, 1, 1, [c"noSuchCategory".as_ptr()].as_ptr()), fmi2Error);
+        assert_eq!(
+            (f.get_real)(i.c, [9999u32].as_ptr(), 1, v.as_mut_ptr()),
+            fmi2Error
+        );
+        assert_eq!(
+            (f.set_debug_logging)(i.c, 1, 1, [c"noSuchCategory".as_ptr()].as_ptr()),
+            fmi2Error
+        );
         let mut st = 0;
-        assert_eq!((f.get_integer_status)(i.c, 0, &mut st), fmi2Discard, "no integer status kinds");
+        assert_eq!(
+            (f.get_integer_status)(i.c, 0, &mut st),
+            fmi2Discard,
+            "no integer status kinds"
+        );
         let mut s = fmi2Status::fmi2OK;
-        assert_eq!((f.get_status)(i.c, 0, &mut s), fmi2Discard, "no asynchronous steps");
+        assert_eq!(
+            (f.get_status)(i.c, 0, &mut s),
+            fmi2Discard,
+            "no asynchronous steps"
+        );
         assert_eq!(
             (f.set_real_input_derivatives)(i.c, [PERIOD].as_ptr(), 1, [1].as_ptr(), [0.0].as_ptr()),
             fmi2Error
@@ -274,7 +364,15 @@ fn bad_values_are_refused_and_change_nothing() {
     }
     assert_eq!(i.reals(&[PERIOD, AMPLITUDE]), before);
     let log = i.log_text();
-    for needle in ["must be finite", "outside", "unknown value reference 9999", "cannot be set", "not an item", "unknown log category", "canInterpolateInputs"] {
+    for needle in [
+        "must be finite",
+        "outside",
+        "unknown value reference 9999",
+        "cannot be set",
+        "not an item",
+        "unknown log category",
+        "canInterpolateInputs",
+    ] {
         assert!(log.contains(needle), "log lacks {needle:?}:\n{log}");
     }
     // Still usable.
@@ -290,10 +388,16 @@ fn tunable_parameter_takes_effect_at_once() {
     let a = i.reals(&[ANGLE])[0];
     // SAFETY: valid component and arrays.
     unsafe {
-        assert_eq!((f.set_real)(i.c, [AMPLITUDE].as_ptr(), 1, [0.5].as_ptr()), fmi2OK);
+        assert_eq!(
+            (f.set_real)(i.c, [AMPLITUDE].as_ptr(), 1, [0.5].as_ptr()),
+            fmi2OK
+        );
     }
     let b = i.reals(&[ANGLE])[0];
-    assert!((b / a - 0.5 / 60f64.to_radians()).abs() < 1e-12, "{a} -> {b}");
+    assert!(
+        (b / a - 0.5 / 60f64.to_radians()).abs() < 1e-12,
+        "{a} -> {b}"
+    );
 }
 
 #[test]
@@ -302,7 +406,10 @@ fn debug_logging_categories_are_honoured() {
     let mut i = RawInstance::new(&f, "cats", &gait());
     // SAFETY: valid component and arrays.
     unsafe {
-        assert_eq!((f.set_debug_logging)(i.c, 1, 1, [c"logCalls".as_ptr()].as_ptr()), fmi2OK);
+        assert_eq!(
+            (f.set_debug_logging)(i.c, 1, 1, [c"logCalls".as_ptr()].as_ptr()),
+            fmi2OK
+        );
     }
     i.initialize(0.0, None);
     assert!(i.log_text().contains("logCalls"), "{}", i.log_text());
@@ -331,7 +438,10 @@ fn two_instances_and_two_loads_do_not_interfere() {
     let mut c = RawInstance::new(&g, "c", &gait());
     // SAFETY: valid component and arrays.
     unsafe {
-        assert_eq!((f.set_real)(b.c, [PERIOD].as_ptr(), 1, [1.0].as_ptr()), fmi2OK);
+        assert_eq!(
+            (f.set_real)(b.c, [PERIOD].as_ptr(), 1, [1.0].as_ptr()),
+            fmi2OK
+        );
     }
     a.initialize(0.0, None);
     b.initialize(0.0, None);
@@ -343,7 +453,12 @@ fn two_instances_and_two_loads_do_not_interfere() {
         for i in [&mut a, &mut b, &mut c, &mut alone] {
             assert_eq!(i.step(t, 0.01), fmi2OK);
         }
-        let (va, vb, vc, v) = (a.reals(&[ANGLE]), b.reals(&[ANGLE]), c.reals(&[ANGLE]), alone.reals(&[ANGLE]));
+        let (va, vb, vc, v) = (
+            a.reals(&[ANGLE]),
+            b.reals(&[ANGLE]),
+            c.reals(&[ANGLE]),
+            alone.reals(&[ANGLE]),
+        );
         assert_eq!(va, v);
         assert_eq!(vc, v);
         if k > 10 {

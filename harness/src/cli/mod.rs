@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod export;
 pub mod info;
 pub mod plot;
 pub mod run;
@@ -35,6 +36,8 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Write one .fmu per kneebench model (binary, model description, documentation, reference run).
+    Export(export::Args),
     /// Run an SSP system (.ssp, .ssd) or a single FMU (.fmu) and write the results as CSV.
     Run(run::Args),
     /// Check an FMU archive: safe extraction, model description, binary, symbols, GUID.
@@ -48,6 +51,7 @@ pub enum Command {
 /// Runs a parsed command line; returns the exit code.
 pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
     match cli.command {
+        Command::Export(a) => export::run(a),
         Command::Run(a) => run::run(a),
         Command::Validate(a) => validate::run(a),
         Command::Info(a) => info::run(a),

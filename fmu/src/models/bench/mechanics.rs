@@ -287,10 +287,11 @@ impl TaylorSegment {
     pub(crate) fn new(m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) -> Self {
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
-            let len = duration / count as f64;
-            let mut pieces = Vec::with_capacity(count);
+            let pieces_wanted = count;
+            let len = duration / pieces_wanted as f64;
+            let mut pieces = Vec::with_capacity(pieces_wanted);
             let mut z = *z0;
-            for p in 0..count {
+            for p in 0..pieces_wanted {
                 let mut piece = Piece {
                     start: p as f64 * len,
                     len,

@@ -105,6 +105,7 @@
 //!   saturated current loop is back-driven).
 //! * `RegenPower`: load driver absorbing more than 5 W.
 //! * `EmergencyStop`: the input, at the start of the step.
+//!
 //! The watchdog ("a control period missed") belongs to the hardware FMU, not the plant.
 //!
 //! ## Sensors
@@ -117,9 +118,12 @@
 //! `P_load = i_RED Km2 i2 w2`, `P_HD = -c1 w1^2 - c2 w2^2 + F1 w1 + F2 w2 <= 0`; electrical
 //! `P_el = V i = R i^2 + d(L i^2/2)/dt + Ke w_m i` per driver, total = both + 7 W offset + 6 W
 //! clutch. Integrals since the start are exact (Gramians / polynomial integrals of the exact
-//! flow); "consumed" is the integral of the positive part, split at sign changes of the power
-//! (sign changes are detected at sub-step ends; a double sign change inside one sub-step is
-//! treated as none). `kinetic_energy_change` / `potential_energy_change` are relative to the
+//! flow); "consumed" is the integral of the positive part. Where a power changes sign inside a
+//! regular sub-step, the split uses a cubic Hermite model of the power over the sub-step (from
+//! its exact end values and slopes, corrected to the exact signed integral; error O(h^4) per
+//! crossing); in sub-steps cut by events the split is exact (roots of the power polynomial).
+//! Sign changes are detected at sub-step ends; a double sign change inside one sub-step is
+//! treated as none. `kinetic_energy_change` / `potential_energy_change` are relative to the
 //! start at rest.
 
 mod friction;

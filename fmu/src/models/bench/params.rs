@@ -474,8 +474,10 @@ mod tests {
 
     #[test]
     fn invalid_values_are_rejected() {
-        let mut p = BenchParameters::default();
-        p.actuation_inertia = -1.0;
+        let mut p = BenchParameters {
+            actuation_inertia: -1.0,
+            ..BenchParameters::default()
+        };
         assert!(matches!(
             p.validate(),
             Err(ParameterError::OutOfRange { .. })
@@ -485,8 +487,10 @@ mod tests {
             p.validate(),
             Err(ParameterError::NotFinite { .. })
         ));
-        let mut q = BenchParameters::default();
-        q.encoder_counts_per_revolution = 2000.5;
+        let q = BenchParameters {
+            encoder_counts_per_revolution: 2000.5,
+            ..BenchParameters::default()
+        };
         assert!(matches!(q.validate(), Err(ParameterError::Inconsistent(_))));
     }
 }

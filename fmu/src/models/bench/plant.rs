@@ -587,6 +587,32 @@ impl BenchPlant {
         ]
     }
 
+    /// Time derivatives of the five reported powers at `z` (constant inputs).
+    fn power_rates(&self, held: &Held, m: &AugMatrix, z: &AugVector) -> [f64; 5] {
+        let dz = m * super::mechanics::to_vector(z);
+        let tpa = self.torque_per_ampere();
+        let mut electrical = [0.0; 2];
+        for (n, e) in electrical.iter_mut().enumerate() {
+            let (current, omega) = (CURRENT1 + n, OMEGA1 + n);
+            let voltage = self.armature_voltage(held, n, z);
+            let voltage_rate = if held.mode.voltage_row[n] {
+                0.0
+            } else {
+                let (r, l, ke, _, _) = self.motor(n);
+                let gain = l / self.params.current_loop_time_constant;
+                (r - gain) * dz[current] + ke * dz[omega]
+            };
+            *e = voltage_rate * z[current] + voltage * dz[current];
+        }
+        [
+            tpa[0] * (dz[CURRENT1] * z[OMEGA1] + z[CURRENT1] * dz[OMEGA1]),
+            tpa[1] * (dz[CURRENT2] * z[OMEGA2] + z[CURRENT2] * dz[OMEGA2]),
+            electrical[0],
+            electrical[1],
+            electrical[0] + electrical[1],
+        ]
+    }
+
     fn constant_power(&self, held: &Held) -> f64 {
         self.params.hardware_offset_power
             + if held.clutch {
@@ -635,10 +661,19 @@ impl BenchPlant {
                     .any(|&e| self.event_value(&held, e, &z1) > 0.0);
                 let p0 = self.powers(&held, &z0);
                 let p1 = self.powers(&held, &z1);
-                let sign_change = p0.iter().zip(p1.iter()).any(|(a, b)| a * b < 0.0);
-                if !fired && !sign_change {
+                if !fired {
+                    let sign_change = p0.iter().zip(p1.iter()).any(|(a, b)| a * b < 0.0);
+                    let rates = if sign_change {
+                        let (m, _) = self.matrix(held.mode);
+                        Some((
+                            self.power_rates(&held, &m, &z0),
+                            self.power_rates(&held, &m, &z1),
+                        ))
+                    } else {
+                        None
+                    };
                     let integrals = self.cache[index].integrals(&z0);
-                    self.accumulate_regular(&held, &z0, &z1, &integrals, &p0, h);
+                    self.accumulate_regular(&held, &z0, &z1, &integrals, &p0, rates, h);
                     self.commit(z1);
                     return Ok(());
                 }
@@ -719,10 +754,10 @@ impl BenchPlant {
             let mut a = 0.0;
             let mut ga = self.event_value(held, event, &z0).min(0.0);
             for b in segment.piece_ends() {
-                if let Some((t, _)) = best {
-                    if a >= t {
-                        break;
-                    }
+                if let Some((t, _)) = best
+                    && a >= t
+                {
+                    break;
                 }
                 let gb = self.event_value(held, event, &segment.state_at(b));
                 if gb > 0.0 {
@@ -789,6 +824,7 @@ impl BenchPlant {
         z1: &AugVector,
         integrals: &SegmentIntegrals,
         p0: &[f64; 5],
+        rates: Option<([f64; 5], [f64; 5])>,
         h: f64,
     ) {
         let mut electrical = [0.0; 2];
@@ -819,10 +855,12 @@ impl BenchPlant {
         let p1 = self.powers(held, z1);
         let mut positive = [0.0; 5];
         for k in 0..5 {
-            positive[k] = if p0[k] > 0.0 || (p0[k] == 0.0 && p1[k] > 0.0) {
-                signed[k]
-            } else {
-                0.0
+            positive[k] = match rates {
+                Some((d0, d1)) if p0[k] * p1[k] < 0.0 => {
+                    hermite_positive_part(p0[k], p1[k], d0[k] * h, d1[k] * h, signed[k], h)
+                }
+                _ if p0[k] > 0.0 || (p0[k] == 0.0 && p1[k] > 0.0) => signed[k],
+                _ => 0.0,
             };
         }
         let squares = [integrals.products[0], integrals.products[1]];
@@ -976,6 +1014,31 @@ impl BenchPlant {
     pub(crate) fn output_torque_per_ampere(&self) -> [f64; 2] {
         self.torque_per_ampere()
     }
+}
+
+/// Positive part of a power that changes sign inside a regular sub-step of length `h`, from a
+/// cubic Hermite model of the power (end values `p0`, `p1`, end slopes times h `m0`, `m1`): the
+/// model's positive part, plus the model's error against the exact signed integral `signed`
+/// shared in proportion to the time the power is positive.
+fn hermite_positive_part(p0: f64, p1: f64, m0: f64, m1: f64, signed: f64, h: f64) -> f64 {
+    const SAMPLES: usize = 32;
+    let mut positive = 0.0;
+    let mut positive_samples = 0;
+    for k in 0..SAMPLES {
+        let s = (k as f64 + 0.5) / SAMPLES as f64;
+        let (s2, s3) = (s * s, s * s * s);
+        let value = (2.0 * s3 - 3.0 * s2 + 1.0) * p0
+            + (s3 - 2.0 * s2 + s) * m0
+            + (-2.0 * s3 + 3.0 * s2) * p1
+            + (s3 - s2) * m1;
+        if value > 0.0 {
+            positive += value;
+            positive_samples += 1;
+        }
+    }
+    let model_total = h * (0.5 * (p0 + p1) + (m0 - m1) / 12.0);
+    let fraction = positive_samples as f64 / SAMPLES as f64;
+    (h * positive / SAMPLES as f64 + (signed - model_total) * fraction).max(0.0)
 }
 
 /// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan

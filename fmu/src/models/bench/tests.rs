@@ -146,8 +146,10 @@ fn sea_frequency_response_matches_two_mass_transfer_functions() {
 
 #[test]
 fn da_frequency_response_matches_stiff_coupling_and_rigid_body() {
-    let mut p = BenchParameters::default();
-    p.configuration = Configuration::Da;
+    let p = BenchParameters {
+        configuration: Configuration::Da,
+        ..BenchParameters::default()
+    };
     for w in frequencies() {
         let expected = two_mass(&p, w);
         let sim = simulated_response(Configuration::Da, 0, w);
