@@ -817,6 +817,7 @@ impl BenchPlant {
         b
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn accumulate_regular(
         &mut self,
         held: &Held,
@@ -1053,7 +1054,7 @@ fn positive_integral(p: &[f64], s_end: f64) -> f64 {
         let pb = poly_eval(p, b);
         if pa * pb < 0.0 {
             let (mut lo, mut hi) = (a, b);
-            for _ in 0..80 {
+            for _ in 0..60 {
                 let mid = 0.5 * (lo + hi);
                 if poly_eval(p, mid) * pa > 0.0 {
                     lo = mid;
