@@ -22,7 +22,23 @@ pub struct ModelInfo {
     pub guid: String,
     /// `documentation/index.html`.
     pub documentation: String,
+    /// Per base type (Real, Integer/Enumeration, Boolean, String), value reference -> 1 + index
+    /// in the declaration, 0 when unknown. Dense, because it is read on every get and set.
+    pub index: [Vec<u32>; 4],
 }
+
+impl ModelInfo {
+    /// The declaration index of value reference `vr` of base type `tag`.
+    #[inline]
+    pub fn find(&self, tag: u8, vr: u32) -> Option<usize> {
+        let table = self.index.get(tag as usize)?;
+        let found = *table.get(vr as usize)?;
+        found.checked_sub(1).map(|i| i as usize)
+    }
+}
+
+/// Highest value reference a model may declare (the lookup tables are dense).
+pub const MAX_VALUE_REFERENCE: u32 = 1 << 16;
 
 /// One exported model.
 pub struct ModelEntry {
@@ -37,7 +53,24 @@ pub struct ModelEntry {
 
 fn build<M: Model>() -> ModelInfo {
     let description = model::model_description::<M>();
+    let mut index: [Vec<u32>; 4] = Default::default();
+    for (i, v) in M::variables().iter().enumerate() {
+        assert!(
+            v.value_reference < MAX_VALUE_REFERENCE,
+            "{}: value reference {} of {} is above {MAX_VALUE_REFERENCE}",
+            M::IDENTIFIER,
+            v.value_reference,
+            v.name
+        );
+        let table = &mut index[crate::fmi2::instance::base_type_tag(v) as usize];
+        let vr = v.value_reference as usize;
+        if table.len() <= vr {
+            table.resize(vr + 1, 0);
+        }
+        table[vr] = i as u32 + 1;
+    }
     ModelInfo {
+        index,
         xml: description.to_xml(),
         guid: description.guid.clone(),
         documentation: model::documentation_html::<M>(),

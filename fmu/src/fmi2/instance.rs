@@ -7,7 +7,6 @@
 //! changes nothing, so the importer loses nothing and may correct the call. A failure of the
 //! model's own computation answers `fmi2Error` and moves the instance to the error state.
 
-use std::collections::HashMap;
 use std::ffi::CString;
 
 use super::logging::{Category, Logger};
@@ -245,13 +244,12 @@ pub struct Instance<M: Model> {
     terminated: bool,
     /// Outputs must be recomputed before the next get (after a set or a step).
     dirty: bool,
-    /// Value reference -> index in the declaration, per base type.
-    index: HashMap<(u8, u32), usize>,
     /// Strings handed out by the last `fmi2GetString`.
     strings: Vec<CString>,
 }
 
-fn base_type_tag<M>(v: &Variable<M>) -> u8 {
+/// The base-type number of a variable: 0 Real, 1 Integer/Enumeration, 2 Boolean, 3 String.
+pub fn base_type_tag<M>(v: &Variable<M>) -> u8 {
     match v.access {
         Access::Real(..) => 0,
         Access::Integer(..) | Access::Enumeration(..) => 1,
@@ -265,11 +263,6 @@ const TYPE_NAMES: [&str; 4] = ["Real", "Integer", "Boolean", "String"];
 impl<M: Model> Instance<M> {
     /// A new instance with every start value applied.
     pub fn new(info: &'static ModelInfo, logger: Logger) -> Self {
-        let index = M::variables()
-            .iter()
-            .enumerate()
-            .map(|(i, v)| ((base_type_tag(v), v.value_reference), i))
-            .collect();
         Self {
             model: fresh_model::<M>(),
             info,
@@ -281,7 +274,6 @@ impl<M: Model> Instance<M> {
             last_successful_time: 0.0,
             terminated: false,
             dirty: true,
-            index,
             strings: Vec::new(),
         }
     }
@@ -315,28 +307,29 @@ impl<M: Model> Instance<M> {
         Ok(())
     }
 
-    /// Looks up every value reference for a get or set of type `tag`; all or nothing.
-    fn lookup(&self, function: &str, tag: u8, vrs: &[u32]) -> Result<Vec<usize>, fmi2Status> {
-        vrs.iter()
-            .map(|vr| {
-                self.index.get(&(tag, *vr)).copied().ok_or_else(|| {
-                    self.refuse(
-                        function,
-                        &format!(
-                            "unknown value reference {vr} for type {} in model {}",
-                            TYPE_NAMES[tag as usize],
-                            M::IDENTIFIER
-                        ),
-                    )
-                })
-            })
-            .collect()
+    /// Checks that every value reference of a get or set of type `tag` is known; all or nothing.
+    fn check_known(&self, function: &str, tag: u8, vrs: &[u32]) -> Result<(), fmi2Status> {
+        match vrs.iter().find(|vr| self.info.find(tag, **vr).is_none()) {
+            None => Ok(()),
+            Some(vr) => Err(self.refuse(
+                function,
+                &format!(
+                    "unknown value reference {vr} for type {} in model {}",
+                    TYPE_NAMES[tag as usize],
+                    M::IDENTIFIER
+                ),
+            )),
+        }
     }
 
     /// Checks that every variable may be set now, before anything is changed.
-    fn check_settable(&self, function: &str, idx: &[usize]) -> Result<(), fmi2Status> {
+    fn check_settable(
+        &self,
+        function: &str,
+        idx: impl Iterator<Item = usize>,
+    ) -> Result<(), fmi2Status> {
         let phase = self.phase();
-        for &i in idx {
+        for i in idx {
             let v = &M::variables()[i];
             if !v.settable(phase) {
                 return Err(self.refuse(
@@ -630,15 +623,18 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status {
         let f = "fmi2GetReal";
-        let idx = match self.lookup(f, 0, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
         if let Err(s) = self.refresh(f) {
             return s;
         }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        let info = self.info;
+        let idx = vrs.iter().map(move |vr| info.find(0, *vr));
         let vars = M::variables();
         for (o, i) in out.iter_mut().zip(idx) {
+            let Some(i) = i else {
+                return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error);
+            };
             if let Access::Real(get, _) = vars[i].access {
                 *o = get(&self.model);
             }
@@ -648,15 +644,18 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
         let f = "fmi2GetInteger";
-        let idx = match self.lookup(f, 1, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
         if let Err(s) = self.refresh(f) {
             return s;
         }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        let info = self.info;
+        let idx = vrs.iter().map(move |vr| info.find(1, *vr));
         let vars = M::variables();
         for (o, i) in out.iter_mut().zip(idx) {
+            let Some(i) = i else {
+                return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error);
+            };
             if let Access::Integer(get, _) | Access::Enumeration(get, _) = vars[i].access {
                 *o = get(&self.model);
             }
@@ -666,15 +665,18 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_boolean(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status {
         let f = "fmi2GetBoolean";
-        let idx = match self.lookup(f, 2, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
         if let Err(s) = self.refresh(f) {
             return s;
         }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        let info = self.info;
+        let idx = vrs.iter().map(move |vr| info.find(2, *vr));
         let vars = M::variables();
         for (o, i) in out.iter_mut().zip(idx) {
+            let Some(i) = i else {
+                return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error);
+            };
             if let Access::Boolean(get, _) = vars[i].access {
                 *o = fmi2Boolean::from(get(&self.model));
             }
@@ -684,16 +686,19 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_string(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status {
         let f = "fmi2GetString";
-        let idx = match self.lookup(f, 3, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
         if let Err(s) = self.refresh(f) {
             return s;
         }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        let info = self.info;
+        let idx = vrs.iter().map(move |vr| info.find(3, *vr));
         let vars = M::variables();
         self.strings.clear();
         for i in idx {
+            let Some(i) = i else {
+                return self.check_known(f, 3, vrs).err().unwrap_or(fmi2Error);
+            };
             if let Access::String(get, _) = vars[i].access {
                 let s = get(&self.model).replace('\0', "");
                 self.strings.push(CString::new(s).unwrap_or_default());
@@ -707,20 +712,21 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
         let f = "fmi2SetReal";
-        let idx = match self.lookup(f, 0, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
-        if let Err(s) = self.check_settable(f, &idx) {
+        if let Err(s) = self.check_known(f, 0, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(0, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
             return s;
         }
         let vars = M::variables();
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             if let Err(s) = self.check_range(f, &vars[i], x) {
                 return s;
             }
         }
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             if let Access::Real(_, set) = vars[i].access {
                 set(&mut self.model, x);
             }
@@ -731,15 +737,16 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status {
         let f = "fmi2SetInteger";
-        let idx = match self.lookup(f, 1, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
-        if let Err(s) = self.check_settable(f, &idx) {
+        if let Err(s) = self.check_known(f, 1, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(1, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
             return s;
         }
         let vars = M::variables();
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             let v = &vars[i];
             let check = match v.access {
                 Access::Enumeration(..) => self.check_enumeration(f, v, x),
@@ -749,7 +756,7 @@ impl<M: Model> FmiInstance for Instance<M> {
                 return s;
             }
         }
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             if let Access::Integer(_, set) | Access::Enumeration(_, set) = vars[i].access {
                 set(&mut self.model, x);
             }
@@ -760,15 +767,16 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_boolean(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status {
         let f = "fmi2SetBoolean";
-        let idx = match self.lookup(f, 2, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
-        if let Err(s) = self.check_settable(f, &idx) {
+        if let Err(s) = self.check_known(f, 2, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(2, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
             return s;
         }
         let vars = M::variables();
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             if let Access::Boolean(_, set) = vars[i].access {
                 set(&mut self.model, x != 0);
             }
@@ -779,15 +787,16 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status {
         let f = "fmi2SetString";
-        let idx = match self.lookup(f, 3, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
-        if let Err(s) = self.check_settable(f, &idx) {
+        if let Err(s) = self.check_known(f, 3, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(3, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
             return s;
         }
         let vars = M::variables();
-        for (&i, &x) in idx.iter().zip(values) {
+        for (i, &x) in idx.clone().zip(values) {
             if let Access::String(_, set) = vars[i].access {
                 set(&mut self.model, x);
             }
@@ -824,12 +833,13 @@ impl<M: Model> FmiInstance for Instance<M> {
         out: &mut [f64],
     ) -> fmi2Status {
         let f = "fmi2GetRealOutputDerivatives";
-        let idx = match self.lookup(f, 0, vrs) {
-            Ok(i) => i,
-            Err(s) => return s,
-        };
+        if let Err(s) = self.check_known(f, 0, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(0, *vr));
         let vars = M::variables();
-        for (&i, &order) in idx.iter().zip(orders) {
+        for (i, &order) in idx.clone().zip(orders) {
             let v = &vars[i];
             if v.causality != crate::model::Causality::Output {
                 return self.refuse(f, &format!("{} is not an output", v.name));
@@ -848,7 +858,7 @@ impl<M: Model> FmiInstance for Instance<M> {
         if let Err(s) = self.refresh(f) {
             return s;
         }
-        for ((o, &i), &order) in out.iter_mut().zip(&idx).zip(orders) {
+        for ((o, i), &order) in out.iter_mut().zip(idx.clone()).zip(orders) {
             let v = &vars[i];
             match self
                 .model
