@@ -12,4 +12,7 @@ pub mod model;
 pub mod models;
 pub mod registry;
 
-export_models!(models::gait::GaitReference);
+export_models!(
+    models::gait::GaitReference,
+    models::bench_plant::BenchPlantModel
+);

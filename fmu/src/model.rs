@@ -495,6 +495,7 @@ pub fn unit_definition(name: &str) -> Option<md::Unit> {
         "A" => (0, 0, 0, 1, 0, &[]),
         "V" => (1, 2, -3, -1, 0, &[]),
         "V/A" | "Ohm" => (1, 2, -3, -2, 0, &[]),
+        "s/rad" => (0, 0, 1, 0, -1, &[]),
         "H" => (1, 2, -2, -2, 0, &[]),
         "N.m/A" => (1, 2, -2, -1, 0, &[]),
         "V.s/rad" => (1, 2, -2, -1, -1, &[]),
@@ -933,4 +934,119 @@ mod tests {
             }
         }
     }
+}
+
+/// Renders the `//!` documentation of a Rust source file as HTML, so a model's documentation
+/// page comes from the same text as its API docs. Handles what those docs use: `#` headings,
+/// paragraphs, `*`/`-` lists, fenced code blocks, `inline code`, **bold**, [links](...) as
+/// plain text.
+pub fn module_doc_html(source: &str) -> String {
+    let lines: Vec<&str> = source
+        .lines()
+        .take_while(|l| l.starts_with("//!") || l.trim().is_empty())
+        .filter_map(|l| l.strip_prefix("//!"))
+        .map(|l| l.strip_prefix(' ').unwrap_or(l))
+        .collect();
+    let mut html = String::new();
+    let mut in_code = false;
+    let mut in_list = false;
+    let mut paragraph = String::new();
+    let flush = |html: &mut String, paragraph: &mut String, in_list: bool| {
+        if !paragraph.trim().is_empty() {
+            let tag = if in_list { "li" } else { "p" };
+            let _ = writeln!(html, "<{tag}>{}</{tag}>", inline_markdown(paragraph.trim()));
+        }
+        paragraph.clear();
+    };
+    for line in lines {
+        if line.starts_with("```") {
+            flush(&mut html, &mut paragraph, in_list);
+            html.push_str(if in_code { "</pre>\n" } else { "<pre>" });
+            in_code = !in_code;
+            continue;
+        }
+        if in_code {
+            html.push_str(&escape_html(line));
+            html.push('\n');
+            continue;
+        }
+        let trimmed = line.trim_start();
+        if let Some(rest) = trimmed.strip_prefix('#') {
+            flush(&mut html, &mut paragraph, in_list);
+            if in_list {
+                html.push_str("</ul>\n");
+                in_list = false;
+            }
+            let level = 1 + rest.chars().take_while(|c| *c == '#').count();
+            let text = rest.trim_start_matches('#').trim();
+            let level = (level + 1).min(6);
+            let _ = writeln!(html, "<h{level}>{}</h{level}>", inline_markdown(text));
+        } else if let Some(item) = trimmed
+            .strip_prefix("* ")
+            .or_else(|| trimmed.strip_prefix("- "))
+        {
+            flush(&mut html, &mut paragraph, in_list);
+            if !in_list {
+                html.push_str("<ul>\n");
+                in_list = true;
+            }
+            paragraph.push_str(item);
+        } else if trimmed.is_empty() {
+            flush(&mut html, &mut paragraph, in_list);
+            if in_list {
+                html.push_str("</ul>\n");
+                in_list = false;
+            }
+        } else {
+            paragraph.push(' ');
+            paragraph.push_str(trimmed);
+        }
+    }
+    flush(&mut html, &mut paragraph, in_list);
+    if in_list {
+        html.push_str("</ul>\n");
+    }
+    if in_code {
+        html.push_str("</pre>\n");
+    }
+    html
+}
+
+/// `code`, **bold** and [text](target) of one line of Markdown, HTML-escaped.
+fn inline_markdown(text: &str) -> String {
+    let escaped = escape_html(text);
+    let mut out = String::new();
+    let mut code = false;
+    let mut bold = false;
+    let mut chars = escaped.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '`' => {
+                out.push_str(if code { "</code>" } else { "<code>" });
+                code = !code;
+            }
+            '*' if !code && chars.peek() == Some(&'*') => {
+                chars.next();
+                out.push_str(if bold { "</b>" } else { "<b>" });
+                bold = !bold;
+            }
+            '[' if !code => {}
+            ']' if !code && chars.peek() == Some(&'(') => {
+                // Drop the link target: intra-doc links mean nothing in the FMU.
+                for c in chars.by_ref() {
+                    if c == ')' {
+                        break;
+                    }
+                }
+            }
+            _ => out.push(c),
+        }
+    }
+    if code {
+        out.push_str("</code>");
+    }
+    if bold {
+        out.push_str("</b>");
+    }
+    out
 }

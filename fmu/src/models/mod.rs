@@ -1,3 +1,5 @@
 //! The bench models: plain Rust structs that know nothing of C.
 
+pub mod bench;
+pub mod bench_plant;
 pub mod gait;
