@@ -152,7 +152,7 @@ pub enum LoadError {
         expected: String,
     },
     /// `dlopen` failed (of the FMU binary or of a preloaded library).
-    #[error("cannot load shared library '{}': {source}{hint}", path.display())]
+    #[error("cannot load shared library '{}': {}{hint}", path.display(), with_cause(source))]
     Library {
         /// The library.
         path: PathBuf,
@@ -170,6 +170,15 @@ pub enum LoadError {
     /// `fmi2GetVersion` does not return "2.0".
     #[error("the FMU binary reports FMI version '{0}', expected '2.0'")]
     WrongVersion(String),
+}
+
+/// `libloading::Error` displays as "dlopen failed" and keeps `dlerror()`'s text (the missing
+/// file or the undefined symbol) in its `source()`: show both.
+fn with_cause(e: &libloading::Error) -> String {
+    match std::error::Error::source(e) {
+        Some(cause) => format!("{e}: {cause}"),
+        None => e.to_string(),
+    }
 }
 
 fn io_err<'a>(context: &'static str, path: &'a Path) -> impl FnOnce(io::Error) -> LoadError + 'a {
