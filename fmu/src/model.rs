@@ -855,87 +855,6 @@ fn escape_html(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::models::gait::GaitReference;
-
-    #[test]
-    fn every_model_description_passes_the_semantic_checks_and_parses_back() {
-        for entry in crate::MODELS.iter() {
-            let info = entry.info();
-            let problems = info.description.check();
-            assert!(problems.is_empty(), "{}: {problems:?}", entry.identifier);
-            let parsed = md::ModelDescription::from_xml(&info.xml).unwrap();
-            assert_eq!(parsed, info.description);
-            assert_eq!(
-                crate::registry::find_by_guid(&info.guid)
-                    .unwrap()
-                    .identifier,
-                entry.identifier
-            );
-        }
-    }
-
-    #[test]
-    fn declaration_drives_the_model_structure() {
-        let d = model_description::<GaitReference>();
-        let outputs: Vec<&str> = d
-            .model_variables
-            .iter()
-            .filter(|v| v.causality == Some(Causality::Output))
-            .map(|v| v.name.as_str())
-            .collect();
-        assert_eq!(d.model_structure.outputs.len(), outputs.len());
-        // The gait has no inputs: its outputs depend on none at communication points.
-        for u in &d.model_structure.outputs {
-            assert_eq!(u.dependencies.as_deref(), Some(&[][..]));
-        }
-        // At initialization they depend on the parameters.
-        let period = d.variable_index("gaitPeriod").unwrap() as u32;
-        for u in &d.model_structure.initial_unknowns {
-            assert!(u.dependencies.as_ref().unwrap().contains(&period));
-        }
-        // Units and display units come from the unit table.
-        let rad = d.unit_definitions.iter().find(|u| u.name == "rad").unwrap();
-        assert_eq!(rad.display_units[0].name, "deg");
-    }
-
-    #[test]
-    fn guid_is_a_hash_of_the_description() {
-        let d = description_without_guid::<GaitReference>();
-        let g = guid_of(&d);
-        assert_eq!(g, model_description::<GaitReference>().guid);
-        assert_eq!(g.len(), 38);
-        let mut changed = d.clone();
-        changed.model_variables[0].description = Some("changed".into());
-        assert_ne!(
-            guid_of(&changed),
-            g,
-            "any change of a variable changes the GUID"
-        );
-        let mut renamed = d.clone();
-        renamed.model_variables[0].value_reference += 1000;
-        assert_ne!(guid_of(&renamed), g);
-    }
-
-    #[test]
-    fn value_references_are_unique_per_type() {
-        for entry in crate::MODELS.iter() {
-            let d = &entry.info().description;
-            let mut seen = std::collections::HashSet::new();
-            for v in &d.model_variables {
-                assert!(
-                    seen.insert((v.kind.base_type(), v.value_reference)),
-                    "{}: duplicate value reference {}",
-                    entry.identifier,
-                    v.value_reference
-                );
-            }
-        }
-    }
-}
-
 /// Renders the `//!` documentation of a Rust source file as HTML, so a model's documentation
 /// page comes from the same text as its API docs. Handles what those docs use: `#` headings,
 /// paragraphs, `*`/`-` lists, fenced code blocks, `inline code`, **bold**, [links](...) as
@@ -1049,4 +968,95 @@ fn inline_markdown(text: &str) -> String {
         out.push_str("</b>");
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::models::gait::GaitReference;
+
+    #[test]
+    fn every_model_description_passes_the_semantic_checks_and_parses_back() {
+        for entry in crate::MODELS.iter() {
+            let info = entry.info();
+            let problems = info.description.check();
+            assert!(problems.is_empty(), "{}: {problems:?}", entry.identifier);
+            let parsed = md::ModelDescription::from_xml(&info.xml).unwrap();
+            assert_eq!(parsed, info.description);
+            assert_eq!(
+                crate::registry::find_by_guid(&info.guid)
+                    .unwrap()
+                    .identifier,
+                entry.identifier
+            );
+        }
+    }
+
+    #[test]
+    fn declaration_drives_the_model_structure() {
+        let d = model_description::<GaitReference>();
+        let outputs: Vec<&str> = d
+            .model_variables
+            .iter()
+            .filter(|v| v.causality == Some(Causality::Output))
+            .map(|v| v.name.as_str())
+            .collect();
+        assert_eq!(d.model_structure.outputs.len(), outputs.len());
+        // The gait has no inputs: its outputs depend on none at communication points.
+        for u in &d.model_structure.outputs {
+            assert_eq!(u.dependencies.as_deref(), Some(&[][..]));
+        }
+        // At initialization they depend on the parameters.
+        let period = d.variable_index("gaitPeriod").unwrap() as u32;
+        for u in &d.model_structure.initial_unknowns {
+            assert!(u.dependencies.as_ref().unwrap().contains(&period));
+        }
+        // Units and display units come from the unit table.
+        let rad = d.unit_definitions.iter().find(|u| u.name == "rad").unwrap();
+        assert_eq!(rad.display_units[0].name, "deg");
+    }
+
+    #[test]
+    fn guid_is_a_hash_of_the_description() {
+        let d = description_without_guid::<GaitReference>();
+        let g = guid_of(&d);
+        assert_eq!(g, model_description::<GaitReference>().guid);
+        assert_eq!(g.len(), 38);
+        let mut changed = d.clone();
+        changed.model_variables[0].description = Some("changed".into());
+        assert_ne!(
+            guid_of(&changed),
+            g,
+            "any change of a variable changes the GUID"
+        );
+        let mut renamed = d.clone();
+        renamed.model_variables[0].value_reference += 1000;
+        assert_ne!(guid_of(&renamed), g);
+    }
+
+    #[test]
+    fn value_references_are_unique_per_type() {
+        for entry in crate::MODELS.iter() {
+            let d = &entry.info().description;
+            let mut seen = std::collections::HashSet::new();
+            for v in &d.model_variables {
+                assert!(
+                    seen.insert((v.kind.base_type(), v.value_reference)),
+                    "{}: duplicate value reference {}",
+                    entry.identifier,
+                    v.value_reference
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn module_docs_render_as_html() {
+        let src = "//! # Title\n//!\n//! Text with `code` and **bold** and [link](x).\n//!\n//! * one\n//! * two\n//!\n//! ```text\n//! a < b\n//! ```\nfn main() {}\n";
+        let html = module_doc_html(src);
+        assert_eq!(
+            html,
+            "<h2>Title</h2>\n<p>Text with <code>code</code> and <b>bold</b> and link.</p>\n<ul>\n<li>one</li>\n<li>two</li>\n</ul>\n<pre>a &lt; b\n</pre>\n"
+        );
+    }
 }
