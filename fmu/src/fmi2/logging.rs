@@ -111,15 +111,22 @@ impl Logger {
     }
 
     /// Logs `message` with `status`. Errors and fatal errors are always passed on (the importer
-    /// must learn why a call failed); other messages only when debug logging enables them.
+    /// must learn why a call failed); warnings and discards (a safety trip, the end of a sweep)
+    /// unless their category was switched off; other messages only when debug logging is on
+    /// and enables their category.
     pub fn log(&self, status: fmi2Status, category: Category, message: &str) {
-        let always = matches!(status, fmi2Status::fmi2Error | fmi2Status::fmi2Fatal);
         let category = if category == Category::Events {
             Category::for_status(status)
         } else {
             category
         };
-        if !(always || self.enabled(category)) {
+        let category_on = self.enabled & (1 << category as u32) != 0;
+        let pass = match status {
+            fmi2Status::fmi2Error | fmi2Status::fmi2Fatal => true,
+            fmi2Status::fmi2Warning | fmi2Status::fmi2Discard => category_on,
+            _ => self.enabled(category),
+        };
+        if !pass {
             return;
         }
         let Some(callback) = self.callback else {
