@@ -1,0 +1,120 @@
+//! BenchPlant alone over one 2.5 s gait cycle at 1 ms communication steps, driven by recorded
+//! inputs through the C ABI of the packaged FMU: real-time factor, and the max angle error
+//! against a reference run with a 100 times finer internal step (maxInternalStep 1e-5 s).
+//! DA, SEA and CSEA (the CSEA run engages the clutch in stance, gait phase 0.05..0.45).
+//!
+//! Run: `cargo bench -p kneebench-tests --bench plant_abi`
+
+use std::time::Instant;
+
+use kneebench_tests::*;
+
+const H: f64 = 1e-3;
+const STEPS: u64 = 2500;
+const REPEATS: usize = 15;
+
+/// Recorded inputs of one cycle: current set values shaped like the bench gait (test motor
+/// tracking torque, load motor the inverted knee torque), sampled every 1 ms.
+fn recorded_inputs() -> Vec<(f64, f64, bool)> {
+    use kneebench_fmu::models::gait::{ANGLE_SERIES, TORQUE_SERIES, fourier};
+    (0..STEPS)
+        .map(|k| {
+            let t = k as f64 * H;
+            let accel = fourier(&ANGLE_SERIES, t, 2.5).d2 * 60f64.to_radians();
+            let knee_torque = 9.0 * fourier(&TORQUE_SERIES, t, 2.5).value;
+            // Output torque ~ I1*alpha + knee torque; current = torque / (i_HD Km1).
+            let test = (0.825 * accel + knee_torque) / (160.0 * 0.037);
+            let load = -knee_torque / (66.0 * 0.114);
+            let phase = t / 2.5;
+            (
+                test.clamp(-3.0, 3.0),
+                load.clamp(-2.5, 2.5),
+                (0.05..0.45).contains(&phase),
+            )
+        })
+        .collect()
+}
+
+fn run_cycle(
+    f: &Raw,
+    configuration: i32,
+    internal_step: f64,
+    inputs: &[(f64, f64, bool)],
+) -> (f64, Vec<f64>) {
+    let mut i = RawInstance::new(f, "bench", &guid_of("BenchPlant"));
+    // SAFETY: valid component and arrays.
+    unsafe {
+        assert_eq!(
+            (f.set_integer)(i.c, [1u32].as_ptr(), 1, [configuration].as_ptr()),
+            fmi2Status::fmi2OK
+        );
+        assert_eq!(
+            (f.set_real)(i.c, [66u32].as_ptr(), 1, [internal_step].as_ptr()),
+            fmi2Status::fmi2OK
+        );
+    }
+    i.initialize(0.0, None);
+    let clutch = configuration == 2;
+    let mut angles = Vec::with_capacity(2 * STEPS as usize);
+    let vrs_in = [201u32, 203];
+    let vr_clutch = [206u32];
+    let vrs_out = [300u32, 301];
+    let mut out = [0.0; 2];
+    let t0 = Instant::now();
+    for (k, &(test, load, stance)) in inputs.iter().enumerate() {
+        // SAFETY: valid component and arrays.
+        unsafe {
+            (f.set_real)(i.c, vrs_in.as_ptr(), 2, [test, load].as_ptr());
+            (f.set_boolean)(
+                i.c,
+                vr_clutch.as_ptr(),
+                1,
+                [i32::from(clutch && stance)].as_ptr(),
+            );
+            let s = (f.do_step)(i.c, k as f64 * H, H, 1);
+            assert_eq!(s, fmi2Status::fmi2OK, "{}", i.log_text());
+            (f.get_real)(i.c, vrs_out.as_ptr(), 2, out.as_mut_ptr());
+        }
+        angles.extend_from_slice(&out);
+    }
+    (t0.elapsed().as_secs_f64(), angles)
+}
+
+fn main() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus = kneebench_harness::package::export_all(&fmu_library(), dir.path()).unwrap();
+    let plant = fmus.iter().find(|f| f.identifier == "BenchPlant").unwrap();
+    let fmu = kneebench_harness::Fmu::load(&plant.path, &Default::default()).unwrap();
+    let raw = Raw::load(fmu.binary_path());
+    let inputs = recorded_inputs();
+    println!(
+        "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS})"
+    );
+    println!(
+        "{:<6} {:>12} {:>16} {:>22}",
+        "config", "wall [ms]", "x real time", "max angle error [rad]"
+    );
+    for (name, configuration) in [("DA", 0), ("SEA", 1), ("CSEA", 2)] {
+        let (_, reference) = run_cycle(&raw, configuration, 1e-5, &inputs);
+        let mut times = Vec::new();
+        let mut angles = Vec::new();
+        for _ in 0..REPEATS {
+            let (t, a) = run_cycle(&raw, configuration, 1e-3, &inputs);
+            times.push(t);
+            angles = a;
+        }
+        times.sort_by(f64::total_cmp);
+        let wall = times[REPEATS / 2];
+        let error = angles
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        println!(
+            "{name:<6} {:>12.3} {:>16.0} {:>22.2e}",
+            wall * 1e3,
+            2.5 / wall,
+            error
+        );
+    }
+}
