@@ -448,9 +448,12 @@ fn two_instances_and_two_loads_do_not_interfere() {
     c.initialize(0.0, None);
     let mut alone = RawInstance::new(&f, "alone", &gait());
     alone.initialize(0.0, None);
+    // A different FMU in the same process, stepped in between.
+    let mut plant = RawInstance::new(&g, "plant", &guid_of("BenchPlant"));
+    plant.initialize(0.0, None);
     for k in 0..100 {
         let t = k as f64 * 0.01;
-        for i in [&mut a, &mut b, &mut c, &mut alone] {
+        for i in [&mut a, &mut plant, &mut b, &mut c, &mut alone] {
             assert_eq!(i.step(t, 0.01), fmi2OK);
         }
         let (va, vb, vc, v) = (

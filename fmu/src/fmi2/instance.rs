@@ -246,6 +246,9 @@ pub struct Instance<M: Model> {
     dirty: bool,
     /// Strings handed out by the last `fmi2GetString`.
     strings: Vec<CString>,
+    /// Real getters by value reference: the hot path of every communication step, resolved
+    /// once so a get is one table load and one call per value.
+    real_getters: Vec<Option<RealGetter<M>>>,
 }
 
 /// The base-type number of a variable: 0 Real, 1 Integer/Enumeration, 2 Boolean, 3 String.
@@ -275,6 +278,7 @@ impl<M: Model> Instance<M> {
             terminated: false,
             dirty: true,
             strings: Vec::new(),
+            real_getters: real_getter_table::<M>(),
         }
     }
 
@@ -504,6 +508,24 @@ struct Decoded<M> {
     terminated: bool,
 }
 
+/// Reads one Real variable of a model.
+type RealGetter<M> = fn(&M) -> f64;
+
+/// The Real getters of `M` indexed by value reference.
+fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
+    let mut table = Vec::new();
+    for v in M::variables() {
+        if let Access::Real(get, _) = v.access {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize(vr + 1, None);
+            }
+            table[vr] = Some(get);
+        }
+    }
+    table
+}
+
 /// First bytes of every serialized FMU state.
 pub const STATE_MAGIC: &[u8; 8] = b"KNEEBNCH";
 /// Version of the FMU-state byte format; bumped whenever the layout changes.
@@ -628,15 +650,10 @@ impl<M: Model> FmiInstance for Instance<M> {
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
-        let info = self.info;
-        let idx = vrs.iter().map(move |vr| info.find(0, *vr));
-        let vars = M::variables();
-        for (o, i) in out.iter_mut().zip(idx) {
-            let Some(i) = i else {
-                return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error);
-            };
-            if let Access::Real(get, _) = vars[i].access {
-                *o = get(&self.model);
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.real_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = get(&self.model),
+                _ => return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error),
             }
         }
         fmi2OK
