@@ -70,6 +70,14 @@ impl LinearMode {
             | (self.voltage_row[0] as u8) << 2
             | (self.voltage_row[1] as u8) << 3
     }
+
+    /// Inverse of [`Self::key`].
+    pub(crate) fn from_key(key: u8) -> Self {
+        Self {
+            stuck: [key & 1 != 0, key & 2 != 0],
+            voltage_row: [key & 4 != 0, key & 8 != 0],
+        }
+    }
 }
 
 /// The system matrix `M` of the augmented state for `mode`.

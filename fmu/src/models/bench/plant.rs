@@ -138,8 +138,22 @@ pub(crate) struct DynamicState {
 pub struct BenchPlant {
     pub(crate) params: BenchParameters,
     pub(crate) state: DynamicState,
-    matrices: Vec<(u8, AugMatrix, f64)>,
+    /// System matrix and rate scale of every mode, indexed by [`LinearMode::key`].
+    matrices: Box<[(AugMatrix, f64); MODES]>,
     cache: Vec<Discretization>,
+}
+
+/// Number of linear modes (see [`LinearMode::key`]).
+const MODES: usize = 16;
+
+/// `M` and its rate scale for every mode.
+fn all_matrices(params: &BenchParameters) -> Box<[(AugMatrix, f64); MODES]> {
+    let mut out = Box::new([(AugMatrix::zeros(), 0.0); MODES]);
+    for (key, entry) in out.iter_mut().enumerate() {
+        let m = system_matrix(params, LinearMode::from_key(key as u8));
+        *entry = (m, rate_scale(&m));
+    }
+    out
 }
 
 fn sign(x: f64) -> f64 {
@@ -151,6 +165,7 @@ impl BenchPlant {
     pub fn new(params: BenchParameters) -> Result<Self, ParameterError> {
         params.validate()?;
         Ok(Self {
+            matrices: all_matrices(&params),
             params,
             state: DynamicState {
                 time: 0.0,
@@ -165,7 +180,6 @@ impl BenchPlant {
                 last_clamped: false,
                 inputs: BenchInputs::default(),
             },
-            matrices: Vec::new(),
             cache: Vec::new(),
         })
     }
@@ -173,8 +187,8 @@ impl BenchPlant {
     /// Replaces the parameters; they take effect at the next step. The state is kept.
     pub fn set_parameters(&mut self, params: BenchParameters) -> Result<(), ParameterError> {
         params.validate()?;
+        self.matrices = all_matrices(&params);
         self.params = params;
-        self.matrices.clear();
         self.cache.clear();
         Ok(())
     }
@@ -235,15 +249,8 @@ impl BenchPlant {
         StepOutcome::Tripped { interlock, time }
     }
 
-    fn matrix(&mut self, mode: LinearMode) -> (AugMatrix, f64) {
-        let key = mode.key();
-        if let Some((_, m, r)) = self.matrices.iter().find(|(k, _, _)| *k == key) {
-            return (*m, *r);
-        }
-        let m = system_matrix(&self.params, mode);
-        let r = rate_scale(&m);
-        self.matrices.push((key, m, r));
-        (m, r)
+    fn matrix(&self, mode: LinearMode) -> &(AugMatrix, f64) {
+        &self.matrices[mode.key() as usize]
     }
 
     fn discretization(&mut self, mode: LinearMode, h: f64) -> usize {
@@ -251,11 +258,11 @@ impl BenchPlant {
         if let Some(i) = self.cache.iter().position(|d| d.key == key && d.step == h) {
             return i;
         }
-        let (m, _) = self.matrix(mode);
         if self.cache.len() >= CACHE_CAPACITY {
             self.cache.clear();
         }
-        self.cache.push(Discretization::new(&m, key, h));
+        let discretization = Discretization::new(&self.matrix(mode).0, key, h);
+        self.cache.push(discretization);
         self.cache.len() - 1
     }
 
@@ -319,7 +326,7 @@ impl BenchPlant {
     }
 
     /// Builds the held values for the current discrete state and inputs.
-    fn hold(&mut self) -> Held {
+    fn hold(&self) -> Held {
         let inputs = self.state.inputs;
         let p = &self.params;
         let load_torque = self.torque_per_ampere()[1] * self.state.z[CURRENT2];
@@ -664,10 +671,10 @@ impl BenchPlant {
                 if !fired {
                     let sign_change = p0.iter().zip(p1.iter()).any(|(a, b)| a * b < 0.0);
                     let rates = if sign_change {
-                        let (m, _) = self.matrix(held.mode);
+                        let m = &self.matrix(held.mode).0;
                         Some((
-                            self.power_rates(&held, &m, &z0),
-                            self.power_rates(&held, &m, &z1),
+                            self.power_rates(&held, m, &z0),
+                            self.power_rates(&held, m, &z1),
                         ))
                     } else {
                         None
@@ -679,7 +686,7 @@ impl BenchPlant {
                 }
             }
             regular = false;
-            let (m, rate) = self.matrix(held.mode);
+            let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
             let mut segment = TaylorSegment::new(&m, rate, &z0, remaining);
             if speed_dependent {
@@ -975,8 +982,7 @@ impl BenchPlant {
 
     /// Current discrete and continuous values needed for outputs.
     pub(crate) fn held_for_outputs(&self) -> Held {
-        let mut copy = self.clone();
-        let mut held = copy.hold();
+        let mut held = self.hold();
         held.mode.stuck = self.state.stuck;
         for n in 0..2 {
             if held.current_loop[n] && self.state.saturation[n] != 0.0 {
@@ -984,14 +990,14 @@ impl BenchPlant {
                 held.drive[n] = self.state.saturation[n] * self.motor(n).3;
             }
         }
-        copy.set_friction(&mut held, None);
+        self.set_friction(&mut held, None);
         held
     }
 
     /// `z` with the held inputs, and `z' = M z`, `z'' = M^2 z` at the current state.
     pub(crate) fn rates(&self, held: &Held) -> (AugVector, AugVector, AugVector) {
         let z = self.input_state(held);
-        let m = system_matrix(&self.params, held.mode);
+        let m = &self.matrix(held.mode).0;
         let v = super::mechanics::to_vector(&z);
         let d1 = m * v;
         let d2 = m * d1;
