@@ -362,12 +362,15 @@ impl Signal {
         if n == 0 {
             return 0.0;
         }
+        // Sample times written as decimals (0.001*k) and grid times computed from integer
+        // ticks may differ in the last bit: a sample within this tolerance of t counts as at t.
+        let tolerance = 1e-9 * t.abs().max(1.0);
         // Index of the first sample with time > t.
-        let i = self.times.partition_point(|&x| x <= t);
+        let i = self.times.partition_point(|&x| x <= t + tolerance);
         if i == 0 {
             return self.values[0];
         }
-        if i == n || !self.interpolate {
+        if i == n || !self.interpolate || (t - self.times[i - 1]).abs() <= tolerance {
             return self.values[i - 1];
         }
         let (t0, t1) = (self.times[i - 1], self.times[i]);
@@ -1227,5 +1230,27 @@ impl Run<'_> {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Signal;
+
+    #[test]
+    fn a_sample_one_ulp_after_the_grid_time_counts_as_at_it() {
+        // 0.001 * 9 is 0.009000000000000001, the grid time 9/1000 is 0.009 (1 ulp less).
+        let t_grid = 9.0 / 1000.0;
+        let t_sample = 0.001 * 9.0;
+        assert!(t_sample > t_grid);
+        for interpolate in [false, true] {
+            let s = Signal {
+                times: vec![0.0, 0.002, t_sample, 0.01],
+                values: vec![0.0, 2.0, 9.0, 10.0],
+                interpolate,
+            };
+            assert_eq!(s.at(t_grid), 9.0, "interpolate = {interpolate}");
+            assert_eq!(s.at(0.001), if interpolate { 1.0 } else { 0.0 });
+        }
     }
 }
