@@ -458,7 +458,7 @@ fn square(phi: &Square) -> Square {
 }
 
 /// Largest number of Taylor terms per piece.
-const MAX_TERMS: usize = 48;
+pub(crate) const MAX_TERMS: usize = 48;
 
 /// One piece of a Taylor-expanded segment: `z(start + s len) = sum_n s^n coefficients[n]`.
 #[derive(Debug, Clone)]
@@ -481,6 +481,7 @@ impl Piece {
     }
 
     /// Polynomial (in s) of component `index`.
+    #[cfg(test)]
     pub(crate) fn component(&self, index: usize) -> Vec<f64> {
         self.coefficients[..self.terms]
             .iter()
@@ -501,15 +502,16 @@ impl TaylorSegment {
         'retry: loop {
             let pieces_wanted = count;
             let len = duration / pieces_wanted as f64;
-            let mut pieces = Vec::with_capacity(pieces_wanted);
+            let mut pieces: Vec<Piece> = Vec::with_capacity(pieces_wanted);
             let mut z = *z0;
             for p in 0..pieces_wanted {
-                let mut piece = Piece {
+                pieces.push(Piece {
                     start: p as f64 * len,
                     len,
                     terms: 1,
                     coefficients: [[0.0; NZ]; MAX_TERMS],
-                };
+                });
+                let piece = pieces.last_mut().expect("just pushed");
                 piece.coefficients[0] = z;
                 let scale = z.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
                 let mut small_in_a_row = 0;
@@ -517,7 +519,7 @@ impl TaylorSegment {
                 for n in 1..MAX_TERMS {
                     let prev = piece.coefficients[n - 1];
                     let mut next = [0.0; NZ];
-                    for (r, v) in next.iter_mut().enumerate() {
+                    for (r, v) in next.iter_mut().enumerate().take(STATE_ROWS) {
                         let mut acc = 0.0;
                         for (c, pv) in prev.iter().enumerate() {
                             acc += m[(r, c)] * pv;
@@ -542,7 +544,6 @@ impl TaylorSegment {
                     continue 'retry;
                 }
                 z = piece.eval(1.0);
-                pieces.push(piece);
             }
             return Self { pieces };
         }
@@ -568,6 +569,7 @@ impl TaylorSegment {
 }
 
 /// Coefficients of the product of two polynomials.
+#[cfg(test)]
 pub(crate) fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
     let mut out = vec![0.0; a.len() + b.len() - 1];
     for (i, x) in a.iter().enumerate() {
@@ -596,19 +598,6 @@ pub(crate) fn poly_integral(p: &[f64], s0: f64, s1: f64) -> f64 {
 /// Value of a polynomial at `s`.
 pub(crate) fn poly_eval(p: &[f64], s: f64) -> f64 {
     p.iter().rev().fold(0.0, |acc, c| acc * s + c)
-}
-
-/// Linear combination of polynomials `sum_k w_k p_k` plus a constant.
-pub(crate) fn poly_combine(parts: &[(f64, &[f64])], constant: f64) -> Vec<f64> {
-    let len = parts.iter().map(|(_, p)| p.len()).max().unwrap_or(1).max(1);
-    let mut out = vec![0.0; len];
-    out[0] = constant;
-    for (w, p) in parts {
-        for (o, c) in out.iter_mut().zip(p.iter()) {
-            *o += w * c;
-        }
-    }
-    out
 }
 
 /// Converts a state slice to the fixed array type.

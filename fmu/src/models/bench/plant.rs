@@ -3,8 +3,8 @@
 use super::friction::{Side, SideLaw};
 use super::mechanics::{
     AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization, FRICTION1, FRICTION2,
-    LinearMode, OMEGA1, OMEGA2, SegmentIntegrals, THETA1, THETA2, TaylorSegment, poly_combine,
-    poly_eval, poly_integral, poly_mul, rate_scale, system_matrix,
+    LinearMode, MAX_TERMS, OMEGA1, OMEGA2, SegmentIntegrals, THETA1, THETA2, TaylorSegment,
+    poly_eval, poly_integral, rate_scale, system_matrix,
 };
 use super::{
     BenchInputs, BenchParameters, DriverMode, InputError, Interlock, ParameterError, StepOutcome,
@@ -757,24 +757,28 @@ impl BenchPlant {
     ) -> Option<(f64, Event)> {
         let mut best: Option<(f64, Event)> = None;
         let z0 = segment.state_at(0.0);
+        let ends: Vec<(f64, AugVector)> = segment
+            .piece_ends()
+            .map(|b| (b, segment.state_at(b)))
+            .collect();
         for &event in events {
             let mut a = 0.0;
             let mut ga = self.event_value(held, event, &z0).min(0.0);
-            for b in segment.piece_ends() {
+            for (b, zb) in &ends {
                 if let Some((t, _)) = best
                     && a >= t
                 {
                     break;
                 }
-                let gb = self.event_value(held, event, &segment.state_at(b));
+                let gb = self.event_value(held, event, zb);
                 if gb > 0.0 {
-                    let root = self.locate_root(held, event, segment, (a, ga), (b, gb));
+                    let root = self.locate_root(held, event, segment, (a, ga), (*b, gb));
                     if best.is_none_or(|(t, _)| root < t) {
                         best = Some((root, event));
                     }
                     break;
                 }
-                a = b;
+                a = *b;
                 ga = gb;
             }
         }
@@ -931,6 +935,8 @@ impl BenchPlant {
     }
 
     /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes.
+    /// Per piece the six products (`w^2`, `i^2`, `i w` per side) are formed once; the powers are
+    /// linear in them (`V i = a i^2 + b w i + c i` with the driver's affine voltage law).
     fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
         let tpa = self.torque_per_ampere();
         let mut signed = [0.0; 5];
@@ -939,45 +945,81 @@ impl BenchPlant {
         let mut copper = [0.0; 2];
         let mut emf = [0.0; 2];
         let constant = self.constant_power(held);
+        let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
         for piece in &segment.pieces {
             if piece.start >= stop {
                 break;
             }
             let s_end = ((stop - piece.start) / piece.len).min(1.0);
-            let w = [piece.component(OMEGA1), piece.component(OMEGA2)];
-            let i = [piece.component(CURRENT1), piece.component(CURRENT2)];
-            let mut voltage: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
-            for n in 0..2 {
-                voltage[n] = if held.mode.voltage_row[n] {
-                    vec![held.drive[n]]
-                } else {
-                    let (r, l, ke, _, _) = self.motor(n);
-                    let gain = l / self.params.current_loop_time_constant;
-                    poly_combine(&[(r - gain, &i[n]), (ke, &w[n])], gain * held.reference[n])
-                };
+            let n = piece.terms;
+            let degree = 2 * n - 1;
+            // weights[k] = integral_0^s_end s^k ds
+            let mut weights = [0.0; 2 * MAX_TERMS];
+            let mut power = s_end;
+            for (k, weight) in weights[..degree].iter_mut().enumerate() {
+                *weight = power / (k + 1) as f64;
+                power *= s_end;
             }
-            let wi = [poly_mul(&i[0], &w[0]), poly_mul(&i[1], &w[1])];
-            let el = [poly_mul(&voltage[0], &i[0]), poly_mul(&voltage[1], &i[1])];
-            let powers = [
-                poly_combine(&[(tpa[0], &wi[0])], 0.0),
-                poly_combine(&[(tpa[1], &wi[1])], 0.0),
-                el[0].clone(),
-                el[1].clone(),
-                poly_combine(&[(1.0, &el[0]), (1.0, &el[1])], constant),
-            ];
+            let integral = |p: &[f64]| -> f64 {
+                p.iter()
+                    .zip(weights.iter())
+                    .map(|(c, w)| c * w)
+                    .sum::<f64>()
+            };
+            let mut w = [[0.0; MAX_TERMS]; 2];
+            let mut i = [[0.0; MAX_TERMS]; 2];
+            for (k, c) in piece.coefficients[..n].iter().enumerate() {
+                w[0][k] = c[OMEGA1];
+                w[1][k] = c[OMEGA2];
+                i[0][k] = c[CURRENT1];
+                i[1][k] = c[CURRENT2];
+            }
+            let mut ww = [[0.0; 2 * MAX_TERMS]; 2];
+            let mut ii = [[0.0; 2 * MAX_TERMS]; 2];
+            let mut wi = [[0.0; 2 * MAX_TERMS]; 2];
+            for j in 0..2 {
+                product_into(&w[j][..n], &w[j][..n], &mut ww[j]);
+                product_into(&i[j][..n], &i[j][..n], &mut ii[j]);
+                product_into(&i[j][..n], &w[j][..n], &mut wi[j]);
+            }
+            let mut powers = [[0.0; 2 * MAX_TERMS]; 5];
+            for k in 0..degree {
+                let linear = |j: usize| if k < n { i[j][k] } else { 0.0 };
+                let el0 = law[0].0 * ii[0][k] + law[0].1 * wi[0][k] + law[0].2 * linear(0);
+                let el1 = law[1].0 * ii[1][k] + law[1].1 * wi[1][k] + law[1].2 * linear(1);
+                powers[0][k] = tpa[0] * wi[0][k];
+                powers[1][k] = tpa[1] * wi[1][k];
+                powers[2][k] = el0;
+                powers[3][k] = el1;
+                powers[4][k] = el0 + el1;
+            }
+            powers[4][0] += constant;
             for k in 0..5 {
-                signed[k] += piece.len * poly_integral(&powers[k], 0.0, s_end);
-                positive[k] += piece.len * positive_integral(&powers[k], s_end);
+                let p = &powers[k][..degree];
+                let part = integral(p);
+                signed[k] += piece.len * part;
+                positive[k] += piece.len * positive_part(p, s_end, part);
             }
             for j in 0..2 {
-                squares[j] += piece.len * poly_integral(&poly_mul(&w[j], &w[j]), 0.0, s_end);
-                copper[j] += piece.len * poly_integral(&poly_mul(&i[j], &i[j]), 0.0, s_end);
-                emf[j] += piece.len * poly_integral(&wi[j], 0.0, s_end);
+                squares[j] += piece.len * integral(&ww[j][..degree]);
+                copper[j] += piece.len * integral(&ii[j][..degree]);
+                emf[j] += piece.len * integral(&wi[j][..degree]);
             }
         }
         let z0 = segment.state_at(0.0);
         let z1 = segment.state_at(stop);
         self.add_energy(held, &z0, &z1, signed, positive, squares, copper, emf, stop);
+    }
+
+    /// Armature voltage of motor `n` as `a i + b w + c` for the held mode.
+    fn voltage_law(&self, held: &Held, n: usize) -> (f64, f64, f64) {
+        if held.mode.voltage_row[n] {
+            (0.0, 0.0, held.drive[n])
+        } else {
+            let (r, l, ke, _, _) = self.motor(n);
+            let gain = l / self.params.current_loop_time_constant;
+            (r - gain, ke, gain * held.reference[n])
+        }
     }
 
     /// Current discrete and continuous values needed for outputs.
@@ -1046,6 +1088,37 @@ fn hermite_positive_part(p0: f64, p1: f64, m0: f64, m1: f64, signed: f64, h: f64
     let model_total = h * (0.5 * (p0 + p1) + (m0 - m1) / 12.0);
     let fraction = positive_samples as f64 / SAMPLES as f64;
     (h * positive / SAMPLES as f64 + (signed - model_total) * fraction).max(0.0)
+}
+
+/// `integral_0^{s_end} max(p(s), 0) ds` given the signed integral `signed`: when
+/// `|p(0)|` exceeds the bound `sum_k>0 |p_k| s_end^k` on the change over the piece the sign is
+/// fixed, else [`positive_integral`].
+fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
+    let mut bound = 0.0;
+    let mut power = 1.0;
+    for c in &p[1..] {
+        power *= s_end;
+        bound += c.abs() * power;
+    }
+    let start = p[0];
+    if start.abs() > bound * (1.0 + 1e-12) || bound == 0.0 {
+        if start > 0.0 { signed } else { 0.0 }
+    } else {
+        positive_integral(p, s_end)
+    }
+}
+
+/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
+fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
+    out[..a.len() + b.len() - 1].fill(0.0);
+    for (k, x) in a.iter().enumerate() {
+        if *x == 0.0 {
+            continue;
+        }
+        for (o, y) in out[k..k + b.len()].iter_mut().zip(b) {
+            *o += x * y;
+        }
+    }
 }
 
 /// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan
