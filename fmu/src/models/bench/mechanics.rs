@@ -16,7 +16,9 @@
 //! rounding and gives the state at any instant cheaply, which is what event location needs.
 
 use super::BenchParameters;
-use nalgebra::{SMatrix, SVector};
+use nalgebra::SMatrix;
+#[cfg(test)]
+use nalgebra::SVector;
 
 pub(crate) const THETA1: usize = 0;
 pub(crate) const THETA2: usize = 1;
@@ -153,25 +155,12 @@ pub(crate) fn rate_scale(m: &AugMatrix) -> f64 {
 pub(crate) struct Discretization {
     pub key: u8,
     pub step: f64,
-    /// Rows 0..6 of `exp(M h)`.
-    pub transition: [[f64; NZ]; 6],
-    /// Rows of `integral_0^h exp(M t) dt` for the two currents.
-    pub current_integrals: [[f64; NZ]; 2],
-    /// Packed Gramians: `integral z_a z_b dt = sum_k gram[k] * packed(z0)[k]`.
-    pub gramians: [[f64; NPACK]; 6],
-}
-
-/// Packed upper-triangle products `z_i z_j`, `i <= j`.
-pub(crate) fn packed_products(z: &AugVector) -> [f64; NPACK] {
-    let mut out = [0.0; NPACK];
-    let mut k = 0;
-    for i in 0..NZ {
-        for j in i..NZ {
-            out[k] = z[i] * z[j];
-            k += 1;
-        }
-    }
-    out
+    /// By column `c`: rows 0..6 of `exp(M h)` and the rows of `integral_0^h exp(M t) dt` for
+    /// the two currents (the hot loop runs over the columns with eight independent sums).
+    columns: [[f64; 8]; NZ],
+    /// Packed Gramians by packed index `k`: `integral z_a z_b dt = sum_k g[k][ab] z_i z_j`
+    /// over the upper triangle `i <= j` (six products of [`PRODUCTS`] per entry).
+    packed_columns: [[f64; 6]; NPACK],
 }
 
 /// Gauss-Legendre nodes and weights on `[0, 1]` (8 points; exact for degree 15).
@@ -300,36 +289,117 @@ impl Discretization {
                 }
             }
         }
+        Self::from_parts(key, h, transition, current_integrals, gramians)
+    }
+
+    pub(crate) fn from_parts(
+        key: u8,
+        step: f64,
+        transition: [[f64; NZ]; 6],
+        current_integrals: [[f64; NZ]; 2],
+        gramians: [[f64; NPACK]; 6],
+    ) -> Self {
+        let mut columns = [[0.0; 8]; NZ];
+        for (c, column) in columns.iter_mut().enumerate() {
+            for (r, row) in transition
+                .iter()
+                .chain(current_integrals.iter())
+                .enumerate()
+            {
+                column[r] = row[c];
+            }
+        }
+        let mut packed_columns = [[0.0; 6]; NPACK];
+        for (k, column) in packed_columns.iter_mut().enumerate() {
+            for (q, g) in gramians.iter().enumerate() {
+                column[q] = g[k];
+            }
+        }
         Self {
             key,
-            step: h,
-            transition,
-            current_integrals,
-            gramians,
+            step,
+            columns,
+            packed_columns,
         }
+    }
+
+    /// Rows 0..6 of `exp(M h)`.
+    #[cfg(test)]
+    pub(crate) fn transition(&self) -> [[f64; NZ]; 6] {
+        let mut out = [[0.0; NZ]; 6];
+        for (c, column) in self.columns.iter().enumerate() {
+            for (r, row) in out.iter_mut().enumerate() {
+                row[c] = column[r];
+            }
+        }
+        out
+    }
+
+    /// Rows of `integral_0^h exp(M t) dt` for the two currents.
+    #[cfg(test)]
+    pub(crate) fn current_integrals(&self) -> [[f64; NZ]; 2] {
+        let mut out = [[0.0; NZ]; 2];
+        for (c, column) in self.columns.iter().enumerate() {
+            for (r, row) in out.iter_mut().enumerate() {
+                row[c] = column[6 + r];
+            }
+        }
+        out
+    }
+
+    /// Packed Gramians, one row per product.
+    #[cfg(test)]
+    pub(crate) fn gramians(&self) -> [[f64; NPACK]; 6] {
+        let mut out = [[0.0; NPACK]; 6];
+        for (k, column) in self.packed_columns.iter().enumerate() {
+            for (q, row) in out.iter_mut().enumerate() {
+                row[k] = column[q];
+            }
+        }
+        out
+    }
+
+    /// Rows 0..6 of `exp(M h) z` and the two current integrals.
+    fn apply(&self, z: &AugVector) -> [f64; 8] {
+        let mut out = [0.0; 8];
+        for (column, v) in self.columns.iter().zip(z.iter()) {
+            for (o, c) in out.iter_mut().zip(column.iter()) {
+                *o += c * v;
+            }
+        }
+        out
     }
 
     /// State at the end of the step.
     pub(crate) fn advance(&self, z: &AugVector) -> AugVector {
         let mut out = *z;
-        for (r, row) in self.transition.iter().enumerate() {
-            out[r] = row.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
-        }
+        out[..6].copy_from_slice(&self.apply(z)[..6]);
         out
     }
 
     /// Integrals over the step starting at `z`.
     pub(crate) fn integrals(&self, z: &AugVector) -> SegmentIntegrals {
-        let packed = packed_products(z);
         let mut products = [0.0; 6];
-        for (p, g) in products.iter_mut().zip(self.gramians.iter()) {
-            *p = g.iter().zip(packed.iter()).map(|(a, b)| a * b).sum();
+        let mut k = 0;
+        for i in 0..NZ {
+            let zi = z[i];
+            if zi == 0.0 {
+                k += NZ - i;
+                continue;
+            }
+            for zj in &z[i..] {
+                let x = zi * zj;
+                for (p, g) in products.iter_mut().zip(self.packed_columns[k].iter()) {
+                    *p += g * x;
+                }
+                k += 1;
+            }
         }
-        let dot = |row: &[f64; NZ]| row.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
+        let applied = self.apply(z);
         SegmentIntegrals {
             products,
-            current1: dot(&self.current_integrals[0]),
-            current2: dot(&self.current_integrals[1]),
+            current1: applied[6],
+            current2: applied[7],
         }
     }
 }
@@ -601,6 +671,7 @@ pub(crate) fn poly_eval(p: &[f64], s: f64) -> f64 {
 }
 
 /// Converts a state slice to the fixed array type.
+#[cfg(test)]
 pub(crate) fn to_vector(z: &AugVector) -> SVector<f64, NZ> {
     SVector::<f64, NZ>::from_column_slice(z)
 }
@@ -708,13 +779,7 @@ mod reference_tests {
                 }
             }
         }
-        Discretization {
-            key: 0,
-            step: h,
-            transition,
-            current_integrals,
-            gramians,
-        }
+        Discretization::from_parts(0, h, transition, current_integrals, gramians)
     }
 
     fn worst(a: &[f64], b: &[f64]) -> f64 {
@@ -751,16 +816,16 @@ mod reference_tests {
                         let slow = van_loan(&m, h);
                         let mut error = 0.0f64;
                         for r in 0..6 {
-                            error = error.max(worst(&fast.transition[r], &slow.transition[r]));
+                            error = error.max(worst(&fast.transition()[r], &slow.transition()[r]));
                         }
                         for r in 0..2 {
                             error = error.max(worst(
-                                &fast.current_integrals[r],
-                                &slow.current_integrals[r],
+                                &fast.current_integrals()[r],
+                                &slow.current_integrals()[r],
                             ));
                         }
                         for g in 0..6 {
-                            error = error.max(worst(&fast.gramians[g], &slow.gramians[g]));
+                            error = error.max(worst(&fast.gramians()[g], &slow.gramians()[g]));
                         }
                         assert!(
                             error < 1e-12,

@@ -218,7 +218,7 @@ impl BenchPlant {
     pub fn outputs(&self) -> BenchOutputs {
         let p = &self.params;
         let held = self.held_for_outputs();
-        let (z, rate, _) = self.rates(&held);
+        let (z, rate) = self.rates(&held);
         let k = p.coupling_stiffness();
         let tpa = self.output_torque_per_ampere();
         let powers = self.powers_at(&held, &z);
@@ -252,18 +252,19 @@ impl BenchPlant {
         );
         let moment = p.calibration_pendulum_moment;
         let test_output_torque = tpa[0] * z[CURRENT1];
-        let load_cell_voltage = sensors::calibrated_sensor_voltage(
+        let phases = self.sensor_phases();
+        let load_cell_voltage = sensors::calibrated_sensor_voltage_at_phase(
             test_output_torque,
             p.load_cell_offset,
             p.load_cell_gain,
-            p.load_cell_phase,
+            phases[0],
             moment,
         );
-        let transducer_voltage = sensors::calibrated_sensor_voltage(
+        let transducer_voltage = sensors::calibrated_sensor_voltage_at_phase(
             spring_torque,
             p.transducer_offset,
             p.transducer_gain,
-            p.transducer_phase,
+            phases[1],
             moment,
         );
         let e = &self.state.energy;
@@ -369,7 +370,8 @@ impl BenchPlant {
     pub fn output_derivatives(&self) -> BenchOutputDerivatives {
         let p = &self.params;
         let held = self.held_for_outputs();
-        let (z, rate, jerk) = self.rates(&held);
+        let (z, rate) = self.rates(&held);
+        let jerk = self.apply_matrix(&held, &rate);
         let k = p.coupling_stiffness();
         let tpa = self.output_torque_per_ampere();
         let powers = self.powers_at(&held, &z);

@@ -3,7 +3,7 @@
 use super::friction::{Side, SideLaw};
 use super::mechanics::{
     AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization, FRICTION1, FRICTION2,
-    LinearMode, MAX_TERMS, OMEGA1, OMEGA2, SegmentIntegrals, THETA1, THETA2, TaylorSegment,
+    LinearMode, MAX_TERMS, NZ, OMEGA1, OMEGA2, SegmentIntegrals, THETA1, THETA2, TaylorSegment,
     poly_eval, poly_integral, rate_scale, system_matrix,
 };
 use super::{
@@ -140,7 +140,57 @@ pub struct BenchPlant {
     pub(crate) state: DynamicState,
     /// System matrix and rate scale of every mode, indexed by [`LinearMode::key`].
     matrices: Box<[(AugMatrix, f64); MODES]>,
+    derived: Derived,
     cache: Vec<Discretization>,
+}
+
+/// Products of parameters used in every step (same expressions as where they are used).
+#[derive(Debug, Clone, Copy)]
+struct Derived {
+    /// Output-side torque per ampere of each motor.
+    torque_per_ampere: [f64; 2],
+    /// (R, L, Ke*G, supply, current limit) per motor.
+    motors: [(f64, f64, f64, f64, f64); 2],
+    /// Current-loop voltage gain `L / tau_c` per motor.
+    loop_gain: [f64; 2],
+    /// (sin, cos) of the calibration phase of the load cell and of the transducer.
+    sensor_phases: [(f64, f64); 2],
+}
+
+impl Derived {
+    fn of(p: &BenchParameters) -> Self {
+        let motors = [
+            (
+                p.test_motor_resistance,
+                p.test_motor_inductance,
+                p.test_motor_back_emf_constant * p.harmonic_drive_ratio,
+                p.test_supply_voltage,
+                p.test_current_limit,
+            ),
+            (
+                p.load_motor_resistance,
+                p.load_motor_inductance,
+                p.load_motor_back_emf_constant * p.reduction_ratio,
+                p.load_supply_voltage,
+                p.load_current_limit,
+            ),
+        ];
+        Self {
+            torque_per_ampere: [
+                p.harmonic_drive_ratio * p.test_motor_torque_constant,
+                p.reduction_ratio * p.load_motor_torque_constant,
+            ],
+            motors,
+            loop_gain: [
+                motors[0].1 / p.current_loop_time_constant,
+                motors[1].1 / p.current_loop_time_constant,
+            ],
+            sensor_phases: [
+                (p.load_cell_phase.sin(), p.load_cell_phase.cos()),
+                (p.transducer_phase.sin(), p.transducer_phase.cos()),
+            ],
+        }
+    }
 }
 
 /// Number of linear modes (see [`LinearMode::key`]).
@@ -156,6 +206,19 @@ fn all_matrices(params: &BenchParameters) -> Box<[(AugMatrix, f64); MODES]> {
     out
 }
 
+/// `M z` (the rows of the held inputs are zero).
+fn multiply(m: &AugMatrix, z: &AugVector) -> AugVector {
+    let mut out = [0.0; NZ];
+    for (r, o) in out.iter_mut().enumerate().take(6) {
+        let mut acc = m[(r, 0)] * z[0];
+        for (c, v) in z.iter().enumerate().skip(1) {
+            acc += m[(r, c)] * v;
+        }
+        *o = acc;
+    }
+    out
+}
+
 fn sign(x: f64) -> f64 {
     if x >= 0.0 { 1.0 } else { -1.0 }
 }
@@ -166,6 +229,7 @@ impl BenchPlant {
         params.validate()?;
         Ok(Self {
             matrices: all_matrices(&params),
+            derived: Derived::of(&params),
             params,
             state: DynamicState {
                 time: 0.0,
@@ -188,6 +252,7 @@ impl BenchPlant {
     pub fn set_parameters(&mut self, params: BenchParameters) -> Result<(), ParameterError> {
         params.validate()?;
         self.matrices = all_matrices(&params);
+        self.derived = Derived::of(&params);
         self.params = params;
         self.cache.clear();
         Ok(())
@@ -268,40 +333,19 @@ impl BenchPlant {
 
     /// Output-side torque of each motor per ampere.
     fn torque_per_ampere(&self) -> [f64; 2] {
-        let p = &self.params;
-        [
-            p.harmonic_drive_ratio * p.test_motor_torque_constant,
-            p.reduction_ratio * p.load_motor_torque_constant,
-        ]
+        self.derived.torque_per_ampere
     }
 
-    /// (R, L, Ke*G, supply, current limit, driver mode, command, enable) per motor.
+    /// (R, L, Ke*G, supply, current limit) per motor.
     fn motor(&self, n: usize) -> (f64, f64, f64, f64, f64) {
-        let p = &self.params;
-        if n == 0 {
-            (
-                p.test_motor_resistance,
-                p.test_motor_inductance,
-                p.test_motor_back_emf_constant * p.harmonic_drive_ratio,
-                p.test_supply_voltage,
-                p.test_current_limit,
-            )
-        } else {
-            (
-                p.load_motor_resistance,
-                p.load_motor_inductance,
-                p.load_motor_back_emf_constant * p.reduction_ratio,
-                p.load_supply_voltage,
-                p.load_current_limit,
-            )
-        }
+        self.derived.motors[n]
     }
 
     /// Voltage the current loop of motor `n` asks for at state `z`.
     fn voltage_demand(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
-        let (r, l, ke, _, _) = self.motor(n);
+        let (r, _, ke, _, _) = self.motor(n);
         let (i, w) = (z[CURRENT1 + n], z[OMEGA1 + n]);
-        r * i + ke * w + l / self.params.current_loop_time_constant * (held.reference[n] - i)
+        r * i + ke * w + self.derived.loop_gain[n] * (held.reference[n] - i)
     }
 
     /// Armature voltage applied to motor `n` at state `z`.
@@ -596,7 +640,7 @@ impl BenchPlant {
 
     /// Time derivatives of the five reported powers at `z` (constant inputs).
     fn power_rates(&self, held: &Held, m: &AugMatrix, z: &AugVector) -> [f64; 5] {
-        let dz = m * super::mechanics::to_vector(z);
+        let dz = multiply(m, z);
         let tpa = self.torque_per_ampere();
         let mut electrical = [0.0; 2];
         for (n, e) in electrical.iter_mut().enumerate() {
@@ -605,8 +649,8 @@ impl BenchPlant {
             let voltage_rate = if held.mode.voltage_row[n] {
                 0.0
             } else {
-                let (r, l, ke, _, _) = self.motor(n);
-                let gain = l / self.params.current_loop_time_constant;
+                let (r, _, ke, _, _) = self.motor(n);
+                let gain = self.derived.loop_gain[n];
                 (r - gain) * dz[current] + ke * dz[omega]
             };
             *e = voltage_rate * z[current] + voltage * dz[current];
@@ -849,8 +893,8 @@ impl BenchPlant {
             *e = if held.mode.voltage_row[n] {
                 held.drive[n] * current_integral
             } else {
-                let (r, l, ke, _, _) = self.motor(n);
-                let gain = l / self.params.current_loop_time_constant;
+                let (r, _, ke, _, _) = self.motor(n);
+                let gain = self.derived.loop_gain[n];
                 (r - gain) * integrals.products[2 + n]
                     + ke * integrals.products[4 + n]
                     + gain * held.reference[n] * current_integral
@@ -1016,8 +1060,8 @@ impl BenchPlant {
         if held.mode.voltage_row[n] {
             (0.0, 0.0, held.drive[n])
         } else {
-            let (r, l, ke, _, _) = self.motor(n);
-            let gain = l / self.params.current_loop_time_constant;
+            let (r, _, ke, _, _) = self.motor(n);
+            let gain = self.derived.loop_gain[n];
             (r - gain, ke, gain * held.reference[n])
         }
     }
@@ -1036,20 +1080,16 @@ impl BenchPlant {
         held
     }
 
-    /// `z` with the held inputs, and `z' = M z`, `z'' = M^2 z` at the current state.
-    pub(crate) fn rates(&self, held: &Held) -> (AugVector, AugVector, AugVector) {
+    /// `z` with the held inputs and `z' = M z` at the current state.
+    pub(crate) fn rates(&self, held: &Held) -> (AugVector, AugVector) {
         let z = self.input_state(held);
-        let m = &self.matrix(held.mode).0;
-        let v = super::mechanics::to_vector(&z);
-        let d1 = m * v;
-        let d2 = m * d1;
-        let mut a = [0.0; 10];
-        let mut b = [0.0; 10];
-        for k in 0..10 {
-            a[k] = d1[k];
-            b[k] = d2[k];
-        }
-        (z, a, b)
+        let rate = multiply(&self.matrix(held.mode).0, &z);
+        (z, rate)
+    }
+
+    /// `M v` for the held mode.
+    pub(crate) fn apply_matrix(&self, held: &Held, v: &AugVector) -> AugVector {
+        multiply(&self.matrix(held.mode).0, v)
     }
 
     pub(crate) fn powers_at(&self, held: &Held, z: &AugVector) -> [f64; 5] {
@@ -1058,6 +1098,11 @@ impl BenchPlant {
 
     pub(crate) fn armature_voltage_at(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
         self.armature_voltage(held, n, z)
+    }
+
+    /// (sin, cos) of the calibration phases of the load cell and of the transducer.
+    pub(crate) fn sensor_phases(&self) -> [(f64, f64); 2] {
+        self.derived.sensor_phases
     }
 
     pub(crate) fn output_torque_per_ampere(&self) -> [f64; 2] {

@@ -26,9 +26,22 @@ pub(crate) fn encoder(theta: f64, ratio: f64, counts_per_rev: f64) -> (f64, f64)
     (counts, counts / per_radian)
 }
 
-/// Raw voltage of a pendulum-calibrated torque sensor for torque `torque`.
+/// Raw voltage of a pendulum-calibrated torque sensor for torque `torque`, phase `c`.
+#[cfg(test)]
 pub(crate) fn calibrated_sensor_voltage(torque: f64, a: f64, b: f64, c: f64, moment: f64) -> f64 {
-    a + b * c.sin() + b * c.cos() * torque / moment
+    calibrated_sensor_voltage_at_phase(torque, a, b, (c.sin(), c.cos()), moment)
+}
+
+/// Raw voltage of a pendulum-calibrated torque sensor for torque `torque`, with the
+/// calibration phase `c` given as `(sin c, cos c)`.
+pub(crate) fn calibrated_sensor_voltage_at_phase(
+    torque: f64,
+    a: f64,
+    b: f64,
+    (sin_c, cos_c): (f64, f64),
+    moment: f64,
+) -> f64 {
+    a + b * sin_c + b * cos_c * torque / moment
 }
 
 /// The bench's published conversion back to torque, `T = (m g Lg / b)(V - a)`.
