@@ -39,6 +39,7 @@ pub mod fmi2;
 pub mod instance;
 pub mod load;
 pub mod master;
+pub mod metrics;
 pub mod package;
 pub mod results;
 pub mod ssp;

@@ -1,0 +1,69 @@
+//! `kneebench metrics`: step-response quality and tracking error of recorded signals.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use kneebench_harness::Results;
+use kneebench_harness::metrics::{step_metrics, tracking_error};
+
+/// Arguments of `kneebench metrics`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  kneebench metrics step.csv --signal plant.actuationAngle --target 0.5 --from 1.0
+  kneebench metrics gait.csv --signal plant.actuationAngle --reference gait.kneeAngleReference
+
+With --target (or neither option), the signal is treated as a step response starting at
+--from: rise time to 90 %, settling time in a 5 % band, overshoot and peak time (the bench
+study's measures). With --reference, the RMS and maximum tracking error against that signal.")]
+pub struct Args {
+    /// Results CSV (first column time).
+    pub results: PathBuf,
+    /// The response signal (column name).
+    #[arg(long)]
+    pub signal: String,
+    /// The reference signal to compute the tracking error against.
+    #[arg(long, conflicts_with = "target")]
+    pub reference: Option<String>,
+    /// The step's target value (default: the last sample).
+    #[arg(long)]
+    pub target: Option<f64>,
+    /// Time of the step; earlier rows are ignored [s].
+    #[arg(long, default_value_t = 0.0)]
+    pub from: f64,
+}
+
+/// Runs `kneebench metrics`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let results = Results::read_csv_file(&a.results)?;
+    let column = |name: &str| {
+        results
+            .column(name)
+            .with_context(|| format!("no column '{name}' in {}", a.results.display()))
+    };
+    let times = results.times();
+    let keep: Vec<usize> = (0..times.len()).filter(|&i| times[i] >= a.from).collect();
+    if keep.len() < 2 {
+        bail!("fewer than two rows at or after t = {}", a.from);
+    }
+    let pick = |v: &[f64]| keep.iter().map(|&i| v[i]).collect::<Vec<f64>>();
+    let signal = pick(&column(&a.signal)?);
+    if let Some(reference) = &a.reference {
+        let reference = pick(&column(reference)?);
+        let (rms, max) = tracking_error(&reference, &signal)?;
+        println!("tracking error of {} (from t = {}):", a.signal, a.from);
+        println!("  RMS  {rms:.6e}");
+        println!("  max  {max:.6e}");
+        return Ok(super::EXIT_OK);
+    }
+    let m = step_metrics(&pick(&times), &signal, a.target)?;
+    let opt = |v: Option<f64>| v.map_or("not reached".to_string(), |v| format!("{v:.6} s"));
+    println!("step response of {} from t = {}:", a.signal, m.step_time);
+    println!("  initial value   {:.6}", m.initial_value);
+    println!("  final value     {:.6}", m.final_value);
+    println!("  rise time 90 %  {}", opt(m.rise_time));
+    println!("  settling 5 %    {}", opt(m.settling_time));
+    println!("  overshoot       {:.2} %", 100.0 * m.overshoot);
+    println!("  peak time       {:.6} s", m.peak_time);
+    Ok(super::EXIT_OK)
+}

@@ -1,0 +1,66 @@
+//! `kneebench tune`: Ziegler-Nichols starting gains.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use kneebench_harness::Results;
+use kneebench_harness::metrics::{
+    reaction_curve, ziegler_nichols_reaction, ziegler_nichols_ultimate,
+};
+
+/// Arguments of `kneebench tune`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  kneebench tune --ku 8000 --tu 0.12
+  kneebench tune --step-response open-loop.csv --signal plant.actuationAngle --input-step 1.0
+
+Ultimate-gain method: raise a P-only gain until the loop oscillates steadily; that gain is
+Ku, the period Tu: kp = 0.6 Ku, Ti = Tu/2, Td = Tu/8. Reaction-curve method: record the
+open-loop response to an input step of known size applied at the first row; the tangent at
+the steepest point gives the gain K, dead time L and time constant T: kp = 1.2 T/(K L),
+Ti = 2 L, Td = L/2. Both are starting points for manual refinement, as in the bench study.
+Gains are printed in parallel form: u = kp e + ki integral(e) + kd de/dt.")]
+pub struct Args {
+    /// Ultimate gain Ku.
+    #[arg(long, requires = "tu", conflicts_with = "step_response")]
+    pub ku: Option<f64>,
+    /// Ultimate period Tu [s].
+    #[arg(long, requires = "ku")]
+    pub tu: Option<f64>,
+    /// Results CSV holding an open-loop step response.
+    #[arg(long, requires_all = ["signal", "input_step"])]
+    pub step_response: Option<PathBuf>,
+    /// The response column.
+    #[arg(long)]
+    pub signal: Option<String>,
+    /// Size of the input step.
+    #[arg(long)]
+    pub input_step: Option<f64>,
+}
+
+/// Runs `kneebench tune`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let gains = match (a.ku, a.tu, &a.step_response) {
+        (Some(ku), Some(tu), None) => ziegler_nichols_ultimate(ku, tu)?,
+        (None, None, Some(path)) => {
+            let results = Results::read_csv_file(path)?;
+            let name = a.signal.as_deref().unwrap_or_default();
+            let values = results
+                .column(name)
+                .with_context(|| format!("no column '{name}' in {}", path.display()))?;
+            let curve = reaction_curve(&results.times(), &values, a.input_step.unwrap_or(1.0))?;
+            println!(
+                "reaction curve: K = {:.6}, L = {:.6} s, T = {:.6} s",
+                curve.gain, curve.dead_time, curve.time_constant
+            );
+            ziegler_nichols_reaction(&curve)?
+        }
+        _ => bail!("give either --ku and --tu, or --step-response with --signal and --input-step"),
+    };
+    println!("Ziegler-Nichols PID (parallel form):");
+    println!("  kp = {:.6}", gains.kp);
+    println!("  ki = {:.6}", gains.ki);
+    println!("  kd = {:.6}", gains.kd);
+    Ok(super::EXIT_OK)
+}
