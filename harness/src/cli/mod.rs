@@ -5,8 +5,10 @@ use clap::{Parser, Subcommand};
 
 pub mod export;
 pub mod info;
+pub mod metrics;
 pub mod plot;
 pub mod run;
+pub mod tune;
 pub mod validate;
 
 /// Success.
@@ -46,6 +48,10 @@ pub enum Command {
     Info(info::Args),
     /// Plot signals of a results CSV against time (SVG or PNG).
     Plot(plot::Args),
+    /// Step-response quality (rise, settling, overshoot, peak) or tracking error of a signal.
+    Metrics(metrics::Args),
+    /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
+    Tune(tune::Args),
 }
 
 /// Runs a parsed command line; returns the exit code.
@@ -56,5 +62,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Validate(a) => validate::run(a),
         Command::Info(a) => info::run(a),
         Command::Plot(a) => plot::run(a),
+        Command::Metrics(a) => metrics::run(a),
+        Command::Tune(a) => tune::run(a),
     }
 }
