@@ -379,22 +379,29 @@ impl Discretization {
 
     /// Integrals over the step starting at `z`.
     pub(crate) fn integrals(&self, z: &AugVector) -> SegmentIntegrals {
-        let mut products = [0.0; 6];
-        let mut k = 0;
-        for i in 0..NZ {
-            let zi = z[i];
+        // Six running sums kept in registers; rows of zero entries (a stuck body's velocity,
+        // absent friction) are skipped.
+        let mut sums = [0.0f64; 6];
+        let mut columns = self.packed_columns.iter();
+        for (i, &zi) in z.iter().enumerate() {
             if zi == 0.0 {
-                k += NZ - i;
+                for _ in i..NZ {
+                    columns.next();
+                }
                 continue;
             }
-            for zj in &z[i..] {
+            for (zj, g) in z[i..].iter().zip(columns.by_ref()) {
                 let x = zi * zj;
-                for (p, g) in products.iter_mut().zip(self.packed_columns[k].iter()) {
-                    *p += g * x;
-                }
-                k += 1;
+                let [s0, s1, s2, s3, s4, s5] = &mut sums;
+                *s0 += g[0] * x;
+                *s1 += g[1] * x;
+                *s2 += g[2] * x;
+                *s3 += g[3] * x;
+                *s4 += g[4] * x;
+                *s5 += g[5] * x;
             }
         }
+        let products = sums;
         let applied = self.apply(z);
         SegmentIntegrals {
             products,

@@ -497,8 +497,9 @@ impl BenchPlant {
             }
         }
         let z = self.input_state(&held);
+        let demand = self.demands(&held, &z);
         for interlock in Interlock::CHECKED {
-            if self.event_value(&held, Event::Trip(interlock), &z) > 0.0 {
+            if self.event_value_with(&held, Event::Trip(interlock), &z, &demand) > 0.0 {
                 return Err((interlock, self.state.time));
             }
         }
@@ -560,6 +561,29 @@ impl BenchPlant {
     }
 
     fn event_value(&self, held: &Held, event: Event, z: &AugVector) -> f64 {
+        self.event_value_with(held, event, z, &self.demands(held, z))
+    }
+
+    /// Voltage demands of both current loops at `z` (see [`Self::voltage_demand`]).
+    #[inline]
+    fn demands(&self, held: &Held, z: &AugVector) -> [f64; 2] {
+        [
+            self.voltage_demand(held, 0, z),
+            self.voltage_demand(held, 1, z),
+        ]
+    }
+
+    /// Whether any of `events` is positive at `z`.
+    fn any_positive(&self, held: &Held, events: &[Event], z: &AugVector) -> bool {
+        let demand = self.demands(held, z);
+        events
+            .iter()
+            .any(|&e| self.event_value_with(held, e, z, &demand) > 0.0)
+    }
+
+    /// The event function `event` at `z`, given the voltage demands there.
+    #[inline(always)]
+    fn event_value_with(&self, held: &Held, event: Event, z: &AugVector, demand: &[f64; 2]) -> f64 {
         let p = &self.params;
         let tpa = self.torque_per_ampere();
         match event {
@@ -569,12 +593,8 @@ impl BenchPlant {
                 let cap = held.capacity[j][if dir > 0.0 { 0 } else { 1 }];
                 dir * d - cap
             }
-            Event::SaturationEnter(n, dir) => {
-                dir * self.voltage_demand(held, n, z) - self.motor(n).3
-            }
-            Event::SaturationExit(n) => {
-                self.motor(n).3 - self.state.saturation[n] * self.voltage_demand(held, n, z)
-            }
+            Event::SaturationEnter(n, dir) => dir * demand[n] - self.motor(n).3,
+            Event::SaturationExit(n) => self.motor(n).3 - self.state.saturation[n] * demand[n],
             Event::Trip(interlock) => match interlock {
                 Interlock::SpringDeflection => {
                     (z[THETA1] - z[THETA2]).abs() - p.spring_deflection_limit
@@ -584,7 +604,12 @@ impl BenchPlant {
                 Interlock::TestCurrent => z[CURRENT1].abs() - p.test_current_limit,
                 Interlock::LoadCurrent => z[CURRENT2].abs() - p.load_current_limit,
                 Interlock::RegenPower => {
-                    -self.armature_voltage(held, 1, z) * z[CURRENT2] - p.load_regen_power_limit
+                    let voltage = if held.mode.voltage_row[1] {
+                        held.drive[1]
+                    } else {
+                        demand[1]
+                    };
+                    -voltage * z[CURRENT2] - p.load_regen_power_limit
                 }
                 Interlock::EmergencyStop => -1.0,
             },
@@ -707,9 +732,7 @@ impl BenchPlant {
                     z0 = self.input_state(&held);
                     z1 = self.cache[index].advance(&z0);
                 }
-                let fired = events
-                    .iter()
-                    .any(|&e| self.event_value(&held, e, &z1) > 0.0);
+                let fired = self.any_positive(&held, events, &z1);
                 let p0 = self.powers(&held, &z0);
                 let p1 = self.powers(&held, &z1);
                 if !fired {
