@@ -10,8 +10,9 @@
 //!   loop saturated at the supply: then `u = +-V_supply`), or of **current-loop** type,
 //!   `tau_c i' = u - i` (current mode within the supply, and disabled drivers with `u = 0`).
 //!
-//! Regular sub-steps use `Phi = exp(M h)` and Van Loan Gramians `integral z^T Q z dt` cached per
-//! (mode, h). Partial segments (between events) use a local Taylor expansion
+//! Regular sub-steps use `Phi = exp(M h)` and the Gramians `integral z^T Q z dt` cached per
+//! (mode, h), both by Taylor scaling and squaring (see [`Discretization::new`]; the Van Loan
+//! block exponential loses digits in the stiff modes beyond a few ms). Partial segments (between events) use a local Taylor expansion
 //! `z(t0 + s len) = sum_n s^n c_n`, split into pieces short enough to converge; it is exact to
 //! rounding and gives the state at any instant cheaply, which is what event location needs.
 

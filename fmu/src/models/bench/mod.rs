@@ -85,7 +85,8 @@
 //! Within a segment the plant is linear with constant inputs (driver inputs are sampled and held
 //! over the communication step, friction held as above). Each internal sub-step (communication
 //! step split into equal parts of at most `max_internal_step`, 1 ms) is integrated exactly:
-//! `exp(M h)` and Van Loan Gramians for the quadratic energy integrals are cached per (mode, h).
+//! `exp(M h)` and the Gramians of the quadratic energy integrals (Taylor series at `h / 2^s`,
+//! Gauss-Legendre on the series for the Gramians, then doubling) are cached per (mode, h).
 //! Events (stick, break-away, current-loop saturation, interlocks) are tested at the end of the
 //! sub-step; when one fires, the sub-step is re-done with a Taylor expansion of the exact flow,
 //! the event is located with the Illinois method to rounding, and integration restarts from the
