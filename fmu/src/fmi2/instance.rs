@@ -16,7 +16,7 @@ use crate::model::{
 };
 use crate::registry::ModelInfo;
 
-use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK};
+use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK, fmi2Warning};
 
 /// The states of the FMI 2.0 co-simulation state machine (standard, section 4.2.4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -249,6 +249,8 @@ pub struct Instance<M: Model> {
     /// Real getters by value reference: the hot path of every communication step, resolved
     /// once so a get is one table load and one call per value.
     real_getters: Vec<Option<RealGetter<M>>>,
+    /// Real setters by value reference, with what a set must satisfy.
+    real_setters: Vec<Option<RealSetter<M>>>,
 }
 
 /// The base-type number of a variable: 0 Real, 1 Integer/Enumeration, 2 Boolean, 3 String.
@@ -279,6 +281,7 @@ impl<M: Model> Instance<M> {
             dirty: true,
             strings: Vec::new(),
             real_getters: real_getter_table::<M>(),
+            real_setters: real_setter_table::<M>(),
         }
     }
 
@@ -526,6 +529,51 @@ fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
     table
 }
 
+/// A Real variable's setter and the conditions of a valid set.
+struct RealSetter<M> {
+    set: fn(&mut M, f64),
+    /// Settable in [instantiated, initialization, stepping].
+    phases: [bool; 3],
+    min: f64,
+    max: f64,
+}
+
+impl<M> RealSetter<M> {
+    #[inline]
+    fn accepts(&self, phase: Phase, x: f64) -> bool {
+        let p = match phase {
+            Phase::Instantiated => 0,
+            Phase::Initialization => 1,
+            Phase::Stepping => 2,
+        };
+        self.phases[p] && x.is_finite() && x >= self.min && x <= self.max
+    }
+}
+
+/// The Real setters of `M` indexed by value reference.
+fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
+    let mut table: Vec<Option<RealSetter<M>>> = Vec::new();
+    for v in M::variables() {
+        if let Access::Real(_, set) = v.access {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize_with(vr + 1, || None);
+            }
+            table[vr] = Some(RealSetter {
+                set,
+                phases: [
+                    v.settable(Phase::Instantiated),
+                    v.settable(Phase::Initialization),
+                    v.settable(Phase::Stepping),
+                ],
+                min: v.min.unwrap_or(f64::NEG_INFINITY),
+                max: v.max.unwrap_or(f64::INFINITY),
+            });
+        }
+    }
+    table
+}
+
 /// First bytes of every serialized FMU state.
 pub const STATE_MAGIC: &[u8; 8] = b"KNEEBNCH";
 /// Version of the FMU-state byte format; bumped whenever the layout changes.
@@ -729,6 +777,21 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
         let f = "fmi2SetReal";
+        // Fast path: every reference known, settable now, finite and in range. Anything else
+        // takes the checking path below, which names the problem.
+        let phase = self.phase();
+        let ok = vrs.iter().zip(values).all(|(vr, x)| {
+            matches!(self.real_setters.get(*vr as usize), Some(Some(e)) if e.accepts(phase, *x))
+        });
+        if ok {
+            for (vr, x) in vrs.iter().zip(values) {
+                if let Some(Some(e)) = self.real_setters.get(*vr as usize) {
+                    (e.set)(&mut self.model, *x);
+                }
+            }
+            self.after_set();
+            return fmi2OK;
+        }
         if let Err(s) = self.check_known(f, 0, vrs) {
             return s;
         }
@@ -925,7 +988,12 @@ impl<M: Model> FmiInstance for Instance<M> {
                 ),
             );
         }
-        match self.model.do_step(t, h) {
+        let outcome = self.model.do_step(t, h);
+        for warning in self.model.take_warnings() {
+            self.logger
+                .log(fmi2Warning, Category::Warning, &format!("{f}: {warning}"));
+        }
+        match outcome {
             Ok(StepOutcome::Completed) => {
                 self.time = t + h;
                 self.last_successful_time = self.time;

@@ -706,6 +706,8 @@ pub struct BenchPlantModel {
     plant: Option<super::bench::BenchPlant>,
     /// Parameters changed since the plant last saw them.
     parameters_changed: bool,
+    /// The plant stepped since `outputs` was computed.
+    outputs_stale: bool,
 }
 
 impl BenchSignals for BenchPlantModel {
@@ -723,7 +725,7 @@ impl BenchSignals for BenchPlantModel {
     }
 }
 
-static ENUMERATIONS: &[EnumerationType] = &[
+pub(crate) static ENUMERATIONS: &[EnumerationType] = &[
     EnumerationType {
         name: "Configuration",
         description: "Actuator configuration of the bench",
@@ -1286,21 +1288,21 @@ impl BenchPlantModel {
         self.parameters_changed = false;
         Ok(())
     }
+}
 
-    fn plant_inputs(&self, p: &BenchParameters) -> BenchInputs {
-        let c = &self.commands;
-        let pick = |mode: DriverMode, voltage: f64, current: f64| match mode {
-            DriverMode::Voltage => voltage,
-            DriverMode::Current => current,
-        };
-        BenchInputs {
-            test_command: pick(p.test_driver_mode, c.test_voltage, c.test_current),
-            load_command: pick(p.load_driver_mode, c.load_voltage, c.load_current),
-            test_enable: c.test_enable,
-            load_enable: c.load_enable,
-            clutch_engage: c.clutch_engage,
-            emergency_stop: c.emergency_stop,
-        }
+/// The plant's inputs from the FMU's commands: each driver gets the command of its mode.
+fn plant_inputs(c: &BenchCommands, p: &BenchParameters) -> BenchInputs {
+    let pick = |mode: DriverMode, voltage: f64, current: f64| match mode {
+        DriverMode::Voltage => voltage,
+        DriverMode::Current => current,
+    };
+    BenchInputs {
+        test_command: pick(p.test_driver_mode, c.test_voltage, c.test_current),
+        load_command: pick(p.load_driver_mode, c.load_voltage, c.load_current),
+        test_enable: c.test_enable,
+        load_enable: c.load_enable,
+        clutch_engage: c.clutch_engage,
+        emergency_stop: c.emergency_stop,
     }
 }
 
@@ -1348,24 +1350,34 @@ impl Model for BenchPlantModel {
         {
             self.build()?;
         }
+        if self.outputs_stale {
+            if let Some(plant) = &self.plant {
+                self.outputs = plant.outputs();
+            }
+            self.outputs_stale = false;
+        }
         Ok(())
     }
 
     fn do_step(&mut self, _t: f64, h: f64) -> Result<StepOutcome, ModelError> {
-        let p = self.parameters()?;
-        let inputs = self.plant_inputs(&p);
-        let plant = match self.plant.as_mut() {
-            Some(plant) => plant,
-            None => return Err(ModelError::new("the plant was not initialized")),
-        };
         if self.parameters_changed {
+            let p = self.parameters()?;
+            let plant = self
+                .plant
+                .as_mut()
+                .ok_or_else(|| ModelError::new("the plant was not initialized"))?;
             plant
                 .set_parameters(p)
                 .map_err(|e| ModelError::new(format!("tunable parameters refused: {e}")))?;
             self.parameters_changed = false;
         }
+        let Some(plant) = self.plant.as_mut() else {
+            return Err(ModelError::new("the plant was not initialized"));
+        };
+        let inputs = plant_inputs(&self.commands, plant.parameters());
         let outcome = plant.step(&inputs, h);
-        self.outputs = plant.outputs();
+        // The outputs are computed when they are read (calculate), not after every step.
+        self.outputs_stale = true;
         match outcome {
             PlantOutcome::Completed => Ok(StepOutcome::Completed),
             PlantOutcome::Tripped { interlock, time } => Ok(StepOutcome::Terminated {
@@ -1409,6 +1421,7 @@ impl Model for BenchPlantModel {
     fn save_internal(&self, w: &mut StateWriter) {
         w.f64(self.start_time);
         w.bool(self.parameters_changed);
+        w.bool(self.outputs_stale);
         match &self.plant {
             Some(plant) => {
                 w.bool(true);
@@ -1424,6 +1437,7 @@ impl Model for BenchPlantModel {
     fn load_internal(&mut self, r: &mut StateReader<'_>) -> Result<(), StateError> {
         self.start_time = r.f64()?;
         let changed = r.bool()?;
+        self.outputs_stale = r.bool()?;
         if r.bool()? {
             let len = r.u32()? as usize;
             let mut bytes = r.take(len)?;
