@@ -14,5 +14,6 @@ pub mod registry;
 
 export_models!(
     models::gait::GaitReference,
-    models::bench_plant::BenchPlantModel
+    models::bench_plant::BenchPlantModel,
+    models::pid::PidController,
 );

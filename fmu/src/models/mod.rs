@@ -3,3 +3,4 @@
 pub mod bench;
 pub mod bench_plant;
 pub mod gait;
+pub mod pid;
