@@ -16,4 +16,5 @@ export_models!(
     models::gait::GaitReference,
     models::bench_plant::BenchPlantModel,
     models::pid::PidController,
+    models::impedance::ImpedanceController,
 );

@@ -3,4 +3,5 @@
 pub mod bench;
 pub mod bench_plant;
 pub mod gait;
+pub mod impedance;
 pub mod pid;
