@@ -17,4 +17,5 @@ export_models!(
     models::bench_plant::BenchPlantModel,
     models::pid::PidController,
     models::impedance::ImpedanceController,
+    models::clutch_scheduler::ClutchScheduler,
 );

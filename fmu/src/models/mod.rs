@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_plant;
+pub mod clutch_scheduler;
 pub mod gait;
 pub mod impedance;
 pub mod pid;
