@@ -8,6 +8,7 @@
 #![warn(missing_docs)]
 
 pub mod fmi2;
+pub mod hardware;
 pub mod model;
 pub mod models;
 pub mod registry;
@@ -15,6 +16,7 @@ pub mod registry;
 export_models!(
     models::gait::GaitReference,
     models::bench_plant::BenchPlantModel,
+    models::bench_hardware::BenchHardwareModel,
     models::pid::PidController,
     models::impedance::ImpedanceController,
     models::clutch_scheduler::ClutchScheduler,

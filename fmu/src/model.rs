@@ -219,6 +219,12 @@ pub trait Model: Default + Clone + Send + 'static {
         None
     }
 
+    /// Messages to log as warnings after a step (the glue drains them after every
+    /// `fmi2DoStep`; the step's status is unchanged).
+    fn take_warnings(&mut self) -> Vec<String> {
+        Vec::new()
+    }
+
     /// Appends the state that is not a variable (integrators, latches) to `w`.
     fn save_internal(&self, _w: &mut StateWriter) {}
 

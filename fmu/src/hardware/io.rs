@@ -1,0 +1,433 @@
+//! The bench's I/O behind one small trait, and its two backends.
+//!
+//! [`BenchIo`] is the bench controller's I/O seen from the control loop, in the spirit of
+//! embedded-hal: it knows raw counts, raw volts and digital lines, nothing of calibration or
+//! safety. Its unit of work is one control period: [`BenchIo::write`] sets both driver set
+//! values, both enables and the clutch output together (held until the next write), and
+//! [`BenchIo::read`] samples every input together (both encoder counters, the six analog
+//! inputs, the emergency-stop line). Over a network the two are one frame each, which is why
+//! the trait is not split per pin.
+//!
+//! * [`SimulatedBench`]: the plant physics in process ([`BenchPlant`]), giving the raw counts
+//!   and volts of its sensor models. Time is the simulation's: `read(t)` advances the physics to
+//!   `t` with the held command.
+//! * [`UdpBench`]: a client of a real-time I/O server speaking the protocol of
+//!   `docs/bench-protocol.md` ([`super::protocol`]). Time is the wall clock: `read` samples now.
+
+use std::hash::{BuildHasher, Hasher};
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::time::{Duration, Instant};
+
+use super::protocol::{
+    ANALOG_CHANNELS, AnalogChannel, Command, Counters, FrameType, MAX_FRAME_LEN, Payload, Receiver,
+    SafeStateRequest, Sample, Sender, SetValueKind, reason, status,
+};
+use crate::models::bench::{BenchInputs, BenchParameters, BenchPlant, DriverMode, Interlock};
+
+/// An I/O failure: the bench did not answer, or answered wrongly.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IoError {
+    /// No valid answer within the timeout.
+    #[error("no valid reply within {0:?}")]
+    Timeout(Duration),
+    /// The operating system refused a socket operation.
+    #[error("socket: {0}")]
+    Socket(String),
+    /// The backend cannot be set up.
+    #[error("backend setup: {0}")]
+    Setup(String),
+    /// The bench refused a command (for example a set-value kind its driver is not set up for).
+    #[error("command refused: {0}")]
+    Refused(String),
+}
+
+impl From<std::io::Error> for IoError {
+    fn from(e: std::io::Error) -> Self {
+        IoError::Socket(e.to_string())
+    }
+}
+
+/// The bench's I/O for one control period at a time.
+pub trait BenchIo: Send {
+    /// Sets both set values, both enables and the clutch output (held until the next write);
+    /// returns the command's identifier (its sequence number), which samples confirm.
+    fn write(&mut self, t: f64, command: &Command) -> Result<u32, IoError>;
+
+    /// Samples every input. `t` is the time of the sample relative to the start of the run
+    /// (the simulated bench advances to it; a real bench samples now).
+    fn read(&mut self, t: f64) -> Result<Sample, IoError>;
+
+    /// Commands the safe state (set values zero, drivers disabled, clutch released, latched)
+    /// and waits up to `timeout` for its acknowledgement; returns the acknowledging sample.
+    fn enter_safe_state(
+        &mut self,
+        t: f64,
+        reason: u8,
+        timeout: Duration,
+    ) -> Result<Sample, IoError>;
+
+    /// Frames rejected by the receive filter (zero for in-process backends).
+    fn counters(&self) -> Counters {
+        Counters::default()
+    }
+
+    /// Replies that arrived for an earlier request (late) and were ignored.
+    fn stale_replies(&self) -> u64 {
+        0
+    }
+}
+
+/// The set-value kind of a driver mode.
+pub fn kind_of(mode: DriverMode) -> SetValueKind {
+    match mode {
+        DriverMode::Voltage => SetValueKind::Voltage,
+        DriverMode::Current => SetValueKind::Current,
+    }
+}
+
+/// The physics of the bench in process, seen through its raw sensors.
+#[derive(Debug, Clone)]
+pub struct SimulatedBench {
+    plant: BenchPlant,
+    command: Command,
+    kinds: [SetValueKind; 2],
+    last_command: u32,
+    safe: Option<u8>,
+}
+
+impl SimulatedBench {
+    /// A bench at rest with the plant parameters `params`.
+    pub fn new(params: BenchParameters) -> Result<Self, IoError> {
+        let kinds = [
+            kind_of(params.test_driver_mode),
+            kind_of(params.load_driver_mode),
+        ];
+        let plant = BenchPlant::new(params).map_err(|e| IoError::Setup(e.to_string()))?;
+        Ok(Self {
+            plant,
+            command: Command::safe(kinds[0], kinds[1]),
+            kinds,
+            last_command: 0,
+            safe: None,
+        })
+    }
+
+    fn advance(&mut self, t: f64) -> Result<(), IoError> {
+        let h = t - self.plant.time();
+        if h <= 1e-12 * (1.0 + t.abs()) {
+            return Ok(());
+        }
+        let c = &self.command;
+        let inputs = BenchInputs {
+            test_command: if c.test_enable { c.test_set_value } else { 0.0 },
+            load_command: if c.load_enable { c.load_set_value } else { 0.0 },
+            test_enable: c.test_enable,
+            load_enable: c.load_enable,
+            clutch_engage: c.clutch,
+            emergency_stop: false,
+        };
+        if let crate::models::bench::StepOutcome::Rejected(e) = self.plant.step(&inputs, h) {
+            return Err(IoError::Refused(e.to_string()));
+        }
+        Ok(())
+    }
+
+    fn sample(&self, request_sequence: u32) -> Sample {
+        let o = self.plant.outputs();
+        let mut analog = [0.0; ANALOG_CHANNELS];
+        analog[AnalogChannel::LoadCell.index()] = o.load_cell_voltage;
+        analog[AnalogChannel::Transducer.index()] = o.transducer_voltage;
+        analog[AnalogChannel::TestCurrentSense.index()] = o.test_current_sense_voltage;
+        analog[AnalogChannel::LoadCurrentSense.index()] = o.load_current_sense_voltage;
+        analog[AnalogChannel::TestSupplySense.index()] = o.test_supply_sense_voltage;
+        analog[AnalogChannel::LoadSupplySense.index()] = o.load_supply_sense_voltage;
+        let mut bits = 0;
+        let c = &self.command;
+        for (on, bit) in [
+            (c.test_enable, status::TEST_ENABLED),
+            (c.load_enable, status::LOAD_ENABLED),
+            (c.clutch, status::CLUTCH),
+        ] {
+            if on {
+                bits |= bit;
+            }
+        }
+        let mut safe_reason = self.safe.unwrap_or(reason::NONE);
+        if let Some((interlock, _)) = self.plant.trip() {
+            // The bench's own protection stopped it (a driver fault or the button).
+            bits |= status::SERVER_TRIP | status::SAFE_STATE;
+            if interlock == Interlock::EmergencyStop {
+                bits |= status::EMERGENCY_STOP;
+                safe_reason = reason::EMERGENCY_STOP;
+            } else if safe_reason == reason::NONE {
+                safe_reason = reason::BENCH_PROTECTION;
+            }
+        }
+        if self.safe.is_some() {
+            bits |= status::SAFE_STATE;
+        }
+        Sample {
+            request_sequence,
+            last_command_sequence: self.last_command,
+            server_time_us: (self.plant.time() * 1e6).round() as u64,
+            status: bits,
+            safe_reason,
+            // Wrapping 32-bit counters, as the bench's FPGA counters are.
+            test_counts: o.actuation_encoder_counts as i64 as i32,
+            load_counts: o.load_encoder_counts as i64 as i32,
+            analog,
+        }
+    }
+}
+
+impl BenchIo for SimulatedBench {
+    fn write(&mut self, t: f64, command: &Command) -> Result<u32, IoError> {
+        self.advance(t)?;
+        if [command.test_kind, command.load_kind] != self.kinds {
+            return Err(IoError::Refused(
+                "set-value kind differs from the drivers' mode".into(),
+            ));
+        }
+        self.last_command += 1;
+        if self.safe.is_none() {
+            self.command = *command;
+        }
+        Ok(self.last_command)
+    }
+
+    fn read(&mut self, t: f64) -> Result<Sample, IoError> {
+        self.advance(t)?;
+        Ok(self.sample(0))
+    }
+
+    fn enter_safe_state(
+        &mut self,
+        t: f64,
+        reason: u8,
+        _timeout: Duration,
+    ) -> Result<Sample, IoError> {
+        self.advance(t)?;
+        self.command = Command::safe(self.kinds[0], self.kinds[1]);
+        self.safe.get_or_insert(reason);
+        Ok(self.sample(0))
+    }
+}
+
+/// A random nonzero session identifier (std's per-process random hash keys, the time and a
+/// counter).
+pub fn random_session() -> u32 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static COUNTER: AtomicU32 = AtomicU32::new(0);
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(COUNTER.fetch_add(1, Ordering::Relaxed));
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or(0),
+    );
+    let v = h.finish();
+    ((v >> 32) as u32 ^ v as u32).max(1)
+}
+
+/// A client of a bench I/O server over UDP.
+#[derive(Debug)]
+pub struct UdpBench {
+    socket: UdpSocket,
+    tx: Sender,
+    rx: Receiver,
+    reply_timeout: Duration,
+    stale: u64,
+    buf: [u8; 2048],
+}
+
+impl UdpBench {
+    /// Opens a session with the server at `address` ("host:port"); replies are awaited for
+    /// `reply_timeout`.
+    pub fn connect(address: &str, reply_timeout: Duration) -> Result<Self, IoError> {
+        let server: SocketAddr = address
+            .to_socket_addrs()
+            .map_err(|e| IoError::Setup(format!("server address `{address}`: {e}")))?
+            .next()
+            .ok_or_else(|| {
+                IoError::Setup(format!("server address `{address}` resolves to nothing"))
+            })?;
+        let local = if server.is_ipv4() {
+            "0.0.0.0:0"
+        } else {
+            "[::]:0"
+        };
+        let socket = UdpSocket::bind(local)?;
+        socket.connect(server)?;
+        let session = random_session();
+        Ok(Self {
+            socket,
+            tx: Sender::new(session),
+            rx: Receiver::new(session),
+            reply_timeout,
+            stale: 0,
+            buf: [0; 2048],
+        })
+    }
+
+    /// The session identifier.
+    pub fn session(&self) -> u32 {
+        self.tx.session
+    }
+
+    /// Sends `payload`, waits up to the reply timeout for the reply of type `expect` to it.
+    fn exchange(&mut self, payload: Payload, expect: FrameType) -> Result<Sample, IoError> {
+        let (sequence, bytes) = self.tx.frame(payload);
+        self.socket.send(&bytes)?;
+        let deadline = Instant::now() + self.reply_timeout;
+        loop {
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(IoError::Timeout(self.reply_timeout));
+            }
+            self.socket.set_read_timeout(Some(deadline - now))?;
+            let n = match self.socket.recv(&mut self.buf) {
+                Ok(n) => n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    return Err(IoError::Timeout(self.reply_timeout));
+                }
+                Err(e) => return Err(e.into()),
+            };
+            if n > MAX_FRAME_LEN {
+                self.rx.counters.malformed += 1;
+                continue;
+            }
+            let Ok(frame) = self.rx.accept(&self.buf[..n]) else {
+                continue;
+            };
+            let sample = match (frame.payload, expect) {
+                (Payload::Sample(s), FrameType::Sample)
+                | (Payload::SafeStateAck(s), FrameType::SafeStateAck) => s,
+                _ => {
+                    self.stale += 1;
+                    continue;
+                }
+            };
+            if sample.request_sequence != sequence {
+                self.stale += 1;
+                continue;
+            }
+            return Ok(sample);
+        }
+    }
+}
+
+impl BenchIo for UdpBench {
+    fn write(&mut self, _t: f64, command: &Command) -> Result<u32, IoError> {
+        let (sequence, bytes) = self.tx.frame(Payload::Command(*command));
+        self.socket.send(&bytes)?;
+        Ok(sequence)
+    }
+
+    fn read(&mut self, _t: f64) -> Result<Sample, IoError> {
+        self.exchange(Payload::Heartbeat, FrameType::Sample)
+    }
+
+    fn enter_safe_state(
+        &mut self,
+        _t: f64,
+        reason: u8,
+        timeout: Duration,
+    ) -> Result<Sample, IoError> {
+        let start = Instant::now();
+        loop {
+            match self.exchange(
+                Payload::SafeState(SafeStateRequest { reason }),
+                FrameType::SafeStateAck,
+            ) {
+                Ok(ack) => return Ok(ack),
+                Err(IoError::Timeout(_)) if start.elapsed() < timeout => continue,
+                Err(IoError::Timeout(_)) => return Err(IoError::Timeout(timeout)),
+                Err(e) if start.elapsed() < timeout => {
+                    // A refused send (ICMP port unreachable) may pass: retry until the timeout.
+                    let _ = e;
+                    std::thread::sleep(self.reply_timeout);
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    fn counters(&self) -> Counters {
+        self.rx.counters
+    }
+
+    fn stale_replies(&self) -> u64 {
+        self.stale
+    }
+}
+
+impl Drop for UdpBench {
+    fn drop(&mut self) {
+        // End the session at once rather than by the server's heartbeat timeout (best effort:
+        // the server's watchdog covers a lost frame).
+        let (_, bytes) = self.tx.frame(Payload::SafeState(SafeStateRequest {
+            reason: reason::SESSION_END,
+        }));
+        let _ = self.socket.send(&bytes);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn simulated_bench_gives_raw_counts_and_volts_and_holds_the_safe_state() {
+        let p = BenchParameters::default();
+        let mut bench = SimulatedBench::new(p.clone()).unwrap();
+        let s0 = bench.read(0.0).unwrap();
+        assert_eq!((s0.test_counts, s0.load_counts), (0, 0));
+        assert!((s0.analog[AnalogChannel::TestCurrentSense.index()] - 2.5).abs() < 1e-12);
+        assert!(
+            (s0.analog[AnalogChannel::TestSupplySense.index()] - (0.002 + 0.139 * 24.0)).abs()
+                < 1e-12
+        );
+        let drive = Command {
+            test_set_value: 2.0,
+            load_set_value: 0.0,
+            test_enable: true,
+            load_enable: true,
+            clutch: false,
+            test_kind: SetValueKind::Current,
+            load_kind: SetValueKind::Current,
+        };
+        assert_eq!(bench.write(0.0, &drive).unwrap(), 1);
+        let s1 = bench.read(0.2).unwrap();
+        assert_eq!(s1.last_command_sequence, 1);
+        assert!(s1.test_counts > 100, "{s1:?}");
+        assert!(s1.has(status::TEST_ENABLED));
+        let ack = bench
+            .enter_safe_state(0.2, reason::CLIENT_REQUEST, Duration::ZERO)
+            .unwrap();
+        assert!(ack.has(status::SAFE_STATE) && !ack.has(status::TEST_ENABLED));
+        // A drive command after the safe state is not applied.
+        bench.write(0.2, &drive).unwrap();
+        assert!(!bench.read(0.3).unwrap().has(status::TEST_ENABLED));
+        let voltage = Command {
+            test_kind: SetValueKind::Voltage,
+            ..drive
+        };
+        assert!(matches!(
+            bench.write(0.3, &voltage),
+            Err(IoError::Refused(_))
+        ));
+    }
+
+    #[test]
+    fn sessions_are_nonzero_and_differ() {
+        let a = random_session();
+        let b = random_session();
+        assert!(a != 0 && b != 0 && a != b);
+    }
+}

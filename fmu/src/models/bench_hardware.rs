@@ -1,0 +1,1267 @@
+//! # BenchHardware: the knee-actuator bench itself, behind the plant's interface
+//!
+//! This FMU stands for the physical bench. Its inputs and outputs are the bench signal
+//! interface of `BenchPlant`, generated from the same table (`io_variables`), so names,
+//! causality, units and value references are identical and a system file runs unchanged with
+//! either FMU. Its parameters that mean the same as the plant's have the plant's names and
+//! value references; the hardware's own parameters are at value references 400 and up.
+//!
+//! ## Backends (`backend`)
+//! * `Simulated` (default): the plant physics in process, seen through its raw sensors
+//!   (encoder counts, volts). No network; with `pacing = None` it runs as fast as a
+//!   simulation. Its own interlock thresholds (spring deflection, motor torque, regenerated
+//!   power) are lifted so that this FMU's checks are the line being exercised; the drivers'
+//!   over-current protection and the emergency stop stay.
+//! * `Udp`: a client of a real-time I/O server on the bench controller (`serverAddress`,
+//!   e.g. `127.0.0.1:47000`), speaking the protocol of `docs/bench-protocol.md`. Needs
+//!   `pacing` Soft or Hard. `kneebench emulate` serves the same protocol with the plant behind
+//!   it.
+//!
+//! ## One control period (`fmi2DoStep(t, h)`)
+//! 1. An `emergencyStop` input trips at `t`, before anything is sent.
+//! 2. The command (the set value of each driver's mode, clipped to +-supply in voltage mode
+//!    and +-current limit in current mode; enables; clutch) is written: held by the bench
+//!    from now on.
+//! 3. Pacing waits for the absolute deadline of `t + h` (below).
+//! 4. All inputs are sampled (over UDP: a heartbeat answered by a sample, within
+//!    `replyTimeout`), checked and calibrated; the outputs at `t + h` are computed from them.
+//! 5. The checks, in this order of precedence: the bench reports its emergency stop (code 7)
+//!    or that it stopped itself (11); a raw channel outside its plausibility window (10); the
+//!    interlocks of bench-model.md §7 on the calibrated sample (1-6); the sample does not
+//!    confirm the command of this period (8); a pacing overrun in hard real time (9).
+//!
+//! The networked loop has the inherent delay of any sampled loop: the command written at `t`
+//! acts over the period and the sample at `t + h` shows its effect, like the plant FMU; the
+//! extra delay is the network latency (tens of microseconds on loopback) by which the command
+//! arrives after `t`.
+//!
+//! ## Trips, the safe state and the FMI status
+//! A trip latches. The FMU commands the safe state (set values zero, both drivers disabled,
+//! clutch released; latched by the server for the session, and no drive command is sent
+//! afterwards) and waits up to `safeStateTimeout` for its acknowledgement, a sample taken in
+//! the safe state showing the drivers disabled and the clutch released.
+//! * **Acknowledged**: `fmi2DoStep` returns `fmi2Discard` with `fmi2Terminated = true`;
+//!   `fmi2LastSuccessfulTime` is `t + h` for trips found in the sample (its outputs are the
+//!   tripping sample's) and `t` for an emergency-stop input or a lost link (no new sample).
+//!   `tripCode` tells which.
+//! * **Not acknowledged** (link lost, server gone, an acknowledgement that shows outputs still
+//!   on): `fmi2DoStep` returns `fmi2Error` and the instance is unusable. The bench is then
+//!   protected only by the server's own heartbeat watchdog (safe state 50 ms after the last
+//!   frame, `docs/bench-protocol.md`).
+//!
+//! Re-arming needs a new instance: a tripped instance never sends a drive command again, and
+//! the server keeps the safe state until a new session begins.
+//!
+//! | tripCode | cause | status |
+//! |---|---|---|
+//! | 1 | spring deflection above `springDeflectionLimit` | Discard / Error |
+//! | 2, 3 | output-side motor torque above `motorTorqueLimit` (test, load) | Discard / Error |
+//! | 4, 5 | motor current above the driver limit (test, load) | Discard / Error |
+//! | 6 | load driver regenerating more than `loadRegenPowerLimit` | Discard / Error |
+//! | 7 | emergency stop (input or the bench's button) | Discard / Error |
+//! | 8 | link watchdog: no valid sample within `replyTimeout`, or a command not confirmed | Discard / Error |
+//! | 9 | pacing overrun (hard real time) | Discard / Error |
+//! | 10 | sensor fault: a raw channel outside its plausibility window | Discard / Error |
+//! | 11 | the bench stopped itself (server watchdog or its own protection) | Discard / Error |
+//!
+//! (Discard when the safe state is acknowledged, Error when it is not.)
+//!
+//! ## Calibration and initialization
+//! `fmi2ExitInitializationMode` opens the backend, commands the drivers disabled and the clutch
+//! released, and reads `tareSamples` samples (default 50): their mean is the zero of the torque
+//! transducer and of the load cell (calibration of bench-model.md §8, with the tared zero in
+//! place of the published offset `a`; see `hardware::calibration`). The encoder counts at
+//! initialization are the zero of both angles: the bench must be at its reference position,
+//! at rest and unloaded. A sample in the safe state, with the emergency stop pressed or out of
+//! its plausibility windows fails the initialization (`fmi2Error`).
+//!
+//! ## Outputs
+//! * Measured: encoder counts and angles (relative to initialization), actuation/load angles
+//!   (= encoder angles), raw volts of the six analog inputs, calibrated load-cell and
+//!   transducer torques, motor currents (ACS712), clutch output state.
+//! * Derived from measurements each period: velocities (backward difference of the encoder
+//!   angles over `h`), accelerations (difference of velocities), spring deflection and torque
+//!   (`k (theta1 - theta2)`, `k` of the configuration), motor and output torques (`Km i`,
+//!   ratios), armature voltages (the set value in voltage mode; `R i + Ke w_m` in current
+//!   mode and for a disabled driver), driver saturation (that voltage at the measured supply),
+//!   mechanical and electrical powers, regenerated power, energies (trapezoidal integrals over
+//!   the period), `E_k`, `E_p` and their rates, friction torques and loss powers from each
+//!   side's torque and power balance (model parameters `I`, `c`, `k`), copper and back-emf
+//!   energies.
+//! * `actuationStuck`/`loadStuck`: the encoder did not move during the period.
+//!   `hdSurfaceClampCount`/`hdSurfaceClamped`: always 0/false (no loss surface on hardware).
+//!
+//! ## Pacing (`pacing`)
+//! `None`, `Soft` (real time; overruns counted in `overrunCount` and logged as warnings) or
+//! `Hard` (an overrun trips, code 9). `fmi2DoStep` sleeps until the absolute deadline
+//! `origin + (t + h - t_first)` on the monotonic clock, `origin` being the wall time of the
+//! first step; the last `spinMargin` before it is spun. Lateness statistics are in the local
+//! variables `lastLateness` and `maxLateness`, the link's rejected frames in `rejectedFrames`
+//! and late replies in `staleReplies`.
+//!
+//! ## FMU state
+//! `fmi2GetFMUstate` works; restoring a state saved after initialization is refused: the
+//! physical bench cannot be rewound.
+
+use std::sync::LazyLock;
+use std::time::Duration;
+
+use super::bench::{BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel};
+use super::bench_plant::{BenchCommands, BenchSignals, io_variables};
+use crate::hardware::calibration::{Calibration, Plausibility, Side, Tare, Unwrapper};
+use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, kind_of};
+use crate::hardware::pacing::{Pacer, PacingMode};
+use crate::hardware::protocol::{AnalogChannel, Command, Sample, reason, status};
+use crate::model::{
+    EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
+    Variable,
+};
+use crate::registry::ReferenceInputs;
+
+/// Trip codes beyond the plant's interlocks (1-7).
+pub mod trip {
+    /// Link watchdog: no valid sample in time, or a command not confirmed.
+    pub const LINK: i32 = 8;
+    /// Pacing overrun in hard real time.
+    pub const OVERRUN: i32 = 9;
+    /// A raw channel outside its plausibility window.
+    pub const SENSOR: i32 = 10;
+    /// The bench stopped itself (server watchdog, its own protection).
+    pub const BENCH: i32 = 11;
+
+    /// The log text of a trip code.
+    pub fn name(code: i32) -> &'static str {
+        match code {
+            1 => "spring deflection above limit",
+            2 => "test motor torque outside limit",
+            3 => "load motor torque outside limit",
+            4 => "test motor current above driver limit",
+            5 => "load motor current above driver limit",
+            6 => "load driver regenerated power above limit",
+            7 => "emergency stop",
+            LINK => "link watchdog: bench I/O did not answer or confirm in time",
+            OVERRUN => "pacing overrun in hard real time",
+            SENSOR => "sensor fault: raw reading outside its plausible range",
+            BENCH => "the bench stopped itself (server watchdog or protection)",
+            _ => "unknown trip",
+        }
+    }
+}
+
+/// The I/O backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    /// The plant physics in process.
+    Simulated,
+    /// A UDP client of a bench I/O server.
+    Udp,
+}
+
+impl Backend {
+    /// From the FMU's enumeration value.
+    pub fn from_i32(v: i32) -> Option<Self> {
+        match v {
+            0 => Some(Self::Simulated),
+            1 => Some(Self::Udp),
+            _ => None,
+        }
+    }
+}
+
+static ENUMERATIONS: LazyLock<Vec<EnumerationType>> = LazyLock::new(|| {
+    let mut v = super::bench_plant::ENUMERATIONS.to_vec();
+    v.push(EnumerationType {
+        name: "Backend",
+        description: "Where the bench's I/O is",
+        items: &[
+            (
+                "Simulated",
+                0,
+                "The plant physics in process, through its raw sensors",
+            ),
+            (
+                "Udp",
+                1,
+                "A real-time I/O server (bench controller or `kneebench emulate`) over UDP",
+            ),
+        ],
+    });
+    v.push(EnumerationType {
+        name: "Pacing",
+        description: "How fmi2DoStep keeps time",
+        items: &[
+            ("None", 0, "As fast as possible (Simulated backend only)"),
+            (
+                "Soft",
+                1,
+                "Real time; overruns are counted and logged as warnings",
+            ),
+            ("Hard", 2, "Real time; an overrun trips the bench"),
+        ],
+    });
+    v
+});
+
+/// What exists only between initialization and the end of the instance.
+struct Runtime {
+    io: Box<dyn BenchIo>,
+    p: BenchParameters,
+    cal: Calibration,
+    limits: Plausibility,
+    pacer: Pacer,
+    encoders: [Unwrapper; 2],
+    counts: [i64; 2],
+    trip: Option<(i32, f64)>,
+    safe_timeout: Duration,
+    warnings: Vec<String>,
+}
+
+/// The runtime holder: a clone of the model (a description copy) has no bench connection.
+#[derive(Default)]
+struct Slot(Option<Box<Runtime>>);
+
+impl Clone for Slot {
+    fn clone(&self) -> Self {
+        Slot(None)
+    }
+}
+
+impl std::fmt::Debug for Slot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Slot(running)"
+        } else {
+            "Slot(idle)"
+        })
+    }
+}
+
+/// The bench hardware FMU.
+#[derive(Debug, Clone, Default)]
+pub struct BenchHardwareModel {
+    params: BenchParameters,
+    configuration: i32,
+    friction_model: i32,
+    test_driver_mode: i32,
+    load_driver_mode: i32,
+    backend: i32,
+    server_address: String,
+    pacing: i32,
+    tare_samples: i32,
+    reply_timeout: f64,
+    safe_state_timeout: f64,
+    spin_margin: f64,
+    plausibility: Plausibility,
+    commands: BenchCommands,
+    outputs: BenchOutputs,
+    start_time: f64,
+    overrun_count: i32,
+    last_lateness: f64,
+    max_lateness: f64,
+    rejected_frames: i32,
+    stale_replies: i32,
+    runtime: Slot,
+}
+
+impl BenchSignals for BenchHardwareModel {
+    fn commands(&self) -> &BenchCommands {
+        &self.commands
+    }
+    fn commands_mut(&mut self) -> &mut BenchCommands {
+        &mut self.commands
+    }
+    fn signals(&self) -> &BenchOutputs {
+        &self.outputs
+    }
+    fn signals_mut(&mut self) -> &mut BenchOutputs {
+        &mut self.outputs
+    }
+}
+
+static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(|| {
+    type V = Variable<BenchHardwareModel>;
+    let d = BenchParameters::default();
+    let range = |field: &str| {
+        BenchParameters::PARAMETER_LIMITS
+            .iter()
+            .find(|(n, _, _)| *n == field)
+            .map(|&(_, lo, hi)| (lo, hi))
+            .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
+    };
+    // A parameter shared with the plant: same name, value reference, unit and range.
+    macro_rules! param {
+        ($name:literal, $vr:expr, $field:ident, None, $desc:literal) => {{
+            let (lo, hi) = range(stringify!($field));
+            V::real($name, $vr, |m| m.params.$field, |m, v| m.params.$field = v)
+                .parameter(Start::Real(d.$field))
+                .range(lo, hi)
+                .describe($desc)
+        }};
+        ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {{
+            let (lo, hi) = range(stringify!($field));
+            V::real($name, $vr, |m| m.params.$field, |m, v| m.params.$field = v)
+                .parameter(Start::Real(d.$field))
+                .unit($unit)
+                .range(lo, hi)
+                .describe($desc)
+        }};
+    }
+    macro_rules! window {
+        ($name:literal, $vr:expr, $ch:expr, $end:tt, $desc:literal) => {
+            V::real(
+                $name,
+                $vr,
+                |m| m.plausibility.analog[$ch as usize].$end,
+                |m, v| m.plausibility.analog[$ch as usize].$end = v,
+            )
+            .parameter(Start::Real(Plausibility::DEFAULT.analog[$ch as usize].$end))
+            .unit("V")
+            .range(-10.0, 10.0)
+            .describe($desc)
+        };
+    }
+    macro_rules! local {
+        (real $name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
+            V::real($name, $vr, |m| m.$field, |m, v| m.$field = v)
+                .discrete()
+                .unit($unit)
+                .describe($desc)
+        };
+        (int $name:literal, $vr:expr, $field:ident, $desc:literal) => {
+            V::integer($name, $vr, |m| m.$field, |m, v| m.$field = v)
+                .discrete()
+                .describe($desc)
+        };
+    }
+    use AnalogChannel as A;
+    let mut v = vec![
+        V::enumeration(
+            "configuration",
+            1,
+            "Configuration",
+            |m| m.configuration,
+            |m, v| m.configuration = v,
+        )
+        .parameter(Start::Integer(d.configuration.as_i32()))
+        .describe("Actuator configuration the bench is set up in (spring stiffness used; simulated backend)"),
+        V::enumeration(
+            "frictionModel",
+            2,
+            "FrictionModel",
+            |m| m.friction_model,
+            |m, v| m.friction_model = v,
+        )
+        .parameter(Start::Integer(d.friction_model.as_i32()))
+        .describe("Friction law of the simulated backend"),
+        V::enumeration(
+            "testDriverMode",
+            3,
+            "DriverMode",
+            |m| m.test_driver_mode,
+            |m, v| m.test_driver_mode = v,
+        )
+        .parameter(Start::Integer(d.test_driver_mode.as_i32()))
+        .describe("Test driver's configured mode: which command input is sent (the server refuses a mismatch)"),
+        V::enumeration(
+            "loadDriverMode",
+            4,
+            "DriverMode",
+            |m| m.load_driver_mode,
+            |m, v| m.load_driver_mode = v,
+        )
+        .parameter(Start::Integer(d.load_driver_mode.as_i32()))
+        .describe("Load driver's configured mode"),
+        param!("actuationInertia", 10, actuation_inertia, "kg.m2", "I1, for E_k and the torque balance"),
+        param!("loadInertia", 11, load_inertia, "kg.m2", "I2"),
+        param!("actuationDamping", 12, actuation_damping, "N.m.s/rad", "c1, for the friction estimate"),
+        param!("loadDamping", 13, load_damping, "N.m.s/rad", "c2"),
+        param!("springStiffness", 14, spring_stiffness, "N.m/rad", "k: spring torque = k x deflection (SEA, CSEA)"),
+        param!("directCouplingStiffness", 15, direct_coupling_stiffness, "N.m/rad", "Coupling stiffness in DA"),
+        param!("harmonicDriveRatio", 16, harmonic_drive_ratio, None, "i_HD (encoder and torque at the output)"),
+        param!("reductionRatio", 17, reduction_ratio, None, "i_RED"),
+        param!("testMotorResistance", 33, test_motor_resistance, "Ohm", "R1 (armature-voltage estimate)"),
+        param!("testMotorTorqueConstant", 35, test_motor_torque_constant, "N.m/A", "Km1"),
+        param!("testMotorBackEmfConstant", 36, test_motor_back_emf_constant, "V.s/rad", "Ke1"),
+        param!("loadMotorResistance", 38, load_motor_resistance, "Ohm", "R2"),
+        param!("loadMotorTorqueConstant", 40, load_motor_torque_constant, "N.m/A", "Km2"),
+        param!("loadMotorBackEmfConstant", 41, load_motor_back_emf_constant, "V.s/rad", "Ke2"),
+        param!("testSupplyVoltage", 43, test_supply_voltage, "V", "Test supply: voltage set values are clipped to +-this"),
+        param!("loadSupplyVoltage", 44, load_supply_voltage, "V", "Load supply"),
+        param!("testCurrentLimit", 45, test_current_limit, "A", "Test driver limit: current set values clipped; a measured current above it trips"),
+        param!("loadCurrentLimit", 46, load_current_limit, "A", "Load driver limit"),
+        param!("loadRegenPowerLimit", 48, load_regen_power_limit, "W", "Largest regenerated power of the load driver; above it trips"),
+        param!("clutchRatedPower", 50, clutch_power, "W", "Clutch electrical power while engaged"),
+        param!("hardwareOffsetPower", 51, hardware_offset_power, "W", "Hardware offset in the electrical power"),
+        param!("encoderCountsPerRevolution", 52, encoder_counts_per_revolution, None, "Encoder counts per motor revolution after x4 decoding"),
+        param!("transducerOffset", 53, transducer_offset, "V", "Torque transducer calibration a (replaced by the tare)"),
+        param!("transducerGain", 54, transducer_gain, "V", "Torque transducer calibration b"),
+        param!("transducerPhase", 55, transducer_phase, "rad", "Torque transducer calibration c (simulated backend's sensor)"),
+        param!("loadCellOffset", 56, load_cell_offset, "V", "Load cell calibration a (replaced by the tare)"),
+        param!("loadCellGain", 57, load_cell_gain, "V", "Load cell calibration b"),
+        param!("loadCellPhase", 58, load_cell_phase, "rad", "Load cell calibration c"),
+        param!("calibrationPendulumMoment", 59, calibration_pendulum_moment, "N.m", "m g Lg of the calibration pendulum"),
+        param!("dividerOffset", 60, divider_offset, "V", "Supply divider offset"),
+        param!("dividerGain", 61, divider_gain, None, "Supply divider gain"),
+        param!("currentSensorOffset", 62, current_sensor_offset, "V", "Current sensor output at zero current"),
+        param!("currentSensorSensitivity", 63, current_sensor_sensitivity, "V/A", "Current sensor sensitivity"),
+        param!("springDeflectionLimit", 64, spring_deflection_limit, "rad", "Interlock: largest |theta1 - theta2|"),
+        param!("motorTorqueLimit", 65, motor_torque_limit, "N.m", "Interlock: largest output-side motor torque"),
+        V::enumeration("backend", 400, "Backend", |m| m.backend, |m, v| m.backend = v)
+            .parameter(Start::Integer(0))
+            .describe("I/O backend: Simulated (in process) or Udp (bench I/O server)"),
+        V::string(
+            "serverAddress",
+            401,
+            |m| &m.server_address,
+            |m, v| m.server_address = v.to_owned(),
+        )
+        .parameter(Start::String("127.0.0.1:47000"))
+        .describe("host:port of the bench I/O server (Udp backend)"),
+        V::enumeration("pacing", 402, "Pacing", |m| m.pacing, |m, v| m.pacing = v)
+            .parameter(Start::Integer(0))
+            .describe("Pacing: None, Soft or Hard real time"),
+        V::integer(
+            "tareSamples",
+            403,
+            |m| m.tare_samples,
+            |m, v| m.tare_samples = v,
+        )
+        .parameter(Start::Integer(50))
+        .range(0.0, 100_000.0)
+        .describe("Samples averaged at initialization for the zero of the torque channels (0: published offsets)"),
+        V::real("replyTimeout", 404, |m| m.reply_timeout, |m, v| m.reply_timeout = v)
+            .parameter(Start::Real(5e-4))
+            .unit("s")
+            .range(1e-5, 1.0)
+            .describe("Link watchdog: longest wait for a sample (keep below the control period)"),
+        V::real(
+            "safeStateTimeout",
+            405,
+            |m| m.safe_state_timeout,
+            |m, v| m.safe_state_timeout = v,
+        )
+        .parameter(Start::Real(0.05))
+        .unit("s")
+        .range(1e-4, 10.0)
+        .describe("Longest wait for the safe state's acknowledgement (the request is repeated every replyTimeout)"),
+        V::real("spinMargin", 406, |m| m.spin_margin, |m, v| m.spin_margin = v)
+            .parameter(Start::Real(5e-5))
+            .unit("s")
+            .range(0.0, 0.01)
+            .describe("Pacing spins (instead of sleeping) this long before each deadline"),
+        V::real(
+            "maxEncoderSpeed",
+            407,
+            |m| m.plausibility.max_speed,
+            |m, v| m.plausibility.max_speed = v,
+        )
+        .parameter(Start::Real(Plausibility::DEFAULT.max_speed))
+        .unit("rad/s")
+        .range(0.0, 1e4)
+        .describe("Plausibility: fastest output-axis speed; a larger encoder jump is a sensor fault"),
+        window!("loadCellVoltageMin", 410, A::LoadCell, 0, "Plausibility window of the load cell, low end"),
+        window!("loadCellVoltageMax", 411, A::LoadCell, 1, "Load cell, high end"),
+        window!("transducerVoltageMin", 412, A::Transducer, 0, "Torque transducer, low end"),
+        window!("transducerVoltageMax", 413, A::Transducer, 1, "Torque transducer, high end"),
+        window!("testCurrentSenseVoltageMin", 414, A::TestCurrentSense, 0, "Test current sensor, low end"),
+        window!("testCurrentSenseVoltageMax", 415, A::TestCurrentSense, 1, "Test current sensor, high end"),
+        window!("loadCurrentSenseVoltageMin", 416, A::LoadCurrentSense, 0, "Load current sensor, low end"),
+        window!("loadCurrentSenseVoltageMax", 417, A::LoadCurrentSense, 1, "Load current sensor, high end"),
+        window!("testSupplySenseVoltageMin", 418, A::TestSupplySense, 0, "Test supply divider, low end (18 V supply)"),
+        window!("testSupplySenseVoltageMax", 419, A::TestSupplySense, 1, "Test supply divider, high end (30 V)"),
+        window!("loadSupplySenseVoltageMin", 420, A::LoadSupplySense, 0, "Load supply divider, low end (40 V)"),
+        window!("loadSupplySenseVoltageMax", 421, A::LoadSupplySense, 1, "Load supply divider, high end (56 V)"),
+        local!(int "overrunCount", 450, overrun_count, "Pacing overruns so far"),
+        local!(real "lastLateness", 451, last_lateness, "s", "Lateness of the last step's deadline"),
+        local!(real "maxLateness", 452, max_lateness, "s", "Largest lateness so far"),
+        local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (malformed, replayed, out of order, wrong version or session)"),
+        local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
+    ];
+    v.extend(io_variables::<BenchHardwareModel>());
+    v
+});
+
+fn saturate(x: u64) -> i32 {
+    i32::try_from(x).unwrap_or(i32::MAX)
+}
+
+impl BenchHardwareModel {
+    /// The bench parameters with the enumerations applied.
+    fn parameters(&self) -> Result<BenchParameters, ModelError> {
+        let mut p = self.params.clone();
+        p.configuration = Configuration::from_i32(self.configuration)
+            .ok_or_else(|| ModelError::new(format!("configuration {}", self.configuration)))?;
+        p.friction_model = FrictionModel::from_i32(self.friction_model)
+            .ok_or_else(|| ModelError::new(format!("frictionModel {}", self.friction_model)))?;
+        p.test_driver_mode = DriverMode::from_i32(self.test_driver_mode)
+            .ok_or_else(|| ModelError::new(format!("testDriverMode {}", self.test_driver_mode)))?;
+        p.load_driver_mode = DriverMode::from_i32(self.load_driver_mode)
+            .ok_or_else(|| ModelError::new(format!("loadDriverMode {}", self.load_driver_mode)))?;
+        p.validate().map_err(|e| ModelError::new(e.to_string()))?;
+        Ok(p)
+    }
+
+    /// The command of this period from the inputs, clipped like the drivers clip.
+    fn command(&self, p: &BenchParameters) -> Result<Command, ModelError> {
+        let c = &self.commands;
+        let pick =
+            |mode: DriverMode, voltage: f64, current: f64, supply: f64, limit: f64| match mode {
+                DriverMode::Voltage => voltage.clamp(-supply, supply),
+                DriverMode::Current => current.clamp(-limit, limit),
+            };
+        for (name, v) in [
+            ("testVoltageCommand", c.test_voltage),
+            ("testCurrentCommand", c.test_current),
+            ("loadVoltageCommand", c.load_voltage),
+            ("loadCurrentCommand", c.load_current),
+        ] {
+            if !v.is_finite() {
+                return Err(ModelError::new(format!("input {name} is not finite: {v}")));
+            }
+        }
+        Ok(Command {
+            test_set_value: pick(
+                p.test_driver_mode,
+                c.test_voltage,
+                c.test_current,
+                p.test_supply_voltage,
+                p.test_current_limit,
+            ),
+            load_set_value: pick(
+                p.load_driver_mode,
+                c.load_voltage,
+                c.load_current,
+                p.load_supply_voltage,
+                p.load_current_limit,
+            ),
+            test_enable: c.test_enable,
+            load_enable: c.load_enable,
+            clutch: c.clutch_engage,
+            test_kind: kind_of(p.test_driver_mode),
+            load_kind: kind_of(p.load_driver_mode),
+        })
+    }
+
+    fn open_backend(&self, p: &BenchParameters) -> Result<Box<dyn BenchIo>, ModelError> {
+        let backend = Backend::from_i32(self.backend)
+            .ok_or_else(|| ModelError::new(format!("backend {}", self.backend)))?;
+        match backend {
+            Backend::Simulated => {
+                // The bench's own protection in the simulation: the drivers' over-current
+                // and the button stay; the interlocks this FMU checks are lifted so that the
+                // FMU's checks are what trips.
+                let mut sim = p.clone();
+                sim.spring_deflection_limit = 10.0;
+                sim.motor_torque_limit = 1e4;
+                sim.load_regen_power_limit = 1e6;
+                Ok(Box::new(
+                    SimulatedBench::new(sim).map_err(|e| ModelError::new(e.to_string()))?,
+                ))
+            }
+            Backend::Udp => {
+                if PacingMode::from_i32(self.pacing) == Some(PacingMode::None) {
+                    return Err(ModelError::new(
+                        "the Udp backend needs real-time pacing (pacing = Soft or Hard)",
+                    ));
+                }
+                Ok(Box::new(
+                    UdpBench::connect(
+                        &self.server_address,
+                        Duration::from_secs_f64(self.reply_timeout),
+                    )
+                    .map_err(|e| ModelError::new(e.to_string()))?,
+                ))
+            }
+        }
+    }
+
+    fn start(&mut self) -> Result<(), ModelError> {
+        let p = self.parameters()?;
+        let pacing = PacingMode::from_i32(self.pacing)
+            .ok_or_else(|| ModelError::new(format!("pacing {}", self.pacing)))?;
+        let mut io = self.open_backend(&p)?;
+        let safe = Command::safe(kind_of(p.test_driver_mode), kind_of(p.load_driver_mode));
+        let io_err =
+            |what: &str, e: IoError| ModelError::new(format!("initialization: {what}: {e}"));
+        let seq = io
+            .write(0.0, &safe)
+            .map_err(|e| io_err("disabling the drivers", e))?;
+        let mut rt = Runtime {
+            io,
+            cal: Calibration::new(&p),
+            p,
+            limits: self.plausibility,
+            pacer: Pacer::new(pacing, Duration::from_secs_f64(self.spin_margin)),
+            encoders: [Unwrapper::default(); 2],
+            counts: [0; 2],
+            trip: None,
+            safe_timeout: Duration::from_secs_f64(self.safe_state_timeout),
+            warnings: Vec::new(),
+        };
+        let mut tare = Tare::default();
+        let mut last = None;
+        for _ in 0..self.tare_samples.max(1) {
+            let s = rt.io.read(0.0).map_err(|e| io_err("tare sample", e))?;
+            if s.has(status::SAFE_STATE) || s.has(status::EMERGENCY_STOP) {
+                return Err(ModelError::new(format!(
+                    "initialization: the bench is in the safe state (reason {}, status {:#04x}); release the emergency stop and restart the server's session",
+                    s.safe_reason, s.status
+                )));
+            }
+            if s.last_command_sequence != seq {
+                return Err(ModelError::new(
+                    "initialization: the bench did not confirm the drivers-disabled command",
+                ));
+            }
+            rt.limits
+                .check_analog(&s)
+                .map_err(|e| ModelError::new(format!("initialization: {e}")))?;
+            if self.tare_samples > 0 {
+                tare.add(&s);
+            }
+            last = Some(s);
+        }
+        rt.cal.apply_tare(&tare);
+        let Some(s) = last else {
+            return Err(ModelError::new("initialization: no sample"));
+        };
+        rt.encoders[0].update(s.test_counts);
+        rt.encoders[1].update(s.load_counts);
+        let prev = BenchOutputs::default();
+        self.outputs = measure(&rt, &s, &safe, None, &prev, [false; 2]);
+        self.runtime = Slot(Some(Box::new(rt)));
+        Ok(())
+    }
+
+    fn trip(&mut self, code: i32, at: f64) -> Result<StepOutcome, ModelError> {
+        let start = self.start_time;
+        self.outputs.trip_code = code;
+        let Some(rt) = self.runtime.0.as_mut() else {
+            return Err(ModelError::new("not initialized"));
+        };
+        rt.trip = Some((code, at));
+        let name = trip::name(code);
+        match rt
+            .io
+            .enter_safe_state(at - start, reason::CLIENT_REQUEST, rt.safe_timeout)
+        {
+            Ok(ack)
+                if ack.has(status::SAFE_STATE)
+                    && !ack.has(status::TEST_ENABLED | status::LOAD_ENABLED | status::CLUTCH) =>
+            {
+                Ok(StepOutcome::Terminated { at, reason: name })
+            }
+            Ok(ack) => Err(ModelError::new(format!(
+                "trip {code} ({name}) at t = {at}: the bench acknowledged the safe state with outputs still on (status {:#04x}): NOT SAFE",
+                ack.status
+            ))),
+            Err(e) => Err(ModelError::new(format!(
+                "trip {code} ({name}) at t = {at}: safe state NOT confirmed ({e}); only the bench's own watchdog can stop it"
+            ))),
+        }
+    }
+
+    fn sync_statistics(&mut self) {
+        if let Some(rt) = self.runtime.0.as_ref() {
+            let s = rt.pacer.stats;
+            self.overrun_count = saturate(s.overruns);
+            self.last_lateness = s.last_lateness;
+            self.max_lateness = s.max_lateness;
+            self.rejected_frames = saturate(rt.io.counters().rejected());
+            self.stale_replies = saturate(rt.io.stale_replies());
+        }
+    }
+
+    fn step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
+        let start = self.start_time;
+        let Some(rt) = self.runtime.0.as_mut() else {
+            return Err(ModelError::new("the bench was not initialized"));
+        };
+        if let Some((code, at)) = rt.trip {
+            return Ok(StepOutcome::Terminated {
+                at,
+                reason: trip::name(code),
+            });
+        }
+        if self.commands.emergency_stop {
+            return self.trip(7, t);
+        }
+        let p = rt.p.clone();
+        let command = match self.command(&p) {
+            Ok(c) => c,
+            Err(e) => {
+                // A broken controller: stop the bench, then fail.
+                let _ = self.trip(trip::LINK, t);
+                return Err(e);
+            }
+        };
+        let Some(rt) = self.runtime.0.as_mut() else {
+            return Err(ModelError::new("the bench was not initialized"));
+        };
+        rt.pacer.start(t);
+        let seq = match rt.io.write(t - start, &command) {
+            Ok(seq) => seq,
+            Err(_) => return self.trip(trip::LINK, t),
+        };
+        let wait = rt.pacer.wait(t + h);
+        if wait.overrun && rt.pacer.mode() == PacingMode::Soft {
+            let n = rt.pacer.stats.overruns;
+            if n <= 20 || n.is_multiple_of(1000) {
+                rt.warnings.push(format!(
+                    "overrun at t = {t}: the step reached its deadline {:.0} us late ({n} overruns so far)",
+                    wait.lateness * 1e6
+                ));
+            }
+        }
+        let sample = match rt.io.read(t + h - start) {
+            Ok(s) => s,
+            Err(_) => return self.trip(trip::LINK, t),
+        };
+        // Raw channels into the outputs first, so that a row at the trip shows them.
+        let prev = self.outputs;
+        let first_counts = rt.counts;
+        let c1 = rt.encoders[0].update(sample.test_counts);
+        let c2 = rt.encoders[1].update(sample.load_counts);
+        rt.counts = [c1, c2];
+        let stuck = [c1 == first_counts[0], c2 == first_counts[1]];
+        let mut code = 0;
+        if sample.has(status::EMERGENCY_STOP) {
+            code = 7;
+        } else if sample.has(status::SAFE_STATE) {
+            code = trip::BENCH;
+        } else if rt.limits.check_analog(&sample).is_err()
+            || rt
+                .limits
+                .check_encoder(&rt.cal, Side::Actuation, c1 - first_counts[0], h)
+                .is_err()
+            || rt
+                .limits
+                .check_encoder(&rt.cal, Side::Load, c2 - first_counts[1], h)
+                .is_err()
+        {
+            code = trip::SENSOR;
+        }
+        if code == trip::SENSOR {
+            let fault = rt
+                .limits
+                .check_analog(&sample)
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_else(|| "encoder jump".into());
+            rt.warnings.push(format!("t = {}: {fault}", t + h));
+            raw_into(&mut self.outputs, &sample);
+        } else {
+            self.outputs = measure(rt, &sample, &command, Some(h), &prev, stuck);
+        }
+        if code == 0 {
+            code = interlock(&rt.p, &self.outputs);
+        }
+        if code == 0 && sample.last_command_sequence != seq {
+            code = trip::LINK;
+        }
+        if code == 0 && wait.overrun && rt.pacer.mode() == PacingMode::Hard {
+            code = trip::OVERRUN;
+        }
+        self.sync_statistics();
+        if code != 0 {
+            return self.trip(code, t + h);
+        }
+        Ok(StepOutcome::Completed)
+    }
+}
+
+/// The interlock of bench-model.md §7 the outputs violate (code 1-6), or 0.
+fn interlock(p: &BenchParameters, o: &BenchOutputs) -> i32 {
+    if o.spring_deflection.abs() > p.spring_deflection_limit {
+        1
+    } else if o.test_output_torque.abs() > p.motor_torque_limit {
+        2
+    } else if o.load_output_torque.abs() > p.motor_torque_limit {
+        3
+    } else if o.test_motor_current.abs() > p.test_current_limit {
+        4
+    } else if o.load_motor_current.abs() > p.load_current_limit {
+        5
+    } else if o.load_regenerated_power > p.load_regen_power_limit {
+        6
+    } else {
+        0
+    }
+}
+
+fn raw_into(o: &mut BenchOutputs, s: &Sample) {
+    let a = |c: AnalogChannel| s.analog[c.index()];
+    o.load_cell_voltage = a(AnalogChannel::LoadCell);
+    o.transducer_voltage = a(AnalogChannel::Transducer);
+    o.test_current_sense_voltage = a(AnalogChannel::TestCurrentSense);
+    o.load_current_sense_voltage = a(AnalogChannel::LoadCurrentSense);
+    o.test_supply_sense_voltage = a(AnalogChannel::TestSupplySense);
+    o.load_supply_sense_voltage = a(AnalogChannel::LoadSupplySense);
+    o.clutch_engaged = s.has(status::CLUTCH);
+}
+
+/// Armature voltage estimate and saturation of one driver.
+fn armature(
+    enabled: bool,
+    kind_is_voltage: bool,
+    set_value: f64,
+    needed: f64,
+    supply: f64,
+) -> (f64, bool) {
+    if enabled && kind_is_voltage {
+        (set_value.clamp(-supply, supply), set_value.abs() >= supply)
+    } else {
+        (
+            needed.clamp(-supply, supply),
+            enabled && needed.abs() >= supply,
+        )
+    }
+}
+
+/// The outputs from a sample (module docs, "Outputs"). `h` is `None` at initialization.
+fn measure(
+    rt: &Runtime,
+    s: &Sample,
+    applied: &Command,
+    h: Option<f64>,
+    prev: &BenchOutputs,
+    stuck: [bool; 2],
+) -> BenchOutputs {
+    let p = &rt.p;
+    let cal = &rt.cal;
+    let mut o = BenchOutputs::default();
+    raw_into(&mut o, s);
+    let a = |c: AnalogChannel| s.analog[c.index()];
+    let [c1, c2] = [rt.encoders[0].total(), rt.encoders[1].total()];
+    let th1 = cal.angle(Side::Actuation, c1);
+    let th2 = cal.angle(Side::Load, c2);
+    o.actuation_encoder_counts = c1 as f64;
+    o.load_encoder_counts = c2 as f64;
+    o.actuation_encoder_angle = th1;
+    o.load_encoder_angle = th2;
+    o.actuation_angle = th1;
+    o.load_angle = th2;
+    let (w1, w2, a1, a2) = match h {
+        Some(h) => {
+            let w1 = (th1 - prev.actuation_angle) / h;
+            let w2 = (th2 - prev.load_angle) / h;
+            (
+                w1,
+                w2,
+                (w1 - prev.actuation_velocity) / h,
+                (w2 - prev.load_velocity) / h,
+            )
+        }
+        None => (0.0, 0.0, 0.0, 0.0),
+    };
+    o.actuation_velocity = w1;
+    o.load_velocity = w2;
+    o.actuation_acceleration = a1;
+    o.load_acceleration = a2;
+    let k = match p.configuration {
+        Configuration::Da => p.direct_coupling_stiffness,
+        _ => p.spring_stiffness,
+    };
+    let defl = th1 - th2;
+    o.spring_deflection = defl;
+    o.spring_torque = k * defl;
+    let i1 = cal.current(a(AnalogChannel::TestCurrentSense));
+    let i2 = cal.current(a(AnalogChannel::LoadCurrentSense));
+    o.test_motor_current = i1;
+    o.load_motor_current = i2;
+    o.test_motor_torque = p.test_motor_torque_constant * i1;
+    o.load_motor_torque = p.load_motor_torque_constant * i2;
+    o.test_output_torque = p.harmonic_drive_ratio * o.test_motor_torque;
+    o.load_output_torque = p.reduction_ratio * o.load_motor_torque;
+    o.transducer_torque = cal.transducer_torque(a(AnalogChannel::Transducer));
+    o.load_cell_torque = cal.load_cell_torque(a(AnalogChannel::LoadCell));
+    let wm1 = p.harmonic_drive_ratio * w1;
+    let wm2 = p.reduction_ratio * w2;
+    let supply1 = cal.supply_voltage(a(AnalogChannel::TestSupplySense));
+    let supply2 = cal.supply_voltage(a(AnalogChannel::LoadSupplySense));
+    let (v1, sat1) = armature(
+        applied.test_enable,
+        p.test_driver_mode == DriverMode::Voltage,
+        applied.test_set_value,
+        p.test_motor_resistance * i1 + p.test_motor_back_emf_constant * wm1,
+        supply1,
+    );
+    let (v2, sat2) = armature(
+        applied.load_enable,
+        p.load_driver_mode == DriverMode::Voltage,
+        applied.load_set_value,
+        p.load_motor_resistance * i2 + p.load_motor_back_emf_constant * wm2,
+        supply2,
+    );
+    o.test_motor_voltage = v1;
+    o.load_motor_voltage = v2;
+    o.test_driver_saturated = sat1;
+    o.load_driver_saturated = sat2;
+    o.actuation_stuck = stuck[0];
+    o.load_stuck = stuck[1];
+    o.test_mechanical_power = o.test_output_torque * w1;
+    o.load_mechanical_power = o.load_output_torque * w2;
+    o.kinetic_energy = 0.5 * (p.actuation_inertia * w1 * w1 + p.load_inertia * w2 * w2);
+    o.potential_energy = 0.5 * k * defl * defl;
+    o.kinetic_energy_change = o.kinetic_energy;
+    o.potential_energy_change = o.potential_energy;
+    o.actuation_loss_power =
+        p.actuation_inertia * w1 * a1 + o.spring_torque * w1 - o.test_mechanical_power;
+    o.load_loss_power = p.load_inertia * w2 * a2 - o.spring_torque * w2 - o.load_mechanical_power;
+    o.loss_power = o.actuation_loss_power + o.load_loss_power;
+    o.actuation_friction_torque =
+        p.actuation_inertia * a1 + p.actuation_damping * w1 + o.spring_torque
+            - o.test_output_torque;
+    o.load_friction_torque =
+        p.load_inertia * a2 + p.load_damping * w2 - o.spring_torque - o.load_output_torque;
+    o.test_electrical_power = v1 * i1;
+    o.load_electrical_power = v2 * i2;
+    o.load_regenerated_power = (-o.load_electrical_power).max(0.0);
+    o.clutch_power = if o.clutch_engaged {
+        p.clutch_power
+    } else {
+        0.0
+    };
+    o.offset_power = p.hardware_offset_power;
+    o.total_electrical_power =
+        o.test_electrical_power + o.load_electrical_power + o.clutch_power + o.offset_power;
+    let copper = [
+        p.test_motor_resistance * i1 * i1,
+        p.load_motor_resistance * i2 * i2,
+    ];
+    let emf = [
+        p.test_motor_back_emf_constant * wm1 * i1,
+        p.load_motor_back_emf_constant * wm2 * i2,
+    ];
+    if let Some(h) = h {
+        o.kinetic_energy_rate = (o.kinetic_energy - prev.kinetic_energy) / h;
+        o.potential_energy_rate = (o.potential_energy - prev.potential_energy) / h;
+        let trap = |acc: f64, a: f64, b: f64| acc + 0.5 * h * (a + b);
+        let pos = |x: f64| x.max(0.0);
+        o.test_mechanical_energy = trap(
+            prev.test_mechanical_energy,
+            prev.test_mechanical_power,
+            o.test_mechanical_power,
+        );
+        o.test_mechanical_energy_consumed = trap(
+            prev.test_mechanical_energy_consumed,
+            pos(prev.test_mechanical_power),
+            pos(o.test_mechanical_power),
+        );
+        o.load_mechanical_energy = trap(
+            prev.load_mechanical_energy,
+            prev.load_mechanical_power,
+            o.load_mechanical_power,
+        );
+        o.load_mechanical_energy_consumed = trap(
+            prev.load_mechanical_energy_consumed,
+            pos(prev.load_mechanical_power),
+            pos(o.load_mechanical_power),
+        );
+        o.loss_energy = trap(prev.loss_energy, prev.loss_power, o.loss_power);
+        o.actuation_loss_energy = trap(
+            prev.actuation_loss_energy,
+            prev.actuation_loss_power,
+            o.actuation_loss_power,
+        );
+        o.load_loss_energy = trap(
+            prev.load_loss_energy,
+            prev.load_loss_power,
+            o.load_loss_power,
+        );
+        o.test_electrical_energy = trap(
+            prev.test_electrical_energy,
+            prev.test_electrical_power,
+            o.test_electrical_power,
+        );
+        o.test_electrical_energy_consumed = trap(
+            prev.test_electrical_energy_consumed,
+            pos(prev.test_electrical_power),
+            pos(o.test_electrical_power),
+        );
+        o.load_electrical_energy = trap(
+            prev.load_electrical_energy,
+            prev.load_electrical_power,
+            o.load_electrical_power,
+        );
+        o.load_electrical_energy_consumed = trap(
+            prev.load_electrical_energy_consumed,
+            pos(prev.load_electrical_power),
+            pos(o.load_electrical_power),
+        );
+        o.clutch_energy = trap(prev.clutch_energy, prev.clutch_power, o.clutch_power);
+        o.offset_energy = trap(prev.offset_energy, prev.offset_power, o.offset_power);
+        o.total_electrical_energy = trap(
+            prev.total_electrical_energy,
+            prev.total_electrical_power,
+            o.total_electrical_power,
+        );
+        o.total_electrical_energy_consumed = trap(
+            prev.total_electrical_energy_consumed,
+            pos(prev.total_electrical_power),
+            pos(o.total_electrical_power),
+        );
+        let prev_copper = [
+            p.test_motor_resistance * prev.test_motor_current.powi(2),
+            p.load_motor_resistance * prev.load_motor_current.powi(2),
+        ];
+        let prev_emf = [
+            p.test_motor_back_emf_constant
+                * p.harmonic_drive_ratio
+                * prev.actuation_velocity
+                * prev.test_motor_current,
+            p.load_motor_back_emf_constant
+                * p.reduction_ratio
+                * prev.load_velocity
+                * prev.load_motor_current,
+        ];
+        o.test_copper_loss_energy = trap(prev.test_copper_loss_energy, prev_copper[0], copper[0]);
+        o.load_copper_loss_energy = trap(prev.load_copper_loss_energy, prev_copper[1], copper[1]);
+        o.test_back_emf_energy = trap(prev.test_back_emf_energy, prev_emf[0], emf[0]);
+        o.load_back_emf_energy = trap(prev.load_back_emf_energy, prev_emf[1], emf[1]);
+    }
+    o.trip_code = prev.trip_code;
+    o
+}
+
+impl ReferenceInputs for BenchHardwareModel {
+    fn reference_inputs() -> Option<String> {
+        // The plant's documented open-loop run (current-mode sinusoids, clutch pulse), on the
+        // simulated backend: the packed reference results show the hardware path (raw sensors,
+        // calibration with tare, finite-difference velocities) on the same inputs.
+        BenchPlantInputs::reference_inputs()
+    }
+}
+
+use super::bench_plant::BenchPlantModel as BenchPlantInputs;
+
+impl Model for BenchHardwareModel {
+    const IDENTIFIER: &'static str = "BenchHardware";
+    const DESCRIPTION: &'static str = "The knee-actuator test bench itself: the plant's signal interface over bench I/O (simulated in process, or a UDP real-time I/O server), with calibration, tare, plausibility checks, real-time pacing and latched safety interlocks";
+    const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 5.0, 1e-3);
+
+    fn variables() -> &'static [Variable<Self>] {
+        &VARIABLES
+    }
+
+    fn enumerations() -> &'static [EnumerationType] {
+        &ENUMERATIONS
+    }
+
+    fn initialize(&mut self, start_time: f64) -> Result<(), ModelError> {
+        self.start_time = start_time;
+        self.start()
+    }
+
+    fn calculate(&mut self, _t: f64) -> Result<(), ModelError> {
+        Ok(())
+    }
+
+    fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
+        self.step(t, h)
+    }
+
+    fn take_warnings(&mut self) -> Vec<String> {
+        match self.runtime.0.as_mut() {
+            Some(rt) if !rt.warnings.is_empty() => std::mem::take(&mut rt.warnings),
+            _ => Vec::new(),
+        }
+    }
+
+    fn save_internal(&self, w: &mut StateWriter) {
+        w.f64(self.start_time);
+        w.bool(self.runtime.0.is_some());
+    }
+
+    fn load_internal(&mut self, r: &mut StateReader<'_>) -> Result<(), StateError> {
+        self.start_time = r.f64()?;
+        if r.bool()? {
+            return Err(StateError(
+                "a BenchHardware state saved after initialization cannot be restored: the physical bench cannot be rewound".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn documentation() -> &'static str {
+        static HTML: LazyLock<String> =
+            LazyLock::new(|| crate::model::module_doc_html(include_str!("bench_hardware.rs")));
+        &HTML
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Causality, model_description};
+    use crate::models::bench_plant::BenchPlantModel;
+    use ::model_description::ModelDescription;
+
+    fn interface(md: &ModelDescription) -> Vec<String> {
+        md.model_variables
+            .iter()
+            .filter(|v| matches!(v.causality, Some(Causality::Input | Causality::Output)))
+            .map(|v| format!("{v:?}"))
+            .collect()
+    }
+
+    #[test]
+    fn inputs_and_outputs_are_the_plants_exactly() {
+        let plant = model_description::<BenchPlantModel>();
+        let hw = model_description::<BenchHardwareModel>();
+        let (a, b) = (interface(&plant), interface(&hw));
+        assert!(a.len() >= 8 + 74, "{}", a.len());
+        assert_eq!(a, b);
+        // Outputs are listed in the same order in the ModelStructure, by name.
+        let outputs = |md: &ModelDescription| {
+            md.model_structure
+                .outputs
+                .iter()
+                .map(|u| md.model_variables[u.index as usize - 1].name.clone())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(outputs(&plant), outputs(&hw));
+    }
+
+    #[test]
+    fn shared_parameters_have_the_plants_reference_unit_and_range() {
+        let plant = model_description::<BenchPlantModel>();
+        let hw = model_description::<BenchHardwareModel>();
+        let mut shared = 0;
+        for v in &hw.model_variables {
+            if v.value_reference < 400 && v.causality == Some(Causality::Parameter) {
+                let Some(pv) = plant.model_variables.iter().find(|p| p.name == v.name) else {
+                    panic!(
+                        "{} is not a plant parameter but has a plant-range reference",
+                        v.name
+                    )
+                };
+                assert_eq!(pv.value_reference, v.value_reference, "{}", v.name);
+                assert_eq!(
+                    format!("{:?}", pv.kind),
+                    format!("{:?}", v.kind),
+                    "{}",
+                    v.name
+                );
+                shared += 1;
+            } else if v.causality == Some(Causality::Parameter) {
+                assert!(
+                    plant
+                        .model_variables
+                        .iter()
+                        .all(|p| p.value_reference != v.value_reference),
+                    "{}",
+                    v.name
+                );
+            }
+        }
+        assert!(shared >= 35, "{shared}");
+    }
+
+    fn started(configure: impl FnOnce(&mut BenchHardwareModel)) -> BenchHardwareModel {
+        let mut m = crate::fmi2::instance::fresh_model::<BenchHardwareModel>();
+        configure(&mut m);
+        m.initialize(0.0).unwrap();
+        m
+    }
+
+    fn run(m: &mut BenchHardwareModel, n: usize, h: f64) -> Option<(f64, &'static str)> {
+        for k in 0..n {
+            match m.do_step(k as f64 * h, h).unwrap() {
+                StepOutcome::Completed => {}
+                StepOutcome::Terminated { at, reason } => return Some((at, reason)),
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn simulated_bench_at_rest_reads_zero_after_the_tare() {
+        let mut m = started(|_| {});
+        assert!(m.outputs.transducer_torque.abs() < 1e-12);
+        assert!(m.outputs.load_cell_torque.abs() < 1e-9);
+        m.commands.test_enable = false;
+        m.commands.load_enable = false;
+        assert_eq!(run(&mut m, 100, 1e-3), None);
+        assert_eq!(m.outputs.actuation_encoder_counts, 0.0);
+        assert!(m.outputs.test_motor_current.abs() < 1e-12);
+    }
+
+    #[test]
+    fn simulated_bench_follows_the_plant() {
+        use crate::models::bench::{BenchInputs, BenchPlant};
+        let h = 1e-3;
+        let mut hw = started(|_| {});
+        let mut plant = BenchPlant::new(BenchParameters::default()).unwrap();
+        let cal = Calibration::new(&BenchParameters::default());
+        for k in 0..1000 {
+            let t = k as f64 * h;
+            let i1 = 2.0 * (std::f64::consts::TAU * 0.4 * t).sin();
+            hw.commands.test_current = i1;
+            let inputs = BenchInputs {
+                test_command: i1,
+                test_enable: true,
+                load_enable: true,
+                ..BenchInputs::default()
+            };
+            assert_eq!(hw.do_step(t, h).unwrap(), StepOutcome::Completed);
+            plant.step(&inputs, h);
+            let (a, b) = (hw.signals(), plant.outputs());
+            assert_eq!(a.actuation_encoder_counts, b.actuation_encoder_counts);
+            assert!(
+                (a.actuation_angle - b.actuation_angle).abs() < cal.resolution(Side::Actuation)
+            );
+            assert!((a.test_motor_current - b.test_motor_current).abs() < 1e-12);
+        }
+        assert!(hw.signals().actuation_encoder_counts > 1000.0);
+    }
+
+    #[test]
+    fn interlocks_trip_latch_and_never_drive_again() {
+        // Test motor torque: 4 A x 0.037 x 160 = 23.7 N m > 20 N m.
+        let mut m = started(|_| {});
+        m.commands.test_current = 4.0;
+        let (at, reason) = run(&mut m, 100, 1e-3).unwrap();
+        assert_eq!(m.outputs.trip_code, 2, "{reason}");
+        assert!(at <= 0.002, "{at}");
+        // Latched: the next step reports the same trip and does nothing.
+        assert_eq!(
+            m.do_step(at, 1e-3).unwrap(),
+            StepOutcome::Terminated { at, reason }
+        );
+        // Emergency-stop input: trips at the start of the step.
+        let mut m = started(|_| {});
+        m.commands.emergency_stop = true;
+        assert_eq!(run(&mut m, 10, 1e-3), Some((0.0, "emergency stop")));
+        assert_eq!(m.outputs.trip_code, 7);
+        // Spring deflection: the load side is pushed against a blocked actuation side.
+        let mut m2 = started(|m| m.params.motor_torque_limit = 1e3);
+        m2.commands.clutch_engage = true;
+        m2.commands.load_current = 4.5;
+        run(&mut m2, 2000, 1e-3).unwrap();
+        assert_eq!(m2.outputs.trip_code, 1);
+        // A sensor window that excludes the reading: sensor fault.
+        let mut m3 = started(|m| {
+            m.plausibility.analog[AnalogChannel::TestCurrentSense.index()] = (2.0, 2.7)
+        });
+        m3.commands.test_current = 3.0;
+        run(&mut m3, 100, 1e-3).unwrap();
+        assert_eq!(m3.outputs.trip_code, trip::SENSOR);
+    }
+
+    #[test]
+    fn udp_backend_needs_pacing_and_a_state_after_start_is_not_restorable() {
+        let mut m = crate::fmi2::instance::fresh_model::<BenchHardwareModel>();
+        m.backend = 1;
+        assert!(m.initialize(0.0).unwrap_err().message.contains("pacing"));
+        let m = started(|_| {});
+        let mut w = StateWriter::default();
+        m.save_internal(&mut w);
+        let mut fresh = BenchHardwareModel::default();
+        assert!(
+            fresh
+                .load_internal(&mut StateReader::new(&w.bytes))
+                .is_err()
+        );
+    }
+}
