@@ -98,10 +98,19 @@
 //! state is stopped at the trip instant and latched, after which `step` returns the trip and
 //! does nothing (safe state: commands zeroed, drivers disabled, clutch released).
 //! * `SpringDeflection`: |theta1 - theta2| > 5 deg.
-//! * `TestMotorTorque` / `LoadMotorTorque`: the **output-side** motor torque |i_HD Km1 i1|,
-//!   |i_RED Km2 i2| > 20 N m. (Motor-shaft torques never reach 20 N m: 15 A x 0.037 = 0.56 N m;
-//!   at the output the drivers could give 88.8 and 45 N m.) With the defaults this trips at
-//!   3.38 A / 2.66 A, before the current limits.
+//! * `TestMotorTorque`: the test motor's torque **past the harmonic drive**, i.e. the torque
+//!   the shaft carries, |k (theta1 - theta2)| (the torque transducer's quantity), above 20 N m.
+//!   `LoadMotorTorque`: the load motor's output torque |i_RED Km2 i2| above 20 N m.
+//!   Interpretation, to be confirmed by the bench owner: the bench facts say "either motor
+//!   torque outside [-20, 20] N m". Motor-shaft torques cannot reach it (15 A x 0.037 =
+//!   0.56 N m). The test motor's output torque i_HD Km1 i1 for the default gait (2.5 s, 60 deg,
+//!   9 N m) needs about 35 N m, 27 N m of it the harmonic drive's own viscous loss c1 omega1,
+//!   and even a loss-free actuator needs the 17.5 N m peak ground reaction plus 5 N m of
+//!   friction: since the bench ran that gait, its interlock cannot have watched i_HD Km1 i1.
+//!   The harmonic drive's losses and the clutch (on its input side) stay inside the actuator;
+//!   what leaves it is the shaft torque, which for that gait peaks just under 20 N m, as the
+//!   choice of 9 N m (17.5 N m peak) suggests. The load side's gearbox is nearly loss-free
+//!   (c2 = 1 N m s/rad, 0.35 N m), so its output torque is what it puts into the shaft.
 //! * `TestCurrent` / `LoadCurrent`: |i| > 15 A / 6 A (reachable in voltage mode, or when a
 //!   saturated current loop is back-driven).
 //! * `RegenPower`: load driver absorbing more than 5 W.

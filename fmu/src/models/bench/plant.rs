@@ -599,7 +599,11 @@ impl BenchPlant {
                 Interlock::SpringDeflection => {
                     (z[THETA1] - z[THETA2]).abs() - p.spring_deflection_limit
                 }
-                Interlock::TestMotorTorque => (tpa[0] * z[CURRENT1]).abs() - p.motor_torque_limit,
+                // The test side's torque past the harmonic drive: what the shaft carries
+                // (see the module docs for why not i_HD Km1 i1).
+                Interlock::TestMotorTorque => {
+                    (p.coupling_stiffness() * (z[THETA1] - z[THETA2])).abs() - p.motor_torque_limit
+                }
                 Interlock::LoadMotorTorque => (tpa[1] * z[CURRENT2]).abs() - p.motor_torque_limit,
                 Interlock::TestCurrent => z[CURRENT1].abs() - p.test_current_limit,
                 Interlock::LoadCurrent => z[CURRENT2].abs() - p.load_current_limit,

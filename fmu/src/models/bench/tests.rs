@@ -485,16 +485,19 @@ fn interlock_spring_deflection() {
 
 #[test]
 fn interlock_test_motor_torque() {
+    // The load side held by friction, the actuation side frictionless: the test motor winds
+    // the spring slowly, so the shaft torque follows its output torque.
     check_interlock(
         Interlock::TestMotorTorque,
-        |_| {},
-        |pl, fraction| BenchInputs {
-            clutch_engage: true,
-            ..torque_inputs(pl, 20.0 * fraction, 0.0)
+        |p| {
+            p.actuation_static_friction = 0.0;
+            p.load_static_friction = 100.0;
+            p.spring_deflection_limit = 10.0;
         },
-        |o| o.test_output_torque.abs(),
+        |pl, fraction| torque_inputs(pl, 20.0 * fraction, 0.0),
+        |o| o.spring_torque.abs(),
         20.0,
-        1.0,
+        5.0,
     );
 }
 
@@ -508,6 +511,26 @@ fn interlock_load_motor_torque() {
         20.0,
         1.0,
     );
+}
+
+#[test]
+fn test_motor_torque_held_by_the_clutch_does_not_trip() {
+    // 25 N m at the output against the engaged clutch (120 N m, on the harmonic drive's input):
+    // the shaft carries nothing, so the test-motor torque interlock stays quiet.
+    let mut plant = plant_with(|_| {});
+    let outcome = drive_until_trip(&mut plant, 1e-3, 0.5, |pl, _| BenchInputs {
+        clutch_engage: true,
+        ..torque_inputs(pl, 25.0, 0.0)
+    });
+    assert_eq!(outcome, None);
+    let o = plant.outputs();
+    assert!(
+        (o.test_output_torque - 25.0).abs() < 1e-6,
+        "{}",
+        o.test_output_torque
+    );
+    assert!(o.spring_torque.abs() < 1e-9, "{}", o.spring_torque);
+    assert!(o.actuation_stuck);
 }
 
 #[test]
