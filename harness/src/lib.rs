@@ -36,6 +36,12 @@
 #[allow(missing_docs, clippy::all)]
 pub mod fmi2;
 
+/// The UDP bench protocol's frame codec, shared with the `fmu` crate by including its file
+/// (`docs/bench-protocol.md`).
+#[path = "../../fmu/src/hardware/protocol.rs"]
+pub mod bench_protocol;
+
+pub mod emulator;
 pub mod instance;
 pub mod load;
 pub mod master;

@@ -66,6 +66,9 @@ pub trait BenchIo: Send {
         timeout: Duration,
     ) -> Result<Sample, IoError>;
 
+    /// Sets how long a sample is awaited (network backends; the in-process bench ignores it).
+    fn set_reply_timeout(&mut self, _timeout: Duration) {}
+
     /// Frames rejected by the receive filter (zero for in-process backends).
     fn counters(&self) -> Counters {
         Counters::default()
@@ -356,6 +359,10 @@ impl BenchIo for UdpBench {
                 Err(e) => return Err(e),
             }
         }
+    }
+
+    fn set_reply_timeout(&mut self, timeout: Duration) {
+        self.reply_timeout = timeout;
     }
 
     fn counters(&self) -> Counters {

@@ -67,6 +67,8 @@
 //! (Discard when the safe state is acknowledged, Error when it is not.)
 //!
 //! ## Calibration and initialization
+//! During initialization samples are awaited up to 0.2 s (the server may be starting its
+//! session); from the first step on, `replyTimeout`.
 //! `fmi2ExitInitializationMode` opens the backend, commands the drivers disabled and the clutch
 //! released, and reads `tareSamples` samples (default 50): their mean is the zero of the torque
 //! transducer and of the load cell (calibration of bench-model.md §8, with the tared zero in
@@ -117,6 +119,9 @@ use crate::model::{
     Variable,
 };
 use crate::registry::ReferenceInputs;
+
+/// How long a sample is awaited during initialization [s].
+const INIT_REPLY_TIMEOUT: f64 = 0.2;
 
 /// Trip codes beyond the plant's interlocks (1-7).
 pub mod trip {
@@ -565,9 +570,10 @@ impl BenchHardwareModel {
                     ));
                 }
                 Ok(Box::new(
+                    // Initialization (session start, tare) may wait longer than a period.
                     UdpBench::connect(
                         &self.server_address,
-                        Duration::from_secs_f64(self.reply_timeout),
+                        Duration::from_secs_f64(self.reply_timeout.max(INIT_REPLY_TIMEOUT)),
                     )
                     .map_err(|e| ModelError::new(e.to_string()))?,
                 ))
@@ -622,6 +628,8 @@ impl BenchHardwareModel {
             last = Some(s);
         }
         rt.cal.apply_tare(&tare);
+        rt.io
+            .set_reply_timeout(Duration::from_secs_f64(self.reply_timeout));
         let Some(s) = last else {
             return Err(ModelError::new("initialization: no sample"));
         };

@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod emulate;
 pub mod export;
 pub mod info;
 pub mod metrics;
@@ -52,6 +53,8 @@ pub enum Command {
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
     Tune(tune::Args),
+    /// Serve the UDP bench protocol with the BenchPlant FMU running in real time behind it.
+    Emulate(emulate::Args),
 }
 
 /// Runs a parsed command line; returns the exit code.
@@ -64,5 +67,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Plot(a) => plot::run(a),
         Command::Metrics(a) => metrics::run(a),
         Command::Tune(a) => tune::run(a),
+        Command::Emulate(a) => emulate::run(a),
     }
 }

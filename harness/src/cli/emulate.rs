@@ -1,0 +1,110 @@
+//! `kneebench emulate`: serve the UDP bench protocol with the plant running in real time.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, bail};
+use kneebench_harness::bench_protocol::FaultInjection;
+use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
+
+/// Arguments of `kneebench emulate`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  kneebench emulate --bind 127.0.0.1:47000 --fmu BenchPlant.fmu
+  kneebench emulate --bind 127.0.0.1:0 --param configuration=2 --fault stuck:1
+Faults (--fault, repeatable; also injectable at run time by FaultInject frames):
+  drop:N          drop the next N replies
+  delay:N:SECONDS send the next N replies SECONDS late
+  stuck:CH        hold channel CH (0 load cell, 1 transducer, 2/3 test/load current sensor,
+                  4/5 test/load supply divider, 6/7 test/load encoder) at its present value
+  force:CH:VOLTS  force analog channel CH to VOLTS
+  estop           press the emergency-stop button
+  silence         answer nothing (the link is lost)")]
+pub struct Args {
+    /// Address to serve on (port 0: an ephemeral port, printed at start).
+    #[arg(long, default_value = "127.0.0.1:47000")]
+    pub bind: String,
+    /// The BenchPlant FMU (from `kneebench export`).
+    #[arg(long, default_value = "BenchPlant.fmu")]
+    pub fmu: PathBuf,
+    /// A plant parameter, NAME=VALUE (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Heartbeat timeout in seconds: silence after which the server enters the safe state.
+    #[arg(long, default_value_t = 0.05)]
+    pub heartbeat_timeout: f64,
+    /// A fault in force from the start (see below; repeatable).
+    #[arg(long = "fault", value_name = "FAULT")]
+    pub faults: Vec<String>,
+    /// Stop after this many seconds (default: run until interrupted).
+    #[arg(long)]
+    pub duration: Option<f64>,
+}
+
+/// Parses a `--fault` argument.
+pub fn parse_fault(text: &str) -> anyhow::Result<FaultInjection> {
+    let parts: Vec<&str> = text.split(':').collect();
+    let num = |i: usize| -> anyhow::Result<f64> {
+        parts
+            .get(i)
+            .with_context(|| format!("fault `{text}`: missing field {i}"))?
+            .parse::<f64>()
+            .with_context(|| format!("fault `{text}`: field {i} is not a number"))
+    };
+    Ok(match parts[0] {
+        "drop" => FaultInjection::DropReplies {
+            count: num(1)? as u32,
+        },
+        "delay" => FaultInjection::DelayReplies {
+            count: num(1)? as u32,
+            delay_s: num(2)?,
+        },
+        "stuck" => FaultInjection::Stuck {
+            channel: num(1)? as u8,
+        },
+        "force" => FaultInjection::Force {
+            channel: num(1)? as u8,
+            volts: num(2)?,
+        },
+        "estop" => FaultInjection::EmergencyStop,
+        "silence" => FaultInjection::Silence,
+        other => bail!("unknown fault `{other}`"),
+    })
+}
+
+/// Runs `kneebench emulate`.
+pub fn run(args: Args) -> anyhow::Result<i32> {
+    let mut config = EmulatorConfig::new(args.bind.clone(), args.fmu.clone());
+    for p in &args.params {
+        let (name, value) = p
+            .split_once('=')
+            .with_context(|| format!("--param `{p}` is not NAME=VALUE"))?;
+        config.parameters.push((name.to_owned(), value.to_owned()));
+    }
+    if !(args.heartbeat_timeout.is_finite() && args.heartbeat_timeout > 0.0) {
+        bail!("--heartbeat-timeout must be a positive number of seconds");
+    }
+    config.heartbeat_timeout = std::time::Duration::from_secs_f64(args.heartbeat_timeout);
+    for f in &args.faults {
+        config.faults.push(parse_fault(f)?);
+    }
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let stats = Mutex::new(EmulatorStats::default());
+    if let Some(d) = args.duration {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(d.max(0.0)));
+            stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        });
+    }
+    emulator::run(config, &stop, &stats, |addr| {
+        eprintln!("kneebench emulate: serving the bench protocol on {addr}");
+    })
+    .with_context(|| format!("emulator on {}", args.bind))?;
+    if let Ok(s) = stats.lock() {
+        eprintln!("{s:#?}");
+    }
+    Ok(super::EXIT_OK)
+}

@@ -1,0 +1,455 @@
+//! The hardware path end to end: `BenchHardware` over UDP against the emulator (`kneebench
+//! emulate`'s library) on loopback, in soft real time.
+//!
+//! * The same SEA system with `BenchPlant` and with `BenchHardware`: the trajectories agree
+//!   within a tolerance derived from the encoder quantisation and the timing offsets of a
+//!   networked loop (see [`tolerance`]).
+//! * Interlocks and injected faults: the trip is found in the first sample that shows the
+//!   cause, the safe state is commanded and acknowledged (or, with the link lost, not), no
+//!   drive command follows it, the run ends with the documented status and keeps every row.
+//!
+//! Every real-time run is short (at most 1.2 s): the whole file takes a few seconds.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use kneebench_harness::bench_protocol::{FaultInjection, reason};
+use kneebench_harness::emulator::{EmulatorConfig, EmulatorHandle, EmulatorStats, spawn};
+use kneebench_harness::master::Signal;
+use kneebench_harness::package::{ExportedFmu, export_all};
+use kneebench_harness::{
+    Fmu, InstanceOptions, LoadOptions, Outcome, Results, RunConfig, RunOutput, Status, System,
+};
+use kneebench_tests::*;
+
+const H: f64 = 1e-3;
+
+fn exported() -> &'static (tempfile::TempDir, Vec<ExportedFmu>) {
+    static FMUS: OnceLock<(tempfile::TempDir, Vec<ExportedFmu>)> = OnceLock::new();
+    FMUS.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let fmus = export_all(&fmu_library(), dir.path()).expect("export");
+        (dir, fmus)
+    })
+}
+
+fn fmu_path(id: &str) -> PathBuf {
+    exported()
+        .1
+        .iter()
+        .find(|f| f.identifier == id)
+        .unwrap_or_else(|| panic!("no {id}"))
+        .path
+        .clone()
+}
+
+fn emulator(params: &[(&str, &str)]) -> EmulatorHandle {
+    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    config.parameters = params
+        .iter()
+        .map(|(n, v)| (n.to_string(), v.to_string()))
+        .collect();
+    spawn(config).expect("emulator")
+}
+
+/// Open-loop current commands: test motor `a1 sin(2 pi 0.4 t)`, load motor
+/// `a2 sin(2 pi 0.8 t)`.
+fn signal(amplitude: f64, frequency: f64, stop: f64) -> Signal {
+    let n = (stop / H).round() as usize;
+    let times: Vec<f64> = (0..=n).map(|k| k as f64 * H).collect();
+    let values = times
+        .iter()
+        .map(|t| amplitude * (std::f64::consts::TAU * frequency * t).sin())
+        .collect();
+    Signal {
+        times,
+        values,
+        interpolate: false,
+    }
+}
+
+const RECORDED: [&str; 9] = [
+    "actuationAngle",
+    "loadAngle",
+    "springDeflection",
+    "testMotorCurrent",
+    "loadMotorCurrent",
+    "transducerTorque",
+    "testOutputTorque",
+    "actuationVelocity",
+    "tripCode",
+];
+
+/// Runs one bench component `b` (plant or hardware) with the given inputs and parameters.
+fn run_bench(
+    id: &str,
+    params: &[(&str, String)],
+    inputs: Vec<(&str, Signal)>,
+    stop: f64,
+) -> (RunOutput, Option<(i32, f64)>) {
+    let fmu = Fmu::load(fmu_path(id), &LoadOptions::default()).unwrap();
+    let mut system = System::new();
+    system.add_component("b", fmu).unwrap();
+    for (name, value) in params {
+        system.set_value_str(&format!("b.{name}"), value).unwrap();
+    }
+    for (name, s) in inputs {
+        system.add_signal(&format!("b.{name}"), s).unwrap();
+    }
+    let mut rec: Vec<String> = RECORDED.iter().map(|n| format!("b.{n}")).collect();
+    if id == "BenchHardware" {
+        rec.push("b.maxLateness".into());
+        rec.push("b.overrunCount".into());
+    }
+    let refs: Vec<&str> = rec.iter().map(String::as_str).collect();
+    system.record(&refs).unwrap();
+    let config = RunConfig {
+        stop_time: stop,
+        step_size: H,
+        ..RunConfig::default()
+    };
+    let out = system.run(&config).unwrap();
+    let extra = col(&out.results, "maxLateness")
+        .zip(col(&out.results, "overrunCount"))
+        .map(|(l, o)| {
+            (
+                *o.last().unwrap() as i32,
+                l.iter().cloned().fold(0.0, f64::max),
+            )
+        });
+    (out, extra)
+}
+
+fn col(r: &Results, name: &str) -> Option<Vec<f64>> {
+    r.column(&format!("b.{name}")).or_else(|| r.column(name))
+}
+
+fn hardware_params(addr: std::net::SocketAddr) -> Vec<(&'static str, String)> {
+    vec![
+        ("backend", "1".into()),
+        ("pacing", "1".into()),
+        ("serverAddress", addr.to_string()),
+    ]
+}
+
+/// The tolerance of a signal `x` between the plant run and the hardware run:
+/// `2 q + max|dx/dt| * 2 (e + d)`, with `q` the quantum of `x` (one encoder count for angles,
+/// as both runs floor the same angle but may sit on either side of a count edge), `e` the
+/// largest lateness of the hardware run's deadlines (measured by the FMU) and `d` = 0.3 ms the
+/// allowance for the loopback round trip and the emulator's processing. Why: the emulator
+/// integrates the plant over the wall-time intervals between frames, so each command acts from
+/// (its nominal time + the offset with which it arrived) and each sample is taken at (its
+/// nominal time + its own offset); a trajectory whose inputs and sampling are shifted by at
+/// most `e + d` differs by at most its rate times twice that shift (one for the input, one for
+/// the sample).
+fn tolerance(x: &[f64], quantum: f64, offset: f64) -> f64 {
+    let rate = x
+        .windows(2)
+        .map(|w| ((w[1] - w[0]) / H).abs())
+        .fold(0.0, f64::max);
+    2.0 * quantum + rate * 2.0 * offset
+}
+
+#[test]
+fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
+    let stop = 1.2;
+    let inputs = || {
+        vec![
+            ("testCurrentCommand", signal(2.0, 0.4, stop)),
+            ("loadCurrentCommand", signal(-0.5, 0.8, stop)),
+        ]
+    };
+    let (plant, _) = run_bench(
+        "BenchPlant",
+        &[("configuration", "1".into())],
+        inputs(),
+        stop,
+    );
+    assert!(
+        matches!(plant.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        plant.outcome
+    );
+    let emu = emulator(&[("configuration", "1")]);
+    let mut params = hardware_params(emu.addr());
+    params.push(("configuration", "1".into()));
+    let (hw, stats) = run_bench("BenchHardware", &params, inputs(), stop);
+    assert!(
+        matches!(hw.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        hw.outcome
+    );
+    let (overruns, max_lateness) = stats.unwrap();
+    let offset = max_lateness + 3e-4;
+    eprintln!(
+        "hardware run: {overruns} overruns, max lateness {:.0} us",
+        max_lateness * 1e6
+    );
+    assert_eq!(plant.results.len(), hw.results.len());
+    let res1 = std::f64::consts::TAU / (2000.0 * 160.0);
+    let res2 = std::f64::consts::TAU / (2000.0 * 66.0);
+    // The calibrated transducer of the plant carries the untared bias m g Lg sin(c).
+    let bias = 1.94 * 9.81 * 0.25 * (-0.01f64).sin();
+    for (name, quantum, shift) in [
+        ("actuationAngle", res1, 0.0),
+        ("loadAngle", res2, 0.0),
+        ("springDeflection", res1 + res2, 0.0),
+        ("testMotorCurrent", 1e-9, 0.0),
+        ("loadMotorCurrent", 1e-9, 0.0),
+        ("transducerTorque", 340.54 * (res1 + res2), bias),
+    ] {
+        let a = col(&plant.results, name).unwrap();
+        let b = col(&hw.results, name).unwrap();
+        let tol = tolerance(&a, quantum, offset);
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - shift - y).abs())
+            .fold(0.0, f64::max);
+        let range = a.iter().cloned().fold(0.0, |m: f64, x| m.max(x.abs()));
+        eprintln!("{name}: worst difference {worst:.3e}, tolerance {tol:.3e}, range {range:.3e}");
+        assert!(worst <= tol, "{name}: {worst} > {tol}");
+        // The comparison means something: the signal moves far more than its tolerance.
+        assert!(
+            range > 5.0 * tol,
+            "{name}: range {range} vs tolerance {tol}"
+        );
+    }
+    let s = emu.stop().unwrap();
+    assert_eq!(s.sessions, 1);
+    assert_eq!(s.rejected.rejected(), 0);
+    assert!(s.commands_applied as usize >= hw.results.len() - 1);
+}
+
+/// How a hardware run driven step by step ended.
+#[derive(Debug)]
+struct Ended {
+    /// Steps completed with fmi2OK.
+    completed: usize,
+    /// `Ok(Discard)` status details or the error text.
+    result: Result<(i32, f64), String>,
+    /// testOutputTorque after each completed step.
+    torque: Vec<f64>,
+    /// The emulator's statistics after the run.
+    stats: EmulatorStats,
+}
+
+/// Runs `BenchHardware` against `emu` through the harness's instance API: test-motor current
+/// `current(t)`, `fault` injected (and applied) just before step `at_step`.
+fn drive(
+    emu: &EmulatorHandle,
+    current: impl Fn(f64) -> f64,
+    fault: Option<(usize, FaultInjection)>,
+) -> Ended {
+    let fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    let mut i = fmu.instantiate("hw", &InstanceOptions::default()).unwrap();
+    i.set_integer(&[400, 402], &[1, 1]).unwrap();
+    i.set_string(&[401], &[&emu.addr().to_string()]).unwrap();
+    i.setup_experiment(None, 0.0, None).unwrap();
+    i.enter_initialization_mode().unwrap();
+    i.exit_initialization_mode().unwrap();
+    let mut torque = Vec::new();
+    let mut result = None;
+    for k in 0..400 {
+        let t = k as f64 * H;
+        if let Some((at, f)) = fault
+            && at == k
+        {
+            emu.inject(f).unwrap();
+        }
+        i.set_real(&[201], &[current(t)]).unwrap();
+        match i.do_step(t, H) {
+            Ok(Status::Ok) | Ok(Status::Warning) => {
+                let mut v = [0.0];
+                i.get_real(&[314], &mut v).unwrap();
+                torque.push(v[0]);
+            }
+            Ok(Status::Discard) => {
+                assert!(i.terminated());
+                let mut code = [0];
+                i.get_integer(&[373], &mut code).unwrap();
+                result = Some(Ok((code[0], i.last_successful_time().unwrap())));
+                let mut v = [0.0];
+                i.get_real(&[314], &mut v).unwrap();
+                torque.push(v[0]);
+                break;
+            }
+            Err(e) => {
+                result = Some(Err(e.to_string()));
+                break;
+            }
+        }
+    }
+    let completed = torque.len() - usize::from(matches!(result, Some(Ok(_))));
+    drop(i);
+    std::thread::sleep(Duration::from_millis(20));
+    Ended {
+        completed,
+        result: result.unwrap_or_else(|| Err("no trip".into())),
+        torque,
+        stats: emu.stats(),
+    }
+}
+
+/// The trip was acknowledged and nothing was driven after it.
+fn assert_safe(stats: &EmulatorStats) {
+    assert!(stats.safe_state_requests >= 1, "{stats:?}");
+    assert!(stats.safe_state_acks >= 1, "{stats:?}");
+    assert_eq!(stats.drive_commands_after_safe_request, 0, "{stats:?}");
+    assert!(stats.safe_reason.is_some(), "{stats:?}");
+}
+
+#[test]
+fn motor_torque_interlock_trips_in_the_first_violating_sample() {
+    let emu = emulator(&[]);
+    // A ramp to 4 A over 0.2 s: 20 N m at the output (3.38 A) is crossed near 0.17 s.
+    let e = drive(&emu, |t| 20.0 * t, None);
+    let (code, at) = e.result.clone().unwrap();
+    assert_eq!(code, 2, "{e:?}");
+    let n = e.torque.len();
+    assert!(
+        e.torque[n - 1].abs() > 20.0 && e.torque[n - 2].abs() <= 20.0,
+        "{e:?}"
+    );
+    // Tripped at the end of the step whose sample first showed it: within one period.
+    assert!((at - n as f64 * H).abs() < 1e-9, "{at} {n}");
+    assert!(e.completed > 150);
+    assert_safe(&e.stats);
+    assert_eq!(e.stats.safe_reason, Some(reason::CLIENT_REQUEST));
+}
+
+#[test]
+fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
+    let emu = emulator(&[]);
+    let stop = 0.4;
+    let ramp = signal(1.0, 0.0, stop);
+    let ramp = Signal {
+        values: ramp.times.iter().map(|t| 20.0 * t).collect(),
+        ..ramp
+    };
+    let (out, _) = run_bench(
+        "BenchHardware",
+        &hardware_params(emu.addr()),
+        vec![("testCurrentCommand", ramp)],
+        stop,
+    );
+    let (at, last_row) = match &out.outcome {
+        Outcome::Terminated {
+            last_successful_time,
+            last_row_time,
+            ..
+        } => (*last_successful_time, *last_row_time),
+        other => panic!("expected a terminated run, got {other:?}"),
+    };
+    let times = out.results.times();
+    for (k, t) in times.iter().enumerate() {
+        assert!((t - k as f64 * H).abs() < 1e-9, "row {k} at {t}");
+    }
+    assert!((last_row - times.last().unwrap()).abs() < 1e-12);
+    assert!(
+        at >= last_row && at - last_row <= H + 1e-9,
+        "{at} {last_row}"
+    );
+    assert!(at > 0.15, "{at}");
+    assert_eq!(emu.stats().drive_commands_after_safe_request, 0);
+}
+
+#[test]
+fn injected_faults_trip_within_one_period_with_the_documented_status() {
+    let k = 150;
+    let tk = k as f64 * H;
+    let steady = |_t: f64| 0.5;
+    // (fault, trip code, trip time): found in the sample at the end of step k, except a
+    // missing reply, which ends the run at the start of step k (no new sample).
+    let cases = [
+        (FaultInjection::EmergencyStop, 7, tk + H),
+        (
+            FaultInjection::Force {
+                channel: 1,
+                volts: 9.0,
+            },
+            10,
+            tk + H,
+        ),
+        (FaultInjection::DropReplies { count: 1 }, 8, tk),
+        (
+            FaultInjection::DelayReplies {
+                count: 1,
+                delay_s: 0.005,
+            },
+            8,
+            tk,
+        ),
+    ];
+    for (fault, code, time) in cases {
+        let emu = emulator(&[]);
+        let e = drive(&emu, steady, Some((k, fault)));
+        assert_eq!(e.result, Ok((code, time)), "{fault:?}: {e:?}");
+        assert_eq!(e.completed, k, "{fault:?}");
+        assert_safe(&e.stats);
+        if code == 7 {
+            assert_eq!(e.stats.safe_reason, Some(reason::EMERGENCY_STOP));
+        } else {
+            assert_eq!(e.stats.safe_reason, Some(reason::CLIENT_REQUEST));
+        }
+    }
+    // The link lost for good: the safe state cannot be confirmed: fmi2Error.
+    let emu = emulator(&[]);
+    let e = drive(&emu, steady, Some((k, FaultInjection::Silence)));
+    let text = e.result.clone().unwrap_err();
+    assert!(text.contains("NOT confirmed"), "{text}");
+    assert_eq!(e.completed, k);
+    assert_eq!(e.stats.safe_state_acks, 0);
+    assert_eq!(e.stats.drive_commands_after_safe_request, 0);
+    // The server's own watchdog puts the bench in the safe state after its heartbeat timeout.
+    std::thread::sleep(Duration::from_millis(120));
+    assert_eq!(emu.stats().safe_reason, Some(reason::HEARTBEAT_TIMEOUT));
+}
+
+#[test]
+fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
+    use kneebench_harness::bench_protocol::{Command, Payload, Sender, SetValueKind};
+    let emu = emulator(&[]);
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let mut tx = Sender::new(0x1234_5678);
+    let drive = Command {
+        test_set_value: 1.0,
+        load_set_value: 0.0,
+        test_enable: true,
+        load_enable: true,
+        clutch: false,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    };
+    let (_, first) = tx.frame(Payload::Command(drive));
+    socket.send_to(&first, emu.addr()).unwrap();
+    // Replay, truncation, corruption and a wrong version: none is applied.
+    socket.send_to(&first, emu.addr()).unwrap();
+    let (_, second) = tx.frame(Payload::Command(drive));
+    socket.send_to(&second[..10], emu.addr()).unwrap();
+    let mut corrupt = second.clone();
+    corrupt[20] ^= 0xFF;
+    socket.send_to(&corrupt, emu.addr()).unwrap();
+    let mut version = second.clone();
+    version[4] = 9;
+    socket.send_to(&version, emu.addr()).unwrap();
+    let (_, hb) = tx.frame(Payload::Heartbeat);
+    socket.send_to(&hb, emu.addr()).unwrap();
+    let mut buf = [0u8; 256];
+    let n = socket.recv(&mut buf).unwrap();
+    let reply = kneebench_harness::bench_protocol::Frame::decode(&buf[..n]).unwrap();
+    match reply.payload {
+        Payload::Sample(s) => assert_eq!(s.last_command_sequence, 1),
+        other => panic!("{other:?}"),
+    }
+    let s = emu.stop().unwrap();
+    assert_eq!(s.commands_applied, 1);
+    assert_eq!(s.rejected.replayed, 1);
+    assert_eq!(s.rejected.truncated, 1);
+    assert_eq!(s.rejected.bad_crc, 1);
+    assert_eq!(s.rejected.wrong_version, 1);
+}
