@@ -82,10 +82,10 @@
 //!   (= encoder angles), raw volts of the six analog inputs, calibrated load-cell and
 //!   transducer torques, motor currents (ACS712), clutch output state.
 //! * Derived from measurements each period: velocities (backward difference of the encoder
-//!   angles over `h`), accelerations (difference of velocities), spring deflection and torque
-//!   (`k (theta1 - theta2)`, `k` of the configuration), motor and output torques (`Km i`,
-//!   ratios), armature voltages (the set value in voltage mode; `R i + Ke w_m` in current
-//!   mode and for a disabled driver), driver saturation (that voltage at the measured supply),
+//!   angles over `h`, taken to the nanosecond), accelerations (difference of velocities),
+//!   spring deflection and torque (`k (theta1 - theta2)`, `k` of the configuration), motor
+//!   and output torques (`Km i`, ratios), armature voltages (the set value in voltage mode;
+//!   `R i + Ke w_m` in current mode and for a disabled driver), driver saturation (that voltage at the measured supply),
 //!   mechanical and electrical powers, regenerated power, energies (trapezoidal integrals over
 //!   the period), `E_k`, `E_p` and their rates, friction torques and loss powers from each
 //!   side's torque and power balance (model parameters `I`, `c`, `k`), copper and back-emf
@@ -216,7 +216,12 @@ struct Runtime {
     pacer: Pacer,
     encoders: [Unwrapper; 2],
     counts: [i64; 2],
+    /// Encoder movement [counts] over the last period and the one before.
+    delta: [[i64; 2]; 2],
     trip: Option<(i32, f64)>,
+    /// The bench's time since initialization: the sum of the step sizes (so the simulated
+    /// backend advances by exactly `h`, whatever rounding the importer's times carry).
+    bench_time: f64,
     safe_timeout: Duration,
     warnings: Vec<String>,
 }
@@ -600,7 +605,9 @@ impl BenchHardwareModel {
             pacer: Pacer::new(pacing, Duration::from_secs_f64(self.spin_margin)),
             encoders: [Unwrapper::default(); 2],
             counts: [0; 2],
+            delta: [[0; 2]; 2],
             trip: None,
+            bench_time: 0.0,
             safe_timeout: Duration::from_secs_f64(self.safe_state_timeout),
             warnings: Vec::new(),
         };
@@ -649,9 +656,10 @@ impl BenchHardwareModel {
         };
         rt.trip = Some((code, at));
         let name = trip::name(code);
+        let bench_at = rt.bench_time.min(at - start).max(0.0);
         match rt
             .io
-            .enter_safe_state(at - start, reason::CLIENT_REQUEST, rt.safe_timeout)
+            .enter_safe_state(bench_at, reason::CLIENT_REQUEST, rt.safe_timeout)
         {
             Ok(ack)
                 if ack.has(status::SAFE_STATE)
@@ -681,7 +689,12 @@ impl BenchHardwareModel {
     }
 
     fn step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
-        let start = self.start_time;
+        // Step sizes to the nanosecond: importers that form h as a difference of float times
+        // send 0.0010000000000000009; finite differences must not depend on that rounding.
+        let h = match (h * 1e9).round() / 1e9 {
+            snapped if snapped > 0.0 => snapped,
+            _ => h,
+        };
         let Some(rt) = self.runtime.0.as_mut() else {
             return Err(ModelError::new("the bench was not initialized"));
         };
@@ -707,7 +720,8 @@ impl BenchHardwareModel {
             return Err(ModelError::new("the bench was not initialized"));
         };
         rt.pacer.start(t);
-        let seq = match rt.io.write(t - start, &command) {
+        let now = rt.bench_time;
+        let seq = match rt.io.write(now, &command) {
             Ok(seq) => seq,
             Err(_) => return self.trip(trip::LINK, t),
         };
@@ -721,7 +735,8 @@ impl BenchHardwareModel {
                 ));
             }
         }
-        let sample = match rt.io.read(t + h - start) {
+        rt.bench_time = now + h;
+        let sample = match rt.io.read(now + h) {
             Ok(s) => s,
             Err(_) => return self.trip(trip::LINK, t),
         };
@@ -731,6 +746,7 @@ impl BenchHardwareModel {
         let c1 = rt.encoders[0].update(sample.test_counts);
         let c2 = rt.encoders[1].update(sample.load_counts);
         rt.counts = [c1, c2];
+        rt.delta = [[c1 - first_counts[0], c2 - first_counts[1]], rt.delta[0]];
         let stuck = [c1 == first_counts[0], c2 == first_counts[1]];
         let mut code = 0;
         if sample.has(status::EMERGENCY_STOP) {
@@ -851,13 +867,14 @@ fn measure(
     o.load_angle = th2;
     let (w1, w2, a1, a2) = match h {
         Some(h) => {
-            let w1 = (th1 - prev.actuation_angle) / h;
-            let w2 = (th2 - prev.load_angle) / h;
+            // From integer count differences, so that equal movements give exactly zero
+            // acceleration whatever rounding the step size carries.
+            let [now, before] = rt.delta;
             (
-                w1,
-                w2,
-                (w1 - prev.actuation_velocity) / h,
-                (w2 - prev.load_velocity) / h,
+                cal.angle(Side::Actuation, now[0]) / h,
+                cal.angle(Side::Load, now[1]) / h,
+                cal.angle(Side::Actuation, now[0] - before[0]) / (h * h),
+                cal.angle(Side::Load, now[1] - before[1]) / (h * h),
             )
         }
         None => (0.0, 0.0, 0.0, 0.0),
