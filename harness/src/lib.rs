@@ -49,6 +49,7 @@ pub mod metrics;
 pub mod package;
 pub mod results;
 pub mod ssp;
+pub mod study;
 pub mod time;
 
 pub use instance::{

@@ -317,6 +317,8 @@ pub enum Outcome {
         last_successful_time: f64,
         /// The time of the last recorded row.
         last_row_time: f64,
+        /// What the component logged last (the reason it ended the run, when it says).
+        messages: Vec<String>,
     },
     /// The run failed; the results keep the rows recorded before the failure.
     Failed(MasterError),
@@ -1077,6 +1079,12 @@ impl Run<'_> {
                 component: self.sys.components[comp].name.clone(),
                 last_successful_time: time,
                 last_row_time: results.last_time().unwrap_or(self.grid.start),
+                messages: self.rts[comp]
+                    .inst
+                    .take_messages()
+                    .into_iter()
+                    .map(|m| m.message)
+                    .collect(),
             },
             Stop::Failed(e) => Outcome::Failed(e),
         }

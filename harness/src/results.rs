@@ -421,6 +421,39 @@ pub mod plot {
         out: &Path,
         size: (u32, u32),
     ) -> Result<(), ResultsError> {
+        plot_signals_with(results, signals, out, size, &PlotLabels::default())
+    }
+
+    /// Axis labels and title of a plot.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct PlotLabels {
+        /// Label of the x axis (the results' first column).
+        pub x: String,
+        /// Label of the y axis (empty: none).
+        pub y: String,
+        /// Title above the chart (empty: none).
+        pub title: String,
+    }
+
+    impl Default for PlotLabels {
+        fn default() -> Self {
+            PlotLabels {
+                x: "time [s]".into(),
+                y: String::new(),
+                title: String::new(),
+            }
+        }
+    }
+
+    /// [`plot_signals`] with axis labels and a title: the first column need not be time (a
+    /// gait cycle in percent, for example).
+    pub fn plot_signals_with(
+        results: &Results,
+        signals: &[&str],
+        out: &Path,
+        size: (u32, u32),
+        labels: &PlotLabels,
+    ) -> Result<(), ResultsError> {
         let ext = out
             .extension()
             .and_then(|e| e.to_str())
@@ -430,11 +463,13 @@ pub mod plot {
                 SVGBackend::new(out, size).into_drawing_area(),
                 results,
                 signals,
+                labels,
             ),
             Some("png") => draw(
                 BitMapBackend::new(out, size).into_drawing_area(),
                 results,
                 signals,
+                labels,
             ),
             _ => Err(ResultsError::Plot(format!(
                 "unknown plot format for '{}': use .svg or .png",
@@ -447,6 +482,7 @@ pub mod plot {
         root: DrawingArea<DB, plotters::coord::Shift>,
         results: &Results,
         signals: &[&str],
+        labels: &PlotLabels,
     ) -> Result<(), ResultsError>
     where
         DB::ErrorType: 'static,
@@ -482,7 +518,11 @@ pub mod plot {
         }
         let pad = (hi - lo) * 0.05;
         root.fill(&WHITE).map_err(|x| e(&x))?;
-        let mut chart = ChartBuilder::on(&root)
+        let mut builder = ChartBuilder::on(&root);
+        if !labels.title.is_empty() {
+            builder.caption(&labels.title, ("sans-serif", 18));
+        }
+        let mut chart = builder
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(70)
@@ -490,7 +530,8 @@ pub mod plot {
             .map_err(|x| e(&x))?;
         chart
             .configure_mesh()
-            .x_desc("time [s]")
+            .x_desc(labels.x.as_str())
+            .y_desc(labels.y.as_str())
             .label_style(("sans-serif", 14))
             .draw()
             .map_err(|x| e(&x))?;

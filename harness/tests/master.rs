@@ -248,6 +248,7 @@ fn discard_with_terminated_ends_the_run_cleanly_and_keeps_every_row() {
             component,
             last_successful_time,
             last_row_time,
+            ..
         } => {
             assert_eq!(component, "b");
             assert!((last_successful_time - 0.3).abs() < 1e-12);

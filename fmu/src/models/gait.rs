@@ -195,6 +195,7 @@ pub struct GaitReference {
     sweep_end_frequency: f64,
     stance_start: f64,
     stance_end: f64,
+    fade_in_time: f64,
 
     knee_angle: f64,
     knee_velocity: f64,
@@ -227,6 +228,7 @@ mod vr {
     pub const SWEEP_END: u32 = 14;
     pub const STANCE_START: u32 = 15;
     pub const STANCE_END: u32 = 16;
+    pub const FADE_IN: u32 = 17;
     pub const KNEE_ANGLE: u32 = 100;
     pub const KNEE_VELOCITY: u32 = 101;
     pub const KNEE_ACCELERATION: u32 = 102;
@@ -256,6 +258,7 @@ const ALL_PARAMETERS: &[&str] = &[
     "sweepEndFrequency",
     "stanceStart",
     "stanceEnd",
+    "fadeInTime",
 ];
 
 static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync::LazyLock::new(
@@ -337,6 +340,11 @@ static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync:
                 .tunable(Real(0.6))
                 .range(0.0, 1.0)
                 .describe("Gait phase at which stance ends (toe-off)"),
+            V::real("fadeInTime", vr::FADE_IN, |m| m.fade_in_time, |m, v| m.fade_in_time = v)
+                .tunable(Real(0.0))
+                .unit("s")
+                .range(0.0, 1e3)
+                .describe("Soft start: the motion (position mode) and torque references rise from their offsets to full amplitude over this time with a quintic ramp; 0 = none"),
             V::real("kneeAngleReference", vr::KNEE_ANGLE, |m| m.knee_angle, |m, v| m.knee_angle = v)
                 .output(ALL_PARAMETERS)
                 .unit("rad")
@@ -490,6 +498,27 @@ impl GaitReference {
     }
 }
 
+/// The soft-start ramp over `duration` and its first three time derivatives: the quintic
+/// 10x^3 - 15x^4 + 6x^5 (x = t/duration), whose first and second derivatives vanish at both
+/// ends, so a faded reference has a continuous acceleration. 1 (and zero derivatives) for a
+/// zero duration or after the ramp.
+pub fn fade_in(t: f64, duration: f64) -> [f64; 4] {
+    if duration <= 0.0 || t >= duration {
+        return [1.0, 0.0, 0.0, 0.0];
+    }
+    if t <= 0.0 {
+        return [0.0; 4];
+    }
+    let x = t / duration;
+    let d = duration;
+    [
+        x * x * x * (10.0 - 15.0 * x + 6.0 * x * x),
+        30.0 * x * x * (1.0 - x) * (1.0 - x) / d,
+        60.0 * x * (1.0 - 3.0 * x + 2.0 * x * x) / (d * d),
+        (60.0 - 360.0 * x + 360.0 * x * x) / (d * d * d),
+    ]
+}
+
 /// The triangle wave of period p, in [-1, 1], 0 and rising at t = 0.
 pub fn triangle(t: f64, p: f64) -> Shape {
     let cycles = (t / p).floor();
@@ -541,6 +570,31 @@ impl Model for GaitReference {
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, t)?;
         let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, t)?;
+        // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
+        // rule keeps velocity, acceleration and jerk the exact derivatives.
+        // In velocity mode the angle is the waveform's exact integral, so the motion channel is
+        // not faded there.
+        let r = fade_in(t, self.fade_in_time);
+        let m = if self.motion_quantity == MotionQuantity::Position as i32 {
+            r
+        } else {
+            [1.0, 0.0, 0.0, 0.0]
+        };
+        let motion = Shape {
+            value: m[0] * motion.value,
+            d1: m[1] * motion.value + m[0] * motion.d1,
+            d2: m[2] * motion.value + 2.0 * m[1] * motion.d1 + m[0] * motion.d2,
+            d3: m[3] * motion.value
+                + 3.0 * m[2] * motion.d1
+                + 3.0 * m[1] * motion.d2
+                + m[0] * motion.d3,
+            integral: motion.integral,
+        };
+        let torque = Shape {
+            value: r[0] * torque.value,
+            d1: r[1] * torque.value + r[0] * torque.d1,
+            ..torque
+        };
         match self.motion_quantity {
             1 => {
                 let a = self.angle_amplitude;
@@ -755,6 +809,8 @@ mod tests {
             m.motion_waveform = wave as i32;
             m.torque_waveform = wave as i32;
             m.sweep_dwell = 0.7; // several stages within the sampled times
+            check_derivatives(&mut m, &times);
+            m.fade_in_time = 2.0; // the ramp's product rule too
             check_derivatives(&mut m, &times);
         }
     }

@@ -9,6 +9,7 @@ pub mod info;
 pub mod metrics;
 pub mod plot;
 pub mod run;
+pub mod study;
 pub mod tune;
 pub mod validate;
 
@@ -49,6 +50,8 @@ pub enum Command {
     Info(info::Args),
     /// Plot signals of a results CSV against time (SVG or PNG).
     Plot(plot::Args),
+    /// Run the DA/SEA/CSEA gait study: scenarios, results, figures and the comparison table.
+    Study(study::Args),
     /// Step-response quality (rise, settling, overshoot, peak) or tracking error of a signal.
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
@@ -66,6 +69,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Info(a) => info::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Metrics(a) => metrics::run(a),
+        Command::Study(a) => study::run(a),
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
     }

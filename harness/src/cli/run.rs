@@ -206,10 +206,14 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             component,
             last_successful_time,
             last_row_time,
+            messages,
         } => {
             eprintln!(
                 "ended early: component '{component}' terminated the simulation (last successful time {last_successful_time}); last row at t = {last_row_time}"
             );
+            for m in messages {
+                eprintln!("  {component}: {m}");
+            }
             super::EXIT_TERMINATED
         }
         Outcome::Failed(e) => {

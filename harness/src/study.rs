@@ -1,0 +1,874 @@
+//! The actuator study: the same gait on DA, SEA and CSEA, run as SSP systems of the kneebench
+//! FMUs, analysed per gait cycle as the bench study reports it.
+//!
+//! A [`Scenario`] is a list of components (an FMU file name and parameter values) and
+//! connections; [`Scenario::to_ssd`] turns it into an SSP 1.0 system that this harness, fmpy
+//! and other SSP tools can load, and [`write_ssp`] packs it with its FMUs. [`analyse`] takes
+//! the results of a run and reports, per actuator: RMS and maximum tracking error, peak
+//! torques, energy per cycle (mechanical, electrical, harmonic-drive loss, dE_k and dE_p), and
+//! any interlock trip. [`markdown_table`] prints the comparison; [`plot_cycle`] draws one gait
+//! cycle with percent of cycle on the x axis, as the study's figures do.
+
+use std::path::{Path, PathBuf};
+
+use crate::master::Value;
+use crate::results::Results;
+use crate::ssp::{self, Ssd, SspComponent, SspConnection, SspExperiment, SspParameter, SspSystem};
+
+/// Errors of the study.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    /// A component's FMU could not be read.
+    #[error("{path}: {message}")]
+    Fmu {
+        /// The FMU.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
+    /// Writing or reading an SSP failed.
+    #[error(transparent)]
+    Ssp(Box<ssp::SspError>),
+    /// A column the analysis needs is missing from the results.
+    #[error("the results lack column '{0}'")]
+    MissingColumn(String),
+    /// The run is shorter than one gait cycle.
+    #[error("the run covers no complete gait cycle of {period} s (it ended at {end} s)")]
+    NoCycle {
+        /// The gait period.
+        period: f64,
+        /// The last recorded time.
+        end: f64,
+    },
+    /// Plotting failed.
+    #[error(transparent)]
+    Results(#[from] crate::results::ResultsError),
+}
+
+impl From<ssp::SspError> for StudyError {
+    fn from(e: ssp::SspError) -> Self {
+        StudyError::Ssp(Box::new(e))
+    }
+}
+
+/// One component of a scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioComponent {
+    /// Component name (also the column prefix of its variables).
+    pub name: String,
+    /// The FMU's file name in the FMU directory, e.g. `BenchPlant.fmu`.
+    pub fmu: String,
+    /// Parameter values.
+    pub parameters: Vec<(String, Value)>,
+}
+
+/// A closed-loop system: components and connections `("a.y", "b.u")`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scenario {
+    /// System name, e.g. `SEA`.
+    pub name: String,
+    /// Components.
+    pub components: Vec<ScenarioComponent>,
+    /// Connections from an output to an input, as `component.variable`.
+    pub connections: Vec<(String, String)>,
+    /// Stop time [s].
+    pub stop_time: f64,
+    /// Base step [s].
+    pub step_size: f64,
+}
+
+fn split(reference: &str) -> (String, String) {
+    match reference.split_once('.') {
+        Some((c, v)) => (c.to_string(), v.to_string()),
+        None => (String::new(), reference.to_string()),
+    }
+}
+
+impl Scenario {
+    /// The SSP 1.0 description of the scenario; component sources are `resources/<fmu>`.
+    /// Connectors come from each FMU's model description (read from `fmu_dir`).
+    pub fn to_ssd(&self, fmu_dir: &Path) -> Result<Ssd, StudyError> {
+        let mut components = Vec::new();
+        for c in &self.components {
+            let path = fmu_dir.join(&c.fmu);
+            let (_dir, md) =
+                crate::load::extract_and_parse(&path, &crate::load::ArchiveLimits::default())
+                    .map_err(|e| StudyError::Fmu {
+                        path: path.clone(),
+                        message: e.to_string(),
+                    })?;
+            let mut component =
+                SspComponent::from_model_description(&c.name, &format!("resources/{}", c.fmu), &md);
+            component.parameters = c
+                .parameters
+                .iter()
+                .map(|(name, value)| SspParameter {
+                    name: name.clone(),
+                    value: value.clone(),
+                })
+                .collect();
+            components.push(component);
+        }
+        let connections = self
+            .connections
+            .iter()
+            .map(|(from, to)| {
+                let (fe, fc) = split(from);
+                let (te, tc) = split(to);
+                SspConnection {
+                    start_element: Some(fe),
+                    start_connector: fc,
+                    end_element: Some(te),
+                    end_connector: tc,
+                }
+            })
+            .collect();
+        let mut system = SspSystem {
+            name: self.name.clone(),
+            components,
+            connections,
+        };
+        // Unconnected inputs keep their start values; fmpy's SSP reader trips over them.
+        system.drop_unconnected_inputs();
+        Ok(Ssd {
+            name: self.name.clone(),
+            version: "1.0".into(),
+            system,
+            default_experiment: Some(SspExperiment {
+                start_time: Some(0.0),
+                stop_time: Some(self.stop_time),
+                step_size: Some(self.step_size),
+                algorithm: Some(crate::master::Algorithm::GaussSeidel),
+            }),
+        })
+    }
+}
+
+/// Writes the scenario as an `.ssp` archive holding its FMUs.
+pub fn write_ssp(scenario: &Scenario, fmu_dir: &Path, out: &Path) -> Result<(), StudyError> {
+    let ssd = scenario.to_ssd(fmu_dir)?;
+    let mut files: Vec<(String, PathBuf)> = scenario
+        .components
+        .iter()
+        .map(|c| (format!("resources/{}", c.fmu), fmu_dir.join(&c.fmu)))
+        .collect();
+    files.sort();
+    files.dedup();
+    ssp::write_ssp(&ssd, &files, out)?;
+    Ok(())
+}
+
+/// Which columns of the results the analysis reads (the defaults are the names of the kneebench
+/// scenarios: components `gait` and `plant`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Columns {
+    /// Knee-angle reference.
+    pub reference: String,
+    /// Actuation-side angle (what the test motor's encoder sees).
+    pub actuation_angle: String,
+    /// Load-side angle (the knee joint of the bench).
+    pub load_angle: String,
+    /// Test-motor torque at the output.
+    pub test_torque: String,
+    /// Load-motor torque at the output.
+    pub load_torque: String,
+    /// Integral of the test motor's mechanical power.
+    pub test_mechanical_energy: String,
+    /// Integral of its positive part.
+    pub test_mechanical_energy_consumed: String,
+    /// Integral of the total electrical power (both drivers, offset, clutch).
+    pub electrical_energy: String,
+    /// Integral of its positive part.
+    pub electrical_energy_consumed: String,
+    /// Integral of the mechanical losses (harmonic drive and friction), <= 0.
+    pub loss_energy: String,
+    /// E_k(t) - E_k(0).
+    pub kinetic_energy_change: String,
+    /// E_p(t) - E_p(0).
+    pub potential_energy_change: String,
+    /// The plant's trip code.
+    pub trip_code: String,
+}
+
+impl Default for Columns {
+    fn default() -> Self {
+        let p = |n: &str| format!("plant.{n}");
+        Columns {
+            reference: "gait.kneeAngleReference".into(),
+            actuation_angle: p("actuationAngle"),
+            load_angle: p("loadAngle"),
+            test_torque: p("testOutputTorque"),
+            load_torque: p("loadOutputTorque"),
+            test_mechanical_energy: p("testMechanicalEnergy"),
+            test_mechanical_energy_consumed: p("testMechanicalEnergyConsumed"),
+            electrical_energy: p("totalElectricalEnergy"),
+            electrical_energy_consumed: p("totalElectricalEnergyConsumed"),
+            loss_energy: p("lossEnergy"),
+            kinetic_energy_change: p("kineticEnergyChange"),
+            potential_energy_change: p("potentialEnergyChange"),
+            trip_code: p("tripCode"),
+        }
+    }
+}
+
+/// What one actuator's run gives, per gait cycle where it says so.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActuatorReport {
+    /// Actuator name.
+    pub name: String,
+    /// Complete cycles analysed (the first cycle is the start-up and is skipped when there
+    /// are more).
+    pub cycles: usize,
+    /// RMS error of the actuation-side angle against the reference [rad].
+    pub rms_error_actuation: f64,
+    /// Maximum error of the actuation-side angle [rad].
+    pub max_error_actuation: f64,
+    /// RMS error of the load-side (knee) angle [rad].
+    pub rms_error_knee: f64,
+    /// Maximum error of the load-side angle [rad].
+    pub max_error_knee: f64,
+    /// Peak |test-motor output torque| [N m].
+    pub peak_test_torque: f64,
+    /// Peak |load-motor output torque| [N m].
+    pub peak_load_torque: f64,
+    /// Test motor's mechanical energy per cycle, signed [J].
+    pub test_mechanical: f64,
+    /// Test motor's mechanical energy per cycle, positive part [J].
+    pub test_mechanical_consumed: f64,
+    /// Electrical energy per cycle incl. the 7 W offset and the clutch, signed [J].
+    pub electrical: f64,
+    /// Electrical energy per cycle, positive part [J].
+    pub electrical_consumed: f64,
+    /// Harmonic-drive and friction loss per cycle [J] (<= 0).
+    pub loss: f64,
+    /// Change of kinetic energy per cycle [J].
+    pub kinetic: f64,
+    /// Change of potential (spring) energy per cycle [J].
+    pub potential: f64,
+    /// The interlock that ended the run, if any, and when.
+    pub trip: Option<(String, f64)>,
+}
+
+/// Interlock names by trip code (the plant's `tripCode` output).
+pub fn interlock_name(code: i64) -> &'static str {
+    match code {
+        1 => "spring deflection",
+        2 => "test motor torque",
+        3 => "load motor torque",
+        4 => "test motor current",
+        5 => "load motor current",
+        6 => "regenerated power",
+        7 => "emergency stop",
+        _ => "unknown interlock",
+    }
+}
+
+/// Analyses one run with gait period `period`.
+pub fn analyse(
+    name: &str,
+    results: &Results,
+    period: f64,
+    columns: &Columns,
+) -> Result<ActuatorReport, StudyError> {
+    let col = |n: &str| {
+        results
+            .column(n)
+            .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
+    };
+    let times = results.times();
+    let end = times.last().copied().unwrap_or(0.0);
+    let complete = ((end + 1e-9) / period).floor() as usize;
+    let trip = col(&columns.trip_code)?
+        .iter()
+        .zip(&times)
+        .find(|(c, _)| **c != 0.0)
+        .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
+    if complete == 0 {
+        return Ok(ActuatorReport {
+            name: name.to_string(),
+            cycles: 0,
+            rms_error_actuation: f64::NAN,
+            max_error_actuation: f64::NAN,
+            rms_error_knee: f64::NAN,
+            max_error_knee: f64::NAN,
+            peak_test_torque: f64::NAN,
+            peak_load_torque: f64::NAN,
+            test_mechanical: f64::NAN,
+            test_mechanical_consumed: f64::NAN,
+            electrical: f64::NAN,
+            electrical_consumed: f64::NAN,
+            loss: f64::NAN,
+            kinetic: f64::NAN,
+            potential: f64::NAN,
+            trip: trip.or(Some(("ended before one cycle".into(), end))),
+        });
+    }
+    let first = usize::from(complete > 1);
+    let (t0, t1) = (first as f64 * period, complete as f64 * period);
+    let tol = 1e-9 * t1.max(1.0);
+    let rows: Vec<usize> = (0..times.len())
+        .filter(|&i| times[i] >= t0 - tol && times[i] <= t1 + tol)
+        .collect();
+    let (i0, i1) = (rows[0], rows[rows.len() - 1]);
+    let reference = col(&columns.reference)?;
+    let errors = |angle: &[f64]| {
+        let e: Vec<f64> = rows.iter().map(|&i| reference[i] - angle[i]).collect();
+        let rms = (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
+        (rms, e.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+    };
+    let (rms_a, max_a) = errors(&col(&columns.actuation_angle)?);
+    let (rms_k, max_k) = errors(&col(&columns.load_angle)?);
+    let peak = |c: &[f64]| rows.iter().fold(0.0f64, |m, &i| m.max(c[i].abs()));
+    let n = (complete - first) as f64;
+    let per_cycle = |name: &str| -> Result<f64, StudyError> {
+        let c = col(name)?;
+        Ok((c[i1] - c[i0]) / n)
+    };
+    Ok(ActuatorReport {
+        name: name.to_string(),
+        cycles: complete - first,
+        rms_error_actuation: rms_a,
+        max_error_actuation: max_a,
+        rms_error_knee: rms_k,
+        max_error_knee: max_k,
+        peak_test_torque: peak(&col(&columns.test_torque)?),
+        peak_load_torque: peak(&col(&columns.load_torque)?),
+        test_mechanical: per_cycle(&columns.test_mechanical_energy)?,
+        test_mechanical_consumed: per_cycle(&columns.test_mechanical_energy_consumed)?,
+        electrical: per_cycle(&columns.electrical_energy)?,
+        electrical_consumed: per_cycle(&columns.electrical_energy_consumed)?,
+        loss: per_cycle(&columns.loss_energy)?,
+        kinetic: per_cycle(&columns.kinetic_energy_change)?,
+        potential: per_cycle(&columns.potential_energy_change)?,
+        trip,
+    })
+}
+
+/// The comparison table in Markdown (also readable as plain text in a terminal).
+pub fn markdown_table(reports: &[ActuatorReport]) -> String {
+    let mut s = String::new();
+    s.push_str("| | ");
+    s.push_str(
+        &reports
+            .iter()
+            .map(|r| r.name.clone())
+            .collect::<Vec<_>>()
+            .join(" | "),
+    );
+    s.push_str(" |\n|---|");
+    s.push_str(&"---:|".repeat(reports.len()));
+    s.push('\n');
+    let deg = 180.0 / std::f64::consts::PI;
+    let row = |s: &mut String, label: &str, f: &dyn Fn(&ActuatorReport) -> String| {
+        s.push_str(&format!("| {label} |"));
+        for r in reports {
+            s.push_str(&format!(" {} |", f(r)));
+        }
+        s.push('\n');
+    };
+    row(&mut s, "cycles analysed", &|r| r.cycles.to_string());
+    row(&mut s, "RMS tracking error, actuation side [deg]", &|r| {
+        format!("{:.3}", r.rms_error_actuation * deg)
+    });
+    row(&mut s, "max tracking error, actuation side [deg]", &|r| {
+        format!("{:.3}", r.max_error_actuation * deg)
+    });
+    row(&mut s, "RMS tracking error, knee (load side) [deg]", &|r| {
+        format!("{:.3}", r.rms_error_knee * deg)
+    });
+    row(&mut s, "max tracking error, knee (load side) [deg]", &|r| {
+        format!("{:.3}", r.max_error_knee * deg)
+    });
+    row(&mut s, "peak test-motor torque at the output [N m]", &|r| {
+        format!("{:.2}", r.peak_test_torque)
+    });
+    row(&mut s, "peak load-motor torque at the output [N m]", &|r| {
+        format!("{:.2}", r.peak_load_torque)
+    });
+    row(&mut s, "test-motor mechanical energy per cycle [J]", &|r| {
+        format!("{:.3}", r.test_mechanical)
+    });
+    row(&mut s, "... consumed (positive part) [J]", &|r| {
+        format!("{:.3}", r.test_mechanical_consumed)
+    });
+    row(
+        &mut s,
+        "electrical energy per cycle, incl. 7 W offset and clutch [J]",
+        &|r| format!("{:.3}", r.electrical),
+    );
+    row(&mut s, "... consumed (positive part) [J]", &|r| {
+        format!("{:.3}", r.electrical_consumed)
+    });
+    row(
+        &mut s,
+        "harmonic-drive and friction loss per cycle [J]",
+        &|r| format!("{:.3}", r.loss),
+    );
+    row(&mut s, "dE_k per cycle [J]", &|r| {
+        format!("{:.2e}", r.kinetic)
+    });
+    row(&mut s, "dE_p per cycle [J]", &|r| {
+        format!("{:.2e}", r.potential)
+    });
+    row(&mut s, "interlock trip", &|r| match &r.trip {
+        None => "none".into(),
+        Some((name, t)) => format!("{name} at {t:.4} s"),
+    });
+    s
+}
+
+/// Plots `signals` (one per run: (legend, results, column)) over the last complete gait cycle
+/// of each run, with percent of cycle on the x axis.
+pub fn plot_cycle(
+    signals: &[(&str, &Results, &str)],
+    period: f64,
+    out: &Path,
+    labels: &crate::results::plot::PlotLabels,
+) -> Result<(), StudyError> {
+    let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut percent: Vec<f64> = Vec::new();
+    for (legend, results, column) in signals {
+        let times = results.times();
+        let end = times.last().copied().unwrap_or(0.0);
+        let cycles = ((end + 1e-9) / period).floor();
+        if cycles < 1.0 {
+            continue;
+        }
+        let t0 = (cycles - 1.0) * period;
+        let tol = 1e-9 * end.max(1.0);
+        let rows: Vec<usize> = (0..times.len())
+            .filter(|&i| times[i] >= t0 - tol && times[i] <= t0 + period + tol)
+            .collect();
+        let values = results
+            .column(column)
+            .ok_or_else(|| StudyError::MissingColumn(column.to_string()))?;
+        if percent.is_empty() {
+            percent = rows
+                .iter()
+                .map(|&i| 100.0 * (times[i] - t0) / period)
+                .collect();
+        }
+        let n = percent.len().min(rows.len());
+        columns.push((
+            legend.to_string(),
+            rows[..n].iter().map(|&i| values[i]).collect(),
+        ));
+    }
+    let n = columns.iter().map(|(_, v)| v.len()).min().unwrap_or(0);
+    let mut table = Results::with_capacity(
+        columns.iter().map(|(l, _)| l.clone()).collect(),
+        vec![crate::results::ColumnKind::Real; columns.len()],
+        n,
+    );
+    for k in 0..n {
+        let row: Vec<f64> = columns.iter().map(|(_, v)| v[k]).collect();
+        table.push_row(percent[k], &row);
+    }
+    let names: Vec<&str> = columns.iter().map(|(l, _)| l.as_str()).collect();
+    crate::results::plot::plot_signals_with(&table, &names, out, (1024, 560), labels)?;
+    Ok(())
+}
+
+/// The actuator configurations of the bench.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Actuator {
+    /// Direct actuation.
+    Da,
+    /// Series elastic actuation.
+    Sea,
+    /// Clutchable series elastic actuation.
+    Csea,
+}
+
+impl Actuator {
+    /// All three, in the study's order.
+    pub const ALL: [Actuator; 3] = [Actuator::Da, Actuator::Sea, Actuator::Csea];
+
+    /// Short name (`DA`, `SEA`, `CSEA`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Actuator::Da => "DA",
+            Actuator::Sea => "SEA",
+            Actuator::Csea => "CSEA",
+        }
+    }
+
+    /// The plant's `configuration` value.
+    pub fn configuration(self) -> i32 {
+        match self {
+            Actuator::Da => 0,
+            Actuator::Sea => 1,
+            Actuator::Csea => 2,
+        }
+    }
+}
+
+/// The gait of a study run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gait {
+    /// Period [s].
+    pub period: f64,
+    /// Knee-angle amplitude [rad].
+    pub angle_amplitude: f64,
+    /// Knee-torque amplitude [N m].
+    pub torque_amplitude: f64,
+}
+
+impl Gait {
+    /// The bench's scaled gait: 2.5 s, 60 deg (50 deg for the clutch study), 9 N m.
+    pub fn bench_default(actuator: Actuator) -> Gait {
+        Gait {
+            period: 2.5,
+            angle_amplitude: if actuator == Actuator::Csea {
+                50f64
+            } else {
+                60f64
+            }
+            .to_radians(),
+            torque_amplitude: 9.0,
+        }
+    }
+}
+
+/// Output torque per ampere of the test motor, i_HD Km1 = 160 x 0.037 [N m/A].
+pub const TEST_TORQUE_PER_AMPERE: f64 = 160.0 * 0.037;
+/// Output torque per ampere of the load motor, i_RED Km2 = 66 x 0.114 [N m/A].
+pub const LOAD_TORQUE_PER_AMPERE: f64 = 66.0 * 0.114;
+
+/// The controller gains of the study scenarios (documented with the scenarios).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StudyGains {
+    /// Position loop (test motor): kp [A/rad], ki [A/(rad s)], kd [A s/rad].
+    pub position: (f64, f64, f64),
+    /// Velocity feed-forward of the position loop [A s/rad] (c1 / (i_HD Km1)).
+    pub velocity_feed_forward: f64,
+    /// Load torque loop: kp [A/(N m)], ki [A/(N m s)], kd [A s/(N m)].
+    pub torque: (f64, f64, f64),
+}
+
+impl Default for StudyGains {
+    fn default() -> Self {
+        StudyGains {
+            position: (100.0, 50.0, 2.0),
+            velocity_feed_forward: 12.0 / TEST_TORQUE_PER_AMPERE,
+            torque: (0.05, 1.0, 0.0),
+        }
+    }
+}
+
+fn real(name: &str, v: f64) -> (String, Value) {
+    (name.to_string(), Value::Real(v))
+}
+
+fn integer(name: &str, v: i32) -> (String, Value) {
+    (name.to_string(), Value::Integer(v))
+}
+
+fn boolean(name: &str, v: bool) -> (String, Value) {
+    (name.to_string(), Value::Boolean(v))
+}
+
+fn connect(from: &str, to: &str) -> (String, String) {
+    (from.to_string(), to.to_string())
+}
+
+/// The closed-loop gait scenario of one actuator: the gait reference feeds a position loop on
+/// the test motor (DA, SEA: `PidController` on the actuation encoder with velocity
+/// feed-forward; CSEA: `ImpedanceController` with the `ClutchScheduler` locking the actuation
+/// side in stance) and a torque loop on the load motor (`PidController` on the torque
+/// transducer, reverse acting, with the load-torque reference as feed-forward), both drivers
+/// in current mode.
+pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: u32) -> Scenario {
+    let (pk, pi, pd) = gains.position;
+    let (tk, ti, td) = gains.torque;
+    let mut components = vec![
+        ScenarioComponent {
+            name: "gait".into(),
+            fmu: "GaitReference.fmu".into(),
+            parameters: vec![
+                real("gaitPeriod", gait.period),
+                real("kneeAngleAmplitude", gait.angle_amplitude),
+                real("kneeTorqueAmplitude", gait.torque_amplitude),
+                // The bench starts at rest at 0 rad, the gait at ~7.5 deg: a soft start inside
+                // the first (not analysed) cycle avoids a start-up step.
+                real("fadeInTime", gait.period / 2.0),
+            ],
+        },
+        ScenarioComponent {
+            name: "torque".into(),
+            fmu: "PidController.fmu".into(),
+            parameters: vec![
+                real("kp", tk),
+                real("ki", ti),
+                real("kd", td),
+                real("outputMin", -6.0),
+                real("outputMax", 6.0),
+                real("feedForwardGain", 1.0 / LOAD_TORQUE_PER_AMPERE),
+                boolean("reverseActing", true),
+            ],
+        },
+        ScenarioComponent {
+            name: "plant".into(),
+            fmu: "BenchPlant.fmu".into(),
+            parameters: vec![integer("configuration", actuator.configuration())],
+        },
+    ];
+    let mut connections = vec![
+        connect("gait.kneeTorqueReference", "torque.setpoint"),
+        connect("plant.transducerTorque", "torque.measurement"),
+        connect("gait.loadTorqueReference", "torque.feedForward"),
+        connect("torque.u", "plant.loadCurrentCommand"),
+    ];
+    match actuator {
+        Actuator::Da | Actuator::Sea => {
+            components.insert(
+                1,
+                ScenarioComponent {
+                    name: "position".into(),
+                    fmu: "PidController.fmu".into(),
+                    parameters: vec![
+                        real("kp", pk),
+                        real("ki", pi),
+                        real("kd", pd),
+                        real("derivativeFilterTime", 0.002),
+                        real("outputMin", -15.0),
+                        real("outputMax", 15.0),
+                        real("feedForwardGain", gains.velocity_feed_forward),
+                    ],
+                },
+            );
+            connections.extend([
+                connect("gait.kneeAngleReference", "position.setpoint"),
+                connect("plant.actuationEncoderAngle", "position.measurement"),
+                connect("gait.kneeVelocityReference", "position.feedForward"),
+                connect("position.u", "plant.testCurrentCommand"),
+            ]);
+        }
+        Actuator::Csea => {
+            components.insert(
+                1,
+                ScenarioComponent {
+                    name: "impedance".into(),
+                    fmu: "ImpedanceController.fmu".into(),
+                    parameters: vec![],
+                },
+            );
+            components.insert(
+                2,
+                ScenarioComponent {
+                    name: "clutch".into(),
+                    fmu: "ClutchScheduler.fmu".into(),
+                    parameters: vec![],
+                },
+            );
+            connections.extend([
+                connect("gait.kneeAngleReference", "impedance.angleReference"),
+                connect("gait.kneeVelocityReference", "impedance.velocityReference"),
+                connect("gait.kneeTorqueReference", "impedance.torqueFeedForward"),
+                connect("plant.actuationEncoderAngle", "impedance.actuationAngle"),
+                connect("plant.loadEncoderAngle", "impedance.loadAngle"),
+                connect("plant.loadVelocity", "impedance.loadVelocity"),
+                connect("clutch.holdPosition", "impedance.hold"),
+                connect("impedance.currentCommand", "plant.testCurrentCommand"),
+                connect("gait.gaitPhase", "clutch.gaitPhase"),
+                connect("gait.kneeVelocityReference", "clutch.velocityReference"),
+                connect("clutch.clutchEngage", "plant.clutchEngage"),
+            ]);
+        }
+    }
+    Scenario {
+        name: actuator.name().into(),
+        components,
+        connections,
+        stop_time: gait.period * f64::from(cycles),
+        step_size: 1e-3,
+    }
+}
+
+/// One actuator's run in a study.
+#[derive(Debug)]
+pub struct StudyRun {
+    /// The analysis.
+    pub report: ActuatorReport,
+    /// Every recorded signal.
+    pub results: Results,
+    /// How the run ended.
+    pub outcome: crate::master::Outcome,
+    /// The scenario file written for it.
+    pub scenario: PathBuf,
+}
+
+/// Settings of a study.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StudyConfig {
+    /// Directory holding the exported FMUs.
+    pub fmu_dir: PathBuf,
+    /// Output directory (scenarios, results, plots, report).
+    pub out_dir: PathBuf,
+    /// Gait cycles per run.
+    pub cycles: u32,
+    /// Multiplies the bench gait's angle and torque amplitudes (1 = the bench's gait).
+    pub scale: f64,
+    /// Controller gains.
+    pub gains: StudyGains,
+    /// Actuators to run.
+    pub actuators: Vec<Actuator>,
+}
+
+/// Runs the study: writes `scenarios/<A>.ssp`, runs each with this harness's master, writes
+/// `<A>.csv`, and returns the runs. A run ended by an interlock keeps its rows and names the
+/// interlock in its report.
+pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
+    let scenarios = config.out_dir.join("scenarios");
+    std::fs::create_dir_all(&scenarios).map_err(|e| StudyError::Fmu {
+        path: scenarios.clone(),
+        message: e.to_string(),
+    })?;
+    let mut runs = Vec::new();
+    for &actuator in &config.actuators {
+        let mut gait = Gait::bench_default(actuator);
+        gait.angle_amplitude *= config.scale;
+        gait.torque_amplitude *= config.scale;
+        let scenario = gait_scenario(actuator, gait, config.gains, config.cycles);
+        let path = scenarios.join(format!("{}.ssp", actuator.name()));
+        write_ssp(&scenario, &config.fmu_dir, &path)?;
+        let loaded = ssp::load_system(&path, &crate::load::LoadOptions::default())?;
+        let output = loaded
+            .system
+            .run(&loaded.config)
+            .map_err(|e| StudyError::Fmu {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        let mut report = analyse(
+            actuator.name(),
+            &output.results,
+            gait.period,
+            &Columns::default(),
+        )?;
+        match &output.outcome {
+            crate::master::Outcome::Terminated {
+                component,
+                last_successful_time,
+                messages,
+                ..
+            } => {
+                // The plant names the interlock in its log; the row at the trip is not on the
+                // grid, so the trip code may not be in the results.
+                let reason = messages
+                    .last()
+                    .and_then(|m| m.rsplit(": ").next())
+                    .unwrap_or("terminated");
+                report.trip = Some((format!("{component}: {reason}"), *last_successful_time));
+            }
+            crate::master::Outcome::Failed(e) => {
+                let at = output.results.last_time().unwrap_or(0.0);
+                report.trip = Some((format!("run failed: {e}"), at));
+            }
+            crate::master::Outcome::Completed { .. } => {}
+        }
+        let csv = config.out_dir.join(format!("{}.csv", actuator.name()));
+        output.results.write_csv_file(&csv)?;
+        runs.push(StudyRun {
+            report,
+            results: output.results,
+            outcome: output.outcome,
+            scenario: path,
+        });
+    }
+    Ok(runs)
+}
+
+/// Draws the study's figures over the last gait cycle of each run: knee-angle tracking,
+/// motor torques and powers. Returns the files written.
+pub fn plot_study(
+    runs: &[StudyRun],
+    period: f64,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>, StudyError> {
+    use crate::results::plot::PlotLabels;
+    let mut written = Vec::new();
+    let figure = |file: &str,
+                  title: &str,
+                  y: &str,
+                  series: Vec<(String, &Results, String)>|
+     -> Result<PathBuf, StudyError> {
+        let path = out_dir.join(file);
+        let refs: Vec<(&str, &Results, &str)> = series
+            .iter()
+            .map(|(l, r, c)| (l.as_str(), *r, c.as_str()))
+            .collect();
+        plot_cycle(
+            &refs,
+            period,
+            &path,
+            &PlotLabels {
+                x: "gait cycle [%]".into(),
+                y: y.into(),
+                title: title.into(),
+            },
+        )?;
+        Ok(path)
+    };
+    let complete: Vec<&StudyRun> = runs.iter().filter(|r| r.report.cycles > 0).collect();
+    if complete.is_empty() {
+        return Ok(written);
+    }
+    let mut tracking = vec![(
+        "reference".to_string(),
+        &complete[0].results,
+        "gait.kneeAngleReference".to_string(),
+    )];
+    for r in &complete {
+        tracking.push((
+            format!("{} knee (load side)", r.report.name),
+            &r.results,
+            "plant.loadAngle".into(),
+        ));
+    }
+    written.push(figure(
+        "tracking.svg",
+        "Knee angle over one gait cycle",
+        "angle [rad]",
+        tracking,
+    )?);
+    let mut torques = Vec::new();
+    for r in &complete {
+        torques.push((
+            format!("{} test motor", r.report.name),
+            &r.results,
+            "plant.testOutputTorque".into(),
+        ));
+        torques.push((
+            format!("{} load motor", r.report.name),
+            &r.results,
+            "plant.loadOutputTorque".into(),
+        ));
+    }
+    written.push(figure(
+        "torques.svg",
+        "Motor torques at the output over one gait cycle",
+        "torque [N m]",
+        torques,
+    )?);
+    let mut powers = Vec::new();
+    for r in &complete {
+        powers.push((
+            format!("{} test mechanical", r.report.name),
+            &r.results,
+            "plant.testMechanicalPower".into(),
+        ));
+        powers.push((
+            format!("{} electrical total", r.report.name),
+            &r.results,
+            "plant.totalElectricalPower".into(),
+        ));
+    }
+    written.push(figure(
+        "powers.svg",
+        "Powers over one gait cycle",
+        "power [W]",
+        powers,
+    )?);
+    Ok(written)
+}
