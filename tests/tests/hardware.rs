@@ -229,7 +229,7 @@ struct Ended {
     completed: usize,
     /// `Ok(Discard)` status details or the error text.
     result: Result<(i32, f64), String>,
-    /// testOutputTorque after each completed step.
+    /// transducerTorque (the shaft torque) after each completed step.
     torque: Vec<f64>,
     /// The emulator's statistics after the run.
     stats: EmulatorStats,
@@ -262,7 +262,7 @@ fn drive(
         match i.do_step(t, H) {
             Ok(Status::Ok) | Ok(Status::Warning) => {
                 let mut v = [0.0];
-                i.get_real(&[314], &mut v).unwrap();
+                i.get_real(&[325], &mut v).unwrap();
                 torque.push(v[0]);
             }
             Ok(Status::Discard) => {
@@ -271,7 +271,7 @@ fn drive(
                 i.get_integer(&[373], &mut code).unwrap();
                 result = Some(Ok((code[0], i.last_successful_time().unwrap())));
                 let mut v = [0.0];
-                i.get_real(&[314], &mut v).unwrap();
+                i.get_real(&[325], &mut v).unwrap();
                 torque.push(v[0]);
                 break;
             }
@@ -302,9 +302,11 @@ fn assert_safe(stats: &EmulatorStats) {
 
 #[test]
 fn motor_torque_interlock_trips_in_the_first_violating_sample() {
-    let emu = emulator(&[]);
-    // A ramp to 4 A over 0.2 s: 20 N m at the output (3.38 A) is crossed near 0.17 s.
-    let e = drive(&emu, |t| 20.0 * t, None);
+    // The load side held by friction, the emulated plant's own torque interlock out of the way:
+    // the test motor winds the spring and the hardware FMU's interlock (on the transducer's
+    // shaft torque) must act.
+    let emu = emulator(&[("loadStaticFriction", "100"), ("motorTorqueLimit", "100")]);
+    let e = drive(&emu, |t| 25.0 * t, None);
     let (code, at) = e.result.clone().unwrap();
     assert_eq!(code, 2, "{e:?}");
     let n = e.torque.len();
@@ -321,11 +323,12 @@ fn motor_torque_interlock_trips_in_the_first_violating_sample() {
 
 #[test]
 fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
-    let emu = emulator(&[]);
+    // As in the interlock test above: the load side held, the test motor winds the spring.
+    let emu = emulator(&[("loadStaticFriction", "100"), ("motorTorqueLimit", "100")]);
     let stop = 0.4;
     let ramp = signal(1.0, 0.0, stop);
     let ramp = Signal {
-        values: ramp.times.iter().map(|t| 20.0 * t).collect(),
+        values: ramp.times.iter().map(|t| 25.0 * t).collect(),
         ..ramp
     };
     let (out, _) = run_bench(

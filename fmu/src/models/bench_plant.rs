@@ -1251,7 +1251,7 @@ static VARIABLES: LazyLock<Vec<Variable<BenchPlantModel>>> = LazyLock::new(|| {
             65,
             motor_torque_limit,
             "N.m",
-            "Interlock: largest output-side motor torque |i_HD Km1 i1|, |i_RED Km2 i2|"
+            "Interlock: largest shaft torque k (theta1 - theta2) (the test motor past the harmonic drive) and largest load-motor output torque |i_RED Km2 i2|"
         ),
         param!(
             "maxInternalStep",
