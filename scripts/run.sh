@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The main job: build, export every FMU, and simulate the default bench scenario.
+# The main job: build, export every FMU, and run the DA/SEA/CSEA gait study on the default
+# bench scenario (results CSV, figures over one gait cycle, the comparison table).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -7,8 +8,9 @@ out=${1:-$root/out}
 cargo build --release --locked --workspace --bins --lib
 bin=target/release/kneebench
 "$bin" export --out "$out/fmus"
-"$bin" run "$out/fmus/GaitReference.fmu" --stop-time 5 --step 0.001 --output "$out/gait.csv"
-"$bin" plot "$out/gait.csv" --signals kneeAngleReference,kneeVelocityReference,loadTorqueReference --out "$out/gait.svg"
-echo "FMUs:    $out/fmus"
-echo "Results: $out/gait.csv"
-echo "Plot:    $out/gait.svg"
+status=0
+"$bin" study --fmus "$out/fmus" --out "$out/study" || status=$?
+echo "FMUs:      $out/fmus"
+echo "Scenarios: $out/study/scenarios"
+echo "Report:    $out/study/report.md"
+exit "$status"
