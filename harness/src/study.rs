@@ -535,26 +535,141 @@ pub const TEST_TORQUE_PER_AMPERE: f64 = 160.0 * 0.037;
 /// Output torque per ampere of the load motor, i_RED Km2 = 66 x 0.114 [N m/A].
 pub const LOAD_TORQUE_PER_AMPERE: f64 = 66.0 * 0.114;
 
+/// Load-side inertia I2 at the knee axis [kg m^2] (the plant's default `load_inertia`).
+pub const LOAD_INERTIA: f64 = 0.605;
+/// Load-side viscous damping c2 [N m s/rad] (the plant's default `load_damping`).
+pub const LOAD_DAMPING: f64 = 1.0;
+/// Spring stiffness k of the SEA and CSEA [N m/rad] (the plant's default).
+pub const SPRING_STIFFNESS: f64 = 340.54;
+/// The DA's coupling stiffness (harmonic drive) [N m/rad] (the plant's default).
+pub const DIRECT_COUPLING_STIFFNESS: f64 = 1.3e4;
+/// Actuation-side inertia I1 at the knee axis [kg m^2] (the plant's default).
+pub const ACTUATION_INERTIA: f64 = 0.825;
+/// Actuation-side viscous damping c1 [N m s/rad] (the plant's default).
+pub const ACTUATION_DAMPING: f64 = 12.0;
+
+/// The clutch scheduler's mode and parameters (see `ClutchScheduler`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ClutchSchedule {
+    /// Never engaged.
+    Off,
+    /// Engaged while the gait phase lies in `[start, end)`.
+    GaitPhase {
+        /// Window start (fraction of the cycle).
+        start: f64,
+        /// Window end.
+        end: f64,
+    },
+    /// Engaged when |knee-velocity reference| stayed below `engage` [rad/s] for `delay` [s],
+    /// released above `release` [rad/s].
+    LowSpeed {
+        /// Engage threshold [rad/s].
+        engage: f64,
+        /// Release threshold [rad/s].
+        release: f64,
+        /// Debounce [s].
+        delay: f64,
+    },
+}
+
+/// The CSEA's impedance controller and clutch scheduler settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CseaGains {
+    /// Virtual stiffness k_d [N m/rad].
+    pub stiffness: f64,
+    /// Virtual damping d_d [N m s/rad].
+    pub damping: f64,
+    /// Inner spring-torque PI: kp [A/(N m)], ki [A/(N m s)].
+    pub torque: (f64, f64),
+    /// Limit of the desired torque tau_d [N m].
+    pub desired_torque_limit: f64,
+    /// When the clutch scheduler engages the clutch.
+    pub clutch: ClutchSchedule,
+    /// Test-side dynamics added to the impedance controller's torque feed-forward (velocity
+    /// coefficient [N m s/rad], acceleration coefficient [kg m^2]; (c1, I1) for the model), on
+    /// top of the planned shaft torque.
+    pub feed_forward: (f64, f64),
+    /// `holdAction` of the impedance controller while the clutch is engaged (1 hold last
+    /// output, 2 zero output).
+    pub hold_action: i32,
+}
+
 /// The controller gains of the study scenarios (documented with the scenarios).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StudyGains {
     /// Position loop (test motor): kp [A/rad], ki [A/(rad s)], kd [A s/rad].
     pub position: (f64, f64, f64),
-    /// Velocity feed-forward of the position loop [A s/rad] (c1 / (i_HD Km1)).
-    pub velocity_feed_forward: f64,
-    /// Load torque loop: kp [A/(N m)], ki [A/(N m s)], kd [A s/(N m)].
+    /// Derivative filter time constant of the position loop [s].
+    pub position_derivative_filter: f64,
+    /// Output limit of the position loop [A] (the test driver's 15 A).
+    pub position_limit: f64,
+    /// Test-side inverse-dynamics feed-forward of the position loop, [A] per unit of
+    /// (knee velocity [rad/s], knee acceleration [rad/s^2], knee-torque reference [N m]):
+    /// (c1, I1, 1) / (i_HD Km1) for the full model; all zero disables it.
+    pub test_feed_forward: (f64, f64, f64),
+    /// DA, SEA: the position loop's setpoint is the knee-angle reference plus the planned
+    /// shaft torque over the coupling stiffness (the deflection the knee needs), so that the
+    /// knee, not the actuation side, tracks the reference.
+    pub deflection_compensation: bool,
+    /// Load torque loop (on the shaft torque): kp [A/(N m)], ki [A/(N m s)], kd [A s/(N m)].
     pub torque: (f64, f64, f64),
+    /// Derivative filter time constant of the torque loop [s].
+    pub torque_derivative_filter: f64,
+    /// Output limit of the torque loop [A] (the load driver's 6 A).
+    pub torque_limit: f64,
+    /// Share beta of the load side's own dynamics (I2 a + c2 w of the reference motion) that
+    /// the load motor supplies. The load motor's torque is planned as
+    /// `-tau_knee + beta (I2 a + c2 w)` (its feed-forward current) and the shaft torque the loop
+    /// tracks as `tau_knee + (1 - beta)(I2 a + c2 w)` (the setpoint): beta = 0 is the bare
+    /// ground reaction (shaft torque up to 19.4 N m), beta = 1 makes the shaft carry exactly the
+    /// knee torque (the load driver then has to absorb 6.7 W).
+    pub load_dynamics_share: (f64, f64),
+    /// The CSEA's controllers.
+    pub csea: CseaGains,
 }
 
-impl Default for StudyGains {
-    fn default() -> Self {
-        StudyGains {
-            position: (100.0, 50.0, 2.0),
-            velocity_feed_forward: 12.0 / TEST_TORQUE_PER_AMPERE,
-            torque: (0.05, 1.0, 0.0),
+impl StudyGains {
+    /// The tuned gains of the study for `actuator` (module docs, "Controllers and gains").
+    pub fn for_actuator(actuator: Actuator) -> StudyGains {
+        let mut gains = StudyGains {
+            position: (1000.0, 1000.0, 15.0),
+            position_derivative_filter: 0.002,
+            position_limit: 15.0,
+            test_feed_forward: (
+                ACTUATION_DAMPING / TEST_TORQUE_PER_AMPERE,
+                ACTUATION_INERTIA / TEST_TORQUE_PER_AMPERE,
+                1.0 / TEST_TORQUE_PER_AMPERE,
+            ),
+            deflection_compensation: true,
+            torque: (0.2, 5.0, 0.005),
+            torque_derivative_filter: 0.002,
+            torque_limit: 6.0,
+            load_dynamics_share: (4.0, 0.75),
+            csea: CseaGains {
+                stiffness: 150.0,
+                damping: 8.0,
+                torque: (0.0, 0.0),
+                desired_torque_limit: 60.0,
+                feed_forward: (ACTUATION_DAMPING, ACTUATION_INERTIA),
+                clutch: ClutchSchedule::LowSpeed {
+                    engage: 0.1,
+                    release: 0.2,
+                    delay: 0.02,
+                },
+                hold_action: 1,
+            },
+        };
+        match actuator {
+            Actuator::Da => {}
+            Actuator::Sea => gains.torque = (0.2, 5.0, 0.01),
+            Actuator::Csea => gains.torque = (0.0, 0.0, 0.0),
         }
+        gains
     }
 }
+
+const VELOCITY: &str = "gait.kneeVelocityReference";
+const ACCELERATION: &str = "gait.kneeAccelerationReference";
 
 fn real(name: &str, v: f64) -> (String, Value) {
     (name.to_string(), Value::Real(v))
@@ -581,90 +696,164 @@ fn connect(from: &str, to: &str) -> (String, String) {
 pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: u32) -> Scenario {
     let (pk, pi, pd) = gains.position;
     let (tk, ti, td) = gains.torque;
-    let mut components = vec![
-        ScenarioComponent {
-            name: "gait".into(),
-            fmu: "GaitReference.fmu".into(),
-            parameters: vec![
-                real("gaitPeriod", gait.period),
-                real("kneeAngleAmplitude", gait.angle_amplitude),
-                real("kneeTorqueAmplitude", gait.torque_amplitude),
-                // The bench starts at rest at 0 rad, the gait at ~7.5 deg: a soft start inside
-                // the first (not analysed) cycle avoids a start-up step.
-                real("fadeInTime", gait.period / 2.0),
-            ],
-        },
-        ScenarioComponent {
-            name: "torque".into(),
-            fmu: "PidController.fmu".into(),
-            parameters: vec![
-                real("kp", tk),
-                real("ki", ti),
-                real("kd", td),
-                real("outputMin", -6.0),
-                real("outputMax", 6.0),
-                real("feedForwardGain", 1.0 / LOAD_TORQUE_PER_AMPERE),
-                boolean("reverseActing", true),
-            ],
-        },
-        ScenarioComponent {
-            name: "plant".into(),
-            fmu: "BenchPlant.fmu".into(),
-            parameters: vec![integer("configuration", actuator.configuration())],
-        },
-    ];
-    let mut connections = vec![
-        connect("gait.kneeTorqueReference", "torque.setpoint"),
+    let mut components = vec![ScenarioComponent {
+        name: "gait".into(),
+        fmu: "GaitReference.fmu".into(),
+        parameters: vec![
+            real("gaitPeriod", gait.period),
+            real("kneeAngleAmplitude", gait.angle_amplitude),
+            real("kneeTorqueAmplitude", gait.torque_amplitude),
+            // The bench starts at rest at 0 rad, the gait at ~7.5 deg: a soft start inside
+            // the first (not analysed) cycle avoids a start-up step.
+            real("fadeInTime", gait.period / 2.0),
+        ],
+    }];
+    let mut connections = Vec::new();
+    // The torque loop: setpoint and feed-forward from the knee-torque reference and the load
+    // side's dynamics (see `StudyGains::load_dynamics_share`), through `PidController`s used as
+    // summing elements when a dynamics term is present.
+    let (beta_w, beta_a) = gains.load_dynamics_share;
+    let setpoint = weighted_sum(
+        "torqueSetpoint",
+        ("gait.kneeTorqueReference", 1.0),
+        &[
+            (VELOCITY, (1.0 - beta_w) * LOAD_DAMPING),
+            (ACCELERATION, (1.0 - beta_a) * LOAD_INERTIA),
+        ],
+        &mut components,
+        &mut connections,
+    );
+    let load_ff = weighted_sum(
+        "loadFeedForward",
+        ("gait.loadTorqueReference", 1.0 / LOAD_TORQUE_PER_AMPERE),
+        &[
+            (VELOCITY, beta_w * LOAD_DAMPING / LOAD_TORQUE_PER_AMPERE),
+            (ACCELERATION, beta_a * LOAD_INERTIA / LOAD_TORQUE_PER_AMPERE),
+        ],
+        &mut components,
+        &mut connections,
+    );
+    components.push(ScenarioComponent {
+        name: "torque".into(),
+        fmu: "PidController.fmu".into(),
+        parameters: vec![
+            real("kp", tk),
+            real("ki", ti),
+            real("kd", td),
+            real("derivativeFilterTime", gains.torque_derivative_filter),
+            real("outputMin", -gains.torque_limit),
+            real("outputMax", gains.torque_limit),
+            real("feedForwardGain", load_ff.1),
+            boolean("reverseActing", true),
+        ],
+    });
+    connections.extend([
+        connect(&setpoint.0, "torque.setpoint"),
         connect("plant.transducerTorque", "torque.measurement"),
-        connect("gait.loadTorqueReference", "torque.feedForward"),
+        connect(&load_ff.0, "torque.feedForward"),
         connect("torque.u", "plant.loadCurrentCommand"),
-    ];
+    ]);
     match actuator {
         Actuator::Da | Actuator::Sea => {
-            components.insert(
-                1,
-                ScenarioComponent {
-                    name: "position".into(),
-                    fmu: "PidController.fmu".into(),
-                    parameters: vec![
-                        real("kp", pk),
-                        real("ki", pi),
-                        real("kd", pd),
-                        real("derivativeFilterTime", 0.002),
-                        real("outputMin", -15.0),
-                        real("outputMax", 15.0),
-                        real("feedForwardGain", gains.velocity_feed_forward),
-                    ],
-                },
+            let (fv, fa, ft) = gains.test_feed_forward;
+            let test_ff = weighted_sum(
+                "testFeedForward",
+                (&setpoint.0, ft * setpoint.1),
+                &[(VELOCITY, fv), (ACCELERATION, fa)],
+                &mut components,
+                &mut connections,
             );
+            // The actuation side leads the knee by the planned spring deflection.
+            let stiffness = if actuator == Actuator::Da {
+                DIRECT_COUPLING_STIFFNESS
+            } else {
+                SPRING_STIFFNESS
+            };
+            let angle = if gains.deflection_compensation {
+                weighted_sum(
+                    "positionSetpoint",
+                    (&setpoint.0, setpoint.1 / stiffness),
+                    &[("gait.kneeAngleReference", 1.0)],
+                    &mut components,
+                    &mut connections,
+                )
+                .0
+            } else {
+                "gait.kneeAngleReference".to_string()
+            };
+            components.push(ScenarioComponent {
+                name: "position".into(),
+                fmu: "PidController.fmu".into(),
+                parameters: vec![
+                    real("kp", pk),
+                    real("ki", pi),
+                    real("kd", pd),
+                    real("derivativeFilterTime", gains.position_derivative_filter),
+                    real("outputMin", -gains.position_limit),
+                    real("outputMax", gains.position_limit),
+                    real("feedForwardGain", test_ff.1),
+                ],
+            });
             connections.extend([
-                connect("gait.kneeAngleReference", "position.setpoint"),
+                connect(&angle, "position.setpoint"),
                 connect("plant.actuationEncoderAngle", "position.measurement"),
-                connect("gait.kneeVelocityReference", "position.feedForward"),
+                connect(&test_ff.0, "position.feedForward"),
                 connect("position.u", "plant.testCurrentCommand"),
             ]);
         }
         Actuator::Csea => {
-            components.insert(
-                1,
-                ScenarioComponent {
-                    name: "impedance".into(),
-                    fmu: "ImpedanceController.fmu".into(),
-                    parameters: vec![],
-                },
+            let c = gains.csea;
+            let torque_ff = weighted_sum(
+                "impedanceFeedForward",
+                (&setpoint.0, setpoint.1),
+                &[
+                    (VELOCITY, c.feed_forward.0),
+                    (ACCELERATION, c.feed_forward.1),
+                ],
+                &mut components,
+                &mut connections,
             );
-            components.insert(
-                2,
-                ScenarioComponent {
-                    name: "clutch".into(),
-                    fmu: "ClutchScheduler.fmu".into(),
-                    parameters: vec![],
-                },
-            );
+            components.push(ScenarioComponent {
+                name: "impedance".into(),
+                fmu: "ImpedanceController.fmu".into(),
+                parameters: vec![
+                    real("virtualStiffness", c.stiffness),
+                    real("virtualDamping", c.damping),
+                    real("torqueKp", c.torque.0),
+                    real("torqueKi", c.torque.1),
+                    real("desiredTorqueLimit", c.desired_torque_limit),
+                    real("outputMin", -gains.position_limit),
+                    real("outputMax", gains.position_limit),
+                    integer("holdAction", c.hold_action),
+                ],
+            });
+            let clutch = match c.clutch {
+                ClutchSchedule::Off => vec![integer("mode", 0)],
+                ClutchSchedule::GaitPhase { start, end } => vec![
+                    integer("mode", 1),
+                    real("engageStart", start),
+                    real("engageEnd", end),
+                ],
+                ClutchSchedule::LowSpeed {
+                    engage,
+                    release,
+                    delay,
+                } => vec![
+                    integer("mode", 2),
+                    real("engageSpeed", engage),
+                    real("releaseSpeed", release),
+                    real("engageDelay", delay),
+                ],
+            };
+            components.push(ScenarioComponent {
+                name: "clutch".into(),
+                fmu: "ClutchScheduler.fmu".into(),
+                parameters: clutch,
+            });
             connections.extend([
                 connect("gait.kneeAngleReference", "impedance.angleReference"),
                 connect("gait.kneeVelocityReference", "impedance.velocityReference"),
-                connect("gait.kneeTorqueReference", "impedance.torqueFeedForward"),
+                connect(&torque_ff.0, "impedance.torqueFeedForward"),
                 connect("plant.actuationEncoderAngle", "impedance.actuationAngle"),
                 connect("plant.loadEncoderAngle", "impedance.loadAngle"),
                 connect("plant.loadVelocity", "impedance.loadVelocity"),
@@ -676,6 +865,11 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
             ]);
         }
     }
+    components.push(ScenarioComponent {
+        name: "plant".into(),
+        fmu: "BenchPlant.fmu".into(),
+        parameters: vec![integer("configuration", actuator.configuration())],
+    });
     Scenario {
         name: actuator.name().into(),
         components,
@@ -683,6 +877,52 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         stop_time: gait.period * f64::from(cycles),
         step_size: 1e-3,
     }
+}
+
+/// A weighted sum of signals, `base.1 * base.0 + sum(gain * signal)`, as a signal for a loop's
+/// input. Without non-zero terms it is the base signal itself (returned with its gain, for the
+/// consuming loop's `feedForwardGain`). Otherwise each term is a `PidController` used as a
+/// summing element: reverse acting with zero setpoint and only `kp`, so `P = kp y` on its
+/// `measurement` (the term's signal), plus the previous partial sum as its feed-forward; the
+/// last is named `name` (earlier ones `name` + `1`, `2`, ...), and its output `u` is the sum
+/// (returned with gain 1). A summing PID has direct feedthrough and no state that matters, so a
+/// Gauss-Seidel master passes the sum of the same instant on.
+fn weighted_sum(
+    name: &str,
+    base: (&str, f64),
+    terms: &[(&str, f64)],
+    components: &mut Vec<ScenarioComponent>,
+    connections: &mut Vec<(String, String)>,
+) -> (String, f64) {
+    let terms: Vec<&(&str, f64)> = terms.iter().filter(|(_, g)| *g != 0.0).collect();
+    let (mut signal, mut gain) = (base.0.to_string(), base.1);
+    for (i, (term, kp)) in terms.iter().enumerate() {
+        let component = if i + 1 == terms.len() {
+            name.to_string()
+        } else {
+            format!("{name}{}", i + 1)
+        };
+        components.push(ScenarioComponent {
+            name: component.clone(),
+            fmu: "PidController.fmu".into(),
+            parameters: vec![
+                real("kp", *kp),
+                real("ki", 0.0),
+                real("kd", 0.0),
+                real("outputMin", -1e6),
+                real("outputMax", 1e6),
+                real("feedForwardGain", gain),
+                boolean("reverseActing", true),
+            ],
+        });
+        connections.extend([
+            connect(term, &format!("{component}.measurement")),
+            connect(&signal, &format!("{component}.feedForward")),
+        ]);
+        signal = format!("{component}.u");
+        gain = 1.0;
+    }
+    (signal, gain)
 }
 
 /// One actuator's run in a study.
@@ -709,8 +949,9 @@ pub struct StudyConfig {
     pub cycles: u32,
     /// Multiplies the bench gait's angle and torque amplitudes (1 = the bench's gait).
     pub scale: f64,
-    /// Controller gains.
-    pub gains: StudyGains,
+    /// Controller gains for every actuator; `None`: each actuator's
+    /// [`StudyGains::for_actuator`].
+    pub gains: Option<StudyGains>,
     /// Actuators to run.
     pub actuators: Vec<Actuator>,
 }
@@ -729,7 +970,10 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
         let mut gait = Gait::bench_default(actuator);
         gait.angle_amplitude *= config.scale;
         gait.torque_amplitude *= config.scale;
-        let scenario = gait_scenario(actuator, gait, config.gains, config.cycles);
+        let gains = config
+            .gains
+            .unwrap_or_else(|| StudyGains::for_actuator(actuator));
+        let scenario = gait_scenario(actuator, gait, gains, config.cycles);
         let path = scenarios.join(format!("{}.ssp", actuator.name()));
         write_ssp(&scenario, &config.fmu_dir, &path)?;
         let loaded = ssp::load_system(&path, &crate::load::LoadOptions::default())?;

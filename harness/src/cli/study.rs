@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kneebench_harness::study::{
-    Actuator, Gait, StudyConfig, StudyGains, markdown_table, plot_study, run_study,
+    Actuator, Gait, StudyConfig, markdown_table, plot_study, run_study,
 };
 
 /// Arguments of `kneebench study`.
@@ -63,7 +63,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         out_dir: a.out.clone(),
         cycles: a.cycles,
         scale: a.scale,
-        gains: StudyGains::default(),
+        gains: None,
         actuators,
     };
     let runs = run_study(&config)?;
