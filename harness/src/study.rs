@@ -714,7 +714,7 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
     // summing elements when a dynamics term is present.
     let (beta_w, beta_a) = gains.load_dynamics_share;
     let setpoint = weighted_sum(
-        "torqueSetpoint",
+        "shaftTorqueSetpoint",
         ("gait.kneeTorqueReference", 1.0),
         &[
             (VELOCITY, (1.0 - beta_w) * LOAD_DAMPING),
@@ -771,7 +771,7 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
             };
             let angle = if gains.deflection_compensation {
                 weighted_sum(
-                    "positionSetpoint",
+                    "actuationSetpoint",
                     (&setpoint.0, setpoint.1 / stiffness),
                     &[("gait.kneeAngleReference", 1.0)],
                     &mut components,
@@ -804,7 +804,7 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         Actuator::Csea => {
             let c = gains.csea;
             let torque_ff = weighted_sum(
-                "impedanceFeedForward",
+                "springTorqueFeedForward",
                 (&setpoint.0, setpoint.1),
                 &[
                     (VELOCITY, c.feed_forward.0),
@@ -884,8 +884,10 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
 /// consuming loop's `feedForwardGain`). Otherwise each term is a `PidController` used as a
 /// summing element: reverse acting with zero setpoint and only `kp`, so `P = kp y` on its
 /// `measurement` (the term's signal), plus the previous partial sum as its feed-forward; the
-/// last is named `name` (earlier ones `name` + `1`, `2`, ...), and its output `u` is the sum
-/// (returned with gain 1). A summing PID has direct feedthrough and no state that matters, so a
+/// last is named `name` (earlier ones `sum1` + `name`, `sum2` + `name`, ...: no component name
+/// is a prefix of another, since fmpy's `simulate_ssp` assigns a parameter `a.b.p` to every
+/// component whose name `a.b` starts with), and its output `u` is the sum (returned with gain
+/// 1). A summing PID has direct feedthrough and no state that matters, so a
 /// Gauss-Seidel master passes the sum of the same instant on.
 fn weighted_sum(
     name: &str,
@@ -900,7 +902,7 @@ fn weighted_sum(
         let component = if i + 1 == terms.len() {
             name.to_string()
         } else {
-            format!("{name}{}", i + 1)
+            format!("sum{}{name}", i + 1)
         };
         components.push(ScenarioComponent {
             name: component.clone(),
