@@ -155,9 +155,10 @@ impl EmulatorHandle {
     pub fn inject(&self, fault: FaultInjection) -> std::io::Result<()> {
         let socket = UdpSocket::bind(("127.0.0.1", 0))?;
         let (_, bytes) = Sender::new(0xFA17).frame(Payload::FaultInject(fault));
+        // Count before sending: the emulator may apply the fault before this thread looks.
+        let before = self.stats().faults_injected;
         socket.send_to(&bytes, self.addr)?;
         // Wait until the emulator has applied it.
-        let before = self.stats().faults_injected;
         let start = Instant::now();
         while self.stats().faults_injected == before && start.elapsed() < Duration::from_secs(1) {
             std::thread::sleep(Duration::from_micros(100));

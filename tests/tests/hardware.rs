@@ -246,6 +246,9 @@ fn drive(
     let mut i = fmu.instantiate("hw", &InstanceOptions::default()).unwrap();
     i.set_integer(&[400, 402], &[1, 1]).unwrap();
     i.set_string(&[401], &[&emu.addr().to_string()]).unwrap();
+    // A 2 ms link watchdog: loopback answers in tens of microseconds, but a descheduled
+    // emulator thread on a loaded 2-core machine can take longer than the 0.5 ms default.
+    i.set_real(&[404], &[0.002]).unwrap();
     i.setup_experiment(None, 0.0, None).unwrap();
     i.enter_initialization_mode().unwrap();
     i.exit_initialization_mode().unwrap();
@@ -379,7 +382,7 @@ fn injected_faults_trip_within_one_period_with_the_documented_status() {
         (
             FaultInjection::DelayReplies {
                 count: 1,
-                delay_s: 0.005,
+                delay_s: 0.02,
             },
             8,
             tk,
