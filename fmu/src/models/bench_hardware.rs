@@ -109,7 +109,9 @@ use std::sync::LazyLock;
 use std::time::Duration;
 
 use super::bench::{BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel};
-use super::bench_plant::{BenchCommands, BenchSignals, io_variables};
+use super::bench_plant::{
+    BenchCommands, BenchSignals, for_each_bench_parameter, io_variables, unit_of, with_unit,
+};
 use crate::hardware::calibration::{Calibration, Plausibility, Side, Tare, Unwrapper};
 use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, kind_of};
 use crate::hardware::pacing::{Pacer, PacingMode};
@@ -288,6 +290,45 @@ impl BenchSignals for BenchHardwareModel {
     }
 }
 
+/// The plant parameters the hardware FMU declares too (see `for_each_bench_parameter`).
+const SHARED_PARAMETERS: &[&str] = &[
+    "actuationInertia",
+    "loadInertia",
+    "actuationDamping",
+    "loadDamping",
+    "springStiffness",
+    "directCouplingStiffness",
+    "harmonicDriveRatio",
+    "reductionRatio",
+    "testMotorResistance",
+    "testMotorTorqueConstant",
+    "testMotorBackEmfConstant",
+    "loadMotorResistance",
+    "loadMotorTorqueConstant",
+    "loadMotorBackEmfConstant",
+    "testSupplyVoltage",
+    "loadSupplyVoltage",
+    "testCurrentLimit",
+    "loadCurrentLimit",
+    "loadRegenPowerLimit",
+    "clutchRatedPower",
+    "hardwareOffsetPower",
+    "encoderCountsPerRevolution",
+    "transducerOffset",
+    "transducerGain",
+    "transducerPhase",
+    "loadCellOffset",
+    "loadCellGain",
+    "loadCellPhase",
+    "calibrationPendulumMoment",
+    "dividerOffset",
+    "dividerGain",
+    "currentSensorOffset",
+    "currentSensorSensitivity",
+    "springDeflectionLimit",
+    "motorTorqueLimit",
+];
+
 static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(|| {
     type V = Variable<BenchHardwareModel>;
     let d = BenchParameters::default();
@@ -298,24 +339,6 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
             .map(|&(_, lo, hi)| (lo, hi))
             .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
     };
-    // A parameter shared with the plant: same name, value reference, unit and range.
-    macro_rules! param {
-        ($name:literal, $vr:expr, $field:ident, None, $desc:literal) => {{
-            let (lo, hi) = range(stringify!($field));
-            V::real($name, $vr, |m| m.params.$field, |m, v| m.params.$field = v)
-                .parameter(Start::Real(d.$field))
-                .range(lo, hi)
-                .describe($desc)
-        }};
-        ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {{
-            let (lo, hi) = range(stringify!($field));
-            V::real($name, $vr, |m| m.params.$field, |m, v| m.params.$field = v)
-                .parameter(Start::Real(d.$field))
-                .unit($unit)
-                .range(lo, hi)
-                .describe($desc)
-        }};
-    }
     macro_rules! window {
         ($name:literal, $vr:expr, $ch:expr, $end:tt, $desc:literal) => {
             V::real(
@@ -381,41 +404,6 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         )
         .parameter(Start::Integer(d.load_driver_mode.as_i32()))
         .describe("Load driver's configured mode"),
-        param!("actuationInertia", 10, actuation_inertia, "kg.m2", "I1, for E_k and the torque balance"),
-        param!("loadInertia", 11, load_inertia, "kg.m2", "I2"),
-        param!("actuationDamping", 12, actuation_damping, "N.m.s/rad", "c1, for the friction estimate"),
-        param!("loadDamping", 13, load_damping, "N.m.s/rad", "c2"),
-        param!("springStiffness", 14, spring_stiffness, "N.m/rad", "k: spring torque = k x deflection (SEA, CSEA)"),
-        param!("directCouplingStiffness", 15, direct_coupling_stiffness, "N.m/rad", "Coupling stiffness in DA"),
-        param!("harmonicDriveRatio", 16, harmonic_drive_ratio, None, "i_HD (encoder and torque at the output)"),
-        param!("reductionRatio", 17, reduction_ratio, None, "i_RED"),
-        param!("testMotorResistance", 33, test_motor_resistance, "Ohm", "R1 (armature-voltage estimate)"),
-        param!("testMotorTorqueConstant", 35, test_motor_torque_constant, "N.m/A", "Km1"),
-        param!("testMotorBackEmfConstant", 36, test_motor_back_emf_constant, "V.s/rad", "Ke1"),
-        param!("loadMotorResistance", 38, load_motor_resistance, "Ohm", "R2"),
-        param!("loadMotorTorqueConstant", 40, load_motor_torque_constant, "N.m/A", "Km2"),
-        param!("loadMotorBackEmfConstant", 41, load_motor_back_emf_constant, "V.s/rad", "Ke2"),
-        param!("testSupplyVoltage", 43, test_supply_voltage, "V", "Test supply: voltage set values are clipped to +-this"),
-        param!("loadSupplyVoltage", 44, load_supply_voltage, "V", "Load supply"),
-        param!("testCurrentLimit", 45, test_current_limit, "A", "Test driver limit: current set values clipped; a measured current above it trips"),
-        param!("loadCurrentLimit", 46, load_current_limit, "A", "Load driver limit"),
-        param!("loadRegenPowerLimit", 48, load_regen_power_limit, "W", "Largest regenerated power of the load driver; above it trips"),
-        param!("clutchRatedPower", 50, clutch_power, "W", "Clutch electrical power while engaged"),
-        param!("hardwareOffsetPower", 51, hardware_offset_power, "W", "Hardware offset in the electrical power"),
-        param!("encoderCountsPerRevolution", 52, encoder_counts_per_revolution, None, "Encoder counts per motor revolution after x4 decoding"),
-        param!("transducerOffset", 53, transducer_offset, "V", "Torque transducer calibration a (replaced by the tare)"),
-        param!("transducerGain", 54, transducer_gain, "V", "Torque transducer calibration b"),
-        param!("transducerPhase", 55, transducer_phase, "rad", "Torque transducer calibration c (simulated backend's sensor)"),
-        param!("loadCellOffset", 56, load_cell_offset, "V", "Load cell calibration a (replaced by the tare)"),
-        param!("loadCellGain", 57, load_cell_gain, "V", "Load cell calibration b"),
-        param!("loadCellPhase", 58, load_cell_phase, "rad", "Load cell calibration c"),
-        param!("calibrationPendulumMoment", 59, calibration_pendulum_moment, "N.m", "m g Lg of the calibration pendulum"),
-        param!("dividerOffset", 60, divider_offset, "V", "Supply divider offset"),
-        param!("dividerGain", 61, divider_gain, None, "Supply divider gain"),
-        param!("currentSensorOffset", 62, current_sensor_offset, "V", "Current sensor output at zero current"),
-        param!("currentSensorSensitivity", 63, current_sensor_sensitivity, "V/A", "Current sensor sensitivity"),
-        param!("springDeflectionLimit", 64, spring_deflection_limit, "rad", "Interlock: largest |theta1 - theta2|"),
-        param!("motorTorqueLimit", 65, motor_torque_limit, "N.m", "Interlock: largest shaft torque (the test motor past the harmonic drive, as the transducer measures it) and largest load-motor output torque"),
         V::enumeration("backend", 400, "Backend", |m| m.backend, |m, v| m.backend = v)
             .parameter(Start::Integer(0))
             .describe("I/O backend: Simulated (in process) or Udp (bench I/O server)"),
@@ -487,6 +475,22 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (malformed, replayed, out of order, wrong version or session)"),
         local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
     ];
+    // The plant's parameters that the measurements need (calibration, conversions, limits),
+    // from the plant's own list: same name, value reference, unit, range and meaning; fixed
+    // here, as the bench is set up once per run.
+    macro_rules! param {
+        ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {
+            if SHARED_PARAMETERS.contains(&$name) {
+                let (lo, hi) = range(stringify!($field));
+                let var = V::real($name, $vr, |m| m.params.$field, |m, x| m.params.$field = x)
+                    .parameter(Start::Real(d.$field))
+                    .range(lo, hi)
+                    .describe($desc);
+                v.push(with_unit(var, unit_of!($unit)));
+            }
+        };
+    }
+    for_each_bench_parameter!(param);
     v.extend(io_variables::<BenchHardwareModel>());
     v
 });

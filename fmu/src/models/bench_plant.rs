@@ -787,6 +787,93 @@ pub(crate) static ENUMERATIONS: &[EnumerationType] = &[
     },
 ];
 
+/// Sets the unit of a variable when one is given (the parameter list writes `None` for
+/// dimensionless parameters).
+pub(crate) fn with_unit<M>(v: Variable<M>, unit: Option<&'static str>) -> Variable<M> {
+    match unit {
+        Some(u) => v.unit(u),
+        None => v,
+    }
+}
+
+/// Calls `$param!(name, value reference, field of BenchParameters, unit or None, meaning)` for
+/// every physical parameter of the bench: the one list that the plant and the hardware FMU
+/// (which uses a subset) build their parameter variables from, so names, value references,
+/// units and meanings cannot drift apart.
+macro_rules! for_each_bench_parameter {
+    ($param:ident) => {
+        $param!("actuationInertia", 10, actuation_inertia, "kg.m2", "I1: actuation-side inertia at the output axis (identified; contains the reflected test-motor rotor)");
+        $param!("loadInertia", 11, load_inertia, "kg.m2", "I2: load-side inertia at the output axis (identified; contains the reflected load-motor rotor)");
+        $param!("actuationDamping", 12, actuation_damping, "N.m.s/rad", "c1: actuation-side viscous damping");
+        $param!("loadDamping", 13, load_damping, "N.m.s/rad", "c2: load-side viscous damping");
+        $param!("springStiffness", 14, spring_stiffness, "N.m/rad", "k: equivalent stiffness of the SEA spring chain (SEA and CSEA); zero decouples the halves");
+        $param!("directCouplingStiffness", 15, direct_coupling_stiffness, "N.m/rad", "Coupling stiffness in DA: the harmonic drive's own torsional stiffness");
+        $param!("harmonicDriveRatio", 16, harmonic_drive_ratio, None, "i_HD: harmonic-drive ratio");
+        $param!("reductionRatio", 17, reduction_ratio, None, "i_RED: planetary-gearbox ratio");
+        $param!("actuationStaticFriction", 18, actuation_static_friction, "N.m", "Tfr,static1: actuation-side Coulomb/static friction");
+        $param!("loadStaticFriction", 19, load_static_friction, "N.m", "Tfr,static2: load-side Coulomb/static friction");
+        $param!("actuationStribeckA0", 20, actuation_stribeck_a0, "N.m", "Exponential law, actuation side: a0 (Coulomb level)");
+        $param!("actuationStribeckA1", 21, actuation_stribeck_a1, "N.m", "Exponential law, actuation side: a1 (stiction excess over a0)");
+        $param!("actuationStribeckB1", 22, actuation_stribeck_b1, "s/rad", "Exponential law, actuation side: b1 (Stribeck decay rate)");
+        $param!("actuationStribeckA2", 23, actuation_stribeck_a2, "N.m", "Exponential law, actuation side: a2 (speed-growth amplitude)");
+        $param!("actuationStribeckB2", 24, actuation_stribeck_b2, "s/rad", "Exponential law, actuation side: b2 (speed-growth rate)");
+        $param!("loadStribeckA0", 25, load_stribeck_a0, "N.m", "Exponential law, load side: a0");
+        $param!("loadStribeckA1", 26, load_stribeck_a1, "N.m", "Exponential law, load side: a1");
+        $param!("loadStribeckB1", 27, load_stribeck_b1, "s/rad", "Exponential law, load side: b1");
+        $param!("loadStribeckA2", 28, load_stribeck_a2, "N.m", "Exponential law, load side: a2");
+        $param!("loadStribeckB2", 29, load_stribeck_b2, "s/rad", "Exponential law, load side: b2");
+        $param!("hdSurfaceMaxSpeed", 30, hd_surface_max_speed, "rad/s", "Loss surface: largest |omega1| of the tested range (150 deg/s)");
+        $param!("hdSurfaceMinLoadTorque", 31, hd_surface_min_load_torque, "N.m", "Loss surface: smallest load torque of the clamping box");
+        $param!("hdSurfaceMaxLoadTorque", 32, hd_surface_max_load_torque, "N.m", "Loss surface: largest load torque of the clamping box");
+        $param!("testMotorResistance", 33, test_motor_resistance, "Ohm", "Test motor (EC45 flat) armature resistance");
+        $param!("testMotorInductance", 34, test_motor_inductance, "H", "Test motor armature inductance");
+        $param!("testMotorTorqueConstant", 35, test_motor_torque_constant, "N.m/A", "Test motor torque constant Km1");
+        $param!("testMotorBackEmfConstant", 36, test_motor_back_emf_constant, "V.s/rad", "Test motor back-emf constant Ke1");
+        $param!("testMotorRotorInertia", 37, test_motor_rotor_inertia, "kg.m2", "Test motor rotor inertia (informational: contained in I1)");
+        $param!("loadMotorResistance", 38, load_motor_resistance, "Ohm", "Load motor (EC60 flat) armature resistance");
+        $param!("loadMotorInductance", 39, load_motor_inductance, "H", "Load motor armature inductance");
+        $param!("loadMotorTorqueConstant", 40, load_motor_torque_constant, "N.m/A", "Load motor torque constant Km2");
+        $param!("loadMotorBackEmfConstant", 41, load_motor_back_emf_constant, "V.s/rad", "Load motor back-emf constant Ke2 (0.145 as published, differs from Km2)");
+        $param!("loadMotorRotorInertia", 42, load_motor_rotor_inertia, "kg.m2", "Load motor rotor inertia (informational: contained in I2)");
+        $param!("testSupplyVoltage", 43, test_supply_voltage, "V", "Test driver (EPOS 24/5) supply voltage: armature voltage saturates at +-this");
+        $param!("loadSupplyVoltage", 44, load_supply_voltage, "V", "Load driver (ESCON 50/5) supply voltage");
+        $param!("testCurrentLimit", 45, test_current_limit, "A", "Test driver current limit: set values are clipped; an actual current above it trips");
+        $param!("loadCurrentLimit", 46, load_current_limit, "A", "Load driver current limit");
+        $param!("currentLoopTimeConstant", 47, current_loop_time_constant, "s", "Time constant of the drivers' closed current loop (current mode)");
+        $param!("loadRegenPowerLimit", 48, load_regen_power_limit, "W", "Largest regenerated power the load driver absorbs; above it trips");
+        $param!("clutchMotorTorque", 49, clutch_motor_torque, "N.m", "Clutch friction torque at the motor side (x i_HD at the output: 120 N m)");
+        $param!("clutchRatedPower", 50, clutch_power, "W", "Electrical power of the clutch while engaged");
+        $param!("hardwareOffsetPower", 51, hardware_offset_power, "W", "Continuous hardware offset in the bench's electrical measurements");
+        $param!("encoderCountsPerRevolution", 52, encoder_counts_per_revolution, None, "Encoder counts per motor revolution after x4 decoding (500 CPT x 4)");
+        $param!("transducerOffset", 53, transducer_offset, "V", "Torque transducer calibration a");
+        $param!("transducerGain", 54, transducer_gain, "V", "Torque transducer calibration b");
+        $param!("transducerPhase", 55, transducer_phase, "rad", "Torque transducer calibration c");
+        $param!("loadCellOffset", 56, load_cell_offset, "V", "Load cell calibration a");
+        $param!("loadCellGain", 57, load_cell_gain, "V", "Load cell calibration b");
+        $param!("loadCellPhase", 58, load_cell_phase, "rad", "Load cell calibration c");
+        $param!("calibrationPendulumMoment", 59, calibration_pendulum_moment, "N.m", "Calibration pendulum moment m g Lg (1.94 kg x 9.81 m/s2 x 0.25 m)");
+        $param!("dividerOffset", 60, divider_offset, "V", "Supply divider: V_myRIO = offset + gain V_supply; offset");
+        $param!("dividerGain", 61, divider_gain, None, "Supply divider gain");
+        $param!("currentSensorOffset", 62, current_sensor_offset, "V", "Current sensor (ACS712-20A) output at zero current");
+        $param!("currentSensorSensitivity", 63, current_sensor_sensitivity, "V/A", "Current sensor sensitivity");
+        $param!("springDeflectionLimit", 64, spring_deflection_limit, "rad", "Interlock: largest spring deflection |theta1 - theta2| (5 deg)");
+        $param!("motorTorqueLimit", 65, motor_torque_limit, "N.m", "Interlock: largest shaft torque k (theta1 - theta2) (the test motor past the harmonic drive) and largest load-motor output torque |i_RED Km2 i2|");
+        $param!("maxInternalStep", 66, max_internal_step, "s", "Largest internal integration step; communication steps are split into equal sub-steps no longer than this");
+    };
+}
+pub(crate) use for_each_bench_parameter;
+
+/// `Some(unit)` from a unit literal of the parameter list, `None` from `None`.
+macro_rules! unit_of {
+    (None) => {
+        None
+    };
+    ($unit:literal) => {
+        Some($unit)
+    };
+}
+pub(crate) use unit_of;
+
 static VARIABLES: LazyLock<Vec<Variable<BenchPlantModel>>> = LazyLock::new(|| {
     type V = Variable<BenchPlantModel>;
     let d = BenchParameters::default();
@@ -797,40 +884,27 @@ static VARIABLES: LazyLock<Vec<Variable<BenchPlantModel>>> = LazyLock::new(|| {
             .map(|&(_, lo, hi)| (lo, hi))
             .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
     };
+    let mut v: Vec<V> = Vec::new();
+    // A tunable parameter of the plant: a change reaches the physics at the next step.
     macro_rules! param {
-        ($name:literal, $vr:expr, $field:ident, None, $desc:literal) => {{
+        ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {{
             let (lo, hi) = range(stringify!($field));
-            V::real(
+            let var = V::real(
                 $name,
                 $vr,
                 |m| m.params.$field,
-                |m, v| {
-                    m.params.$field = v;
+                |m, x| {
+                    m.params.$field = x;
                     m.parameters_changed = true;
                 },
             )
             .tunable(Start::Real(d.$field))
             .range(lo, hi)
-            .describe($desc)
-        }};
-        ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {{
-            let (lo, hi) = range(stringify!($field));
-            V::real(
-                $name,
-                $vr,
-                |m| m.params.$field,
-                |m, v| {
-                    m.params.$field = v;
-                    m.parameters_changed = true;
-                },
-            )
-            .tunable(Start::Real(d.$field))
-            .unit($unit)
-            .range(lo, hi)
-            .describe($desc)
+            .describe($desc);
+            v.push(with_unit(var, unit_of!($unit)));
         }};
     }
-    let mut v = vec![
+    v.extend([
         V::enumeration(
             "configuration",
             1,
@@ -867,400 +941,8 @@ static VARIABLES: LazyLock<Vec<Variable<BenchPlantModel>>> = LazyLock::new(|| {
         )
         .parameter(Start::Integer(d.load_driver_mode.as_i32()))
         .describe("Load-motor driver: voltage or current command"),
-        param!(
-            "actuationInertia",
-            10,
-            actuation_inertia,
-            "kg.m2",
-            "I1: actuation-side inertia at the output axis (identified; contains the reflected test-motor rotor)"
-        ),
-        param!(
-            "loadInertia",
-            11,
-            load_inertia,
-            "kg.m2",
-            "I2: load-side inertia at the output axis (identified; contains the reflected load-motor rotor)"
-        ),
-        param!(
-            "actuationDamping",
-            12,
-            actuation_damping,
-            "N.m.s/rad",
-            "c1: actuation-side viscous damping"
-        ),
-        param!(
-            "loadDamping",
-            13,
-            load_damping,
-            "N.m.s/rad",
-            "c2: load-side viscous damping"
-        ),
-        param!(
-            "springStiffness",
-            14,
-            spring_stiffness,
-            "N.m/rad",
-            "k: equivalent stiffness of the SEA spring chain (SEA and CSEA); zero decouples the halves"
-        ),
-        param!(
-            "directCouplingStiffness",
-            15,
-            direct_coupling_stiffness,
-            "N.m/rad",
-            "Coupling stiffness in DA: the harmonic drive's own torsional stiffness"
-        ),
-        param!(
-            "harmonicDriveRatio",
-            16,
-            harmonic_drive_ratio,
-            None,
-            "i_HD: harmonic-drive ratio"
-        ),
-        param!(
-            "reductionRatio",
-            17,
-            reduction_ratio,
-            None,
-            "i_RED: planetary-gearbox ratio"
-        ),
-        param!(
-            "actuationStaticFriction",
-            18,
-            actuation_static_friction,
-            "N.m",
-            "Tfr,static1: actuation-side Coulomb/static friction"
-        ),
-        param!(
-            "loadStaticFriction",
-            19,
-            load_static_friction,
-            "N.m",
-            "Tfr,static2: load-side Coulomb/static friction"
-        ),
-        param!(
-            "actuationStribeckA0",
-            20,
-            actuation_stribeck_a0,
-            "N.m",
-            "Exponential law, actuation side: a0 (Coulomb level)"
-        ),
-        param!(
-            "actuationStribeckA1",
-            21,
-            actuation_stribeck_a1,
-            "N.m",
-            "Exponential law, actuation side: a1 (stiction excess over a0)"
-        ),
-        param!(
-            "actuationStribeckB1",
-            22,
-            actuation_stribeck_b1,
-            "s/rad",
-            "Exponential law, actuation side: b1 (Stribeck decay rate)"
-        ),
-        param!(
-            "actuationStribeckA2",
-            23,
-            actuation_stribeck_a2,
-            "N.m",
-            "Exponential law, actuation side: a2 (speed-growth amplitude)"
-        ),
-        param!(
-            "actuationStribeckB2",
-            24,
-            actuation_stribeck_b2,
-            "s/rad",
-            "Exponential law, actuation side: b2 (speed-growth rate)"
-        ),
-        param!(
-            "loadStribeckA0",
-            25,
-            load_stribeck_a0,
-            "N.m",
-            "Exponential law, load side: a0"
-        ),
-        param!(
-            "loadStribeckA1",
-            26,
-            load_stribeck_a1,
-            "N.m",
-            "Exponential law, load side: a1"
-        ),
-        param!(
-            "loadStribeckB1",
-            27,
-            load_stribeck_b1,
-            "s/rad",
-            "Exponential law, load side: b1"
-        ),
-        param!(
-            "loadStribeckA2",
-            28,
-            load_stribeck_a2,
-            "N.m",
-            "Exponential law, load side: a2"
-        ),
-        param!(
-            "loadStribeckB2",
-            29,
-            load_stribeck_b2,
-            "s/rad",
-            "Exponential law, load side: b2"
-        ),
-        param!(
-            "hdSurfaceMaxSpeed",
-            30,
-            hd_surface_max_speed,
-            "rad/s",
-            "Loss surface: largest |omega1| of the tested range (150 deg/s)"
-        ),
-        param!(
-            "hdSurfaceMinLoadTorque",
-            31,
-            hd_surface_min_load_torque,
-            "N.m",
-            "Loss surface: smallest load torque of the clamping box"
-        ),
-        param!(
-            "hdSurfaceMaxLoadTorque",
-            32,
-            hd_surface_max_load_torque,
-            "N.m",
-            "Loss surface: largest load torque of the clamping box"
-        ),
-        param!(
-            "testMotorResistance",
-            33,
-            test_motor_resistance,
-            "Ohm",
-            "Test motor (EC45 flat) armature resistance"
-        ),
-        param!(
-            "testMotorInductance",
-            34,
-            test_motor_inductance,
-            "H",
-            "Test motor armature inductance"
-        ),
-        param!(
-            "testMotorTorqueConstant",
-            35,
-            test_motor_torque_constant,
-            "N.m/A",
-            "Test motor torque constant Km1"
-        ),
-        param!(
-            "testMotorBackEmfConstant",
-            36,
-            test_motor_back_emf_constant,
-            "V.s/rad",
-            "Test motor back-emf constant Ke1"
-        ),
-        param!(
-            "testMotorRotorInertia",
-            37,
-            test_motor_rotor_inertia,
-            "kg.m2",
-            "Test motor rotor inertia (informational: contained in I1)"
-        ),
-        param!(
-            "loadMotorResistance",
-            38,
-            load_motor_resistance,
-            "Ohm",
-            "Load motor (EC60 flat) armature resistance"
-        ),
-        param!(
-            "loadMotorInductance",
-            39,
-            load_motor_inductance,
-            "H",
-            "Load motor armature inductance"
-        ),
-        param!(
-            "loadMotorTorqueConstant",
-            40,
-            load_motor_torque_constant,
-            "N.m/A",
-            "Load motor torque constant Km2"
-        ),
-        param!(
-            "loadMotorBackEmfConstant",
-            41,
-            load_motor_back_emf_constant,
-            "V.s/rad",
-            "Load motor back-emf constant Ke2 (0.145 as published, differs from Km2)"
-        ),
-        param!(
-            "loadMotorRotorInertia",
-            42,
-            load_motor_rotor_inertia,
-            "kg.m2",
-            "Load motor rotor inertia (informational: contained in I2)"
-        ),
-        param!(
-            "testSupplyVoltage",
-            43,
-            test_supply_voltage,
-            "V",
-            "Test driver (EPOS 24/5) supply voltage: armature voltage saturates at +-this"
-        ),
-        param!(
-            "loadSupplyVoltage",
-            44,
-            load_supply_voltage,
-            "V",
-            "Load driver (ESCON 50/5) supply voltage"
-        ),
-        param!(
-            "testCurrentLimit",
-            45,
-            test_current_limit,
-            "A",
-            "Test driver current limit: set values are clipped; an actual current above it trips"
-        ),
-        param!(
-            "loadCurrentLimit",
-            46,
-            load_current_limit,
-            "A",
-            "Load driver current limit"
-        ),
-        param!(
-            "currentLoopTimeConstant",
-            47,
-            current_loop_time_constant,
-            "s",
-            "Time constant of the drivers' closed current loop (current mode)"
-        ),
-        param!(
-            "loadRegenPowerLimit",
-            48,
-            load_regen_power_limit,
-            "W",
-            "Largest regenerated power the load driver absorbs; above it trips"
-        ),
-        param!(
-            "clutchMotorTorque",
-            49,
-            clutch_motor_torque,
-            "N.m",
-            "Clutch friction torque at the motor side (x i_HD at the output: 120 N m)"
-        ),
-        param!(
-            "clutchRatedPower",
-            50,
-            clutch_power,
-            "W",
-            "Electrical power of the clutch while engaged"
-        ),
-        param!(
-            "hardwareOffsetPower",
-            51,
-            hardware_offset_power,
-            "W",
-            "Continuous hardware offset in the bench's electrical measurements"
-        ),
-        param!(
-            "encoderCountsPerRevolution",
-            52,
-            encoder_counts_per_revolution,
-            None,
-            "Encoder counts per motor revolution after x4 decoding (500 CPT x 4)"
-        ),
-        param!(
-            "transducerOffset",
-            53,
-            transducer_offset,
-            "V",
-            "Torque transducer calibration a"
-        ),
-        param!(
-            "transducerGain",
-            54,
-            transducer_gain,
-            "V",
-            "Torque transducer calibration b"
-        ),
-        param!(
-            "transducerPhase",
-            55,
-            transducer_phase,
-            "rad",
-            "Torque transducer calibration c"
-        ),
-        param!(
-            "loadCellOffset",
-            56,
-            load_cell_offset,
-            "V",
-            "Load cell calibration a"
-        ),
-        param!(
-            "loadCellGain",
-            57,
-            load_cell_gain,
-            "V",
-            "Load cell calibration b"
-        ),
-        param!(
-            "loadCellPhase",
-            58,
-            load_cell_phase,
-            "rad",
-            "Load cell calibration c"
-        ),
-        param!(
-            "calibrationPendulumMoment",
-            59,
-            calibration_pendulum_moment,
-            "N.m",
-            "Calibration pendulum moment m g Lg (1.94 kg x 9.81 m/s2 x 0.25 m)"
-        ),
-        param!(
-            "dividerOffset",
-            60,
-            divider_offset,
-            "V",
-            "Supply divider: V_myRIO = offset + gain V_supply; offset"
-        ),
-        param!("dividerGain", 61, divider_gain, None, "Supply divider gain"),
-        param!(
-            "currentSensorOffset",
-            62,
-            current_sensor_offset,
-            "V",
-            "Current sensor (ACS712-20A) output at zero current"
-        ),
-        param!(
-            "currentSensorSensitivity",
-            63,
-            current_sensor_sensitivity,
-            "V/A",
-            "Current sensor sensitivity"
-        ),
-        param!(
-            "springDeflectionLimit",
-            64,
-            spring_deflection_limit,
-            "rad",
-            "Interlock: largest spring deflection |theta1 - theta2| (5 deg)"
-        ),
-        param!(
-            "motorTorqueLimit",
-            65,
-            motor_torque_limit,
-            "N.m",
-            "Interlock: largest shaft torque k (theta1 - theta2) (the test motor past the harmonic drive) and largest load-motor output torque |i_RED Km2 i2|"
-        ),
-        param!(
-            "maxInternalStep",
-            66,
-            max_internal_step,
-            "s",
-            "Largest internal integration step; communication steps are split into equal sub-steps no longer than this"
-        ),
-    ];
+    ]);
+    for_each_bench_parameter!(param);
     v.extend(io_variables::<BenchPlantModel>());
     v
 });
