@@ -348,16 +348,6 @@ impl ClutchScheduler {
         }
         Ok(s)
     }
-
-    fn sample_now(&self, s: &ClutchSettings) -> (ClutchSignals, ClutchState) {
-        clutch_sample(
-            s,
-            &self.state,
-            self.clock.next,
-            self.gait_phase,
-            self.velocity_reference,
-        )
-    }
 }
 
 impl ReferenceInputs for ClutchScheduler {
@@ -401,24 +391,26 @@ impl Model for ClutchScheduler {
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let s = self.settings()?;
-        let at_sample = self.clock.period == 0.0 || self.clock.is_next_sample_instant(t);
-        self.signals = if at_sample {
-            self.sample_now(&s).0
-        } else {
-            self.held
-        };
+        self.signals = self.clock.outputs_at(t, self.held, |index| {
+            clutch_sample(
+                &s,
+                &self.state,
+                index,
+                self.gait_phase,
+                self.velocity_reference,
+            )
+            .0
+        });
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         let s = self.settings()?;
-        let count = self.clock.samples_in_step(t, h)?;
-        for _ in 0..count {
-            let (signals, next) = self.sample_now(&s);
-            self.state = next;
-            self.held = signals;
-            self.clock.next += 1;
-        }
+        let (phase, velocity) = (self.gait_phase, self.velocity_reference);
+        self.clock
+            .run_step(t, h, &mut self.state, &mut self.held, |index, state| {
+                clutch_sample(&s, state, index, phase, velocity)
+            })?;
         self.signals = self.held;
         Ok(StepOutcome::Completed)
     }

@@ -461,24 +461,18 @@ impl Model for ImpedanceController {
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let s = self.settings()?;
-        let at_sample = self.clock.period == 0.0 || self.clock.is_next_sample_instant(t);
-        self.signals = if at_sample {
+        self.signals = self.clock.outputs_at(t, self.held, |_| {
             impedance_sample(&s, &self.state, &self.inputs).0
-        } else {
-            self.held
-        };
+        });
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         let s = self.settings()?;
-        let count = self.clock.samples_in_step(t, h)?;
-        for _ in 0..count {
-            let (signals, next) = impedance_sample(&s, &self.state, &self.inputs);
-            self.state = next;
-            self.held = signals;
-        }
-        self.clock.next += count;
+        self.clock
+            .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
+                impedance_sample(&s, state, &self.inputs)
+            })?;
         self.signals = self.held;
         Ok(StepOutcome::Completed)
     }

@@ -144,6 +144,38 @@ impl SampleClock {
         (self.position(t) - self.next as f64).abs() <= SAMPLE_TOLERANCE
     }
 
+    /// The outputs at communication point `t`: a fresh sample from the inputs now when `t` is
+    /// the next sample instant (or before initialization, when the clock has no period),
+    /// else `held`, the outputs of the last executed sample. `sample` gets the sample index.
+    pub fn outputs_at<S>(&self, t: f64, held: S, sample: impl FnOnce(u64) -> S) -> S {
+        if self.period == 0.0 || self.is_next_sample_instant(t) {
+            sample(self.next)
+        } else {
+            held
+        }
+    }
+
+    /// Executes the samples of the step `[t, t + h)` in order: `sample(index, state)` gives
+    /// the sample's outputs and the next state; the last outputs become `held`. Refuses a step
+    /// off the sample grid without changing anything.
+    pub fn run_step<S, X>(
+        &mut self,
+        t: f64,
+        h: f64,
+        state: &mut X,
+        held: &mut S,
+        mut sample: impl FnMut(u64, &X) -> (S, X),
+    ) -> Result<(), ModelError> {
+        let count = self.samples_in_step(t, h)?;
+        for _ in 0..count {
+            let (signals, next) = sample(self.next, state);
+            *state = next;
+            *held = signals;
+            self.next += 1;
+        }
+        Ok(())
+    }
+
     /// How many sample instants the step `[t, t + h)` executes, or why the step is refused
     /// (module docs, "Sampling").
     pub fn samples_in_step(&self, t: f64, h: f64) -> Result<u64, ModelError> {
@@ -844,25 +876,18 @@ impl Model for PidController {
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let settings = self.settings()?;
-        // Before initialization the clock is not set: show sample 0 at the current time.
-        let at_sample = self.clock.period == 0.0 || self.clock.is_next_sample_instant(t);
-        self.signals = if at_sample {
+        self.signals = self.clock.outputs_at(t, self.held, |_| {
             pid_sample(&settings, &self.state, &self.inputs).0
-        } else {
-            self.held
-        };
+        });
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         let settings = self.settings()?;
-        let count = self.clock.samples_in_step(t, h)?;
-        for _ in 0..count {
-            let (signals, next) = pid_sample(&settings, &self.state, &self.inputs);
-            self.state = next;
-            self.held = signals;
-        }
-        self.clock.next += count;
+        self.clock
+            .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
+                pid_sample(&settings, state, &self.inputs)
+            })?;
         self.signals = self.held;
         Ok(StepOutcome::Completed)
     }
