@@ -3,9 +3,13 @@
 //! The deadline of the step ending at FMU time `t_end` is `origin + (t_end - t_start)`, where
 //! `origin` is the monotonic instant of the first step's start. Deadlines are never
 //! accumulated from `sleep(h)` calls, so a late wake-up does not shift later deadlines: the
-//! loop catches up instead of drifting. The wait sleeps to `spin` before the deadline and
-//! spins (with `spin_loop` hints) for the rest, because a plain sleep wakes up to the kernel's
-//! timer slack (50 us by default on Linux) late.
+//! loop catches up instead of drifting. The wait is hybrid: an absolute sleep on the
+//! monotonic clock (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)` on Linux, see
+//! [`super::realtime`]) until `spin` before the deadline, then a spin (with `spin_loop` hints)
+//! for the rest, because a sleep wakes up late by the kernel's timer slack (50 us by default on
+//! Linux for a normal thread) plus the scheduling latency. An absolute sleep (rather than
+//! `sleep(deadline - now)`) is not lengthened by a preemption between reading the clock and
+//! going to sleep.
 //!
 //! An **overrun** is a step that reaches its deadline already late: the work of the period
 //! (master, controller, I/O) took longer than the period. [`PacingMode::Soft`] counts and
@@ -13,7 +17,9 @@
 //! The **lateness** of a step is how far after its deadline the step continued (wake-up jitter
 //! for steps that slept, the overrun for steps that did not).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use super::realtime::{now_ns, sleep_until_ns};
 
 /// How `fmi2DoStep` keeps time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,8 +70,9 @@ pub struct PacingStats {
 #[derive(Debug, Clone)]
 pub struct Pacer {
     mode: PacingMode,
-    spin: Duration,
-    origin: Option<(Instant, f64)>,
+    spin_ns: u64,
+    /// Monotonic nanoseconds and FMU time of the first step's start.
+    origin: Option<(u64, f64)>,
     /// The statistics so far.
     pub stats: PacingStats,
 }
@@ -75,7 +82,7 @@ impl Pacer {
     pub fn new(mode: PacingMode, spin: Duration) -> Self {
         Self {
             mode,
-            spin,
+            spin_ns: u64::try_from(spin.as_nanos()).unwrap_or(u64::MAX),
             origin: None,
             stats: PacingStats::default(),
         }
@@ -89,39 +96,38 @@ impl Pacer {
     /// Marks the start of the step beginning at FMU time `t` (the first call fixes the origin).
     pub fn start(&mut self, t: f64) {
         if self.origin.is_none() && self.mode != PacingMode::None {
-            self.origin = Some((Instant::now(), t));
+            self.origin = Some((now_ns(), t));
         }
     }
 
-    /// The deadline of FMU time `t_end`, once the origin is fixed.
-    pub fn deadline(&self, t_end: f64) -> Option<Instant> {
+    /// The deadline of FMU time `t_end` on the monotonic clock [ns] (see
+    /// [`super::realtime::now_ns`]), once the origin is fixed. FMU time is rounded to the
+    /// nanosecond.
+    pub fn deadline_ns(&self, t_end: f64) -> Option<u64> {
         let (origin, t0) = self.origin?;
-        Some(origin + Duration::from_secs_f64((t_end - t0).max(0.0)))
+        Some(origin + ((t_end - t0).max(0.0) * 1e9).round() as u64)
     }
 
     /// Waits until the deadline of FMU time `t_end`.
     pub fn wait(&mut self, t_end: f64) -> Wait {
-        let Some(deadline) = self.deadline(t_end) else {
+        let Some(deadline) = self.deadline_ns(t_end) else {
             return Wait {
                 lateness: 0.0,
                 overrun: false,
             };
         };
         self.stats.steps += 1;
-        let now = Instant::now();
+        let now = now_ns();
         let overrun = now > deadline;
         if !overrun {
-            let remaining = deadline - now;
-            if remaining > self.spin {
-                std::thread::sleep(remaining - self.spin);
+            if deadline - now > self.spin_ns {
+                sleep_until_ns(deadline - self.spin_ns);
             }
-            while Instant::now() < deadline {
+            while now_ns() < deadline {
                 std::hint::spin_loop();
             }
         }
-        let lateness = Instant::now()
-            .saturating_duration_since(deadline)
-            .as_secs_f64();
+        let lateness = now_ns().saturating_sub(deadline) as f64 * 1e-9;
         if overrun {
             self.stats.overruns += 1;
         }
@@ -134,6 +140,7 @@ impl Pacer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Instant;
 
     #[test]
     fn deadlines_are_absolute_and_overruns_counted() {
