@@ -66,6 +66,13 @@ pub trait BenchIo: Send {
         timeout: Duration,
     ) -> Result<Sample, IoError>;
 
+    /// Whether a sample's `server_time_us` is the bench's wall clock, so that the time between
+    /// two samples is the difference of their timestamps (a real bench, the emulator), rather
+    /// than the requested times (the in-process bench: false).
+    fn timestamps_are_wall_time(&self) -> bool {
+        false
+    }
+
     /// Sets how long a sample is awaited (network backends; the in-process bench ignores it).
     fn set_reply_timeout(&mut self, _timeout: Duration) {}
 
@@ -363,6 +370,10 @@ impl BenchIo for UdpBench {
 
     fn set_reply_timeout(&mut self, timeout: Duration) {
         self.reply_timeout = timeout;
+    }
+
+    fn timestamps_are_wall_time(&self) -> bool {
+        true
     }
 
     fn counters(&self) -> Counters {

@@ -26,9 +26,11 @@
 //! 4. All inputs are sampled (over UDP: a heartbeat answered by a sample, within
 //!    `replyTimeout`), checked and calibrated; the outputs at `t + h` are computed from them.
 //! 5. The checks, in this order of precedence: the bench reports its emergency stop (code 7)
-//!    or that it stopped itself (11); a raw channel outside its plausibility window (10); the
-//!    interlocks of bench-model.md §7 on the calibrated sample (1-6); the sample does not
-//!    confirm the command of this period (8); a pacing overrun in hard real time (9).
+//!    or that it stopped itself (11); a raw channel outside its plausibility window (10); two
+//!    sensors of the same torque disagreeing for `consistencyPersistence` samples (12, 13;
+//!    "Sensor consistency" below); the interlocks of bench-model.md §7 on the calibrated
+//!    sample (1-6); the sample does not confirm the command of this period (8); a pacing
+//!    overrun in hard real time (9).
 //!
 //! The networked loop has the inherent delay of any sampled loop: the command written at `t`
 //! acts over the period and the sample at `t + h` shows its effect, like the plant FMU; the
@@ -63,6 +65,8 @@
 //! | 9 | pacing overrun (hard real time) | Discard / Error |
 //! | 10 | sensor fault: a raw channel outside its plausibility window | Discard / Error |
 //! | 11 | the bench stopped itself (server watchdog or its own protection) | Discard / Error |
+//! | 12 | sensor fault: the torque transducer disagrees with `k` x the encoders' spring deflection (SEA, CSEA) | Discard / Error |
+//! | 13 | sensor fault: the load cell disagrees with `i_HD Km1` x the measured test-motor current | Discard / Error |
 //!
 //! (Discard when the safe state is acknowledged, Error when it is not.)
 //!
@@ -82,7 +86,9 @@
 //!   (= encoder angles), raw volts of the six analog inputs, calibrated load-cell and
 //!   transducer torques, motor currents (ACS712), clutch output state.
 //! * Derived from measurements each period: velocities (backward difference of the encoder
-//!   angles over `h`, taken to the nanosecond), accelerations (difference of velocities),
+//!   angles over the time between the two samples: the server's timestamps over UDP, so a late
+//!   sample does not read as a speed jump; `h`, taken to the nanosecond, on the simulated
+//!   backend), accelerations (difference of velocities),
 //!   spring deflection and torque (`k (theta1 - theta2)`, `k` of the configuration), motor
 //!   and output torques (`Km i`, ratios), armature voltages (the set value in voltage mode;
 //!   `R i + Ke w_m` in current mode and for a disabled driver), driver saturation (that voltage at the measured supply),
@@ -93,13 +99,71 @@
 //! * `actuationStuck`/`loadStuck`: the encoder did not move during the period.
 //!   `hdSurfaceClampCount`/`hdSurfaceClamped`: always 0/false (no loss surface on hardware).
 //!
+//! ## Sensor consistency (`consistencyTolerance`, `consistencyRelativeTolerance`, `consistencyPersistence`)
+//! A sensor stuck at a believable value passes its plausibility window. Two torques are
+//! therefore measured twice and compared every period (`hardware::consistency`):
+//! * SEA and CSEA: the torque transducer (in series with the spring) against the spring torque
+//!   from the encoders, `k (theta1 - theta2)`; a mismatch trips with code 12. Not in DA (the
+//!   blocked spring's deflection is below the encoders' resolution).
+//! * Every configuration: the load cell (the test motor's reaction torque) against
+//!   `i_HD Km1 i1` from the current sensor; code 13. A stuck current sensor trips it too.
+//!
+//! The pair disagrees when `|a - b| > consistencyTolerance + consistencyRelativeTolerance x
+//! max(|a|, |b|)`; `consistencyPersistence` consecutive disagreeing samples trip (the trip is
+//! found in the sample that completes the run, so it comes `consistencyPersistence` periods
+//! after the first disagreeing sample; 0 turns the checks off). Defaults and why:
+//! * `consistencyTolerance` = 1 N m: the encoder quantisation gives at most
+//!   `k (res1 + res2)` = 340.54 x (1.96e-5 + 4.76e-5) = 0.023 N m of spring-torque error; the
+//!   tared calibrations leave gain errors `1 - cos(c)` of 5e-5 and 1.8e-4; sampling all inputs
+//!   in one frame makes the skew between them the server's read time (well under 0.1 ms, i.e.
+//!   under 0.01 N m at the gait's 100 N m/s). The 1 N m (5 % of the 20 N m interlock) covers
+//!   these 40 times over, plus amplifier noise and the transducer's few-tenths-of-a-N m
+//!   hysteresis on the real bench.
+//! * `consistencyRelativeTolerance` = 0.25: the bench's stiffness is an identified 340.54 N m/rad
+//!   against a designed 257.4 (24 % apart) and varies with amplitude; the motor constants and
+//!   the load cell's lever are known to a few per cent. A real stuck sensor gives a mismatch
+//!   that grows with the torque the other sensor sees, so the relative term does not hide it.
+//! * `consistencyPersistence` = 10 samples (10 ms at 1 kHz): a single glitch (a noise spike,
+//!   a torque transient faster than the sensors' bandwidths) does not trip; a stuck sensor
+//!   does, 10 ms after its mismatch leaves the allowance, while the encoder-based spring
+//!   deflection interlock (code 1) still guards the spring meanwhile.
+//!
+//! ## The link watchdog's reply timeout (`replyTimeout`)
+//! The sample of a period is asked for at its deadline and must arrive within `replyTimeout`,
+//! else the link watchdog trips (code 8). The default is **0.8 ms**, 0.8 of the default 1 ms
+//! control period (it was 0.5 ms), because:
+//! * it must stay below the period: the bench's "a control period missed" watchdog, and the
+//!   requirement that a lost sample trips within one control period; and a reply that comes
+//!   just inside it must leave the rest of the period (0.2 ms) for the master, the
+//!   controllers and the next command, so that it does not by itself make the next step an
+//!   overrun;
+//! * it must be well above what a healthy link takes. `docs/bench-protocol.md` allows a
+//!   server that polls its socket in a 2 kHz timed loop, which alone answers up to 0.5 ms
+//!   late, plus the Ethernet round trip and the myRIO's processing (0.1-0.2 ms): 0.5 ms
+//!   tripped such a conforming server. Against the emulator on loopback on the 2-core
+//!   development machine, with `realtimePriority` 80 and a concurrent compilation, the reply
+//!   times were p50 70 us, p99 140 us, p99.9 0.3-0.6 ms (60 s runs, `cargo bench --bench
+//!   pacing`); in normal scheduling under the same load p99 0.7-1.3 ms, which no setting
+//!   below the period can carry: there `realtimePriority` is the remedy, not a longer timeout.
+//!
+//! A `replyTimeout` not below the step size is logged as a warning at the first step. For
+//! another control period scale it with the period (0.8 h).
+//!
 //! ## Pacing (`pacing`)
 //! `None`, `Soft` (real time; overruns counted in `overrunCount` and logged as warnings) or
 //! `Hard` (an overrun trips, code 9). `fmi2DoStep` sleeps until the absolute deadline
 //! `origin + (t + h - t_first)` on the monotonic clock, `origin` being the wall time of the
-//! first step; the last `spinMargin` before it is spun. Lateness statistics are in the local
-//! variables `lastLateness` and `maxLateness`, the link's rejected frames in `rejectedFrames`
-//! and late replies in `staleReplies`.
+//! first step: an absolute `clock_nanosleep` until `spinMargin` before it, a spin for the rest.
+//! `realtimePriority` (1-99) puts the thread that calls `fmi2DoStep` in `SCHED_FIFO` at that
+//! priority from the first step until the instance is freed or trips (its previous policy is
+//! then restored; threads it starts do not inherit it), with a 1 ns timer slack: other
+//! processes on the machine (a compilation, a browser) then cannot delay a wake-up or the
+//! reply handling by a scheduler time slice. `lockMemory` locks the process's pages
+//! (`mlockall`). Both need the right to (`CAP_SYS_NICE` / `RLIMIT_RTPRIO`, `RLIMIT_MEMLOCK`);
+//! when refused, a warning is logged and the run goes on in normal scheduling. Lateness
+//! statistics are in the local variables `lastLateness` and `maxLateness`, the reply time of
+//! the samples (request to arrival) in `lastReplyTime` and `maxReplyTime`, the link's rejected
+//! frames in `rejectedFrames` and late replies in `staleReplies`.
 //!
 //! ## FMU state
 //! `fmi2GetFMUstate` works; restoring a state saved after initialization is refused: the
@@ -113,9 +177,11 @@ use super::bench_plant::{
     BenchCommands, BenchSignals, for_each_bench_parameter, io_variables, unit_of, with_unit,
 };
 use crate::hardware::calibration::{Calibration, Plausibility, Side, Tare, Unwrapper};
+use crate::hardware::consistency::{ConsistencyCheck, Inconsistency};
 use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, kind_of};
 use crate::hardware::pacing::{Pacer, PacingMode};
 use crate::hardware::protocol::{AnalogChannel, Command, Sample, reason, status};
+use crate::hardware::realtime::{RealtimeThread, lock_memory, now_ns};
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
     Variable,
@@ -124,6 +190,9 @@ use crate::registry::ReferenceInputs;
 
 /// How long a sample is awaited during initialization [s].
 const INIT_REPLY_TIMEOUT: f64 = 0.2;
+
+/// The default `replyTimeout` [s] (module docs, "The link watchdog's reply timeout").
+pub const DEFAULT_REPLY_TIMEOUT: f64 = 8e-4;
 
 /// Trip codes beyond the plant's interlocks (1-7).
 pub mod trip {
@@ -135,6 +204,10 @@ pub mod trip {
     pub const SENSOR: i32 = 10;
     /// The bench stopped itself (server watchdog, its own protection).
     pub const BENCH: i32 = 11;
+    /// The torque transducer disagrees with the spring deflection (SEA, CSEA).
+    pub const TRANSDUCER_INCONSISTENT: i32 = 12;
+    /// The load cell disagrees with the test-motor current.
+    pub const LOAD_CELL_INCONSISTENT: i32 = 13;
 
     /// The log text of a trip code.
     pub fn name(code: i32) -> &'static str {
@@ -150,6 +223,12 @@ pub mod trip {
             OVERRUN => "pacing overrun in hard real time",
             SENSOR => "sensor fault: raw reading outside its plausible range",
             BENCH => "the bench stopped itself (server watchdog or protection)",
+            TRANSDUCER_INCONSISTENT => {
+                "sensor fault: torque transducer disagrees with the spring deflection"
+            }
+            LOAD_CELL_INCONSISTENT => {
+                "sensor fault: load cell disagrees with the test-motor current"
+            }
             _ => "unknown trip",
         }
     }
@@ -215,17 +294,31 @@ struct Runtime {
     p: BenchParameters,
     cal: Calibration,
     limits: Plausibility,
+    consistency: ConsistencyCheck,
     pacer: Pacer,
     encoders: [Unwrapper; 2],
     counts: [i64; 2],
     /// Encoder movement [counts] over the last period and the one before.
     delta: [[i64; 2]; 2],
+    /// Time [s] between the samples of those movements (the last period's, the one before).
+    dt: [f64; 2],
+    /// The server's timestamp of the last sample [us] (Udp backend).
+    server_us: u64,
     trip: Option<(i32, f64)>,
     /// The bench's time since initialization: the sum of the step sizes (so the simulated
     /// backend advances by exactly `h`, whatever rounding the importer's times carry).
     bench_time: f64,
     safe_timeout: Duration,
     warnings: Vec<String>,
+    /// `SCHED_FIFO` of the stepping thread, asked for once at the first paced step; restored
+    /// when the runtime ends (or at a trip).
+    realtime: Option<RealtimeThread>,
+    /// The first paced step's checks are done.
+    first_step_checked: bool,
+    /// `SCHED_FIFO` was asked for.
+    realtime_tried: bool,
+    /// Reply time of the last sample and the largest [s].
+    reply_time: (f64, f64),
 }
 
 /// The runtime holder: a clone of the model (a description copy) has no bench connection.
@@ -263,7 +356,12 @@ pub struct BenchHardwareModel {
     reply_timeout: f64,
     safe_state_timeout: f64,
     spin_margin: f64,
+    realtime_priority: i32,
+    lock_memory: bool,
     plausibility: Plausibility,
+    consistency_tolerance: f64,
+    consistency_relative: f64,
+    consistency_persistence: i32,
     commands: BenchCommands,
     outputs: BenchOutputs,
     start_time: f64,
@@ -272,6 +370,8 @@ pub struct BenchHardwareModel {
     max_lateness: f64,
     rejected_frames: i32,
     stale_replies: i32,
+    last_reply_time: f64,
+    max_reply_time: f64,
     runtime: Slot,
 }
 
@@ -428,10 +528,10 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         .range(0.0, 100_000.0)
         .describe("Samples averaged at initialization for the zero of the torque channels (0: published offsets)"),
         V::real("replyTimeout", 404, |m| m.reply_timeout, |m, v| m.reply_timeout = v)
-            .parameter(Start::Real(5e-4))
+            .parameter(Start::Real(DEFAULT_REPLY_TIMEOUT))
             .unit("s")
             .range(1e-5, 1.0)
-            .describe("Link watchdog: longest wait for a sample (keep below the control period)"),
+            .describe("Link watchdog: longest wait for a sample after the deadline (default 0.8 ms: 0.8 of the default 1 ms period; keep below the control period, see the documentation)"),
         V::real(
             "safeStateTimeout",
             405,
@@ -447,6 +547,23 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
             .unit("s")
             .range(0.0, 0.01)
             .describe("Pacing spins (instead of sleeping) this long before each deadline"),
+        V::integer(
+            "realtimePriority",
+            408,
+            |m| m.realtime_priority,
+            |m, v| m.realtime_priority = v,
+        )
+        .parameter(Start::Integer(0))
+        .range(0.0, 99.0)
+        .describe("Pacing Soft/Hard: SCHED_FIFO priority (1-99) of the thread calling fmi2DoStep, from the first step to the end of the instance or a trip; 0 leaves the scheduling alone. Refused (no CAP_SYS_NICE or RLIMIT_RTPRIO): a warning, the run goes on"),
+        V::boolean(
+            "lockMemory",
+            409,
+            |m| m.lock_memory,
+            |m, v| m.lock_memory = v,
+        )
+        .parameter(Start::Boolean(false))
+        .describe("Pacing Soft/Hard: lock the importer process's pages in memory (mlockall, process-wide, not undone) at initialization. Refused: a warning"),
         V::real(
             "maxEncoderSpeed",
             407,
@@ -457,6 +574,34 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         .unit("rad/s")
         .range(0.0, 1e4)
         .describe("Plausibility: fastest output-axis speed; a larger encoder jump is a sensor fault"),
+        V::real(
+            "consistencyTolerance",
+            422,
+            |m| m.consistency_tolerance,
+            |m, v| m.consistency_tolerance = v,
+        )
+        .parameter(Start::Real(ConsistencyCheck::DEFAULT_TOLERANCE))
+        .unit("N.m")
+        .range(0.0, 100.0)
+        .describe("Sensor consistency: absolute allowance between the transducer and k x encoder deflection (SEA, CSEA), and between the load cell and i_HD Km1 x test current"),
+        V::real(
+            "consistencyRelativeTolerance",
+            423,
+            |m| m.consistency_relative,
+            |m, v| m.consistency_relative = v,
+        )
+        .parameter(Start::Real(ConsistencyCheck::DEFAULT_RELATIVE))
+        .range(0.0, 10.0)
+        .describe("Sensor consistency: allowance per N m of the larger of the two torques compared"),
+        V::integer(
+            "consistencyPersistence",
+            424,
+            |m| m.consistency_persistence,
+            |m, v| m.consistency_persistence = v,
+        )
+        .parameter(Start::Integer(ConsistencyCheck::DEFAULT_PERSISTENCE as i32))
+        .range(0.0, 100_000.0)
+        .describe("Sensor consistency: consecutive disagreeing samples that trip (code 12 transducer, 13 load cell); 0 turns the checks off"),
         window!("loadCellVoltageMin", 410, A::LoadCell, 0, "Plausibility window of the load cell, low end"),
         window!("loadCellVoltageMax", 411, A::LoadCell, 1, "Load cell, high end"),
         window!("transducerVoltageMin", 412, A::Transducer, 0, "Torque transducer, low end"),
@@ -474,6 +619,8 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         local!(real "maxLateness", 452, max_lateness, "s", "Largest lateness so far"),
         local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (malformed, replayed, out of order, wrong version or session)"),
         local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
+        local!(real "lastReplyTime", 455, last_reply_time, "s", "How long the last step's sample took to arrive after its request"),
+        local!(real "maxReplyTime", 456, max_reply_time, "s", "Longest reply time so far"),
     ];
     // The plant's parameters that the measurements need (calibration, conversions, limits),
     // from the plant's own list: same name, value reference, unit, range and meaning; fixed
@@ -606,15 +753,33 @@ impl BenchHardwareModel {
             cal: Calibration::new(&p),
             p,
             limits: self.plausibility,
+            consistency: ConsistencyCheck::new(
+                self.consistency_tolerance,
+                self.consistency_relative,
+                u32::try_from(self.consistency_persistence).unwrap_or(0),
+            ),
             pacer: Pacer::new(pacing, Duration::from_secs_f64(self.spin_margin)),
             encoders: [Unwrapper::default(); 2],
             counts: [0; 2],
             delta: [[0; 2]; 2],
+            dt: [0.0; 2],
+            server_us: 0,
             trip: None,
             bench_time: 0.0,
             safe_timeout: Duration::from_secs_f64(self.safe_state_timeout),
             warnings: Vec::new(),
+            realtime: None,
+            first_step_checked: false,
+            realtime_tried: false,
+            reply_time: (0.0, 0.0),
         };
+        if self.lock_memory
+            && pacing != PacingMode::None
+            && let Err(e) = lock_memory()
+        {
+            rt.warnings
+                .push(format!("lockMemory: {e}; pages stay pageable"));
+        }
         let mut tare = Tare::default();
         let mut last = None;
         for _ in 0..self.tare_samples.max(1) {
@@ -646,6 +811,7 @@ impl BenchHardwareModel {
         };
         rt.encoders[0].update(s.test_counts);
         rt.encoders[1].update(s.load_counts);
+        rt.server_us = s.server_time_us;
         let prev = BenchOutputs::default();
         self.outputs = measure(&rt, &s, &safe, None, &prev, [false; 2]);
         self.runtime = Slot(Some(Box::new(rt)));
@@ -659,6 +825,8 @@ impl BenchHardwareModel {
             return Err(ModelError::new("not initialized"));
         };
         rt.trip = Some((code, at));
+        // No more pacing: the thread goes back to its own scheduling.
+        rt.realtime = None;
         let name = trip::name(code);
         let bench_at = rt.bench_time.min(at - start).max(0.0);
         match rt
@@ -689,6 +857,7 @@ impl BenchHardwareModel {
             self.max_lateness = s.max_lateness;
             self.rejected_frames = saturate(rt.io.counters().rejected());
             self.stale_replies = saturate(rt.io.stale_replies());
+            (self.last_reply_time, self.max_reply_time) = rt.reply_time;
         }
     }
 
@@ -723,6 +892,25 @@ impl BenchHardwareModel {
         let Some(rt) = self.runtime.0.as_mut() else {
             return Err(ModelError::new("the bench was not initialized"));
         };
+        if !rt.first_step_checked && rt.pacer.mode() != PacingMode::None {
+            rt.first_step_checked = true;
+            if self.backend == Backend::Udp as i32 && self.reply_timeout >= h {
+                rt.warnings.push(format!(
+                    "replyTimeout {} s is not below the step size {h} s: a missing sample is found only after the next deadline has passed",
+                    self.reply_timeout
+                ));
+            }
+        }
+        if !rt.realtime_tried && rt.pacer.mode() != PacingMode::None && self.realtime_priority > 0 {
+            rt.realtime_tried = true;
+            match RealtimeThread::enter(self.realtime_priority) {
+                Ok(g) => rt.realtime = Some(g),
+                Err(e) => rt.warnings.push(format!(
+                    "realtimePriority {}: {e}; pacing continues with normal scheduling",
+                    self.realtime_priority
+                )),
+            }
+        }
         rt.pacer.start(t);
         let now = rt.bench_time;
         let seq = match rt.io.write(now, &command) {
@@ -740,9 +928,16 @@ impl BenchHardwareModel {
             }
         }
         rt.bench_time = now + h;
-        let sample = match rt.io.read(now + h) {
+        let asked = now_ns();
+        let sample = rt.io.read(now + h);
+        let reply = now_ns().saturating_sub(asked) as f64 * 1e-9;
+        rt.reply_time = (reply, rt.reply_time.1.max(reply));
+        let sample = match sample {
             Ok(s) => s,
-            Err(_) => return self.trip(trip::LINK, t),
+            Err(_) => {
+                self.sync_statistics();
+                return self.trip(trip::LINK, t);
+            }
         };
         // Raw channels into the outputs first, so that a row at the trip shows them.
         let prev = self.outputs;
@@ -751,6 +946,16 @@ impl BenchHardwareModel {
         let c2 = rt.encoders[1].update(sample.load_counts);
         rt.counts = [c1, c2];
         rt.delta = [[c1 - first_counts[0], c2 - first_counts[1]], rt.delta[0]];
+        // Over UDP the samples are as far apart as the server's clock says (a late sample
+        // after an overrun covers more than h); the simulated bench is sampled exactly at h.
+        let dt = match rt.io.timestamps_are_wall_time() {
+            true if sample.server_time_us > rt.server_us => {
+                (sample.server_time_us - rt.server_us) as f64 * 1e-6
+            }
+            _ => h,
+        };
+        rt.server_us = sample.server_time_us;
+        rt.dt = [dt, rt.dt[0]];
         let stuck = [c1 == first_counts[0], c2 == first_counts[1]];
         let mut code = 0;
         if sample.has(status::EMERGENCY_STOP) {
@@ -782,7 +987,26 @@ impl BenchHardwareModel {
             self.outputs = measure(rt, &sample, &command, Some(h), &prev, stuck);
         }
         if code == 0 {
-            code = interlock(&rt.p, &self.outputs);
+            let o = &self.outputs;
+            let spring = (rt.p.configuration != Configuration::Da)
+                .then_some((o.transducer_torque, o.spring_torque));
+            match rt
+                .consistency
+                .update(spring, (o.load_cell_torque, o.test_output_torque))
+            {
+                Some(fault) => {
+                    code = match fault {
+                        Inconsistency::Transducer { .. } => trip::TRANSDUCER_INCONSISTENT,
+                        Inconsistency::LoadCell { .. } => trip::LOAD_CELL_INCONSISTENT,
+                    };
+                    rt.warnings.push(format!(
+                        "t = {}: {fault} for {} samples",
+                        t + h,
+                        rt.consistency.persistence
+                    ));
+                }
+                None => code = interlock(&rt.p, &self.outputs),
+            }
         }
         if code == 0 && sample.last_command_sequence != seq {
             code = trip::LINK;
@@ -876,12 +1100,25 @@ fn measure(
             // From integer count differences, so that equal movements give exactly zero
             // acceleration whatever rounding the step size carries.
             let [now, before] = rt.delta;
-            (
-                cal.angle(Side::Actuation, now[0]) / h,
-                cal.angle(Side::Load, now[1]) / h,
-                cal.angle(Side::Actuation, now[0] - before[0]) / (h * h),
-                cal.angle(Side::Load, now[1] - before[1]) / (h * h),
-            )
+            let [dt, dt_before] = rt.dt;
+            let dt = if dt > 0.0 { dt } else { h };
+            if dt_before == dt || dt_before <= 0.0 {
+                (
+                    cal.angle(Side::Actuation, now[0]) / dt,
+                    cal.angle(Side::Load, now[1]) / dt,
+                    cal.angle(Side::Actuation, now[0] - before[0]) / (dt * dt),
+                    cal.angle(Side::Load, now[1] - before[1]) / (dt * dt),
+                )
+            } else {
+                let w = |side, counts| cal.angle(side, counts) / dt;
+                let w_before = |side, counts| cal.angle(side, counts) / dt_before;
+                (
+                    w(Side::Actuation, now[0]),
+                    w(Side::Load, now[1]),
+                    (w(Side::Actuation, now[0]) - w_before(Side::Actuation, before[0])) / dt,
+                    (w(Side::Load, now[1]) - w_before(Side::Load, before[1])) / dt,
+                )
+            }
         }
         None => (0.0, 0.0, 0.0, 0.0),
     };
@@ -1279,6 +1516,97 @@ mod tests {
         m3.commands.test_current = 3.0;
         run(&mut m3, 100, 1e-3).unwrap();
         assert_eq!(m3.outputs.trip_code, trip::SENSOR);
+    }
+
+    #[test]
+    fn realtime_priority_and_lock_memory_are_honoured_or_refused_with_a_warning() {
+        use crate::hardware::realtime::current_policy;
+        // On a thread of its own: the test harness's threads keep their scheduling.
+        std::thread::spawn(|| {
+            let before = current_policy();
+            let mut m = started(|m| {
+                m.pacing = 1;
+                m.realtime_priority = 7;
+                m.lock_memory = true;
+            });
+            assert_eq!(run(&mut m, 3, 1e-3), None);
+            let warnings = m.take_warnings().join("\n");
+            let rt = m.runtime.0.as_ref().unwrap();
+            match &rt.realtime {
+                Some(g) => {
+                    assert_eq!(g.priority, 7);
+                    assert_eq!(current_policy(), Some((1, 7)));
+                }
+                None => assert!(warnings.contains("realtimePriority 7"), "{warnings}"),
+            }
+            let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+            let locked = status
+                .lines()
+                .find(|l| l.starts_with("VmLck:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok());
+            assert!(
+                locked.is_some_and(|kb| kb > 0) || warnings.contains("lockMemory"),
+                "{locked:?} {warnings}"
+            );
+            // The thread gets its scheduling back with the instance.
+            drop(m);
+            assert_eq!(current_policy(), before);
+            // Without pacing nothing is asked for.
+            let mut m = started(|m| m.realtime_priority = 7);
+            assert_eq!(run(&mut m, 3, 1e-3), None);
+            assert_eq!(current_policy(), before);
+            assert!(m.take_warnings().is_empty());
+        })
+        .join()
+        .unwrap();
+    }
+
+    #[test]
+    fn consistency_checks_trip_on_a_stuck_reading_and_stay_quiet_on_a_healthy_bench() {
+        // A healthy SEA bench winding its spring against a held load side: no trip before the
+        // shaft-torque interlock (code 2), the checks quiet all along.
+        let mut m = started(|m| {
+            m.configuration = 1;
+            m.params.load_static_friction = 100.0;
+        });
+        m.commands.test_current = 4.0;
+        let (_, reason) = run(&mut m, 2000, 1e-3).unwrap();
+        assert_eq!(m.outputs.trip_code, 2, "{reason}");
+        // The same with a tolerance no healthy reading meets: code 12 after exactly the
+        // persistence (the transducer is checked before the load cell).
+        let mut m = started(|m| {
+            m.configuration = 1;
+            m.params.load_static_friction = 100.0;
+            m.consistency_tolerance = 0.0;
+            m.consistency_relative = 0.0;
+            m.consistency_persistence = 4;
+        });
+        m.commands.test_current = 4.0;
+        let (at, reason) = run(&mut m, 2000, 1e-3).unwrap();
+        assert_eq!(
+            m.outputs.trip_code,
+            trip::TRANSDUCER_INCONSISTENT,
+            "{reason}"
+        );
+        assert!(at < 0.1, "{at}");
+        // DA: no spring check; the load cell pair is the one that trips.
+        let mut m = started(|m| {
+            m.configuration = 0;
+            m.consistency_tolerance = 0.0;
+            m.consistency_relative = 0.0;
+            m.consistency_persistence = 3;
+        });
+        m.commands.test_current = 1.0;
+        run(&mut m, 100, 1e-3).unwrap();
+        assert_eq!(m.outputs.trip_code, trip::LOAD_CELL_INCONSISTENT);
+        // Persistence 0: off.
+        let mut m = started(|m| {
+            m.consistency_tolerance = 0.0;
+            m.consistency_relative = 0.0;
+            m.consistency_persistence = 0;
+        });
+        m.commands.test_current = 1.0;
+        assert_eq!(run(&mut m, 100, 1e-3), None);
     }
 
     #[test]
