@@ -28,6 +28,12 @@ use crate::bench_protocol::{
 };
 use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, Status};
 
+/// The real-time support of the `fmu` crate's pacing (`SCHED_FIFO`), shared by including its
+/// file as the protocol codec is.
+#[path = "../../fmu/src/hardware/realtime.rs"]
+#[allow(dead_code)]
+mod realtime;
+
 /// Value references of the bench signal interface used by the emulator.
 mod vr {
     pub const TEST_VOLTAGE: u32 = 200;
@@ -61,6 +67,11 @@ pub struct EmulatorConfig {
     pub heartbeat_timeout: Duration,
     /// Faults in force from the start.
     pub faults: Vec<FaultInjection>,
+    /// `SCHED_FIFO` priority (1-99) of the serving thread, so that the emulated bench answers
+    /// like a real-time controller on a loaded machine; `None` leaves the scheduling alone. A
+    /// refusal is reported on stderr and in [`EmulatorStats::realtime_priority`] (0), and the
+    /// emulator serves anyway.
+    pub realtime_priority: Option<i32>,
 }
 
 impl EmulatorConfig {
@@ -72,6 +83,7 @@ impl EmulatorConfig {
             parameters: Vec::new(),
             heartbeat_timeout: crate::bench_protocol::HEARTBEAT_TIMEOUT,
             faults: Vec::new(),
+            realtime_priority: None,
         }
     }
 }
@@ -129,6 +141,8 @@ pub struct EmulatorStats {
     pub rejected: Counters,
     /// Fault-injection frames applied.
     pub faults_injected: u64,
+    /// The `SCHED_FIFO` priority the serving thread runs at (0: normal scheduling).
+    pub realtime_priority: i32,
 }
 
 /// A running emulator thread.
@@ -337,6 +351,19 @@ impl Server {
         stop: &AtomicBool,
         stats: &Mutex<EmulatorStats>,
     ) -> Result<(), EmulatorError> {
+        let _realtime = match self.config.realtime_priority {
+            Some(p) => match realtime::RealtimeThread::enter(p) {
+                Ok(g) => {
+                    self.stats.realtime_priority = g.priority;
+                    Some(g)
+                }
+                Err(e) => {
+                    eprintln!("kneebench emulate: real-time priority {p}: {e}; serving anyway");
+                    None
+                }
+            },
+            None => None,
+        };
         let mut buf = [0u8; 2048];
         while !stop.load(Ordering::Relaxed) {
             let now = Instant::now();
