@@ -222,6 +222,205 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     assert!(s.commands_applied as usize >= hw.results.len() - 1);
 }
 
+/// The study's SEA closed loop (`study::gait_scenario`: gait reference, position PID on the
+/// actuation encoder, shaft-torque PID on the transducer, feed-forwards) run twice as an SSP
+/// system: once as written, once with the plant component's FMU swapped for `BenchHardware`
+/// (backend Udp, pacing Soft) pointed at the emulator on loopback, everything else unchanged.
+/// The plant's parameters go to the emulator's plant, and to the hardware component where it
+/// declares them; `tareSamples` = 0 makes the hardware read the torque channels with the
+/// published calibration offsets, exactly as the plant's outputs do (the tare is tested
+/// elsewhere). The first 1.25 s (half a gait period, the soft start: the knee moves through
+/// about 15 degrees) in real time.
+///
+/// **Tolerance.** What differs between the two runs, for a recorded signal `x`:
+/// * the encoders: both runs floor the same kind of angle, but states that differ slightly
+///   may sit on either side of a count edge, and the controllers act on the count they see:
+///   `2 q`, `q` one count of `x` (angles), the sum of both sides' counts (deflection) or `k`
+///   times that (shaft torque);
+/// * the I/O timing. On hardware each command reaches the emulator after its nominal time by
+///   the wake-up lateness of the previous deadline, the reply time of the previous sample and
+///   the master's work, and each sample is taken after its nominal time by the wake-up
+///   lateness and the one-way latency (within the reply time). Over the run this acts as an
+///   extra loop delay of about `delta = mean(lastLateness + lastReplyTime) + d`, with the
+///   FMU's own per-step measurements and `d` = 50 us for the master's and controllers' work;
+///   a trajectory whose input and sampling are shifted by `delta` moves by at most
+///   `2 delta max|dx/dt|`. A single stall (a late wake-up or reply of `s_k` at row `k`, from
+///   the same measurements) adds `max|dx/dt| s_k` to that row's sample, and holding the
+///   previous command for up to `s = max s_k` adds at most `max|d2x/dt2| s^2 / 2` to the
+///   trajectory;
+/// * the emulator's discretisation: it integrates the plant exactly (matrix exponential for a
+///   held input) over the wall-time intervals between frames, so it adds nothing beyond the
+///   timing above;
+/// * the feedback acts on these differences: closing the loop multiplies a disturbance by at
+///   most the peak sensitivity `Ms`, taken as 2 (gain margin 2 or more; the study's loops are
+///   well damped).
+///
+/// So row `k` must agree within `Ms (2 q + 2 delta R + R s_k + A s^2 / 2)`, `R` and `A` the
+/// largest rate and acceleration of `x` in the plant run (the acceleration from a 10-period
+/// stencil, past the encoders' quantisation). The test also checks that the comparison can
+/// fail: the sustained part `Ms (2 q + 2 delta R)` must be finer than `R h`, what one extra
+/// period of delay in the hardware path would make (for the two angles; the spring deflection
+/// and the shaft torque proportional to it move by less than their two counts in a period),
+/// and every signal must move by more than 5 times its largest tolerance.
+#[test]
+fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolerance() {
+    use kneebench_harness::Value;
+    use kneebench_harness::ssp::load_system;
+    use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
+    let stop = 1.25;
+    let mut scenario = gait_scenario(
+        Actuator::Sea,
+        Gait::bench_default(Actuator::Sea),
+        StudyGains::for_actuator(Actuator::Sea),
+        1,
+    );
+    scenario.stop_time = stop;
+    let fmu_dir = exported().0.path();
+    let hw_fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    // The plant swapped for the hardware, pointed at an emulator with the plant's parameters.
+    let mut hw_scenario = scenario.clone();
+    let component = hw_scenario
+        .components
+        .iter_mut()
+        .find(|c| c.fmu == "BenchPlant.fmu")
+        .expect("the scenario has a BenchPlant component");
+    let name = component.name.clone();
+    let text = |v: &Value| match v {
+        Value::Real(x) => format!("{x:?}"),
+        Value::Integer(x) => x.to_string(),
+        Value::Boolean(x) => x.to_string(),
+        Value::String(x) => x.clone(),
+    };
+    let plant_params: Vec<(String, String)> = component
+        .parameters
+        .iter()
+        .map(|(n, v)| (n.clone(), text(v)))
+        .collect();
+    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    config.parameters = plant_params;
+    // Real-time scheduling where permitted (else a warning): a loaded test machine then
+    // disturbs the run less; the tolerance uses what the run measured either way.
+    config.realtime_priority = Some(50);
+    let emu = spawn(config).expect("emulator");
+    component.fmu = "BenchHardware.fmu".into();
+    component
+        .parameters
+        .retain(|(n, _)| hw_fmu.variable(n).is_some());
+    component.parameters.extend([
+        ("backend".to_string(), Value::Integer(1)),
+        ("pacing".to_string(), Value::Integer(1)),
+        (
+            "serverAddress".to_string(),
+            Value::String(emu.addr().to_string()),
+        ),
+        ("tareSamples".to_string(), Value::Integer(0)),
+        // Generous for a loaded test machine: the comparison's tolerance uses the measured
+        // reply times, the watchdog is tested elsewhere.
+        ("replyTimeout".to_string(), Value::Real(0.02)),
+        ("realtimePriority".to_string(), Value::Integer(50)),
+    ]);
+    let compared = [
+        "actuationEncoderAngle",
+        "loadEncoderAngle",
+        "springDeflection",
+        "transducerTorque",
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let run = |scenario: &kneebench_harness::study::Scenario, file: &str, extra: &[&str]| {
+        let path = dir.path().join(file);
+        write_ssp(scenario, fmu_dir, &path).unwrap();
+        let mut loaded = load_system(&path, &LoadOptions::default()).unwrap();
+        let refs: Vec<String> = compared
+            .iter()
+            .chain(extra)
+            .map(|v| format!("{name}.{v}"))
+            .collect();
+        let refs: Vec<&str> = refs.iter().map(String::as_str).collect();
+        loaded.system.record(&refs).unwrap();
+        let out = loaded.system.run(&loaded.config).unwrap();
+        assert!(
+            matches!(out.outcome, Outcome::Completed { .. }),
+            "{file}: {:?}",
+            out.outcome
+        );
+        out.results
+    };
+    let plant = run(&scenario, "SEA-plant.ssp", &[]);
+    let hw = run(
+        &hw_scenario,
+        "SEA-hardware.ssp",
+        &["lastLateness", "lastReplyTime", "overrunCount"],
+    );
+    let stats = emu.stop().unwrap();
+    assert_eq!(stats.sessions, 1);
+    assert_eq!(stats.rejected.rejected(), 0);
+    assert_eq!(plant.len(), hw.len());
+    let hw_col = |c: &str| hw.column(&format!("{name}.{c}")).unwrap();
+    // Per-row stall: wake-up lateness plus reply time (row 0 is the initial sample).
+    let stall: Vec<f64> = hw_col("lastLateness")
+        .iter()
+        .zip(hw_col("lastReplyTime"))
+        .map(|(l, r)| l + r)
+        .collect();
+    let steps = (stall.len() - 1) as f64;
+    let delta = stall[1..].iter().sum::<f64>() / steps + 50e-6;
+    let s_max = stall.iter().cloned().fold(0.0, f64::max);
+    eprintln!(
+        "hardware run: {} overruns, mean shift {:.0} us, largest stall {:.0} us",
+        hw_col("overrunCount").last().unwrap(),
+        delta * 1e6,
+        s_max * 1e6
+    );
+    let ms = 2.0;
+    let res1 = std::f64::consts::TAU / (2000.0 * 160.0);
+    let res2 = std::f64::consts::TAU / (2000.0 * 66.0);
+    for (signal, quantum) in [
+        ("actuationEncoderAngle", res1),
+        ("loadEncoderAngle", res2),
+        ("springDeflection", res1 + res2),
+        ("transducerTorque", 340.54 * (res1 + res2)),
+    ] {
+        let a = plant.column(&format!("{name}.{signal}")).unwrap();
+        let b = hw_col(signal);
+        let rate = a
+            .windows(2)
+            .map(|w| ((w[1] - w[0]) / H).abs())
+            .fold(0.0, f64::max);
+        let m = 10;
+        let accel = a
+            .windows(2 * m + 1)
+            .map(|w| ((w[2 * m] - 2.0 * w[m] + w[0]) / (m as f64 * H).powi(2)).abs())
+            .fold(0.0, f64::max);
+        let sustained = ms * (2.0 * quantum + 2.0 * delta * rate);
+        let tol = |k: usize| sustained + ms * (rate * stall[k] + 0.5 * accel * s_max * s_max);
+        let (mut worst, mut worst_ratio, mut largest_tol) = (0.0f64, 0.0f64, 0.0f64);
+        for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+            let d = (x - y).abs();
+            worst = worst.max(d);
+            worst_ratio = worst_ratio.max(d / tol(k));
+            largest_tol = largest_tol.max(tol(k));
+            assert!(d <= tol(k), "{signal} at row {k}: {d} > {}", tol(k));
+        }
+        let range = a.iter().cloned().fold(0.0, |m: f64, x| m.max(x.abs()));
+        eprintln!(
+            "{signal}: worst difference {worst:.3e} ({:.0} % of its row's tolerance), sustained tolerance {sustained:.3e}, largest {largest_tol:.3e}, one period of delay {:.3e}, range {range:.3e}",
+            worst_ratio * 100.0,
+            rate * H
+        );
+        if signal.ends_with("EncoderAngle") {
+            assert!(
+                sustained < rate * H,
+                "{signal}: {sustained} vs {}",
+                rate * H
+            );
+        }
+        assert!(
+            range > 5.0 * largest_tol,
+            "{signal}: range {range} vs tolerance {largest_tol}"
+        );
+    }
+}
+
 /// How a hardware run driven step by step ended.
 #[derive(Debug)]
 struct Ended {
@@ -229,22 +428,43 @@ struct Ended {
     completed: usize,
     /// `Ok(Discard)` status details or the error text.
     result: Result<(i32, f64), String>,
-    /// transducerTorque (the shaft torque) after each completed step.
+    /// transducerTorque (the shaft torque) after each completed step (and the tripping one).
     torque: Vec<f64>,
+    /// (springTorque, loadCellTorque, testOutputTorque) likewise.
+    others: Vec<[f64; 3]>,
     /// The emulator's statistics after the run.
     stats: EmulatorStats,
 }
 
 /// Runs `BenchHardware` against `emu` through the harness's instance API: test-motor current
-/// `current(t)`, `fault` injected (and applied) just before step `at_step`.
+/// `current(t)`, `fault` injected (and applied) just before step `at_step`. The FMU's
+/// `configuration` is the default (DA) unless given.
 fn drive(
     emu: &EmulatorHandle,
     current: impl Fn(f64) -> f64,
     fault: Option<(usize, FaultInjection)>,
 ) -> Ended {
+    drive_configured(emu, None, current, fault)
+}
+
+fn drive_configured(
+    emu: &EmulatorHandle,
+    configuration: Option<i32>,
+    current: impl Fn(f64) -> f64,
+    fault: Option<(usize, FaultInjection)>,
+) -> Ended {
     let fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    let vr = |n: &str| fmu.variable(n).unwrap().value_reference;
+    let others_vr = [
+        vr("springTorque"),
+        vr("loadCellTorque"),
+        vr("testOutputTorque"),
+    ];
     let mut i = fmu.instantiate("hw", &InstanceOptions::default()).unwrap();
     i.set_integer(&[400, 402], &[1, 1]).unwrap();
+    if let Some(c) = configuration {
+        i.set_integer(&[1], &[c]).unwrap();
+    }
     i.set_string(&[401], &[&emu.addr().to_string()]).unwrap();
     // A 2 ms link watchdog: loopback answers in tens of microseconds, but a descheduled
     // emulator thread on a loaded 2-core machine can take longer than the 0.5 ms default.
@@ -253,6 +473,7 @@ fn drive(
     i.enter_initialization_mode().unwrap();
     i.exit_initialization_mode().unwrap();
     let mut torque = Vec::new();
+    let mut others = Vec::new();
     let mut result = None;
     for k in 0..400 {
         let t = k as f64 * H;
@@ -267,6 +488,9 @@ fn drive(
                 let mut v = [0.0];
                 i.get_real(&[325], &mut v).unwrap();
                 torque.push(v[0]);
+                let mut o = [0.0; 3];
+                i.get_real(&others_vr, &mut o).unwrap();
+                others.push(o);
             }
             Ok(Status::Discard) => {
                 assert!(i.terminated());
@@ -276,6 +500,9 @@ fn drive(
                 let mut v = [0.0];
                 i.get_real(&[325], &mut v).unwrap();
                 torque.push(v[0]);
+                let mut o = [0.0; 3];
+                i.get_real(&others_vr, &mut o).unwrap();
+                others.push(o);
                 break;
             }
             Err(e) => {
@@ -291,6 +518,7 @@ fn drive(
         completed,
         result: result.unwrap_or_else(|| Err("no trip".into())),
         torque,
+        others,
         stats: emu.stats(),
     }
 }
@@ -411,6 +639,73 @@ fn injected_faults_trip_within_one_period_with_the_documented_status() {
     // The server's own watchdog puts the bench in the safe state after its heartbeat timeout.
     std::thread::sleep(Duration::from_millis(120));
     assert_eq!(emu.stats().safe_reason, Some(reason::HEARTBEAT_TIMEOUT));
+}
+
+/// A sensor stuck at an in-range value (the emulator's stuck-channel fault holds the reading it
+/// has) passes the plausibility windows; the consistency checks find it. The load side is held
+/// by friction and the test motor's current ramps, so the shaft and motor torques grow while
+/// the stuck reading does not. The trip must come exactly `consistencyPersistence` (10)
+/// samples after the first sample whose disagreement exceeds the documented allowance
+/// `1 N m + 0.25 max(|a|, |b|)` (computed here from the recorded outputs), with its own code,
+/// the safe state acknowledged and no drive command after it.
+#[test]
+fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
+    let k = 50;
+    let persistence = 10;
+    let allowance = |a: f64, b: f64| 1.0 + 0.25 * a.abs().max(b.abs());
+    // (configuration, stuck channel, trip code, which recorded pair: transducer vs spring
+    // torque, or load cell vs test output torque)
+    for (configuration, channel, code) in [(1, 1u8, 12), (2, 1, 12), (0, 0, 13), (1, 0, 13)] {
+        let emu = emulator(&[
+            ("configuration", &configuration.to_string()),
+            ("loadStaticFriction", "100"),
+            ("motorTorqueLimit", "100"),
+        ]);
+        let e = drive_configured(
+            &emu,
+            Some(configuration),
+            |t| 25.0 * t,
+            Some((k, FaultInjection::Stuck { channel })),
+        );
+        let what = format!("configuration {configuration}, channel {channel}");
+        let (got, at) = e.result.clone().unwrap_or_else(|m| panic!("{what}: {m}"));
+        assert_eq!(got, code, "{what}: {e:?}");
+        // The pairs as the FMU compared them, sample n at the end of step n.
+        let pair = |n: usize| {
+            let [spring, load_cell, output] = e.others[n];
+            if channel == 1 {
+                (e.torque[n], spring)
+            } else {
+                (load_cell, output)
+            }
+        };
+        // The stuck reading stays put from the sample of step k on.
+        let (stuck, _) = pair(k);
+        assert!((k..e.others.len()).all(|n| pair(n).0 == stuck), "{what}");
+        let first = (0..e.others.len())
+            .find(|&n| {
+                let (a, b) = pair(n);
+                (a - b).abs() > allowance(a, b)
+            })
+            .unwrap_or_else(|| panic!("{what}: no disagreement recorded: {e:?}"));
+        assert!(
+            first >= k,
+            "{what}: disagreement before the fault at {first}"
+        );
+        // The trip is in the sample of step first + persistence - 1, at its end.
+        let trip_step = first + persistence - 1;
+        assert_eq!(e.others.len(), trip_step + 1, "{what}: {e:?}");
+        assert!(
+            (at - (trip_step + 1) as f64 * H).abs() < 1e-9,
+            "{what}: {at} vs step {trip_step}"
+        );
+        assert_eq!(e.completed, trip_step, "{what}");
+        // The torque kept growing: the sensor was stuck in range, not out of its window.
+        let (a, b) = pair(trip_step);
+        assert!((a - b).abs() > 1.0, "{what}: {a} {b}");
+        assert_safe(&e.stats);
+        assert_eq!(e.stats.safe_reason, Some(reason::CLIENT_REQUEST), "{what}");
+    }
 }
 
 #[test]
