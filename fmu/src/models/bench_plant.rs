@@ -10,11 +10,12 @@
 //! for the next step do not change them (no direct feedthrough), which is what lets a
 //! controller and the plant run in a Gauss-Seidel loop without an algebraic loop.
 
+use std::cell::{Cell, OnceCell, RefCell};
 use std::sync::LazyLock;
 
 use super::bench::{
     BenchInputs, BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel,
-    StepOutcome as PlantOutcome,
+    SignalGroup, StepOutcome as PlantOutcome, signal_group,
 };
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -53,6 +54,13 @@ pub trait BenchSignals {
     fn signals(&self) -> &BenchOutputs;
     /// The measurements, to set.
     fn signals_mut(&mut self) -> &mut BenchOutputs;
+    /// One measurement, read by `read` from the outputs of `group` (the group of the field
+    /// `read` returns, see [`signal_group`]). A model that computes its outputs on demand
+    /// overrides this to compute only that group; the default reads [`Self::signals`].
+    fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
+        let _ = group;
+        read(self.signals())
+    }
 }
 
 /// The bench's signal interface (inputs at VR 200.., outputs at VR 300..): one table for every
@@ -89,7 +97,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             V::<M>::real(
                 $name,
                 $vr,
-                |m| m.signals().$field,
+                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
@@ -99,7 +107,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             V::<M>::real(
                 $name,
                 $vr,
-                |m| m.signals().$field,
+                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
@@ -112,7 +120,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             V::<M>::boolean(
                 $name,
                 $vr,
-                |m| m.signals().$field,
+                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
@@ -124,7 +132,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             V::<M>::integer(
                 $name,
                 $vr,
-                |m| m.signals().$field,
+                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
@@ -700,14 +708,17 @@ pub struct BenchPlantModel {
     test_driver_mode: i32,
     load_driver_mode: i32,
     commands: BenchCommands,
-    outputs: BenchOutputs,
+    /// Output values; the groups whose bit is set in `fresh` are those of the current state.
+    outputs: RefCell<BenchOutputs>,
+    /// [`SignalGroup::bit`]s of the groups of `outputs` computed since the last step.
+    fresh: Cell<u8>,
+    /// Every output at once (for [`BenchSignals::signals`]), computed on first use.
+    all_outputs: OnceCell<BenchOutputs>,
     start_time: f64,
     /// The physics, built at initialization (and on demand for outputs before it).
     plant: Option<super::bench::BenchPlant>,
     /// Parameters changed since the plant last saw them.
     parameters_changed: bool,
-    /// The plant stepped since `outputs` was computed.
-    outputs_stale: bool,
 }
 
 impl BenchSignals for BenchPlantModel {
@@ -718,10 +729,25 @@ impl BenchSignals for BenchPlantModel {
         &mut self.commands
     }
     fn signals(&self) -> &BenchOutputs {
-        &self.outputs
+        self.all_outputs.get_or_init(|| match &self.plant {
+            Some(plant) => plant.outputs(),
+            None => BenchOutputs::default(),
+        })
     }
     fn signals_mut(&mut self) -> &mut BenchOutputs {
-        &mut self.outputs
+        self.outputs.get_mut()
+    }
+    /// Computes the group on its first read after a step: reading the two angles costs a few
+    /// loads, not the ~80 outputs.
+    fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
+        let fresh = self.fresh.get();
+        if fresh & group.bit() == 0 {
+            if let Some(plant) = &self.plant {
+                plant.fill_outputs(group, &mut self.outputs.borrow_mut());
+            }
+            self.fresh.set(fresh | group.bit());
+        }
+        read(&self.outputs.borrow())
     }
 }
 
@@ -965,10 +991,16 @@ impl BenchPlantModel {
     fn build(&mut self) -> Result<(), ModelError> {
         let p = self.parameters()?;
         let plant = super::bench::BenchPlant::new(p).map_err(|e| ModelError::new(e.to_string()))?;
-        self.outputs = plant.outputs();
         self.plant = Some(plant);
+        self.outputs_changed();
         self.parameters_changed = false;
         Ok(())
+    }
+
+    /// The plant's state changed: every output is recomputed on its next read.
+    fn outputs_changed(&mut self) {
+        self.fresh.set(0);
+        self.all_outputs = OnceCell::new();
     }
 }
 
@@ -1032,12 +1064,7 @@ impl Model for BenchPlantModel {
         {
             self.build()?;
         }
-        if self.outputs_stale {
-            if let Some(plant) = &self.plant {
-                self.outputs = plant.outputs();
-            }
-            self.outputs_stale = false;
-        }
+        // The outputs themselves are computed by group when read (`read_signal`).
         Ok(())
     }
 
@@ -1058,8 +1085,8 @@ impl Model for BenchPlantModel {
         };
         let inputs = plant_inputs(&self.commands, plant.parameters());
         let outcome = plant.step(&inputs, h);
-        // The outputs are computed when they are read (calculate), not after every step.
-        self.outputs_stale = true;
+        // The outputs are computed when they are read (`read_signal`), not after every step.
+        self.outputs_changed();
         match outcome {
             PlantOutcome::Completed => Ok(StepOutcome::Completed),
             PlantOutcome::Tripped { interlock, time } => Ok(StepOutcome::Terminated {
@@ -1103,7 +1130,8 @@ impl Model for BenchPlantModel {
     fn save_internal(&self, w: &mut StateWriter) {
         w.f64(self.start_time);
         w.bool(self.parameters_changed);
-        w.bool(self.outputs_stale);
+        // Formerly "outputs stale"; outputs are always recomputed after a restore.
+        w.bool(true);
         match &self.plant {
             Some(plant) => {
                 w.bool(true);
@@ -1119,7 +1147,7 @@ impl Model for BenchPlantModel {
     fn load_internal(&mut self, r: &mut StateReader<'_>) -> Result<(), StateError> {
         self.start_time = r.f64()?;
         let changed = r.bool()?;
-        self.outputs_stale = r.bool()?;
+        r.bool()?;
         if r.bool()? {
             let len = r.u32()? as usize;
             let mut bytes = r.take(len)?;
@@ -1133,6 +1161,7 @@ impl Model for BenchPlantModel {
         } else {
             self.plant = None;
         }
+        self.outputs_changed();
         self.parameters_changed = changed;
         Ok(())
     }
@@ -1141,5 +1170,89 @@ impl Model for BenchPlantModel {
         static HTML: LazyLock<String> =
             LazyLock::new(|| crate::model::module_doc_html(include_str!("bench/mod.rs")));
         &HTML
+    }
+}
+
+#[cfg(test)]
+mod lazy_output_tests {
+    use super::*;
+    use crate::model::Access;
+    use model_description::Causality;
+
+    /// A plant mid-run: moving, currents flowing, energies accumulated.
+    fn running() -> BenchPlantModel {
+        let mut m = crate::fmi2::instance::fresh_model::<BenchPlantModel>();
+        m.calculate(0.0).unwrap();
+        m.initialize(0.0).unwrap();
+        m.commands.test_current = 3.0;
+        m.commands.load_current = -0.5;
+        for k in 0..300 {
+            m.do_step(k as f64 * 1e-3, 1e-3).unwrap();
+        }
+        m.calculate(0.3).unwrap();
+        m
+    }
+
+    /// Every output read through its own group alone (the other groups holding sentinels)
+    /// equals the value in the full output set: each field is filled by the group its getter
+    /// names, so a field listed in the wrong group would read a sentinel.
+    #[test]
+    fn each_output_is_computed_by_its_own_group() {
+        let model = running();
+        let full = model.plant.as_ref().unwrap().outputs();
+        assert!(full.load_cell_voltage != 0.0 && full.test_mechanical_power != 0.0);
+        let sentinel = {
+            let mut lazy = model.clone();
+            lazy.fresh.set(u8::MAX);
+            // Fill the sentinel through the setters: every real -7.5e7, every bool the opposite
+            // of its value, every integer 77.
+            for v in BenchPlantModel::variables() {
+                if v.causality != Causality::Output {
+                    continue;
+                }
+                match v.access {
+                    Access::Real(_, set) => set(&mut lazy, -7.5e7),
+                    Access::Integer(_, set) => set(&mut lazy, 77),
+                    Access::Boolean(get, set) => {
+                        let b = {
+                            let mut probe = model.clone();
+                            *probe.outputs.get_mut() = full;
+                            probe.fresh.set(u8::MAX);
+                            get(&probe)
+                        };
+                        set(&mut lazy, !b)
+                    }
+                    _ => {}
+                }
+            }
+            *lazy.outputs.get_mut()
+        };
+        let mut checked = 0;
+        for v in BenchPlantModel::variables() {
+            if v.causality != Causality::Output {
+                continue;
+            }
+            let mut lazy = model.clone();
+            *lazy.outputs.get_mut() = sentinel;
+            lazy.fresh.set(0);
+            let mut reference = model.clone();
+            *reference.outputs.get_mut() = full;
+            reference.fresh.set(u8::MAX);
+            match v.access {
+                Access::Real(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
+                Access::Integer(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
+                Access::Boolean(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
+                _ => continue,
+            }
+            checked += 1;
+        }
+        assert!(checked > 70, "{checked}");
+        // A step makes every group stale again.
+        let mut m = model.clone();
+        let before = m.read_signal(SignalGroup::Motion, |o| o.actuation_angle);
+        m.do_step(0.3, 1e-3).unwrap();
+        let after = m.read_signal(SignalGroup::Motion, |o| o.actuation_angle);
+        assert_ne!(before, after);
+        assert_eq!(after, m.plant.as_ref().unwrap().outputs().actuation_angle);
     }
 }

@@ -148,7 +148,7 @@ mod state;
 #[cfg(test)]
 mod tests;
 
-pub use self::outputs::{BenchOutputDerivatives, BenchOutputs};
+pub use self::outputs::{BenchOutputDerivatives, BenchOutputs, SignalGroup, signal_group};
 pub use self::params::{BenchParameters, ParameterError};
 pub use self::plant::BenchPlant;
 pub use self::state::StateError;

@@ -213,17 +213,250 @@ pub struct BenchOutputDerivatives {
     pub total_electrical_energy: f64,
 }
 
+/// The parts in which the plant computes its outputs on demand: an importer that reads a few
+/// signals after a step pays only for their part (see [`BenchPlant::fill_outputs`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SignalGroup {
+    /// Read off the state: angles, velocities, currents, torques, flags, energies.
+    Motion,
+    /// The sensors' readings: encoders, load cell, transducer, sense voltages.
+    Sensors,
+    /// Needing the held mode (friction, driver saturation, voltages): accelerations, voltages,
+    /// friction torques, powers.
+    Mode,
+}
+
+impl SignalGroup {
+    /// Every group.
+    pub const ALL: [SignalGroup; 3] =
+        [SignalGroup::Motion, SignalGroup::Sensors, SignalGroup::Mode];
+
+    /// A distinct bit per group (for freshness masks).
+    pub const fn bit(self) -> u8 {
+        match self {
+            SignalGroup::Motion => 1,
+            SignalGroup::Sensors => 2,
+            SignalGroup::Mode => 4,
+        }
+    }
+}
+
+/// Fields of [`BenchOutputs`] filled by [`SignalGroup::Sensors`].
+const SENSOR_FIELDS: &[&str] = &[
+    "actuation_encoder_angle",
+    "load_encoder_angle",
+    "actuation_encoder_counts",
+    "load_encoder_counts",
+    "load_cell_voltage",
+    "load_cell_torque",
+    "transducer_voltage",
+    "transducer_torque",
+    "test_supply_sense_voltage",
+    "load_supply_sense_voltage",
+    "test_current_sense_voltage",
+    "load_current_sense_voltage",
+];
+
+/// Fields of [`BenchOutputs`] filled by [`SignalGroup::Mode`].
+const MODE_FIELDS: &[&str] = &[
+    "actuation_acceleration",
+    "load_acceleration",
+    "test_motor_voltage",
+    "load_motor_voltage",
+    "actuation_friction_torque",
+    "load_friction_torque",
+    "test_mechanical_power",
+    "load_mechanical_power",
+    "loss_power",
+    "actuation_loss_power",
+    "load_loss_power",
+    "kinetic_energy_rate",
+    "potential_energy_rate",
+    "test_electrical_power",
+    "load_electrical_power",
+    "load_regenerated_power",
+    "total_electrical_power",
+];
+
+const fn same(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
+
+const fn listed(field: &str, list: &[&str]) -> bool {
+    let mut i = 0;
+    while i < list.len() {
+        if same(field, list[i]) {
+            return true;
+        }
+        i += 1;
+    }
+    false
+}
+
+/// The group that fills the [`BenchOutputs`] field named `field` (evaluated at compile time by
+/// the variable table).
+pub const fn signal_group(field: &str) -> SignalGroup {
+    if listed(field, SENSOR_FIELDS) {
+        SignalGroup::Sensors
+    } else if listed(field, MODE_FIELDS) {
+        SignalGroup::Mode
+    } else {
+        SignalGroup::Motion
+    }
+}
+
 impl BenchPlant {
     /// All outputs at the current time (state at the end of the last step, inputs of that step).
     pub fn outputs(&self) -> BenchOutputs {
+        let mut out = BenchOutputs::default();
+        for group in SignalGroup::ALL {
+            self.fill_outputs(group, &mut out);
+        }
+        out
+    }
+
+    /// Writes the fields of `group` (see [`signal_group`]) into `out`.
+    pub fn fill_outputs(&self, group: SignalGroup, out: &mut BenchOutputs) {
+        match group {
+            SignalGroup::Motion => self.fill_motion(out),
+            SignalGroup::Sensors => self.fill_sensors(out),
+            SignalGroup::Mode => self.fill_mode(out),
+        }
+    }
+
+    fn fill_motion(&self, o: &mut BenchOutputs) {
+        let p = &self.params;
+        let z = &self.state.z;
+        let tpa = self.output_torque_per_ampere();
+        let deflection = z[THETA1] - z[THETA2];
+        let e = &self.state.energy;
+        let kinetic =
+            0.5 * (p.actuation_inertia * z[OMEGA1].powi(2) + p.load_inertia * z[OMEGA2].powi(2));
+        let potential = 0.5 * p.coupling_stiffness() * deflection * deflection;
+        o.actuation_angle = z[THETA1];
+        o.load_angle = z[THETA2];
+        o.actuation_velocity = z[OMEGA1];
+        o.load_velocity = z[OMEGA2];
+        o.spring_deflection = deflection;
+        o.spring_torque = p.coupling_stiffness() * deflection;
+        o.test_motor_current = z[CURRENT1];
+        o.load_motor_current = z[CURRENT2];
+        o.test_motor_torque = p.test_motor_torque_constant * z[CURRENT1];
+        o.load_motor_torque = p.load_motor_torque_constant * z[CURRENT2];
+        o.test_output_torque = tpa[0] * z[CURRENT1];
+        o.load_output_torque = tpa[1] * z[CURRENT2];
+        o.clutch_engaged = self.state.clutch;
+        o.actuation_stuck = self.state.stuck[0];
+        o.load_stuck = self.state.stuck[1];
+        o.test_driver_saturated = self.state.saturation[0] != 0.0;
+        o.load_driver_saturated = self.state.saturation[1] != 0.0;
+        o.clutch_power = if self.state.clutch {
+            p.clutch_power
+        } else {
+            0.0
+        };
+        o.offset_power = p.hardware_offset_power;
+        o.kinetic_energy = kinetic;
+        o.potential_energy = potential;
+        o.test_mechanical_energy = e.test_mechanical;
+        o.test_mechanical_energy_consumed = e.test_mechanical_consumed;
+        o.load_mechanical_energy = e.load_mechanical;
+        o.load_mechanical_energy_consumed = e.load_mechanical_consumed;
+        o.loss_energy = e.actuation_loss + e.load_loss;
+        o.actuation_loss_energy = e.actuation_loss;
+        o.load_loss_energy = e.load_loss;
+        o.kinetic_energy_change = kinetic;
+        o.potential_energy_change = potential;
+        o.test_electrical_energy = e.test_electrical;
+        o.test_electrical_energy_consumed = e.test_electrical_consumed;
+        o.load_electrical_energy = e.load_electrical;
+        o.load_electrical_energy_consumed = e.load_electrical_consumed;
+        o.clutch_energy = e.clutch;
+        o.offset_energy = e.offset;
+        o.total_electrical_energy = e.total_electrical;
+        o.total_electrical_energy_consumed = e.total_electrical_consumed;
+        o.test_copper_loss_energy = e.test_copper_loss;
+        o.load_copper_loss_energy = e.load_copper_loss;
+        o.test_back_emf_energy = e.test_back_emf;
+        o.load_back_emf_energy = e.load_back_emf;
+        o.hd_surface_clamp_count = self.state.clamp_count as f64;
+        o.hd_surface_clamped = self.state.last_clamped;
+        o.trip_code = self.state.trip.map_or(0, |(i, _)| i.code());
+    }
+
+    fn fill_sensors(&self, o: &mut BenchOutputs) {
+        let p = &self.params;
+        let z = &self.state.z;
+        let tpa = self.output_torque_per_ampere();
+        let spring_torque = p.coupling_stiffness() * (z[THETA1] - z[THETA2]);
+        let (enc1_counts, enc1) = sensors::encoder(
+            z[THETA1],
+            p.harmonic_drive_ratio,
+            p.encoder_counts_per_revolution,
+        );
+        let (enc2_counts, enc2) = sensors::encoder(
+            z[THETA2],
+            p.reduction_ratio,
+            p.encoder_counts_per_revolution,
+        );
+        let moment = p.calibration_pendulum_moment;
+        let phases = self.sensor_phases();
+        let load_cell_voltage = sensors::calibrated_sensor_voltage_at_phase(
+            tpa[0] * z[CURRENT1],
+            p.load_cell_offset,
+            p.load_cell_gain,
+            phases[0],
+            moment,
+        );
+        let transducer_voltage = sensors::calibrated_sensor_voltage_at_phase(
+            spring_torque,
+            p.transducer_offset,
+            p.transducer_gain,
+            phases[1],
+            moment,
+        );
+        o.actuation_encoder_angle = enc1;
+        o.load_encoder_angle = enc2;
+        o.actuation_encoder_counts = enc1_counts;
+        o.load_encoder_counts = enc2_counts;
+        o.load_cell_voltage = load_cell_voltage;
+        o.load_cell_torque = sensors::calibrated_sensor_torque(
+            load_cell_voltage,
+            p.load_cell_offset,
+            p.load_cell_gain,
+            moment,
+        );
+        o.transducer_voltage = transducer_voltage;
+        o.transducer_torque = sensors::calibrated_sensor_torque(
+            transducer_voltage,
+            p.transducer_offset,
+            p.transducer_gain,
+            moment,
+        );
+        o.test_supply_sense_voltage = sensors::divider_voltage(p, p.test_supply_voltage);
+        o.load_supply_sense_voltage = sensors::divider_voltage(p, p.load_supply_voltage);
+        o.test_current_sense_voltage = sensors::current_sensor_voltage(p, z[CURRENT1]);
+        o.load_current_sense_voltage = sensors::current_sensor_voltage(p, z[CURRENT2]);
+    }
+
+    fn fill_mode(&self, o: &mut BenchOutputs) {
         let p = &self.params;
         let held = self.held_for_outputs();
         let (z, rate) = self.rates(&held);
         let k = p.coupling_stiffness();
-        let tpa = self.output_torque_per_ampere();
         let powers = self.powers_at(&held, &z);
         let deflection = z[THETA1] - z[THETA2];
-        let spring_torque = k * deflection;
         let friction = [
             if self.state.stuck[0] {
                 0.0
@@ -240,129 +473,24 @@ impl BenchPlant {
             -p.actuation_damping * z[OMEGA1] * z[OMEGA1] + friction[0] * z[OMEGA1],
             -p.load_damping * z[OMEGA2] * z[OMEGA2] + friction[1] * z[OMEGA2],
         ];
-        let (enc1_counts, enc1) = sensors::encoder(
-            z[THETA1],
-            p.harmonic_drive_ratio,
-            p.encoder_counts_per_revolution,
-        );
-        let (enc2_counts, enc2) = sensors::encoder(
-            z[THETA2],
-            p.reduction_ratio,
-            p.encoder_counts_per_revolution,
-        );
-        let moment = p.calibration_pendulum_moment;
-        let test_output_torque = tpa[0] * z[CURRENT1];
-        let phases = self.sensor_phases();
-        let load_cell_voltage = sensors::calibrated_sensor_voltage_at_phase(
-            test_output_torque,
-            p.load_cell_offset,
-            p.load_cell_gain,
-            phases[0],
-            moment,
-        );
-        let transducer_voltage = sensors::calibrated_sensor_voltage_at_phase(
-            spring_torque,
-            p.transducer_offset,
-            p.transducer_gain,
-            phases[1],
-            moment,
-        );
-        let e = &self.state.energy;
-        let kinetic =
-            0.5 * (p.actuation_inertia * z[OMEGA1].powi(2) + p.load_inertia * z[OMEGA2].powi(2));
-        let potential = 0.5 * k * deflection * deflection;
-        let clutch_power = if self.state.clutch {
-            p.clutch_power
-        } else {
-            0.0
-        };
-        BenchOutputs {
-            actuation_angle: z[THETA1],
-            load_angle: z[THETA2],
-            actuation_velocity: z[OMEGA1],
-            load_velocity: z[OMEGA2],
-            actuation_acceleration: rate[OMEGA1],
-            load_acceleration: rate[OMEGA2],
-            spring_deflection: deflection,
-            spring_torque,
-            test_motor_current: z[CURRENT1],
-            load_motor_current: z[CURRENT2],
-            test_motor_voltage: self.armature_voltage_at(&held, 0, &z),
-            load_motor_voltage: self.armature_voltage_at(&held, 1, &z),
-            test_motor_torque: p.test_motor_torque_constant * z[CURRENT1],
-            load_motor_torque: p.load_motor_torque_constant * z[CURRENT2],
-            test_output_torque,
-            load_output_torque: tpa[1] * z[CURRENT2],
-            actuation_friction_torque: friction[0],
-            load_friction_torque: friction[1],
-            actuation_encoder_angle: enc1,
-            load_encoder_angle: enc2,
-            actuation_encoder_counts: enc1_counts,
-            load_encoder_counts: enc2_counts,
-            load_cell_voltage,
-            load_cell_torque: sensors::calibrated_sensor_torque(
-                load_cell_voltage,
-                p.load_cell_offset,
-                p.load_cell_gain,
-                moment,
-            ),
-            transducer_voltage,
-            transducer_torque: sensors::calibrated_sensor_torque(
-                transducer_voltage,
-                p.transducer_offset,
-                p.transducer_gain,
-                moment,
-            ),
-            test_supply_sense_voltage: sensors::divider_voltage(p, p.test_supply_voltage),
-            load_supply_sense_voltage: sensors::divider_voltage(p, p.load_supply_voltage),
-            test_current_sense_voltage: sensors::current_sensor_voltage(p, z[CURRENT1]),
-            load_current_sense_voltage: sensors::current_sensor_voltage(p, z[CURRENT2]),
-            clutch_engaged: self.state.clutch,
-            actuation_stuck: self.state.stuck[0],
-            load_stuck: self.state.stuck[1],
-            test_driver_saturated: self.state.saturation[0] != 0.0,
-            load_driver_saturated: self.state.saturation[1] != 0.0,
-            test_mechanical_power: powers[0],
-            load_mechanical_power: powers[1],
-            loss_power: loss[0] + loss[1],
-            actuation_loss_power: loss[0],
-            load_loss_power: loss[1],
-            kinetic_energy_rate: p.actuation_inertia * z[OMEGA1] * rate[OMEGA1]
-                + p.load_inertia * z[OMEGA2] * rate[OMEGA2],
-            potential_energy_rate: k * deflection * (z[OMEGA1] - z[OMEGA2]),
-            test_electrical_power: powers[2],
-            load_electrical_power: powers[3],
-            load_regenerated_power: (-powers[3]).max(0.0),
-            clutch_power,
-            offset_power: p.hardware_offset_power,
-            total_electrical_power: powers[4],
-            kinetic_energy: kinetic,
-            potential_energy: potential,
-            test_mechanical_energy: e.test_mechanical,
-            test_mechanical_energy_consumed: e.test_mechanical_consumed,
-            load_mechanical_energy: e.load_mechanical,
-            load_mechanical_energy_consumed: e.load_mechanical_consumed,
-            loss_energy: e.actuation_loss + e.load_loss,
-            actuation_loss_energy: e.actuation_loss,
-            load_loss_energy: e.load_loss,
-            kinetic_energy_change: kinetic,
-            potential_energy_change: potential,
-            test_electrical_energy: e.test_electrical,
-            test_electrical_energy_consumed: e.test_electrical_consumed,
-            load_electrical_energy: e.load_electrical,
-            load_electrical_energy_consumed: e.load_electrical_consumed,
-            clutch_energy: e.clutch,
-            offset_energy: e.offset,
-            total_electrical_energy: e.total_electrical,
-            total_electrical_energy_consumed: e.total_electrical_consumed,
-            test_copper_loss_energy: e.test_copper_loss,
-            load_copper_loss_energy: e.load_copper_loss,
-            test_back_emf_energy: e.test_back_emf,
-            load_back_emf_energy: e.load_back_emf,
-            hd_surface_clamp_count: self.state.clamp_count as f64,
-            hd_surface_clamped: self.state.last_clamped,
-            trip_code: self.state.trip.map_or(0, |(i, _)| i.code()),
-        }
+        o.actuation_acceleration = rate[OMEGA1];
+        o.load_acceleration = rate[OMEGA2];
+        o.test_motor_voltage = self.armature_voltage_at(&held, 0, &z);
+        o.load_motor_voltage = self.armature_voltage_at(&held, 1, &z);
+        o.actuation_friction_torque = friction[0];
+        o.load_friction_torque = friction[1];
+        o.test_mechanical_power = powers[0];
+        o.load_mechanical_power = powers[1];
+        o.loss_power = loss[0] + loss[1];
+        o.actuation_loss_power = loss[0];
+        o.load_loss_power = loss[1];
+        o.kinetic_energy_rate = p.actuation_inertia * z[OMEGA1] * rate[OMEGA1]
+            + p.load_inertia * z[OMEGA2] * rate[OMEGA2];
+        o.potential_energy_rate = k * deflection * (z[OMEGA1] - z[OMEGA2]);
+        o.test_electrical_power = powers[2];
+        o.load_electrical_power = powers[3];
+        o.load_regenerated_power = (-powers[3]).max(0.0);
+        o.total_electrical_power = powers[4];
     }
 
     /// First derivatives of the continuous outputs at the current time (inputs of the last step
