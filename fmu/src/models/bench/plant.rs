@@ -664,7 +664,8 @@ impl BenchPlant {
         }
     }
 
-    /// Active event functions for the held mode.
+    /// Active event functions for the held mode (inlined: the list is built in place).
+    #[inline(always)]
     fn events(&self, held: &Held) -> ([Event; 16], usize) {
         let mut list = [Event::Trip(Interlock::EmergencyStop); 16];
         let mut count = 0;
@@ -1114,8 +1115,8 @@ impl BenchPlant {
             let mut ii = [[0.0; 2 * PIECE_TERMS]; 2];
             let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
             for j in 0..2 {
-                product_into(&w[j][..n], &w[j][..n], &mut ww[j]);
-                product_into(&i[j][..n], &i[j][..n], &mut ii[j]);
+                square_into(&w[j][..n], &mut ww[j]);
+                square_into(&i[j][..n], &mut ii[j]);
                 product_into(&i[j][..n], &w[j][..n], &mut wi[j]);
             }
             let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
@@ -1245,6 +1246,22 @@ fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
     }
 }
 
+/// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled).
+fn square_into(a: &[f64], out: &mut [f64]) {
+    let n = a.len();
+    out[..2 * n - 1].fill(0.0);
+    for (k, x) in a.iter().enumerate() {
+        if *x == 0.0 {
+            continue;
+        }
+        out[2 * k] += x * x;
+        let twice = 2.0 * x;
+        for (o, y) in out[2 * k + 1..k + n].iter_mut().zip(&a[k + 1..]) {
+            *o += twice * y;
+        }
+    }
+}
+
 /// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
 fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
     out[..a.len() + b.len() - 1].fill(0.0);
@@ -1325,6 +1342,19 @@ fn positive_integral(p: &[f64], s_end: f64) -> f64 {
 #[cfg(test)]
 mod root_tests {
     use super::*;
+
+    #[test]
+    fn polynomial_square_matches_the_product() {
+        let a = [0.3, -1.5, 0.0, 2.25, 1e-9];
+        let (mut square, mut product) = ([0.0; 9], [0.0; 9]);
+        square_into(&a, &mut square);
+        product_into(&a, &a, &mut product);
+        for (s, p) in square.iter().zip(&product) {
+            assert!((s - p).abs() <= 1e-15 * p.abs().max(1.0), "{s} vs {p}");
+        }
+        assert_eq!(square[0], 0.09);
+        assert_eq!(square[8], 1e-18);
+    }
 
     #[test]
     fn positive_integral_splits_at_the_roots() {
