@@ -27,10 +27,12 @@
 //! the load motor also pushes a viscous term along the motion. Ideal-motion figures for
 //! `(beta_w, beta_a)` = (4, 0.75): shaft 18.0 N m, regen 2.1 W, load-motor torque 17.0 N m.
 //!
-//! **Feed-forwards and setpoints.** The FMUs offer one feed-forward input per loop; weighted
-//! sums of reference signals are built from `PidController`s used as summing elements (P on
-//! the `measurement`, reverse acting, plus the running sum as feed-forward; see
-//! `weighted_sum`), fed by the `GaitReference`'s analytic velocity and acceleration:
+//! **Feed-forwards and setpoints.** Each loop takes the `GaitReference`'s analytic velocity,
+//! acceleration (and, for the position loop, knee torque) references on its auxiliary inputs
+//! and weights them into its reference and its feed-forward (`PidController`'s
+//! `setpointWeight1..3` / `feedForwardWeight1..3`, `ImpedanceController`'s
+//! `torqueFeedForwardWeight1..3`), so the SEA loop is four FMUs: gait, position, torque,
+//! plant:
 //!
 //! * load loop (`torque`, all actuators): setpoint `tau_plan = tau_knee + (1 - beta_w) c2 w +
 //!   (1 - beta_a) I2 a` on the transducer (shaft) torque, reverse acting, feed-forward current
@@ -51,7 +53,8 @@
 //!   torque interlock.
 //! * CSEA: the impedance controller (the bench's structure) with virtual stiffness 150 N m/rad,
 //!   damping 8 N m s/rad on the knee (load) angle, torque feed-forward `tau_plan + c1 w + I1 a`
-//!   (`springTorqueFeedForward`), desired-torque limit 60 N m, and its inner spring-torque PI at
+//!   (the knee-torque reference plus weighted velocity and acceleration), desired-torque limit
+//!   60 N m, and its inner spring-torque PI at
 //!   0: with the load loop also acting on the spring torque, two feedback loops on one quantity
 //!   oscillated (every inner PI tried, 0.1 ... 2 A/(N m), tripped), so the impedance acts as a
 //!   PD on the knee angle through the current feed-forward `tau_d / 5.92` and the load motor
@@ -70,8 +73,7 @@
 //! sample computed from the inputs just used, whose measurement difference is zero: the D term
 //! read is the filtered derivative decayed by `Tf / (Tf + Ts)` (2/3 with Tf = 2 ms), and with
 //! Tf = 0 it is exactly 0. The gains above were tuned through this master, so they include that
-//! factor (with another master the effective derivative is 1.5x stronger). The summing
-//! elements use no D term for this reason.
+//! factor (with another master the effective derivative is 1.5x stronger).
 //!
 //! # Measured tracking and margins
 //!
@@ -270,6 +272,30 @@ pub struct Columns {
     pub potential_energy_change: String,
     /// The plant's trip code.
     pub trip_code: String,
+}
+
+impl Columns {
+    /// Every column the analysis reads.
+    pub fn names(&self) -> Vec<String> {
+        [
+            &self.reference,
+            &self.actuation_angle,
+            &self.load_angle,
+            &self.test_torque,
+            &self.load_torque,
+            &self.test_mechanical_energy,
+            &self.test_mechanical_energy_consumed,
+            &self.electrical_energy,
+            &self.electrical_energy_consumed,
+            &self.loss_energy,
+            &self.kinetic_energy_change,
+            &self.potential_energy_change,
+            &self.trip_code,
+        ]
+        .into_iter()
+        .cloned()
+        .collect()
+    }
 }
 
 impl Default for Columns {
@@ -792,30 +818,15 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         ],
     }];
     let mut connections = Vec::new();
-    // The torque loop: setpoint and feed-forward from the knee-torque reference and the load
-    // side's dynamics (see `StudyGains::load_dynamics_share`), through `PidController`s used as
-    // summing elements when a dynamics term is present.
+    // The torque loop tracks the planned shaft torque
+    // T = tau_knee + (1 - beta_w) c2 w + (1 - beta_a) I2 a (its reference: the knee-torque
+    // reference plus the weighted velocity and acceleration references on its auxiliary
+    // inputs), with the load motor's planned current as feed-forward:
+    // (-tau_knee + beta_w c2 w + beta_a I2 a) / (i_RED Km2). See
+    // `StudyGains::load_dynamics_share`.
     let (beta_w, beta_a) = gains.load_dynamics_share;
-    let setpoint = weighted_sum(
-        "shaftTorqueSetpoint",
-        ("gait.kneeTorqueReference", 1.0),
-        &[
-            (VELOCITY, (1.0 - beta_w) * LOAD_DAMPING),
-            (ACCELERATION, (1.0 - beta_a) * LOAD_INERTIA),
-        ],
-        &mut components,
-        &mut connections,
-    );
-    let load_ff = weighted_sum(
-        "loadFeedForward",
-        ("gait.loadTorqueReference", 1.0 / LOAD_TORQUE_PER_AMPERE),
-        &[
-            (VELOCITY, beta_w * LOAD_DAMPING / LOAD_TORQUE_PER_AMPERE),
-            (ACCELERATION, beta_a * LOAD_INERTIA / LOAD_TORQUE_PER_AMPERE),
-        ],
-        &mut components,
-        &mut connections,
-    );
+    let shaft_velocity_weight = (1.0 - beta_w) * LOAD_DAMPING;
+    let shaft_acceleration_weight = (1.0 - beta_a) * LOAD_INERTIA;
     components.push(ScenarioComponent {
         name: "torque".into(),
         fmu: "PidController.fmu".into(),
@@ -826,43 +837,43 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
             real("derivativeFilterTime", gains.torque_derivative_filter),
             real("outputMin", -gains.torque_limit),
             real("outputMax", gains.torque_limit),
-            real("feedForwardGain", load_ff.1),
+            real("feedForwardGain", 1.0 / LOAD_TORQUE_PER_AMPERE),
+            real("setpointWeight1", shaft_velocity_weight),
+            real("setpointWeight2", shaft_acceleration_weight),
+            real(
+                "feedForwardWeight1",
+                beta_w * LOAD_DAMPING / LOAD_TORQUE_PER_AMPERE,
+            ),
+            real(
+                "feedForwardWeight2",
+                beta_a * LOAD_INERTIA / LOAD_TORQUE_PER_AMPERE,
+            ),
             boolean("reverseActing", true),
         ],
     });
     connections.extend([
-        connect(&setpoint.0, "torque.setpoint"),
+        connect("gait.kneeTorqueReference", "torque.setpoint"),
+        connect(VELOCITY, "torque.auxiliary1"),
+        connect(ACCELERATION, "torque.auxiliary2"),
         connect("plant.transducerTorque", "torque.measurement"),
-        connect(&load_ff.0, "torque.feedForward"),
+        connect("gait.loadTorqueReference", "torque.feedForward"),
         connect("torque.u", "plant.loadCurrentCommand"),
     ]);
     match actuator {
         Actuator::Da | Actuator::Sea => {
             let (fv, fa, ft) = gains.test_feed_forward;
-            let test_ff = weighted_sum(
-                "testFeedForward",
-                (&setpoint.0, ft * setpoint.1),
-                &[(VELOCITY, fv), (ACCELERATION, fa)],
-                &mut components,
-                &mut connections,
-            );
-            // The actuation side leads the knee by the planned spring deflection.
+            // The actuation side leads the knee by the planned spring deflection T / k; the
+            // test motor's feed-forward is ft T + fv w + fa a. Both are weights of the
+            // auxiliaries (velocity, acceleration, knee torque) of the position loop.
             let stiffness = if actuator == Actuator::Da {
                 DIRECT_COUPLING_STIFFNESS
             } else {
                 SPRING_STIFFNESS
             };
-            let angle = if gains.deflection_compensation {
-                weighted_sum(
-                    "actuationSetpoint",
-                    (&setpoint.0, setpoint.1 / stiffness),
-                    &[("gait.kneeAngleReference", 1.0)],
-                    &mut components,
-                    &mut connections,
-                )
-                .0
+            let lead = if gains.deflection_compensation {
+                1.0 / stiffness
             } else {
-                "gait.kneeAngleReference".to_string()
+                0.0
             };
             components.push(ScenarioComponent {
                 name: "position".into(),
@@ -874,28 +885,28 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
                     real("derivativeFilterTime", gains.position_derivative_filter),
                     real("outputMin", -gains.position_limit),
                     real("outputMax", gains.position_limit),
-                    real("feedForwardGain", test_ff.1),
+                    real("feedForwardGain", 0.0),
+                    real("setpointWeight1", lead * shaft_velocity_weight),
+                    real("setpointWeight2", lead * shaft_acceleration_weight),
+                    real("setpointWeight3", lead),
+                    real("feedForwardWeight1", ft * shaft_velocity_weight + fv),
+                    real("feedForwardWeight2", ft * shaft_acceleration_weight + fa),
+                    real("feedForwardWeight3", ft),
                 ],
             });
             connections.extend([
-                connect(&angle, "position.setpoint"),
+                connect("gait.kneeAngleReference", "position.setpoint"),
+                connect(VELOCITY, "position.auxiliary1"),
+                connect(ACCELERATION, "position.auxiliary2"),
+                connect("gait.kneeTorqueReference", "position.auxiliary3"),
                 connect("plant.actuationEncoderAngle", "position.measurement"),
-                connect(&test_ff.0, "position.feedForward"),
                 connect("position.u", "plant.testCurrentCommand"),
             ]);
         }
         Actuator::Csea => {
             let c = gains.csea;
-            let torque_ff = weighted_sum(
-                "springTorqueFeedForward",
-                (&setpoint.0, setpoint.1),
-                &[
-                    (VELOCITY, c.feed_forward.0),
-                    (ACCELERATION, c.feed_forward.1),
-                ],
-                &mut components,
-                &mut connections,
-            );
+            // The spring carries the planned shaft torque plus the actuation side's own
+            // dynamics share: tau_ff = T + ff_w w + ff_a a.
             components.push(ScenarioComponent {
                 name: "impedance".into(),
                 fmu: "ImpedanceController.fmu".into(),
@@ -907,6 +918,14 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
                     real("desiredTorqueLimit", c.desired_torque_limit),
                     real("outputMin", -gains.position_limit),
                     real("outputMax", gains.position_limit),
+                    real(
+                        "torqueFeedForwardWeight1",
+                        shaft_velocity_weight + c.feed_forward.0,
+                    ),
+                    real(
+                        "torqueFeedForwardWeight2",
+                        shaft_acceleration_weight + c.feed_forward.1,
+                    ),
                     integer("holdAction", c.hold_action),
                 ],
             });
@@ -936,7 +955,9 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
             connections.extend([
                 connect("gait.kneeAngleReference", "impedance.angleReference"),
                 connect("gait.kneeVelocityReference", "impedance.velocityReference"),
-                connect(&torque_ff.0, "impedance.torqueFeedForward"),
+                connect("gait.kneeTorqueReference", "impedance.torqueFeedForward"),
+                connect(VELOCITY, "impedance.auxiliary1"),
+                connect(ACCELERATION, "impedance.auxiliary2"),
                 connect("plant.actuationEncoderAngle", "impedance.actuationAngle"),
                 connect("plant.loadEncoderAngle", "impedance.loadAngle"),
                 connect("plant.loadVelocity", "impedance.loadVelocity"),
@@ -960,54 +981,6 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         stop_time: gait.period * f64::from(cycles),
         step_size: 1e-3,
     }
-}
-
-/// A weighted sum of signals, `base.1 * base.0 + sum(gain * signal)`, as a signal for a loop's
-/// input. Without non-zero terms it is the base signal itself (returned with its gain, for the
-/// consuming loop's `feedForwardGain`). Otherwise each term is a `PidController` used as a
-/// summing element: reverse acting with zero setpoint and only `kp`, so `P = kp y` on its
-/// `measurement` (the term's signal), plus the previous partial sum as its feed-forward; the
-/// last is named `name` (earlier ones `sum1` + `name`, `sum2` + `name`, ...: no component name
-/// is a prefix of another, since fmpy's `simulate_ssp` assigns a parameter `a.b.p` to every
-/// component whose name `a.b` starts with), and its output `u` is the sum (returned with gain
-/// 1). A summing PID has direct feedthrough and no state that matters, so a
-/// Gauss-Seidel master passes the sum of the same instant on.
-fn weighted_sum(
-    name: &str,
-    base: (&str, f64),
-    terms: &[(&str, f64)],
-    components: &mut Vec<ScenarioComponent>,
-    connections: &mut Vec<(String, String)>,
-) -> (String, f64) {
-    let terms: Vec<&(&str, f64)> = terms.iter().filter(|(_, g)| *g != 0.0).collect();
-    let (mut signal, mut gain) = (base.0.to_string(), base.1);
-    for (i, (term, kp)) in terms.iter().enumerate() {
-        let component = if i + 1 == terms.len() {
-            name.to_string()
-        } else {
-            format!("sum{}{name}", i + 1)
-        };
-        components.push(ScenarioComponent {
-            name: component.clone(),
-            fmu: "PidController.fmu".into(),
-            parameters: vec![
-                real("kp", *kp),
-                real("ki", 0.0),
-                real("kd", 0.0),
-                real("outputMin", -1e6),
-                real("outputMax", 1e6),
-                real("feedForwardGain", gain),
-                boolean("reverseActing", true),
-            ],
-        });
-        connections.extend([
-            connect(term, &format!("{component}.measurement")),
-            connect(&signal, &format!("{component}.feedForward")),
-        ]);
-        signal = format!("{component}.u");
-        gain = 1.0;
-    }
-    (signal, gain)
 }
 
 /// One actuator's run in a study.

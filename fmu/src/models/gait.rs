@@ -62,22 +62,75 @@ pub struct Shape {
 
 /// The Fourier series f(x) = a0 + Σ a_n cos(nωx) + b_n sin(nωx), ω = 2π, x = t/period.
 pub fn fourier(series: &[(f64, f64); HARMONICS + 1], t: f64, period: f64) -> Shape {
-    let mut s = Shape {
-        value: series[0].0,
-        integral: series[0].0 * t,
-        ..Shape::default()
-    };
-    for (n, &(a, b)) in series.iter().enumerate().skip(1) {
-        let k = TAU * n as f64 / period; // rad/s of harmonic n
-        let (sin, cos) = (k * t).sin_cos();
-        s.value += a * cos + b * sin;
-        s.d1 += k * (-a * sin + b * cos);
-        s.d2 += -k * k * (a * cos + b * sin);
-        s.d3 += k * k * k * (a * sin - b * cos);
-        s.integral += (a * sin + b * (1.0 - cos)) / k;
-    }
-    s
+    fourier_with(series, &Harmonics::at(t, period), t, period)
 }
+
+/// `sin(n x)` and `cos(n x)` of the harmonics at one instant, `x = 2 pi t / T`: shared by the
+/// series of both channels.
+#[derive(Debug, Clone, Copy)]
+pub struct Harmonics {
+    /// (sin, cos) of harmonic n (index 0 unused).
+    pub terms: [(f64, f64); HARMONICS + 1],
+}
+
+impl Harmonics {
+    /// By the angle-addition recurrence from one `sin_cos` (the angle reduced to one period
+    /// first so the recurrence starts accurate): the error grows like n * 1e-16, far below the
+    /// series' own accuracy for [`HARMONICS`] terms.
+    pub fn at(t: f64, period: f64) -> Self {
+        let phase = (t / period).rem_euclid(1.0);
+        let (sin1, cos1) = (TAU * phase).sin_cos();
+        let mut terms = [(0.0, 1.0); HARMONICS + 1];
+        let (mut sin, mut cos) = (0.0, 1.0);
+        for term in terms.iter_mut().skip(1) {
+            (sin, cos) = (sin * cos1 + cos * sin1, cos * cos1 - sin * sin1);
+            *term = (sin, cos);
+        }
+        Self { terms }
+    }
+}
+
+/// [`fourier`] from precomputed [`Harmonics`] of the same `t` and `period`. The harmonic's rate
+/// `k_n = n k_1` and `1/k_n = (1/k_1) / n` come without divisions.
+pub fn fourier_with(
+    series: &[(f64, f64); HARMONICS + 1],
+    harmonics: &Harmonics,
+    t: f64,
+    period: f64,
+) -> Shape {
+    let k1 = TAU / period;
+    let inverse_k1 = period / TAU;
+    let (mut value, mut d1, mut d2, mut d3) = (series[0].0, 0.0, 0.0, 0.0);
+    let mut integral = series[0].0 * t;
+    for (n, (&(a, b), &(sin, cos))) in series.iter().zip(&harmonics.terms).enumerate().skip(1) {
+        let k = k1 * n as f64; // rad/s of harmonic n
+        let even = a * cos + b * sin;
+        let odd = -a * sin + b * cos;
+        value += even;
+        d1 += k * odd;
+        d2 -= k * k * even;
+        d3 -= k * k * k * odd;
+        integral += (a * sin + b * (1.0 - cos)) * inverse_k1 * INVERSE[n];
+    }
+    Shape {
+        value,
+        d1,
+        d2,
+        d3,
+        integral,
+    }
+}
+
+/// `1 / n` for the harmonics.
+const INVERSE: [f64; HARMONICS + 1] = {
+    let mut table = [0.0; HARMONICS + 1];
+    let mut n = 1;
+    while n <= HARMONICS {
+        table[n] = 1.0 / n as f64;
+        n += 1;
+    }
+    table
+};
 
 /// The waveforms the bench UI offers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -444,11 +497,13 @@ impl GaitReference {
             || self.torque_waveform == Waveform::SteppedSine as i32
     }
 
-    /// The normalised waveform `w` at time t; `series` is the channel's gait series.
+    /// The normalised waveform `w` at time t; `series` is the channel's gait series and
+    /// `harmonics` its terms at `t` (computed once for both channels).
     fn shape(
         &self,
         w: i32,
         series: &[(f64, f64); HARMONICS + 1],
+        harmonics: &Harmonics,
         t: f64,
     ) -> Result<Shape, ModelError> {
         let wave = Waveform::from_i32(w)
@@ -456,7 +511,7 @@ impl GaitReference {
         let p = self.period;
         let w1 = TAU / p;
         Ok(match wave {
-            Waveform::Gait => fourier(series, t, p),
+            Waveform::Gait => fourier_with(series, harmonics, t, p),
             Waveform::Constant => Shape {
                 value: 1.0,
                 integral: t,
@@ -568,8 +623,9 @@ impl Model for GaitReference {
     }
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
-        let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, t)?;
-        let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, t)?;
+        let harmonics = Harmonics::at(t, self.period);
+        let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, &harmonics, t)?;
+        let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, &harmonics, t)?;
         // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
         // rule keeps velocity, acceleration and jerk the exact derivatives.
         // In velocity mode the angle is the waveform's exact integral, so the motion channel is
@@ -685,6 +741,28 @@ impl Model for GaitReference {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fourier_recurrence_matches_direct_evaluation() {
+        // The same series with one sin_cos per harmonic, at times over many periods.
+        for &t in &[0.0, 0.3, 1.2345, 2.5, 17.77, 1234.5678, 98765.4321] {
+            for period in [2.5, 1.0, 0.7] {
+                let fast = fourier(&ANGLE_SERIES, t, period);
+                let (mut value, mut d3) = (ANGLE_SERIES[0].0, 0.0);
+                for (n, &(a, b)) in ANGLE_SERIES.iter().enumerate().skip(1) {
+                    let k = TAU * n as f64 / period;
+                    let (sin, cos) = (TAU * n as f64 * (t / period).rem_euclid(1.0)).sin_cos();
+                    value += a * cos + b * sin;
+                    d3 += k * k * k * (a * sin - b * cos);
+                }
+                assert!((fast.value - value).abs() < 1e-13, "{t} {period}");
+                assert!(
+                    (fast.d3 - d3).abs() < 1e-11 * d3.abs().max(1.0),
+                    "{t} {period}"
+                );
+            }
+        }
+    }
     use crate::fmi2::instance::fresh_model;
 
     fn model() -> GaitReference {

@@ -22,6 +22,10 @@
 //!   actuator.
 //! * `torqueFeedForward` (input, N m): added to `tau_d` before the limit, e.g. the knee-torque
 //!   reference so the spring carries the expected gait torque without waiting for an error.
+//!   Three auxiliary inputs `auxiliary1..3` add to it through `torqueFeedForwardWeight1..3`
+//!   (default 0): `tau_ff = torqueFeedForward + sum_i w_i auxiliary_i`, e.g. the reference
+//!   velocity and acceleration times the load side's damping and inertia, with no summing
+//!   block in the system.
 //! * `desiredTorqueLimit` [N m]: clips `tau_d` (default 20 N m, the bench's motor-torque
 //!   interlock at the output; the spring reaches its 5 deg interlock at 29.7 N m).
 //! * `springStiffness` `k` [N m/rad]: turns the measured deflection into the spring torque; the
@@ -48,7 +52,8 @@
 use std::sync::LazyLock;
 
 use super::pid::{
-    AntiWindup, HoldAction, PidInputs, PidSettings, PidSignals, PidState, SampleClock, pid_sample,
+    AUXILIARIES, AntiWindup, HoldAction, PidInputs, PidSettings, PidSignals, PidState, SampleClock,
+    pid_sample,
 };
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -63,8 +68,10 @@ pub struct ImpedanceInputs {
     pub angle_reference: f64,
     /// omega_ref [rad/s].
     pub velocity_reference: f64,
-    /// tau_ff [N m].
+    /// tau_ff [N m] (before the auxiliaries).
     pub torque_feed_forward: f64,
+    /// Auxiliary signals weighted into tau_ff.
+    pub auxiliary: [f64; AUXILIARIES],
     /// theta_act: actuation-side angle [rad].
     pub actuation_angle: f64,
     /// theta_load: load-side angle [rad].
@@ -103,6 +110,8 @@ pub struct ImpedanceSettings {
     pub spring_stiffness: f64,
     /// |tau_d| limit [N m].
     pub desired_torque_limit: f64,
+    /// Weights of the auxiliary inputs in tau_ff [N m per auxiliary unit].
+    pub feed_forward_weights: [f64; AUXILIARIES],
     /// The inner PI (setpoint tau_d, measurement tau_s, feed-forward tau_d).
     pub torque_loop: PidSettings,
 }
@@ -113,7 +122,14 @@ pub fn impedance_sample(
     state: &PidState,
     input: &ImpedanceInputs,
 ) -> (ImpedanceSignals, PidState) {
-    let raw = input.torque_feed_forward
+    let feed_forward = input.torque_feed_forward
+        + input
+            .auxiliary
+            .iter()
+            .zip(&s.feed_forward_weights)
+            .map(|(x, w)| w * x)
+            .sum::<f64>();
+    let raw = feed_forward
         + s.virtual_stiffness * (input.angle_reference - input.load_angle)
         + s.virtual_damping * (input.velocity_reference - input.load_velocity);
     let desired = raw.max(-s.desired_torque_limit).min(s.desired_torque_limit);
@@ -126,6 +142,7 @@ pub fn impedance_sample(
             setpoint: desired,
             measurement: spring,
             feed_forward: desired,
+            auxiliary: [0.0; AUXILIARIES],
             hold: input.hold,
         },
     );
@@ -152,6 +169,7 @@ pub struct ImpedanceController {
     torque_kp: f64,
     torque_ki: f64,
     torque_feed_forward_gain: f64,
+    feed_forward_weights: [f64; AUXILIARIES],
     output_min: f64,
     output_max: f64,
     sample_period: f64,
@@ -182,6 +200,8 @@ mod vr {
     pub const ANTI_WINDUP: u32 = 11;
     pub const TRACKING_TIME: u32 = 12;
     pub const HOLD_ACTION: u32 = 13;
+    /// `torqueFeedForwardWeight1..3`.
+    pub const FEED_FORWARD_WEIGHT: [u32; 3] = [14, 15, 16];
     pub const ANGLE_REFERENCE: u32 = 100;
     pub const VELOCITY_REFERENCE: u32 = 101;
     pub const TORQUE_FEED_FORWARD: u32 = 102;
@@ -189,6 +209,8 @@ mod vr {
     pub const LOAD_ANGLE: u32 = 104;
     pub const LOAD_VELOCITY: u32 = 105;
     pub const HOLD: u32 = 106;
+    /// `auxiliary1..3`.
+    pub const AUXILIARY: [u32; 3] = [107, 108, 109];
     pub const CURRENT_COMMAND: u32 = 200;
     pub const DESIRED_TORQUE: u32 = 201;
     pub const SPRING_TORQUE: u32 = 202;
@@ -218,6 +240,12 @@ const KNOWNS: &[&str] = &[
     "antiWindup",
     "trackingTime",
     "holdAction",
+    "auxiliary1",
+    "auxiliary2",
+    "auxiliary3",
+    "torqueFeedForwardWeight1",
+    "torqueFeedForwardWeight2",
+    "torqueFeedForwardWeight3",
 ];
 
 static ENUMERATIONS: &[EnumerationType] = &[
@@ -278,6 +306,15 @@ static VARIABLES: LazyLock<Vec<Variable<ImpedanceController>>> = LazyLock::new(|
         V::real("torqueKi", vr::TORQUE_KI, |m| m.torque_ki, |m, v| m.torque_ki = v)
             .tunable(Real(5.0))
             .describe("Torque loop integral gain [A/(N m s)]"),
+        V::real("torqueFeedForwardWeight1", vr::FEED_FORWARD_WEIGHT[0], |m| m.feed_forward_weights[0], |m, v| m.feed_forward_weights[0] = v)
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary1 in tau_ff (N m per auxiliary unit)"),
+        V::real("torqueFeedForwardWeight2", vr::FEED_FORWARD_WEIGHT[1], |m| m.feed_forward_weights[1], |m, v| m.feed_forward_weights[1] = v)
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary2 in tau_ff"),
+        V::real("torqueFeedForwardWeight3", vr::FEED_FORWARD_WEIGHT[2], |m| m.feed_forward_weights[2], |m, v| m.feed_forward_weights[2] = v)
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary3 in tau_ff"),
         V::real("torqueFeedForwardGain", vr::TORQUE_FEED_FORWARD_GAIN, |m| m.torque_feed_forward_gain, |m, v| m.torque_feed_forward_gain = v)
             .tunable(Real(1.0 / (160.0 * 0.037)))
             .describe("Current per N m of tau_d added to the command [A/(N m)]: 1/(i_HD Km1)"),
@@ -320,6 +357,15 @@ static VARIABLES: LazyLock<Vec<Variable<ImpedanceController>>> = LazyLock::new(|
             .input(Real(0.0))
             .unit("N.m")
             .describe("tau_ff: torque added to the desired interaction torque (e.g. the knee-torque reference)"),
+        V::real("auxiliary1", vr::AUXILIARY[0], |m| m.inputs.auxiliary[0], |m, v| m.inputs.auxiliary[0] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary signal 1, added to tau_ff times torqueFeedForwardWeight1"),
+        V::real("auxiliary2", vr::AUXILIARY[1], |m| m.inputs.auxiliary[1], |m, v| m.inputs.auxiliary[1] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary signal 2, added to tau_ff times torqueFeedForwardWeight2"),
+        V::real("auxiliary3", vr::AUXILIARY[2], |m| m.inputs.auxiliary[2], |m, v| m.inputs.auxiliary[2] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary signal 3, added to tau_ff times torqueFeedForwardWeight3"),
         V::real("actuationAngle", vr::ACTUATION_ANGLE, |m| m.inputs.actuation_angle, |m, v| m.inputs.actuation_angle = v)
             .input(Real(0.0))
             .unit("rad")
@@ -381,6 +427,8 @@ impl ImpedanceController {
             })?,
             tracking_time: self.tracking_time,
             feed_forward_gain: self.torque_feed_forward_gain,
+            setpoint_weights: [0.0; AUXILIARIES],
+            feed_forward_weights: [0.0; AUXILIARIES],
             hold_action: HoldAction::from_i32(self.hold_action).ok_or_else(|| {
                 ModelError::new(format!("holdAction {} is not an item", self.hold_action))
             })?,
@@ -392,6 +440,7 @@ impl ImpedanceController {
             virtual_damping: self.virtual_damping,
             spring_stiffness: self.spring_stiffness,
             desired_torque_limit: self.desired_torque_limit,
+            feed_forward_weights: self.feed_forward_weights,
             torque_loop,
         };
         if ![
@@ -405,6 +454,11 @@ impl ImpedanceController {
         {
             return Err(ModelError::new(
                 "virtualStiffness, virtualDamping, springStiffness and desiredTorqueLimit must be finite and not negative",
+            ));
+        }
+        if !s.feed_forward_weights.iter().all(|w| w.is_finite()) {
+            return Err(ModelError::new(
+                "torqueFeedForwardWeight1..3 must be finite",
             ));
         }
         Ok(s)
@@ -539,6 +593,30 @@ mod tests {
     }
 
     #[test]
+    fn auxiliaries_add_to_the_torque_feed_forward() {
+        // tau_d = tau_ff + 2*3 - 0.5*4 + k_d (0.05 - 0.01) + d_d (0.5 - 0.1), with tau_ff = 1.
+        let mut m = model();
+        m.feed_forward_weights = [2.0, -0.5, 0.0];
+        m.inputs = ImpedanceInputs {
+            angle_reference: 0.05,
+            velocity_reference: 0.5,
+            torque_feed_forward: 1.0,
+            auxiliary: [3.0, 4.0, 100.0],
+            actuation_angle: 0.02,
+            load_angle: 0.01,
+            load_velocity: 0.1,
+            hold: false,
+        };
+        m.calculate(0.0).unwrap();
+        let virtual_part = m.virtual_stiffness * 0.04 + m.virtual_damping * 0.4;
+        assert!(
+            close(m.signals.desired_torque, 1.0 + 6.0 - 2.0 + virtual_part),
+            "{}",
+            m.signals.desired_torque
+        );
+    }
+
+    #[test]
     fn hand_computed_sequence() {
         let mut m = model();
         // Sample 0: tau_d = 100 (0.05 - 0.01) + 2 (0.5 - 0.1) = 4.8 N m;
@@ -547,6 +625,7 @@ mod tests {
             angle_reference: 0.05,
             velocity_reference: 0.5,
             torque_feed_forward: 0.0,
+            auxiliary: [0.0; AUXILIARIES],
             actuation_angle: 0.02,
             load_angle: 0.01,
             load_velocity: 0.1,

@@ -95,11 +95,26 @@
 //! measured by the transducer against the load-motor current). The presets carry no output
 //! limits: set `outputMin`/`outputMax` to the driver's range (default +-15 A, the test driver).
 //!
-//! ## Feed-forward
+//! ## Feed-forward and reference shaping
 //! `feedForward` enters scaled by `feedForwardGain` (default 1), so a reference can be wired
 //! directly: e.g. `loadTorqueReference` with gain `1/(i_RED Km2)` = 0.13291 A/(N m) on the load
 //! loop, or `kneeVelocityReference` with gain `c1/(i_HD Km1)` = 2.027 A s/rad on the position
 //! loop (viscous-torque feed-forward).
+//!
+//! Three auxiliary inputs `auxiliary1..3` (reference signals such as the reference velocity,
+//! acceleration or torque) enter both the setpoint and the feed-forward through their own
+//! weights, so a loop that tracks a planned quantity needs no summing blocks around it:
+//!
+//! ```text
+//! r_k = setpoint_k + sum_i setpointWeight_i * auxiliary_i,k      (the loop's reference)
+//! F_k = feedForwardGain * feedForward_k + sum_i feedForwardWeight_i * auxiliary_i,k
+//! ```
+//!
+//! and `e_k = s (r_k - y_k)`; the output `reference` shows `r_k`. The weights default to 0.
+//! Example (the study's SEA position loop): `setpoint` = knee-angle reference, auxiliaries =
+//! knee velocity, acceleration and torque references, setpoint weights = the planned spring
+//! deflection per unit of each (shaft torque / k), feed-forward weights = the motor current
+//! per unit of each (damping, inertia and torque over i_HD Km1).
 
 use std::sync::LazyLock;
 
@@ -186,6 +201,11 @@ impl SampleClock {
                 "the step from t = {t} s by h = {h} s is outside the sample grid of period {} s starting at {} s",
                 self.period, self.start
             )));
+        }
+        // The common case, one period from the next instant: the general rule below gives 1.
+        let next = self.next as f64;
+        if (a - next).abs() <= SAMPLE_TOLERANCE && (b - next - 1.0).abs() <= SAMPLE_TOLERANCE {
+            return Ok(1);
         }
         let on_grid = |x: f64| (x - x.round()).abs() <= SAMPLE_TOLERANCE;
         // First instant at or after the end: executed instants are next..end_index.
@@ -378,6 +398,10 @@ pub struct PidSettings {
     pub tracking_time: f64,
     /// Factor of the feed-forward input.
     pub feed_forward_gain: f64,
+    /// Weights of the auxiliary inputs in the reference.
+    pub setpoint_weights: [f64; AUXILIARIES],
+    /// Weights of the auxiliary inputs in the feed-forward term.
+    pub feed_forward_weights: [f64; AUXILIARIES],
     /// Output while held.
     pub hold_action: HoldAction,
     /// Error = measurement - setpoint (a plant whose measurement falls when u rises).
@@ -399,6 +423,8 @@ impl PidSettings {
             self.feed_forward_gain,
         ]
         .iter()
+        .chain(&self.setpoint_weights)
+        .chain(&self.feed_forward_weights)
         .all(|x| x.is_finite());
         if !finite {
             return Err(ModelError::new("PID settings must be finite"));
@@ -489,15 +515,22 @@ pub struct PidInputs {
     pub measurement: f64,
     /// Feed-forward input (scaled by the feed-forward gain).
     pub feed_forward: f64,
+    /// Auxiliary reference signals (weighted into the reference and the feed-forward).
+    pub auxiliary: [f64; AUXILIARIES],
     /// Hold: freeze the integrator and hold the output.
     pub hold: bool,
 }
+
+/// Number of auxiliary inputs of the PID.
+pub const AUXILIARIES: usize = 3;
 
 /// What one sample computes: the output and its parts.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PidSignals {
     /// The output u (saturated, or held).
     pub output: f64,
+    /// The reference r: the setpoint plus the weighted auxiliaries.
+    pub reference: f64,
     /// The error e.
     pub error: f64,
     /// P term.
@@ -518,7 +551,18 @@ pub struct PidSignals {
 pub fn pid_sample(s: &PidSettings, state: &PidState, input: &PidInputs) -> (PidSignals, PidState) {
     let sign = if s.reverse_acting { -1.0 } else { 1.0 };
     let ts = s.sample_period;
-    let e = sign * (input.setpoint - input.measurement);
+    let mut reference = input.setpoint;
+    let mut f = s.feed_forward_gain * input.feed_forward;
+    for ((x, a), b) in input
+        .auxiliary
+        .iter()
+        .zip(&s.setpoint_weights)
+        .zip(&s.feed_forward_weights)
+    {
+        reference += a * x;
+        f += b * x;
+    }
+    let e = sign * (reference - input.measurement);
     let dy = state
         .previous_measurement
         .map_or(0.0, |prev| input.measurement - prev);
@@ -534,7 +578,6 @@ pub fn pid_sample(s: &PidSettings, state: &PidState, input: &PidInputs) -> (PidS
     }
     let p = s.kp * e;
     let d = -sign * s.kd * x;
-    let f = s.feed_forward_gain * input.feed_forward;
     let v = p + integral + d + f;
     let limited = v.max(s.output_min).min(s.output_max);
     let (output, saturated, next_integral) = if input.hold {
@@ -564,6 +607,7 @@ pub fn pid_sample(s: &PidSettings, state: &PidState, input: &PidInputs) -> (PidS
     };
     let signals = PidSignals {
         output,
+        reference,
         error: e,
         proportional: p,
         integral,
@@ -596,6 +640,8 @@ pub struct PidController {
     anti_windup: i32,
     tracking_time: f64,
     feed_forward_gain: f64,
+    setpoint_weights: [f64; AUXILIARIES],
+    feed_forward_weights: [f64; AUXILIARIES],
     hold_action: i32,
     reverse_acting: bool,
 
@@ -606,6 +652,8 @@ pub struct PidController {
     state: PidState,
     /// Signals of the last executed sample (zero-order hold between samples).
     held: PidSignals,
+    /// The checked settings of the current parameters (cleared by every parameter setter).
+    cached_settings: Option<PidSettings>,
 }
 
 /// Value references (stable; never reuse a retired number).
@@ -623,10 +671,16 @@ mod vr {
     pub const FEED_FORWARD_GAIN: u32 = 11;
     pub const HOLD_ACTION: u32 = 12;
     pub const REVERSE_ACTING: u32 = 13;
+    /// `setpointWeight1..3`.
+    pub const SETPOINT_WEIGHT: [u32; 3] = [14, 15, 16];
+    /// `feedForwardWeight1..3`.
+    pub const FEED_FORWARD_WEIGHT: [u32; 3] = [17, 18, 19];
     pub const SETPOINT: u32 = 100;
     pub const MEASUREMENT: u32 = 101;
     pub const FEED_FORWARD: u32 = 102;
     pub const HOLD: u32 = 103;
+    /// `auxiliary1..3`.
+    pub const AUXILIARY: [u32; 3] = [104, 105, 106];
     pub const U: u32 = 200;
     pub const ERROR: u32 = 201;
     pub const P_TERM: u32 = 202;
@@ -635,6 +689,7 @@ mod vr {
     pub const FEED_FORWARD_TERM: u32 = 205;
     pub const U_UNSATURATED: u32 = 206;
     pub const SATURATED: u32 = 207;
+    pub const REFERENCE: u32 = 208;
 }
 
 /// Inputs and parameters every output depends on.
@@ -656,6 +711,15 @@ const KNOWNS: &[&str] = &[
     "feedForwardGain",
     "holdAction",
     "reverseActing",
+    "auxiliary1",
+    "auxiliary2",
+    "auxiliary3",
+    "setpointWeight1",
+    "setpointWeight2",
+    "setpointWeight3",
+    "feedForwardWeight1",
+    "feedForwardWeight2",
+    "feedForwardWeight3",
 ];
 
 static PRESET_ITEMS: LazyLock<Vec<(&'static str, i32, &'static str)>> = LazyLock::new(|| {
@@ -707,50 +771,125 @@ static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
     use Start::{Boolean, Integer, Real};
     type V = Variable<PidController>;
     vec![
-        V::enumeration("preset", vr::PRESET, "PidPreset", |m| m.preset, |m, v| m.preset = v)
+        V::enumeration("preset", vr::PRESET, "PidPreset", |m| m.preset, |m, v| {
+            m.preset = v;
+            m.cached_settings = None;
+        })
             .tunable(Integer(0))
             .describe("Gain set: Custom uses kp, ki, kd; any other item is a gain set of the bench and ignores them"),
-        V::real("kp", vr::KP, |m| m.kp, |m, v| m.kp = v)
+        V::real("kp", vr::KP, |m| m.kp, |m, v| {
+            m.kp = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(1.0))
             .describe("Proportional gain (Custom preset); output unit per error unit"),
-        V::real("ki", vr::KI, |m| m.ki, |m, v| m.ki = v)
+        V::real("ki", vr::KI, |m| m.ki, |m, v| {
+            m.ki = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(1.0))
             .describe("Integral gain (Custom preset); output unit per error unit and second"),
-        V::real("kd", vr::KD, |m| m.kd, |m, v| m.kd = v)
+        V::real("kd", vr::KD, |m| m.kd, |m, v| {
+            m.kd = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(0.01))
             .describe("Derivative gain on the measurement (Custom preset); output unit times second per measurement unit"),
-        V::real("derivativeFilterTime", vr::DERIVATIVE_FILTER_TIME, |m| m.derivative_filter_time, |m, v| m.derivative_filter_time = v)
+        V::real("derivativeFilterTime", vr::DERIVATIVE_FILTER_TIME, |m| m.derivative_filter_time, |m, v| {
+            m.derivative_filter_time = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(0.005))
             .unit("s")
             .range(0.0, 1e3)
             .describe("Time constant Tf of the first-order filter of the measurement's derivative (0: backward difference)"),
-        V::real("samplePeriod", vr::SAMPLE_PERIOD, |m| m.sample_period, |m, v| m.sample_period = v)
+        V::real("samplePeriod", vr::SAMPLE_PERIOD, |m| m.sample_period, |m, v| {
+            m.sample_period = v;
+            m.cached_settings = None;
+        })
             .parameter(Real(1e-3))
             .unit("s")
             .display("ms")
             .range(1e-6, 10.0)
             .describe("Sample period Ts (the myRIO's control period); communication steps must nest with it"),
-        V::real("outputMin", vr::OUTPUT_MIN, |m| m.output_min, |m, v| m.output_min = v)
+        V::real("outputMin", vr::OUTPUT_MIN, |m| m.output_min, |m, v| {
+            m.output_min = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(-15.0))
             .describe("Lower output limit (default: the test driver's -15 A)"),
-        V::real("outputMax", vr::OUTPUT_MAX, |m| m.output_max, |m, v| m.output_max = v)
+        V::real("outputMax", vr::OUTPUT_MAX, |m| m.output_max, |m, v| {
+            m.output_max = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(15.0))
             .describe("Upper output limit (default: the test driver's 15 A)"),
-        V::enumeration("antiWindup", vr::ANTI_WINDUP, "AntiWindup", |m| m.anti_windup, |m, v| m.anti_windup = v)
+        V::enumeration("antiWindup", vr::ANTI_WINDUP, "AntiWindup", |m| m.anti_windup, |m, v| {
+            m.anti_windup = v;
+            m.cached_settings = None;
+        })
             .tunable(Integer(AntiWindup::Clamping as i32))
             .describe("Anti-windup scheme"),
-        V::real("trackingTime", vr::TRACKING_TIME, |m| m.tracking_time, |m, v| m.tracking_time = v)
+        V::real("trackingTime", vr::TRACKING_TIME, |m| m.tracking_time, |m, v| {
+            m.tracking_time = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(0.05))
             .unit("s")
             .range(1e-9, 1e6)
             .describe("Back-calculation tracking time constant Tt"),
-        V::real("feedForwardGain", vr::FEED_FORWARD_GAIN, |m| m.feed_forward_gain, |m, v| m.feed_forward_gain = v)
+        V::real("feedForwardGain", vr::FEED_FORWARD_GAIN, |m| m.feed_forward_gain, |m, v| {
+            m.feed_forward_gain = v;
+            m.cached_settings = None;
+        })
             .tunable(Real(1.0))
             .describe("Factor of the feedForward input (e.g. 1/(i_RED Km2) for a torque reference in N m to A)"),
-        V::enumeration("holdAction", vr::HOLD_ACTION, "HoldAction", |m| m.hold_action, |m, v| m.hold_action = v)
+        V::real("setpointWeight1", vr::SETPOINT_WEIGHT[0], |m| m.setpoint_weights[0], |m, v| {
+            m.setpoint_weights[0] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary1 in the reference r (setpoint unit per auxiliary unit)"),
+        V::real("setpointWeight2", vr::SETPOINT_WEIGHT[1], |m| m.setpoint_weights[1], |m, v| {
+            m.setpoint_weights[1] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary2 in the reference r"),
+        V::real("setpointWeight3", vr::SETPOINT_WEIGHT[2], |m| m.setpoint_weights[2], |m, v| {
+            m.setpoint_weights[2] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary3 in the reference r"),
+        V::real("feedForwardWeight1", vr::FEED_FORWARD_WEIGHT[0], |m| m.feed_forward_weights[0], |m, v| {
+            m.feed_forward_weights[0] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary1 in the feed-forward term (output unit per auxiliary unit)"),
+        V::real("feedForwardWeight2", vr::FEED_FORWARD_WEIGHT[1], |m| m.feed_forward_weights[1], |m, v| {
+            m.feed_forward_weights[1] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary2 in the feed-forward term"),
+        V::real("feedForwardWeight3", vr::FEED_FORWARD_WEIGHT[2], |m| m.feed_forward_weights[2], |m, v| {
+            m.feed_forward_weights[2] = v;
+            m.cached_settings = None;
+        })
+            .tunable(Real(0.0))
+            .describe("Weight of auxiliary3 in the feed-forward term"),
+        V::enumeration("holdAction", vr::HOLD_ACTION, "HoldAction", |m| m.hold_action, |m, v| {
+            m.hold_action = v;
+            m.cached_settings = None;
+        })
             .tunable(Integer(HoldAction::HoldLastOutput as i32))
             .describe("Output while hold is true"),
-        V::boolean("reverseActing", vr::REVERSE_ACTING, |m| m.reverse_acting, |m, v| m.reverse_acting = v)
+        V::boolean("reverseActing", vr::REVERSE_ACTING, |m| m.reverse_acting, |m, v| {
+            m.reverse_acting = v;
+            m.cached_settings = None;
+        })
             .tunable(Boolean(false))
             .describe("Error = measurement - setpoint, for a plant whose measurement falls when u rises"),
         V::real("setpoint", vr::SETPOINT, |m| m.inputs.setpoint, |m, v| m.inputs.setpoint = v)
@@ -762,12 +901,24 @@ static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
         V::real("feedForward", vr::FEED_FORWARD, |m| m.inputs.feed_forward, |m, v| m.inputs.feed_forward = v)
             .input(Real(0.0))
             .describe("Feed-forward input, added to the output times feedForwardGain"),
+        V::real("auxiliary1", vr::AUXILIARY[0], |m| m.inputs.auxiliary[0], |m, v| m.inputs.auxiliary[0] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary reference signal 1, weighted into the reference and the feed-forward"),
+        V::real("auxiliary2", vr::AUXILIARY[1], |m| m.inputs.auxiliary[1], |m, v| m.inputs.auxiliary[1] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary reference signal 2"),
+        V::real("auxiliary3", vr::AUXILIARY[2], |m| m.inputs.auxiliary[2], |m, v| m.inputs.auxiliary[2] = v)
+            .input(Real(0.0))
+            .describe("Auxiliary reference signal 3"),
         V::boolean("hold", vr::HOLD, |m| m.inputs.hold, |m, v| m.inputs.hold = v)
             .input(Boolean(false))
             .describe("While true at a sample: integrator frozen and output held (holdAction)"),
         V::real("u", vr::U, |m| m.signals.output, |m, v| m.signals.output = v)
             .output(KNOWNS)
             .describe("Controller output (driver command: A in current mode, V in voltage mode), saturated, updated at sample instants"),
+        V::real("reference", vr::REFERENCE, |m| m.signals.reference, |m, v| m.signals.reference = v)
+            .output(KNOWNS)
+            .describe("Reference r = setpoint + weighted auxiliaries, the quantity the loop tracks"),
         V::real("error", vr::ERROR, |m| m.signals.error, |m, v| m.signals.error = v)
             .output(KNOWNS)
             .describe("Error e = setpoint - measurement (negated when reverseActing)"),
@@ -793,6 +944,18 @@ static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
 });
 
 impl PidController {
+    /// [`Self::settings`], computed once per parameter change.
+    fn checked_settings(&mut self) -> Result<PidSettings, ModelError> {
+        match self.cached_settings {
+            Some(s) => Ok(s),
+            None => {
+                let s = self.settings()?;
+                self.cached_settings = Some(s);
+                Ok(s)
+            }
+        }
+    }
+
     /// The settings with the preset applied.
     pub fn settings(&self) -> Result<PidSettings, ModelError> {
         let (kp, ki, kd) = match self.preset {
@@ -814,6 +977,8 @@ impl PidController {
             })?,
             tracking_time: self.tracking_time,
             feed_forward_gain: self.feed_forward_gain,
+            setpoint_weights: self.setpoint_weights,
+            feed_forward_weights: self.feed_forward_weights,
             hold_action: HoldAction::from_i32(self.hold_action).ok_or_else(|| {
                 ModelError::new(format!("holdAction {} is not an item", self.hold_action))
             })?,
@@ -875,7 +1040,7 @@ impl Model for PidController {
     }
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
-        let settings = self.settings()?;
+        let settings = self.checked_settings()?;
         self.signals = self.clock.outputs_at(t, self.held, |_| {
             pid_sample(&settings, &self.state, &self.inputs).0
         });
@@ -883,7 +1048,7 @@ impl Model for PidController {
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
-        let settings = self.settings()?;
+        let settings = self.checked_settings()?;
         self.clock
             .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
                 pid_sample(&settings, state, &self.inputs)
@@ -915,6 +1080,7 @@ impl Model for PidController {
 fn save_signals(s: &PidSignals, w: &mut StateWriter) {
     for x in [
         s.output,
+        s.reference,
         s.error,
         s.proportional,
         s.integral,
@@ -930,6 +1096,7 @@ fn save_signals(s: &PidSignals, w: &mut StateWriter) {
 fn load_signals(r: &mut StateReader<'_>) -> Result<PidSignals, StateError> {
     Ok(PidSignals {
         output: r.f64()?,
+        reference: r.f64()?,
         error: r.f64()?,
         proportional: r.f64()?,
         integral: r.f64()?,
@@ -959,6 +1126,8 @@ mod tests {
             anti_windup: AntiWindup::None,
             tracking_time: 0.1,
             feed_forward_gain: 1.0,
+            setpoint_weights: [0.0; AUXILIARIES],
+            feed_forward_weights: [0.0; AUXILIARIES],
             hold_action: HoldAction::HoldLastOutput,
             reverse_acting: false,
         }
@@ -1204,6 +1373,7 @@ mod tests {
                     setpoint: 1.0,
                     measurement: 0.0,
                     feed_forward: 0.0,
+                    auxiliary: [0.0; AUXILIARIES],
                     hold: (2..4).contains(&k),
                 };
                 let (sig, next) = pid_sample(&s, &state, &input);
@@ -1234,10 +1404,51 @@ mod tests {
                 setpoint: 1.0,
                 measurement: 0.0,
                 feed_forward: 4.0,
+                auxiliary: [0.0; AUXILIARIES],
                 hold: false,
             },
         );
         assert!(close(sig.output, 3.0) && close(sig.feed_forward, 2.0));
+    }
+
+    #[test]
+    fn auxiliaries_enter_the_reference_and_the_feed_forward_by_their_weights() {
+        // kp = 2, reverse acting: e = -(r - y) with r = 1 + 0.5*3 - 2*(-1) + 0.25*4 = 5.5,
+        // y = 0.5 -> e = -5; P = -10; F = 0.5*2 + (1*3 + 0*(-1) - 3*4) = 1 - 9 = -8; u = -18.
+        let s = PidSettings {
+            kp: 2.0,
+            feed_forward_gain: 0.5,
+            setpoint_weights: [0.5, -2.0, 0.25],
+            feed_forward_weights: [1.0, 0.0, -3.0],
+            reverse_acting: true,
+            ..settings()
+        };
+        let (sig, _) = pid_sample(
+            &s,
+            &PidState::default(),
+            &PidInputs {
+                setpoint: 1.0,
+                measurement: 0.5,
+                feed_forward: 2.0,
+                auxiliary: [3.0, -1.0, 4.0],
+                hold: false,
+            },
+        );
+        assert!(close(sig.reference, 5.5), "{}", sig.reference);
+        assert!(close(sig.error, -5.0) && close(sig.proportional, -10.0));
+        assert!(close(sig.feed_forward, -8.0), "{}", sig.feed_forward);
+        assert!(close(sig.output, -18.0), "{}", sig.output);
+        // Zero weights: the auxiliaries change nothing.
+        let (plain, _) = pid_sample(
+            &settings(),
+            &PidState::default(),
+            &PidInputs {
+                setpoint: 1.0,
+                auxiliary: [3.0, -1.0, 4.0],
+                ..Default::default()
+            },
+        );
+        assert!(close(plain.reference, 1.0) && close(plain.output, 0.0));
     }
 
     #[test]
@@ -1270,6 +1481,35 @@ mod tests {
         // Decimal times count as on the grid.
         let c3 = SampleClock { next: 3, ..c };
         assert_eq!(c3.samples_in_step(0.003, 0.002).unwrap(), 2);
+    }
+
+    #[test]
+    fn a_parameter_set_through_the_variable_table_takes_effect_at_once() {
+        use crate::model::Access;
+        let set = |m: &mut PidController, name: &str, value: f64| {
+            let v = PidController::variables()
+                .iter()
+                .find(|v| v.name == name)
+                .unwrap();
+            let Access::Real(_, setter) = v.access else {
+                panic!("{name} is not a Real")
+            };
+            setter(m, value);
+        };
+        let mut m = fresh_model::<PidController>();
+        set(&mut m, "ki", 0.0);
+        set(&mut m, "kd", 0.0);
+        m.initialize(0.0).unwrap();
+        m.inputs.setpoint = 2.0;
+        m.do_step(0.0, 1e-3).unwrap();
+        assert_eq!(m.signals.output, 2.0, "kp 1");
+        // The settings are cached between steps; a setter must refresh them.
+        set(&mut m, "kp", 3.0);
+        m.do_step(1e-3, 1e-3).unwrap();
+        assert_eq!(m.signals.output, 6.0, "kp 3");
+        set(&mut m, "outputMax", 5.0);
+        m.do_step(2e-3, 1e-3).unwrap();
+        assert_eq!(m.signals.output, 5.0, "limit 5");
     }
 
     #[test]
