@@ -162,7 +162,7 @@ pub(crate) struct Discretization {
     /// Reduced packed Gramians by packed index `k` of the reduced state `y` (see
     /// [`reduced_state`]): `integral z_a z_b dt = sum_k g[k][ab] y_i y_j` over `i <= j`, six
     /// products of [`PRODUCTS`] per entry.
-    reduced_columns: [[f64; 6]; NREDUCED_PACK],
+    reduced_columns: [[f64; 6]; NREDUCED_PACK_PADDED],
     /// The full packed Gramians over `z` (for the tests that check them).
     #[cfg(test)]
     full_gramians: [[f64; NPACK]; 6],
@@ -173,6 +173,8 @@ pub(crate) struct Discretization {
 const NREDUCED: usize = NZ - 1;
 /// Packed upper-triangle products of the reduced state.
 const NREDUCED_PACK: usize = NREDUCED * (NREDUCED + 1) / 2;
+/// [`NREDUCED_PACK`] rounded up to even (the sum runs two products at a time).
+const NREDUCED_PACK_PADDED: usize = NREDUCED_PACK.div_ceil(2) * 2;
 
 /// `y = [theta1 - theta2, z[2..]]`. A common rotation of both bodies changes no velocity or
 /// current (`M (e_theta1 + e_theta2) = 0`: the angles act only through the spring), so the
@@ -344,7 +346,7 @@ impl Discretization {
             let k = i * NZ - i * (i + 1) / 2 + j;
             if i == j { g[k] } else { 0.5 * g[k] }
         };
-        let mut reduced_columns = [[0.0; 6]; NREDUCED_PACK];
+        let mut reduced_columns = [[0.0; 6]; NREDUCED_PACK_PADDED];
         let mut k = 0;
         for a in 0..NREDUCED {
             for b in a..NREDUCED {
@@ -425,23 +427,27 @@ impl Discretization {
     /// Integrals over the step of the six products of [`PRODUCTS`], starting at `z`.
     pub(crate) fn quadratic_integrals(&self, z: &AugVector) -> [f64; 6] {
         let y = reduced_state(z);
-        // Six running sums kept in registers; rows of zero entries (a stuck body's velocity,
-        // absent friction) are skipped.
-        let mut sums = [0.0f64; 6];
-        let mut columns = self.reduced_columns.iter();
-        for (i, &yi) in y.iter().enumerate() {
-            if yi == 0.0 {
-                for _ in i..NREDUCED {
-                    columns.next();
-                }
-                continue;
+        let mut x = [0.0; NREDUCED_PACK_PADDED];
+        let mut k = 0;
+        for i in 0..NREDUCED {
+            for j in i..NREDUCED {
+                x[k] = y[i] * y[j];
+                k += 1;
             }
-            for (yj, g) in y[i..].iter().zip(columns.by_ref()) {
-                let x = yi * yj;
-                for (s, c) in sums.iter_mut().zip(g.iter()) {
-                    *s += c * x;
-                }
+        }
+        // Two independent sets of six running sums (even and odd products): the adds of one
+        // set do not wait for the other's, which halves the add-latency chain of the loop.
+        let mut even = [0.0f64; 6];
+        let mut odd = [0.0f64; 6];
+        for (g, x) in self.reduced_columns.chunks_exact(2).zip(x.chunks_exact(2)) {
+            for q in 0..6 {
+                even[q] += g[0][q] * x[0];
+                odd[q] += g[1][q] * x[1];
             }
+        }
+        let mut sums = [0.0; 6];
+        for q in 0..6 {
+            sums[q] = even[q] + odd[q];
         }
         sums
     }

@@ -186,6 +186,8 @@ pub struct BenchPlant {
     matrices: Box<[(AugMatrix, f64); MODES]>,
     derived: Derived,
     cache: Vec<Arc<Discretization>>,
+    /// Index in `cache` of the last discretisation used.
+    last_hit: usize,
 }
 
 /// Products of parameters used in every step (same expressions as where they are used).
@@ -199,6 +201,9 @@ struct Derived {
     loop_gain: [f64; 2],
     /// (sin, cos) of the calibration phase of the load cell and of the transducer.
     sensor_phases: [(f64, f64); 2],
+    /// The friction laws and their static capacities (clutch disengaged) when neither depends
+    /// on the state (every model but the loss surface, whose law moves with the load torque).
+    static_laws: Option<([SideLaw; 2], [[f64; 2]; 2])>,
 }
 
 impl Derived {
@@ -233,6 +238,16 @@ impl Derived {
                 (p.load_cell_phase.sin(), p.load_cell_phase.cos()),
                 (p.transducer_phase.sin(), p.transducer_phase.cos()),
             ],
+            static_laws: {
+                let laws = [
+                    SideLaw::of(p, Side::Actuation, 0.0),
+                    SideLaw::of(p, Side::Load, 0.0),
+                ];
+                (!laws.iter().any(|l| matches!(l, SideLaw::Surface { .. }))).then(|| {
+                    let capacity = laws.map(|law| [law.capacity(p, 1.0), law.capacity(p, -1.0)]);
+                    (laws, capacity)
+                })
+            },
         }
     }
 }
@@ -289,6 +304,7 @@ impl BenchPlant {
                 inputs: BenchInputs::default(),
             },
             cache: Vec::new(),
+            last_hit: 0,
         })
     }
 
@@ -364,7 +380,15 @@ impl BenchPlant {
 
     fn discretization(&mut self, mode: LinearMode, h: f64) -> usize {
         let key = mode.key();
+        // Consecutive sub-steps mostly stay in one mode: try the last hit first.
+        if let Some(d) = self.cache.get(self.last_hit)
+            && d.key == key
+            && d.step == h
+        {
+            return self.last_hit;
+        }
         if let Some(i) = self.cache.iter().position(|d| d.key == key && d.step == h) {
+            self.last_hit = i;
             return i;
         }
         if self.cache.len() >= CACHE_CAPACITY {
@@ -372,7 +396,8 @@ impl BenchPlant {
         }
         let discretization = shared_discretization(&self.matrix(mode).0, key, h);
         self.cache.push(discretization);
-        self.cache.len() - 1
+        self.last_hit = self.cache.len() - 1;
+        self.last_hit
     }
 
     /// Output-side torque of each motor per ampere.
@@ -417,23 +442,23 @@ impl BenchPlant {
     fn hold(&self) -> Held {
         let inputs = self.state.inputs;
         let p = &self.params;
-        let load_torque = self.torque_per_ampere()[1] * self.state.z[CURRENT2];
-        let laws = [
-            SideLaw::of(p, Side::Actuation, load_torque),
-            SideLaw::of(p, Side::Load, load_torque),
-        ];
-        let clutch_torque = if self.state.clutch {
-            p.clutch_output_torque()
-        } else {
-            0.0
+        let (laws, mut capacity) = match self.derived.static_laws {
+            Some(fixed) => fixed,
+            None => {
+                let load_torque = self.torque_per_ampere()[1] * self.state.z[CURRENT2];
+                let laws = [
+                    SideLaw::of(p, Side::Actuation, load_torque),
+                    SideLaw::of(p, Side::Load, load_torque),
+                ];
+                let capacity = laws.map(|law| [law.capacity(p, 1.0), law.capacity(p, -1.0)]);
+                (laws, capacity)
+            }
         };
-        let mut capacity = [[0.0; 2]; 2];
-        for j in 0..2 {
-            let extra = if j == 0 { clutch_torque } else { 0.0 };
-            capacity[j] = [
-                laws[j].capacity(p, 1.0) + extra,
-                laws[j].capacity(p, -1.0) + extra,
-            ];
+        if self.state.clutch {
+            // The clutch holds the actuation side in both directions.
+            let clutch_torque = p.clutch_output_torque();
+            capacity[0][0] += clutch_torque;
+            capacity[0][1] += clutch_torque;
         }
         let mut held = Held {
             mode: LinearMode {
@@ -795,7 +820,7 @@ impl BenchPlant {
             current1: currents[0],
             current2: currents[1],
         };
-        self.accumulate_regular(&held, &z0, &z1, &integrals, &p0, rates, h);
+        self.accumulate_regular(&held, &z0, &z1, &integrals, (&p0, &p1), rates, h);
         self.commit(z1);
         Ok(())
     }
@@ -972,7 +997,7 @@ impl BenchPlant {
         z0: &AugVector,
         z1: &AugVector,
         integrals: &SegmentIntegrals,
-        p0: &[f64; 5],
+        (p0, p1): (&[f64; 5], &[f64; 5]),
         rates: Option<([f64; 5], [f64; 5])>,
         h: f64,
     ) {
@@ -1001,7 +1026,6 @@ impl BenchPlant {
             electrical[1],
             electrical[0] + electrical[1] + self.constant_power(held) * h,
         ];
-        let p1 = self.powers(held, z1);
         let mut positive = [0.0; 5];
         for k in 0..5 {
             positive[k] = match rates {
