@@ -1040,20 +1040,42 @@ impl Model for PidController {
     }
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
-        let settings = self.checked_settings()?;
-        self.signals = self.clock.outputs_at(t, self.held, |_| {
-            pid_sample(&settings, &self.state, &self.inputs).0
-        });
+        self.checked_settings()?;
+        // Disjoint fields: the cached settings are used in place, not copied.
+        let Self {
+            cached_settings: Some(settings),
+            clock,
+            held,
+            state,
+            inputs,
+            signals,
+            ..
+        } = self
+        else {
+            return Err(ModelError::new("the PID settings are not available"));
+        };
+        *signals = clock.outputs_at(t, *held, |_| pid_sample(settings, state, inputs).0);
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
-        let settings = self.checked_settings()?;
-        self.clock
-            .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
-                pid_sample(&settings, state, &self.inputs)
-            })?;
-        self.signals = self.held;
+        self.checked_settings()?;
+        let Self {
+            cached_settings: Some(settings),
+            clock,
+            held,
+            state,
+            inputs,
+            signals,
+            ..
+        } = self
+        else {
+            return Err(ModelError::new("the PID settings are not available"));
+        };
+        clock.run_step(t, h, state, held, |_, state| {
+            pid_sample(settings, state, inputs)
+        })?;
+        *signals = *held;
         Ok(StepOutcome::Completed)
     }
 

@@ -350,16 +350,23 @@ impl BenchPlant {
         }
         self.state.clutch = inputs.clutch_engage;
         let start = self.state.time;
-        let substeps = (h / self.params.max_internal_step * (1.0 - 1e-12))
-            .ceil()
-            .max(1.0);
-        let sub_h = h / substeps;
+        // One sub-step when the communication step fits (the common case, no division).
+        let substeps = if h <= self.params.max_internal_step {
+            1.0
+        } else {
+            (h / self.params.max_internal_step * (1.0 - 1e-12))
+                .ceil()
+                .max(1.0)
+        };
+        let sub_h = if substeps == 1.0 { h } else { h / substeps };
         let n = substeps as u64;
         for k in 0..n {
             if let Err((interlock, time)) = self.substep(sub_h) {
                 return self.latch(interlock, time);
             }
-            self.state.time = start + h * ((k + 1) as f64 / substeps);
+            if k + 1 < n {
+                self.state.time = start + h * ((k + 1) as f64 / substeps);
+            }
         }
         self.state.time = start + h;
         StepOutcome::Completed
@@ -642,12 +649,23 @@ impl BenchPlant {
         ]
     }
 
-    /// Whether any of `events` is positive at `z`.
+    /// Whether any of `events` (a list made by [`Self::events`], the trips first) is positive at
+    /// `z`. The trips are checked with constant arguments, so their dispatch folds away.
     fn any_positive(&self, held: &Held, events: &[Event], z: &AugVector) -> bool {
         let demand = self.demands(held, z);
-        events
-            .iter()
-            .any(|&e| self.event_value_with(held, e, z, &demand) > 0.0)
+        let trips = Interlock::CHECKED.len();
+        debug_assert!(
+            events[..trips]
+                .iter()
+                .zip(Interlock::CHECKED)
+                .all(|(e, i)| *e == Event::Trip(i))
+        );
+        Interlock::CHECKED
+            .into_iter()
+            .any(|i| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0)
+            || events[trips..]
+                .iter()
+                .any(|&e| self.event_value_with(held, e, z, &demand) > 0.0)
     }
 
     /// The event function `event` at `z`, given the voltage demands there.
