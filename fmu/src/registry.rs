@@ -20,14 +20,22 @@ pub struct ModelInfo {
     pub xml: String,
     /// The GUID (also inside `description` and `xml`).
     pub guid: String,
-    /// `documentation/index.html`.
-    pub documentation: String,
+    /// `documentation/index.html`, rendered on first use (only packaging needs it, and it is the
+    /// costliest part of the description to build).
+    documentation: OnceLock<String>,
+    /// Renders [`Self::documentation`].
+    render_documentation: fn() -> String,
     /// Per base type (Real, Integer/Enumeration, Boolean, String), value reference -> 1 + index
     /// in the declaration, 0 when unknown. Dense, because it is read on every get and set.
     pub index: [Vec<u32>; 4],
 }
 
 impl ModelInfo {
+    /// `documentation/index.html`.
+    pub fn documentation(&self) -> &str {
+        self.documentation.get_or_init(self.render_documentation)
+    }
+
     /// The declaration index of value reference `vr` of base type `tag`.
     #[inline]
     pub fn find(&self, tag: u8, vr: u32) -> Option<usize> {
@@ -73,7 +81,8 @@ fn build<M: Model>() -> ModelInfo {
         index,
         xml: description.to_xml(),
         guid: description.guid.clone(),
-        documentation: model::documentation_html::<M>(),
+        documentation: OnceLock::new(),
+        render_documentation: model::documentation_html::<M>,
         description,
     }
 }

@@ -739,7 +739,7 @@ fn catalog_file(index: usize, kind: c_int) -> *const c_char {
                 [
                     c(m.identifier),
                     c(&info.xml),
-                    c(&info.documentation),
+                    c(info.documentation()),
                     (m.reference_inputs)().and_then(|s| c(&s)),
                 ]
             })
