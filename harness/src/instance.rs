@@ -132,6 +132,8 @@ pub enum ErrorStatus {
     Fatal,
     /// `fmi2Pending`: an asynchronous step, which this harness never requests.
     Pending,
+    /// A value that is not an `fmi2Status` at all (a broken FMU); handled like `fmi2Error`.
+    Invalid(i32),
 }
 
 /// An FMI call that failed.
@@ -424,26 +426,31 @@ impl Instance {
     }
 
     #[inline]
-    fn check(&mut self, function: &'static str, s: fmi2Status) -> Result<Status, FmuError> {
-        match s {
-            fmi2Status::fmi2OK => Ok(Status::Ok),
-            fmi2Status::fmi2Warning => Ok(Status::Warning),
-            fmi2Status::fmi2Discard => Ok(Status::Discard),
-            other => Err(self.error(function, other)),
+    fn check(&mut self, function: &'static str, s: fmi2StatusCode) -> Result<Status, FmuError> {
+        // The FMU's return value is a C int: read as a number, never as the Rust enum.
+        match s.0 {
+            0 => Ok(Status::Ok),
+            1 => Ok(Status::Warning),
+            2 => Ok(Status::Discard),
+            _ => Err(self.error(function, s)),
         }
     }
 
     #[cold]
-    fn error(&mut self, function: &'static str, s: fmi2Status) -> FmuError {
-        let status = match s {
-            fmi2Status::fmi2Fatal => {
+    fn error(&mut self, function: &'static str, s: fmi2StatusCode) -> FmuError {
+        let status = match s.status() {
+            Some(fmi2Status::fmi2Fatal) => {
                 self.phase = Phase::Fatal;
                 ErrorStatus::Fatal
             }
-            fmi2Status::fmi2Pending => ErrorStatus::Pending,
-            _ => {
+            Some(fmi2Status::fmi2Pending) => ErrorStatus::Pending,
+            Some(_) => {
                 self.phase = Phase::Error;
                 ErrorStatus::Error
+            }
+            None => {
+                self.phase = Phase::Error;
+                ErrorStatus::Invalid(s.0)
             }
         };
         FmuError::Call {
@@ -893,11 +900,16 @@ impl Instance {
     /// `fmi2GetStatus(fmi2DoStepStatus)`.
     pub fn get_status(&mut self, kind: fmi2StatusKind) -> Result<fmi2Status, FmuError> {
         self.alive()?;
-        let mut v = fmi2Status::fmi2OK;
-        // SAFETY: valid component and out pointer.
+        let mut v = fmi2StatusCode(0);
+        // SAFETY: valid component and out pointer (a C int).
         let s = unsafe { (self.fmu.functions.get_status)(self.c, kind, &mut v) };
         self.check("fmi2GetStatus", s)?;
-        Ok(v)
+        v.status().ok_or(FmuError::Call {
+            function: "fmi2GetStatus",
+            instance: self.name.clone(),
+            status: ErrorStatus::Invalid(v.0),
+            messages: Vec::new(),
+        })
     }
 
     /// `fmi2GetRealStatus` (e.g. `fmi2LastSuccessfulTime`).

@@ -50,7 +50,7 @@ use model_description::{Causality, VariableKind};
 /// Repeats of each measurement.
 const REPEATS: usize = 9;
 
-fn ok(s: fmi2Status, what: &str) {
+fn ok(s: fmi2StatusCode, what: &str) {
     assert_eq!(s, fmi2Status::fmi2OK, "{what}");
 }
 

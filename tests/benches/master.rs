@@ -74,7 +74,7 @@ fn outputs(fmu: &Fmu) -> Outputs {
     o
 }
 
-fn ok(s: fmi2Status, what: &str) {
+fn ok(s: fmi2StatusCode, what: &str) {
     assert_eq!(s, fmi2Status::fmi2OK, "{what}");
 }
 

@@ -234,18 +234,19 @@ pub struct Raw {
     /// fmi2CancelStep.
     pub cancel_step: fmi2ComponentOnlyTYPE,
     /// fmi2GetStatus with the kind as a plain int.
-    pub get_status: unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Status) -> fmi2Status,
+    pub get_status: unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Status) -> fmi2StatusCode,
     /// fmi2GetRealStatus.
-    pub get_real_status: unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Real) -> fmi2Status,
+    pub get_real_status:
+        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Real) -> fmi2StatusCode,
     /// fmi2GetIntegerStatus.
     pub get_integer_status:
-        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Integer) -> fmi2Status,
+        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Integer) -> fmi2StatusCode,
     /// fmi2GetBooleanStatus.
     pub get_boolean_status:
-        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Boolean) -> fmi2Status,
+        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Boolean) -> fmi2StatusCode,
     /// fmi2GetStringStatus.
     pub get_string_status:
-        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2String) -> fmi2Status,
+        unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2String) -> fmi2StatusCode,
 }
 
 impl Raw {
@@ -386,7 +387,7 @@ impl<'a> RawInstance<'a> {
     }
 
     /// fmi2DoStep.
-    pub fn step(&mut self, t: f64, h: f64) -> fmi2Status {
+    pub fn step(&mut self, t: f64, h: f64) -> fmi2StatusCode {
         // SAFETY: valid component.
         unsafe { (self.f.do_step)(self.c, t, h, fmi2True) }
     }
@@ -420,7 +421,7 @@ impl<'a> RawInstance<'a> {
     }
 
     /// Deserializes and sets a state; returns the status of the first call that fails.
-    pub fn restore(&mut self, bytes: &[u8]) -> fmi2Status {
+    pub fn restore(&mut self, bytes: &[u8]) -> fmi2StatusCode {
         // SAFETY: valid component, buffer and out-pointer; the state is freed.
         unsafe {
             let mut state: fmi2FMUstate = std::ptr::null_mut();

@@ -28,17 +28,17 @@ mod pid {
     pub const SATURATED: u32 = 207;
 }
 
-fn set_reals(i: &RawInstance, vrs: &[u32], values: &[f64]) -> fmi2Status {
+fn set_reals(i: &RawInstance, vrs: &[u32], values: &[f64]) -> fmi2StatusCode {
     // SAFETY: valid component and arrays of equal length.
     unsafe { (i.f.set_real)(i.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
 }
 
-fn set_integers(i: &RawInstance, vrs: &[u32], values: &[i32]) -> fmi2Status {
+fn set_integers(i: &RawInstance, vrs: &[u32], values: &[i32]) -> fmi2StatusCode {
     // SAFETY: as above.
     unsafe { (i.f.set_integer)(i.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
 }
 
-fn set_booleans(i: &RawInstance, vrs: &[u32], values: &[bool]) -> fmi2Status {
+fn set_booleans(i: &RawInstance, vrs: &[u32], values: &[bool]) -> fmi2StatusCode {
     let v: Vec<fmi2Boolean> = values.iter().map(|b| fmi2Boolean::from(*b)).collect();
     // SAFETY: as above.
     unsafe { (i.f.set_boolean)(i.c, vrs.as_ptr(), vrs.len(), v.as_ptr()) }

@@ -23,7 +23,7 @@ fn plant(f: &Raw) -> RawInstance<'_> {
     i
 }
 
-fn set_reals(i: &RawInstance, vrs: &[u32], values: &[f64]) -> fmi2Status {
+fn set_reals(i: &RawInstance, vrs: &[u32], values: &[f64]) -> fmi2StatusCode {
     // SAFETY: valid component and arrays of equal length.
     unsafe { (i.f.set_real)(i.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
 }
@@ -110,7 +110,7 @@ fn over_torque_trips_inside_the_step_at_the_located_time() {
     assert_eq!(set_reals(&i, &[TEST_CURRENT], &[12.0]), fmi2OK);
     let step = 0.01;
     let mut t = 0.0;
-    let mut status = fmi2OK;
+    let mut status = fmi2StatusCode::from(fmi2OK);
     for _ in 0..50 {
         status = i.step(t, step);
         if status != fmi2OK {

@@ -61,6 +61,56 @@ pub enum fmi2Status {
     fmi2Pending = 5,
 }
 
+/// An `fmi2Status` as an importer receives it from an FMU: a C int that a foreign (or broken)
+/// FMU may set to any value, so it is not read as the Rust enum (an out-of-range enum value is
+/// undefined behaviour). [`fmi2StatusCode::status`] names it when it is a valid status. The
+/// importer function types below return it.
+#[repr(transparent)]
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct fmi2StatusCode(pub c_int);
+
+impl fmi2StatusCode {
+    /// The status, or `None` for a value outside the enumeration.
+    pub fn status(self) -> Option<fmi2Status> {
+        Some(match self.0 {
+            0 => fmi2Status::fmi2OK,
+            1 => fmi2Status::fmi2Warning,
+            2 => fmi2Status::fmi2Discard,
+            3 => fmi2Status::fmi2Error,
+            4 => fmi2Status::fmi2Fatal,
+            5 => fmi2Status::fmi2Pending,
+            _ => return None,
+        })
+    }
+}
+
+impl From<fmi2Status> for fmi2StatusCode {
+    fn from(s: fmi2Status) -> Self {
+        fmi2StatusCode(s as c_int)
+    }
+}
+
+impl PartialEq<fmi2Status> for fmi2StatusCode {
+    fn eq(&self, other: &fmi2Status) -> bool {
+        self.0 == *other as c_int
+    }
+}
+
+impl PartialEq<fmi2StatusCode> for fmi2Status {
+    fn eq(&self, other: &fmi2StatusCode) -> bool {
+        *self as c_int == other.0
+    }
+}
+
+impl std::fmt::Debug for fmi2StatusCode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.status() {
+            Some(s) => write!(f, "{s:?}"),
+            None => write!(f, "invalid fmi2Status {}", self.0),
+        }
+    }
+}
+
 /// `fmi2Type`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -153,7 +203,7 @@ pub type fmi2GetTypesPlatformTYPE = unsafe extern "C" fn() -> *const c_char;
 pub type fmi2GetVersionTYPE = unsafe extern "C" fn() -> *const c_char;
 /// `fmi2SetDebugLoggingTYPE`.
 pub type fmi2SetDebugLoggingTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2Boolean, usize, *const fmi2String) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2Boolean, usize, *const fmi2String) -> fmi2StatusCode;
 /// `fmi2InstantiateTYPE`.
 pub type fmi2InstantiateTYPE = unsafe extern "C" fn(
     fmi2String,
@@ -174,79 +224,84 @@ pub type fmi2SetupExperimentTYPE = unsafe extern "C" fn(
     fmi2Real,
     fmi2Boolean,
     fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2EnterInitializationModeTYPE`, `fmi2ExitInitializationModeTYPE`, `fmi2TerminateTYPE`,
 /// `fmi2ResetTYPE` and `fmi2CancelStepTYPE` share this shape.
-pub type fmi2ComponentOnlyTYPE = unsafe extern "C" fn(fmi2Component) -> fmi2Status;
+pub type fmi2ComponentOnlyTYPE = unsafe extern "C" fn(fmi2Component) -> fmi2StatusCode;
 /// `fmi2GetRealTYPE`.
 pub type fmi2GetRealTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *mut fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2GetIntegerTYPE`.
 pub type fmi2GetIntegerTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *mut fmi2Integer,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2GetBooleanTYPE`.
 pub type fmi2GetBooleanTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *mut fmi2Boolean,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2GetStringTYPE`.
 pub type fmi2GetStringTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *mut fmi2String,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2SetRealTYPE`.
 pub type fmi2SetRealTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *const fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2SetIntegerTYPE`.
 pub type fmi2SetIntegerTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *const fmi2Integer,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2SetBooleanTYPE`.
 pub type fmi2SetBooleanTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *const fmi2Boolean,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2SetStringTYPE`.
 pub type fmi2SetStringTYPE = unsafe extern "C" fn(
     fmi2Component,
     *const fmi2ValueReference,
     usize,
     *const fmi2String,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2GetFMUstateTYPE` and `fmi2FreeFMUstateTYPE`.
-pub type fmi2GetFMUstateTYPE = unsafe extern "C" fn(fmi2Component, *mut fmi2FMUstate) -> fmi2Status;
+pub type fmi2GetFMUstateTYPE =
+    unsafe extern "C" fn(fmi2Component, *mut fmi2FMUstate) -> fmi2StatusCode;
 /// `fmi2SetFMUstateTYPE`.
-pub type fmi2SetFMUstateTYPE = unsafe extern "C" fn(fmi2Component, fmi2FMUstate) -> fmi2Status;
+pub type fmi2SetFMUstateTYPE = unsafe extern "C" fn(fmi2Component, fmi2FMUstate) -> fmi2StatusCode;
 /// `fmi2SerializedFMUstateSizeTYPE`.
 pub type fmi2SerializedFMUstateSizeTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2FMUstate, *mut usize) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2FMUstate, *mut usize) -> fmi2StatusCode;
 /// `fmi2SerializeFMUstateTYPE`.
 pub type fmi2SerializeFMUstateTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2FMUstate, *mut fmi2Byte, usize) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2FMUstate, *mut fmi2Byte, usize) -> fmi2StatusCode;
 /// `fmi2DeSerializeFMUstateTYPE`.
-pub type fmi2DeSerializeFMUstateTYPE =
-    unsafe extern "C" fn(fmi2Component, *const fmi2Byte, usize, *mut fmi2FMUstate) -> fmi2Status;
+pub type fmi2DeSerializeFMUstateTYPE = unsafe extern "C" fn(
+    fmi2Component,
+    *const fmi2Byte,
+    usize,
+    *mut fmi2FMUstate,
+) -> fmi2StatusCode;
 /// `fmi2GetDirectionalDerivativeTYPE`.
 pub type fmi2GetDirectionalDerivativeTYPE = unsafe extern "C" fn(
     fmi2Component,
@@ -256,7 +311,7 @@ pub type fmi2GetDirectionalDerivativeTYPE = unsafe extern "C" fn(
     usize,
     *const fmi2Real,
     *mut fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2SetRealInputDerivativesTYPE`.
 pub type fmi2SetRealInputDerivativesTYPE = unsafe extern "C" fn(
     fmi2Component,
@@ -264,7 +319,7 @@ pub type fmi2SetRealInputDerivativesTYPE = unsafe extern "C" fn(
     usize,
     *const fmi2Integer,
     *const fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2GetRealOutputDerivativesTYPE`.
 pub type fmi2GetRealOutputDerivativesTYPE = unsafe extern "C" fn(
     fmi2Component,
@@ -272,22 +327,51 @@ pub type fmi2GetRealOutputDerivativesTYPE = unsafe extern "C" fn(
     usize,
     *const fmi2Integer,
     *mut fmi2Real,
-) -> fmi2Status;
+) -> fmi2StatusCode;
 /// `fmi2DoStepTYPE`.
 pub type fmi2DoStepTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean) -> fmi2StatusCode;
 /// `fmi2GetStatusTYPE`.
 pub type fmi2GetStatusTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Status) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2StatusCode) -> fmi2StatusCode;
 /// `fmi2GetRealStatusTYPE`.
 pub type fmi2GetRealStatusTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Real) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Real) -> fmi2StatusCode;
 /// `fmi2GetIntegerStatusTYPE`.
 pub type fmi2GetIntegerStatusTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Integer) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Integer) -> fmi2StatusCode;
 /// `fmi2GetBooleanStatusTYPE`.
 pub type fmi2GetBooleanStatusTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Boolean) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2Boolean) -> fmi2StatusCode;
 /// `fmi2GetStringStatusTYPE`.
 pub type fmi2GetStringStatusTYPE =
-    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2String) -> fmi2Status;
+    unsafe extern "C" fn(fmi2Component, fmi2StatusKind, *mut fmi2String) -> fmi2StatusCode;
+
+#[cfg(test)]
+mod status_code_tests {
+    use super::*;
+
+    #[test]
+    fn status_codes_outside_the_enumeration_are_named_not_transmuted() {
+        for s in [
+            fmi2Status::fmi2OK,
+            fmi2Status::fmi2Warning,
+            fmi2Status::fmi2Discard,
+            fmi2Status::fmi2Error,
+            fmi2Status::fmi2Fatal,
+            fmi2Status::fmi2Pending,
+        ] {
+            let code = fmi2StatusCode::from(s);
+            assert_eq!(code.status(), Some(s));
+            assert_eq!(code, s);
+            assert_eq!(s, code);
+        }
+        for raw in [-1, 6, 42, c_int::MAX] {
+            let code = fmi2StatusCode(raw);
+            assert_eq!(code.status(), None);
+            assert_ne!(code, fmi2Status::fmi2OK);
+            assert_eq!(format!("{code:?}"), format!("invalid fmi2Status {raw}"));
+        }
+        assert_eq!(format!("{:?}", fmi2StatusCode(2)), "fmi2Discard");
+    }
+}
