@@ -367,6 +367,13 @@ pub fn interlock_name(code: i64) -> &'static str {
         5 => "load motor current",
         6 => "regenerated power",
         7 => "emergency stop",
+        // The hardware FMU's own trips (BenchHardware's `tripCode`).
+        8 => "link watchdog",
+        9 => "pacing overrun",
+        10 => "sensor out of range",
+        11 => "bench stopped itself",
+        12 => "transducer disagrees with the spring deflection",
+        13 => "load cell disagrees with the test-motor current",
         _ => "unknown interlock",
     }
 }

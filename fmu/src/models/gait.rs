@@ -78,7 +78,9 @@ impl Harmonics {
     /// first so the recurrence starts accurate): the error grows like n * 1e-16, far below the
     /// series' own accuracy for [`HARMONICS`] terms.
     pub fn at(t: f64, period: f64) -> Self {
-        let phase = (t / period).rem_euclid(1.0);
+        // x - floor(x) rather than rem_euclid, which is an fmod call.
+        let cycles = t / period;
+        let phase = cycles - cycles.floor();
         let (sin1, cos1) = (TAU * phase).sin_cos();
         let mut terms = [(0.0, 1.0); HARMONICS + 1];
         let (mut sin, mut cos) = (0.0, 1.0);

@@ -41,6 +41,10 @@ pub struct Args {
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long)]
     pub duration: Option<f64>,
+    /// Serve from a SCHED_FIFO thread of this priority (1-99; needs CAP_SYS_NICE or root; a
+    /// refusal is reported and the emulator runs with normal scheduling).
+    #[arg(long, value_name = "PRIORITY", value_parser = clap::value_parser!(i32).range(1..=99))]
+    pub realtime_priority: Option<i32>,
 }
 
 /// Parses a `--fault` argument.
@@ -90,6 +94,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for f in &args.faults {
         config.faults.push(parse_fault(f)?);
     }
+    config.realtime_priority = args.realtime_priority;
     let stop = std::sync::Arc::new(AtomicBool::new(false));
     let stats = Mutex::new(EmulatorStats::default());
     if let Some(d) = args.duration {
@@ -107,4 +112,40 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         eprintln!("{s:#?}");
     }
     Ok(super::EXIT_OK)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    #[test]
+    fn realtime_priority_is_parsed_and_bounded() {
+        let cli = Cli::try_parse_from(["emulate", "--realtime-priority", "80"]).unwrap();
+        assert_eq!(cli.args.realtime_priority, Some(80));
+        let cli = Cli::try_parse_from(["emulate"]).unwrap();
+        assert_eq!(cli.args.realtime_priority, None);
+        for bad in ["0", "100", "-3", "high"] {
+            assert!(
+                Cli::try_parse_from(["emulate", "--realtime-priority", bad]).is_err(),
+                "{bad}"
+            );
+        }
+    }
+
+    #[test]
+    fn faults_parse_and_bad_ones_are_named() {
+        assert!(matches!(
+            parse_fault("stuck:1").unwrap(),
+            FaultInjection::Stuck { channel: 1 }
+        ));
+        let e = parse_fault("sideways").unwrap_err().to_string();
+        assert!(e.contains("unknown fault `sideways`"), "{e}");
+    }
 }
