@@ -73,3 +73,37 @@ fn exit_codes_and_partial_results() {
     assert_eq!(plot.status.code(), Some(0));
     assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
 }
+
+/// `kneebench ... | head`: the closed pipe ends the process quietly (SIGPIPE), no panic.
+#[cfg(unix)]
+#[test]
+fn a_closed_stdout_pipe_ends_quietly() {
+    use std::io::Read;
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let mut child = kneebench()
+        .arg("info")
+        .arg(&fmu)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close our end of the pipe at once: the program's first line meets a closed pipe (it takes
+    // milliseconds to start and load the FMU before it prints anything).
+    drop(child.stdout.take());
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    let status = child.wait().unwrap();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        status.success() || status.signal() == Some(13),
+        "{status:?}: {stderr}"
+    );
+}
