@@ -27,8 +27,8 @@
 //! first get after a step, so that is FMU time too), the plant's part, and the master's share,
 //! harness - (doStep + gets).
 //!
-//! Measured (2 shared cores, the machine otherwise idle, two runs): recording the analysed
-//! signals, **2.63-2.72 ms per 2.5 s cycle, 920-950x real time** (the target of 1000x
+//! Measured (2 shared cores, the machine otherwise idle, three runs): recording the analysed
+//! signals, **2.63-3.01 ms per 2.5 s cycle, 830-950x real time** (the target of 1000x
 //! is not reached); the first run after loading 5.2 ms (480x). FMU time 2.5 ms of it: doStep
 //! 1.36-1.38 ms + gets 1.15 ms, the plant 1.27-1.30 ms (about 0.5 us per step), the gait and
 //! the two PIDs 1.23 ms together (including the ~50 ns per timed call of the plain loop); the
