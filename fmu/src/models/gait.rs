@@ -78,8 +78,12 @@ impl Harmonics {
     /// first so the recurrence starts accurate): the error grows like n * 1e-16, far below the
     /// series' own accuracy for [`HARMONICS`] terms.
     pub fn at(t: f64, period: f64) -> Self {
+        Self::at_cycles(t / period)
+    }
+
+    /// The same at `cycles = t / T` (callers that have `1 / T` save a division).
+    pub fn at_cycles(cycles: f64) -> Self {
         // x - floor(x) rather than rem_euclid, which is an fmod call.
-        let cycles = t / period;
         let phase = cycles - cycles.floor();
         let (sin1, cos1) = (TAU * phase).sin_cos();
         let mut terms = [(0.0, 1.0); HARMONICS + 1];
@@ -101,7 +105,7 @@ pub fn fourier_with(
     period: f64,
 ) -> Shape {
     let k1 = TAU / period;
-    let inverse_k1 = period / TAU;
+    let inverse_k1 = period * (1.0 / TAU);
     let (mut value, mut d1, mut d2, mut d3) = (series[0].0, 0.0, 0.0, 0.0);
     let mut integral = series[0].0 * t;
     for (n, (&(a, b), &(sin, cos))) in series.iter().zip(&harmonics.terms).enumerate().skip(1) {
@@ -625,7 +629,8 @@ impl Model for GaitReference {
     }
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
-        let harmonics = Harmonics::at(t, self.period);
+        let cycles = t / self.period;
+        let harmonics = Harmonics::at_cycles(cycles);
         let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, &harmonics, t)?;
         let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, &harmonics, t)?;
         // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
@@ -677,8 +682,7 @@ impl Model for GaitReference {
         self.knee_torque = self.torque_offset + self.torque_amplitude * torque.value;
         self.knee_torque_rate = self.torque_amplitude * torque.d1;
         self.load_torque = -self.knee_torque;
-        let x = t / self.period;
-        self.gait_phase = (x - x.floor()).clamp(0.0, 1.0 - f64::EPSILON);
+        self.gait_phase = (cycles - cycles.floor()).clamp(0.0, 1.0 - f64::EPSILON);
         self.stance = if self.stance_start < self.stance_end {
             (self.stance_start..self.stance_end).contains(&self.gait_phase)
         } else {

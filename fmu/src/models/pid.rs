@@ -137,6 +137,9 @@ pub struct SampleClock {
     pub start: f64,
     /// Index of the next sample instant to execute.
     pub next: u64,
+    /// `1 / period`, set by [`SampleClock::new`] and [`SampleClock::load`] (a multiplication on
+    /// every step instead of divisions; 0 means "divide").
+    pub rate: f64,
 }
 
 impl SampleClock {
@@ -146,12 +149,17 @@ impl SampleClock {
             period,
             start,
             next: 0,
+            rate: 1.0 / period,
         }
     }
 
     /// Position of `t` on the grid, in sample periods.
     fn position(&self, t: f64) -> f64 {
-        (t - self.start) / self.period
+        if self.rate != 0.0 {
+            (t - self.start) * self.rate
+        } else {
+            (t - self.start) / self.period
+        }
     }
 
     /// Whether `t` is the next sample instant (to be executed by the next step).
@@ -241,10 +249,14 @@ impl SampleClock {
 
     /// Reads what [`SampleClock::save`] wrote.
     pub fn load(r: &mut StateReader<'_>) -> Result<Self, StateError> {
+        let period = r.f64()?;
+        let start = r.f64()?;
+        let next = r.u64()?;
         Ok(Self {
-            period: r.f64()?,
-            start: r.f64()?,
-            next: r.u64()?,
+            period,
+            start,
+            next,
+            rate: 1.0 / period,
         })
     }
 }
