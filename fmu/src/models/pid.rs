@@ -163,6 +163,7 @@ impl SampleClock {
     }
 
     /// Whether `t` is the next sample instant (to be executed by the next step).
+    #[inline]
     pub fn is_next_sample_instant(&self, t: f64) -> bool {
         (self.position(t) - self.next as f64).abs() <= SAMPLE_TOLERANCE
     }
@@ -201,19 +202,29 @@ impl SampleClock {
 
     /// How many sample instants the step `[t, t + h)` executes, or why the step is refused
     /// (module docs, "Sampling").
+    #[inline]
     pub fn samples_in_step(&self, t: f64, h: f64) -> Result<u64, ModelError> {
         let a = self.position(t);
         let b = self.position(t + h);
+        // The common case, one period from the next instant (inside the grid's range): the
+        // general rule gives 1.
+        let next = self.next as f64;
+        if (a - next).abs() <= SAMPLE_TOLERANCE
+            && (b - next - 1.0).abs() <= SAMPLE_TOLERANCE
+            && b <= 2f64.powi(52)
+        {
+            return Ok(1);
+        }
+        self.samples_in_general_step(a, b, t, h)
+    }
+
+    /// [`Self::samples_in_step`] for any step, at grid positions `a` and `b` of its ends.
+    fn samples_in_general_step(&self, a: f64, b: f64, t: f64, h: f64) -> Result<u64, ModelError> {
         if !(a.is_finite() && b.is_finite()) || b > 2f64.powi(52) || a < -SAMPLE_TOLERANCE {
             return Err(ModelError::new(format!(
                 "the step from t = {t} s by h = {h} s is outside the sample grid of period {} s starting at {} s",
                 self.period, self.start
             )));
-        }
-        // The common case, one period from the next instant: the general rule below gives 1.
-        let next = self.next as f64;
-        if (a - next).abs() <= SAMPLE_TOLERANCE && (b - next - 1.0).abs() <= SAMPLE_TOLERANCE {
-            return Ok(1);
         }
         let on_grid = |x: f64| (x - x.round()).abs() <= SAMPLE_TOLERANCE;
         // First instant at or after the end: executed instants are next..end_index.
