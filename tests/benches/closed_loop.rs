@@ -27,10 +27,11 @@
 //! first get after a step, so that is FMU time too), the plant's part, and the master's share,
 //! harness - (doStep + gets).
 //!
-//! Measured (2 shared cores, the machine otherwise idle, eight runs): recording the analysed
-//! signals, **2.60-3.01 ms per 2.5 s cycle, 830-960x real time**, the last five (after the
-//! master's and the controllers' division-free paths) 948-962x (the target of 1000x is
-//! not reached); the first run after loading 5.2 ms (480x). FMU time 2.5 ms of it: doStep
+//! Measured (2 shared cores, the machine otherwise idle): recording the analysed signals, the
+//! last five runs **2.52-2.61 ms per 2.5 s cycle, 958-991x real time** (after the master's and
+//! the controllers' division-free paths and the gait's harmonic tree; 830-960x before; single
+//! runs fall to ~500x when the VM's host steals time); the target of 1000x is not
+//! reached; the first run after loading 5.2 ms (480x). FMU time 2.5 ms of it: doStep
 //! 1.36-1.38 ms + gets 1.15 ms, the plant 1.27-1.30 ms (about 0.5 us per step), the gait and
 //! the two PIDs 1.23 ms together (including the ~50 ns per timed call of the plain loop); the
 //! master's share 0.1-0.2 ms (10-21 ns per FMU per step). Recording every output (about 160
