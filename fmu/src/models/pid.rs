@@ -793,126 +793,84 @@ static ENUMERATIONS: LazyLock<Vec<EnumerationType>> = LazyLock::new(|| {
 static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
     use Start::{Boolean, Integer, Real};
     type V = Variable<PidController>;
+    // A parameter of the settings: its setter also drops the cached checked settings.
+    macro_rules! setting {
+        (enumeration $name:literal, $vr:expr, $type_name:literal, $($field:tt)+) => {
+            V::enumeration($name, $vr, $type_name, |m| m.$($field)+, |m, v| {
+                m.$($field)+ = v;
+                m.cached_settings = None;
+            })
+        };
+        ($kind:ident, $name:literal, $vr:expr, $($field:tt)+) => {
+            V::$kind($name, $vr, |m| m.$($field)+, |m, v| {
+                m.$($field)+ = v;
+                m.cached_settings = None;
+            })
+        };
+    }
     vec![
-        V::enumeration("preset", vr::PRESET, "PidPreset", |m| m.preset, |m, v| {
-            m.preset = v;
-            m.cached_settings = None;
-        })
+        setting!(enumeration "preset", vr::PRESET, "PidPreset", preset)
             .tunable(Integer(0))
             .describe("Gain set: Custom uses kp, ki, kd; any other item is a gain set of the bench and ignores them"),
-        V::real("kp", vr::KP, |m| m.kp, |m, v| {
-            m.kp = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "kp", vr::KP, kp)
             .tunable(Real(1.0))
             .describe("Proportional gain (Custom preset); output unit per error unit"),
-        V::real("ki", vr::KI, |m| m.ki, |m, v| {
-            m.ki = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "ki", vr::KI, ki)
             .tunable(Real(1.0))
             .describe("Integral gain (Custom preset); output unit per error unit and second"),
-        V::real("kd", vr::KD, |m| m.kd, |m, v| {
-            m.kd = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "kd", vr::KD, kd)
             .tunable(Real(0.01))
             .describe("Derivative gain on the measurement (Custom preset); output unit times second per measurement unit"),
-        V::real("derivativeFilterTime", vr::DERIVATIVE_FILTER_TIME, |m| m.derivative_filter_time, |m, v| {
-            m.derivative_filter_time = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "derivativeFilterTime", vr::DERIVATIVE_FILTER_TIME, derivative_filter_time)
             .tunable(Real(0.005))
             .unit("s")
             .range(0.0, 1e3)
             .describe("Time constant Tf of the first-order filter of the measurement's derivative (0: backward difference)"),
-        V::real("samplePeriod", vr::SAMPLE_PERIOD, |m| m.sample_period, |m, v| {
-            m.sample_period = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "samplePeriod", vr::SAMPLE_PERIOD, sample_period)
             .parameter(Real(1e-3))
             .unit("s")
             .display("ms")
             .range(1e-6, 10.0)
             .describe("Sample period Ts (the myRIO's control period); communication steps must nest with it"),
-        V::real("outputMin", vr::OUTPUT_MIN, |m| m.output_min, |m, v| {
-            m.output_min = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "outputMin", vr::OUTPUT_MIN, output_min)
             .tunable(Real(-15.0))
             .describe("Lower output limit (default: the test driver's -15 A)"),
-        V::real("outputMax", vr::OUTPUT_MAX, |m| m.output_max, |m, v| {
-            m.output_max = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "outputMax", vr::OUTPUT_MAX, output_max)
             .tunable(Real(15.0))
             .describe("Upper output limit (default: the test driver's 15 A)"),
-        V::enumeration("antiWindup", vr::ANTI_WINDUP, "AntiWindup", |m| m.anti_windup, |m, v| {
-            m.anti_windup = v;
-            m.cached_settings = None;
-        })
+        setting!(enumeration "antiWindup", vr::ANTI_WINDUP, "AntiWindup", anti_windup)
             .tunable(Integer(AntiWindup::Clamping as i32))
             .describe("Anti-windup scheme"),
-        V::real("trackingTime", vr::TRACKING_TIME, |m| m.tracking_time, |m, v| {
-            m.tracking_time = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "trackingTime", vr::TRACKING_TIME, tracking_time)
             .tunable(Real(0.05))
             .unit("s")
             .range(1e-9, 1e6)
             .describe("Back-calculation tracking time constant Tt"),
-        V::real("feedForwardGain", vr::FEED_FORWARD_GAIN, |m| m.feed_forward_gain, |m, v| {
-            m.feed_forward_gain = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "feedForwardGain", vr::FEED_FORWARD_GAIN, feed_forward_gain)
             .tunable(Real(1.0))
             .describe("Factor of the feedForward input (e.g. 1/(i_RED Km2) for a torque reference in N m to A)"),
-        V::real("setpointWeight1", vr::SETPOINT_WEIGHT[0], |m| m.setpoint_weights[0], |m, v| {
-            m.setpoint_weights[0] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "setpointWeight1", vr::SETPOINT_WEIGHT[0], setpoint_weights[0])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary1 in the reference r (setpoint unit per auxiliary unit)"),
-        V::real("setpointWeight2", vr::SETPOINT_WEIGHT[1], |m| m.setpoint_weights[1], |m, v| {
-            m.setpoint_weights[1] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "setpointWeight2", vr::SETPOINT_WEIGHT[1], setpoint_weights[1])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary2 in the reference r"),
-        V::real("setpointWeight3", vr::SETPOINT_WEIGHT[2], |m| m.setpoint_weights[2], |m, v| {
-            m.setpoint_weights[2] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "setpointWeight3", vr::SETPOINT_WEIGHT[2], setpoint_weights[2])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary3 in the reference r"),
-        V::real("feedForwardWeight1", vr::FEED_FORWARD_WEIGHT[0], |m| m.feed_forward_weights[0], |m, v| {
-            m.feed_forward_weights[0] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "feedForwardWeight1", vr::FEED_FORWARD_WEIGHT[0], feed_forward_weights[0])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary1 in the feed-forward term (output unit per auxiliary unit)"),
-        V::real("feedForwardWeight2", vr::FEED_FORWARD_WEIGHT[1], |m| m.feed_forward_weights[1], |m, v| {
-            m.feed_forward_weights[1] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "feedForwardWeight2", vr::FEED_FORWARD_WEIGHT[1], feed_forward_weights[1])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary2 in the feed-forward term"),
-        V::real("feedForwardWeight3", vr::FEED_FORWARD_WEIGHT[2], |m| m.feed_forward_weights[2], |m, v| {
-            m.feed_forward_weights[2] = v;
-            m.cached_settings = None;
-        })
+        setting!(real, "feedForwardWeight3", vr::FEED_FORWARD_WEIGHT[2], feed_forward_weights[2])
             .tunable(Real(0.0))
             .describe("Weight of auxiliary3 in the feed-forward term"),
-        V::enumeration("holdAction", vr::HOLD_ACTION, "HoldAction", |m| m.hold_action, |m, v| {
-            m.hold_action = v;
-            m.cached_settings = None;
-        })
+        setting!(enumeration "holdAction", vr::HOLD_ACTION, "HoldAction", hold_action)
             .tunable(Integer(HoldAction::HoldLastOutput as i32))
             .describe("Output while hold is true"),
-        V::boolean("reverseActing", vr::REVERSE_ACTING, |m| m.reverse_acting, |m, v| {
-            m.reverse_acting = v;
-            m.cached_settings = None;
-        })
+        setting!(boolean, "reverseActing", vr::REVERSE_ACTING, reverse_acting)
             .tunable(Boolean(false))
             .describe("Error = measurement - setpoint, for a plant whose measurement falls when u rises"),
         V::real("setpoint", vr::SETPOINT, |m| m.inputs.setpoint, |m, v| m.inputs.setpoint = v)
