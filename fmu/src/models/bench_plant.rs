@@ -10,7 +10,7 @@
 //! for the next step do not change them (no direct feedthrough), which is what lets a
 //! controller and the plant run in a Gauss-Seidel loop without an algebraic loop.
 
-use std::cell::{Cell, OnceCell, RefCell};
+use std::cell::{Cell, RefCell};
 use std::sync::LazyLock;
 
 use super::bench::{
@@ -50,17 +50,12 @@ pub trait BenchSignals {
     fn commands(&self) -> &BenchCommands;
     /// The commands, to set.
     fn commands_mut(&mut self) -> &mut BenchCommands;
-    /// The measurements and derived quantities.
-    fn signals(&self) -> &BenchOutputs;
     /// The measurements, to set.
     fn signals_mut(&mut self) -> &mut BenchOutputs;
     /// One measurement, read by `read` from the outputs of `group` (the group of the field
-    /// `read` returns, see [`signal_group`]). A model that computes its outputs on demand
-    /// overrides this to compute only that group; the default reads [`Self::signals`].
-    fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
-        let _ = group;
-        read(self.signals())
-    }
+    /// `read` returns, see [`signal_group`]): a model that computes its outputs on demand
+    /// computes only that group; one that holds them all reads them.
+    fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T;
 }
 
 /// The bench's signal interface (inputs at VR 200.., outputs at VR 300..): one table for every
@@ -712,8 +707,6 @@ pub struct BenchPlantModel {
     outputs: RefCell<BenchOutputs>,
     /// [`SignalGroup::bit`]s of the groups of `outputs` computed since the last step.
     fresh: Cell<u8>,
-    /// Every output at once (for [`BenchSignals::signals`]), computed on first use.
-    all_outputs: OnceCell<BenchOutputs>,
     start_time: f64,
     /// The physics, built at initialization (and on demand for outputs before it).
     plant: Option<super::bench::BenchPlant>,
@@ -727,12 +720,6 @@ impl BenchSignals for BenchPlantModel {
     }
     fn commands_mut(&mut self) -> &mut BenchCommands {
         &mut self.commands
-    }
-    fn signals(&self) -> &BenchOutputs {
-        self.all_outputs.get_or_init(|| match &self.plant {
-            Some(plant) => plant.outputs(),
-            None => BenchOutputs::default(),
-        })
     }
     fn signals_mut(&mut self) -> &mut BenchOutputs {
         self.outputs.get_mut()
@@ -1000,7 +987,6 @@ impl BenchPlantModel {
     /// The plant's state changed: every output is recomputed on its next read.
     fn outputs_changed(&mut self) {
         self.fresh.set(0);
-        self.all_outputs = OnceCell::new();
     }
 }
 

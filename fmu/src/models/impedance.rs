@@ -52,8 +52,8 @@
 use std::sync::LazyLock;
 
 use super::pid::{
-    AUXILIARIES, AntiWindup, HoldAction, PidInputs, PidSettings, PidSignals, PidState, SampleClock,
-    pid_sample,
+    ANTI_WINDUP_ITEMS, AUXILIARIES, AntiWindup, HoldAction, PidInputs, PidSettings, PidSignals,
+    PidState, SampleClock, pid_sample,
 };
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -252,19 +252,7 @@ static ENUMERATIONS: &[EnumerationType] = &[
     EnumerationType {
         name: "AntiWindup",
         description: "Anti-windup scheme of the torque loop's integrator",
-        items: &[
-            ("None", 0, "Plain integration"),
-            (
-                "Clamping",
-                1,
-                "Conditional integration: skip integrator steps that drive a saturated output further",
-            ),
-            (
-                "BackCalculation",
-                2,
-                "Back-calculation: the saturation excess bleeds the integral off with trackingTime",
-            ),
-        ],
+        items: ANTI_WINDUP_ITEMS,
     },
     EnumerationType {
         name: "HoldAction",

@@ -272,6 +272,22 @@ impl SampleClock {
     }
 }
 
+/// The items of the `AntiWindup` enumeration (the values of [`AntiWindup`]), for every model
+/// whose integrator offers the schemes.
+pub const ANTI_WINDUP_ITEMS: &[(&str, i32, &str)] = &[
+    ("None", AntiWindup::None as i32, "Plain integration"),
+    (
+        "Clamping",
+        AntiWindup::Clamping as i32,
+        "Conditional integration: skip integrator steps that drive a saturated output further",
+    ),
+    (
+        "BackCalculation",
+        AntiWindup::BackCalculation as i32,
+        "Back-calculation: the saturation excess bleeds the integral off with trackingTime",
+    ),
+];
+
 /// Anti-windup scheme of the integrator (module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AntiWindup {
@@ -765,19 +781,7 @@ static ENUMERATIONS: LazyLock<Vec<EnumerationType>> = LazyLock::new(|| {
         EnumerationType {
             name: "AntiWindup",
             description: "Anti-windup scheme of the PID's integrator",
-            items: &[
-                ("None", 0, "Plain integration"),
-                (
-                    "Clamping",
-                    1,
-                    "Conditional integration: skip integrator steps that drive a saturated output further",
-                ),
-                (
-                    "BackCalculation",
-                    2,
-                    "Back-calculation: the saturation excess bleeds the integral off with trackingTime",
-                ),
-            ],
+            items: ANTI_WINDUP_ITEMS,
         },
         EnumerationType {
             name: "HoldAction",
