@@ -62,21 +62,29 @@ pub struct Shape {
 
 /// The Fourier series f(x) = a0 + Σ a_n cos(nωx) + b_n sin(nωx), ω = 2π, x = t/period.
 pub fn fourier(series: &[(f64, f64); HARMONICS + 1], t: f64, period: f64) -> Shape {
-    fourier_with(series, &Harmonics::at(t, period), t, period)
+    fourier_with(
+        &SeriesWeights::of(series),
+        &Harmonics::at(t, period),
+        t,
+        period,
+    )
 }
 
-/// `sin(n x)` and `cos(n x)` of the harmonics at one instant, `x = 2 pi t / T`: shared by the
-/// series of both channels.
+/// `sin(n x)` and `cos(n x)` of the harmonics n = 1..=[`HARMONICS`] at one instant,
+/// `x = 2 pi t / T`: shared by the series of both channels. Kept as two vectors (index n - 1)
+/// because every output of a series is a weighted sum of them ([`SeriesWeights`]).
 #[derive(Debug, Clone, Copy)]
 pub struct Harmonics {
-    /// (sin, cos) of harmonic n (index 0 unused).
-    pub terms: [(f64, f64); HARMONICS + 1],
+    /// sin(n x), index n - 1.
+    pub sin: [f64; HARMONICS],
+    /// cos(n x), index n - 1.
+    pub cos: [f64; HARMONICS],
 }
 
 impl Harmonics {
-    /// By the angle-addition recurrence from one `sin_cos` (the angle reduced to one period
-    /// first so the recurrence starts accurate): the error grows like n * 1e-16, far below the
-    /// series' own accuracy for [`HARMONICS`] terms.
+    /// From one `sin_cos` (the angle reduced to one period first so the products start
+    /// accurate): the error grows like n * 1e-16, far below the series' own accuracy for
+    /// [`HARMONICS`] terms.
     pub fn at(t: f64, period: f64) -> Self {
         Self::at_cycles(t / period)
     }
@@ -89,69 +97,148 @@ impl Harmonics {
         // x - floor(x) rather than rem_euclid, which is an fmod call.
         let phase = cycles - cycles.floor();
         let (sin1, cos1) = (TAU * phase).sin_cos();
-        // (sin a, cos a) * (sin b, cos b) = (sin(a + b), cos(a + b)).
-        let times =
-            |(sa, ca): (f64, f64), (sb, cb): (f64, f64)| (sa * cb + ca * sb, ca * cb - sa * sb);
-        let mut terms = [(0.0, 1.0); HARMONICS + 1];
-        terms[1] = (sin1, cos1);
+        let mut h = Self {
+            sin: [0.0; HARMONICS],
+            cos: [1.0; HARMONICS],
+        };
+        h.sin[0] = sin1;
+        h.cos[0] = cos1;
+        // (sin a, cos a) * (sin b, cos b) = (sin(a + b), cos(a + b)), harmonics by number.
         let mut n = 2;
         while n <= HARMONICS {
             // Harmonics n..2n-1 from the one at n/2 (a power of two) and those below it.
-            let half = n / 2;
-            let base = times(terms[half], terms[half]);
-            terms[n] = base;
+            let half = n / 2 - 1;
+            let (sh, ch) = (h.sin[half], h.cos[half]);
+            let (sb, cb) = (2.0 * sh * ch, ch * ch - sh * sh);
+            h.sin[n - 1] = sb;
+            h.cos[n - 1] = cb;
             for k in 1..n.min(HARMONICS + 1 - n) {
-                terms[n + k] = times(base, terms[k]);
+                let (sk, ck) = (h.sin[k - 1], h.cos[k - 1]);
+                h.sin[n + k - 1] = sb * ck + cb * sk;
+                h.cos[n + k - 1] = cb * ck - sb * sk;
             }
             n *= 2;
         }
-        Self { terms }
+        h
     }
 }
 
-/// [`fourier`] from precomputed [`Harmonics`] of the same `t` and `period` (inlined, so the
-/// two channels' series can overlap). The harmonic's rate
-/// `k_n = n k_1` and `1/k_n = (1/k_1) / n` come without divisions.
+/// Weights of the two harmonic vectors of [`Harmonics`] for one output of a series.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Weights {
+    /// Weight of sin(n x), index n - 1.
+    pub sin: [f64; HARMONICS],
+    /// Weight of cos(n x), index n - 1.
+    pub cos: [f64; HARMONICS],
+}
+
+impl Weights {
+    /// `Σ sin_n w_sin,n + cos_n w_cos,n` in four independent partial sums (the additions do not
+    /// wait on one another, and the compiler can pack them).
+    #[inline(always)]
+    fn of(&self, h: &Harmonics) -> f64 {
+        let mut lanes = [0.0; 4];
+        for n in 0..HARMONICS {
+            lanes[n % 4] += self.sin[n] * h.sin[n] + self.cos[n] * h.cos[n];
+        }
+        (lanes[0] + lanes[1]) + (lanes[2] + lanes[3])
+    }
+}
+
+/// A Fourier series rearranged so that each output is one weighted sum of the harmonics
+/// (`k = 2 pi / T`, `n` the harmonic number, `(a_n, b_n)` the coefficients):
+/// - value `a_0 + Σ a_n cos + b_n sin`;
+/// - rate `k Σ n (b_n cos - a_n sin)`;
+/// - acceleration `-k² Σ n² (a_n cos + b_n sin)`;
+/// - jerk `-k³ Σ n³ (b_n cos - a_n sin)`;
+/// - integral from 0 `a_0 t + (1/k) [Σ (a_n sin - b_n cos) / n + Σ b_n / n]`.
+///
+/// The weights are the coefficients times the powers of n (computed once per series, at
+/// compile time for the gait's two), so no output re-multiplies them per step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SeriesWeights {
+    /// a_0.
+    pub mean: f64,
+    /// Of the value.
+    pub value: Weights,
+    /// Of the rate, before the factor k.
+    pub rate: Weights,
+    /// Of the acceleration, before the factor k².
+    pub acceleration: Weights,
+    /// Of the jerk, before the factor k³.
+    pub jerk: Weights,
+    /// Of the integral, before the factor 1/k.
+    pub integral: Weights,
+    /// Σ b_n / n: the integral's constant, before the factor 1/k.
+    pub integral_constant: f64,
+}
+
+impl SeriesWeights {
+    /// The weights of `series` ((a_n, b_n), n = 0..=[`HARMONICS`]).
+    pub const fn of(series: &[(f64, f64); HARMONICS + 1]) -> Self {
+        let zero = Weights {
+            sin: [0.0; HARMONICS],
+            cos: [0.0; HARMONICS],
+        };
+        let mut w = Self {
+            mean: series[0].0,
+            value: zero,
+            rate: zero,
+            acceleration: zero,
+            jerk: zero,
+            integral: zero,
+            integral_constant: 0.0,
+        };
+        let mut i = 0;
+        while i < HARMONICS {
+            let (a, b) = series[i + 1];
+            let n = (i + 1) as f64;
+            w.value.sin[i] = b;
+            w.value.cos[i] = a;
+            w.rate.sin[i] = -n * a;
+            w.rate.cos[i] = n * b;
+            w.acceleration.sin[i] = -n * n * b;
+            w.acceleration.cos[i] = -n * n * a;
+            w.jerk.sin[i] = n * n * n * a;
+            w.jerk.cos[i] = -n * n * n * b;
+            w.integral.sin[i] = a / n;
+            w.integral.cos[i] = -b / n;
+            w.integral_constant += b / n;
+            i += 1;
+        }
+        w
+    }
+}
+
+/// The knee-angle series' weights.
+pub const ANGLE_WEIGHTS: SeriesWeights = SeriesWeights::of(&ANGLE_SERIES);
+/// The knee-torque series' weights.
+pub const TORQUE_WEIGHTS: SeriesWeights = SeriesWeights::of(&TORQUE_SERIES);
+
+/// [`fourier`] from precomputed [`Harmonics`] of the same `t` and `period` and the series'
+/// [`SeriesWeights`] (inlined, so the two channels' sums can overlap).
 #[inline]
-pub fn fourier_with(
-    series: &[(f64, f64); HARMONICS + 1],
-    harmonics: &Harmonics,
-    t: f64,
-    period: f64,
-) -> Shape {
-    let k1 = TAU / period;
-    let inverse_k1 = period * (1.0 / TAU);
-    let (mut value, mut d1, mut d2, mut d3) = (series[0].0, 0.0, 0.0, 0.0);
-    let mut integral = series[0].0 * t;
-    for (n, (&(a, b), &(sin, cos))) in series.iter().zip(&harmonics.terms).enumerate().skip(1) {
-        let k = k1 * n as f64; // rad/s of harmonic n
-        let even = a * cos + b * sin;
-        let odd = -a * sin + b * cos;
-        value += even;
-        d1 += k * odd;
-        d2 -= k * k * even;
-        d3 -= k * k * k * odd;
-        integral += (a * sin + b * (1.0 - cos)) * inverse_k1 * INVERSE[n];
-    }
+pub fn fourier_with(weights: &SeriesWeights, harmonics: &Harmonics, t: f64, period: f64) -> Shape {
+    let k = TAU / period;
+    let inverse_k = period * (1.0 / TAU);
     Shape {
-        value,
-        d1,
-        d2,
-        d3,
-        integral,
+        value: weights.mean + weights.value.of(harmonics),
+        d1: k * weights.rate.of(harmonics),
+        d2: k * k * weights.acceleration.of(harmonics),
+        d3: k * k * k * weights.jerk.of(harmonics),
+        integral: weights.mean * t
+            + inverse_k * (weights.integral.of(harmonics) + weights.integral_constant),
     }
 }
 
-/// `1 / n` for the harmonics.
-const INVERSE: [f64; HARMONICS + 1] = {
-    let mut table = [0.0; HARMONICS + 1];
-    let mut n = 1;
-    while n <= HARMONICS {
-        table[n] = 1.0 / n as f64;
-        n += 1;
-    }
-    table
-};
+/// Value and rate of the series only (what the torque channel uses): `(f, df/dt)`.
+#[inline]
+pub fn fourier_rate(weights: &SeriesWeights, harmonics: &Harmonics, period: f64) -> (f64, f64) {
+    (
+        weights.mean + weights.value.of(harmonics),
+        TAU / period * weights.rate.of(harmonics),
+    )
+}
 
 /// The waveforms the bench UI offers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -523,7 +610,7 @@ impl GaitReference {
     fn shape(
         &self,
         w: i32,
-        series: &[(f64, f64); HARMONICS + 1],
+        series: &SeriesWeights,
         harmonics: &Harmonics,
         t: f64,
     ) -> Result<Shape, ModelError> {
@@ -646,8 +733,14 @@ impl Model for GaitReference {
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let cycles = t / self.period;
         let harmonics = Harmonics::at_cycles(cycles);
-        let motion = self.shape(self.motion_waveform, &ANGLE_SERIES, &harmonics, t)?;
-        let torque = self.shape(self.torque_waveform, &TORQUE_SERIES, &harmonics, t)?;
+        let motion = self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?;
+        // The torque channel needs only value and rate: the gait series skips the rest.
+        let (torque_value, torque_rate) = if self.torque_waveform == Waveform::Gait as i32 {
+            fourier_rate(&TORQUE_WEIGHTS, &harmonics, self.period)
+        } else {
+            let shape = self.shape(self.torque_waveform, &TORQUE_WEIGHTS, &harmonics, t)?;
+            (shape.value, shape.d1)
+        };
         // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
         // rule keeps velocity, acceleration and jerk the exact derivatives.
         // In velocity mode the angle is the waveform's exact integral, so the motion channel is
@@ -668,11 +761,8 @@ impl Model for GaitReference {
                 + m[0] * motion.d3,
             integral: motion.integral,
         };
-        let torque = Shape {
-            value: r[0] * torque.value,
-            d1: r[1] * torque.value + r[0] * torque.d1,
-            ..torque
-        };
+        let torque_value_faded = r[0] * torque_value;
+        let torque_rate_faded = r[1] * torque_value + r[0] * torque_rate;
         match self.motion_quantity {
             1 => {
                 let a = self.angle_amplitude;
@@ -694,8 +784,8 @@ impl Model for GaitReference {
                 )));
             }
         }
-        self.knee_torque = self.torque_offset + self.torque_amplitude * torque.value;
-        self.knee_torque_rate = self.torque_amplitude * torque.d1;
+        self.knee_torque = self.torque_offset + self.torque_amplitude * torque_value_faded;
+        self.knee_torque_rate = self.torque_amplitude * torque_rate_faded;
         self.load_torque = -self.knee_torque;
         self.gait_phase = (cycles - cycles.floor()).clamp(0.0, 1.0 - f64::EPSILON);
         self.stance = if self.stance_start < self.stance_end {
@@ -765,22 +855,57 @@ mod tests {
 
     #[test]
     fn fourier_recurrence_matches_direct_evaluation() {
-        // The same series with one sin_cos per harmonic, at times over many periods.
-        for &t in &[0.0, 0.3, 1.2345, 2.5, 17.77, 1234.5678, 98765.4321] {
-            for period in [2.5, 1.0, 0.7] {
-                let fast = fourier(&ANGLE_SERIES, t, period);
-                let (mut value, mut d3) = (ANGLE_SERIES[0].0, 0.0);
-                for (n, &(a, b)) in ANGLE_SERIES.iter().enumerate().skip(1) {
-                    let k = TAU * n as f64 / period;
-                    let (sin, cos) = (TAU * n as f64 * (t / period).rem_euclid(1.0)).sin_cos();
-                    value += a * cos + b * sin;
-                    d3 += k * k * k * (a * sin - b * cos);
+        // Every output of both series against term-by-term evaluation with one sin_cos per
+        // harmonic, at times over many periods.
+        let close = |fast: f64, direct: f64, scale: f64, what: &str| {
+            assert!(
+                (fast - direct).abs() <= 1e-13 * direct.abs().max(scale),
+                "{what}: {fast} vs {direct}"
+            );
+        };
+        for (series, weights) in [
+            (&ANGLE_SERIES, &ANGLE_WEIGHTS),
+            (&TORQUE_SERIES, &TORQUE_WEIGHTS),
+        ] {
+            for &t in &[0.0, 0.3, 1.2345, 2.5, 17.77, 1234.5678, 98765.4321] {
+                for period in [2.5, 1.0, 0.7] {
+                    let fast = fourier(series, t, period);
+                    let phase = (t / period).rem_euclid(1.0);
+                    let mut direct = Shape {
+                        value: series[0].0,
+                        integral: series[0].0 * t,
+                        ..Shape::default()
+                    };
+                    for (n, &(a, b)) in series.iter().enumerate().skip(1) {
+                        let k = TAU * n as f64 / period;
+                        let (sin, cos) = (TAU * n as f64 * phase).sin_cos();
+                        direct.value += a * cos + b * sin;
+                        direct.d1 += k * (b * cos - a * sin);
+                        direct.d2 -= k * k * (a * cos + b * sin);
+                        direct.d3 += k * k * k * (a * sin - b * cos);
+                        direct.integral += (a * sin + b * (1.0 - cos)) / k;
+                    }
+                    let k = TAU / period;
+                    let what = format!("t {t} period {period}");
+                    close(fast.value, direct.value, 1.0, &format!("value {what}"));
+                    close(fast.d1, direct.d1, k, &format!("d1 {what}"));
+                    close(fast.d2, direct.d2, k * k * 10.0, &format!("d2 {what}"));
+                    close(fast.d3, direct.d3, k * k * k * 100.0, &format!("d3 {what}"));
+                    close(
+                        fast.integral,
+                        direct.integral,
+                        1.0,
+                        &format!("integral {what}"),
+                    );
+                    // The torque channel's value-and-rate path is the same arithmetic.
+                    let harmonics = Harmonics::at(t, period);
+                    let full = fourier_with(weights, &harmonics, t, period);
+                    let (value, rate) = fourier_rate(weights, &harmonics, period);
+                    assert_eq!(
+                        (value.to_bits(), rate.to_bits()),
+                        (full.value.to_bits(), full.d1.to_bits())
+                    );
                 }
-                assert!((fast.value - value).abs() < 1e-13, "{t} {period}");
-                assert!(
-                    (fast.d3 - d3).abs() < 1e-11 * d3.abs().max(1.0),
-                    "{t} {period}"
-                );
             }
         }
     }
