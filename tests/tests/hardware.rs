@@ -11,7 +11,7 @@
 //! Every real-time run is short (at most 1.2 s): the whole file takes a few seconds.
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
+use std::sync::{Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
 
 use kneebench_harness::bench_protocol::{FaultInjection, reason};
@@ -24,6 +24,17 @@ use kneebench_harness::{
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
+
+/// The tests here pace against the wall clock (1 ms deadlines, a link watchdog of a few ms) with
+/// an emulator thread each; run side by side on a 2-core machine they steal each other's cores
+/// and trip the watchdog spuriously. One at a time, as on the bench.
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    static REAL_TIME: Mutex<()> = Mutex::new(());
+    // A failed test poisons the lock; the next one still runs.
+    REAL_TIME
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
 
 fn exported() -> &'static (tempfile::TempDir, Vec<ExportedFmu>) {
     static FMUS: OnceLock<(tempfile::TempDir, Vec<ExportedFmu>)> = OnceLock::new();
@@ -153,6 +164,7 @@ fn tolerance(x: &[f64], quantum: f64, offset: f64) -> f64 {
 
 #[test]
 fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
+    let _real_time = one_at_a_time();
     let stop = 1.2;
     let inputs = || {
         vec![
@@ -264,6 +276,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// and every signal must move by more than 5 times its largest tolerance.
 #[test]
 fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolerance() {
+    let _real_time = one_at_a_time();
     use kneebench_harness::Value;
     use kneebench_harness::ssp::load_system;
     use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
@@ -533,6 +546,7 @@ fn assert_safe(stats: &EmulatorStats) {
 
 #[test]
 fn motor_torque_interlock_trips_in_the_first_violating_sample() {
+    let _real_time = one_at_a_time();
     // The load side held by friction, the emulated plant's own torque interlock out of the way:
     // the test motor winds the spring and the hardware FMU's interlock (on the transducer's
     // shaft torque) must act.
@@ -554,6 +568,7 @@ fn motor_torque_interlock_trips_in_the_first_violating_sample() {
 
 #[test]
 fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
+    let _real_time = one_at_a_time();
     // As in the interlock test above: the load side held, the test motor winds the spring.
     let emu = emulator(&[("loadStaticFriction", "100"), ("motorTorqueLimit", "100")]);
     let stop = 0.4;
@@ -591,6 +606,7 @@ fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
 
 #[test]
 fn injected_faults_trip_within_one_period_with_the_documented_status() {
+    let _real_time = one_at_a_time();
     let k = 150;
     let tk = k as f64 * H;
     let steady = |_t: f64| 0.5;
@@ -650,6 +666,7 @@ fn injected_faults_trip_within_one_period_with_the_documented_status() {
 /// the safe state acknowledged and no drive command after it.
 #[test]
 fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
+    let _real_time = one_at_a_time();
     let k = 50;
     let persistence = 10;
     let allowance = |a: f64, b: f64| 1.0 + 0.25 * a.abs().max(b.abs());
@@ -710,6 +727,7 @@ fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
 
 #[test]
 fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
+    let _real_time = one_at_a_time();
     use kneebench_harness::bench_protocol::{Command, Payload, Sender, SetValueKind};
     let emu = emulator(&[]);
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
