@@ -13,6 +13,7 @@ const PERIOD: u32 = 1;
 const AMPLITUDE: u32 = 2;
 const MOTION_WAVEFORM: u32 = 7;
 const HARMONICS: u32 = 200;
+const STANCE: u32 = 106;
 
 fn gait() -> String {
     guid_of("GaitReference")
@@ -82,6 +83,15 @@ fn call(i: &mut RawInstance, name: &str) -> fmi2StatusCode {
             "fmi2Reset" => (f.reset)(c),
             "fmi2GetReal" => (f.get_real)(c, vr.as_ptr(), 1, real.as_mut_ptr()),
             "fmi2SetReal" => (f.set_real)(c, vr.as_ptr(), 1, [2.0].as_ptr()),
+            "fmi2GetInteger" => (f.get_integer)(c, [HARMONICS].as_ptr(), 1, [0].as_mut_ptr()),
+            "fmi2SetInteger" => (f.set_integer)(c, [MOTION_WAVEFORM].as_ptr(), 1, [1].as_ptr()),
+            "fmi2GetBoolean" => (f.get_boolean)(c, [STANCE].as_ptr(), 1, [0].as_mut_ptr()),
+            // The gait has no settable Boolean or any String: in an allowed state these are
+            // refused for the variable ("cannot be set", "unknown value reference"), never for
+            // the state.
+            "fmi2SetBoolean" => (f.set_boolean)(c, [STANCE].as_ptr(), 1, [0].as_ptr()),
+            "fmi2GetString" => (f.get_string)(c, vr.as_ptr(), 1, [null()].as_mut_ptr()),
+            "fmi2SetString" => (f.set_string)(c, vr.as_ptr(), 1, [c"x".as_ptr()].as_ptr()),
             "fmi2GetRealOutputDerivatives" => (f.get_real_output_derivatives)(
                 c,
                 out_vr.as_ptr(),
@@ -133,6 +143,30 @@ fn call_sequence_table_is_enforced() {
             &[Initialization, StepComplete, StepFailed, Terminated],
         ),
         ("fmi2SetReal", &[Instantiated, Initialization, StepComplete]),
+        (
+            "fmi2GetInteger",
+            &[Initialization, StepComplete, StepFailed, Terminated],
+        ),
+        (
+            "fmi2SetInteger",
+            &[Instantiated, Initialization, StepComplete],
+        ),
+        (
+            "fmi2GetBoolean",
+            &[Initialization, StepComplete, StepFailed, Terminated],
+        ),
+        (
+            "fmi2SetBoolean",
+            &[Instantiated, Initialization, StepComplete],
+        ),
+        (
+            "fmi2GetString",
+            &[Initialization, StepComplete, StepFailed, Terminated],
+        ),
+        (
+            "fmi2SetString",
+            &[Instantiated, Initialization, StepComplete],
+        ),
         (
             "fmi2GetRealOutputDerivatives",
             &[StepComplete, StepFailed, Terminated],
@@ -195,7 +229,7 @@ fn call_sequence_table_is_enforced() {
             }
         }
     }
-    assert!(checked > 30, "{checked} illegal calls checked");
+    assert_eq!(checked, 40, "illegal calls checked");
 }
 
 #[test]

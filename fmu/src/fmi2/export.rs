@@ -289,7 +289,8 @@ macro_rules! getter {
             value: *mut $ty,
         ) -> fmi2Status {
             let f = stringify!($name);
-            with_instance(c, f, Some(Func::Get), |inst| {
+            // The instance checks the call sequence itself (inlined there).
+            with_instance(c, f, None, |inst| {
                 // SAFETY: FMI contract: vr and value hold nvr elements.
                 let (Some(vrs), Some(out)) = (unsafe { slice(vr, nvr) }, unsafe {
                     slice_mut(value, nvr)
@@ -318,7 +319,8 @@ macro_rules! setter {
             value: *const $ty,
         ) -> fmi2Status {
             let f = stringify!($name);
-            with_instance(c, f, Some(Func::Set), |inst| {
+            // The instance checks the call sequence itself (inlined there).
+            with_instance(c, f, None, |inst| {
                 // SAFETY: FMI contract: vr and value hold nvr elements.
                 let (Some(vrs), Some(values)) =
                     (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
@@ -344,7 +346,8 @@ pub unsafe extern "C" fn fmi2SetString(
     value: *const fmi2String,
 ) -> fmi2Status {
     let f = "fmi2SetString";
-    with_instance(c, f, Some(Func::Set), |inst| {
+    // The instance checks the call sequence itself (inlined there).
+    with_instance(c, f, None, |inst| {
         // SAFETY: FMI contract: vr and value hold nvr elements.
         let (Some(vrs), Some(raw)) = (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
         else {
@@ -583,7 +586,8 @@ pub unsafe extern "C" fn fmi2DoStep(
     communicationStepSize: fmi2Real,
     _noSetFMUStatePriorToCurrentPoint: fmi2Boolean,
 ) -> fmi2Status {
-    with_instance(c, "fmi2DoStep", Some(Func::DoStep), |inst| {
+    // The instance checks the call sequence itself (inlined there).
+    with_instance(c, "fmi2DoStep", None, |inst| {
         inst.do_step(currentCommunicationPoint, communicationStepSize)
     })
 }

@@ -164,6 +164,10 @@ fn same_time(a: f64, b: f64) -> bool {
 }
 
 /// The instance operations the C functions call, independent of the model type.
+///
+/// The get, set and `do_step` methods check the call sequence themselves (with
+/// [`FmiInstance::allow`], statically dispatched and inlined there), so the per-step calls pay
+/// one dynamic dispatch, not two; the export layer checks the other functions before calling.
 pub trait FmiInstance: Send {
     /// The logger (for messages the export layer produces itself).
     fn logger(&self) -> &Logger;
@@ -249,6 +253,10 @@ pub struct Instance<M: Model> {
     /// Real getters by value reference: the hot path of every communication step, resolved
     /// once so a get is one table load and one call per value.
     real_getters: Vec<Option<RealGetter<M>>>,
+    /// Integer (and Enumeration) getters by value reference.
+    integer_getters: Vec<Option<IntegerGetter<M>>>,
+    /// Boolean getters by value reference.
+    boolean_getters: Vec<Option<BooleanGetter<M>>>,
     /// Real setters by value reference, with what a set must satisfy.
     real_setters: Vec<Option<RealSetter<M>>>,
 }
@@ -281,6 +289,8 @@ impl<M: Model> Instance<M> {
             dirty: true,
             strings: Vec::new(),
             real_getters: real_getter_table::<M>(),
+            integer_getters: integer_getter_table::<M>(),
+            boolean_getters: boolean_getter_table::<M>(),
             real_setters: real_setter_table::<M>(),
         }
     }
@@ -301,6 +311,26 @@ impl<M: Model> Instance<M> {
             &format!("{function}: {message}"),
         );
         fmi2Error
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn log_call(&self, name: &str) {
+        self.logger.log(fmi2OK, Category::Calls, name);
+    }
+
+    /// Refuses a call made in a state where the standard does not allow it.
+    #[cold]
+    #[inline(never)]
+    fn refuse_sequence(&self, func: Func, name: &str) {
+        self.refuse(
+            name,
+            &format!(
+                "not allowed in state {}; expected {}",
+                state_name(self.state),
+                describe_states(func.allowed())
+            ),
+        );
     }
 
     /// Recomputes outputs if a set or a step made them stale.
@@ -513,12 +543,17 @@ struct Decoded<M> {
 
 /// Reads one Real variable of a model.
 type RealGetter<M> = fn(&M) -> f64;
+/// Reads one Integer or Enumeration variable of a model.
+type IntegerGetter<M> = fn(&M) -> i32;
+/// Reads one Boolean variable of a model.
+type BooleanGetter<M> = fn(&M) -> bool;
 
-/// The Real getters of `M` indexed by value reference.
-fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
+/// The getters `pick` finds among the variables of `M`, indexed by value reference (value
+/// references are per base type, so each type has its own table).
+fn getter_table<M: Model, G: Copy>(pick: impl Fn(&Access<M>) -> Option<G>) -> Vec<Option<G>> {
     let mut table = Vec::new();
     for v in M::variables() {
-        if let Access::Real(get, _) = v.access {
+        if let Some(get) = pick(&v.access) {
             let vr = v.value_reference as usize;
             if table.len() <= vr {
                 table.resize(vr + 1, None);
@@ -527,6 +562,30 @@ fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
         }
     }
     table
+}
+
+/// The Real getters of `M` indexed by value reference.
+fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
+    getter_table::<M, _>(|a| match a {
+        Access::Real(get, _) => Some(*get),
+        _ => None,
+    })
+}
+
+/// The Integer and Enumeration getters of `M` indexed by value reference.
+fn integer_getter_table<M: Model>() -> Vec<Option<IntegerGetter<M>>> {
+    getter_table::<M, _>(|a| match a {
+        Access::Integer(get, _) | Access::Enumeration(get, _) => Some(*get),
+        _ => None,
+    })
+}
+
+/// The Boolean getters of `M` indexed by value reference.
+fn boolean_getter_table<M: Model>() -> Vec<Option<BooleanGetter<M>>> {
+    getter_table::<M, _>(|a| match a {
+        Access::Boolean(get, _) => Some(*get),
+        _ => None,
+    })
 }
 
 /// A Real variable's setter and the conditions of a valid set.
@@ -601,21 +660,17 @@ impl<M: Model> FmiInstance for Instance<M> {
         &self.logger
     }
 
+    // Inlined into the get/set/doStep methods of this type, where `func` is a constant: the
+    // check is then one bit test; logging and refusing stay out of line.
+    #[inline]
     fn allow(&self, func: Func, name: &str) -> bool {
         if func.allowed() & self.state.bit() != 0 {
             if self.logger.enabled(Category::Calls) {
-                self.logger.log(fmi2OK, Category::Calls, name);
+                self.log_call(name);
             }
             return true;
         }
-        self.refuse(
-            name,
-            &format!(
-                "not allowed in state {}; expected {}",
-                state_name(self.state),
-                describe_states(func.allowed())
-            ),
-        );
+        self.refuse_sequence(func, name);
         false
     }
 
@@ -693,6 +748,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status {
         let f = "fmi2GetReal";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.refresh(f) {
             return s;
         }
@@ -709,20 +767,18 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
         let f = "fmi2GetInteger";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.refresh(f) {
             return s;
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
-        let info = self.info;
-        let idx = vrs.iter().map(move |vr| info.find(1, *vr));
-        let vars = M::variables();
-        for (o, i) in out.iter_mut().zip(idx) {
-            let Some(i) = i else {
-                return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error);
-            };
-            if let Access::Integer(get, _) | Access::Enumeration(get, _) = vars[i].access {
-                *o = get(&self.model);
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.integer_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = get(&self.model),
+                _ => return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error),
             }
         }
         fmi2OK
@@ -730,20 +786,18 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_boolean(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status {
         let f = "fmi2GetBoolean";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.refresh(f) {
             return s;
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
-        let info = self.info;
-        let idx = vrs.iter().map(move |vr| info.find(2, *vr));
-        let vars = M::variables();
-        for (o, i) in out.iter_mut().zip(idx) {
-            let Some(i) = i else {
-                return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error);
-            };
-            if let Access::Boolean(get, _) = vars[i].access {
-                *o = fmi2Boolean::from(get(&self.model));
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.boolean_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = fmi2Boolean::from(get(&self.model)),
+                _ => return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error),
             }
         }
         fmi2OK
@@ -751,6 +805,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn get_string(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status {
         let f = "fmi2GetString";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.refresh(f) {
             return s;
         }
@@ -777,6 +834,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
         let f = "fmi2SetReal";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
         // Fast path: every reference known, settable now, finite and in range. Anything else
         // takes the checking path below, which names the problem.
         let phase = self.phase();
@@ -817,6 +877,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status {
         let f = "fmi2SetInteger";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.check_known(f, 1, vrs) {
             return s;
         }
@@ -847,6 +910,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_boolean(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status {
         let f = "fmi2SetBoolean";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.check_known(f, 2, vrs) {
             return s;
         }
@@ -867,6 +933,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status {
         let f = "fmi2SetString";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
         if let Err(s) = self.check_known(f, 3, vrs) {
             return s;
         }
@@ -956,6 +1025,9 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn do_step(&mut self, t: f64, h: f64) -> fmi2Status {
         let f = "fmi2DoStep";
+        if !self.allow(Func::DoStep, f) {
+            return fmi2Error;
+        }
         if !(t.is_finite() && h.is_finite()) {
             return self.refuse(
                 f,
