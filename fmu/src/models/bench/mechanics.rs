@@ -398,6 +398,7 @@ impl Discretization {
     }
 
     /// Rows 0..6 of `exp(M h) z` and the two current integrals.
+    #[inline(always)]
     fn apply(&self, z: &AugVector) -> [f64; 8] {
         let mut out = [0.0; 8];
         for (column, v) in self.columns.iter().zip(z.iter()) {
@@ -417,6 +418,7 @@ impl Discretization {
     }
 
     /// State at the end of the step and the integrals of the two currents over it.
+    #[inline(always)]
     pub(crate) fn advance_with_currents(&self, z: &AugVector) -> (AugVector, [f64; 2]) {
         let applied = self.apply(z);
         let mut out = *z;
@@ -425,6 +427,7 @@ impl Discretization {
     }
 
     /// Integrals over the step of the six products of [`PRODUCTS`], starting at `z`.
+    #[inline(always)]
     pub(crate) fn quadratic_integrals(&self, z: &AugVector) -> [f64; 6] {
         let y = reduced_state(z);
         let mut x = [0.0; NREDUCED_PACK_PADDED];

@@ -328,6 +328,25 @@ impl BenchPlant {
 
     /// Writes the fields of `group` (see [`signal_group`]) into `out`.
     pub fn fill_outputs(&self, group: SignalGroup, out: &mut BenchOutputs) {
+        #[cfg(target_arch = "x86_64")]
+        if self.wide_vectors {
+            // SAFETY: `wide_vectors` is set only where the CPU reports AVX2, the one feature
+            // `fill_outputs_wide` is compiled for.
+            return unsafe { self.fill_outputs_wide(group, out) };
+        }
+        self.fill_outputs_inline(group, out)
+    }
+
+    /// [`Self::fill_outputs`] compiled for AVX2 (same operations, no fused multiply-add; see
+    /// [`BenchPlant::step`]).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn fill_outputs_wide(&self, group: SignalGroup, out: &mut BenchOutputs) {
+        self.fill_outputs_inline(group, out)
+    }
+
+    #[inline(always)]
+    fn fill_outputs_inline(&self, group: SignalGroup, out: &mut BenchOutputs) {
         match group {
             SignalGroup::Motion => self.fill_motion(out),
             SignalGroup::Sensors => self.fill_sensors(out),
@@ -335,6 +354,7 @@ impl BenchPlant {
         }
     }
 
+    #[inline(always)]
     fn fill_motion(&self, o: &mut BenchOutputs) {
         let p = &self.params;
         let z = &self.state.z;
@@ -395,6 +415,7 @@ impl BenchPlant {
         o.trip_code = self.state.trip.map_or(0, |(i, _)| i.code());
     }
 
+    #[inline(always)]
     fn fill_sensors(&self, o: &mut BenchOutputs) {
         let p = &self.params;
         let z = &self.state.z;
@@ -450,6 +471,7 @@ impl BenchPlant {
         o.load_current_sense_voltage = sensors::current_sensor_voltage(p, z[CURRENT2]);
     }
 
+    #[inline(always)]
     fn fill_mode(&self, o: &mut BenchOutputs) {
         let p = &self.params;
         let held = self.held_for_outputs();

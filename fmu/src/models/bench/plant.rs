@@ -188,6 +188,21 @@ pub struct BenchPlant {
     cache: Vec<Arc<Discretization>>,
     /// Index in `cache` of the last discretisation used.
     last_hit: usize,
+    /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]); tests turn it off
+    /// to compare the two builds.
+    pub(crate) wide_vectors: bool,
+}
+
+/// Whether this CPU runs the plant's AVX2 build of the step.
+pub(crate) fn cpu_has_wide_vectors() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
 
 /// Products of parameters used in every step (same expressions as where they are used).
@@ -305,6 +320,7 @@ impl BenchPlant {
             },
             cache: Vec::new(),
             last_hit: 0,
+            wide_vectors: cpu_has_wide_vectors(),
         })
     }
 
@@ -335,6 +351,26 @@ impl BenchPlant {
 
     /// Advances by the communication step `h` [s] with `inputs` held over the step.
     pub fn step(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
+        #[cfg(target_arch = "x86_64")]
+        if self.wide_vectors {
+            // SAFETY: `wide_vectors` is set only where the CPU reports AVX2
+            // (`cpu_has_wide_vectors`), the one feature `step_wide` is compiled for.
+            return unsafe { self.step_wide(inputs, h) };
+        }
+        self.step_inline(inputs, h)
+    }
+
+    /// [`Self::step`] compiled for AVX2: the same operations in the same order (no fused
+    /// multiply-add, which would round differently), on wider registers; the regular path of
+    /// the step is inlined into it. Bit-identical to the baseline build (tested).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn step_wide(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
+        self.step_inline(inputs, h)
+    }
+
+    #[inline(always)]
+    fn step_inline(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
         if let Some((interlock, time)) = self.state.trip {
             return StepOutcome::Tripped { interlock, time };
         }
@@ -385,6 +421,7 @@ impl BenchPlant {
         &self.matrices[mode.key() as usize]
     }
 
+    #[inline(always)]
     fn discretization(&mut self, mode: LinearMode, h: f64) -> usize {
         let key = mode.key();
         // Consecutive sub-steps mostly stay in one mode: try the last hit first.
@@ -446,6 +483,7 @@ impl BenchPlant {
     }
 
     /// Builds the held values for the current discrete state and inputs.
+    #[inline(always)]
     fn hold(&self) -> Held {
         let inputs = self.state.inputs;
         let p = &self.params;
@@ -514,6 +552,7 @@ impl BenchPlant {
 
     /// Makes the discrete state consistent at the start of a segment and reports an interlock
     /// already beyond its threshold.
+    #[inline(always)]
     fn resolve(&mut self) -> Result<Held, (Interlock, f64)> {
         let mut held = self.hold();
         for j in 0..2 {
@@ -597,6 +636,7 @@ impl BenchPlant {
 
     /// Friction held over the segment: the law at the start speed, or the average of the start
     /// and predicted end speeds (`end`) for speed-dependent laws.
+    #[inline(always)]
     fn set_friction(&self, held: &mut Held, end: Option<&AugVector>) {
         let clutch = if held.clutch {
             self.params.clutch_output_torque()
@@ -627,6 +667,7 @@ impl BenchPlant {
         }
     }
 
+    #[inline(always)]
     fn input_state(&self, held: &Held) -> AugVector {
         let mut z = self.state.z;
         z[DRIVE1] = held.drive[0];
@@ -651,6 +692,7 @@ impl BenchPlant {
 
     /// Whether any of `events` (a list made by [`Self::events`], the trips first) is positive at
     /// `z`. The trips are checked with constant arguments, so their dispatch folds away.
+    #[inline(always)]
     fn any_positive(&self, held: &Held, events: &[Event], z: &AugVector) -> bool {
         let demand = self.demands(held, z);
         let trips = Interlock::CHECKED.len();
@@ -742,6 +784,7 @@ impl BenchPlant {
 
     /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
     /// electrical.
+    #[inline(always)]
     fn powers(&self, held: &Held, z: &AugVector) -> [f64; 5] {
         let tpa = self.torque_per_ampere();
         let el1 = self.armature_voltage(held, 0, z) * z[CURRENT1];
@@ -756,6 +799,7 @@ impl BenchPlant {
     }
 
     /// Time derivatives of the five reported powers at `z` (constant inputs).
+    #[inline(always)]
     fn power_rates(&self, held: &Held, m: &AugMatrix, z: &AugVector) -> [f64; 5] {
         let dz = multiply(m, z);
         let tpa = self.torque_per_ampere();
@@ -790,6 +834,7 @@ impl BenchPlant {
             }
     }
 
+    #[inline(always)]
     fn commit(&mut self, z: AugVector) {
         let start = self.state.z;
         self.state.z = z;
@@ -804,6 +849,7 @@ impl BenchPlant {
     /// One internal sub-step of length `h`; returns a trip with its time. The common case (no
     /// event inside the sub-step) uses the cached exact discretisation; a sub-step with an event
     /// goes to [`Self::event_substep`], kept out of line so the common path stays small.
+    #[inline(always)]
     fn substep(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
         let start_time = self.state.time;
         let mut held = self.resolve()?;
@@ -1009,6 +1055,7 @@ impl BenchPlant {
     }
 
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn accumulate_regular(
         &mut self,
         held: &Held,
@@ -1061,6 +1108,7 @@ impl BenchPlant {
     }
 
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn add_energy(
         &mut self,
         held: &Held,

@@ -819,3 +819,70 @@ fn benchmark_gait_cycle() {
         );
     }
 }
+
+#[test]
+fn the_avx2_build_of_the_step_gives_bit_identical_results() {
+    if !super::plant::cpu_has_wide_vectors() {
+        eprintln!("this CPU has no AVX2: the plant runs its baseline build only");
+        return;
+    }
+    for configuration in [Configuration::Da, Configuration::Sea, Configuration::Csea] {
+        for friction in [
+            FrictionModel::CoulombViscous,
+            FrictionModel::Exponential,
+            FrictionModel::HdLossSurface,
+        ] {
+            for mode in [DriverMode::Current, DriverMode::Voltage] {
+                let configure = |p: &mut BenchParameters| {
+                    p.configuration = configuration;
+                    p.friction_model = friction;
+                    p.test_driver_mode = mode;
+                    p.load_driver_mode = mode;
+                    p.motor_torque_limit = 100.0;
+                };
+                let mut wide = plant_with(configure);
+                let mut baseline = plant_with(configure);
+                assert!(wide.wide_vectors);
+                baseline.wide_vectors = false;
+                let h = 1e-3;
+                for n in 0..2500 {
+                    let t = n as f64 * h;
+                    let phase = 2.0 * PI * t / 2.5;
+                    let mut inputs = if mode == DriverMode::Voltage {
+                        BenchInputs {
+                            test_command: 1.2 * phase.sin() + 0.4 * (2.0 * phase).sin(),
+                            load_command: -0.8 * (phase + 0.5).sin(),
+                            test_enable: true,
+                            load_enable: true,
+                            ..BenchInputs::default()
+                        }
+                    } else {
+                        torque_inputs(
+                            &baseline,
+                            12.0 * phase.sin() + 4.0 * (2.0 * phase).sin(),
+                            -6.0 * (phase + 0.5).sin(),
+                        )
+                    };
+                    // The clutch's lock and release events too.
+                    inputs.clutch_engage =
+                        configuration == Configuration::Csea && (0.3..0.9).contains(&t);
+                    let outcome = baseline.step(&inputs, h);
+                    assert_eq!(wide.step(&inputs, h), outcome);
+                    // Debug text of every f64 is its shortest round-trip form: equal text is
+                    // equal bits (and tells where they differ when not).
+                    let case = format!("{configuration:?} {friction:?} {mode:?} step {n}");
+                    assert_eq!(
+                        format!("{:?}", wide.state),
+                        format!("{:?}", baseline.state),
+                        "state, {case}"
+                    );
+                    assert_eq!(
+                        format!("{:?}", wide.outputs()),
+                        format!("{:?}", baseline.outputs()),
+                        "outputs, {case}"
+                    );
+                }
+            }
+        }
+    }
+}
