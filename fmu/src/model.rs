@@ -557,10 +557,26 @@ pub fn model_description<M: Model>() -> md::ModelDescription {
     desc
 }
 
+/// [`model_description`] and its `modelDescription.xml`, the XML written once: the GUID hashes
+/// the XML with an empty `guid`, which is then filled in place (the attribute is the root's
+/// only `guid`, and a GUID needs no escaping).
+pub fn model_description_with_xml<M: Model>() -> (md::ModelDescription, String) {
+    let mut desc = description_without_guid::<M>();
+    let unsigned = desc.to_xml();
+    desc.guid = guid_of_xml(&unsigned);
+    let xml = unsigned.replacen(" guid=\"\"", &format!(" guid=\"{}\"", desc.guid), 1);
+    (desc, xml)
+}
+
 /// The GUID of a description: SHA-256 of its XML with an empty `guid`, shaped as a UUID.
 fn guid_of(desc: &md::ModelDescription) -> String {
     debug_assert!(desc.guid.is_empty());
-    let digest = Sha256::digest(desc.to_xml().as_bytes());
+    guid_of_xml(&desc.to_xml())
+}
+
+/// The GUID of the XML of a description whose `guid` is empty.
+fn guid_of_xml(xml: &str) -> String {
+    let digest = Sha256::digest(xml.as_bytes());
     let h: Vec<String> = digest.iter().take(16).map(|b| format!("{b:02x}")).collect();
     let h = h.concat();
     format!(
@@ -982,6 +998,22 @@ mod tests {
     use crate::models::gait::GaitReference;
 
     #[test]
+    fn the_single_pass_description_equals_the_two_pass_one() {
+        fn check<M: Model>() {
+            let (desc, xml) = model_description_with_xml::<M>();
+            let two_pass = model_description::<M>();
+            assert_eq!(desc, two_pass, "{}", M::IDENTIFIER);
+            assert_eq!(xml, two_pass.to_xml(), "{}", M::IDENTIFIER);
+        }
+        check::<GaitReference>();
+        check::<crate::models::bench_plant::BenchPlantModel>();
+        check::<crate::models::bench_hardware::BenchHardwareModel>();
+        check::<crate::models::pid::PidController>();
+        check::<crate::models::impedance::ImpedanceController>();
+        check::<crate::models::clutch_scheduler::ClutchScheduler>();
+    }
+
+    #[test]
     fn every_model_description_passes_the_semantic_checks_and_parses_back() {
         for entry in crate::MODELS.iter() {
             let info = entry.info();
@@ -989,6 +1021,8 @@ mod tests {
             assert!(problems.is_empty(), "{}: {problems:?}", entry.identifier);
             let parsed = md::ModelDescription::from_xml(&info.xml).unwrap();
             assert_eq!(parsed, info.description);
+            // The XML with the GUID filled in place is the description's own XML.
+            assert_eq!(info.xml, info.description.to_xml(), "{}", entry.identifier);
             assert_eq!(
                 crate::registry::find_by_guid(&info.guid)
                     .unwrap()

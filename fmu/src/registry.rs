@@ -60,7 +60,7 @@ pub struct ModelEntry {
 }
 
 fn build<M: Model>() -> ModelInfo {
-    let description = model::model_description::<M>();
+    let (description, xml) = model::model_description_with_xml::<M>();
     let mut index: [Vec<u32>; 4] = Default::default();
     for (i, v) in M::variables().iter().enumerate() {
         assert!(
@@ -79,7 +79,7 @@ fn build<M: Model>() -> ModelInfo {
     }
     ModelInfo {
         index,
-        xml: description.to_xml(),
+        xml,
         guid: description.guid.clone(),
         documentation: OnceLock::new(),
         render_documentation: model::documentation_html::<M>,
@@ -134,10 +134,42 @@ macro_rules! export_models {
 
 /// The model whose GUID is `guid`.
 pub fn find_by_guid(guid: &str) -> Option<&'static ModelEntry> {
+    find_by_guid_hinted(guid, None)
+}
+
+/// The model whose GUID is `guid`, trying the model named `likely` first: a model's GUID is
+/// known only once its description is built (it hashes the XML), so the hint spares building
+/// the others when it is right; when it is wrong or absent every model is tried.
+pub fn find_by_guid_hinted(guid: &str, likely: Option<&str>) -> Option<&'static ModelEntry> {
+    if let Some(entry) = likely.and_then(find_by_identifier)
+        && entry.info().guid == guid
+    {
+        return Some(entry);
+    }
     crate::MODELS.iter().find(|m| m.info().guid == guid)
 }
 
 /// The model whose identifier is `identifier`.
 pub fn find_by_identifier(identifier: &str) -> Option<&'static ModelEntry> {
     crate::MODELS.iter().find(|m| m.identifier == identifier)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_guid_is_found_whatever_the_hint() {
+        for entry in crate::MODELS.iter() {
+            let guid = &entry.info().guid;
+            let others = crate::MODELS.iter().map(|m| Some(m.identifier));
+            for hint in others.chain([None, Some("NoSuchModel"), Some("")]) {
+                let found = find_by_guid_hinted(guid, hint).map(|m| m.identifier);
+                assert_eq!(found, Some(entry.identifier), "hint {hint:?}");
+            }
+        }
+        let unknown = "{00000000-0000-0000-0000-000000000000}";
+        assert!(find_by_guid_hinted(unknown, Some(crate::MODELS[0].identifier)).is_none());
+        assert!(find_by_guid(unknown).is_none());
+    }
 }

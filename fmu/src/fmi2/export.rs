@@ -63,6 +63,60 @@ fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
     }
 }
 
+/// The file name, without extension, of the shared library this code was loaded from
+/// (`binaries/<platform>/<modelIdentifier>.so` inside an FMU), once per process.
+fn library_stem() -> Option<&'static str> {
+    static STEM: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    STEM.get_or_init(|| {
+        let path = loaded_from()?;
+        let stem = std::path::Path::new(&path).file_stem()?.to_str()?;
+        Some(stem.to_string())
+    })
+    .as_deref()
+}
+
+/// The path of the object that holds this function, from the dynamic loader.
+#[cfg(target_os = "linux")]
+fn loaded_from() -> Option<String> {
+    /// glibc's and musl's `Dl_info`.
+    #[repr(C)]
+    struct DlInfo {
+        dli_fname: *const c_char,
+        dli_fbase: *mut std::ffi::c_void,
+        dli_sname: *const c_char,
+        dli_saddr: *mut std::ffi::c_void,
+    }
+    unsafe extern "C" {
+        fn dladdr(address: *const std::ffi::c_void, info: *mut DlInfo) -> c_int;
+    }
+    let mut info = DlInfo {
+        dli_fname: std::ptr::null(),
+        dli_fbase: std::ptr::null_mut(),
+        dli_sname: std::ptr::null(),
+        dli_saddr: std::ptr::null_mut(),
+    };
+    let address = loaded_from as fn() -> Option<String> as *const std::ffi::c_void;
+    // SAFETY: `dladdr` only reads the loader's tables for an address of this object and fills
+    // `info`; on success `dli_fname` points to a NUL-terminated path owned by the loader,
+    // valid while this object stays loaded, and copied at once.
+    unsafe {
+        if dladdr(address, &mut info) == 0 || info.dli_fname.is_null() {
+            return None;
+        }
+        Some(
+            CStr::from_ptr(info.dli_fname)
+                .to_string_lossy()
+                .into_owned(),
+        )
+    }
+}
+
+/// Elsewhere every model is tried in turn.
+#[cfg(not(target_os = "linux"))]
+fn loaded_from() -> Option<String> {
+    None
+}
+
 /// A slice from a C array; NULL is accepted only for an empty array.
 ///
 /// # Safety
@@ -189,7 +243,9 @@ pub unsafe extern "C" fn fmi2Instantiate(
         }
         // SAFETY: non-NULL, NUL-terminated by the FMI contract.
         let guid = unsafe { CStr::from_ptr(fmuGUID) }.to_string_lossy();
-        let Some(entry) = registry::find_by_guid(&guid) else {
+        // The packager names each FMU's copy of this binary after its model: that model is
+        // tried first, so an instantiation builds only its own description and GUID.
+        let Some(entry) = registry::find_by_guid_hinted(&guid, library_stem()) else {
             return refuse(&format!(
                 "no model with GUID {guid} in this binary (models: {})",
                 crate::MODELS
@@ -754,4 +810,26 @@ fn catalog_file(index: usize, kind: c_int) -> *const c_char {
         .and_then(|f| usize::try_from(kind).ok().and_then(|k| f.get(k)))
         .and_then(|s| s.as_ref())
         .map_or(std::ptr::null(), |s| s.as_ptr())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn the_loader_names_the_object_this_code_runs_from() {
+        // In a unit test the code is linked into the test executable itself.
+        let path = loaded_from().expect("dladdr answers for our own function");
+        let here = std::env::current_exe().unwrap();
+        assert_eq!(
+            std::fs::canonicalize(&path).unwrap(),
+            std::fs::canonicalize(&here).unwrap()
+        );
+        assert_eq!(
+            library_stem(),
+            here.file_stem().and_then(|s| s.to_str()),
+            "{path}"
+        );
+    }
 }
