@@ -812,56 +812,20 @@ impl System {
         let expected_rows = (grid.n_steps / record_every + 1).min(50_000_000) as usize;
         let mut results = Results::with_capacity(names, kinds, expected_rows);
 
-        // Runtime tables.
-        let mut rts: Vec<Rt> = Vec::with_capacity(n);
-        let mut inbufs: Vec<InBuf> = (0..n).map(|_| InBuf::default()).collect();
-        let mut slots: Vec<HashMap<(VarType, u32), usize>> = vec![HashMap::new(); n];
-        let mut get_lists: Vec<[Vec<u32>; 3]> = vec![Default::default(); n];
-        let mut slot_of = |comp: usize, ty: VarType, vr: u32| -> usize {
-            let t = ty_index(ty);
-            *slots[comp].entry((ty, vr)).or_insert_with(|| {
-                get_lists[comp][t].push(vr);
-                get_lists[comp][t].len() - 1
-            })
-        };
-        let rec: Vec<(usize, usize, usize)> = recorded
-            .iter()
-            .map(|r| (r.comp, ty_index(r.ty), slot_of(r.comp, r.ty, r.vr)))
-            .collect();
-        for (s, d) in &self.connections {
-            let slot = slot_of(s.comp, s.ty, s.vr);
-            let t = ty_index(d.ty);
-            inbufs[d.comp].vrs[t].push(d.vr);
-            inbufs[d.comp].src[t].push(Src::Out { comp: s.comp, slot });
-        }
+        // Runtime tables: where every value the master moves lives.
+        let fed: Vec<&VarRef> = self.signals.iter().map(|(d, _)| d).collect();
+        let plan = Plan::new(n, &recorded, &self.connections, &fed);
         let signals: Vec<Signal> = self.signals.iter().map(|(_, s)| s.clone()).collect();
-        for (i, (d, _)) in self.signals.iter().enumerate() {
-            let t = ty_index(d.ty);
-            inbufs[d.comp].vrs[t].push(d.vr);
-            inbufs[d.comp].src[t].push(Src::Signal(i));
-        }
-        for b in &mut inbufs {
-            b.real = vec![0.0; b.vrs[0].len()];
-            b.int = vec![0; b.vrs[1].len()];
-            b.boolean = vec![0; b.vrs[2].len()];
-        }
+        let bus = Bus::new(plan.bus_len);
+        let mut rts: Vec<Rt> = Vec::with_capacity(n);
 
         // Instantiate.
-        for (ci, c) in self.components.iter().enumerate() {
+        for (c, ports) in self.components.iter().zip(plan.ports) {
             match c.fmu.instantiate(&c.name, &self.instance_options) {
                 Ok(inst) => {
-                    let [gr, gi, gb] = std::mem::take(&mut get_lists[ci]);
-                    rts.push(Rt {
-                        inst,
-                        multiple: c.step_multiple,
-                        h: (c.step_multiple * grid.step_ticks) as f64
-                            / crate::time::TICKS_PER_SECOND as f64,
-                        real: vec![0.0; gr.len()],
-                        int: vec![0; gi.len()],
-                        boolean: vec![0; gb.len()],
-                        vrs: [gr, gi, gb],
-                        steps: 0,
-                    });
+                    let h = (c.step_multiple * grid.step_ticks) as f64
+                        / crate::time::TICKS_PER_SECOND as f64;
+                    rts.push(Rt::new(inst, c.step_multiple, h, ports));
                 }
                 Err(e) => {
                     return Ok(RunOutput {
@@ -881,9 +845,9 @@ impl System {
             sys: self,
             grid,
             rts,
-            inbufs,
+            bus,
             signals,
-            rec,
+            row: plan.row,
         };
         let outcome = run.execute(config, &order, &groups, &mut results, record_every);
         let steps_per_component = run.rts.iter().map(|r| r.steps).collect();
@@ -895,6 +859,7 @@ impl System {
     }
 }
 
+/// The index of a type's buffer: 0 `Real`, 1 `Integer` (and `Enumeration`), 2 `Boolean`.
 fn ty_index(ty: VarType) -> usize {
     match ty {
         VarType::Real => 0,
@@ -903,31 +868,265 @@ fn ty_index(ty: VarType) -> usize {
     }
 }
 
-#[derive(Debug, Clone, Copy)]
-enum Src {
-    Out { comp: usize, slot: usize },
-    Signal(usize),
-}
-
-/// Inputs of one component: value references, sources and the value buffers set before a step.
-#[derive(Default)]
-struct InBuf {
-    vrs: [Vec<u32>; 3],
-    src: [Vec<Src>; 3],
+/// The values the master reads after each step, one flat buffer per type (the "bus"): the
+/// values a component's `fmi2Get*` call of one type returns occupy one contiguous range of that
+/// type's buffer ([`Ports::out`]); the components' ranges follow each other in declaration
+/// order. Booleans are kept as the FMU's `fmi2Boolean` (a C int).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct Bus {
     real: Vec<f64>,
     int: Vec<i32>,
     boolean: Vec<i32>,
 }
 
-/// One component at run time: its instance and the values read after each step.
+/// One component's part of the [`Bus`], per type.
+struct Outs<'a> {
+    real: &'a mut [f64],
+    int: &'a mut [i32],
+    boolean: &'a mut [i32],
+}
+
+impl Bus {
+    /// A bus of `len` values per type (`Real`, `Integer`, `Boolean`), all zero.
+    fn new(len: [usize; 3]) -> Bus {
+        Bus {
+            real: vec![0.0; len[0]],
+            int: vec![0; len[1]],
+            boolean: vec![0; len[2]],
+        }
+    }
+
+    /// Every component's part at once (for stepping on threads): `ranges` are the components'
+    /// [`Ports::out`] in declaration order, which tile the bus.
+    fn split(&mut self, ranges: impl Iterator<Item = [(usize, usize); 3]>) -> Vec<Outs<'_>> {
+        let (mut real, mut int, mut boolean) = (
+            self.real.as_mut_slice(),
+            self.int.as_mut_slice(),
+            self.boolean.as_mut_slice(),
+        );
+        ranges
+            .map(|out| {
+                let (r, rest) = std::mem::take(&mut real).split_at_mut(out[0].1 - out[0].0);
+                real = rest;
+                let (i, rest) = std::mem::take(&mut int).split_at_mut(out[1].1 - out[1].0);
+                int = rest;
+                let (b, rest) = std::mem::take(&mut boolean).split_at_mut(out[2].1 - out[2].0);
+                boolean = rest;
+                Outs {
+                    real: r,
+                    int: i,
+                    boolean: b,
+                }
+            })
+            .collect()
+    }
+}
+
+/// A run of consecutive recorded columns that are consecutive values of one type on the
+/// [`Bus`] (start, end): a recorded row is built with one copy per run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RowRun {
+    /// `Real` values, copied as they are.
+    Real(usize, usize),
+    /// `Integer` values, converted to `f64`.
+    Integer(usize, usize),
+    /// `Boolean` values, recorded as 0.0 or 1.0.
+    Boolean(usize, usize),
+}
+
+/// Groups recorded columns, given as (type index, bus index), into [`RowRun`]s.
+fn row_runs(columns: &[(usize, usize)]) -> Vec<RowRun> {
+    let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+    for &(t, k) in columns {
+        match runs.last_mut() {
+            Some((rt, _, end)) if *rt == t && *end == k => *end += 1,
+            _ => runs.push((t, k, k + 1)),
+        }
+    }
+    runs.into_iter()
+        .map(|(t, a, b)| match t {
+            0 => RowRun::Real(a, b),
+            1 => RowRun::Integer(a, b),
+            _ => RowRun::Boolean(a, b),
+        })
+        .collect()
+}
+
+/// What one component reads and writes, as indices (built once per run by [`Plan::new`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct Ports {
+    /// Value references read after each step, per type (recorded ones first, in recording
+    /// order, then the connected ones; each once).
+    out_vrs: [Vec<u32>; 3],
+    /// Where their values go on the bus, per type: (start, end).
+    out: [(usize, usize); 3],
+    /// Value references of the inputs set before each step, per type: the connected ones in
+    /// connection order, then the signal-fed ones.
+    in_vrs: [Vec<u32>; 3],
+    /// The bus index of each connected input's source, per type (the first `in_from[t].len()`
+    /// entries of `in_vrs[t]`).
+    in_from: [Vec<usize>; 3],
+    /// The signal-fed inputs: (type index, position in `in_vrs[type]`, signal index).
+    in_signals: Vec<(usize, usize, usize)>,
+    /// Whether there are `Integer` or `Boolean` outputs to read (the hot path reads `Real`s
+    /// only).
+    out_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs to set.
+    in_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs or signal-fed inputs to gather.
+    in_rare: bool,
+}
+
+/// The layout of a run: every component's [`Ports`], the bus size and the recorded row.
+#[derive(Debug, Clone, PartialEq)]
+struct Plan {
+    /// Per component, in declaration order.
+    ports: Vec<Ports>,
+    /// Bus length per type.
+    bus_len: [usize; 3],
+    /// The recorded columns, as runs of bus values.
+    row: Vec<RowRun>,
+}
+
+impl Plan {
+    /// The layout for `n` components recording `recorded`, with `connections` (source,
+    /// destination) and the inputs `fed` by signals (in signal order).
+    fn new(
+        n: usize,
+        recorded: &[VarRef],
+        connections: &[(VarRef, VarRef)],
+        fed: &[&VarRef],
+    ) -> Plan {
+        let mut ports: Vec<Ports> = vec![Ports::default(); n];
+        // Position of each value read per component, type and value reference, in order of
+        // first use.
+        let mut slots: Vec<HashMap<(usize, u32), usize>> = vec![HashMap::new(); n];
+        let mut slot_of = |ports: &mut [Ports], comp: usize, ty: VarType, vr: u32| -> usize {
+            let t = ty_index(ty);
+            *slots[comp].entry((t, vr)).or_insert_with(|| {
+                ports[comp].out_vrs[t].push(vr);
+                ports[comp].out_vrs[t].len() - 1
+            })
+        };
+        let rec: Vec<(usize, usize, usize)> = recorded
+            .iter()
+            .map(|r| {
+                (
+                    r.comp,
+                    ty_index(r.ty),
+                    slot_of(&mut ports, r.comp, r.ty, r.vr),
+                )
+            })
+            .collect();
+        let sources: Vec<usize> = connections
+            .iter()
+            .map(|(s, _)| slot_of(&mut ports, s.comp, s.ty, s.vr))
+            .collect();
+        let mut bus_len = [0; 3];
+        for p in &mut ports {
+            for ((out, vrs), len) in p.out.iter_mut().zip(&p.out_vrs).zip(&mut bus_len) {
+                *out = (*len, *len + vrs.len());
+                *len = out.1;
+            }
+        }
+        for ((s, d), slot) in connections.iter().zip(sources) {
+            let t = ty_index(s.ty);
+            let from = ports[s.comp].out[t].0 + slot;
+            let p = &mut ports[d.comp];
+            p.in_vrs[t].push(d.vr);
+            p.in_from[t].push(from);
+        }
+        for (k, d) in fed.iter().enumerate() {
+            let t = ty_index(d.ty);
+            let p = &mut ports[d.comp];
+            p.in_signals.push((t, p.in_vrs[t].len(), k));
+            p.in_vrs[t].push(d.vr);
+        }
+        for p in &mut ports {
+            p.out_other = !(p.out_vrs[1].is_empty() && p.out_vrs[2].is_empty());
+            p.in_other = !(p.in_vrs[1].is_empty() && p.in_vrs[2].is_empty());
+            p.in_rare = p.in_other || !p.in_signals.is_empty();
+        }
+        let columns: Vec<(usize, usize)> = rec
+            .iter()
+            .map(|&(c, t, slot)| (t, ports[c].out[t].0 + slot))
+            .collect();
+        let row = row_runs(&columns);
+        Plan {
+            ports,
+            bus_len,
+            row,
+        }
+    }
+}
+
+/// The input values of one component, set before each of its steps (same layout as
+/// [`Ports::in_vrs`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct InValues {
+    real: Vec<f64>,
+    int: Vec<i32>,
+    boolean: Vec<i32>,
+}
+
+impl InValues {
+    /// Zeroed buffers for the inputs of `ports`.
+    fn for_ports(ports: &Ports) -> InValues {
+        InValues {
+            real: vec![0.0; ports.in_vrs[0].len()],
+            int: vec![0; ports.in_vrs[1].len()],
+            boolean: vec![0; ports.in_vrs[2].len()],
+        }
+    }
+
+    /// Takes the connected inputs from the bus and the signal-fed ones from their signals at
+    /// time `t`.
+    #[inline(always)]
+    fn gather(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.real.iter_mut().zip(&ports.in_from[0]) {
+            *v = bus.real[k];
+        }
+        if ports.in_rare {
+            self.gather_rare(ports, bus, signals, t);
+        }
+    }
+
+    /// The `Integer` and `Boolean` part of [`gather`](Self::gather) and the signal-fed inputs.
+    #[inline(never)]
+    fn gather_rare(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.int.iter_mut().zip(&ports.in_from[1]) {
+            *v = bus.int[k];
+        }
+        for (v, &k) in self.boolean.iter_mut().zip(&ports.in_from[2]) {
+            *v = (bus.boolean[k] != 0) as i32;
+        }
+        if !ports.in_signals.is_empty() {
+            self.sample_signals(ports, signals, t);
+        }
+    }
+
+    /// The signal-fed inputs at time `t` (rare: single-FMU runs with an input file).
+    #[cold]
+    #[inline(never)]
+    fn sample_signals(&mut self, ports: &Ports, signals: &[Signal], t: f64) {
+        for &(ty, k, s) in &ports.in_signals {
+            let x = signals[s].at(t);
+            match ty {
+                0 => self.real[k] = x,
+                1 => self.int[k] = x.round() as i32,
+                _ => self.boolean[k] = (x != 0.0) as i32,
+            }
+        }
+    }
+}
+
+/// One component at run time: its instance, its [`Ports`] and its input values.
 struct Rt {
     inst: Instance,
     multiple: u64,
     h: f64,
-    vrs: [Vec<u32>; 3],
-    real: Vec<f64>,
-    int: Vec<i32>,
-    boolean: Vec<i32>,
+    ports: Ports,
+    inputs: InValues,
     steps: u64,
 }
 
@@ -937,32 +1136,102 @@ enum StepEnd {
 }
 
 impl Rt {
-    #[inline]
-    fn read(&mut self) -> Result<(), FmuError> {
-        self.inst.get_real(&self.vrs[0], &mut self.real)?;
-        self.inst.get_integer(&self.vrs[1], &mut self.int)?;
-        self.inst.get_boolean_raw(&self.vrs[2], &mut self.boolean)?;
+    fn new(inst: Instance, multiple: u64, h: f64, ports: Ports) -> Rt {
+        Rt {
+            inst,
+            multiple,
+            h,
+            inputs: InValues::for_ports(&ports),
+            ports,
+            steps: 0,
+        }
+    }
+
+    /// Takes the input values (see [`InValues::gather`]).
+    #[inline(always)]
+    fn gather(&mut self, bus: &Bus, signals: &[Signal], t: f64) {
+        self.inputs.gather(&self.ports, bus, signals, t);
+    }
+
+    /// Reads the outputs into the component's part of the bus.
+    #[inline(always)]
+    fn read(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let (a, b) = self.ports.out[0];
+        self.inst
+            .get_real(&self.ports.out_vrs[0], &mut bus.real[a..b])?;
+        if self.ports.out_other {
+            self.read_other(bus)?;
+        }
         Ok(())
     }
 
-    #[inline]
-    fn write(&mut self, b: &InBuf) -> Result<(), FmuError> {
-        self.inst.set_real(&b.vrs[0], &b.real)?;
-        self.inst.set_integer(&b.vrs[1], &b.int)?;
-        self.inst.set_boolean_raw(&b.vrs[2], &b.boolean)?;
+    /// The `Integer` and `Boolean` part of [`read`](Self::read).
+    #[inline(never)]
+    fn read_other(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let [_, (a, b), (c, d)] = self.ports.out;
+        self.inst
+            .get_integer(&self.ports.out_vrs[1], &mut bus.int[a..b])?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], &mut bus.boolean[c..d])?;
         Ok(())
     }
 
-    #[inline]
-    fn set_step_read(&mut self, b: &InBuf, t: f64) -> Result<StepEnd, FmuError> {
-        self.write(b)?;
+    /// Reads the outputs into `out` (the component's part of the bus).
+    fn read_into(&mut self, out: Outs<'_>) -> Result<(), FmuError> {
+        self.inst.get_real(&self.ports.out_vrs[0], out.real)?;
+        self.inst.get_integer(&self.ports.out_vrs[1], out.int)?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], out.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the input values.
+    #[inline(always)]
+    fn write(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_real(&self.ports.in_vrs[0], &self.inputs.real)?;
+        if self.ports.in_other {
+            self.write_other()?;
+        }
+        Ok(())
+    }
+
+    /// The `Integer` and `Boolean` part of [`write`](Self::write).
+    #[inline(never)]
+    fn write_other(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_integer(&self.ports.in_vrs[1], &self.inputs.int)?;
+        self.inst
+            .set_boolean_raw(&self.ports.in_vrs[2], &self.inputs.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the inputs and steps from `t`.
+    #[inline(always)]
+    fn write_step(&mut self, t: f64) -> Result<StepEnd, FmuError> {
+        self.write()?;
         self.steps += 1;
         match self.inst.do_step(t, self.h)? {
-            Status::Discard => return Ok(StepEnd::Discard),
-            Status::Ok | Status::Warning => {}
+            Status::Discard => Ok(StepEnd::Discard),
+            Status::Ok | Status::Warning => Ok(StepEnd::Done),
         }
-        self.read()?;
-        Ok(StepEnd::Done)
+    }
+
+    /// Sets the inputs, steps from `t` and reads the outputs onto the bus.
+    #[inline(always)]
+    fn step_read(&mut self, bus: &mut Bus, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read(bus).map(|_| StepEnd::Done),
+        }
+    }
+
+    /// [`step_read`](Self::step_read) into the component's part of the bus (on a thread).
+    fn step_read_into(&mut self, out: Outs<'_>, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read_into(out).map(|_| StepEnd::Done),
+        }
     }
 }
 
@@ -974,35 +1243,13 @@ fn steps_at(n: u64, multiple: u64) -> bool {
     multiple == 1 || n.is_multiple_of(multiple)
 }
 
-#[inline]
-fn gather(b: &mut InBuf, rts: &[Rt], signals: &[Signal], t: f64) {
-    for (k, s) in b.src[0].iter().enumerate() {
-        b.real[k] = match *s {
-            Src::Out { comp, slot } => rts[comp].real[slot],
-            Src::Signal(i) => signals[i].at(t),
-        };
-    }
-    for (k, s) in b.src[1].iter().enumerate() {
-        b.int[k] = match *s {
-            Src::Out { comp, slot } => rts[comp].int[slot],
-            Src::Signal(i) => signals[i].at(t).round() as i32,
-        };
-    }
-    for (k, s) in b.src[2].iter().enumerate() {
-        b.boolean[k] = match *s {
-            Src::Out { comp, slot } => (rts[comp].boolean[slot] != 0) as i32,
-            Src::Signal(i) => (signals[i].at(t) != 0.0) as i32,
-        };
-    }
-}
-
 struct Run<'a> {
     sys: &'a System,
     grid: Grid,
     rts: Vec<Rt>,
-    inbufs: Vec<InBuf>,
+    bus: Bus,
     signals: Vec<Signal>,
-    rec: Vec<(usize, usize, usize)>,
+    row: Vec<RowRun>,
 }
 
 enum Stop {
@@ -1010,7 +1257,26 @@ enum Stop {
     Failed(MasterError),
 }
 
+/// Appends the row at time `t` built from `bus` by `row` to `results`.
+#[inline]
+fn record_row(results: &mut Results, row: &[RowRun], bus: &Bus, t: f64) {
+    results.push_time(t);
+    for run in row {
+        match *run {
+            RowRun::Real(a, b) => results.push_values(&bus.real[a..b]),
+            RowRun::Integer(a, b) => {
+                results.push_values_from(bus.int[a..b].iter().map(|&v| v as f64))
+            }
+            RowRun::Boolean(a, b) => {
+                results.push_values_from(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
+            }
+        }
+    }
+}
+
 impl Run<'_> {
+    #[cold]
+    #[inline(never)]
     fn fail(&self, comp: usize, time: f64, e: FmuError) -> Stop {
         Stop::Failed(MasterError::Fmu {
             component: self.sys.components[comp].name.clone(),
@@ -1021,16 +1287,7 @@ impl Run<'_> {
 
     #[inline]
     fn record(&self, results: &mut Results, t: f64) {
-        results.push_time(t);
-        for &(c, ty, slot) in &self.rec {
-            let rt = &self.rts[c];
-            let v = match ty {
-                0 => rt.real[slot],
-                1 => rt.int[slot] as f64,
-                _ => (rt.boolean[slot] != 0) as i32 as f64,
-            };
-            results.push_value(v);
-        }
+        record_row(results, &self.row, &self.bus, t);
     }
 
     fn execute(
@@ -1046,26 +1303,35 @@ impl Run<'_> {
             return self.finish(stop, results);
         }
         self.record(results, t0);
-        let total = self.grid.n_steps;
-        let stride = (total / 200).max(1);
-        for n in 0..total {
-            let t = self.grid.time(n);
-            let r = match (config.algorithm, config.parallel) {
-                (Algorithm::GaussSeidel, false) => self.step_gauss_seidel(order, n, t),
-                (Algorithm::Jacobi, false) => self.step_jacobi(order, n, t),
-                (_, true) => self.step_parallel(groups, n, t),
-            };
-            if let Err(stop) = r {
-                return self.finish(stop, results);
+        // The step loop is chosen once per run.
+        let multi_rate = self.rts.iter().any(|r| r.multiple != 1);
+        let r = match (config.parallel, config.algorithm, multi_rate) {
+            (true, ..) => self.step_loop(config, results, record_every, |run, n, t| {
+                run.step_parallel(groups, n, t)
+            }),
+            (false, Algorithm::GaussSeidel, false) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_gauss_seidel::<false>(order, n, t)
+                })
             }
-            if record_every == 1 || (n + 1).is_multiple_of(record_every) {
-                self.record(results, self.grid.time(n + 1));
+            (false, Algorithm::GaussSeidel, true) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_gauss_seidel::<true>(order, n, t)
+                })
             }
-            if let Some(p) = &config.progress
-                && (n + 1).is_multiple_of(stride)
-            {
-                p(n + 1, total);
+            (false, Algorithm::Jacobi, false) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_jacobi::<false>(order, n, t)
+                })
             }
+            (false, Algorithm::Jacobi, true) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_jacobi::<true>(order, n, t)
+                })
+            }
+        };
+        if let Err(stop) = r {
+            return self.finish(stop, results);
         }
         for i in 0..self.rts.len() {
             let _ = self.rts[i].inst.terminate();
@@ -1073,6 +1339,40 @@ impl Run<'_> {
         Outcome::Completed {
             stop_time: self.grid.stop(),
         }
+    }
+
+    /// Every macro step with `step`, recording every `record_every`-th row and reporting
+    /// progress.
+    #[inline(always)]
+    fn step_loop(
+        &mut self,
+        config: &RunConfig,
+        results: &mut Results,
+        record_every: u64,
+        mut step: impl FnMut(&mut Self, u64, f64) -> Result<(), Stop>,
+    ) -> Result<(), Stop> {
+        let total = self.grid.n_steps;
+        let stride = (total / 200).max(1);
+        // The next step counts (n + 1) to record at and to report progress at.
+        let mut next_row = record_every;
+        let mut next_progress = stride;
+        let mut t = self.grid.time(0);
+        for n in 0..total {
+            step(self, n, t)?;
+            let done = n + 1;
+            t = self.grid.time(done);
+            if done == next_row {
+                next_row = next_row.saturating_add(record_every);
+                self.record(results, t);
+            }
+            if done == next_progress {
+                next_progress = next_progress.saturating_add(stride);
+                if let Some(p) = &config.progress {
+                    p(done, total);
+                }
+            }
+        }
+        Ok(())
     }
 
     fn finish(&mut self, stop: Stop, results: &Results) -> Outcome {
@@ -1113,14 +1413,13 @@ impl Run<'_> {
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for i in 0..self.rts.len() {
-            let r = self.rts[i].read();
+            let r = self.rts[i].read(&mut self.bus);
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for &i in order {
-            gather(&mut self.inbufs[i], &self.rts, &self.signals, t0);
-            let r = self.rts[i]
-                .write(&self.inbufs[i])
-                .and_then(|_| self.rts[i].read());
+            let rt = &mut self.rts[i];
+            rt.gather(&self.bus, &self.signals, t0);
+            let r = rt.write().and_then(|_| rt.read(&mut self.bus));
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for i in 0..self.rts.len() {
@@ -1128,7 +1427,7 @@ impl Run<'_> {
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for &i in order {
-            let r = self.rts[i].read();
+            let r = self.rts[i].read(&mut self.bus);
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         Ok(())
@@ -1148,6 +1447,7 @@ impl Run<'_> {
     }
 
     #[cold]
+    #[inline(never)]
     fn discarded(&mut self, i: usize, t: f64) -> Stop {
         let inst = &mut self.rts[i].inst;
         if inst.terminated() {
@@ -1163,38 +1463,52 @@ impl Run<'_> {
         }
     }
 
-    #[inline]
-    fn step_gauss_seidel(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
+    /// Steps component `i` from `t` (its inputs gathered): outputs onto the bus.
+    #[inline(always)]
+    fn step_one(&mut self, i: usize, t: f64) -> Result<(), Stop> {
+        match self.rts[i].step_read(&mut self.bus, t) {
+            Ok(StepEnd::Done) => Ok(()),
+            Ok(StepEnd::Discard) => Err(self.discarded(i, t)),
+            Err(e) => Err(self.fail(i, t, e)),
+        }
+    }
+
+    #[inline(always)]
+    fn step_gauss_seidel<const MULTI_RATE: bool>(
+        &mut self,
+        order: &[usize],
+        n: u64,
+        t: f64,
+    ) -> Result<(), Stop> {
         for &i in order {
-            if !steps_at(n, self.rts[i].multiple) {
+            let rt = &mut self.rts[i];
+            if MULTI_RATE && !steps_at(n, rt.multiple) {
                 continue;
             }
-            gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
-            match self.rts[i].set_step_read(&self.inbufs[i], t) {
-                Ok(StepEnd::Done) => {}
-                Ok(StepEnd::Discard) => return Err(self.discarded(i, t)),
-                Err(e) => return Err(self.fail(i, t, e)),
-            }
+            rt.gather(&self.bus, &self.signals, t);
+            self.step_one(i, t)?;
         }
         Ok(())
     }
 
-    #[inline]
-    fn step_jacobi(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
+    #[inline(always)]
+    fn step_jacobi<const MULTI_RATE: bool>(
+        &mut self,
+        order: &[usize],
+        n: u64,
+        t: f64,
+    ) -> Result<(), Stop> {
         for &i in order {
-            if steps_at(n, self.rts[i].multiple) {
-                gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
+            let rt = &mut self.rts[i];
+            if !MULTI_RATE || steps_at(n, rt.multiple) {
+                rt.gather(&self.bus, &self.signals, t);
             }
         }
         for &i in order {
-            if !steps_at(n, self.rts[i].multiple) {
+            if MULTI_RATE && !steps_at(n, self.rts[i].multiple) {
                 continue;
             }
-            match self.rts[i].set_step_read(&self.inbufs[i], t) {
-                Ok(StepEnd::Done) => {}
-                Ok(StepEnd::Discard) => return Err(self.discarded(i, t)),
-                Err(e) => return Err(self.fail(i, t, e)),
-            }
+            self.step_one(i, t)?;
         }
         Ok(())
     }
@@ -1207,29 +1521,28 @@ impl Run<'_> {
                 .filter(|&i| steps_at(n, self.rts[i].multiple))
                 .collect();
             for &i in &due {
-                gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
+                self.rts[i].gather(&self.bus, &self.signals, t);
             }
             let results: Vec<(usize, Result<StepEnd, FmuError>)> = if due.len() <= 1 {
                 due.iter()
-                    .map(|&i| (i, self.rts[i].set_step_read(&self.inbufs[i], t)))
+                    .map(|&i| (i, self.rts[i].step_read(&mut self.bus, t)))
                     .collect()
             } else {
-                let inbufs = &self.inbufs;
-                let mut work: Vec<(usize, &mut Rt)> = self
+                let ranges: Vec<[(usize, usize); 3]> =
+                    self.rts.iter().map(|rt| rt.ports.out).collect();
+                let outs = self.bus.split(ranges.into_iter());
+                let mut work: Vec<(usize, &mut Rt, Outs<'_>)> = self
                     .rts
                     .iter_mut()
+                    .zip(outs)
                     .enumerate()
                     .filter(|(i, _)| due.contains(i))
+                    .map(|(i, (rt, out))| (i, rt, out))
                     .collect();
                 std::thread::scope(|s| {
                     let handles: Vec<_> = work
-                        .iter_mut()
-                        .map(|(i, rt)| {
-                            let i = *i;
-                            let b = &inbufs[i];
-                            let rt: &mut Rt = rt;
-                            s.spawn(move || (i, rt.set_step_read(b, t)))
-                        })
+                        .drain(..)
+                        .map(|(i, rt, out)| s.spawn(move || (i, rt.step_read_into(out, t))))
                         .collect();
                     handles
                         .into_iter()
