@@ -758,6 +758,14 @@ impl System {
         }
         let grid = Grid::new(config.start_time, config.stop_time, config.step_size)?;
         for c in &self.components {
+            // `set_step_multiple` refuses 0; checked again because the step loop divides by it.
+            if c.step_multiple == 0 {
+                return Err(MasterError::BadStepMultiple {
+                    component: c.name.clone(),
+                    multiple: c.step_multiple,
+                    problem: "must be at least 1",
+                });
+            }
             if !grid.n_steps.is_multiple_of(c.step_multiple) {
                 return Err(MasterError::BadStepMultiple {
                     component: c.name.clone(),
