@@ -758,6 +758,14 @@ impl System {
         }
         let grid = Grid::new(config.start_time, config.stop_time, config.step_size)?;
         for c in &self.components {
+            // `set_step_multiple` refuses 0; checked again because the step loop divides by it.
+            if c.step_multiple == 0 {
+                return Err(MasterError::BadStepMultiple {
+                    component: c.name.clone(),
+                    multiple: c.step_multiple,
+                    problem: "must be at least 1",
+                });
+            }
             if !grid.n_steps.is_multiple_of(c.step_multiple) {
                 return Err(MasterError::BadStepMultiple {
                     component: c.name.clone(),
@@ -812,56 +820,20 @@ impl System {
         let expected_rows = (grid.n_steps / record_every + 1).min(50_000_000) as usize;
         let mut results = Results::with_capacity(names, kinds, expected_rows);
 
-        // Runtime tables.
-        let mut rts: Vec<Rt> = Vec::with_capacity(n);
-        let mut inbufs: Vec<InBuf> = (0..n).map(|_| InBuf::default()).collect();
-        let mut slots: Vec<HashMap<(VarType, u32), usize>> = vec![HashMap::new(); n];
-        let mut get_lists: Vec<[Vec<u32>; 3]> = vec![Default::default(); n];
-        let mut slot_of = |comp: usize, ty: VarType, vr: u32| -> usize {
-            let t = ty_index(ty);
-            *slots[comp].entry((ty, vr)).or_insert_with(|| {
-                get_lists[comp][t].push(vr);
-                get_lists[comp][t].len() - 1
-            })
-        };
-        let rec: Vec<(usize, usize, usize)> = recorded
-            .iter()
-            .map(|r| (r.comp, ty_index(r.ty), slot_of(r.comp, r.ty, r.vr)))
-            .collect();
-        for (s, d) in &self.connections {
-            let slot = slot_of(s.comp, s.ty, s.vr);
-            let t = ty_index(d.ty);
-            inbufs[d.comp].vrs[t].push(d.vr);
-            inbufs[d.comp].src[t].push(Src::Out { comp: s.comp, slot });
-        }
+        // Runtime tables: where every value the master moves lives.
+        let fed: Vec<&VarRef> = self.signals.iter().map(|(d, _)| d).collect();
+        let plan = Plan::new(n, &recorded, &self.connections, &fed);
         let signals: Vec<Signal> = self.signals.iter().map(|(_, s)| s.clone()).collect();
-        for (i, (d, _)) in self.signals.iter().enumerate() {
-            let t = ty_index(d.ty);
-            inbufs[d.comp].vrs[t].push(d.vr);
-            inbufs[d.comp].src[t].push(Src::Signal(i));
-        }
-        for b in &mut inbufs {
-            b.real = vec![0.0; b.vrs[0].len()];
-            b.int = vec![0; b.vrs[1].len()];
-            b.boolean = vec![0; b.vrs[2].len()];
-        }
+        let bus = Bus::new(plan.bus_len);
+        let mut rts: Vec<Rt> = Vec::with_capacity(n);
 
         // Instantiate.
-        for (ci, c) in self.components.iter().enumerate() {
+        for (c, ports) in self.components.iter().zip(plan.ports) {
             match c.fmu.instantiate(&c.name, &self.instance_options) {
                 Ok(inst) => {
-                    let [gr, gi, gb] = std::mem::take(&mut get_lists[ci]);
-                    rts.push(Rt {
-                        inst,
-                        multiple: c.step_multiple,
-                        h: (c.step_multiple * grid.step_ticks) as f64
-                            / crate::time::TICKS_PER_SECOND as f64,
-                        real: vec![0.0; gr.len()],
-                        int: vec![0; gi.len()],
-                        boolean: vec![0; gb.len()],
-                        vrs: [gr, gi, gb],
-                        steps: 0,
-                    });
+                    let h = (c.step_multiple * grid.step_ticks) as f64
+                        / crate::time::TICKS_PER_SECOND as f64;
+                    rts.push(Rt::new(inst, c.step_multiple, h, ports));
                 }
                 Err(e) => {
                     return Ok(RunOutput {
@@ -881,9 +853,9 @@ impl System {
             sys: self,
             grid,
             rts,
-            inbufs,
+            bus,
             signals,
-            rec,
+            row: plan.row,
         };
         let outcome = run.execute(config, &order, &groups, &mut results, record_every);
         let steps_per_component = run.rts.iter().map(|r| r.steps).collect();
@@ -895,6 +867,7 @@ impl System {
     }
 }
 
+/// The index of a type's buffer: 0 `Real`, 1 `Integer` (and `Enumeration`), 2 `Boolean`.
 fn ty_index(ty: VarType) -> usize {
     match ty {
         VarType::Real => 0,
@@ -903,31 +876,265 @@ fn ty_index(ty: VarType) -> usize {
     }
 }
 
-#[derive(Debug, Clone, Copy)]
-enum Src {
-    Out { comp: usize, slot: usize },
-    Signal(usize),
-}
-
-/// Inputs of one component: value references, sources and the value buffers set before a step.
-#[derive(Default)]
-struct InBuf {
-    vrs: [Vec<u32>; 3],
-    src: [Vec<Src>; 3],
+/// The values the master reads after each step, one flat buffer per type (the "bus"): the
+/// values a component's `fmi2Get*` call of one type returns occupy one contiguous range of that
+/// type's buffer ([`Ports::out`]); the components' ranges follow each other in declaration
+/// order. Booleans are kept as the FMU's `fmi2Boolean` (a C int).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct Bus {
     real: Vec<f64>,
     int: Vec<i32>,
     boolean: Vec<i32>,
 }
 
-/// One component at run time: its instance and the values read after each step.
+/// One component's part of the [`Bus`], per type.
+struct Outs<'a> {
+    real: &'a mut [f64],
+    int: &'a mut [i32],
+    boolean: &'a mut [i32],
+}
+
+impl Bus {
+    /// A bus of `len` values per type (`Real`, `Integer`, `Boolean`), all zero.
+    fn new(len: [usize; 3]) -> Bus {
+        Bus {
+            real: vec![0.0; len[0]],
+            int: vec![0; len[1]],
+            boolean: vec![0; len[2]],
+        }
+    }
+
+    /// Every component's part at once (for stepping on threads): `ranges` are the components'
+    /// [`Ports::out`] in declaration order, which tile the bus.
+    fn split(&mut self, ranges: impl Iterator<Item = [(usize, usize); 3]>) -> Vec<Outs<'_>> {
+        let (mut real, mut int, mut boolean) = (
+            self.real.as_mut_slice(),
+            self.int.as_mut_slice(),
+            self.boolean.as_mut_slice(),
+        );
+        ranges
+            .map(|out| {
+                let (r, rest) = std::mem::take(&mut real).split_at_mut(out[0].1 - out[0].0);
+                real = rest;
+                let (i, rest) = std::mem::take(&mut int).split_at_mut(out[1].1 - out[1].0);
+                int = rest;
+                let (b, rest) = std::mem::take(&mut boolean).split_at_mut(out[2].1 - out[2].0);
+                boolean = rest;
+                Outs {
+                    real: r,
+                    int: i,
+                    boolean: b,
+                }
+            })
+            .collect()
+    }
+}
+
+/// A run of consecutive recorded columns that are consecutive values of one type on the
+/// [`Bus`] (start, end): a recorded row is built with one copy per run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RowRun {
+    /// `Real` values, copied as they are.
+    Real(usize, usize),
+    /// `Integer` values, converted to `f64`.
+    Integer(usize, usize),
+    /// `Boolean` values, recorded as 0.0 or 1.0.
+    Boolean(usize, usize),
+}
+
+/// Groups recorded columns, given as (type index, bus index), into [`RowRun`]s.
+fn row_runs(columns: &[(usize, usize)]) -> Vec<RowRun> {
+    let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+    for &(t, k) in columns {
+        match runs.last_mut() {
+            Some((rt, _, end)) if *rt == t && *end == k => *end += 1,
+            _ => runs.push((t, k, k + 1)),
+        }
+    }
+    runs.into_iter()
+        .map(|(t, a, b)| match t {
+            0 => RowRun::Real(a, b),
+            1 => RowRun::Integer(a, b),
+            _ => RowRun::Boolean(a, b),
+        })
+        .collect()
+}
+
+/// What one component reads and writes, as indices (built once per run by [`Plan::new`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct Ports {
+    /// Value references read after each step, per type (recorded ones first, in recording
+    /// order, then the connected ones; each once).
+    out_vrs: [Vec<u32>; 3],
+    /// Where their values go on the bus, per type: (start, end).
+    out: [(usize, usize); 3],
+    /// Value references of the inputs set before each step, per type: the connected ones in
+    /// connection order, then the signal-fed ones.
+    in_vrs: [Vec<u32>; 3],
+    /// The bus index of each connected input's source, per type (the first `in_from[t].len()`
+    /// entries of `in_vrs[t]`).
+    in_from: [Vec<usize>; 3],
+    /// The signal-fed inputs: (type index, position in `in_vrs[type]`, signal index).
+    in_signals: Vec<(usize, usize, usize)>,
+    /// Whether there are `Integer` or `Boolean` outputs to read (the hot path reads `Real`s
+    /// only).
+    out_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs to set.
+    in_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs or signal-fed inputs to gather.
+    in_rare: bool,
+}
+
+/// The layout of a run: every component's [`Ports`], the bus size and the recorded row.
+#[derive(Debug, Clone, PartialEq)]
+struct Plan {
+    /// Per component, in declaration order.
+    ports: Vec<Ports>,
+    /// Bus length per type.
+    bus_len: [usize; 3],
+    /// The recorded columns, as runs of bus values.
+    row: Vec<RowRun>,
+}
+
+impl Plan {
+    /// The layout for `n` components recording `recorded`, with `connections` (source,
+    /// destination) and the inputs `fed` by signals (in signal order).
+    fn new(
+        n: usize,
+        recorded: &[VarRef],
+        connections: &[(VarRef, VarRef)],
+        fed: &[&VarRef],
+    ) -> Plan {
+        let mut ports: Vec<Ports> = vec![Ports::default(); n];
+        // Position of each value read per component, type and value reference, in order of
+        // first use.
+        let mut slots: Vec<HashMap<(usize, u32), usize>> = vec![HashMap::new(); n];
+        let mut slot_of = |ports: &mut [Ports], comp: usize, ty: VarType, vr: u32| -> usize {
+            let t = ty_index(ty);
+            *slots[comp].entry((t, vr)).or_insert_with(|| {
+                ports[comp].out_vrs[t].push(vr);
+                ports[comp].out_vrs[t].len() - 1
+            })
+        };
+        let rec: Vec<(usize, usize, usize)> = recorded
+            .iter()
+            .map(|r| {
+                (
+                    r.comp,
+                    ty_index(r.ty),
+                    slot_of(&mut ports, r.comp, r.ty, r.vr),
+                )
+            })
+            .collect();
+        let sources: Vec<usize> = connections
+            .iter()
+            .map(|(s, _)| slot_of(&mut ports, s.comp, s.ty, s.vr))
+            .collect();
+        let mut bus_len = [0; 3];
+        for p in &mut ports {
+            for ((out, vrs), len) in p.out.iter_mut().zip(&p.out_vrs).zip(&mut bus_len) {
+                *out = (*len, *len + vrs.len());
+                *len = out.1;
+            }
+        }
+        for ((s, d), slot) in connections.iter().zip(sources) {
+            let t = ty_index(s.ty);
+            let from = ports[s.comp].out[t].0 + slot;
+            let p = &mut ports[d.comp];
+            p.in_vrs[t].push(d.vr);
+            p.in_from[t].push(from);
+        }
+        for (k, d) in fed.iter().enumerate() {
+            let t = ty_index(d.ty);
+            let p = &mut ports[d.comp];
+            p.in_signals.push((t, p.in_vrs[t].len(), k));
+            p.in_vrs[t].push(d.vr);
+        }
+        for p in &mut ports {
+            p.out_other = !(p.out_vrs[1].is_empty() && p.out_vrs[2].is_empty());
+            p.in_other = !(p.in_vrs[1].is_empty() && p.in_vrs[2].is_empty());
+            p.in_rare = p.in_other || !p.in_signals.is_empty();
+        }
+        let columns: Vec<(usize, usize)> = rec
+            .iter()
+            .map(|&(c, t, slot)| (t, ports[c].out[t].0 + slot))
+            .collect();
+        let row = row_runs(&columns);
+        Plan {
+            ports,
+            bus_len,
+            row,
+        }
+    }
+}
+
+/// The input values of one component, set before each of its steps (same layout as
+/// [`Ports::in_vrs`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+struct InValues {
+    real: Vec<f64>,
+    int: Vec<i32>,
+    boolean: Vec<i32>,
+}
+
+impl InValues {
+    /// Zeroed buffers for the inputs of `ports`.
+    fn for_ports(ports: &Ports) -> InValues {
+        InValues {
+            real: vec![0.0; ports.in_vrs[0].len()],
+            int: vec![0; ports.in_vrs[1].len()],
+            boolean: vec![0; ports.in_vrs[2].len()],
+        }
+    }
+
+    /// Takes the connected inputs from the bus and the signal-fed ones from their signals at
+    /// time `t`.
+    #[inline(always)]
+    fn gather(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.real.iter_mut().zip(&ports.in_from[0]) {
+            *v = bus.real[k];
+        }
+        if ports.in_rare {
+            self.gather_rare(ports, bus, signals, t);
+        }
+    }
+
+    /// The `Integer` and `Boolean` part of [`gather`](Self::gather) and the signal-fed inputs.
+    #[inline(never)]
+    fn gather_rare(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.int.iter_mut().zip(&ports.in_from[1]) {
+            *v = bus.int[k];
+        }
+        for (v, &k) in self.boolean.iter_mut().zip(&ports.in_from[2]) {
+            *v = (bus.boolean[k] != 0) as i32;
+        }
+        if !ports.in_signals.is_empty() {
+            self.sample_signals(ports, signals, t);
+        }
+    }
+
+    /// The signal-fed inputs at time `t` (rare: single-FMU runs with an input file).
+    #[cold]
+    #[inline(never)]
+    fn sample_signals(&mut self, ports: &Ports, signals: &[Signal], t: f64) {
+        for &(ty, k, s) in &ports.in_signals {
+            let x = signals[s].at(t);
+            match ty {
+                0 => self.real[k] = x,
+                1 => self.int[k] = x.round() as i32,
+                _ => self.boolean[k] = (x != 0.0) as i32,
+            }
+        }
+    }
+}
+
+/// One component at run time: its instance, its [`Ports`] and its input values.
 struct Rt {
     inst: Instance,
     multiple: u64,
     h: f64,
-    vrs: [Vec<u32>; 3],
-    real: Vec<f64>,
-    int: Vec<i32>,
-    boolean: Vec<i32>,
+    ports: Ports,
+    inputs: InValues,
     steps: u64,
 }
 
@@ -937,32 +1144,102 @@ enum StepEnd {
 }
 
 impl Rt {
-    #[inline]
-    fn read(&mut self) -> Result<(), FmuError> {
-        self.inst.get_real(&self.vrs[0], &mut self.real)?;
-        self.inst.get_integer(&self.vrs[1], &mut self.int)?;
-        self.inst.get_boolean_raw(&self.vrs[2], &mut self.boolean)?;
+    fn new(inst: Instance, multiple: u64, h: f64, ports: Ports) -> Rt {
+        Rt {
+            inst,
+            multiple,
+            h,
+            inputs: InValues::for_ports(&ports),
+            ports,
+            steps: 0,
+        }
+    }
+
+    /// Takes the input values (see [`InValues::gather`]).
+    #[inline(always)]
+    fn gather(&mut self, bus: &Bus, signals: &[Signal], t: f64) {
+        self.inputs.gather(&self.ports, bus, signals, t);
+    }
+
+    /// Reads the outputs into the component's part of the bus.
+    #[inline(always)]
+    fn read(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let (a, b) = self.ports.out[0];
+        self.inst
+            .get_real(&self.ports.out_vrs[0], &mut bus.real[a..b])?;
+        if self.ports.out_other {
+            self.read_other(bus)?;
+        }
         Ok(())
     }
 
-    #[inline]
-    fn write(&mut self, b: &InBuf) -> Result<(), FmuError> {
-        self.inst.set_real(&b.vrs[0], &b.real)?;
-        self.inst.set_integer(&b.vrs[1], &b.int)?;
-        self.inst.set_boolean_raw(&b.vrs[2], &b.boolean)?;
+    /// The `Integer` and `Boolean` part of [`read`](Self::read).
+    #[inline(never)]
+    fn read_other(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let [_, (a, b), (c, d)] = self.ports.out;
+        self.inst
+            .get_integer(&self.ports.out_vrs[1], &mut bus.int[a..b])?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], &mut bus.boolean[c..d])?;
         Ok(())
     }
 
-    #[inline]
-    fn set_step_read(&mut self, b: &InBuf, t: f64) -> Result<StepEnd, FmuError> {
-        self.write(b)?;
+    /// Reads the outputs into `out` (the component's part of the bus).
+    fn read_into(&mut self, out: Outs<'_>) -> Result<(), FmuError> {
+        self.inst.get_real(&self.ports.out_vrs[0], out.real)?;
+        self.inst.get_integer(&self.ports.out_vrs[1], out.int)?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], out.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the input values.
+    #[inline(always)]
+    fn write(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_real(&self.ports.in_vrs[0], &self.inputs.real)?;
+        if self.ports.in_other {
+            self.write_other()?;
+        }
+        Ok(())
+    }
+
+    /// The `Integer` and `Boolean` part of [`write`](Self::write).
+    #[inline(never)]
+    fn write_other(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_integer(&self.ports.in_vrs[1], &self.inputs.int)?;
+        self.inst
+            .set_boolean_raw(&self.ports.in_vrs[2], &self.inputs.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the inputs and steps from `t`.
+    #[inline(always)]
+    fn write_step(&mut self, t: f64) -> Result<StepEnd, FmuError> {
+        self.write()?;
         self.steps += 1;
         match self.inst.do_step(t, self.h)? {
-            Status::Discard => return Ok(StepEnd::Discard),
-            Status::Ok | Status::Warning => {}
+            Status::Discard => Ok(StepEnd::Discard),
+            Status::Ok | Status::Warning => Ok(StepEnd::Done),
         }
-        self.read()?;
-        Ok(StepEnd::Done)
+    }
+
+    /// Sets the inputs, steps from `t` and reads the outputs onto the bus.
+    #[inline(always)]
+    fn step_read(&mut self, bus: &mut Bus, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read(bus).map(|_| StepEnd::Done),
+        }
+    }
+
+    /// [`step_read`](Self::step_read) into the component's part of the bus (on a thread).
+    fn step_read_into(&mut self, out: Outs<'_>, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read_into(out).map(|_| StepEnd::Done),
+        }
     }
 }
 
@@ -974,35 +1251,13 @@ fn steps_at(n: u64, multiple: u64) -> bool {
     multiple == 1 || n.is_multiple_of(multiple)
 }
 
-#[inline]
-fn gather(b: &mut InBuf, rts: &[Rt], signals: &[Signal], t: f64) {
-    for (k, s) in b.src[0].iter().enumerate() {
-        b.real[k] = match *s {
-            Src::Out { comp, slot } => rts[comp].real[slot],
-            Src::Signal(i) => signals[i].at(t),
-        };
-    }
-    for (k, s) in b.src[1].iter().enumerate() {
-        b.int[k] = match *s {
-            Src::Out { comp, slot } => rts[comp].int[slot],
-            Src::Signal(i) => signals[i].at(t).round() as i32,
-        };
-    }
-    for (k, s) in b.src[2].iter().enumerate() {
-        b.boolean[k] = match *s {
-            Src::Out { comp, slot } => (rts[comp].boolean[slot] != 0) as i32,
-            Src::Signal(i) => (signals[i].at(t) != 0.0) as i32,
-        };
-    }
-}
-
 struct Run<'a> {
     sys: &'a System,
     grid: Grid,
     rts: Vec<Rt>,
-    inbufs: Vec<InBuf>,
+    bus: Bus,
     signals: Vec<Signal>,
-    rec: Vec<(usize, usize, usize)>,
+    row: Vec<RowRun>,
 }
 
 enum Stop {
@@ -1010,7 +1265,26 @@ enum Stop {
     Failed(MasterError),
 }
 
+/// Appends the row at time `t` built from `bus` by `row` to `results`.
+#[inline]
+fn record_row(results: &mut Results, row: &[RowRun], bus: &Bus, t: f64) {
+    results.push_time(t);
+    for run in row {
+        match *run {
+            RowRun::Real(a, b) => results.push_values(&bus.real[a..b]),
+            RowRun::Integer(a, b) => {
+                results.push_values_from(bus.int[a..b].iter().map(|&v| v as f64))
+            }
+            RowRun::Boolean(a, b) => {
+                results.push_values_from(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
+            }
+        }
+    }
+}
+
 impl Run<'_> {
+    #[cold]
+    #[inline(never)]
     fn fail(&self, comp: usize, time: f64, e: FmuError) -> Stop {
         Stop::Failed(MasterError::Fmu {
             component: self.sys.components[comp].name.clone(),
@@ -1021,16 +1295,7 @@ impl Run<'_> {
 
     #[inline]
     fn record(&self, results: &mut Results, t: f64) {
-        results.push_time(t);
-        for &(c, ty, slot) in &self.rec {
-            let rt = &self.rts[c];
-            let v = match ty {
-                0 => rt.real[slot],
-                1 => rt.int[slot] as f64,
-                _ => (rt.boolean[slot] != 0) as i32 as f64,
-            };
-            results.push_value(v);
-        }
+        record_row(results, &self.row, &self.bus, t);
     }
 
     fn execute(
@@ -1046,26 +1311,35 @@ impl Run<'_> {
             return self.finish(stop, results);
         }
         self.record(results, t0);
-        let total = self.grid.n_steps;
-        let stride = (total / 200).max(1);
-        for n in 0..total {
-            let t = self.grid.time(n);
-            let r = match (config.algorithm, config.parallel) {
-                (Algorithm::GaussSeidel, false) => self.step_gauss_seidel(order, n, t),
-                (Algorithm::Jacobi, false) => self.step_jacobi(order, n, t),
-                (_, true) => self.step_parallel(groups, n, t),
-            };
-            if let Err(stop) = r {
-                return self.finish(stop, results);
+        // The step loop is chosen once per run.
+        let multi_rate = self.rts.iter().any(|r| r.multiple != 1);
+        let r = match (config.parallel, config.algorithm, multi_rate) {
+            (true, ..) => self.step_loop(config, results, record_every, |run, n, t| {
+                run.step_parallel(groups, n, t)
+            }),
+            (false, Algorithm::GaussSeidel, false) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_gauss_seidel::<false>(order, n, t)
+                })
             }
-            if record_every == 1 || (n + 1).is_multiple_of(record_every) {
-                self.record(results, self.grid.time(n + 1));
+            (false, Algorithm::GaussSeidel, true) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_gauss_seidel::<true>(order, n, t)
+                })
             }
-            if let Some(p) = &config.progress
-                && (n + 1).is_multiple_of(stride)
-            {
-                p(n + 1, total);
+            (false, Algorithm::Jacobi, false) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_jacobi::<false>(order, n, t)
+                })
             }
+            (false, Algorithm::Jacobi, true) => {
+                self.step_loop(config, results, record_every, |run, n, t| {
+                    run.step_jacobi::<true>(order, n, t)
+                })
+            }
+        };
+        if let Err(stop) = r {
+            return self.finish(stop, results);
         }
         for i in 0..self.rts.len() {
             let _ = self.rts[i].inst.terminate();
@@ -1073,6 +1347,40 @@ impl Run<'_> {
         Outcome::Completed {
             stop_time: self.grid.stop(),
         }
+    }
+
+    /// Every macro step with `step`, recording every `record_every`-th row and reporting
+    /// progress.
+    #[inline(always)]
+    fn step_loop(
+        &mut self,
+        config: &RunConfig,
+        results: &mut Results,
+        record_every: u64,
+        mut step: impl FnMut(&mut Self, u64, f64) -> Result<(), Stop>,
+    ) -> Result<(), Stop> {
+        let total = self.grid.n_steps;
+        let stride = (total / 200).max(1);
+        // The next step counts (n + 1) to record at and to report progress at.
+        let mut next_row = record_every;
+        let mut next_progress = stride;
+        let mut t = self.grid.time(0);
+        for n in 0..total {
+            step(self, n, t)?;
+            let done = n + 1;
+            t = self.grid.time(done);
+            if done == next_row {
+                next_row = next_row.saturating_add(record_every);
+                self.record(results, t);
+            }
+            if done == next_progress {
+                next_progress = next_progress.saturating_add(stride);
+                if let Some(p) = &config.progress {
+                    p(done, total);
+                }
+            }
+        }
+        Ok(())
     }
 
     fn finish(&mut self, stop: Stop, results: &Results) -> Outcome {
@@ -1113,14 +1421,13 @@ impl Run<'_> {
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for i in 0..self.rts.len() {
-            let r = self.rts[i].read();
+            let r = self.rts[i].read(&mut self.bus);
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for &i in order {
-            gather(&mut self.inbufs[i], &self.rts, &self.signals, t0);
-            let r = self.rts[i]
-                .write(&self.inbufs[i])
-                .and_then(|_| self.rts[i].read());
+            let rt = &mut self.rts[i];
+            rt.gather(&self.bus, &self.signals, t0);
+            let r = rt.write().and_then(|_| rt.read(&mut self.bus));
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for i in 0..self.rts.len() {
@@ -1128,7 +1435,7 @@ impl Run<'_> {
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         for &i in order {
-            let r = self.rts[i].read();
+            let r = self.rts[i].read(&mut self.bus);
             r.map_err(|e| self.fail(i, t0, e))?;
         }
         Ok(())
@@ -1148,6 +1455,7 @@ impl Run<'_> {
     }
 
     #[cold]
+    #[inline(never)]
     fn discarded(&mut self, i: usize, t: f64) -> Stop {
         let inst = &mut self.rts[i].inst;
         if inst.terminated() {
@@ -1163,38 +1471,52 @@ impl Run<'_> {
         }
     }
 
-    #[inline]
-    fn step_gauss_seidel(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
+    /// Steps component `i` from `t` (its inputs gathered): outputs onto the bus.
+    #[inline(always)]
+    fn step_one(&mut self, i: usize, t: f64) -> Result<(), Stop> {
+        match self.rts[i].step_read(&mut self.bus, t) {
+            Ok(StepEnd::Done) => Ok(()),
+            Ok(StepEnd::Discard) => Err(self.discarded(i, t)),
+            Err(e) => Err(self.fail(i, t, e)),
+        }
+    }
+
+    #[inline(always)]
+    fn step_gauss_seidel<const MULTI_RATE: bool>(
+        &mut self,
+        order: &[usize],
+        n: u64,
+        t: f64,
+    ) -> Result<(), Stop> {
         for &i in order {
-            if !steps_at(n, self.rts[i].multiple) {
+            let rt = &mut self.rts[i];
+            if MULTI_RATE && !steps_at(n, rt.multiple) {
                 continue;
             }
-            gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
-            match self.rts[i].set_step_read(&self.inbufs[i], t) {
-                Ok(StepEnd::Done) => {}
-                Ok(StepEnd::Discard) => return Err(self.discarded(i, t)),
-                Err(e) => return Err(self.fail(i, t, e)),
-            }
+            rt.gather(&self.bus, &self.signals, t);
+            self.step_one(i, t)?;
         }
         Ok(())
     }
 
-    #[inline]
-    fn step_jacobi(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
+    #[inline(always)]
+    fn step_jacobi<const MULTI_RATE: bool>(
+        &mut self,
+        order: &[usize],
+        n: u64,
+        t: f64,
+    ) -> Result<(), Stop> {
         for &i in order {
-            if steps_at(n, self.rts[i].multiple) {
-                gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
+            let rt = &mut self.rts[i];
+            if !MULTI_RATE || steps_at(n, rt.multiple) {
+                rt.gather(&self.bus, &self.signals, t);
             }
         }
         for &i in order {
-            if !steps_at(n, self.rts[i].multiple) {
+            if MULTI_RATE && !steps_at(n, self.rts[i].multiple) {
                 continue;
             }
-            match self.rts[i].set_step_read(&self.inbufs[i], t) {
-                Ok(StepEnd::Done) => {}
-                Ok(StepEnd::Discard) => return Err(self.discarded(i, t)),
-                Err(e) => return Err(self.fail(i, t, e)),
-            }
+            self.step_one(i, t)?;
         }
         Ok(())
     }
@@ -1207,29 +1529,28 @@ impl Run<'_> {
                 .filter(|&i| steps_at(n, self.rts[i].multiple))
                 .collect();
             for &i in &due {
-                gather(&mut self.inbufs[i], &self.rts, &self.signals, t);
+                self.rts[i].gather(&self.bus, &self.signals, t);
             }
             let results: Vec<(usize, Result<StepEnd, FmuError>)> = if due.len() <= 1 {
                 due.iter()
-                    .map(|&i| (i, self.rts[i].set_step_read(&self.inbufs[i], t)))
+                    .map(|&i| (i, self.rts[i].step_read(&mut self.bus, t)))
                     .collect()
             } else {
-                let inbufs = &self.inbufs;
-                let mut work: Vec<(usize, &mut Rt)> = self
+                let ranges: Vec<[(usize, usize); 3]> =
+                    self.rts.iter().map(|rt| rt.ports.out).collect();
+                let outs = self.bus.split(ranges.into_iter());
+                let mut work: Vec<(usize, &mut Rt, Outs<'_>)> = self
                     .rts
                     .iter_mut()
+                    .zip(outs)
                     .enumerate()
                     .filter(|(i, _)| due.contains(i))
+                    .map(|(i, (rt, out))| (i, rt, out))
                     .collect();
                 std::thread::scope(|s| {
                     let handles: Vec<_> = work
-                        .iter_mut()
-                        .map(|(i, rt)| {
-                            let i = *i;
-                            let b = &inbufs[i];
-                            let rt: &mut Rt = rt;
-                            s.spawn(move || (i, rt.set_step_read(b, t)))
-                        })
+                        .drain(..)
+                        .map(|(i, rt, out)| s.spawn(move || (i, rt.step_read_into(out, t))))
                         .collect();
                     handles
                         .into_iter()
@@ -1252,6 +1573,454 @@ impl Run<'_> {
 #[cfg(test)]
 mod tests {
     use super::Signal;
+
+    use super::{
+        Bus, InValues, Plan, RowRun, VarRef, VarType, record_row, row_runs, steps_at, ty_index,
+    };
+    use crate::results::{ColumnKind, Results};
+    use std::collections::{BTreeMap, HashMap};
+
+    const R: VarType = VarType::Real;
+    const I: VarType = VarType::Integer;
+    const B: VarType = VarType::Boolean;
+
+    fn var(comp: usize, vr: u32, ty: VarType) -> VarRef {
+        VarRef {
+            comp,
+            vr,
+            ty,
+            name: format!("c{comp}.v{vr}"),
+        }
+    }
+
+    /// Three components with `Real`, `Integer` and `Boolean` outputs, connections of every
+    /// type (one of them backwards: 2 -> 0), signal-fed inputs of every type, and a recorded
+    /// list in mixed order with a duplicate and an input.
+    struct Case {
+        recorded: Vec<VarRef>,
+        connections: Vec<(VarRef, VarRef)>,
+        signals: Vec<(VarRef, Signal)>,
+        multiples: Vec<u64>,
+    }
+
+    fn case() -> Case {
+        let conn =
+            |s: (usize, u32, VarType), d: (usize, u32)| (var(s.0, s.1, s.2), var(d.0, d.1, s.2));
+        let ramp = Signal {
+            times: vec![0.0, 1.0],
+            values: vec![-1.5, 2.5],
+            interpolate: true,
+        };
+        let steps = Signal {
+            times: vec![0.0, 0.25, 0.6],
+            values: vec![0.0, 3.0, 0.0],
+            interpolate: false,
+        };
+        Case {
+            recorded: vec![
+                var(0, 1, R),
+                var(0, 2, R),
+                var(0, 10, I),
+                var(0, 20, B),
+                var(1, 1, R),
+                var(1, 2, R),
+                var(0, 3, R),
+                var(1, 21, B),
+                var(1, 11, I),
+                var(0, 1, R),
+                var(2, 100, R),
+                var(2, 5, R),
+                var(2, 22, B),
+                var(1, 11, I),
+            ],
+            connections: vec![
+                conn((0, 1, R), (1, 100)),
+                conn((2, 5, R), (0, 100)),
+                conn((0, 10, I), (1, 110)),
+                conn((0, 3, R), (1, 101)),
+                conn((0, 20, B), (1, 120)),
+                conn((1, 11, I), (2, 110)),
+                conn((1, 2, R), (2, 101)),
+            ],
+            signals: vec![
+                (var(2, 100, R), ramp.clone()),
+                (var(2, 120, B), steps.clone()),
+                (var(2, 111, I), ramp),
+            ],
+            multiples: vec![1, 2, 3],
+        }
+    }
+
+    fn plan(c: &Case) -> Plan {
+        let fed: Vec<&VarRef> = c.signals.iter().map(|(d, _)| d).collect();
+        Plan::new(c.multiples.len(), &c.recorded, &c.connections, &fed)
+    }
+
+    /// A stand-in for an FMU: the value of output `vr` of type `ty` after step `n`, from the
+    /// inputs (keyed by type index and value reference, booleans as 0/1). Booleans come out
+    /// as 0 or 5 (any non-zero `fmi2Boolean` is true).
+    fn output(ty: usize, vr: u32, n: u64, inputs: &BTreeMap<(usize, u32), f64>) -> f64 {
+        let sum: f64 = inputs.values().sum();
+        match ty {
+            0 => vr as f64 + n as f64 * 0.5 + sum * 0.25,
+            1 => (vr as i64 + n as i64 + sum.floor() as i64) as i32 as f64,
+            _ => {
+                if (u64::from(vr) + n + sum.abs() as u64).is_multiple_of(3) {
+                    0.0
+                } else {
+                    5.0
+                }
+            }
+        }
+    }
+
+    fn results(c: &Case) -> Results {
+        let kinds = c
+            .recorded
+            .iter()
+            .map(|r| match r.ty {
+                VarType::Real => ColumnKind::Real,
+                VarType::Integer => ColumnKind::Integer,
+                _ => ColumnKind::Boolean,
+            })
+            .collect();
+        Results::with_capacity(
+            c.recorded.iter().map(|r| r.name.clone()).collect(),
+            kinds,
+            0,
+        )
+    }
+
+    fn bits(r: &Results) -> Vec<Vec<u64>> {
+        r.rows()
+            .map(|row| row.iter().map(|v| v.to_bits()).collect())
+            .collect()
+    }
+
+    /// Writes component `c`'s outputs after step `n` onto the bus, as the master's `read`.
+    fn step_on_bus(plan: &Plan, bus: &mut Bus, c: usize, n: u64, inputs: &InValues) {
+        let p = &plan.ports[c];
+        let mut ins = BTreeMap::new();
+        for (&vr, &x) in p.in_vrs[0].iter().zip(&inputs.real) {
+            ins.insert((0, vr), x);
+        }
+        for (&vr, &x) in p.in_vrs[1].iter().zip(&inputs.int) {
+            ins.insert((1, vr), x as f64);
+        }
+        for (&vr, &x) in p.in_vrs[2].iter().zip(&inputs.boolean) {
+            ins.insert((2, vr), x as f64);
+        }
+        for (k, &vr) in p.out_vrs[0].iter().enumerate() {
+            bus.real[p.out[0].0 + k] = output(0, vr, n, &ins);
+        }
+        for (k, &vr) in p.out_vrs[1].iter().enumerate() {
+            bus.int[p.out[1].0 + k] = output(1, vr, n, &ins) as i32;
+        }
+        for (k, &vr) in p.out_vrs[2].iter().enumerate() {
+            bus.boolean[p.out[2].0 + k] = output(2, vr, n, &ins) as i32;
+        }
+    }
+
+    /// The rows of a run through the plan: inputs gathered by bus index, rows by runs.
+    fn run_on_bus(c: &Case, jacobi: bool, steps: u64) -> Results {
+        let plan = plan(c);
+        let signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
+        let mut bus = Bus::new(plan.bus_len);
+        let mut inputs: Vec<InValues> = plan.ports.iter().map(InValues::for_ports).collect();
+        for (i, v) in inputs.iter().enumerate() {
+            step_on_bus(&plan, &mut bus, i, 0, v);
+        }
+        let mut out = results(c);
+        record_row(&mut out, &plan.row, &bus, 0.0);
+        for n in 0..steps {
+            let t = n as f64 * 0.1;
+            let due: Vec<usize> = (0..c.multiples.len())
+                .filter(|&i| steps_at(n, c.multiples[i]))
+                .collect();
+            if jacobi {
+                for &i in &due {
+                    inputs[i].gather(&plan.ports[i], &bus, &signals, t);
+                }
+                for &i in &due {
+                    step_on_bus(&plan, &mut bus, i, n + 1, &inputs[i]);
+                }
+            } else {
+                for &i in &due {
+                    inputs[i].gather(&plan.ports[i], &bus, &signals, t);
+                    step_on_bus(&plan, &mut bus, i, n + 1, &inputs[i]);
+                }
+            }
+            record_row(&mut out, &plan.row, &bus, (n + 1) as f64 * 0.1);
+        }
+        out
+    }
+
+    /// The same run the naive way: every value looked up by (component, type, value
+    /// reference), every input per connection, every recorded value pushed on its own.
+    fn run_naive(c: &Case, jacobi: bool, steps: u64) -> Results {
+        let n_comps = c.multiples.len();
+        // What each component reads after a step: its recorded and connected outputs.
+        let mut reads: Vec<Vec<(usize, u32)>> = vec![Vec::new(); n_comps];
+        for r in c
+            .recorded
+            .iter()
+            .chain(c.connections.iter().map(|(s, _)| s))
+        {
+            let key = (ty_index(r.ty), r.vr);
+            if !reads[r.comp].contains(&key) {
+                reads[r.comp].push(key);
+            }
+        }
+        let mut values: HashMap<(usize, usize, u32), f64> = HashMap::new();
+        let step = |values: &mut HashMap<_, _>, i: usize, n: u64, ins: &BTreeMap<_, _>| {
+            for &(ty, vr) in &reads[i] {
+                values.insert((i, ty, vr), output(ty, vr, n, ins));
+            }
+        };
+        let inputs_of = |values: &HashMap<(usize, usize, u32), f64>, i: usize, t: f64| {
+            let mut ins = BTreeMap::new();
+            for (s, d) in c.connections.iter().filter(|(_, d)| d.comp == i) {
+                let ty = ty_index(s.ty);
+                let v = values[&(s.comp, ty, s.vr)];
+                ins.insert(
+                    (ty, d.vr),
+                    if ty == 2 { (v != 0.0) as i32 as f64 } else { v },
+                );
+            }
+            for (d, s) in c.signals.iter().filter(|(d, _)| d.comp == i) {
+                let x = s.at(t);
+                let v = match d.ty {
+                    VarType::Real => x,
+                    VarType::Integer => x.round() as i32 as f64,
+                    _ => (x != 0.0) as i32 as f64,
+                };
+                ins.insert((ty_index(d.ty), d.vr), v);
+            }
+            ins
+        };
+        let record = |out: &mut Results, values: &HashMap<(usize, usize, u32), f64>, t: f64| {
+            out.push_time(t);
+            for r in &c.recorded {
+                let ty = ty_index(r.ty);
+                let v = values[&(r.comp, ty, r.vr)];
+                out.push_value(if ty == 2 { (v != 0.0) as i32 as f64 } else { v });
+            }
+        };
+        // Initial values: every input still at zero.
+        let zeros = |i: usize| -> BTreeMap<(usize, u32), f64> {
+            c.connections
+                .iter()
+                .map(|(_, d)| d)
+                .chain(c.signals.iter().map(|(d, _)| d))
+                .filter(|d| d.comp == i)
+                .map(|d| ((ty_index(d.ty), d.vr), 0.0))
+                .collect()
+        };
+        for i in 0..n_comps {
+            step(&mut values, i, 0, &zeros(i));
+        }
+        let mut out = results(c);
+        record(&mut out, &values, 0.0);
+        for n in 0..steps {
+            let t = n as f64 * 0.1;
+            let due: Vec<usize> = (0..n_comps)
+                .filter(|&i| n.is_multiple_of(c.multiples[i]))
+                .collect();
+            if jacobi {
+                let ins: Vec<_> = due.iter().map(|&i| inputs_of(&values, i, t)).collect();
+                for (&i, ins) in due.iter().zip(&ins) {
+                    step(&mut values, i, n + 1, ins);
+                }
+            } else {
+                for &i in &due {
+                    let ins = inputs_of(&values, i, t);
+                    step(&mut values, i, n + 1, &ins);
+                }
+            }
+            record(&mut out, &values, (n + 1) as f64 * 0.1);
+        }
+        out
+    }
+
+    #[test]
+    fn row_runs_join_consecutive_bus_values_of_one_type() {
+        let columns = [
+            (0, 0),
+            (0, 1),
+            (0, 2),
+            (1, 0),
+            (0, 3),
+            (0, 3),
+            (2, 0),
+            (2, 1),
+            (1, 1),
+        ];
+        assert_eq!(
+            row_runs(&columns),
+            [
+                RowRun::Real(0, 3),
+                RowRun::Integer(0, 1),
+                RowRun::Real(3, 4),
+                RowRun::Real(3, 4),
+                RowRun::Boolean(0, 2),
+                RowRun::Integer(1, 2),
+            ]
+        );
+        assert_eq!(row_runs(&[]), []);
+    }
+
+    #[test]
+    fn the_plan_reads_each_value_once_and_lays_components_out_in_order() {
+        let c = case();
+        let p = plan(&c);
+        // Recorded first (in recording order), then connected; each once.
+        assert_eq!(p.ports[0].out_vrs, [vec![1, 2, 3], vec![10], vec![20]]);
+        assert_eq!(p.ports[1].out_vrs, [vec![1, 2], vec![11], vec![21]]);
+        assert_eq!(p.ports[2].out_vrs, [vec![100, 5], vec![], vec![22]]);
+        assert_eq!(p.ports[0].out, [(0, 3), (0, 1), (0, 1)]);
+        assert_eq!(p.ports[1].out, [(3, 5), (1, 2), (1, 2)]);
+        assert_eq!(p.ports[2].out, [(5, 7), (2, 2), (2, 3)]);
+        assert_eq!(p.bus_len, [7, 2, 3]);
+        // Connected inputs in connection order, then the signal-fed ones.
+        assert_eq!(p.ports[1].in_vrs, [vec![100, 101], vec![110], vec![120]]);
+        assert_eq!(p.ports[1].in_from, [vec![0, 2], vec![0], vec![0]]);
+        assert_eq!(
+            p.ports[2].in_vrs,
+            [vec![101, 100], vec![110, 111], vec![120]]
+        );
+        assert_eq!(p.ports[2].in_from, [vec![4], vec![1], vec![]]);
+        assert_eq!(p.ports[2].in_signals, [(0, 1, 0), (2, 0, 1), (1, 1, 2)]);
+        assert_eq!(p.ports[0].in_from, [vec![6], vec![], vec![]]);
+        assert!(!p.ports[0].in_rare && p.ports[1].in_rare && p.ports[2].in_rare);
+        assert!(p.ports.iter().all(|q| q.out_other));
+        assert_eq!(
+            p.row,
+            [
+                RowRun::Real(0, 2),
+                RowRun::Integer(0, 1),
+                RowRun::Boolean(0, 1),
+                RowRun::Real(3, 5),
+                RowRun::Real(2, 3),
+                RowRun::Boolean(1, 2),
+                RowRun::Integer(1, 2),
+                RowRun::Real(0, 1),
+                RowRun::Real(5, 7),
+                RowRun::Boolean(2, 3),
+                RowRun::Integer(1, 2),
+            ]
+        );
+    }
+
+    #[test]
+    fn gathered_inputs_are_the_sources_values() {
+        let c = case();
+        let p = plan(&c);
+        let signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
+        let mut bus = Bus::new(p.bus_len);
+        let mut naive: HashMap<(usize, usize, u32), f64> = HashMap::new();
+        for (i, q) in p.ports.iter().enumerate() {
+            for (k, &vr) in q.out_vrs[0].iter().enumerate() {
+                let v = 0.5 + (i * 100 + k) as f64;
+                bus.real[q.out[0].0 + k] = v;
+                naive.insert((i, 0, vr), v);
+            }
+            for (k, &vr) in q.out_vrs[1].iter().enumerate() {
+                let v = -7 - (i * 10 + k) as i32;
+                bus.int[q.out[1].0 + k] = v;
+                naive.insert((i, 1, vr), v as f64);
+            }
+            for (k, &vr) in q.out_vrs[2].iter().enumerate() {
+                let v = 3 * (i + k) as i32;
+                bus.boolean[q.out[2].0 + k] = v;
+                naive.insert((i, 2, vr), v as f64);
+            }
+        }
+        let t = 0.3;
+        for (i, q) in p.ports.iter().enumerate() {
+            let mut v = InValues::for_ports(q);
+            v.gather(q, &bus, &signals, t);
+            let value = |ty: usize, vr: u32| -> f64 {
+                let k = q.in_vrs[ty].iter().position(|&x| x == vr).unwrap();
+                match ty {
+                    0 => v.real[k],
+                    1 => v.int[k] as f64,
+                    _ => v.boolean[k] as f64,
+                }
+            };
+            for (s, d) in c.connections.iter().filter(|(_, d)| d.comp == i) {
+                let ty = ty_index(s.ty);
+                let x = naive[&(s.comp, ty, s.vr)];
+                let want = if ty == 2 { (x != 0.0) as i32 as f64 } else { x };
+                assert_eq!(value(ty, d.vr).to_bits(), want.to_bits(), "{}", d.name);
+            }
+            for (d, s) in c.signals.iter().filter(|(d, _)| d.comp == i) {
+                let want = match d.ty {
+                    VarType::Real => s.at(t),
+                    VarType::Integer => s.at(t).round() as i32 as f64,
+                    _ => (s.at(t) != 0.0) as i32 as f64,
+                };
+                assert_eq!(
+                    value(ty_index(d.ty), d.vr).to_bits(),
+                    want.to_bits(),
+                    "{}",
+                    d.name
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn rows_from_runs_match_per_value_pushes_gauss_seidel_and_jacobi_multi_rate() {
+        let c = case();
+        for jacobi in [false, true] {
+            let bus = run_on_bus(&c, jacobi, 12);
+            let naive = run_naive(&c, jacobi, 12);
+            assert_eq!(bus.len(), 13);
+            assert_eq!(bits(&bus), bits(&naive), "jacobi = {jacobi}");
+        }
+        // Single-rate too.
+        let mut single = case();
+        single.multiples = vec![1, 1, 1];
+        for jacobi in [false, true] {
+            assert_eq!(
+                bits(&run_on_bus(&single, jacobi, 7)),
+                bits(&run_naive(&single, jacobi, 7))
+            );
+        }
+    }
+
+    #[test]
+    fn the_bus_splits_into_the_components_ranges() {
+        let p = plan(&case());
+        let mut bus = Bus::new(p.bus_len);
+        let outs = bus.split(p.ports.iter().map(|q| q.out));
+        assert_eq!(outs.len(), 3);
+        for (i, o) in outs.into_iter().enumerate() {
+            assert_eq!(o.real.len(), p.ports[i].out_vrs[0].len());
+            assert_eq!(o.int.len(), p.ports[i].out_vrs[1].len());
+            assert_eq!(o.boolean.len(), p.ports[i].out_vrs[2].len());
+            o.real.fill(i as f64);
+            o.int.fill(i as i32);
+            o.boolean.fill(i as i32);
+        }
+        for (i, q) in p.ports.iter().enumerate() {
+            assert!(
+                bus.real[q.out[0].0..q.out[0].1]
+                    .iter()
+                    .all(|&x| x == i as f64)
+            );
+            assert!(
+                bus.int[q.out[1].0..q.out[1].1]
+                    .iter()
+                    .all(|&x| x == i as i32)
+            );
+            assert!(
+                bus.boolean[q.out[2].0..q.out[2].1]
+                    .iter()
+                    .all(|&x| x == i as i32)
+            );
+        }
+    }
 
     #[test]
     fn a_sample_one_ulp_after_the_grid_time_counts_as_at_it() {

@@ -82,8 +82,8 @@ impl Results {
         }
     }
 
-    /// Starts a new row at time `t` (followed by one [`push_value`](Self::push_value) per
-    /// column).
+    /// Starts a new row at time `t` (followed by one value per column: [`push_value`](Self::push_value),
+    /// [`push_values`](Self::push_values), [`push_values_from`](Self::push_values_from)).
     #[inline]
     pub fn push_time(&mut self, t: f64) {
         self.data.push(t);
@@ -93,6 +93,18 @@ impl Results {
     #[inline]
     pub fn push_value(&mut self, v: f64) {
         self.data.push(v);
+    }
+
+    /// Appends the next values of the current row (several columns at once).
+    #[inline]
+    pub fn push_values(&mut self, values: &[f64]) {
+        self.data.extend_from_slice(values);
+    }
+
+    /// Appends the next values of the current row from an iterator (several columns at once).
+    #[inline]
+    pub fn push_values_from(&mut self, values: impl IntoIterator<Item = f64>) {
+        self.data.extend(values);
     }
 
     /// Appends a whole row.
