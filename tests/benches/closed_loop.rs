@@ -38,6 +38,11 @@
 //! columns): 5.6 ms, 450x, the plant's gets of all its outputs then cost as much as its step.
 //! Before this loop used the PIDs' auxiliary inputs it had 11 instances (seven `PidController`s
 //! as summing elements) and ran at ~190x.
+//!
+//! Instructions per step (repeatable on a noisy machine), recording the analysed signals:
+//! `KNEEBENCH_PROFILE_RUNS=3 valgrind --tool=callgrind --toggle-collect='*closed_loop*profiled*'
+//! <bench binary>` counts only three steady `System::run`s (divide by 3 x 2500); build the bench
+//! with `CARGO_PROFILE_RELEASE_STRIP=none` for function names.
 use std::collections::HashMap;
 use std::ffi::c_void;
 use std::path::Path;
@@ -280,6 +285,14 @@ fn harness(loaded: &ssp::LoadedSystem) -> f64 {
     elapsed
 }
 
+/// `runs` steady harness runs (the instruction-counting mode).
+#[inline(never)]
+fn profiled(loaded: &ssp::LoadedSystem, runs: usize) {
+    for _ in 0..runs {
+        harness(loaded);
+    }
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -310,6 +323,17 @@ fn main() {
     let step = scenario.step_size;
     let steps = (scenario.stop_time / step).round() as u64;
 
+    if let Ok(runs) = std::env::var("KNEEBENCH_PROFILE_RUNS") {
+        // Instruction counting: one run to load everything, then `runs` steady runs inside
+        // `profiled` (the function callgrind is told to count; see the header).
+        let runs: usize = runs
+            .parse()
+            .expect("KNEEBENCH_PROFILE_RUNS is a number of runs");
+        let loaded = load(&path, Some(&Columns::default().names()));
+        harness(&loaded);
+        profiled(&loaded, runs);
+        return;
+    }
     // Warm up.
     plain(&scenario, &fmus, None, steps, step);
     harness(&load(&path, None));
