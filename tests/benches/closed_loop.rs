@@ -18,26 +18,30 @@
 //!   same order: instantiate, set the parameters, initialize; per step and component (in
 //!   declaration order, which is the master's Gauss-Seidel order here) `fmi2SetReal` of the
 //!   connected inputs, `fmi2DoStep`, the gets of the same outputs the master reads (connected
-//!   and recorded) into a preallocated row buffer. Each `fmi2DoStep` and each component's gets
-//!   are timed on their own (`Instant` pairs, ~50 ns each, counted in the plain loop but not in
-//!   the FMU sums), so the FMUs' own time is measured in the same run as the loop around it.
+//!   and recorded) into a preallocated row buffer. Run twice per repeat: untimed (the floor a
+//!   master could reach with these FMUs), and with each `fmi2SetReal`, `fmi2DoStep` and each
+//!   component's gets timed on their own (`Instant` pairs), which gives the FMUs' own time in
+//!   the same run, less the clock reads' cost (the mean of an empty timed interval, ~23 ns
+//!   here, measured in the same run).
 //!
-//! Reported (medians of [`REPEATS`] interleaved repeats): the real-time factors, the sum of the
-//! FMUs' `fmi2DoStep` time and of their output gets (the FMUs compute outputs lazily on the
-//! first get after a step, so that is FMU time too), the plant's part, and the master's share,
-//! harness - (doStep + gets).
+//! Reported (medians of [`REPEATS`] interleaved repeats): the real-time factors, the sums of the
+//! FMUs' `fmi2DoStep` time, of their output gets (the FMUs compute outputs lazily on the first
+//! get after a step, so that is FMU time too) and of the input sets, the plant's part, and the
+//! master's share: harness - untimed plain loop; also harness - (doStep + gets + sets), which
+//! holds the loop around the calls as well (row copies, call entry and exit).
 //!
-//! Measured (2 shared cores, the machine otherwise idle): recording the analysed signals, the
-//! last five runs **2.52-2.61 ms per 2.5 s cycle, 958-991x real time** (after the master's and
-//! the controllers' division-free paths and the gait's harmonic tree; 830-960x before; single
-//! runs fall to ~500x when the VM's host steals time); the target of 1000x is not
-//! reached; the first run after loading 5.2 ms (480x). FMU time 2.5 ms of it: doStep
-//! 1.36-1.38 ms + gets 1.15 ms, the plant 1.27-1.30 ms (about 0.5 us per step), the gait and
-//! the two PIDs 1.23 ms together (including the ~50 ns per timed call of the plain loop); the
-//! master's share 0.1-0.2 ms (10-21 ns per FMU per step). Recording every output (about 160
-//! columns): 5.6 ms, 450x, the plant's gets of all its outputs then cost as much as its step.
-//! Before this loop used the PIDs' auxiliary inputs it had 11 instances (seven `PidController`s
-//! as summing elements) and ran at ~190x.
+//! Measured (AMD EPYC, 2 shared cores, the machine otherwise idle), recording the analysed
+//! signals: **1.44-1.63 ms per 2.5 s cycle, 1533-1731x real time** in five runs (target 1000x);
+//! the build this session started from (3694a7c), interleaved in the same runs: 1.86-1.92 ms,
+//! 1305-1341x (958-991x on the slower machine of the session before). First run after loading:
+//! 2.22-2.52 ms, 991-1126x (was 3.76-4.03 ms: every model's description and GUID were built
+//! to find one). FMU time: doStep 0.71-0.79 ms, gets 0.43-0.48 ms, sets 0.09-0.10 ms, the plant
+//! 0.66-0.77 ms of it; the master's share -0.04 to +0.02 ms, i.e. `System::run` is as fast as
+//! the hand-written loop within the noise; harness - FMU calls 0.21-0.25 ms. Recording every
+//! output (about 160 columns): 2.77-2.91 ms, 860-902x, master's share 0.04-0.10 ms (1-4 %); the
+//! plant's gets of all its outputs then cost twice its step. Instructions per step (callgrind,
+//! below): 9640 at 3694a7c, 7185 now (gait 775 fewer, FMI glue 492, the plant's AVX2 build
+//! 465, the master's output bus ~700).
 //!
 //! Instructions per step (repeatable on a noisy machine), recording the analysed signals:
 //! `KNEEBENCH_PROFILE_RUNS=3 valgrind --tool=callgrind --toggle-collect='*closed_loop*profiled*'
