@@ -557,7 +557,7 @@ pub fn model_description<M: Model>() -> md::ModelDescription {
     desc
 }
 
-/// [`model_description`] and its `modelDescription.xml`, the XML written once: the GUID hashes
+/// [`model_description()`] and its `modelDescription.xml`, the XML written once: the GUID hashes
 /// the XML with an empty `guid`, which is then filled in place (the attribute is the root's
 /// only `guid`, and a GUID needs no escaping).
 pub fn model_description_with_xml<M: Model>() -> (md::ModelDescription, String) {

@@ -131,11 +131,11 @@ pub struct EmulatorStats {
     pub replies_dropped: u64,
     /// The reason of the safe state of the current session, if in it.
     pub safe_reason: Option<u8>,
-    /// Plant time [s] at which the safe state was entered.
+    /// Plant time \[s\] at which the safe state was entered.
     pub safe_since: Option<f64>,
     /// The plant's own trip code, if it tripped.
     pub plant_trip: Option<i32>,
-    /// Plant time [s] of the current session.
+    /// Plant time \[s\] of the current session.
     pub plant_time: f64,
     /// Frames rejected, by cause (all sessions).
     pub rejected: Counters,

@@ -33,20 +33,20 @@ pub enum MetricsError {
 /// Quality of a step response.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepMetrics {
-    /// Time of the step (first sample) [s].
+    /// Time of the step (first sample) \[s\].
     pub step_time: f64,
     /// Value before the step.
     pub initial_value: f64,
     /// Target of the step (the final value unless given).
     pub final_value: f64,
-    /// Time from the step to the first crossing of 90 % of the change [s] (`None` if never).
+    /// Time from the step to the first crossing of 90 % of the change \[s\] (`None` if never).
     pub rise_time: Option<f64>,
     /// Time from the step after which the response stays within 5 % of the change around the
-    /// final value [s] (`None` if it never settles within the record).
+    /// final value \[s\] (`None` if it never settles within the record).
     pub settling_time: Option<f64>,
     /// Largest excursion beyond the final value, as a fraction of the change (0 if none).
     pub overshoot: f64,
-    /// Time from the step to the largest excursion [s].
+    /// Time from the step to the largest excursion \[s\].
     pub peak_time: f64,
 }
 
@@ -158,12 +158,12 @@ pub struct PidGains {
     pub kp: f64,
     /// Integral gain [1/s].
     pub ki: f64,
-    /// Derivative gain [s].
+    /// Derivative gain \[s\].
     pub kd: f64,
 }
 
 /// The classic Ziegler-Nichols PID from the ultimate gain `ku` (the proportional gain at which
-/// the loop oscillates steadily) and the oscillation period `tu` [s]: kp = 0.6 ku,
+/// the loop oscillates steadily) and the oscillation period `tu` \[s\]: kp = 0.6 ku,
 /// Ti = tu/2, Td = tu/8.
 pub fn ziegler_nichols_ultimate(ku: f64, tu: f64) -> Result<PidGains, MetricsError> {
     if !(ku.is_finite() && ku > 0.0 && tu.is_finite() && tu > 0.0) {
@@ -184,10 +184,10 @@ pub fn ziegler_nichols_ultimate(ku: f64, tu: f64) -> Result<PidGains, MetricsErr
 pub struct ReactionCurve {
     /// Static gain: change of the response per unit change of the input.
     pub gain: f64,
-    /// Apparent dead time L [s]: where the tangent at the steepest point crosses the initial
+    /// Apparent dead time L \[s\]: where the tangent at the steepest point crosses the initial
     /// value.
     pub dead_time: f64,
-    /// Apparent time constant T [s]: from L to where that tangent reaches the final value.
+    /// Apparent time constant T \[s\]: from L to where that tangent reaches the final value.
     pub time_constant: f64,
 }
 

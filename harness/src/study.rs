@@ -155,9 +155,9 @@ pub struct Scenario {
     pub components: Vec<ScenarioComponent>,
     /// Connections from an output to an input, as `component.variable`.
     pub connections: Vec<(String, String)>,
-    /// Stop time [s].
+    /// Stop time \[s\].
     pub stop_time: f64,
-    /// Base step [s].
+    /// Base step \[s\].
     pub step_size: f64,
 }
 
@@ -327,31 +327,31 @@ pub struct ActuatorReport {
     /// Complete cycles analysed (the first cycle is the start-up and is skipped when there
     /// are more).
     pub cycles: usize,
-    /// RMS error of the actuation-side angle against the reference [rad].
+    /// RMS error of the actuation-side angle against the reference \[rad\].
     pub rms_error_actuation: f64,
-    /// Maximum error of the actuation-side angle [rad].
+    /// Maximum error of the actuation-side angle \[rad\].
     pub max_error_actuation: f64,
-    /// RMS error of the load-side (knee) angle [rad].
+    /// RMS error of the load-side (knee) angle \[rad\].
     pub rms_error_knee: f64,
-    /// Maximum error of the load-side angle [rad].
+    /// Maximum error of the load-side angle \[rad\].
     pub max_error_knee: f64,
     /// Peak |test-motor output torque| [N m].
     pub peak_test_torque: f64,
     /// Peak |load-motor output torque| [N m].
     pub peak_load_torque: f64,
-    /// Test motor's mechanical energy per cycle, signed [J].
+    /// Test motor's mechanical energy per cycle, signed \[J\].
     pub test_mechanical: f64,
-    /// Test motor's mechanical energy per cycle, positive part [J].
+    /// Test motor's mechanical energy per cycle, positive part \[J\].
     pub test_mechanical_consumed: f64,
-    /// Electrical energy per cycle incl. the 7 W offset and the clutch, signed [J].
+    /// Electrical energy per cycle incl. the 7 W offset and the clutch, signed \[J\].
     pub electrical: f64,
-    /// Electrical energy per cycle, positive part [J].
+    /// Electrical energy per cycle, positive part \[J\].
     pub electrical_consumed: f64,
-    /// Harmonic-drive and friction loss per cycle [J] (<= 0).
+    /// Harmonic-drive and friction loss per cycle \[J\] (<= 0).
     pub loss: f64,
-    /// Change of kinetic energy per cycle [J].
+    /// Change of kinetic energy per cycle \[J\].
     pub kinetic: f64,
-    /// Change of potential (spring) energy per cycle [J].
+    /// Change of potential (spring) energy per cycle \[J\].
     pub potential: f64,
     /// The interlock that ended the run, if any, and when.
     pub trip: Option<(String, f64)>,
@@ -621,9 +621,9 @@ impl Actuator {
 /// The gait of a study run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Gait {
-    /// Period [s].
+    /// Period \[s\].
     pub period: f64,
-    /// Knee-angle amplitude [rad].
+    /// Knee-angle amplitude \[rad\].
     pub angle_amplitude: f64,
     /// Knee-torque amplitude [N m].
     pub torque_amplitude: f64,
@@ -675,14 +675,14 @@ pub enum ClutchSchedule {
         /// Window end.
         end: f64,
     },
-    /// Engaged when |knee-velocity reference| stayed below `engage` [rad/s] for `delay` [s],
+    /// Engaged when |knee-velocity reference| stayed below `engage` [rad/s] for `delay` \[s\],
     /// released above `release` [rad/s].
     LowSpeed {
         /// Engage threshold [rad/s].
         engage: f64,
         /// Release threshold [rad/s].
         release: f64,
-        /// Debounce [s].
+        /// Debounce \[s\].
         delay: f64,
     },
 }
@@ -714,11 +714,11 @@ pub struct CseaGains {
 pub struct StudyGains {
     /// Position loop (test motor): kp [A/rad], ki [A/(rad s)], kd [A s/rad].
     pub position: (f64, f64, f64),
-    /// Derivative filter time constant of the position loop [s].
+    /// Derivative filter time constant of the position loop \[s\].
     pub position_derivative_filter: f64,
-    /// Output limit of the position loop [A] (the test driver's 15 A).
+    /// Output limit of the position loop \[A\] (the test driver's 15 A).
     pub position_limit: f64,
-    /// Test-side inverse-dynamics feed-forward of the position loop, [A] per unit of
+    /// Test-side inverse-dynamics feed-forward of the position loop, \[A\] per unit of
     /// (knee velocity [rad/s], knee acceleration [rad/s^2], knee-torque reference [N m]):
     /// (c1, I1, 1) / (i_HD Km1) for the full model; all zero disables it.
     pub test_feed_forward: (f64, f64, f64),
@@ -728,9 +728,9 @@ pub struct StudyGains {
     pub deflection_compensation: bool,
     /// Load torque loop (on the shaft torque): kp [A/(N m)], ki [A/(N m s)], kd [A s/(N m)].
     pub torque: (f64, f64, f64),
-    /// Derivative filter time constant of the torque loop [s].
+    /// Derivative filter time constant of the torque loop \[s\].
     pub torque_derivative_filter: f64,
-    /// Output limit of the torque loop [A] (the load driver's 6 A).
+    /// Output limit of the torque loop \[A\] (the load driver's 6 A).
     pub torque_limit: f64,
     /// Shares `(beta_w, beta_a)` of the load side's own dynamics (`c2 w` and `I2 a` of the
     /// reference motion) that the load motor supplies. Its torque is planned as

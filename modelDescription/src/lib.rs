@@ -1,7 +1,7 @@
 //! The typed FMI 2.0 model description (`modelDescription.xml`).
 //!
 //! - [`types`]: one Rust type per schema element, lossless for everything it models.
-//! - [`write`]: [`ModelDescription::to_xml`] writes elements and attributes in schema order,
+//! - [`write`](mod@write): [`ModelDescription::to_xml`] writes elements and attributes in schema order,
 //!   deterministically (the same value always gives the same bytes).
 //! - [`read`]: [`ModelDescription::from_xml`] reads descriptions from any exporter: unknown
 //!   attributes and vendor annotations are tolerated, malformed documents are refused with an

@@ -36,19 +36,19 @@ pub struct Calibration {
     pub counts_per_revolution: f64,
     /// Gear ratios (actuation, load).
     pub ratios: [f64; 2],
-    /// Transducer (a, b) [V].
+    /// Transducer (a, b) \[V\].
     pub transducer: (f64, f64),
-    /// Load cell (a, b) [V].
+    /// Load cell (a, b) \[V\].
     pub load_cell: (f64, f64),
     /// Pendulum moment m g Lg [N m].
     pub moment: f64,
-    /// Divider offset [V] and gain.
+    /// Divider offset \[V\] and gain.
     pub divider: (f64, f64),
-    /// Current sensor offset [V] and sensitivity [V/A].
+    /// Current sensor offset \[V\] and sensitivity [V/A].
     pub current_sensor: (f64, f64),
-    /// Zero of the transducer [V]: `a`, or the tared mean.
+    /// Zero of the transducer \[V\]: `a`, or the tared mean.
     pub transducer_zero: f64,
-    /// Zero of the load cell [V].
+    /// Zero of the load cell \[V\].
     pub load_cell_zero: f64,
 }
 
@@ -76,7 +76,7 @@ impl Calibration {
         self.counts_per_revolution * ratio / std::f64::consts::TAU
     }
 
-    /// Output-axis angle [rad] of a (relative, unwrapped) count.
+    /// Output-axis angle \[rad\] of a (relative, unwrapped) count.
     pub fn angle(&self, side: Side, counts: i64) -> f64 {
         counts as f64 / self.counts_per_radian(side)
     }
@@ -86,7 +86,7 @@ impl Calibration {
         (theta * self.counts_per_radian(side)).floor() as i64
     }
 
-    /// One count at the output axis [rad].
+    /// One count at the output axis \[rad\].
     pub fn resolution(&self, side: Side) -> f64 {
         1.0 / self.counts_per_radian(side)
     }
@@ -111,7 +111,7 @@ impl Calibration {
         self.load_cell_zero + self.load_cell.1 * torque / self.moment
     }
 
-    /// Supply voltage [V] of a divider reading.
+    /// Supply voltage \[V\] of a divider reading.
     pub fn supply_voltage(&self, volts: f64) -> f64 {
         (volts - self.divider.0) / self.divider.1
     }
@@ -121,7 +121,7 @@ impl Calibration {
         self.divider.0 + self.divider.1 * supply
     }
 
-    /// Motor current [A] of a current-sensor reading.
+    /// Motor current \[A\] of a current-sensor reading.
     pub fn current(&self, volts: f64) -> f64 {
         (volts - self.current_sensor.0) / self.current_sensor.1
     }

@@ -69,7 +69,7 @@ impl ConsistencyCheck {
     pub const DEFAULT_TOLERANCE: f64 = 1.0;
     /// Default relative allowance.
     pub const DEFAULT_RELATIVE: f64 = 0.25;
-    /// Default persistence [samples].
+    /// Default persistence \[samples\].
     pub const DEFAULT_PERSISTENCE: u32 = 10;
 
     /// Checks with these limits, counters at zero.

@@ -60,9 +60,9 @@ pub struct PacingStats {
     pub steps: u64,
     /// Overruns.
     pub overruns: u64,
-    /// Lateness of the last step [s].
+    /// Lateness of the last step \[s\].
     pub last_lateness: f64,
-    /// Largest lateness [s].
+    /// Largest lateness \[s\].
     pub max_lateness: f64,
 }
 
@@ -100,7 +100,7 @@ impl Pacer {
         }
     }
 
-    /// The deadline of FMU time `t_end` on the monotonic clock [ns] (see
+    /// The deadline of FMU time `t_end` on the monotonic clock \[ns\] (see
     /// [`super::realtime::now_ns`]), once the origin is fixed. FMU time is rounded to the
     /// nanosecond.
     pub fn deadline_ns(&self, t_end: f64) -> Option<u64> {

@@ -99,9 +99,9 @@ impl FrameType {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum SetValueKind {
-    /// Armature voltage [V].
+    /// Armature voltage \[V\].
     Voltage = 0,
-    /// Current [A].
+    /// Current \[A\].
     Current = 1,
 }
 
@@ -163,17 +163,17 @@ impl Command {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum AnalogChannel {
-    /// Load cell amplifier output [V].
+    /// Load cell amplifier output \[V\].
     LoadCell = 0,
-    /// Torque transducer amplifier output [V].
+    /// Torque transducer amplifier output \[V\].
     Transducer = 1,
-    /// Test-motor current sensor (ACS712) [V].
+    /// Test-motor current sensor (ACS712) \[V\].
     TestCurrentSense = 2,
-    /// Load-motor current sensor [V].
+    /// Load-motor current sensor \[V\].
     LoadCurrentSense = 3,
-    /// Test supply voltage divider [V].
+    /// Test supply voltage divider \[V\].
     TestSupplySense = 4,
-    /// Load supply voltage divider [V].
+    /// Load supply voltage divider \[V\].
     LoadSupplySense = 5,
 }
 
@@ -249,7 +249,7 @@ pub struct Sample {
     pub request_sequence: u32,
     /// Sequence number of the last command the server applied (0: none).
     pub last_command_sequence: u32,
-    /// Server time of the sample [us] since the session began (monotonic).
+    /// Server time of the sample \[us\] since the session began (monotonic).
     pub server_time_us: u64,
     /// [`status`] bits.
     pub status: u8,
@@ -259,7 +259,7 @@ pub struct Sample {
     pub test_counts: i32,
     /// Load-motor encoder counter.
     pub load_counts: i32,
-    /// Analog inputs [V], indexed by [`AnalogChannel`].
+    /// Analog inputs \[V\], indexed by [`AnalogChannel`].
     pub analog: [f64; ANALOG_CHANNELS],
 }
 
@@ -291,7 +291,7 @@ pub enum FaultInjection {
     DelayReplies {
         /// How many.
         count: u32,
-        /// Delay [s].
+        /// Delay \[s\].
         delay_s: f64,
     },
     /// Hold an input channel (analog 0-5, encoders 6 test and 7 load) at its present value.
@@ -303,7 +303,7 @@ pub enum FaultInjection {
     Force {
         /// The channel.
         channel: u8,
-        /// The value [V].
+        /// The value \[V\].
         volts: f64,
     },
     /// Press the emulated emergency-stop button.

@@ -199,7 +199,7 @@ use crate::registry::ReferenceInputs;
 /// How long a sample is awaited during initialization [s].
 const INIT_REPLY_TIMEOUT: f64 = 0.2;
 
-/// The default `replyTimeout` [s] (module docs, "The link watchdog's reply timeout").
+/// The default `replyTimeout` \[s\] (module docs, "The link watchdog's reply timeout").
 pub const DEFAULT_REPLY_TIMEOUT: f64 = 8e-4;
 
 /// Trip codes beyond the plant's interlocks (1-7).

@@ -26,13 +26,13 @@ use crate::registry::ReferenceInputs;
 /// The driver and clutch commands of the bench, as FMU inputs.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BenchCommands {
-    /// Test-motor armature voltage set value [V] (used in voltage mode).
+    /// Test-motor armature voltage set value \[V\] (used in voltage mode).
     pub test_voltage: f64,
-    /// Test-motor current set value [A] (used in current mode).
+    /// Test-motor current set value \[A\] (used in current mode).
     pub test_current: f64,
-    /// Load-motor armature voltage set value [V] (voltage mode).
+    /// Load-motor armature voltage set value \[V\] (voltage mode).
     pub load_voltage: f64,
-    /// Load-motor current set value [A] (current mode).
+    /// Load-motor current set value \[A\] (current mode).
     pub load_current: f64,
     /// Test driver enabled.
     pub test_enable: bool,

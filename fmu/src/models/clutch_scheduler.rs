@@ -82,13 +82,13 @@ pub struct ClutchSettings {
     pub engage_speed: f64,
     /// Release above this |omega_ref| [rad/s].
     pub release_speed: f64,
-    /// The low-speed condition must last this long before engaging [s].
+    /// The low-speed condition must last this long before engaging \[s\].
     pub engage_delay: f64,
-    /// Minimum time between switches [s].
+    /// Minimum time between switches \[s\].
     pub minimum_dwell: f64,
     /// holdPosition follows the clutch.
     pub hold_while_engaged: bool,
-    /// Sample period [s].
+    /// Sample period \[s\].
     pub sample_period: f64,
 }
 
@@ -127,7 +127,7 @@ pub struct ClutchSignals {
     pub engage: bool,
     /// Hold command for the position controller.
     pub hold: bool,
-    /// Time since the last switch (or since the start) [s].
+    /// Time since the last switch (or since the start) \[s\].
     pub time_in_state: f64,
 }
 

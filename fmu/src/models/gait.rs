@@ -276,11 +276,11 @@ impl Waveform {
 /// The stepped-sine sweep: frequency f0·rⁿ during stage n = ⌊t/dwell⌋, phase continuous.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sweep {
-    /// Start frequency [Hz].
+    /// Start frequency \[Hz\].
     pub start_frequency: f64,
     /// Frequency ratio between stages.
     pub ratio: f64,
-    /// Duration of a stage [s].
+    /// Duration of a stage \[s\].
     pub dwell: f64,
 }
 
@@ -289,7 +289,7 @@ impl Sweep {
     pub fn stage(&self, t: f64) -> u32 {
         (t.max(0.0) / self.dwell).floor().min(u32::MAX as f64) as u32
     }
-    /// The frequency of stage n [Hz].
+    /// The frequency of stage n \[Hz\].
     pub fn frequency(&self, stage: u32) -> f64 {
         self.start_frequency * self.ratio.powi(stage as i32)
     }

@@ -64,7 +64,7 @@ use crate::registry::ReferenceInputs;
 /// The controller's inputs.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ImpedanceInputs {
-    /// theta_ref [rad].
+    /// theta_ref \[rad\].
     pub angle_reference: f64,
     /// omega_ref [rad/s].
     pub velocity_reference: f64,
@@ -72,9 +72,9 @@ pub struct ImpedanceInputs {
     pub torque_feed_forward: f64,
     /// Auxiliary signals weighted into tau_ff.
     pub auxiliary: [f64; AUXILIARIES],
-    /// theta_act: actuation-side angle [rad].
+    /// theta_act: actuation-side angle \[rad\].
     pub actuation_angle: f64,
-    /// theta_load: load-side angle [rad].
+    /// theta_load: load-side angle \[rad\].
     pub load_angle: f64,
     /// omega_load [rad/s].
     pub load_velocity: f64,
@@ -85,7 +85,7 @@ pub struct ImpedanceInputs {
 /// What one sample computes.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ImpedanceSignals {
-    /// Current command [A].
+    /// Current command \[A\].
     pub current_command: f64,
     /// tau_d after the limit [N m].
     pub desired_torque: f64,
@@ -93,7 +93,7 @@ pub struct ImpedanceSignals {
     pub spring_torque: f64,
     /// tau_d - tau_s [N m].
     pub torque_error: f64,
-    /// theta_act - theta_load [rad].
+    /// theta_act - theta_load \[rad\].
     pub spring_deflection: f64,
     /// The current command was clipped.
     pub saturated: bool,

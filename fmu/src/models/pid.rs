@@ -131,9 +131,9 @@ pub const SAMPLE_TOLERANCE: f64 = 1e-6;
 /// next instant not executed yet. Shared by the bench's controllers.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SampleClock {
-    /// Sample period Ts [s].
+    /// Sample period Ts \[s\].
     pub period: f64,
-    /// Time of sample 0 [s].
+    /// Time of sample 0 \[s\].
     pub start: f64,
     /// Index of the next sample instant to execute.
     pub next: u64,
@@ -421,11 +421,11 @@ pub struct PidSettings {
     pub kp: f64,
     /// Integral gain [1/s].
     pub ki: f64,
-    /// Derivative gain [s].
+    /// Derivative gain \[s\].
     pub kd: f64,
-    /// Derivative filter time constant Tf [s] (0: plain backward difference).
+    /// Derivative filter time constant Tf \[s\] (0: plain backward difference).
     pub derivative_filter_time: f64,
-    /// Sample period Ts [s].
+    /// Sample period Ts \[s\].
     pub sample_period: f64,
     /// Lower output limit.
     pub output_min: f64,
@@ -433,7 +433,7 @@ pub struct PidSettings {
     pub output_max: f64,
     /// Anti-windup scheme.
     pub anti_windup: AntiWindup,
-    /// Back-calculation tracking time constant [s].
+    /// Back-calculation tracking time constant \[s\].
     pub tracking_time: f64,
     /// Factor of the feed-forward input.
     pub feed_forward_gain: f64,

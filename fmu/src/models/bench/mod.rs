@@ -22,10 +22,10 @@
 //! scheduler's job to use it in CSEA only).
 //!
 //! ## Drivers
-//! * **Voltage mode**: the command is the armature voltage [V], clipped to +-supply (24 V test,
+//! * **Voltage mode**: the command is the armature voltage \[V\], clipped to +-supply (24 V test,
 //!   48 V load). The driver does not regulate current; the actual current exceeding the driver
 //!   limit (15 A / 6 A) trips the `TestCurrent` / `LoadCurrent` interlock (over-current fault).
-//! * **Current mode**: the command is the current set value [A], clipped to +-limit. The
+//! * **Current mode**: the command is the current set value \[A\], clipped to +-limit. The
 //!   driver's current loop is an ideal first-order loop, `tau_c i' = i_ref - i`
 //!   (`current_loop_time_constant`, default 0.25 ms, i.e. ~640 Hz bandwidth, realised by a
 //!   PI-with-back-emf-feed-forward loop), with the voltage it needs,
@@ -127,7 +127,7 @@
 //! The watchdog ("a control period missed") belongs to the hardware FMU, not the plant.
 //!
 //! ## Sensors
-//! See [`sensors`](self::sensors) docs: quantised encoders (2000 counts per motor revolution),
+//! See the `sensors` module's docs: quantised encoders (2000 counts per motor revolution),
 //! torque transducer on the spring torque and load cell on the test motor's output torque, both
 //! as raw volts and as torque by the bench's calibration; supply dividers; ACS712 voltages.
 //!
@@ -225,9 +225,9 @@ impl FrictionModel {
 /// Driver operating mode (module docs, "Drivers").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DriverMode {
-    /// Command = armature voltage [V].
+    /// Command = armature voltage \[V\].
     Voltage,
-    /// Command = current set value [A].
+    /// Command = current set value \[A\].
     Current,
 }
 
@@ -247,7 +247,7 @@ impl DriverMode {
     }
 }
 
-/// Current set value [A] that makes a motor deliver the motor-shaft torque `torque` [N m]:
+/// Current set value \[A\] that makes a motor deliver the motor-shaft torque `torque` [N m]:
 /// `torque / Km`. For an output-side torque divide by the gear ratio first.
 pub fn current_for_motor_torque(torque: f64, torque_constant: f64) -> f64 {
     torque / torque_constant
@@ -256,7 +256,7 @@ pub fn current_for_motor_torque(torque: f64, torque_constant: f64) -> f64 {
 /// Inputs, sampled at the start of a communication step and held over it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct BenchInputs {
-    /// Test-motor command: armature voltage [V] in voltage mode, current set value [A] in
+    /// Test-motor command: armature voltage \[V\] in voltage mode, current set value \[A\] in
     /// current mode.
     pub test_command: f64,
     /// Load-motor command, same meaning per the load driver's mode.
@@ -383,7 +383,7 @@ pub enum StepOutcome {
     Tripped {
         /// Which interlock.
         interlock: Interlock,
-        /// Trip time [s].
+        /// Trip time \[s\].
         time: f64,
     },
     /// Nothing was done: a command was not finite or h was not a positive finite number.

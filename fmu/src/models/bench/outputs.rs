@@ -9,9 +9,9 @@ use super::{BenchPlant, sensors};
 /// supply); energies in J since the start.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct BenchOutputs {
-    /// theta1, actuation-side angle [rad].
+    /// theta1, actuation-side angle \[rad\].
     pub actuation_angle: f64,
-    /// theta2, load-side angle [rad].
+    /// theta2, load-side angle \[rad\].
     pub load_angle: f64,
     /// omega1 [rad/s].
     pub actuation_velocity: f64,
@@ -21,17 +21,17 @@ pub struct BenchOutputs {
     pub actuation_acceleration: f64,
     /// d omega2/dt [rad/s^2].
     pub load_acceleration: f64,
-    /// theta1 - theta2 [rad].
+    /// theta1 - theta2 \[rad\].
     pub spring_deflection: f64,
     /// Torque in the coupling, k (theta1 - theta2) [N m].
     pub spring_torque: f64,
-    /// Test-motor armature current i1 [A].
+    /// Test-motor armature current i1 \[A\].
     pub test_motor_current: f64,
-    /// Load-motor armature current i2 [A].
+    /// Load-motor armature current i2 \[A\].
     pub load_motor_current: f64,
-    /// Test-motor armature voltage [V].
+    /// Test-motor armature voltage \[V\].
     pub test_motor_voltage: f64,
-    /// Load-motor armature voltage [V].
+    /// Load-motor armature voltage \[V\].
     pub load_motor_voltage: f64,
     /// Test-motor shaft torque Km1 i1 [N m, motor side].
     pub test_motor_torque: f64,
@@ -45,29 +45,29 @@ pub struct BenchOutputs {
     pub actuation_friction_torque: f64,
     /// Friction torque acting on the load side while sliding [N m].
     pub load_friction_torque: f64,
-    /// Actuation encoder angle, quantised [rad].
+    /// Actuation encoder angle, quantised \[rad\].
     pub actuation_encoder_angle: f64,
-    /// Load encoder angle, quantised [rad].
+    /// Load encoder angle, quantised \[rad\].
     pub load_encoder_angle: f64,
     /// Actuation encoder count [-].
     pub actuation_encoder_counts: f64,
     /// Load encoder count [-].
     pub load_encoder_counts: f64,
-    /// Load-cell raw voltage [V].
+    /// Load-cell raw voltage \[V\].
     pub load_cell_voltage: f64,
     /// Load-cell torque by the bench's calibration [N m].
     pub load_cell_torque: f64,
-    /// Torque-transducer raw voltage [V].
+    /// Torque-transducer raw voltage \[V\].
     pub transducer_voltage: f64,
     /// Torque-transducer torque by the bench's calibration [N m].
     pub transducer_torque: f64,
-    /// Test supply divider voltage [V].
+    /// Test supply divider voltage \[V\].
     pub test_supply_sense_voltage: f64,
-    /// Load supply divider voltage [V].
+    /// Load supply divider voltage \[V\].
     pub load_supply_sense_voltage: f64,
-    /// Test current-sensor voltage [V].
+    /// Test current-sensor voltage \[V\].
     pub test_current_sense_voltage: f64,
-    /// Load current-sensor voltage [V].
+    /// Load current-sensor voltage \[V\].
     pub load_current_sense_voltage: f64,
     /// Clutch engaged.
     pub clutch_engaged: bool,
@@ -79,77 +79,77 @@ pub struct BenchOutputs {
     pub test_driver_saturated: bool,
     /// Load current loop saturated at the supply.
     pub load_driver_saturated: bool,
-    /// P_test = i_HD Km1 i1 omega1 [W].
+    /// P_test = i_HD Km1 i1 omega1 \[W\].
     pub test_mechanical_power: f64,
-    /// P_load = i_RED Km2 i2 omega2 [W].
+    /// P_load = i_RED Km2 i2 omega2 \[W\].
     pub load_mechanical_power: f64,
-    /// P_HD: all mechanical losses (viscous, friction, clutch), <= 0 [W].
+    /// P_HD: all mechanical losses (viscous, friction, clutch), <= 0 \[W\].
     pub loss_power: f64,
-    /// Actuation-side part of P_HD [W].
+    /// Actuation-side part of P_HD \[W\].
     pub actuation_loss_power: f64,
-    /// Load-side part of P_HD [W].
+    /// Load-side part of P_HD \[W\].
     pub load_loss_power: f64,
-    /// dE_k/dt [W].
+    /// dE_k/dt \[W\].
     pub kinetic_energy_rate: f64,
-    /// dE_p/dt [W].
+    /// dE_p/dt \[W\].
     pub potential_energy_rate: f64,
-    /// Test driver electrical power V1 i1 [W].
+    /// Test driver electrical power V1 i1 \[W\].
     pub test_electrical_power: f64,
-    /// Load driver electrical power V2 i2 [W] (negative = regenerating).
+    /// Load driver electrical power V2 i2 \[W\] (negative = regenerating).
     pub load_electrical_power: f64,
-    /// Power regenerated into the load driver, max(-V2 i2, 0) [W].
+    /// Power regenerated into the load driver, max(-V2 i2, 0) \[W\].
     pub load_regenerated_power: f64,
-    /// Clutch electrical power [W].
+    /// Clutch electrical power \[W\].
     pub clutch_power: f64,
-    /// Hardware offset power [W].
+    /// Hardware offset power \[W\].
     pub offset_power: f64,
-    /// Total electrical power incl. offset and clutch [W].
+    /// Total electrical power incl. offset and clutch \[W\].
     pub total_electrical_power: f64,
-    /// E_k = (I1 w1^2 + I2 w2^2)/2 [J].
+    /// E_k = (I1 w1^2 + I2 w2^2)/2 \[J\].
     pub kinetic_energy: f64,
-    /// E_p = k (theta1 - theta2)^2 / 2 [J].
+    /// E_p = k (theta1 - theta2)^2 / 2 \[J\].
     pub potential_energy: f64,
-    /// Integral of P_test [J].
+    /// Integral of P_test \[J\].
     pub test_mechanical_energy: f64,
-    /// Integral of max(P_test, 0) [J].
+    /// Integral of max(P_test, 0) \[J\].
     pub test_mechanical_energy_consumed: f64,
-    /// Integral of P_load [J].
+    /// Integral of P_load \[J\].
     pub load_mechanical_energy: f64,
-    /// Integral of max(P_load, 0) [J].
+    /// Integral of max(P_load, 0) \[J\].
     pub load_mechanical_energy_consumed: f64,
-    /// Integral of P_HD [J] (<= 0).
+    /// Integral of P_HD \[J\] (<= 0).
     pub loss_energy: f64,
-    /// Integral of the actuation-side losses [J].
+    /// Integral of the actuation-side losses \[J\].
     pub actuation_loss_energy: f64,
-    /// Integral of the load-side losses [J].
+    /// Integral of the load-side losses \[J\].
     pub load_loss_energy: f64,
-    /// E_k(t) - E_k(0) [J].
+    /// E_k(t) - E_k(0) \[J\].
     pub kinetic_energy_change: f64,
-    /// E_p(t) - E_p(0) [J].
+    /// E_p(t) - E_p(0) \[J\].
     pub potential_energy_change: f64,
-    /// Integral of V1 i1 [J].
+    /// Integral of V1 i1 \[J\].
     pub test_electrical_energy: f64,
-    /// Integral of max(V1 i1, 0) [J].
+    /// Integral of max(V1 i1, 0) \[J\].
     pub test_electrical_energy_consumed: f64,
-    /// Integral of V2 i2 [J].
+    /// Integral of V2 i2 \[J\].
     pub load_electrical_energy: f64,
-    /// Integral of max(V2 i2, 0) [J].
+    /// Integral of max(V2 i2, 0) \[J\].
     pub load_electrical_energy_consumed: f64,
-    /// Clutch electrical energy [J].
+    /// Clutch electrical energy \[J\].
     pub clutch_energy: f64,
-    /// Hardware offset energy [J].
+    /// Hardware offset energy \[J\].
     pub offset_energy: f64,
-    /// Total electrical energy incl. offset and clutch [J].
+    /// Total electrical energy incl. offset and clutch \[J\].
     pub total_electrical_energy: f64,
-    /// Integral of the positive part of the total electrical power [J].
+    /// Integral of the positive part of the total electrical power \[J\].
     pub total_electrical_energy_consumed: f64,
-    /// Copper loss of the test motor, integral of R1 i1^2 [J].
+    /// Copper loss of the test motor, integral of R1 i1^2 \[J\].
     pub test_copper_loss_energy: f64,
-    /// Copper loss of the load motor [J].
+    /// Copper loss of the load motor \[J\].
     pub load_copper_loss_energy: f64,
-    /// Electrical conversion energy of the test motor, integral of Ke1 w_m1 i1 [J].
+    /// Electrical conversion energy of the test motor, integral of Ke1 w_m1 i1 \[J\].
     pub test_back_emf_energy: f64,
-    /// Electrical conversion energy of the load motor [J].
+    /// Electrical conversion energy of the load motor \[J\].
     pub load_back_emf_energy: f64,
     /// Number of loss-surface evaluations that had to be clamped [-].
     pub hd_surface_clamp_count: f64,
@@ -195,21 +195,21 @@ pub struct BenchOutputDerivatives {
     pub transducer_voltage: f64,
     /// d(transducer torque)/dt [N m/s].
     pub transducer_torque: f64,
-    /// dE_k/dt [W].
+    /// dE_k/dt \[W\].
     pub kinetic_energy: f64,
-    /// dE_p/dt [W].
+    /// dE_p/dt \[W\].
     pub potential_energy: f64,
-    /// Test mechanical energy rate = P_test [W].
+    /// Test mechanical energy rate = P_test \[W\].
     pub test_mechanical_energy: f64,
-    /// Load mechanical energy rate = P_load [W].
+    /// Load mechanical energy rate = P_load \[W\].
     pub load_mechanical_energy: f64,
-    /// Loss energy rate = P_HD [W].
+    /// Loss energy rate = P_HD \[W\].
     pub loss_energy: f64,
-    /// Test electrical energy rate [W].
+    /// Test electrical energy rate \[W\].
     pub test_electrical_energy: f64,
-    /// Load electrical energy rate [W].
+    /// Load electrical energy rate \[W\].
     pub load_electrical_energy: f64,
-    /// Total electrical energy rate [W].
+    /// Total electrical energy rate \[W\].
     pub total_electrical_energy: f64,
 }
 

@@ -93,9 +93,9 @@ pub struct BenchParameters {
     pub hd_surface_min_load_torque: f64,
     /// Loss surface: largest load torque of the clamping box [N m, output side].
     pub hd_surface_max_load_torque: f64,
-    /// Test motor (EC45 flat) armature resistance [Ohm].
+    /// Test motor (EC45 flat) armature resistance \[Ohm\].
     pub test_motor_resistance: f64,
-    /// Test motor armature inductance [H].
+    /// Test motor armature inductance \[H\].
     pub test_motor_inductance: f64,
     /// Test motor torque constant Km1 [N m/A].
     pub test_motor_torque_constant: f64,
@@ -103,9 +103,9 @@ pub struct BenchParameters {
     pub test_motor_back_emf_constant: f64,
     /// Test motor rotor inertia [kg m^2], informational: already contained in I1.
     pub test_motor_rotor_inertia: f64,
-    /// Load motor (EC60 flat) armature resistance [Ohm].
+    /// Load motor (EC60 flat) armature resistance \[Ohm\].
     pub load_motor_resistance: f64,
-    /// Load motor armature inductance [H].
+    /// Load motor armature inductance \[H\].
     pub load_motor_inductance: f64,
     /// Load motor torque constant Km2 [N m/A].
     pub load_motor_torque_constant: f64,
@@ -114,55 +114,55 @@ pub struct BenchParameters {
     pub load_motor_back_emf_constant: f64,
     /// Load motor rotor inertia [kg m^2], informational: already contained in I2.
     pub load_motor_rotor_inertia: f64,
-    /// Test driver (EPOS 24/5) supply voltage [V]: armature voltage saturates at +-this.
+    /// Test driver (EPOS 24/5) supply voltage \[V\]: armature voltage saturates at +-this.
     pub test_supply_voltage: f64,
-    /// Load driver (ESCON 50/5) supply voltage [V].
+    /// Load driver (ESCON 50/5) supply voltage \[V\].
     pub load_supply_voltage: f64,
-    /// Test driver current limit [A]: current set values are clipped to it; the actual current
+    /// Test driver current limit \[A\]: current set values are clipped to it; the actual current
     /// exceeding it trips the `TestCurrent` interlock.
     pub test_current_limit: f64,
-    /// Load driver current limit [A].
+    /// Load driver current limit \[A\].
     pub load_current_limit: f64,
-    /// Time constant of the drivers' closed current loop in current mode [s].
+    /// Time constant of the drivers' closed current loop in current mode \[s\].
     pub current_loop_time_constant: f64,
-    /// Largest regenerated (braking) power the load driver absorbs [W]; above it trips.
+    /// Largest regenerated (braking) power the load driver absorbs \[W\]; above it trips.
     pub load_regen_power_limit: f64,
     /// Clutch friction torque at the motor side [N m]; the output-side holding torque is this
     /// times i_HD (0.75 x 160 = 120 N m).
     pub clutch_motor_torque: f64,
-    /// Electrical power of the clutch while engaged [W].
+    /// Electrical power of the clutch while engaged \[W\].
     pub clutch_power: f64,
-    /// Continuous hardware offset in the bench's electrical measurements [W].
+    /// Continuous hardware offset in the bench's electrical measurements \[W\].
     pub hardware_offset_power: f64,
     /// Encoder counts per motor revolution after x4 decoding [-] (500 CPT x 4).
     pub encoder_counts_per_revolution: f64,
-    /// Torque transducer calibration a [V].
+    /// Torque transducer calibration a \[V\].
     pub transducer_offset: f64,
-    /// Torque transducer calibration b [V].
+    /// Torque transducer calibration b \[V\].
     pub transducer_gain: f64,
-    /// Torque transducer calibration c [rad].
+    /// Torque transducer calibration c \[rad\].
     pub transducer_phase: f64,
-    /// Load cell calibration a [V].
+    /// Load cell calibration a \[V\].
     pub load_cell_offset: f64,
-    /// Load cell calibration b [V].
+    /// Load cell calibration b \[V\].
     pub load_cell_gain: f64,
-    /// Load cell calibration c [rad].
+    /// Load cell calibration c \[rad\].
     pub load_cell_phase: f64,
     /// Calibration pendulum moment m*g*Lg [N m] (1.94 kg x 9.81 m/s^2 x 0.25 m).
     pub calibration_pendulum_moment: f64,
-    /// Supply divider: V_myRIO = offset + gain * V_supply; offset [V].
+    /// Supply divider: V_myRIO = offset + gain * V_supply; offset \[V\].
     pub divider_offset: f64,
     /// Supply divider gain [V/V].
     pub divider_gain: f64,
-    /// Current sensor (ACS712-20A) output at zero current [V].
+    /// Current sensor (ACS712-20A) output at zero current \[V\].
     pub current_sensor_offset: f64,
     /// Current sensor sensitivity [V/A].
     pub current_sensor_sensitivity: f64,
-    /// Interlock: largest spring deflection |theta1 - theta2| [rad] (5 deg).
+    /// Interlock: largest spring deflection |theta1 - theta2| \[rad\] (5 deg).
     pub spring_deflection_limit: f64,
     /// Interlock: largest output-side motor torque |i_HD Km1 i1|, |i_RED Km2 i2| [N m].
     pub motor_torque_limit: f64,
-    /// Largest internal integration step [s]; communication steps are split into equal
+    /// Largest internal integration step \[s\]; communication steps are split into equal
     /// sub-steps no longer than this.
     pub max_internal_step: f64,
 }

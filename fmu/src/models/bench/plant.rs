@@ -339,7 +339,7 @@ impl BenchPlant {
         &self.params
     }
 
-    /// Simulation time [s].
+    /// Simulation time \[s\].
     pub fn time(&self) -> f64 {
         self.state.time
     }
@@ -349,7 +349,7 @@ impl BenchPlant {
         self.state.trip
     }
 
-    /// Advances by the communication step `h` [s] with `inputs` held over the step.
+    /// Advances by the communication step `h` \[s\] with `inputs` held over the step.
     pub fn step(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
         #[cfg(target_arch = "x86_64")]
         if self.wide_vectors {
