@@ -28,7 +28,7 @@ pub struct Args {
     /// The step's target value (default: the last sample).
     #[arg(long)]
     pub target: Option<f64>,
-    /// Time of the step; earlier rows are ignored \[s\].
+    /// Time of the step, in seconds; earlier rows are ignored.
     #[arg(long, default_value_t = 0.0)]
     pub from: f64,
 }

@@ -25,7 +25,7 @@ pub struct Args {
     /// Ultimate gain Ku.
     #[arg(long, requires = "tu", conflicts_with = "step_response")]
     pub ku: Option<f64>,
-    /// Ultimate period Tu \[s\].
+    /// Ultimate period Tu, in seconds.
     #[arg(long, requires = "ku")]
     pub tu: Option<f64>,
     /// Results CSV holding an open-loop step response.
