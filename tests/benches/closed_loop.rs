@@ -46,7 +46,8 @@
 //! Instructions per step (repeatable on a noisy machine), recording the analysed signals:
 //! `KNEEBENCH_PROFILE_RUNS=3 valgrind --tool=callgrind --toggle-collect='*closed_loop*profiled*'
 //! <bench binary>` counts only three steady `System::run`s (divide by 3 x 2500); build the bench
-//! with `CARGO_PROFILE_RELEASE_STRIP=none` for function names.
+//! with `CARGO_PROFILE_RELEASE_STRIP=none` for function names. With
+//! `KNEEBENCH_PROFILE_EVERY_OUTPUT=1` the runs record every output.
 use std::collections::HashMap;
 use std::ffi::c_void;
 use std::path::Path;
@@ -365,7 +366,10 @@ fn main() {
         let runs: usize = runs
             .parse()
             .expect("KNEEBENCH_PROFILE_RUNS is a number of runs");
-        let loaded = load(&path, Some(&Columns::default().names()));
+        // KNEEBENCH_PROFILE_EVERY_OUTPUT=1: recording every output instead.
+        let analysed = Columns::default().names();
+        let every = std::env::var_os("KNEEBENCH_PROFILE_EVERY_OUTPUT").is_some();
+        let loaded = load(&path, (!every).then_some(analysed.as_slice()));
         harness(&loaded);
         profiled(&loaded, runs);
         return;
