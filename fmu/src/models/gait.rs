@@ -132,6 +132,12 @@ pub struct Weights {
     pub cos: [f64; HARMONICS],
 }
 
+// `Weights::of` and `SeriesWeights::of` pair harmonic n with n + 4.
+const _: () = assert!(
+    HARMONICS == 8,
+    "the partial sums are written for 8 harmonics"
+);
+
 impl Weights {
     /// `Σ sin_n w_sin,n + cos_n w_cos,n` in four independent partial sums, harmonics n and
     /// n + 4 in one (the additions do not wait on one another, and neighbouring lanes pack
@@ -202,9 +208,12 @@ impl SeriesWeights {
             w.jerk.cos[i] = -n * n * n * b;
             w.integral.sin[i] = a / n;
             w.integral.cos[i] = -b / n;
-            w.integral_constant += b / n;
             i += 1;
         }
+        // Minus the cosine weights summed exactly as `Weights::of` sums them at cos = 1, so
+        // the integral is exactly 0 at t = 0 (and at every whole cycle).
+        let c = &w.integral.cos;
+        w.integral_constant = -(((c[0] + c[4]) + (c[1] + c[5])) + ((c[2] + c[6]) + (c[3] + c[7])));
         w
     }
 }
@@ -896,6 +905,11 @@ mod tests {
                         1.0,
                         &format!("integral {what}"),
                     );
+                    // The integral starts at exactly 0 (the velocity-mode angle starts at
+                    // its offset).
+                    if t == 0.0 {
+                        assert_eq!(fast.integral, 0.0, "integral at 0, period {period}");
+                    }
                     // The torque channel's value-and-rate path is the same arithmetic.
                     let harmonics = Harmonics::at(t, period);
                     let full = fourier_with(weights, &harmonics, t, period);
