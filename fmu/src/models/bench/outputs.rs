@@ -329,7 +329,7 @@ impl BenchPlant {
     /// Writes the fields of `group` (see [`signal_group`]) into `out`.
     pub fn fill_outputs(&self, group: SignalGroup, out: &mut BenchOutputs) {
         #[cfg(target_arch = "x86_64")]
-        if self.wide_vectors {
+        if self.runs_wide() {
             // SAFETY: `wide_vectors` is set only where the CPU reports AVX2, the one feature
             // `fill_outputs_wide` is compiled for.
             return unsafe { self.fill_outputs_wide(group, out) };

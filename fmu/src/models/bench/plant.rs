@@ -188,9 +188,10 @@ pub struct BenchPlant {
     cache: Vec<Arc<Discretization>>,
     /// Index in `cache` of the last discretisation used.
     last_hit: usize,
-    /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]); tests turn it off
-    /// to compare the two builds.
-    pub(crate) wide_vectors: bool,
+    /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]). Private: true only
+    /// where the CPU has AVX2 (a soundness condition); read through `runs_wide`.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    wide_vectors: bool,
 }
 
 /// Whether this CPU runs the plant's AVX2 build of the step.
@@ -349,10 +350,24 @@ impl BenchPlant {
         self.state.trip
     }
 
+    /// Whether the AVX2 builds of the step and the outputs run (the CPU has AVX2 and they were
+    /// not turned off).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub(super) fn runs_wide(&self) -> bool {
+        self.wide_vectors
+    }
+
+    /// Runs the baseline build from now on (tests compare the two builds).
+    #[cfg(test)]
+    pub(super) fn use_baseline_build(&mut self) {
+        self.wide_vectors = false;
+    }
+
     /// Advances by the communication step `h` \[s\] with `inputs` held over the step.
     pub fn step(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
         #[cfg(target_arch = "x86_64")]
-        if self.wide_vectors {
+        if self.runs_wide() {
             // SAFETY: `wide_vectors` is set only where the CPU reports AVX2
             // (`cpu_has_wide_vectors`), the one feature `step_wide` is compiled for.
             return unsafe { self.step_wide(inputs, h) };

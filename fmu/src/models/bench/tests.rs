@@ -842,8 +842,9 @@ fn the_avx2_build_of_the_step_gives_bit_identical_results() {
                 };
                 let mut wide = plant_with(configure);
                 let mut baseline = plant_with(configure);
-                assert!(wide.wide_vectors);
-                baseline.wide_vectors = false;
+                assert!(wide.runs_wide());
+                baseline.use_baseline_build();
+                assert!(!baseline.runs_wide());
                 let h = 1e-3;
                 for n in 0..2500 {
                     let t = n as f64 * h;
