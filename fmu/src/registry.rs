@@ -141,12 +141,21 @@ pub fn find_by_guid(guid: &str) -> Option<&'static ModelEntry> {
 /// known only once its description is built (it hashes the XML), so the hint spares building
 /// the others when it is right; when it is wrong or absent every model is tried.
 pub fn find_by_guid_hinted(guid: &str, likely: Option<&str>) -> Option<&'static ModelEntry> {
-    if let Some(entry) = likely.and_then(find_by_identifier)
+    find_in(&crate::MODELS, guid, likely)
+}
+
+/// [`find_by_guid_hinted`] among `models`.
+fn find_in(
+    models: &'static [ModelEntry],
+    guid: &str,
+    likely: Option<&str>,
+) -> Option<&'static ModelEntry> {
+    if let Some(entry) = likely.and_then(|id| models.iter().find(|m| m.identifier == id))
         && entry.info().guid == guid
     {
         return Some(entry);
     }
-    crate::MODELS.iter().find(|m| m.info().guid == guid)
+    models.iter().find(|m| m.info().guid == guid)
 }
 
 /// The model whose identifier is `identifier`.
@@ -168,6 +177,24 @@ mod tests {
                 assert_eq!(found, Some(entry.identifier), "hint {hint:?}");
             }
         }
+        // The right hint builds the hinted model's description only (entries of this test's
+        // own, so no other test has built them).
+        static ENTRIES: [ModelEntry; 3] = [
+            ModelEntry::of::<crate::models::gait::GaitReference>(),
+            ModelEntry::of::<crate::models::pid::PidController>(),
+            ModelEntry::of::<crate::models::clutch_scheduler::ClutchScheduler>(),
+        ];
+        let guid = &find_by_identifier("ClutchScheduler").unwrap().info().guid;
+        let found = find_in(&ENTRIES, guid, Some("ClutchScheduler")).unwrap();
+        assert_eq!(found.identifier, "ClutchScheduler");
+        assert!(ENTRIES[0].info.get().is_none() && ENTRIES[1].info.get().is_none());
+        // Without it every model before the right one is built.
+        let guid = &find_by_identifier("PidController").unwrap().info().guid;
+        assert_eq!(
+            find_in(&ENTRIES, guid, None).unwrap().identifier,
+            "PidController"
+        );
+        assert!(ENTRIES[0].info.get().is_some());
         let unknown = "{00000000-0000-0000-0000-000000000000}";
         assert!(find_by_guid_hinted(unknown, Some(crate::MODELS[0].identifier)).is_none());
         assert!(find_by_guid(unknown).is_none());

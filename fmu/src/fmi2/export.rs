@@ -3,6 +3,8 @@
 //! Each entry point checks its pointers, runs the call inside `catch_unwind` (a panic must
 //! never cross `extern "C"`: it would abort the importer), checks the call sequence, and
 //! converts C arguments into slices and `&str`s before the generic [`FmiInstance`] sees them.
+//! The gets, sets and `fmi2DoStep` leave the sequence check to the instance (see
+//! [`FmiInstance`]), which makes it after the arguments are converted.
 //! This is the only module with `unsafe` pointer handling.
 
 #![allow(non_snake_case, clippy::missing_safety_doc)]
@@ -20,7 +22,8 @@ use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK};
 /// The component handed to the importer: a thin pointer to the boxed instance.
 type Component = Box<dyn FmiInstance>;
 
-/// Runs `body` on the instance behind `c`, unless `c` is NULL or the call is out of sequence.
+/// Runs `body` on the instance behind `c`, unless `c` is NULL or (with `func` given) the call
+/// is out of sequence; with `func` None the instance checks the sequence itself.
 /// A panic is caught, logged, and answered with `fmi2Error` (the instance enters the error
 /// state, from which `fmi2Reset` recovers).
 fn with_instance(
