@@ -216,27 +216,30 @@ fn step_responses_with_static_friction_match_closed_form() {
 /// Gait-like 2.5 s cycle: sinusoidal torques (current mode) or voltages (voltage mode).
 fn gait_cycle(plant: &mut BenchPlant, h: f64, mut record: impl FnMut(&BenchPlant)) {
     let steps = (2.5 / h).round() as usize;
-    let voltage = plant.parameters().test_driver_mode == DriverMode::Voltage;
     for n in 0..steps {
-        let t = n as f64 * h;
-        let phase = 2.0 * PI * t / 2.5;
-        let inputs = if voltage {
-            BenchInputs {
-                test_command: 1.2 * phase.sin() + 0.4 * (2.0 * phase).sin(),
-                load_command: -0.8 * (phase + 0.5).sin(),
-                test_enable: true,
-                load_enable: true,
-                ..BenchInputs::default()
-            }
-        } else {
-            torque_inputs(
-                plant,
-                12.0 * phase.sin() + 4.0 * (2.0 * phase).sin(),
-                -6.0 * (phase + 0.5).sin(),
-            )
-        };
+        let inputs = gait_inputs(plant, n as f64 * h);
         assert_eq!(plant.step(&inputs, h), StepOutcome::Completed);
         record(plant);
+    }
+}
+
+/// The inputs of [`gait_cycle`] at time `t`, per the plant's test-driver mode.
+fn gait_inputs(plant: &BenchPlant, t: f64) -> BenchInputs {
+    let phase = 2.0 * PI * t / 2.5;
+    if plant.parameters().test_driver_mode == DriverMode::Voltage {
+        BenchInputs {
+            test_command: 1.2 * phase.sin() + 0.4 * (2.0 * phase).sin(),
+            load_command: -0.8 * (phase + 0.5).sin(),
+            test_enable: true,
+            load_enable: true,
+            ..BenchInputs::default()
+        }
+    } else {
+        torque_inputs(
+            plant,
+            12.0 * phase.sin() + 4.0 * (2.0 * phase).sin(),
+            -6.0 * (phase + 0.5).sin(),
+        )
     }
 }
 
@@ -848,22 +851,7 @@ fn the_avx2_build_of_the_step_gives_bit_identical_results() {
                 let h = 1e-3;
                 for n in 0..2500 {
                     let t = n as f64 * h;
-                    let phase = 2.0 * PI * t / 2.5;
-                    let mut inputs = if mode == DriverMode::Voltage {
-                        BenchInputs {
-                            test_command: 1.2 * phase.sin() + 0.4 * (2.0 * phase).sin(),
-                            load_command: -0.8 * (phase + 0.5).sin(),
-                            test_enable: true,
-                            load_enable: true,
-                            ..BenchInputs::default()
-                        }
-                    } else {
-                        torque_inputs(
-                            &baseline,
-                            12.0 * phase.sin() + 4.0 * (2.0 * phase).sin(),
-                            -6.0 * (phase + 0.5).sin(),
-                        )
-                    };
+                    let mut inputs = gait_inputs(&baseline, t);
                     // The clutch's lock and release events too.
                     inputs.clutch_engage =
                         configuration == Configuration::Csea && (0.3..0.9).contains(&t);
