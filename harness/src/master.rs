@@ -1315,29 +1315,18 @@ impl Run<'_> {
         }
         self.record(results, t0);
         // The step loop is chosen once per run.
-        let multi_rate = self.rts.iter().any(|r| r.multiple != 1);
-        let r = match (config.parallel, config.algorithm, multi_rate) {
-            (true, ..) => self.step_loop(config, results, record_every, |run, n, t| {
+        let r = match (config.parallel, config.algorithm) {
+            (true, _) => self.step_loop(config, results, record_every, |run, n, t| {
                 run.step_parallel(groups, n, t)
             }),
-            (false, Algorithm::GaussSeidel, false) => {
+            (false, Algorithm::GaussSeidel) => {
                 self.step_loop(config, results, record_every, |run, n, t| {
-                    run.step_gauss_seidel::<false>(order, n, t)
+                    run.step_gauss_seidel(order, n, t)
                 })
             }
-            (false, Algorithm::GaussSeidel, true) => {
+            (false, Algorithm::Jacobi) => {
                 self.step_loop(config, results, record_every, |run, n, t| {
-                    run.step_gauss_seidel::<true>(order, n, t)
-                })
-            }
-            (false, Algorithm::Jacobi, false) => {
-                self.step_loop(config, results, record_every, |run, n, t| {
-                    run.step_jacobi::<false>(order, n, t)
-                })
-            }
-            (false, Algorithm::Jacobi, true) => {
-                self.step_loop(config, results, record_every, |run, n, t| {
-                    run.step_jacobi::<true>(order, n, t)
+                    run.step_jacobi(order, n, t)
                 })
             }
         };
@@ -1485,15 +1474,10 @@ impl Run<'_> {
     }
 
     #[inline(always)]
-    fn step_gauss_seidel<const MULTI_RATE: bool>(
-        &mut self,
-        order: &[usize],
-        n: u64,
-        t: f64,
-    ) -> Result<(), Stop> {
+    fn step_gauss_seidel(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
         for &i in order {
             let rt = &mut self.rts[i];
-            if MULTI_RATE && !steps_at(n, rt.multiple) {
+            if !steps_at(n, rt.multiple) {
                 continue;
             }
             rt.gather(&self.bus, &self.signals, t);
@@ -1503,20 +1487,15 @@ impl Run<'_> {
     }
 
     #[inline(always)]
-    fn step_jacobi<const MULTI_RATE: bool>(
-        &mut self,
-        order: &[usize],
-        n: u64,
-        t: f64,
-    ) -> Result<(), Stop> {
+    fn step_jacobi(&mut self, order: &[usize], n: u64, t: f64) -> Result<(), Stop> {
         for &i in order {
             let rt = &mut self.rts[i];
-            if !MULTI_RATE || steps_at(n, rt.multiple) {
+            if steps_at(n, rt.multiple) {
                 rt.gather(&self.bus, &self.signals, t);
             }
         }
         for &i in order {
-            if MULTI_RATE && !steps_at(n, self.rts[i].multiple) {
+            if !steps_at(n, self.rts[i].multiple) {
                 continue;
             }
             self.step_one(i, t)?;
