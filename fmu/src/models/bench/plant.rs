@@ -190,7 +190,6 @@ pub struct BenchPlant {
     last_hit: usize,
     /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]). Private: true only
     /// where the CPU has AVX2 (a soundness condition); read through `runs_wide`.
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     wide_vectors: bool,
 }
 
@@ -351,8 +350,7 @@ impl BenchPlant {
     }
 
     /// Whether the AVX2 builds of the step and the outputs run (the CPU has AVX2 and they were
-    /// not turned off).
-    #[cfg(target_arch = "x86_64")]
+    /// not turned off); always false off x86-64.
     #[inline(always)]
     pub(super) fn runs_wide(&self) -> bool {
         self.wide_vectors
