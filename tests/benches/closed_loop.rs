@@ -340,7 +340,7 @@ fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmu_dir = dir.path().join("fmus");
     export_all(&fmu_library(), &fmu_dir).expect("export");
-    let gait = Gait::bench_default(Actuator::Sea);
+    let gait = Gait::bench_full();
     let scenario = gait_scenario(
         Actuator::Sea,
         gait,

@@ -283,7 +283,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let stop = 1.25;
     let mut scenario = gait_scenario(
         Actuator::Sea,
-        Gait::bench_default(Actuator::Sea),
+        Gait::bench_full(),
         StudyGains::for_actuator(Actuator::Sea),
         1,
     );

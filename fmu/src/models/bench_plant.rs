@@ -846,7 +846,7 @@ macro_rules! for_each_bench_parameter {
         $param!("loadMotorResistance", 38, load_motor_resistance, "Ohm", "Load motor (EC60 flat) armature resistance");
         $param!("loadMotorInductance", 39, load_motor_inductance, "H", "Load motor armature inductance");
         $param!("loadMotorTorqueConstant", 40, load_motor_torque_constant, "N.m/A", "Load motor torque constant Km2");
-        $param!("loadMotorBackEmfConstant", 41, load_motor_back_emf_constant, "V.s/rad", "Load motor back-emf constant Ke2 (0.145 as published, differs from Km2)");
+        $param!("loadMotorBackEmfConstant", 41, load_motor_back_emf_constant, "V.s/rad", "Load motor back-emf constant Ke2 (= Km2 for a lossless conversion; the table's 0.145 is not used)");
         $param!("loadMotorRotorInertia", 42, load_motor_rotor_inertia, "kg.m2", "Load motor rotor inertia (informational: contained in I2)");
         $param!("testSupplyVoltage", 43, test_supply_voltage, "V", "Test driver (EPOS 24/5) supply voltage: armature voltage saturates at +-this");
         $param!("loadSupplyVoltage", 44, load_supply_voltage, "V", "Load driver (ESCON 50/5) supply voltage");

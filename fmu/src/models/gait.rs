@@ -8,6 +8,18 @@
 //!
 //! Every output is a closed-form function of time and the parameters, so steps of any size
 //! give exact values and the FMU state is just the time.
+//!
+//! ## Torque scaling
+//! `kneeTorqueAmplitude` is the peak of the applied external torque, the ground reaction
+//! `loadTorqueReference = -kneeTorqueReference`, for every waveform: for the gait, the
+//! normalised series (peak +1.00, minimum -1.94) is divided by 1.93555 (its external peak), so
+//! the default 9 N m gives a knee torque between -9 and +4.66 N m. The bench scaled its gait
+//! "such that the maximum applied external torque is 9 N m" (bench facts, section 10); the
+//! external torque is the inverted knee torque, whose maximum is 1.94 times the series'
+//! positive peak, and the largest magnitude reading gives the same scale. The earlier reading
+//! (the series' +1.0 peak scaled to 9 N m) had the load motor apply -17.5 N m, above what the
+//! bench's 20 N m torque interlocks leave once the load side's own dynamics are added, and
+//! at odds with the report that 9 N m was the load the drivers could still brake.
 
 use std::f64::consts::{PI, TAU};
 
@@ -44,6 +56,13 @@ pub const TORQUE_SERIES: [(f64, f64); HARMONICS + 1] = [
     (0.002467, 0.01965),
     (0.006651, 0.004735),
 ];
+
+/// The peak of the applied external (ground-reaction) torque of the normalised gait, i.e. the
+/// largest value of `-TORQUE_SERIES` (its minimum -1.93555 lies at 13.3 % of the cycle; the
+/// positive peak is +1.0020). The bench scaled its gait "such that the maximum applied external
+/// torque is 9 N m", so the gait's torque series is divided by this before `kneeTorqueAmplitude`
+/// scales it (see the module docs, "Torque scaling"). Checked against the series in the tests.
+pub const TORQUE_EXTERNAL_PEAK: f64 = 1.935_554_607_509_505_4;
 
 /// Value, time derivatives and time integral (from t = 0) of a normalised waveform.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -463,7 +482,7 @@ static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync:
                 .tunable(Real(9.0))
                 .unit("N.m")
                 .range(-200.0, 200.0)
-                .describe("Knee-torque amplitude: the normalised gait torque (peak +1.0, min -1.94) is scaled by it"),
+                .describe("Peak of the applied external torque (loadTorqueReference = -kneeTorqueReference); the gait's normalised torque (peak +1.0, min -1.94) is scaled so that its external peak (-min) equals it"),
             V::real("kneeTorqueOffset", vr::TORQUE_OFFSET, |m| m.torque_offset, |m, v| m.torque_offset = v)
                 .tunable(Real(0.0))
                 .unit("N.m")
@@ -792,8 +811,14 @@ impl Model for GaitReference {
                 )));
             }
         }
-        self.knee_torque = self.torque_offset + self.torque_amplitude * torque_value_faded;
-        self.knee_torque_rate = self.torque_amplitude * torque_rate_faded;
+        // The amplitude is the external torque's peak (module docs, "Torque scaling").
+        let scale = if self.torque_waveform == Waveform::Gait as i32 {
+            self.torque_amplitude / TORQUE_EXTERNAL_PEAK
+        } else {
+            self.torque_amplitude
+        };
+        self.knee_torque = self.torque_offset + scale * torque_value_faded;
+        self.knee_torque_rate = scale * torque_rate_faded;
         self.load_torque = -self.knee_torque;
         self.gait_phase = (cycles - cycles.floor()).clamp(0.0, 1.0 - f64::EPSILON);
         self.stance = if self.stance_start < self.stance_end {
@@ -1140,6 +1165,43 @@ mod tests {
             assert_eq!(m.load_torque, -m.knee_torque);
         }
         assert!((peak.to_degrees() - 60.0).abs() < 0.1, "peak {peak}");
+    }
+
+    /// The default gait's external torque (the load motor's reference) peaks at exactly the
+    /// amplitude, 9 N m, and the knee torque stays within [-9, 4.66] N m; other waveforms keep
+    /// their plain amplitude.
+    #[test]
+    fn the_torque_amplitude_is_the_external_torque_peak() {
+        // The constant is the series' minimum: Newton on the derivative from the densest sample.
+        let (mut x, mut lowest) = (0.0, f64::MAX);
+        for i in 0..100_000 {
+            let xi = i as f64 / 100_000.0;
+            let v = fourier(&TORQUE_SERIES, xi, 1.0).value;
+            if v < lowest {
+                (x, lowest) = (xi, v);
+            }
+        }
+        for _ in 0..20 {
+            let s = fourier(&TORQUE_SERIES, x, 1.0);
+            x -= s.d1 / s.d2;
+        }
+        let minimum = fourier(&TORQUE_SERIES, x, 1.0).value;
+        assert!((minimum + TORQUE_EXTERNAL_PEAK).abs() < 1e-14, "{minimum}");
+        let mut m = model();
+        let (mut external, mut knee_max) = (f64::MIN, f64::MIN);
+        for i in 0..250_000 {
+            m.calculate(i as f64 * 1e-5).unwrap();
+            external = external.max(m.load_torque);
+            knee_max = knee_max.max(m.knee_torque);
+        }
+        assert!((external - 9.0).abs() < 1e-6, "external peak {external}");
+        assert!(
+            (knee_max - 9.0 * 1.00202 / TORQUE_EXTERNAL_PEAK).abs() < 1e-3,
+            "{knee_max}"
+        );
+        m.torque_waveform = Waveform::Sine as i32;
+        m.calculate(2.5 / 4.0).unwrap();
+        assert!((m.knee_torque - 9.0).abs() < 1e-12, "{}", m.knee_torque);
     }
 
     #[test]

@@ -10,15 +10,17 @@ use kneebench_harness::results::plot::plot_signals;
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench plot results.csv --signals knee.angle,knee.torque --out knee.svg
-  kneebench plot results.csv --out all.png          # every column
+  kneebench plot gait.csv --signals kneeAngleReference,kneeTorqueReference --out gait.svg
+  kneebench plot gait.csv --out all.png          # every column, when there are at most 12
 The format follows the extension of --out (.svg or .png). Text uses an embedded font, so no
-system font library is needed.")]
+system font library is needed. A file with more than 12 columns is refused without --signals:
+one chart of a hundred curves is unreadable.")]
 pub struct Args {
     /// A results CSV (header `time,<names>`, as written by `kneebench run`).
     pub results: PathBuf,
-    /// Comma-separated column names to plot (default: every column).
-    #[arg(long, value_delimiter = ',')]
+    /// Comma-separated column names to plot (default: every column, at most
+    /// `MAX_DEFAULT_COLUMNS`).
+    #[arg(long, visible_alias = "variables", value_delimiter = ',')]
     pub signals: Vec<String>,
     /// Output image: .svg or .png.
     #[arg(long, default_value = "plot.svg")]
@@ -31,11 +33,22 @@ pub struct Args {
     pub height: u32,
 }
 
+/// The most columns `kneebench plot` draws when `--signals` does not choose.
+pub const MAX_DEFAULT_COLUMNS: usize = 12;
+
 /// Runs `kneebench plot`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     let r = Results::read_csv_file(&a.results)?;
     let names: Vec<&str> = if a.signals.is_empty() {
-        r.names().iter().map(String::as_str).collect()
+        let names = r.names();
+        anyhow::ensure!(
+            names.len() <= MAX_DEFAULT_COLUMNS,
+            "{} has {} columns, too many for one readable chart: choose up to {MAX_DEFAULT_COLUMNS} with --signals (or --variables), e.g. --signals {}",
+            a.results.display(),
+            names.len(),
+            names.iter().take(3).cloned().collect::<Vec<_>>().join(",")
+        );
+        names.iter().map(String::as_str).collect()
     } else {
         a.signals.iter().map(String::as_str).collect()
     };

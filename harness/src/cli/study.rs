@@ -2,9 +2,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
+use kneebench_harness::master::Value;
 use kneebench_harness::study::{
-    Actuator, Gait, StudyConfig, markdown_table, plot_study, run_study,
+    Actuator, ScenarioSection, StudyConfig, StudyScenario, markdown_table, plot_study, run_study,
+    write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -12,14 +13,20 @@ use kneebench_harness::study::{
 #[command(after_help = "\
 Examples:
   kneebench export --out out/fmus && kneebench study --fmus out/fmus --out out/study
+  kneebench study --fmus out/fmus --out out/clutch --scenario bench-clutch
   kneebench study --fmus out/fmus --out out/big --scale 1.3 --actuators sea
 
-Each actuator runs the bench gait (2.5 s, 60 deg, 9 N m; 50 deg for CSEA) in closed loop:
-GaitReference -> position loop -> test motor, load-torque reference -> torque loop -> load
-motor; CSEA uses the impedance controller and the clutch scheduler. The scenarios are written
-as SSP files (<out>/scenarios/*.ssp) that this tool, fmpy and other SSP tools can run. The
-first cycle is the start-up and is not analysed. Written: <A>.csv (every signal), tracking.svg,
-torques.svg, powers.svg (the last cycle, percent of cycle on the x axis) and report.md.
+Scenarios, each run as on the bench for one of its published tables (gait 2.5 s, peak external
+torque 9 N m):
+  bench-full    DA, SEA and CSEA at 60 deg (Tables 13 and 14); DA and SEA under position
+                control, CSEA under impedance control with its clutch by low speed
+  bench-clutch  SEA and CSEA at 50 deg, both under impedance control, the CSEA's clutch locked
+                in stance (Table 15)
+Each run is GaitReference -> test-motor controller -> test motor, ground-reaction reference ->
+torque loop -> load motor, written as an SSP file (<out>/scenarios/*.ssp) that this tool, fmpy
+and other SSP tools can run. The first cycle is the start-up and is not analysed. Written: one
+CSV per run (every signal), per scenario a tracking, torque and power figure (PNG and SVG, the
+last cycle) and report.md with the measured-vs-twin table.
 Exit code 3 when an interlock ended a run (the report names it).")]
 pub struct Args {
     /// Directory of the exported FMUs (kneebench export).
@@ -28,15 +35,40 @@ pub struct Args {
     /// Output directory.
     #[arg(long, default_value = "out/study")]
     pub out: PathBuf,
+    /// Scenarios to run (comma-separated: bench-full, bench-clutch).
+    #[arg(long, value_delimiter = ',', default_value = "bench-full,bench-clutch")]
+    pub scenario: Vec<String>,
     /// Gait cycles per run.
     #[arg(long, default_value_t = 4)]
     pub cycles: u32,
     /// Multiplies the gait's angle and torque amplitudes.
     #[arg(long, default_value_t = 1.0)]
     pub scale: f64,
-    /// Actuators to run (comma-separated: da, sea, csea).
-    #[arg(long, value_delimiter = ',', default_value = "da,sea,csea")]
+    /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's).
+    #[arg(long, value_delimiter = ',')]
     pub actuators: Vec<String>,
+    /// Set a scenario parameter, `component.name=value` (repeatable), e.g.
+    /// `--param plant.actuationDamping=10` for another bench.
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+}
+
+fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
+    let (name, value) = text
+        .split_once('=')
+        .ok_or_else(|| anyhow::anyhow!("--param '{text}': expected component.name=value"))?;
+    let value = value.trim();
+    let parsed = if let Ok(i) = value.parse::<i32>() {
+        Value::Integer(i)
+    } else if let Ok(x) = value.parse::<f64>() {
+        anyhow::ensure!(x.is_finite(), "--param '{text}': the value is not finite");
+        Value::Real(x)
+    } else if let Ok(b) = value.parse::<bool>() {
+        Value::Boolean(b)
+    } else {
+        anyhow::bail!("--param '{text}': '{value}' is not a number or true/false");
+    };
+    Ok((name.trim().to_string(), parsed))
 }
 
 /// Runs `kneebench study`.
@@ -53,49 +85,64 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             )),
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    let scenarios = a
+        .scenario
+        .iter()
+        .map(|s| {
+            StudyScenario::from_name(&s.to_ascii_lowercase())
+                .ok_or_else(|| anyhow::anyhow!("unknown scenario '{s}' (bench-full, bench-clutch)"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let overrides = a
+        .params
+        .iter()
+        .map(|p| parse_override(p))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     anyhow::ensure!(a.cycles >= 1, "--cycles must be at least 1");
     anyhow::ensure!(
         a.scale.is_finite() && a.scale > 0.0,
         "--scale must be positive"
     );
-    let config = StudyConfig {
-        fmu_dir: a.fmus,
-        out_dir: a.out.clone(),
-        cycles: a.cycles,
-        scale: a.scale,
-        gains: None,
-        actuators,
-    };
-    let runs = run_study(&config)?;
-    let period = Gait::bench_default(Actuator::Sea).period;
-    let figures = plot_study(&runs, period, &a.out)?;
-    let reports: Vec<_> = runs.iter().map(|r| r.report.clone()).collect();
-    let table = markdown_table(&reports);
-    let report = format!(
-        "# Actuator study\n\nGait: period {period} s, knee-angle amplitude {:.1} deg (CSEA {:.1} deg), knee-torque amplitude {:.2} N m; {} cycles per run, the first not analysed; 1 ms steps, Gauss-Seidel.\n\n{table}\nScenarios: {}\n",
-        60.0 * a.scale,
-        50.0 * a.scale,
-        9.0 * a.scale,
-        a.cycles,
-        runs.iter()
-            .map(|r| r.scenario.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    let path = a.out.join("report.md");
-    std::fs::write(&path, &report).with_context(|| format!("writing {}", path.display()))?;
-    println!("{table}");
-    for r in &runs {
-        println!(
-            "results: {}",
-            a.out.join(format!("{}.csv", r.report.name)).display()
-        );
+    let mut all = Vec::new();
+    for scenario in scenarios {
+        let config = StudyConfig {
+            fmu_dir: a.fmus.clone(),
+            out_dir: a.out.clone(),
+            scenario,
+            cycles: a.cycles,
+            scale: a.scale,
+            gains: None,
+            actuators: actuators.clone(),
+            overrides: overrides.clone(),
+        };
+        let runs = run_study(&config)?;
+        let figures = plot_study(&runs, &a.out)?;
+        all.push((scenario, runs, figures));
     }
-    for f in &figures {
-        println!("figure:  {}", f.display());
+    let sections: Vec<ScenarioSection<'_>> = all
+        .iter()
+        .map(|(scenario, runs, figures)| ScenarioSection {
+            scenario: *scenario,
+            runs,
+            figures,
+        })
+        .collect();
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let report = write_report(&a.out, &sections, &command)?;
+    let mut tripped = false;
+    for (scenario, runs, figures) in &all {
+        let reports: Vec<_> = runs.iter().map(|r| r.report.clone()).collect();
+        tripped |= reports.iter().any(|r| r.trip.is_some());
+        println!("## {}\n\n{}", scenario.name(), markdown_table(&reports));
+        for r in runs {
+            println!("results: {}", r.csv.display());
+        }
+        for f in figures {
+            println!("figure:  {}", f.png.display());
+        }
+        println!();
     }
-    println!("report:  {}", path.display());
-    let tripped = reports.iter().any(|r| r.trip.is_some());
+    println!("report:  {}", report.display());
     Ok(if tripped {
         super::EXIT_TERMINATED
     } else {

@@ -7,7 +7,7 @@
 //! * `x` is the load torque **at the output (knee) axis**, `i_RED * Km2 * i2` [Nm]. The header
 //!   check of the data file is at `x = 0` and so cannot decide the side; the coefficient scaling
 //!   does: the `x` terms only matter for |x| of tens of Nm, the gait's output-side load range
-//!   (torque amplitude 9 Nm, minimum -1.94 x 9 = -17.5 Nm), whereas the load-motor shaft torque
+//!   (peak external torque 9 Nm, knee torque -9 ... 4.7 Nm), whereas the load-motor shaft torque
 //!   never exceeds 6 A x 0.114 Nm/A = 0.68 Nm, where every `x` term would be negligible.
 //! * `y` is the actuation-side (output) velocity `omega1` [rad/s].
 //! * The value is the signed torque the drive applies to the actuation side [Nm, output side]:

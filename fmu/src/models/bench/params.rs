@@ -109,8 +109,10 @@ pub struct BenchParameters {
     pub load_motor_inductance: f64,
     /// Load motor torque constant Km2 [N m/A].
     pub load_motor_torque_constant: f64,
-    /// Load motor back-emf constant Ke2 [V s/rad] (the table's 0.145 differs from Km2 = 0.114;
-    /// kept as published).
+    /// Load motor back-emf constant Ke2 [V s/rad]. Default 0.114 = Km2: a motor converts power
+    /// losslessly between its electrical and mechanical ports (Ke = Km in SI units); the
+    /// table's 0.145 would make the motor return 27 % more electrical power than it absorbs
+    /// mechanically (module docs, "Fidelity against the bench").
     pub load_motor_back_emf_constant: f64,
     /// Load motor rotor inertia [kg m^2], informational: already contained in I2.
     pub load_motor_rotor_inertia: f64,
@@ -207,7 +209,7 @@ impl Default for BenchParameters {
             load_motor_resistance: 1.1,
             load_motor_inductance: 8.64e-4,
             load_motor_torque_constant: 0.114,
-            load_motor_back_emf_constant: 0.145,
+            load_motor_back_emf_constant: 0.114,
             load_motor_rotor_inertia: 1.21e-4,
             test_supply_voltage: 24.0,
             load_supply_voltage: 48.0,

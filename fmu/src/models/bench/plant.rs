@@ -301,7 +301,7 @@ impl BenchPlant {
     /// A plant at rest at angle 0, time 0, both bodies held by friction where there is any.
     pub fn new(params: BenchParameters) -> Result<Self, ParameterError> {
         params.validate()?;
-        Ok(Self {
+        let mut plant = Self {
             matrices: all_matrices(&params),
             derived: Derived::of(&params),
             params,
@@ -321,7 +321,9 @@ impl BenchPlant {
             cache: Vec::new(),
             last_hit: 0,
             wide_vectors: cpu_has_wide_vectors(),
-        })
+        };
+        plant.settle_sticking();
+        Ok(plant)
     }
 
     /// Replaces the parameters; they take effect at the next step. The state is kept.
@@ -331,6 +333,8 @@ impl BenchPlant {
         self.derived = Derived::of(&params);
         self.params = params;
         self.cache.clear();
+        // Friction may have appeared or gone: the outputs read before the next step show it.
+        self.settle_sticking();
         Ok(())
     }
 
@@ -563,15 +567,15 @@ impl BenchPlant {
         held.capacity[j][0] > 0.0 && held.capacity[j][1] > 0.0
     }
 
-    /// Makes the discrete state consistent at the start of a segment and reports an interlock
-    /// already beyond its threshold.
+    /// The stick/slip rule of the module docs applied at the current state: a stuck body breaks
+    /// away when the net non-friction torque exceeds its capacity; a body at rest sticks when
+    /// the torque is strictly within it; a moving body slides in its direction of motion.
     #[inline(always)]
-    fn resolve(&mut self) -> Result<Held, (Interlock, f64)> {
-        let mut held = self.hold();
+    fn classify_sticking(&mut self, held: &Held) {
         for j in 0..2 {
             let w = self.state.z[OMEGA1 + j];
             let d = self.drive_torque(j, &self.state.z);
-            let can_stick = Self::has_friction(&held, j);
+            let can_stick = Self::has_friction(held, j);
             if self.state.stuck[j] {
                 if !can_stick || d > held.capacity[j][0] || -d > held.capacity[j][1] {
                     self.state.stuck[j] = false;
@@ -591,6 +595,22 @@ impl BenchPlant {
                 self.state.z[OMEGA1 + j] = 0.0;
             }
         }
+    }
+
+    /// Applies the stick/slip rule at the current state outside a step, so that the outputs
+    /// read before the next step (the t = 0 row above all) show the mode the plant holds: at
+    /// rest with friction, a body is stuck (no friction torque, no acceleration), not sliding.
+    fn settle_sticking(&mut self) {
+        let held = self.hold();
+        self.classify_sticking(&held);
+    }
+
+    /// Makes the discrete state consistent at the start of a segment and reports an interlock
+    /// already beyond its threshold.
+    #[inline(always)]
+    fn resolve(&mut self) -> Result<Held, (Interlock, f64)> {
+        let mut held = self.hold();
+        self.classify_sticking(&held);
         held.mode.stuck = self.state.stuck;
         for n in 0..2 {
             if !held.current_loop[n] {

@@ -875,3 +875,74 @@ fn the_avx2_build_of_the_step_gives_bit_identical_results() {
         }
     }
 }
+
+/// The outputs read before the first step (the t = 0 row) show the mode the plant holds: at
+/// rest with friction both bodies are stuck, with no friction torque and no acceleration, and
+/// a step with zero commands leaves every mechanical output as it was. Without friction nothing is stuck.
+#[test]
+fn the_first_row_shows_the_state_the_plant_holds() {
+    for configuration in [Configuration::Da, Configuration::Sea, Configuration::Csea] {
+        let mut plant = plant_with(|p| p.configuration = configuration);
+        let at_start = plant.outputs();
+        assert!(
+            at_start.actuation_stuck && at_start.load_stuck,
+            "{configuration:?}"
+        );
+        assert_eq!(at_start.actuation_friction_torque, 0.0);
+        assert_eq!(at_start.load_friction_torque, 0.0);
+        assert_eq!(at_start.actuation_acceleration, 0.0);
+        assert_eq!(at_start.load_acceleration, 0.0);
+        run(&mut plant, &BenchInputs::default(), 1e-3, 1);
+        let after = plant.outputs();
+        // Everything but the running energy integrals (the 7 W offset keeps counting).
+        let mechanical = |o: &BenchOutputs| {
+            [
+                o.actuation_angle,
+                o.load_angle,
+                o.actuation_velocity,
+                o.load_velocity,
+                o.actuation_acceleration,
+                o.load_acceleration,
+                o.spring_torque,
+                o.actuation_friction_torque,
+                o.load_friction_torque,
+                o.test_motor_current,
+                o.load_motor_current,
+                o.test_mechanical_power,
+                o.loss_power,
+                f64::from(u8::from(o.actuation_stuck)),
+                f64::from(u8::from(o.load_stuck)),
+            ]
+        };
+        assert_eq!(
+            mechanical(&after),
+            mechanical(&at_start),
+            "{configuration:?}: a step at rest changed the outputs"
+        );
+    }
+    let frictionless = plant_with(|p| p.friction_model = FrictionModel::Off);
+    let o = frictionless.outputs();
+    assert!(!o.actuation_stuck && !o.load_stuck);
+    assert_eq!(o.actuation_acceleration, 0.0);
+    assert_eq!(o.actuation_friction_torque, 0.0);
+}
+
+/// With a load already acting (the load motor's torque beyond the load side's static friction,
+/// set as a tunable parameter change at rest), the body breaks away at the next step and the
+/// outputs before it report it stuck only while the torque is within the capacity.
+#[test]
+fn friction_appearing_at_rest_settles_the_mode_before_the_next_step() {
+    let mut plant = plant_with(|p| p.friction_model = FrictionModel::Off);
+    assert!(!plant.outputs().load_stuck);
+    let mut p = plant.parameters().clone();
+    p.friction_model = FrictionModel::CoulombViscous;
+    plant.set_parameters(p).unwrap();
+    let o = plant.outputs();
+    assert!(o.actuation_stuck && o.load_stuck);
+    assert_eq!(o.load_acceleration, 0.0);
+    // A load torque above the load side's static friction breaks it away in the next step.
+    let inputs = torque_inputs(&plant, 0.0, 2.0);
+    run(&mut plant, &inputs, 1e-3, 5);
+    let o = plant.outputs();
+    assert!(!o.load_stuck && o.load_velocity > 0.0);
+}
