@@ -42,6 +42,7 @@ pub mod fmi2;
 pub mod bench_protocol;
 
 pub mod emulator;
+pub mod experiment;
 pub mod instance;
 pub mod load;
 pub mod master;

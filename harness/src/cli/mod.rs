@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod emulate;
+pub mod experiment;
 pub mod export;
 pub mod info;
 pub mod metrics;
@@ -56,6 +57,8 @@ pub enum Command {
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
     Tune(tune::Args),
+    /// Run a bench experiment (map, bode, triangle, calibration, step) on BenchPlant or BenchHardware.
+    Experiment(experiment::Args),
     /// Serve the UDP bench protocol with the BenchPlant FMU running in real time behind it.
     Emulate(emulate::Args),
 }
@@ -72,5 +75,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Study(a) => study::run(a),
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
+        Command::Experiment(a) => experiment::run(a),
     }
 }

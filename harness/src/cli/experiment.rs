@@ -1,0 +1,317 @@
+//! `kneebench experiment`: the bench's experiments on `BenchPlant` or `BenchHardware`.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use kneebench_harness::experiment::{Bench, BenchKind, bode, calibration, map, step, triangle};
+
+/// Arguments of `kneebench experiment`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  kneebench experiment step --fmu out/fmus/BenchPlant.fmu --out out/experiments
+  kneebench experiment map --fmu out/fmus/BenchPlant.fmu --param frictionModel=3 --param actuationDamping=0
+  kneebench experiment bode --fmu out/fmus/BenchPlant.fmu --param frictionModel=0 --stages 40
+  kneebench experiment triangle --fmu out/fmus/BenchHardware.fmu --param backend=1 --param pacing=1 \\
+      --param serverAddress=127.0.0.1:47000
+
+Experiments (bench-model.md sections 5, 6, 8):
+  map          constant test-motor speeds x constant load torques: the harmonic drive's loss
+               torque and efficiency against the loss surface (--loss-surface, default the
+               project's shared/data/hd-loss-surface.csv)
+  bode         stepped-sine torque (10 N m, 0.05 Hz, x10^(1/30) every 20 s): gain and phase of
+               both velocities per torque with their uncertainty, against H1-H4
+  triangle     triangle position wave, load torque raised each cycle until the load driver's
+               braking limit trips: the torque at the trip
+  calibration  pendulum calibration of the torque transducer and the load cell: a, b, c of
+               V = a + b sin(theta + c)
+  step         open-loop current step (reaction curve, Ziegler-Nichols gains, identified
+               damping and inertia) and closed-loop position step (rise, settling, overshoot,
+               peak time)
+
+The same schedule runs on BenchPlant and on BenchHardware (which runs in real time against
+the bench or `kneebench emulate`). On BenchHardware the experiment refuses to start unless
+every interlock is armed at or inside the bench's limits. Written into --out: <name>.csv (the
+run), <name>-result.csv (the analysed table), <name>.svg and .png, <name>.md. Other FMUs
+(GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
+Exit code 3 when an interlock ended the run (the triangle test's trip is its result: 0).")]
+pub struct Args {
+    /// The experiment: map, bode, triangle, calibration or step.
+    pub name: String,
+    /// The bench FMU: BenchPlant.fmu or BenchHardware.fmu.
+    #[arg(long)]
+    pub fmu: PathBuf,
+    /// Directory of GaitReference.fmu and PidController.fmu (default: the bench FMU's).
+    #[arg(long)]
+    pub fmus: Option<PathBuf>,
+    /// Output directory.
+    #[arg(long, default_value = "out/experiments")]
+    pub out: PathBuf,
+    /// A parameter of the bench FMU, NAME=VALUE (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// map: speed magnitudes (deg/s), each run both ways (default the bench's 0, 3, 6, 10, 20,
+    /// 30, 50, 70, 90, 110, 130, 150).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub speeds: Option<Vec<f64>>,
+    /// map: load torques (N m) (default -9, -4.5, 0, 4.5, 9, 13.5, 17.5).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub torques: Option<Vec<f64>>,
+    /// map: settling time per point (s).
+    #[arg(long, default_value_t = 1.5)]
+    pub settle: f64,
+    /// map, calibration: averaging time per point (s) (default 1 for the map, 3 for the
+    /// calibration).
+    #[arg(long)]
+    pub measure: Option<f64>,
+    /// calibration: hold time at each angle (s).
+    #[arg(long, default_value_t = 6.0)]
+    pub hold: f64,
+    /// map: the loss surface CSV to compare with.
+    #[arg(long)]
+    pub loss_surface: Option<PathBuf>,
+    /// bode: the driven motor (test or load).
+    #[arg(long, default_value = "test")]
+    pub input: String,
+    /// bode: torque amplitude (N m).
+    #[arg(long, default_value_t = 10.0)]
+    pub amplitude: f64,
+    /// bode: first frequency (Hz).
+    #[arg(long, default_value_t = 0.05)]
+    pub start_frequency: f64,
+    /// bode: frequency ratio between stages (default 10^(1/30)).
+    #[arg(long)]
+    pub ratio: Option<f64>,
+    /// bode: duration of a stage (s).
+    #[arg(long, default_value_t = 20.0)]
+    pub dwell: f64,
+    /// bode: number of stages (default 70: 0.05 ... 10 Hz).
+    #[arg(long, default_value_t = 70)]
+    pub stages: u32,
+    /// triangle: amplitude (deg).
+    #[arg(long, default_value_t = 30.0)]
+    pub triangle_amplitude: f64,
+    /// triangle: period (s).
+    #[arg(long, default_value_t = 3.0)]
+    pub period: f64,
+    /// triangle: load torque increment per cycle (N m).
+    #[arg(long, default_value_t = 0.5)]
+    pub increment: f64,
+    /// triangle: most cycles.
+    #[arg(long, default_value_t = 40)]
+    pub max_cycles: u32,
+    /// calibration: pendulum angles (deg) (default -45 ... 45 in steps of 9).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub angles: Option<Vec<f64>>,
+    /// triangle, calibration, step: position-loop gains kp,ki,kd (A/rad, A/(rad s), A s/rad)
+    /// (default 1000,1000,15 for triangle and calibration, 60,30,4 for the step).
+    #[arg(long, value_delimiter = ',')]
+    pub gains: Option<Vec<f64>>,
+    /// step: open-loop current step (A).
+    #[arg(long, default_value_t = 2.0)]
+    pub current: f64,
+    /// step: closed-loop position step (deg).
+    #[arg(long, default_value_t = 5.0)]
+    pub step_angle: f64,
+    /// step: record length after the step (s).
+    #[arg(long, default_value_t = 1.5)]
+    pub duration: f64,
+}
+
+/// Runs `kneebench experiment`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let params = a
+        .params
+        .iter()
+        .map(|p| {
+            p.split_once('=')
+                .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
+                .with_context(|| format!("--param '{p}' is not NAME=VALUE"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let bench = Bench::load(&a.fmu, params, a.fmus.clone())?;
+    if bench.kind() == BenchKind::Hardware {
+        println!("bench: BenchHardware (checking the interlocks before anything moves)");
+    }
+    let out = &a.out;
+    let gains = match a.gains.as_deref() {
+        None => None,
+        Some(&[kp, ki, kd]) => Some((kp, ki, kd)),
+        Some(_) => anyhow::bail!("--gains takes three values: kp,ki,kd"),
+    };
+    let (written, tripped) = match a.name.as_str() {
+        "map" => {
+            let mut c = map::MapConfig {
+                settle: a.settle,
+                measure: a.measure.unwrap_or(1.0),
+                ..map::MapConfig::default()
+            };
+            if let Some(s) = a.speeds {
+                c.speeds = s;
+            }
+            if let Some(t) = a.torques {
+                c.torques = t;
+            }
+            if let Some(p) = &a.loss_surface {
+                c.surface = std::fs::read_to_string(p)
+                    .with_context(|| format!("reading {}", p.display()))?;
+            }
+            let r = map::run_map(&bench, &c, out)?;
+            let worst = r
+                .points
+                .iter()
+                .map(|p| p.relative_difference.abs())
+                .filter(|d| d.is_finite())
+                .fold(0.0, f64::max);
+            println!(
+                "map: {} points, largest difference to the loss surface {:.2} %",
+                r.points.len(),
+                100.0 * worst
+            );
+            (
+                r.written,
+                r.end != kneebench_harness::experiment::RunEnd::Completed,
+            )
+        }
+        "bode" => {
+            let input = match a.input.as_str() {
+                "test" => bode::SweepInput::Test,
+                "load" => bode::SweepInput::Load,
+                other => anyhow::bail!("--input '{other}': test or load"),
+            };
+            let mut c = bode::BodeConfig {
+                input,
+                amplitude: a.amplitude,
+                start_frequency: a.start_frequency,
+                dwell: a.dwell,
+                stages: a.stages,
+                ..bode::BodeConfig::default()
+            };
+            if let Some(r) = a.ratio {
+                c.ratio = r;
+            }
+            let r = bode::run_bode(&bench, &c, out)?;
+            for p in &r.points {
+                println!(
+                    "{:8.4} Hz  {} {:7.2} +- {:.2} dB (model {:7.2}), {:7.1} +- {:.1} deg (model {:7.1})  {} {:7.2} dB (model {:7.2}), {:7.1} deg (model {:7.1})",
+                    p.frequency,
+                    r.names[0],
+                    p.measured[0].gain_db(),
+                    p.measured[0].gain_db_std(),
+                    p.model[0].0,
+                    p.measured[0].phase.to_degrees(),
+                    p.measured[0].phase_std.to_degrees(),
+                    p.model[0].1.to_degrees(),
+                    r.names[1],
+                    p.measured[1].gain_db(),
+                    p.model[1].0,
+                    p.measured[1].phase.to_degrees(),
+                    p.model[1].1.to_degrees(),
+                );
+            }
+            (
+                r.written,
+                r.end != kneebench_harness::experiment::RunEnd::Completed,
+            )
+        }
+        "triangle" => {
+            let mut c = triangle::TriangleConfig {
+                amplitude: a.triangle_amplitude.to_radians(),
+                period: a.period,
+                increment: a.increment,
+                max_cycles: a.max_cycles,
+                ..triangle::TriangleConfig::default()
+            };
+            if let Some(g) = gains {
+                c.gains = g;
+            }
+            let r = triangle::run_triangle(&bench, &c, out)?;
+            match &r.trip {
+                Some((torque, time, reason)) => {
+                    println!(
+                        "triangle: tripped at {time:.3} s with the load torque at {torque} N m ({reason})"
+                    )
+                }
+                None => println!("triangle: no trip within {} cycles", c.max_cycles),
+            }
+            // The trip is the result: not an error.
+            (r.written, false)
+        }
+        "calibration" => {
+            let mut c = calibration::CalibrationConfig {
+                measure: a.measure.unwrap_or(3.0),
+                hold: a.hold,
+                ..calibration::CalibrationConfig::default()
+            };
+            if let Some(angles) = a.angles {
+                c.angles = angles.iter().map(|d| d.to_radians()).collect();
+            }
+            if let Some(g) = gains {
+                c.gains = g;
+            }
+            let r = calibration::run_calibration(&bench, &c, out)?;
+            for (name, f) in [("transducer", &r.transducer), ("load cell", &r.load_cell)] {
+                println!(
+                    "{name}: a = {:.6} V, b = {:.7} V, c = {:.5} rad (residual {:.2e} V)",
+                    f.a, f.b, f.c, f.residual_rms
+                );
+            }
+            (
+                r.written,
+                r.end != kneebench_harness::experiment::RunEnd::Completed,
+            )
+        }
+        "step" => {
+            let mut c = step::StepConfig {
+                current: a.current,
+                angle: a.step_angle.to_radians(),
+                duration: a.duration,
+                ..step::StepConfig::default()
+            };
+            if let Some(g) = gains {
+                c.gains = g;
+            }
+            let r = step::run_step(&bench, &c, out)?;
+            println!(
+                "open loop: K = {:.5} (rad/s)/A, L = {:.5} s, T = {:.5} s; damping {:.4} N m s/rad, inertia {:.4} kg m^2",
+                r.reaction.gain,
+                r.reaction.dead_time,
+                r.reaction.time_constant,
+                r.damping,
+                r.inertia
+            );
+            match &r.ziegler_nichols {
+                Ok(g) => println!(
+                    "Ziegler-Nichols (velocity loop): kp = {:.4}, ki = {:.4}, kd = {:.6}",
+                    g.kp, g.ki, g.kd
+                ),
+                Err(e) => println!("no Ziegler-Nichols gains: {e}"),
+            }
+            let m = &r.position;
+            println!(
+                "position step: rise {:?} s, settling {:?} s, overshoot {:.2} %, peak {:.4} s",
+                m.rise_time,
+                m.settling_time,
+                100.0 * m.overshoot,
+                m.peak_time
+            );
+            let tripped = r
+                .ends
+                .iter()
+                .any(|e| *e != kneebench_harness::experiment::RunEnd::Completed);
+            (r.written, tripped)
+        }
+        other => {
+            anyhow::bail!("unknown experiment '{other}' (map, bode, triangle, calibration, step)")
+        }
+    };
+    for f in written.data.iter().chain(&written.figures) {
+        println!("written: {}", f.display());
+    }
+    println!("section: {}", written.markdown.display());
+    Ok(if tripped {
+        super::EXIT_TERMINATED
+    } else {
+        super::EXIT_OK
+    })
+}

@@ -1,0 +1,495 @@
+//! The bench's experiments (bench-model.md sections 5, 6 and 8) as runs of this harness, on the
+//! `BenchPlant` FMU or, unchanged, on `BenchHardware` (the physical bench, or `kneebench
+//! emulate`): the same schedule, controllers and analysis on both.
+//!
+//! | experiment | what it runs | what it gives |
+//! |---|---|---|
+//! | [`map`] | test motor in velocity control at constant speeds x load motor at constant torques | the harmonic drive's steady-state loss torque and efficiency, against the loss surface |
+//! | [`bode`] | stepped-sine torque on one motor (`GaitReference` sweep) | gain and phase of the velocities per torque with their uncertainty, against the two-mass H1-H4 |
+//! | [`triangle`] | triangle position wave, load torque raised each cycle | the load torque at which the load driver's braking limit trips |
+//! | [`calibration`] | the pendulum torque `m g Lg sin(theta)` held at a series of angles | a, b, c of `V = a + b sin(theta + c)` for the torque transducer and the load cell |
+//! | [`step`] | open-loop current step and a closed-loop position step | the velocity loop's reaction curve (gain, time constant, Ziegler-Nichols gains) and the position step's rise, settling, overshoot and peak time |
+//!
+//! Every experiment writes `<name>.csv` (every recorded signal of the run), `<name>-result.csv`
+//! (the analysed table), `<name>.svg` and `<name>.png` (its figure) and `<name>.md` (a
+//! Markdown section linking the figure by relative path).
+//!
+//! The system of a run: the bench FMU is the component `plant` (so columns read `plant.x` on
+//! both FMUs); references come from `GaitReference` (`gait`) or from schedules fed as input
+//! signals; loops are `PidController`s. All FMUs are loaded from one directory (by default the
+//! bench FMU's). Motor torques are converted to current set values with the bench FMU's own
+//! parameters (`harmonicDriveRatio`, `testMotorTorqueConstant`, `reductionRatio`,
+//! `loadMotorTorqueConstant`), so both drivers run in current mode.
+//!
+//! **Interlocks.** On `BenchHardware` an experiment refuses to start unless every interlock of
+//! section 7 is armed at or inside the bench's limits ([`Bench::check_armed`]). On the plant
+//! the interlocks are the model's own (parameters of the same names).
+
+pub mod analysis;
+pub mod bode;
+pub mod calibration;
+pub mod map;
+pub mod step;
+pub mod triangle;
+
+use std::path::{Path, PathBuf};
+
+use crate::master::{MasterError, Outcome, RunConfig, RunOutput, Signal, System};
+use crate::results::plot::PlotLabels;
+use crate::results::{ColumnKind, Results, ResultsError};
+use crate::{Fmu, LoadError, LoadOptions};
+
+/// Errors of the experiments.
+#[derive(Debug, thiserror::Error)]
+pub enum ExperimentError {
+    /// An FMU could not be loaded.
+    #[error("{path}: {source}")]
+    Load {
+        /// The FMU.
+        path: PathBuf,
+        /// Why.
+        source: LoadError,
+    },
+    /// Building or running the system failed.
+    #[error(transparent)]
+    Master(#[from] MasterError),
+    /// Writing results or figures failed.
+    #[error(transparent)]
+    Results(#[from] ResultsError),
+    /// A file could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The hardware's interlocks are not armed: the experiment does not start.
+    #[error(
+        "refusing to start on the hardware: interlocks not armed ({})",
+        .0.join("; ")
+    )]
+    NotArmed(Vec<String>),
+    /// An option or parameter is invalid.
+    #[error("{0}")]
+    Invalid(String),
+    /// The run ended before the experiment could be analysed.
+    #[error("{0}")]
+    Run(String),
+    /// The analysis failed.
+    #[error("analysis: {0}")]
+    Analysis(String),
+}
+
+/// Which bench FMU an experiment runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BenchKind {
+    /// `BenchPlant`, the simulated bench.
+    Plant,
+    /// `BenchHardware`, the physical bench (or the emulator behind it).
+    Hardware,
+}
+
+/// The bench under test: its FMU, the parameter values set on it, and the directory of the
+/// other FMUs (`GaitReference.fmu`, `PidController.fmu`).
+#[derive(Debug, Clone)]
+pub struct Bench {
+    fmu: Fmu,
+    path: PathBuf,
+    kind: BenchKind,
+    parameters: Vec<(String, String)>,
+    fmu_dir: PathBuf,
+}
+
+/// The interlock limits of bench-model.md section 7: (parameter, largest armed value, what).
+pub const ARMED_LIMITS: [(&str, f64, &str); 5] = [
+    (
+        "springDeflectionLimit",
+        0.087_266_462_599_716_48,
+        "spring deflection 5 deg",
+    ),
+    ("motorTorqueLimit", 20.0, "motor torque 20 N m"),
+    (
+        "loadRegenPowerLimit",
+        5.0,
+        "load driver regenerated power 5 W",
+    ),
+    ("testCurrentLimit", 15.0, "test driver current 15 A"),
+    ("loadCurrentLimit", 6.0, "load driver current 6 A"),
+];
+
+impl Bench {
+    /// Loads the bench FMU at `path` (a `BenchPlant` or `BenchHardware` FMU) with `parameters`
+    /// (name, value as text) to set on it; `fmu_dir` holds the other FMUs (default: the bench
+    /// FMU's directory).
+    pub fn load(
+        path: &Path,
+        parameters: Vec<(String, String)>,
+        fmu_dir: Option<PathBuf>,
+    ) -> Result<Bench, ExperimentError> {
+        let fmu = load(path)?;
+        let id = fmu
+            .model_description()
+            .co_simulation
+            .as_ref()
+            .map(|c| c.model_identifier.clone())
+            .unwrap_or_default();
+        let kind = match id.as_str() {
+            "BenchPlant" => BenchKind::Plant,
+            "BenchHardware" => BenchKind::Hardware,
+            other => {
+                return Err(ExperimentError::Invalid(format!(
+                    "{}: model '{other}' is not a bench FMU (BenchPlant or BenchHardware)",
+                    path.display()
+                )));
+            }
+        };
+        for (name, _) in &parameters {
+            if fmu.variable(name).is_none() {
+                return Err(ExperimentError::Invalid(format!(
+                    "{} has no variable '{name}'",
+                    path.display()
+                )));
+            }
+        }
+        let fmu_dir = fmu_dir.unwrap_or_else(|| {
+            path.parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_else(|| PathBuf::from("."))
+        });
+        Ok(Bench {
+            fmu,
+            path: path.to_path_buf(),
+            kind,
+            parameters,
+            fmu_dir,
+        })
+    }
+
+    /// Plant or hardware.
+    pub fn kind(&self) -> BenchKind {
+        self.kind
+    }
+
+    /// The FMU's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The value of a parameter as the run sets it: the value given, else the FMU's start value.
+    pub fn real(&self, name: &str) -> Result<f64, ExperimentError> {
+        let given = self
+            .parameters
+            .iter()
+            .rev()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.clone());
+        let text = match given {
+            Some(v) => v,
+            None => self
+                .fmu
+                .variable(name)
+                .and_then(|v| v.kind.start_string())
+                .ok_or_else(|| {
+                    ExperimentError::Invalid(format!(
+                        "{}: no value for parameter '{name}'",
+                        self.path.display()
+                    ))
+                })?,
+        };
+        text.trim().parse::<f64>().map_err(|_| {
+            ExperimentError::Invalid(format!("parameter '{name}' = '{text}' is not a number"))
+        })
+    }
+
+    /// Output torque per ampere of the test motor, `i_HD Km1` [N m/A].
+    pub fn test_torque_per_ampere(&self) -> Result<f64, ExperimentError> {
+        Ok(self.real("harmonicDriveRatio")? * self.real("testMotorTorqueConstant")?)
+    }
+
+    /// Output torque per ampere of the load motor, `i_RED Km2` [N m/A].
+    pub fn load_torque_per_ampere(&self) -> Result<f64, ExperimentError> {
+        Ok(self.real("reductionRatio")? * self.real("loadMotorTorqueConstant")?)
+    }
+
+    /// On `BenchHardware`: every interlock of [`ARMED_LIMITS`] set above zero and at or below
+    /// the bench's limit, and the sensor-consistency checks on (`consistencyPersistence` > 0).
+    /// Lists every interlock that is not. On the plant: always Ok.
+    pub fn check_armed(&self) -> Result<(), ExperimentError> {
+        if self.kind == BenchKind::Plant {
+            return Ok(());
+        }
+        let mut problems = Vec::new();
+        for (name, limit, what) in ARMED_LIMITS {
+            match self.real(name) {
+                Ok(v) if v > 0.0 && v <= limit * (1.0 + 1e-12) => {}
+                Ok(v) => problems.push(format!(
+                    "{name} = {v} (armed: 0 < value <= {limit}, {what})"
+                )),
+                Err(e) => problems.push(e.to_string()),
+            }
+        }
+        match self.real("consistencyPersistence") {
+            Ok(v) if v >= 1.0 => {}
+            Ok(v) => problems.push(format!(
+                "consistencyPersistence = {v} turns the sensor-consistency interlocks off"
+            )),
+            Err(e) => problems.push(e.to_string()),
+        }
+        if problems.is_empty() {
+            Ok(())
+        } else {
+            Err(ExperimentError::NotArmed(problems))
+        }
+    }
+
+    /// A system holding the bench as component `plant` with its parameters set.
+    fn system(&self) -> Result<System, ExperimentError> {
+        let mut system = System::new();
+        system.add_component("plant", self.fmu.clone())?;
+        for (name, value) in &self.parameters {
+            system.set_value_str(&format!("plant.{name}"), value)?;
+        }
+        Ok(system)
+    }
+
+    /// Loads another kneebench FMU (`GaitReference`, `PidController`) from the FMU directory.
+    fn companion(&self, identifier: &str) -> Result<Fmu, ExperimentError> {
+        load(&self.fmu_dir.join(format!("{identifier}.fmu")))
+    }
+}
+
+fn load(path: &Path) -> Result<Fmu, ExperimentError> {
+    Fmu::load(path, &LoadOptions::default()).map_err(|source| ExperimentError::Load {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Sets real parameters `(name, value)` of component `component`.
+fn set_reals(
+    system: &mut System,
+    component: &str,
+    values: &[(&str, f64)],
+) -> Result<(), ExperimentError> {
+    for (name, v) in values {
+        system.set_value(
+            &format!("{component}.{name}"),
+            crate::master::Value::Real(*v),
+        )?;
+    }
+    Ok(())
+}
+
+/// Sets integer (enumeration) parameters of component `component`.
+fn set_integers(
+    system: &mut System,
+    component: &str,
+    values: &[(&str, i32)],
+) -> Result<(), ExperimentError> {
+    for (name, v) in values {
+        system.set_value(
+            &format!("{component}.{name}"),
+            crate::master::Value::Integer(*v),
+        )?;
+    }
+    Ok(())
+}
+
+/// A piecewise-constant (or, with `interpolate`, piecewise-linear) schedule as an input signal.
+fn schedule(points: Vec<(f64, f64)>, interpolate: bool) -> Signal {
+    let (times, values) = points.into_iter().unzip();
+    Signal {
+        times,
+        values,
+        interpolate,
+    }
+}
+
+/// How a run of an experiment ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunEnd {
+    /// The whole schedule ran.
+    Completed,
+    /// An interlock (or another cause the bench FMU names) ended the run at `time`.
+    Tripped {
+        /// The last successful time \[s\].
+        time: f64,
+        /// What the bench logged.
+        reason: String,
+    },
+}
+
+/// Runs `system` to `stop_time` at 1 ms steps (Gauss-Seidel). A run ended by the bench keeps its
+/// rows and says why; a failure is an error.
+fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), ExperimentError> {
+    let config = RunConfig {
+        stop_time,
+        step_size: STEP,
+        ..RunConfig::default()
+    };
+    let output = system.run(&config)?;
+    let end = match &output.outcome {
+        Outcome::Completed { .. } => RunEnd::Completed,
+        Outcome::Terminated {
+            component,
+            last_successful_time,
+            messages,
+            ..
+        } => RunEnd::Tripped {
+            time: *last_successful_time,
+            reason: format!(
+                "{component}: {}",
+                messages.last().map(String::as_str).unwrap_or("terminated")
+            ),
+        },
+        Outcome::Failed(e) => {
+            return Err(ExperimentError::Run(format!(
+                "the run failed at t = {:?}: {e}",
+                output.results.last_time()
+            )));
+        }
+    };
+    Ok((output, end))
+}
+
+/// The control period of every experiment \[s\] (the myRIO's 1 ms).
+pub const STEP: f64 = 1e-3;
+
+/// A column of the results, or an error naming it.
+fn column(results: &Results, name: &str) -> Result<Vec<f64>, ExperimentError> {
+    results
+        .column(name)
+        .ok_or_else(|| ExperimentError::Analysis(format!("the results lack column '{name}'")))
+}
+
+/// What an experiment wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Written {
+    /// Data files (CSV).
+    pub data: Vec<PathBuf>,
+    /// Figures (SVG and PNG).
+    pub figures: Vec<PathBuf>,
+    /// The Markdown section.
+    pub markdown: PathBuf,
+}
+
+/// A table of analysed rows: `x` column name, other column names, rows.
+struct Table {
+    x: String,
+    names: Vec<String>,
+    rows: Vec<(f64, Vec<f64>)>,
+}
+
+impl Table {
+    fn to_results(&self) -> Results {
+        let mut r = Results::with_capacity(
+            self.names.clone(),
+            vec![ColumnKind::Real; self.names.len()],
+            self.rows.len(),
+        );
+        for (x, row) in &self.rows {
+            r.push_row(*x, row);
+        }
+        r
+    }
+
+    /// Writes the table as CSV, its first column renamed from `time` to the table's x.
+    fn write_csv(&self, path: &Path) -> Result<(), ExperimentError> {
+        let mut bytes = Vec::new();
+        self.to_results()
+            .write_csv(&mut bytes)
+            .map_err(|source| ExperimentError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let text = String::from_utf8_lossy(&bytes);
+        let body = text.split_once('\n').map_or("", |(_, b)| b);
+        let header = std::iter::once(csv_field(&self.x))
+            .chain(self.names.iter().map(|n| csv_field(n)))
+            .collect::<Vec<_>>()
+            .join(",");
+        write_file(path, &format!("{header}\n{body}"))
+    }
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), ExperimentError> {
+    std::fs::write(path, text).map_err(|source| ExperimentError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Draws `series` of `results` (x = its first column) as `<out>/<name>.svg` and `.png`.
+fn figure(
+    results: &Results,
+    series: &[&str],
+    out: &Path,
+    name: &str,
+    labels: &PlotLabels,
+) -> Result<Vec<PathBuf>, ExperimentError> {
+    std::fs::create_dir_all(out).map_err(|source| ExperimentError::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let mut files = Vec::new();
+    for ext in ["svg", "png"] {
+        let path = out.join(format!("{name}.{ext}"));
+        crate::results::plot::plot_signals_with(results, series, &path, (1024, 560), labels)?;
+        files.push(path);
+    }
+    Ok(files)
+}
+
+/// Writes the common files of an experiment: the raw run, the analysed table, the figure (of
+/// `series` of the table) and the Markdown section (`body` after a heading, the figure linked).
+#[allow(clippy::too_many_arguments)]
+fn write_outputs(
+    out: &Path,
+    name: &str,
+    title: &str,
+    run: &Results,
+    table: &Table,
+    series: &[&str],
+    labels: &PlotLabels,
+    body: &str,
+) -> Result<Written, ExperimentError> {
+    std::fs::create_dir_all(out).map_err(|source| ExperimentError::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let raw = out.join(format!("{name}.csv"));
+    run.write_csv_file(&raw)?;
+    let analysed = out.join(format!("{name}-result.csv"));
+    table.write_csv(&analysed)?;
+    let figures = figure(&table.to_results(), series, out, name, labels)?;
+    let markdown = out.join(format!("{name}.md"));
+    write_file(
+        &markdown,
+        &format!(
+            "## {title}\n\n![{title}]({name}.png)\n\n(vector: [{name}.svg]({name}.svg); data: [{name}-result.csv]({name}-result.csv), every signal of the run: [{name}.csv]({name}.csv))\n\n{body}\n"
+        ),
+    )?;
+    Ok(Written {
+        data: vec![raw, analysed],
+        figures,
+        markdown,
+    })
+}
+
+/// Formats a number for a Markdown table (NaN as a dash).
+fn num(v: f64, decimals: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.decimals$}")
+    } else {
+        "-".into()
+    }
+}

@@ -1,0 +1,334 @@
+//! Step responses (bench-model.md section 6): the quality measures the study tuned with (rise
+//! time to 90 %, settling time in the 5 % band, overshoot, peak time) and Ziegler-Nichols
+//! starting gains.
+//!
+//! Two runs, each a fresh instance of the bench:
+//! 1. **Open loop**: a test-motor current step of `current` A at `step_time`; the
+//!    actuation-side speed's reaction curve (`crate::metrics::reaction_curve`, the code of
+//!    `kneebench tune --step-response`) gives the static gain K [(rad/s)/A], dead time L and
+//!    time constant T, and the Ziegler-Nichols PID of a velocity loop
+//!    (`crate::metrics::ziegler_nichols_reaction`). The mean residence time
+//!    `T_ar = integral (w_end - w) dt / w_end` identifies the plant: without friction the
+//!    two-mass speed response has `K = i_HD Km1 / (c1 + c2)` and `T_ar = (I1 + I2)/(c1 + c2) -
+//!    c2^2 / (k (c1 + c2)) + tau_c` (current loop), so `c = i_HD Km1 / K` and
+//!    `I = c T_ar` are the bench's total damping and inertia (friction lowers K: on the plant,
+//!    `frictionModel` = 0 isolates them).
+//! 2. **Closed loop**: a position step of `angle` (`GaitReference` Step) into a
+//!    `PidController` on `actuationEncoderAngle`; the metrics of `actuationAngle`
+//!    (`crate::metrics::step_metrics`, the code of `kneebench metrics`).
+
+use std::path::Path;
+
+use super::{
+    Bench, ExperimentError, RunEnd, Table, Written, column, num, run, schedule, set_integers,
+    set_reals, write_outputs,
+};
+use crate::metrics::{
+    PidGains, ReactionCurve, StepMetrics, reaction_curve, step_metrics, ziegler_nichols_reaction,
+};
+use crate::results::plot::PlotLabels;
+
+/// Settings of the step experiment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepConfig {
+    /// Open-loop test-motor current step \[A\].
+    pub current: f64,
+    /// Closed-loop position step \[rad\].
+    pub angle: f64,
+    /// Time of both steps \[s\].
+    pub step_time: f64,
+    /// Record after the step \[s\].
+    pub duration: f64,
+    /// Position loop: kp [A/rad], ki [A/(rad s)], kd [A s/rad].
+    pub gains: (f64, f64, f64),
+}
+
+impl Default for StepConfig {
+    fn default() -> Self {
+        StepConfig {
+            current: 2.0,
+            angle: 5f64.to_radians(),
+            step_time: 0.2,
+            duration: 1.5,
+            // A 10 deg step, or stiffer gains, trips the SEA's shaft-torque interlock on the
+            // plant (the loop saturates at 15 A and the spring passes 20 N m).
+            gains: (60.0, 30.0, 4.0),
+        }
+    }
+}
+
+/// The step experiment's result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepResult {
+    /// Reaction curve of the open-loop speed response.
+    pub reaction: ReactionCurve,
+    /// Mean residence time T_ar \[s\].
+    pub residence_time: f64,
+    /// Identified total damping `i_HD Km1 / K` [N m s/rad].
+    pub damping: f64,
+    /// Identified total inertia `damping x T_ar` [kg m^2].
+    pub inertia: f64,
+    /// Ziegler-Nichols PID of a velocity loop (current per rad/s), if the reaction curve has a
+    /// positive dead time.
+    pub ziegler_nichols: Result<PidGains, String>,
+    /// The closed-loop position step's metrics.
+    pub position: StepMetrics,
+    /// How the two runs ended.
+    pub ends: [RunEnd; 2],
+    /// What was written.
+    pub written: Written,
+}
+
+/// Runs both steps on `bench` and writes the files into `out`.
+pub fn run_step(
+    bench: &Bench,
+    config: &StepConfig,
+    out: &Path,
+) -> Result<StepResult, ExperimentError> {
+    bench.check_armed()?;
+    let limit = bench.real("testCurrentLimit")?;
+    let ok = |v: f64| v.is_finite() && v > 0.0;
+    if !(config.current.is_finite()
+        && config.current != 0.0
+        && config.current.abs() <= limit
+        && ok(config.angle)
+        && ok(config.step_time)
+        && ok(config.duration))
+    {
+        return Err(ExperimentError::Invalid(format!(
+            "step: the current must be non-zero and within the driver's {limit} A, the angle positive (GaitReference's step amplitude), step time and duration positive"
+        )));
+    }
+    let stop = ((config.step_time + config.duration) / super::STEP).round() * super::STEP;
+    let after = |times: &[f64], v: &[f64]| -> (Vec<f64>, Vec<f64>) {
+        times
+            .iter()
+            .zip(v)
+            .filter(|(t, _)| **t >= config.step_time - 1e-9)
+            .map(|(t, v)| (*t, *v))
+            .unzip()
+    };
+
+    // 1. Open loop.
+    let mut system = bench.system()?;
+    system.add_signal(
+        "plant.testCurrentCommand",
+        schedule(vec![(0.0, 0.0), (config.step_time, config.current)], false),
+    )?;
+    let (open, open_end) = run(&system, stop)?;
+    if let RunEnd::Tripped { time, reason } = &open_end {
+        return Err(ExperimentError::Run(format!(
+            "step: the open-loop run was ended at {time:.3} s: {reason}"
+        )));
+    }
+    let (t_open, w) = after(
+        &open.results.times(),
+        &column(&open.results, "plant.actuationVelocity")?,
+    );
+    let reaction = reaction_curve(&t_open, &w, config.current)
+        .map_err(|e| ExperimentError::Analysis(e.to_string()))?;
+    let (w0, w_end) = (w[0], tail_mean(&w));
+    let area: f64 = t_open
+        .windows(2)
+        .zip(w.windows(2))
+        .map(|(t, v)| (t[1] - t[0]) * (w_end - 0.5 * (v[0] + v[1])))
+        .sum();
+    let residence_time = area / (w_end - w0);
+    let damping = bench.test_torque_per_ampere()? / reaction.gain;
+    let inertia = damping * residence_time;
+    let ziegler_nichols = ziegler_nichols_reaction(&reaction).map_err(|e| e.to_string());
+
+    // 2. Closed loop.
+    let mut system = bench.system()?;
+    system.add_component("gait", bench.companion("GaitReference")?)?;
+    set_integers(&mut system, "gait", &[("motionWaveform", 3)])?;
+    set_reals(
+        &mut system,
+        "gait",
+        &[
+            ("kneeAngleAmplitude", config.angle),
+            ("stepTime", config.step_time),
+        ],
+    )?;
+    system.add_component("position", bench.companion("PidController")?)?;
+    set_reals(
+        &mut system,
+        "position",
+        &[
+            ("kp", config.gains.0),
+            ("ki", config.gains.1),
+            ("kd", config.gains.2),
+            ("derivativeFilterTime", 0.002),
+            ("outputMin", -limit),
+            ("outputMax", limit),
+        ],
+    )?;
+    system.connect("gait.kneeAngleReference", "position.setpoint")?;
+    system.connect("plant.actuationEncoderAngle", "position.measurement")?;
+    system.connect("position.u", "plant.testCurrentCommand")?;
+    let (closed, closed_end) = run(&system, stop)?;
+    let (t_closed, theta) = after(
+        &closed.results.times(),
+        &column(&closed.results, "plant.actuationAngle")?,
+    );
+    let position = step_metrics(&t_closed, &theta, Some(config.angle))
+        .map_err(|e| ExperimentError::Analysis(e.to_string()))?;
+
+    // The raw run: both records side by side on the common time grid.
+    let n = open.results.len().min(closed.results.len());
+    let mut names: Vec<String> = open
+        .results
+        .names()
+        .iter()
+        .map(|c| format!("open.{c}"))
+        .collect();
+    names.extend(closed.results.names().iter().map(|c| format!("closed.{c}")));
+    let mut raw = crate::Results::with_capacity(
+        names,
+        vec![
+            crate::results::ColumnKind::Real;
+            open.results.names().len() + closed.results.names().len()
+        ],
+        n,
+    );
+    for i in 0..n {
+        let mut row = open.results.row(i)[1..].to_vec();
+        row.extend_from_slice(&closed.results.row(i)[1..]);
+        raw.push_row(open.results.row(i)[0], &row);
+    }
+    let ends = [open_end, closed_end];
+    let written = write_step(
+        bench,
+        config,
+        (&t_open, &w),
+        (&t_closed, &theta),
+        &StepSummary {
+            reaction: &reaction,
+            residence_time,
+            damping,
+            inertia,
+            zn: &ziegler_nichols,
+            position: &position,
+            ends: &ends,
+        },
+        &raw,
+        out,
+    )?;
+    Ok(StepResult {
+        reaction,
+        residence_time,
+        damping,
+        inertia,
+        ziegler_nichols,
+        position,
+        ends,
+        written,
+    })
+}
+
+/// Mean of the last tenth of a record.
+fn tail_mean(v: &[f64]) -> f64 {
+    let k = (v.len() / 10).max(1);
+    super::analysis::mean(&v[v.len() - k..])
+}
+
+struct StepSummary<'a> {
+    reaction: &'a ReactionCurve,
+    residence_time: f64,
+    damping: f64,
+    inertia: f64,
+    zn: &'a Result<PidGains, String>,
+    position: &'a StepMetrics,
+    ends: &'a [RunEnd; 2],
+}
+
+fn write_step(
+    bench: &Bench,
+    config: &StepConfig,
+    open: (&[f64], &[f64]),
+    closed: (&[f64], &[f64]),
+    s: &StepSummary<'_>,
+    raw: &crate::Results,
+    out: &Path,
+) -> Result<Written, ExperimentError> {
+    // Figure: both responses normalised to their final values, against time after the step.
+    let names = vec![
+        "open loop: speed / final speed".to_string(),
+        "closed loop: angle / step".into(),
+        "open-loop speed [rad/s]".into(),
+        "closed-loop angle [rad]".into(),
+    ];
+    let w_end = tail_mean(open.1);
+    let n = open.0.len().min(closed.0.len());
+    let table = Table {
+        x: "time after the step [s]".into(),
+        names: names.clone(),
+        rows: (0..n)
+            .map(|i| {
+                (
+                    open.0[i] - config.step_time,
+                    vec![
+                        (open.1[i] - open.1[0]) / (w_end - open.1[0]),
+                        closed.1[i] / config.angle,
+                        open.1[i],
+                        closed.1[i],
+                    ],
+                )
+            })
+            .collect(),
+    };
+    let opt = |v: Option<f64>| v.map_or("not reached".to_string(), |x| format!("{x:.4} s"));
+    let mut body = format!(
+        "Step responses on `{}`.\n\n**Open loop**: test-motor current step of {} A at {} s. Reaction curve of the actuation-side speed: K = {} (rad/s)/A, L = {} s, T = {} s; mean residence time T_ar = {} s; identified total damping i_HD Km1 / K = {} N m s/rad and inertia c T_ar = {} kg m^2. ",
+        bench.path().display(),
+        config.current,
+        config.step_time,
+        num(s.reaction.gain, 5),
+        num(s.reaction.dead_time, 5),
+        num(s.reaction.time_constant, 5),
+        num(s.residence_time, 5),
+        num(s.damping, 4),
+        num(s.inertia, 4),
+    );
+    match s.zn {
+        Ok(g) => body.push_str(&format!(
+            "Ziegler-Nichols starting gains of a velocity loop (A per rad/s, parallel form): kp = {}, ki = {}, kd = {}.\n\n",
+            num(g.kp, 4),
+            num(g.ki, 4),
+            num(g.kd, 6)
+        )),
+        Err(e) => body.push_str(&format!("No Ziegler-Nichols gains: {e}.\n\n")),
+    }
+    body.push_str(&format!(
+        "**Closed loop**: position step of {:.2} deg with kp {} A/rad, ki {} A/(rad s), kd {} A s/rad: rise time (90 %) {}, settling time (5 %) {}, overshoot {} %, peak time {} s.\n\n",
+        config.angle.to_degrees(),
+        config.gains.0,
+        config.gains.1,
+        config.gains.2,
+        opt(s.position.rise_time),
+        opt(s.position.settling_time),
+        num(100.0 * s.position.overshoot, 2),
+        num(s.position.peak_time, 4),
+    ));
+    for (what, end) in ["open-loop", "closed-loop"].iter().zip(s.ends) {
+        if let RunEnd::Tripped { time, reason } = end {
+            body.push_str(&format!(
+                "**The {what} run was ended at {time:.3} s: {reason}.**\n\n"
+            ));
+        }
+    }
+    write_outputs(
+        out,
+        "step",
+        "Step responses and Ziegler-Nichols starting gains",
+        raw,
+        &table,
+        &[names[0].as_str(), names[1].as_str()],
+        &PlotLabels {
+            x: "time after the step [s]".into(),
+            y: "normalised response [-]".into(),
+            title: "Open-loop speed and closed-loop position step responses".into(),
+        },
+        &body,
+    )
+}
