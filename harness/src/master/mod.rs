@@ -55,12 +55,32 @@
 //!   which a fixed-step master cannot retry); the error carries the FMU's log messages and the
 //!   results keep every row recorded so far.
 //!
+//! - [`Outcome::Failed`] with [`MasterError::Stopped`]: a stop request (a signal, the
+//!   [`RunConfig::timeout`], a [`RunControl`]) was seen at a communication point; the rows up
+//!   to that point are recorded and flushed.
+//! - [`Outcome::Failed`] with [`MasterError::NonFinite`]: an output the master read (recorded
+//!   or connected) was NaN or infinite, unless [`RunConfig::allow_nonfinite`].
+//!
+//! When a component ends the run (fmi2Discard with fmi2Terminated) at an
+//! `fmi2LastSuccessfulTime` after the last recorded row, its outputs are read there and
+//! recorded as the last row, at that time, as fmpy does (the other components' columns keep
+//! their last values). A `fmi2LastSuccessfulTime` at the last row's time adds no row.
+//!
+//! # Where rows go
+//!
+//! [`System::run`] keeps the rows in memory ([`Results`]); [`System::run_into`] hands them to
+//! any [`ResultSink`] (a streamed CSV file, for example), flushing it every second of wall
+//! time when the sink asks for it, and once at the end of every run.
+//!
 //! # Parallel stepping
 //!
-//! Off by default. With [`RunConfig::parallel`], components that do not depend on each other
-//! (one dependency level of the Gauss-Seidel order; all components for Jacobi) step
-//! concurrently on scoped threads, spawned for every step of a level with more than one
-//! component due. That costs tens of microseconds per step (measured: the study's SEA loop
+//! Off by default. With [`RunConfig::parallel`], the components step in groups that the
+//! sequential order allows to run concurrently: walking the Gauss-Seidel order, a component
+//! joins the current group unless a member of the group feeds it through any connection
+//! (direct feedthrough or not: the sequential master passes every fresh output along), so each
+//! component gathers exactly the values it gets sequentially and the results are
+//! bit-identical to the sequential run's. Jacobi runs all components as one group. Groups of
+//! more than one due component step on scoped threads, spawned for every step. That costs tens of microseconds per step (measured: the study's SEA loop
 //! ~116 us per step with `--parallel`, 60x slower than sequential, on a 2-core VM), so it
 //! pays only for FMUs whose steps take milliseconds. It requires FMUs whose instances share no
 //! mutable state.
@@ -71,9 +91,10 @@ use std::sync::Arc;
 
 use model_description::{Causality, ModelDescription, ScalarVariable, VariableKind};
 
+pub use crate::control::{RunControl, StopReason};
 use crate::instance::{FmuError, Instance, InstanceOptions, Status};
 use crate::load::Fmu;
-use crate::results::{ColumnKind, Results};
+use crate::results::{ColumnKind, ResultSink, Results, ResultsError};
 use crate::time::{Grid, GridError};
 
 /// The base type of a variable, which decides the `fmi2Get*`/`fmi2Set*` family.
@@ -172,6 +193,15 @@ pub struct RunConfig {
     pub tolerance: Option<f64>,
     /// Called about 200 times during a run.
     pub progress: Option<ProgressFn>,
+    /// Wall-time limit of the whole run (instantiation included): past it, the run stops at
+    /// the next communication point with [`MasterError::Stopped`] ([`StopReason::Timeout`]).
+    /// A call into an FMU that never returns is not interrupted (that needs a process of its
+    /// own per FMU).
+    pub timeout: Option<std::time::Duration>,
+    /// Stop requests from outside (signals, a watchdog), checked at every communication point.
+    pub control: Option<RunControl>,
+    /// Record NaN and infinite outputs instead of failing with [`MasterError::NonFinite`].
+    pub allow_nonfinite: bool,
 }
 
 impl Default for RunConfig {
@@ -185,6 +215,9 @@ impl Default for RunConfig {
             record_every: 1,
             tolerance: None,
             progress: None,
+            timeout: None,
+            control: None,
+            allow_nonfinite: false,
         }
     }
 }
@@ -199,6 +232,8 @@ impl fmt::Debug for RunConfig {
             .field("parallel", &self.parallel)
             .field("record_every", &self.record_every)
             .field("tolerance", &self.tolerance)
+            .field("timeout", &self.timeout)
+            .field("allow_nonfinite", &self.allow_nonfinite)
             .finish()
     }
 }
@@ -289,6 +324,44 @@ pub enum MasterError {
         /// The FMU error.
         source: FmuError,
     },
+    /// The run was stopped from outside at a communication point (its rows are recorded).
+    #[error("run stopped at t = {time}: {reason}")]
+    Stopped {
+        /// Why.
+        reason: StopReason,
+        /// The communication point of the last recorded row.
+        time: f64,
+    },
+    /// An output was NaN or infinite (see [`RunConfig::allow_nonfinite`]).
+    #[error(
+        "component '{component}': output '{variable}' is {value} at t = {time} (use --allow-nonfinite to record it)"
+    )]
+    NonFinite {
+        /// The component.
+        component: String,
+        /// The output.
+        variable: String,
+        /// The value.
+        value: f64,
+        /// The time the value belongs to.
+        time: f64,
+    },
+    /// The thread that keeps the time limit and the periodic flushes could not start.
+    #[error("cannot start the run's timer thread: {0}")]
+    Thread(std::io::Error),
+    /// Writing the results failed.
+    #[error("writing the results: {0}")]
+    Sink(#[from] ResultsError),
+    /// A component's step does not fit the master's integer time base.
+    #[error(
+        "component '{component}': step multiple {multiple} times the base step overflows the master's time base"
+    )]
+    StepOverflow {
+        /// The component.
+        component: String,
+        /// The multiple.
+        multiple: u64,
+    },
     /// `fmi2DoStep` returned `fmi2Discard` without terminating: a fixed-step master cannot retry.
     #[error(
         "component '{component}' discarded the step at t = {time} without terminating (a fixed-step master cannot retry){}",
@@ -325,6 +398,17 @@ pub enum Outcome {
     },
     /// The run failed; the results keep the rows recorded before the failure.
     Failed(MasterError),
+}
+
+/// What [`System::run_into`] returns: how the run ended, beside the rows in the sink.
+#[derive(Debug)]
+pub struct RunSummary {
+    /// How the run ended.
+    pub outcome: Outcome,
+    /// Rows handed to the sink.
+    pub rows: u64,
+    /// Number of `fmi2DoStep` calls per component, in declaration order.
+    pub steps_per_component: Vec<u64>,
 }
 
 /// What [`System::run`] returns: the results (complete or up to the end of the run) and how
@@ -383,7 +467,15 @@ impl Signal {
         if t1 == t0 {
             return v1;
         }
-        v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+        let x = v0 + (v1 - v0) * (t - t0) / (t1 - t0);
+        if x.is_finite() {
+            x
+        } else {
+            // Samples near the largest double: their difference or its product with the time
+            // overflows, the weighted mean (between the two samples) does not.
+            let w = (t - t0) / (t1 - t0);
+            v0 * (1.0 - w) + v1 * w
+        }
     }
 }
 
@@ -477,6 +569,11 @@ impl System {
     /// Names of the components, in declaration order.
     pub fn component_names(&self) -> Vec<&str> {
         self.components.iter().map(|c| c.name.as_str()).collect()
+    }
+
+    /// The components and their FMUs, in declaration order.
+    pub fn components(&self) -> impl Iterator<Item = (&str, &Fmu)> {
+        self.components.iter().map(|c| (c.name.as_str(), &c.fmu))
     }
 
     fn comp_index(&self, name: &str) -> Result<usize, MasterError> {
@@ -752,10 +849,22 @@ impl System {
         Ok((order, level))
     }
 
-    /// Runs the system. `Err` only for a configuration that cannot start (bad grid, algebraic
-    /// loop, bad step multiple); everything that happens once FMUs are instantiated is reported
-    /// in [`RunOutput::outcome`] with the rows recorded so far.
+    /// Runs the system, keeping the rows in memory. `Err` only for a configuration that
+    /// cannot start (bad grid, algebraic loop, bad step multiple); everything that happens once
+    /// FMUs are instantiated is reported in [`RunOutput::outcome`] with the rows recorded so far.
     pub fn run(&self, config: &RunConfig) -> Result<RunOutput, MasterError> {
+        let mut results = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        let summary = self.run_into(config, &mut results)?;
+        Ok(RunOutput {
+            results,
+            outcome: summary.outcome,
+            steps_per_component: summary.steps_per_component,
+        })
+    }
+
+    /// The grid of a run with `config`, checked: what [`run_into`](Self::run_into) refuses
+    /// before instantiating anything (time base, step multiples, algebraic loop).
+    pub fn check_config(&self, config: &RunConfig) -> Result<Grid, MasterError> {
         if self.components.is_empty() {
             return Err(MasterError::Empty);
         }
@@ -769,6 +878,12 @@ impl System {
                     problem: "must be at least 1",
                 });
             }
+            if c.step_multiple.checked_mul(grid.step_ticks).is_none() {
+                return Err(MasterError::StepOverflow {
+                    component: c.name.clone(),
+                    multiple: c.step_multiple,
+                });
+            }
             if !grid.n_steps.is_multiple_of(c.step_multiple) {
                 return Err(MasterError::BadStepMultiple {
                     component: c.name.clone(),
@@ -777,25 +892,54 @@ impl System {
                 });
             }
         }
-        let n = self.components.len();
-        let (order, level) = match self.dependency_order() {
-            Ok(x) => x,
-            Err(cycle) => match config.algorithm {
-                Algorithm::GaussSeidel => return Err(MasterError::AlgebraicLoop(cycle)),
-                Algorithm::Jacobi => ((0..n).collect(), vec![0; n]),
-            },
-        };
-        // Groups that may step concurrently, in order.
-        let groups: Vec<Vec<usize>> = match config.algorithm {
-            Algorithm::Jacobi => vec![order.clone()],
-            Algorithm::GaussSeidel => {
-                let max = level.iter().copied().max().unwrap_or(0);
-                (0..=max)
-                    .map(|l| order.iter().copied().filter(|&i| level[i] == l).collect())
-                    .filter(|g: &Vec<usize>| !g.is_empty())
-                    .collect()
+        if config.algorithm == Algorithm::GaussSeidel
+            && let Err(cycle) = self.dependency_order()
+        {
+            return Err(MasterError::AlgebraicLoop(cycle));
+        }
+        Ok(grid)
+    }
+
+    /// The groups of components that may step concurrently, in order (see the module
+    /// documentation, "Parallel stepping"): consecutive runs of `order` in which no member
+    /// feeds a later member through any connection. Jacobi: one group.
+    pub fn parallel_groups(&self, order: &[usize], algorithm: Algorithm) -> Vec<Vec<usize>> {
+        if algorithm == Algorithm::Jacobi {
+            return vec![order.to_vec()];
+        }
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        for &c in order {
+            let fed_by_group = groups.last().is_some_and(|g| {
+                self.connections
+                    .iter()
+                    .any(|(s, d)| d.comp == c && s.comp != c && g.contains(&s.comp))
+            });
+            match groups.last_mut() {
+                Some(g) if !fed_by_group => g.push(c),
+                _ => groups.push(vec![c]),
             }
+        }
+        groups
+    }
+
+    /// Runs the system, handing every recorded row to `sink` (see [`ResultSink`]). `Err` only
+    /// for a configuration that cannot start (as [`check_config`](Self::check_config));
+    /// everything after is in [`RunSummary::outcome`], and every row recorded up to the end of
+    /// the run is in the sink, flushed.
+    pub fn run_into(
+        &self,
+        config: &RunConfig,
+        sink: &mut dyn ResultSink,
+    ) -> Result<RunSummary, MasterError> {
+        let started = std::time::Instant::now();
+        let grid = self.check_config(config)?;
+        let n = self.components.len();
+        let (order, _) = match self.dependency_order() {
+            Ok(x) => x,
+            // Gauss-Seidel refused a loop in `check_config`.
+            Err(_) => ((0..n).collect(), vec![0; n]),
         };
+        let groups = self.parallel_groups(&order, config.algorithm);
 
         let recorded = self.recorded();
         let names: Vec<String> = recorded
@@ -820,8 +964,7 @@ impl System {
             })
             .collect();
         let record_every = config.record_every.max(1);
-        let expected_rows = (grid.n_steps / record_every + 1).min(50_000_000) as usize;
-        let mut results = Results::with_capacity(names, kinds, expected_rows);
+        sink.begin(&names, &kinds)?;
 
         // Runtime tables: where every value the master moves lives.
         let fed: Vec<&VarRef> = self.signals.iter().map(|(d, _)| d).collect();
@@ -829,6 +972,12 @@ impl System {
         let signals: Vec<Signal> = self.signals.iter().map(|(_, s)| s.clone()).collect();
         let bus = Bus::new(plan.bus_len);
         let mut rts: Vec<Rt> = Vec::with_capacity(n);
+        let control = config.control.clone().unwrap_or_default();
+        let ticker = Ticker::start(
+            &control,
+            sink.wants_periodic_flush(),
+            config.timeout.map(|d| started + d),
+        )?;
 
         // Instantiate.
         for (c, ports) in self.components.iter().zip(plan.ports) {
@@ -839,13 +988,15 @@ impl System {
                     rts.push(Rt::new(inst, c.step_multiple, h, ports));
                 }
                 Err(e) => {
-                    return Ok(RunOutput {
-                        results,
-                        outcome: Outcome::Failed(MasterError::Fmu {
-                            component: c.name.clone(),
-                            time: grid.start,
-                            source: e,
-                        }),
+                    drop(ticker);
+                    let outcome = Outcome::Failed(MasterError::Fmu {
+                        component: c.name.clone(),
+                        time: grid.start,
+                        source: e,
+                    });
+                    return Ok(RunSummary {
+                        outcome: flushed(sink, outcome),
+                        rows: 0,
                         steps_per_component: vec![0; n],
                     });
                 }
@@ -859,14 +1010,98 @@ impl System {
             bus,
             signals,
             row: plan.row,
+            row_buf: Vec::with_capacity(names.len()),
+            rows: 0,
+            last_row_time: None,
+            control,
+            allow_nonfinite: config.allow_nonfinite,
         };
-        let outcome = run.execute(config, &order, &groups, &mut results, record_every);
+        let outcome = run.execute(config, &order, &groups, sink, record_every);
+        drop(ticker);
         let steps_per_component = run.rts.iter().map(|r| r.steps).collect();
-        Ok(RunOutput {
-            results,
-            outcome,
+        Ok(RunSummary {
+            outcome: flushed(sink, outcome),
+            rows: run.rows,
             steps_per_component,
         })
+    }
+}
+
+/// Flushes `sink` at the end of a run; a failed flush fails a run that had not failed.
+fn flushed(sink: &mut dyn ResultSink, outcome: Outcome) -> Outcome {
+    match (sink.flush(), outcome) {
+        (Err(e), Outcome::Completed { .. } | Outcome::Terminated { .. }) => {
+            Outcome::Failed(MasterError::Sink(e))
+        }
+        (_, outcome) => outcome,
+    }
+}
+
+/// The thread that asks for a flush every second and marks the time limit as passed; it ends
+/// when dropped.
+struct Ticker {
+    stop: Option<std::sync::mpsc::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Ticker {
+    /// Starts the thread if there is anything to do (periodic flushes or a deadline).
+    fn start(
+        control: &RunControl,
+        flush: bool,
+        deadline: Option<std::time::Instant>,
+    ) -> Result<Ticker, MasterError> {
+        use std::sync::mpsc::RecvTimeoutError;
+        use std::time::{Duration, Instant};
+        if !flush && deadline.is_none() {
+            return Ok(Ticker {
+                stop: None,
+                thread: None,
+            });
+        }
+        const PERIOD: Duration = Duration::from_secs(1);
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let control = control.clone();
+        let thread = std::thread::Builder::new()
+            .name("kneebench-ticker".into())
+            .spawn(move || {
+                loop {
+                    let now = Instant::now();
+                    let wait = match deadline {
+                        Some(d) if d <= now => {
+                            control.request_timeout();
+                            return;
+                        }
+                        Some(d) if !flush => d - now,
+                        Some(d) => PERIOD.min(d - now),
+                        None => PERIOD,
+                    };
+                    match rx.recv_timeout(wait) {
+                        Err(RecvTimeoutError::Timeout) => {
+                            if flush {
+                                control.request_flush();
+                            }
+                        }
+                        _ => return,
+                    }
+                }
+            });
+        match thread {
+            Ok(t) => Ok(Ticker {
+                stop: Some(tx),
+                thread: Some(t),
+            }),
+            Err(e) => Err(MasterError::Thread(e)),
+        }
+    }
+}
+
+impl Drop for Ticker {
+    fn drop(&mut self) {
+        drop(self.stop.take());
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }
 
@@ -1261,6 +1496,14 @@ struct Run<'a> {
     bus: Bus,
     signals: Vec<Signal>,
     row: Vec<RowRun>,
+    /// The row being recorded (values only).
+    row_buf: Vec<f64>,
+    /// Rows handed to the sink.
+    rows: u64,
+    /// The time of the last row handed to the sink.
+    last_row_time: Option<f64>,
+    control: RunControl,
+    allow_nonfinite: bool,
 }
 
 enum Stop {
@@ -1268,18 +1511,16 @@ enum Stop {
     Failed(MasterError),
 }
 
-/// Appends the row at time `t` built from `bus` by `row` to `results`.
+/// Fills `values` with the recorded values on `bus` (the columns in `row`).
 #[inline]
-fn record_row(results: &mut Results, row: &[RowRun], bus: &Bus, t: f64) {
-    results.push_time(t);
+fn fill_row(values: &mut Vec<f64>, row: &[RowRun], bus: &Bus) {
+    values.clear();
     for run in row {
         match *run {
-            RowRun::Real(a, b) => results.push_values(&bus.real[a..b]),
-            RowRun::Integer(a, b) => {
-                results.push_values_from(bus.int[a..b].iter().map(|&v| v as f64))
-            }
+            RowRun::Real(a, b) => values.extend_from_slice(&bus.real[a..b]),
+            RowRun::Integer(a, b) => values.extend(bus.int[a..b].iter().map(|&v| v as f64)),
             RowRun::Boolean(a, b) => {
-                results.push_values_from(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
+                values.extend(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
             }
         }
     }
@@ -1297,8 +1538,73 @@ impl Run<'_> {
     }
 
     #[inline]
-    fn record(&self, results: &mut Results, t: f64) {
-        record_row(results, &self.row, &self.bus, t);
+    fn record(&mut self, sink: &mut dyn ResultSink, t: f64) -> Result<(), Stop> {
+        self.record_row(sink, t).map_err(Stop::Failed)
+    }
+
+    /// Hands the row at `t` to the sink.
+    #[inline]
+    fn record_row(&mut self, sink: &mut dyn ResultSink, t: f64) -> Result<(), MasterError> {
+        fill_row(&mut self.row_buf, &self.row, &self.bus);
+        sink.push_row(t, &self.row_buf)?;
+        self.rows += 1;
+        self.last_row_time = Some(t);
+        Ok(())
+    }
+
+    /// Acts on the pending requests of the control (a flush, a stop) at communication point
+    /// `t`, after its row.
+    #[cold]
+    #[inline(never)]
+    fn attend(&mut self, sink: &mut dyn ResultSink, t: f64) -> Result<(), Stop> {
+        if self.control.take_flush()
+            && let Err(e) = sink.flush()
+        {
+            return Err(Stop::Failed(MasterError::Sink(e)));
+        }
+        match self.control.stop_reason() {
+            Some(reason) => Err(Stop::Failed(MasterError::Stopped {
+                reason,
+                time: self.last_row_time.unwrap_or(t),
+            })),
+            None => Ok(()),
+        }
+    }
+
+    /// Fails with [`MasterError::NonFinite`] when an output of component `i` just read
+    /// (values for time `t`) is not finite, unless allowed.
+    #[inline(always)]
+    fn check_finite(&self, i: usize, t: f64) -> Result<(), Stop> {
+        let (a, b) = self.rts[i].ports.out[0];
+        if self.allow_nonfinite || self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(Stop::Failed(self.nonfinite(i, t)))
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn nonfinite(&self, i: usize, t: f64) -> MasterError {
+        let (a, b) = self.rts[i].ports.out[0];
+        let k = self.bus.real[a..b]
+            .iter()
+            .position(|v| !v.is_finite())
+            .unwrap_or(0);
+        let vr = self.rts[i].ports.out_vrs[0][k];
+        let md = self.sys.components[i].fmu.model_description();
+        let variable = md
+            .model_variables
+            .iter()
+            .find(|v| v.value_reference == vr && VarType::of(v) == VarType::Real)
+            .map(|v| v.name.clone())
+            .unwrap_or_else(|| format!("(value reference {vr})"));
+        MasterError::NonFinite {
+            component: self.sys.components[i].name.clone(),
+            variable,
+            value: self.bus.real[a + k],
+            time: t,
+        }
     }
 
     fn execute(
@@ -1306,32 +1612,40 @@ impl Run<'_> {
         config: &RunConfig,
         order: &[usize],
         groups: &[Vec<usize>],
-        results: &mut Results,
+        sink: &mut dyn ResultSink,
         record_every: u64,
     ) -> Outcome {
         let t0 = self.grid.start;
         if let Err(stop) = self.initialize(config, order) {
-            return self.finish(stop, results);
+            return self.finish(stop, sink);
         }
-        self.record(results, t0);
+        if let Err(stop) = self.record(sink, t0).and_then(|_| {
+            if self.control.pending() != 0 {
+                self.attend(sink, t0)
+            } else {
+                Ok(())
+            }
+        }) {
+            return self.finish(stop, sink);
+        }
         // The step loop is chosen once per run.
         let r = match (config.parallel, config.algorithm) {
-            (true, _) => self.step_loop(config, results, record_every, |run, n, t| {
+            (true, _) => self.step_loop(config, sink, record_every, |run, n, t| {
                 run.step_parallel(groups, n, t)
             }),
             (false, Algorithm::GaussSeidel) => {
-                self.step_loop(config, results, record_every, |run, n, t| {
+                self.step_loop(config, sink, record_every, |run, n, t| {
                     run.step_gauss_seidel(order, n, t)
                 })
             }
             (false, Algorithm::Jacobi) => {
-                self.step_loop(config, results, record_every, |run, n, t| {
+                self.step_loop(config, sink, record_every, |run, n, t| {
                     run.step_jacobi(order, n, t)
                 })
             }
         };
         if let Err(stop) = r {
-            return self.finish(stop, results);
+            return self.finish(stop, sink);
         }
         for i in 0..self.rts.len() {
             let _ = self.rts[i].inst.terminate();
@@ -1347,7 +1661,7 @@ impl Run<'_> {
     fn step_loop(
         &mut self,
         config: &RunConfig,
-        results: &mut Results,
+        sink: &mut dyn ResultSink,
         record_every: u64,
         mut step: impl FnMut(&mut Self, u64, f64) -> Result<(), Stop>,
     ) -> Result<(), Stop> {
@@ -1363,7 +1677,10 @@ impl Run<'_> {
             t = self.grid.time(done);
             if done == next_row {
                 next_row = next_row.saturating_add(record_every);
-                self.record(results, t);
+                self.record(sink, t)?;
+            }
+            if self.control.pending() != 0 {
+                self.attend(sink, t)?;
             }
             if done == next_progress {
                 next_progress = next_progress.saturating_add(stride);
@@ -1375,18 +1692,24 @@ impl Run<'_> {
         Ok(())
     }
 
-    fn finish(&mut self, stop: Stop, results: &Results) -> Outcome {
+    fn finish(&mut self, stop: Stop, sink: &mut dyn ResultSink) -> Outcome {
+        // The row at the terminating component's last successful time, read before any
+        // instance is terminated.
+        let last_row = match &stop {
+            Stop::Terminated { comp, time } => self.last_row(*comp, *time, sink),
+            Stop::Failed(_) => Ok(()),
+        };
         // Terminate the healthy instances; Drop frees every instance.
         for rt in &mut self.rts {
             if rt.inst.phase() == crate::instance::Phase::StepComplete {
                 let _ = rt.inst.terminate();
             }
         }
-        match stop {
-            Stop::Terminated { comp, time } => Outcome::Terminated {
+        match (stop, last_row) {
+            (Stop::Terminated { comp, time }, Ok(())) => Outcome::Terminated {
                 component: self.sys.components[comp].name.clone(),
                 last_successful_time: time,
-                last_row_time: results.last_time().unwrap_or(self.grid.start),
+                last_row_time: self.last_row_time.unwrap_or(self.grid.start),
                 messages: self.rts[comp]
                     .inst
                     .take_messages()
@@ -1394,8 +1717,34 @@ impl Run<'_> {
                     .map(|m| m.message)
                     .collect(),
             },
-            Stop::Failed(e) => Outcome::Failed(e),
+            (Stop::Terminated { .. }, Err(e)) | (Stop::Failed(e), _) => Outcome::Failed(e),
         }
+    }
+
+    /// Records the row at `time`, the last successful time of component `comp` that ended
+    /// the run, when it is after the last row: `comp`'s outputs read now, the others' as
+    /// they are.
+    fn last_row(
+        &mut self,
+        comp: usize,
+        time: f64,
+        sink: &mut dyn ResultSink,
+    ) -> Result<(), MasterError> {
+        if self.last_row_time.is_some_and(|last| time <= last) || !time.is_finite() {
+            return Ok(());
+        }
+        if let Err(source) = self.rts[comp].read(&mut self.bus) {
+            return Err(MasterError::Fmu {
+                component: self.sys.components[comp].name.clone(),
+                time,
+                source,
+            });
+        }
+        let (a, b) = self.rts[comp].ports.out[0];
+        if !self.allow_nonfinite && !self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+            return Err(self.nonfinite(comp, time));
+        }
+        self.record_row(sink, time)
     }
 
     fn initialize(&mut self, config: &RunConfig, order: &[usize]) -> Result<(), Stop> {
@@ -1429,6 +1778,7 @@ impl Run<'_> {
         for &i in order {
             let r = self.rts[i].read(&mut self.bus);
             r.map_err(|e| self.fail(i, t0, e))?;
+            self.check_finite(i, t0)?;
         }
         Ok(())
     }
@@ -1465,11 +1815,24 @@ impl Run<'_> {
 
     /// Steps component `i` from `t` (its inputs gathered): outputs onto the bus.
     #[inline(always)]
-    fn step_one(&mut self, i: usize, t: f64) -> Result<(), Stop> {
+    fn step_one(&mut self, i: usize, n: u64, t: f64) -> Result<(), Stop> {
         match self.rts[i].step_read(&mut self.bus, t) {
-            Ok(StepEnd::Done) => Ok(()),
+            Ok(StepEnd::Done) => self.check_finite_after_step(i, n),
             Ok(StepEnd::Discard) => Err(self.discarded(i, t)),
             Err(e) => Err(self.fail(i, t, e)),
+        }
+    }
+
+    /// [`check_finite`](Self::check_finite) for component `i` after its step from base step
+    /// `n`.
+    #[inline(always)]
+    fn check_finite_after_step(&self, i: usize, n: u64) -> Result<(), Stop> {
+        let (a, b) = self.rts[i].ports.out[0];
+        if self.allow_nonfinite || self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            let end = self.grid.time(n + self.rts[i].multiple);
+            Err(Stop::Failed(self.nonfinite(i, end)))
         }
     }
 
@@ -1481,7 +1844,7 @@ impl Run<'_> {
                 continue;
             }
             rt.gather(&self.bus, &self.signals, t);
-            self.step_one(i, t)?;
+            self.step_one(i, n, t)?;
         }
         Ok(())
     }
@@ -1498,7 +1861,7 @@ impl Run<'_> {
             if !steps_at(n, self.rts[i].multiple) {
                 continue;
             }
-            self.step_one(i, t)?;
+            self.step_one(i, n, t)?;
         }
         Ok(())
     }
@@ -1542,7 +1905,7 @@ impl Run<'_> {
             };
             for (i, r) in results {
                 match r {
-                    Ok(StepEnd::Done) => {}
+                    Ok(StepEnd::Done) => self.check_finite_after_step(i, n)?,
                     Ok(StepEnd::Discard) => return Err(self.discarded(i, t)),
                     Err(e) => return Err(self.fail(i, t, e)),
                 }
@@ -1553,471 +1916,4 @@ impl Run<'_> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::Signal;
-
-    use super::{
-        Bus, InValues, Plan, RowRun, VarRef, VarType, record_row, row_runs, steps_at, ty_index,
-    };
-    use crate::results::{ColumnKind, Results};
-    use std::collections::{BTreeMap, HashMap};
-
-    const R: VarType = VarType::Real;
-    const I: VarType = VarType::Integer;
-    const B: VarType = VarType::Boolean;
-
-    fn var(comp: usize, vr: u32, ty: VarType) -> VarRef {
-        VarRef {
-            comp,
-            vr,
-            ty,
-            name: format!("c{comp}.v{vr}"),
-        }
-    }
-
-    /// Three components with `Real`, `Integer` and `Boolean` outputs, connections of every
-    /// type (one of them backwards: 2 -> 0), signal-fed inputs of every type, and a recorded
-    /// list in mixed order with a duplicate and an input.
-    struct Case {
-        recorded: Vec<VarRef>,
-        connections: Vec<(VarRef, VarRef)>,
-        signals: Vec<(VarRef, Signal)>,
-        multiples: Vec<u64>,
-    }
-
-    fn case() -> Case {
-        let conn =
-            |s: (usize, u32, VarType), d: (usize, u32)| (var(s.0, s.1, s.2), var(d.0, d.1, s.2));
-        let ramp = Signal {
-            times: vec![0.0, 1.0],
-            values: vec![-1.5, 2.5],
-            interpolate: true,
-        };
-        let steps = Signal {
-            times: vec![0.0, 0.25, 0.6],
-            values: vec![0.0, 3.0, 0.0],
-            interpolate: false,
-        };
-        Case {
-            recorded: vec![
-                var(0, 1, R),
-                var(0, 2, R),
-                var(0, 10, I),
-                var(0, 20, B),
-                var(1, 1, R),
-                var(1, 2, R),
-                var(0, 3, R),
-                var(1, 21, B),
-                var(1, 11, I),
-                var(0, 1, R),
-                var(2, 100, R),
-                var(2, 5, R),
-                var(2, 22, B),
-                var(1, 11, I),
-            ],
-            connections: vec![
-                conn((0, 1, R), (1, 100)),
-                conn((2, 5, R), (0, 100)),
-                conn((0, 10, I), (1, 110)),
-                conn((0, 3, R), (1, 101)),
-                conn((0, 20, B), (1, 120)),
-                conn((1, 11, I), (2, 110)),
-                conn((1, 2, R), (2, 101)),
-            ],
-            signals: vec![
-                (var(2, 100, R), ramp.clone()),
-                (var(2, 120, B), steps.clone()),
-                (var(2, 111, I), ramp),
-            ],
-            multiples: vec![1, 2, 3],
-        }
-    }
-
-    fn plan(c: &Case) -> Plan {
-        let fed: Vec<&VarRef> = c.signals.iter().map(|(d, _)| d).collect();
-        Plan::new(c.multiples.len(), &c.recorded, &c.connections, &fed)
-    }
-
-    /// A stand-in for an FMU: the value of output `vr` of type `ty` after step `n`, from the
-    /// inputs (keyed by type index and value reference, booleans as 0/1). Booleans come out
-    /// as 0 or 5 (any non-zero `fmi2Boolean` is true).
-    fn output(ty: usize, vr: u32, n: u64, inputs: &BTreeMap<(usize, u32), f64>) -> f64 {
-        let sum: f64 = inputs.values().sum();
-        match ty {
-            0 => vr as f64 + n as f64 * 0.5 + sum * 0.25,
-            1 => (vr as i64 + n as i64 + sum.floor() as i64) as i32 as f64,
-            _ => {
-                if (u64::from(vr) + n + sum.abs() as u64).is_multiple_of(3) {
-                    0.0
-                } else {
-                    5.0
-                }
-            }
-        }
-    }
-
-    fn results(c: &Case) -> Results {
-        let kinds = c
-            .recorded
-            .iter()
-            .map(|r| match r.ty {
-                VarType::Real => ColumnKind::Real,
-                VarType::Integer => ColumnKind::Integer,
-                _ => ColumnKind::Boolean,
-            })
-            .collect();
-        Results::with_capacity(
-            c.recorded.iter().map(|r| r.name.clone()).collect(),
-            kinds,
-            0,
-        )
-    }
-
-    fn bits(r: &Results) -> Vec<Vec<u64>> {
-        r.rows()
-            .map(|row| row.iter().map(|v| v.to_bits()).collect())
-            .collect()
-    }
-
-    /// Writes component `c`'s outputs after step `n` onto the bus, as the master's `read`.
-    fn step_on_bus(plan: &Plan, bus: &mut Bus, c: usize, n: u64, inputs: &InValues) {
-        let p = &plan.ports[c];
-        let mut ins = BTreeMap::new();
-        for (&vr, &x) in p.in_vrs[0].iter().zip(&inputs.real) {
-            ins.insert((0, vr), x);
-        }
-        for (&vr, &x) in p.in_vrs[1].iter().zip(&inputs.int) {
-            ins.insert((1, vr), x as f64);
-        }
-        for (&vr, &x) in p.in_vrs[2].iter().zip(&inputs.boolean) {
-            ins.insert((2, vr), x as f64);
-        }
-        for (k, &vr) in p.out_vrs[0].iter().enumerate() {
-            bus.real[p.out[0].0 + k] = output(0, vr, n, &ins);
-        }
-        for (k, &vr) in p.out_vrs[1].iter().enumerate() {
-            bus.int[p.out[1].0 + k] = output(1, vr, n, &ins) as i32;
-        }
-        for (k, &vr) in p.out_vrs[2].iter().enumerate() {
-            bus.boolean[p.out[2].0 + k] = output(2, vr, n, &ins) as i32;
-        }
-    }
-
-    /// The rows of a run through the plan: inputs gathered by bus index, rows by runs.
-    fn run_on_bus(c: &Case, jacobi: bool, steps: u64) -> Results {
-        let plan = plan(c);
-        let signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
-        let mut bus = Bus::new(plan.bus_len);
-        let mut inputs: Vec<InValues> = plan.ports.iter().map(InValues::for_ports).collect();
-        for (i, v) in inputs.iter().enumerate() {
-            step_on_bus(&plan, &mut bus, i, 0, v);
-        }
-        let mut out = results(c);
-        record_row(&mut out, &plan.row, &bus, 0.0);
-        for n in 0..steps {
-            let t = n as f64 * 0.1;
-            let due: Vec<usize> = (0..c.multiples.len())
-                .filter(|&i| steps_at(n, c.multiples[i]))
-                .collect();
-            if jacobi {
-                for &i in &due {
-                    inputs[i].gather(&plan.ports[i], &bus, &signals, t);
-                }
-                for &i in &due {
-                    step_on_bus(&plan, &mut bus, i, n + 1, &inputs[i]);
-                }
-            } else {
-                for &i in &due {
-                    inputs[i].gather(&plan.ports[i], &bus, &signals, t);
-                    step_on_bus(&plan, &mut bus, i, n + 1, &inputs[i]);
-                }
-            }
-            record_row(&mut out, &plan.row, &bus, (n + 1) as f64 * 0.1);
-        }
-        out
-    }
-
-    /// The same run the naive way: every value looked up by (component, type, value
-    /// reference), every input per connection, every recorded value pushed on its own.
-    fn run_naive(c: &Case, jacobi: bool, steps: u64) -> Results {
-        let n_comps = c.multiples.len();
-        // What each component reads after a step: its recorded and connected outputs.
-        let mut reads: Vec<Vec<(usize, u32)>> = vec![Vec::new(); n_comps];
-        for r in c
-            .recorded
-            .iter()
-            .chain(c.connections.iter().map(|(s, _)| s))
-        {
-            let key = (ty_index(r.ty), r.vr);
-            if !reads[r.comp].contains(&key) {
-                reads[r.comp].push(key);
-            }
-        }
-        let mut values: HashMap<(usize, usize, u32), f64> = HashMap::new();
-        let step = |values: &mut HashMap<_, _>, i: usize, n: u64, ins: &BTreeMap<_, _>| {
-            for &(ty, vr) in &reads[i] {
-                values.insert((i, ty, vr), output(ty, vr, n, ins));
-            }
-        };
-        let inputs_of = |values: &HashMap<(usize, usize, u32), f64>, i: usize, t: f64| {
-            let mut ins = BTreeMap::new();
-            for (s, d) in c.connections.iter().filter(|(_, d)| d.comp == i) {
-                let ty = ty_index(s.ty);
-                let v = values[&(s.comp, ty, s.vr)];
-                ins.insert(
-                    (ty, d.vr),
-                    if ty == 2 { (v != 0.0) as i32 as f64 } else { v },
-                );
-            }
-            for (d, s) in c.signals.iter().filter(|(d, _)| d.comp == i) {
-                let x = s.at(t);
-                let v = match d.ty {
-                    VarType::Real => x,
-                    VarType::Integer => x.round() as i32 as f64,
-                    _ => (x != 0.0) as i32 as f64,
-                };
-                ins.insert((ty_index(d.ty), d.vr), v);
-            }
-            ins
-        };
-        let record = |out: &mut Results, values: &HashMap<(usize, usize, u32), f64>, t: f64| {
-            out.push_time(t);
-            for r in &c.recorded {
-                let ty = ty_index(r.ty);
-                let v = values[&(r.comp, ty, r.vr)];
-                out.push_value(if ty == 2 { (v != 0.0) as i32 as f64 } else { v });
-            }
-        };
-        // Initial values: every input still at zero.
-        let zeros = |i: usize| -> BTreeMap<(usize, u32), f64> {
-            c.connections
-                .iter()
-                .map(|(_, d)| d)
-                .chain(c.signals.iter().map(|(d, _)| d))
-                .filter(|d| d.comp == i)
-                .map(|d| ((ty_index(d.ty), d.vr), 0.0))
-                .collect()
-        };
-        for i in 0..n_comps {
-            step(&mut values, i, 0, &zeros(i));
-        }
-        let mut out = results(c);
-        record(&mut out, &values, 0.0);
-        for n in 0..steps {
-            let t = n as f64 * 0.1;
-            let due: Vec<usize> = (0..n_comps)
-                .filter(|&i| n.is_multiple_of(c.multiples[i]))
-                .collect();
-            if jacobi {
-                let ins: Vec<_> = due.iter().map(|&i| inputs_of(&values, i, t)).collect();
-                for (&i, ins) in due.iter().zip(&ins) {
-                    step(&mut values, i, n + 1, ins);
-                }
-            } else {
-                for &i in &due {
-                    let ins = inputs_of(&values, i, t);
-                    step(&mut values, i, n + 1, &ins);
-                }
-            }
-            record(&mut out, &values, (n + 1) as f64 * 0.1);
-        }
-        out
-    }
-
-    #[test]
-    fn row_runs_join_consecutive_bus_values_of_one_type() {
-        let columns = [
-            (0, 0),
-            (0, 1),
-            (0, 2),
-            (1, 0),
-            (0, 3),
-            (0, 3),
-            (2, 0),
-            (2, 1),
-            (1, 1),
-        ];
-        assert_eq!(
-            row_runs(&columns),
-            [
-                RowRun::Real(0, 3),
-                RowRun::Integer(0, 1),
-                RowRun::Real(3, 4),
-                RowRun::Real(3, 4),
-                RowRun::Boolean(0, 2),
-                RowRun::Integer(1, 2),
-            ]
-        );
-        assert_eq!(row_runs(&[]), []);
-    }
-
-    #[test]
-    fn the_plan_reads_each_value_once_and_lays_components_out_in_order() {
-        let c = case();
-        let p = plan(&c);
-        // Recorded first (in recording order), then connected; each once.
-        assert_eq!(p.ports[0].out_vrs, [vec![1, 2, 3], vec![10], vec![20]]);
-        assert_eq!(p.ports[1].out_vrs, [vec![1, 2], vec![11], vec![21]]);
-        assert_eq!(p.ports[2].out_vrs, [vec![100, 5], vec![], vec![22]]);
-        assert_eq!(p.ports[0].out, [(0, 3), (0, 1), (0, 1)]);
-        assert_eq!(p.ports[1].out, [(3, 5), (1, 2), (1, 2)]);
-        assert_eq!(p.ports[2].out, [(5, 7), (2, 2), (2, 3)]);
-        assert_eq!(p.bus_len, [7, 2, 3]);
-        // Connected inputs in connection order, then the signal-fed ones.
-        assert_eq!(p.ports[1].in_vrs, [vec![100, 101], vec![110], vec![120]]);
-        assert_eq!(p.ports[1].in_from, [vec![0, 2], vec![0], vec![0]]);
-        assert_eq!(
-            p.ports[2].in_vrs,
-            [vec![101, 100], vec![110, 111], vec![120]]
-        );
-        assert_eq!(p.ports[2].in_from, [vec![4], vec![1], vec![]]);
-        assert_eq!(p.ports[2].in_signals, [(0, 1, 0), (2, 0, 1), (1, 1, 2)]);
-        assert_eq!(p.ports[0].in_from, [vec![6], vec![], vec![]]);
-        assert!(!p.ports[0].in_rare && p.ports[1].in_rare && p.ports[2].in_rare);
-        assert!(p.ports.iter().all(|q| q.out_other));
-        assert_eq!(
-            p.row,
-            [
-                RowRun::Real(0, 2),
-                RowRun::Integer(0, 1),
-                RowRun::Boolean(0, 1),
-                RowRun::Real(3, 5),
-                RowRun::Real(2, 3),
-                RowRun::Boolean(1, 2),
-                RowRun::Integer(1, 2),
-                RowRun::Real(0, 1),
-                RowRun::Real(5, 7),
-                RowRun::Boolean(2, 3),
-                RowRun::Integer(1, 2),
-            ]
-        );
-    }
-
-    #[test]
-    fn gathered_inputs_are_the_sources_values() {
-        let c = case();
-        let p = plan(&c);
-        let signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
-        let mut bus = Bus::new(p.bus_len);
-        let mut naive: HashMap<(usize, usize, u32), f64> = HashMap::new();
-        for (i, q) in p.ports.iter().enumerate() {
-            for (k, &vr) in q.out_vrs[0].iter().enumerate() {
-                let v = 0.5 + (i * 100 + k) as f64;
-                bus.real[q.out[0].0 + k] = v;
-                naive.insert((i, 0, vr), v);
-            }
-            for (k, &vr) in q.out_vrs[1].iter().enumerate() {
-                let v = -7 - (i * 10 + k) as i32;
-                bus.int[q.out[1].0 + k] = v;
-                naive.insert((i, 1, vr), v as f64);
-            }
-            for (k, &vr) in q.out_vrs[2].iter().enumerate() {
-                let v = 3 * (i + k) as i32;
-                bus.boolean[q.out[2].0 + k] = v;
-                naive.insert((i, 2, vr), v as f64);
-            }
-        }
-        let t = 0.3;
-        for (i, q) in p.ports.iter().enumerate() {
-            let mut v = InValues::for_ports(q);
-            v.gather(q, &bus, &signals, t);
-            let value = |ty: usize, vr: u32| -> f64 {
-                let k = q.in_vrs[ty].iter().position(|&x| x == vr).unwrap();
-                match ty {
-                    0 => v.real[k],
-                    1 => v.int[k] as f64,
-                    _ => v.boolean[k] as f64,
-                }
-            };
-            for (s, d) in c.connections.iter().filter(|(_, d)| d.comp == i) {
-                let ty = ty_index(s.ty);
-                let x = naive[&(s.comp, ty, s.vr)];
-                let want = if ty == 2 { (x != 0.0) as i32 as f64 } else { x };
-                assert_eq!(value(ty, d.vr).to_bits(), want.to_bits(), "{}", d.name);
-            }
-            for (d, s) in c.signals.iter().filter(|(d, _)| d.comp == i) {
-                let want = match d.ty {
-                    VarType::Real => s.at(t),
-                    VarType::Integer => s.at(t).round() as i32 as f64,
-                    _ => (s.at(t) != 0.0) as i32 as f64,
-                };
-                assert_eq!(
-                    value(ty_index(d.ty), d.vr).to_bits(),
-                    want.to_bits(),
-                    "{}",
-                    d.name
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn rows_from_runs_match_per_value_pushes_gauss_seidel_and_jacobi_multi_rate() {
-        let c = case();
-        for jacobi in [false, true] {
-            let bus = run_on_bus(&c, jacobi, 12);
-            let naive = run_naive(&c, jacobi, 12);
-            assert_eq!(bus.len(), 13);
-            assert_eq!(bits(&bus), bits(&naive), "jacobi = {jacobi}");
-        }
-        // Single-rate too.
-        let mut single = case();
-        single.multiples = vec![1, 1, 1];
-        for jacobi in [false, true] {
-            assert_eq!(
-                bits(&run_on_bus(&single, jacobi, 7)),
-                bits(&run_naive(&single, jacobi, 7))
-            );
-        }
-    }
-
-    #[test]
-    fn the_bus_splits_into_the_components_ranges() {
-        let p = plan(&case());
-        let mut bus = Bus::new(p.bus_len);
-        let outs = bus.split(p.ports.iter().map(|q| q.out));
-        assert_eq!(outs.len(), 3);
-        for (i, o) in outs.into_iter().enumerate() {
-            assert_eq!(o.real.len(), p.ports[i].out_vrs[0].len());
-            assert_eq!(o.int.len(), p.ports[i].out_vrs[1].len());
-            assert_eq!(o.boolean.len(), p.ports[i].out_vrs[2].len());
-            o.real.fill(i as f64);
-            o.int.fill(i as i32);
-            o.boolean.fill(i as i32);
-        }
-        for (i, q) in p.ports.iter().enumerate() {
-            assert!(
-                bus.real[q.out[0].0..q.out[0].1]
-                    .iter()
-                    .all(|&x| x == i as f64)
-            );
-            assert!(
-                bus.int[q.out[1].0..q.out[1].1]
-                    .iter()
-                    .all(|&x| x == i as i32)
-            );
-            assert!(
-                bus.boolean[q.out[2].0..q.out[2].1]
-                    .iter()
-                    .all(|&x| x == i as i32)
-            );
-        }
-    }
-
-    #[test]
-    fn a_sample_one_ulp_after_the_grid_time_counts_as_at_it() {
-        // 0.001 * 9 is 0.009000000000000001, the grid time 9/1000 is 0.009 (1 ulp less).
-        let t_grid = 9.0 / 1000.0;
-        let t_sample = 0.001 * 9.0;
-        assert!(t_sample > t_grid);
-        for interpolate in [false, true] {
-            let s = Signal {
-                times: vec![0.0, 0.002, t_sample, 0.01],
-                values: vec![0.0, 2.0, 9.0, 10.0],
-                interpolate,
-            };
-            assert_eq!(s.at(t_grid), 9.0, "interpolate = {interpolate}");
-            assert_eq!(s.at(0.001), if interpolate { 1.0 } else { 0.0 });
-        }
-    }
-}
+mod tests;
