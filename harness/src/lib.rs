@@ -47,6 +47,7 @@ pub mod instance;
 pub mod load;
 pub mod master;
 pub mod metrics;
+pub mod num;
 pub mod package;
 pub mod results;
 pub mod ssp;

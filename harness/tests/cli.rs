@@ -37,7 +37,7 @@ fn exit_codes_and_partial_results() {
     assert_eq!(term.status.code(), Some(3));
     assert_eq!(
         std::fs::read_to_string(&csv).unwrap(),
-        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n0.3,3.0\n0.4,4.0\n"
+        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n0.3,3.0\n0.4,4.0\n0.45,4.5\n"
     );
 
     let before = std::fs::read_to_string(&csv).unwrap();

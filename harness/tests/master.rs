@@ -251,18 +251,26 @@ fn discard_with_terminated_ends_the_run_cleanly_and_keeps_every_row() {
             ..
         } => {
             assert_eq!(component, "b");
-            assert!((last_successful_time - 0.3).abs() < 1e-12);
-            assert!((last_row_time - 0.3).abs() < 1e-12);
+            assert_eq!(*last_successful_time, 0.35);
+            assert_eq!(*last_row_time, 0.35);
         }
         o => panic!("expected Terminated, got {o:?}"),
     }
-    assert_eq!(out.results.len(), 4, "rows at 0, 0.1, 0.2, 0.3");
+    assert_eq!(
+        out.results.len(),
+        5,
+        "rows at 0, 0.1, 0.2, 0.3 and b's end, 0.35"
+    );
     let csv = d.path().join("terminated.csv");
     out.results.write_csv_file(&csv).unwrap();
     let text = std::fs::read_to_string(&csv).unwrap();
-    assert_eq!(text.lines().count(), 5);
+    assert_eq!(text.lines().count(), 6);
     assert!(text.starts_with("time,a.x,b.u,b.y,b.steps\n"));
-    assert_eq!(text.lines().last().unwrap(), "0.3,3.0,3.0,6.5,3");
+    // b's values at its end (its input was set from a.x = 4 before the step that it ended);
+    // a.x as last read (a stepped to 0.4 first, in Gauss-Seidel order).
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[4], "0.3,3.0,3.0,6.5,3");
+    assert_eq!(lines[5], "0.35,4.0,4.0,8.5,3");
 }
 
 #[test]

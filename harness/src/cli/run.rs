@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::Context;
 use kneebench_harness::instance::{LogStatus, stderr_log_handler};
 use kneebench_harness::master::{Signal, VarType};
+use kneebench_harness::num::Num;
 use kneebench_harness::results::csv::CsvFile;
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
@@ -298,7 +299,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     );
     Ok(match summary.outcome {
         Outcome::Completed { stop_time } => {
-            eprintln!("completed at t = {stop_time}");
+            eprintln!("completed at t = {}", Num(stop_time));
             super::EXIT_OK
         }
         Outcome::Terminated {
@@ -308,7 +309,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             messages,
         } => {
             eprintln!(
-                "ended by an FMU: component '{component}' terminated the simulation at t = {last_successful_time} (its last successful time); last row at t = {last_row_time}"
+                "ended by an FMU: component '{component}' terminated the simulation at t = {} (its last successful time); last row at t = {}",
+                Num(last_successful_time),
+                Num(last_row_time)
             );
             for m in messages {
                 eprintln!("  {component}: {m}");
@@ -316,7 +319,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             super::EXIT_TERMINATED
         }
         Outcome::Failed(MasterError::Stopped { reason, time }) => {
-            eprintln!("stopped: {reason}; last row at t = {time}");
+            eprintln!("stopped: {reason}; last row at t = {}", Num(time));
             match reason {
                 StopReason::Timeout => super::EXIT_TIMEOUT,
                 StopReason::Signal(n) => 128 + n,

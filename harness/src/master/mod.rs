@@ -94,6 +94,7 @@ use model_description::{Causality, ModelDescription, ScalarVariable, VariableKin
 pub use crate::control::{RunControl, StopReason};
 use crate::instance::{FmuError, Instance, InstanceOptions, Status};
 use crate::load::Fmu;
+use crate::num::num;
 use crate::results::{ColumnKind, ResultSink, Results, ResultsError};
 use crate::time::{Grid, GridError};
 
@@ -315,7 +316,7 @@ pub enum MasterError {
     #[error("the system has no component")]
     Empty,
     /// An FMU call failed.
-    #[error("component '{component}' at t = {time}: {source}")]
+    #[error("component '{component}' at t = {}: {source}", num(.time))]
     Fmu {
         /// The component.
         component: String,
@@ -325,7 +326,7 @@ pub enum MasterError {
         source: FmuError,
     },
     /// The run was stopped from outside at a communication point (its rows are recorded).
-    #[error("run stopped at t = {time}: {reason}")]
+    #[error("run stopped at t = {}: {reason}", num(.time))]
     Stopped {
         /// Why.
         reason: StopReason,
@@ -334,7 +335,8 @@ pub enum MasterError {
     },
     /// An output was NaN or infinite (see [`RunConfig::allow_nonfinite`]).
     #[error(
-        "component '{component}': output '{variable}' is {value} at t = {time} (use --allow-nonfinite to record it)"
+        "component '{component}': output '{variable}' is {value} at t = {} (use --allow-nonfinite to record it)",
+        num(.time)
     )]
     NonFinite {
         /// The component.
@@ -364,7 +366,8 @@ pub enum MasterError {
     },
     /// `fmi2DoStep` returned `fmi2Discard` without terminating: a fixed-step master cannot retry.
     #[error(
-        "component '{component}' discarded the step at t = {time} without terminating (a fixed-step master cannot retry){}",
+        "component '{component}' discarded the step at t = {} without terminating (a fixed-step master cannot retry){}",
+        num(.time),
         messages.iter().map(|m| format!("; {}", m.message)).collect::<String>()
     )]
     StepDiscarded {

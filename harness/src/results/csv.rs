@@ -137,6 +137,12 @@ impl CsvFile {
             path: path.to_path_buf(),
             source,
         };
+        if path.is_dir() {
+            return Err(io_err(
+                path,
+                io::Error::new(io::ErrorKind::IsADirectory, "is a directory"),
+            ));
+        }
         if path.file_name().is_none() {
             return Err(io_err(
                 path,
@@ -156,12 +162,6 @@ impl CsvFile {
                 ));
             }
             Err(e) => return Err(io_err(dir, e)),
-        }
-        if path.is_dir() {
-            return Err(io_err(
-                path,
-                io::Error::new(io::ErrorKind::IsADirectory, "is a directory"),
-            ));
         }
         let partial = partial_path(path);
         let file = File::create(&partial).map_err(|e| io_err(&partial, e))?;
