@@ -10,8 +10,8 @@ use kneebench_harness::results::plot::plot_signals;
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench plot results.csv --signals knee.angle,knee.torque --out knee.svg
-  kneebench plot results.csv --out all.png          # every column
+  kneebench plot gait.csv --signals kneeAngleReference,kneeVelocityReference --out knee.svg
+  kneebench plot gait.csv --out all.png          # every column
 The format follows the extension of --out (.svg or .png). Text uses an embedded font, so no
 system font library is needed.")]
 pub struct Args {

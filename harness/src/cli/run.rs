@@ -31,10 +31,10 @@ pub enum AlgorithmArg {
 #[command(after_help = "\
 Examples:
   kneebench run out/fmus/GaitReference.fmu --stop-time 5 --step 0.001 --output gait.csv
-  kneebench run out/fmus/GaitReference.fmu --stop-time 5 --output gait.csv --variables kneeAngle,gaitPhase
+  kneebench run out/fmus/GaitReference.fmu --stop-time 5 --output knee.csv --variables kneeAngleReference,gaitPhase
   kneebench run out/study/scenarios/SEA.ssp --stop-time 2.5 --output sea.csv --timeout 600
-  kneebench run out/fmus/PidController.fmu --inputs inputs.csv --param kp=120 --param ki=3
-  kneebench run PythonSlave.fmu --preload /usr/lib/x86_64-linux-gnu/libpython3.11.so.1.0
+  printf 'time,setpoint,measurement\\n0,0,0\\n0.1,1,0\\n' > steps.csv
+  kneebench run out/fmus/PidController.fmu --inputs steps.csv --param kp=120 --param ki=3 --output pid.csv
 
 Time is an integer count of nanoseconds: the step must be a whole number of ns and the stop
 time on the grid (stop - start a multiple of the step); otherwise it is a usage error. With

@@ -12,7 +12,7 @@ use kneebench_harness::study::{
 #[command(after_help = "\
 Examples:
   kneebench export --out out/fmus && kneebench study --fmus out/fmus --out out/study
-  kneebench study --fmus out/fmus --out out/big --scale 1.3 --actuators sea
+  kneebench study --fmus out/fmus --out out/big --scale 1.3 --actuators sea   # trips an interlock: exit code 3
 
 Each actuator runs the bench gait (2.5 s, 60 deg, 9 N m; 50 deg for CSEA) in closed loop:
 GaitReference -> position loop -> test motor, load-torque reference -> torque loop -> load

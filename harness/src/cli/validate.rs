@@ -19,8 +19,9 @@ Checks, in order (the first failing step stops):
   5. fmi2Instantiate accepts the description's GUID
 
 Examples:
-  kneebench validate GaitReference.fmu
-  kneebench validate --preload /usr/lib/x86_64-linux-gnu/libpython3.11.so.1.0 PythonSlave.fmu
+  kneebench validate out/fmus/GaitReference.fmu
+An FMU that needs a host runtime (a Python slave needs libpython, for example) is checked
+with that library loaded first: --preload /path/to/libpython3.so.
 Exit code 0 when valid, 1 when a problem was found.")]
 pub struct Args {
     /// The FMU archive.
