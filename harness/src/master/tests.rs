@@ -2,7 +2,8 @@
 
 use super::Signal;
 
-use super::{Bus, InValues, Plan, RowRun, VarRef, VarType, fill_row, row_runs, steps_at, ty_index};
+use super::plan::{Bus, InValues, Plan, RowRun, fill_row, row_runs, steps_at, ty_index};
+use super::{VarRef, VarType};
 use crate::results::{ColumnKind, Results};
 use std::collections::{BTreeMap, HashMap};
 
