@@ -180,6 +180,13 @@ impl StateWriter {
     }
 }
 
+/// The most internal steps (integration sub-steps, controller samples) one `fmi2DoStep` may
+/// take. It bounds the work of one call: a model whose work grows with the communication
+/// step declares its largest step ([`Model::max_step_size`]) as this many internal steps, and
+/// the FMI glue refuses a larger step with fmi2Error and a log line (the instance is
+/// unchanged and stays usable), where it would otherwise compute for minutes.
+pub const MAX_INTERNAL_STEPS_PER_CALL: f64 = 1e4;
+
 /// A model that can be exported as an FMI 2.0 co-simulation FMU.
 ///
 /// The struct holds every variable as a plain field; [`Model::variables`] declares them once.
@@ -212,6 +219,15 @@ pub trait Model: Default + Clone + Send + 'static {
 
     /// Advances the state from `t` to `t + h` with the inputs held.
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError>;
+
+    /// The largest communication step [`Model::do_step`] accepts, in seconds, with the
+    /// current parameters: [`MAX_INTERNAL_STEPS_PER_CALL`] internal steps for a model whose
+    /// work grows with the step. The glue refuses a larger `communicationStepSize` before
+    /// calling [`Model::do_step`]. Default: no bound (the work of a step does not depend on
+    /// its size).
+    fn max_step_size(&self) -> f64 {
+        f64::INFINITY
+    }
 
     /// First-order (or higher) time derivative of an output at the current communication point,
     /// `None` when the model does not provide it.

@@ -41,21 +41,27 @@ pub mod fmi2;
 #[path = "../../fmu/src/hardware/protocol.rs"]
 pub mod bench_protocol;
 
+pub mod control;
 pub mod emulator;
 pub mod experiment;
 pub mod instance;
 pub mod load;
 pub mod master;
 pub mod metrics;
+pub mod num;
 pub mod package;
 pub mod results;
 pub mod ssp;
 pub mod study;
+pub mod tempdirs;
 pub mod time;
 
 pub use instance::{
     FmuError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
 pub use load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
-pub use master::{Algorithm, MasterError, Outcome, RunConfig, RunOutput, System, Value};
-pub use results::Results;
+pub use master::{
+    Algorithm, MasterError, Outcome, RunConfig, RunControl, RunOutput, RunSummary, StopReason,
+    System, Value,
+};
+pub use results::{ResultSink, Results};

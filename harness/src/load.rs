@@ -568,9 +568,7 @@ pub fn extract_and_parse(
     path: &Path,
     limits: &ArchiveLimits,
 ) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
-    let dir = tempfile::Builder::new()
-        .prefix("kneebench-fmu-")
-        .tempdir()
+    let dir = crate::tempdirs::create("fmu")
         .map_err(io_err("cannot create a temporary directory for", path))?;
     {
         use std::os::unix::fs::PermissionsExt;

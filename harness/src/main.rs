@@ -1,7 +1,9 @@
 //! `kneebench`: run, validate, inspect and plot FMI 2.0 co-simulation FMUs and SSP systems.
 //!
-//! Exit codes: 0 success; 1 a run, validation or I/O error; 2 a usage error (from clap);
-//! 3 the run was ended early by an FMU (fmi2Discard with fmi2Terminated; results written).
+//! Exit codes (also in `kneebench --help` and the README): 0 success; 1 a run, validation or
+//! I/O error; 2 a usage error; 3 `run` was ended by an FMU (fmi2Discard with fmi2Terminated;
+//! results written); 4 `run --timeout` passed; 128 + the signal's number when `run` was
+//! stopped by SIGHUP, SIGINT or SIGTERM.
 
 mod cli;
 
@@ -26,6 +28,21 @@ fn default_sigpipe() {
     }
 }
 
+/// An error and its causes on one line, each text once: a cause whose text the message
+/// already contains (an OS error that a path error formats into its own text) is not
+/// repeated.
+fn message(e: &anyhow::Error) -> String {
+    let mut out = e.to_string();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        if !out.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+    }
+    out
+}
+
 fn main() {
     #[cfg(unix)]
     default_sigpipe();
@@ -33,7 +50,7 @@ fn main() {
     let code = match cli::dispatch(args) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", message(&e));
             cli::EXIT_ERROR
         }
     };

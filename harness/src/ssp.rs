@@ -927,13 +927,10 @@ pub fn read_file(
             None,
         )
     } else {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-ssp-")
-            .tempdir()
-            .map_err(|source| SspError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
+        let dir = crate::tempdirs::create("ssp").map_err(|source| SspError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
         crate::load::extract_archive(path, dir.path(), limits).map_err(|source| {
             SspError::Load {
                 context: format!("extracting {}", path.display()),

@@ -37,13 +37,19 @@ fn exit_codes_and_partial_results() {
     assert_eq!(term.status.code(), Some(3));
     assert_eq!(
         std::fs::read_to_string(&csv).unwrap(),
-        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n0.3,3.0\n0.4,4.0\n"
+        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n0.3,3.0\n0.4,4.0\n0.45,4.5\n"
     );
 
+    let before = std::fs::read_to_string(&csv).unwrap();
     let err = run(&["--param", "error_at=0.25", "--variables", "x"]);
     assert_eq!(err.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&err.stderr).contains("error requested"));
-    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 4);
+    // The failed run keeps its rows in the partial file; the earlier results are untouched.
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), before);
+    assert_eq!(
+        std::fs::read_to_string(d.path().join("r.csv.partial")).unwrap(),
+        "time,x\n0.0,0.0\n0.1,1.0\n0.2,2.0\n"
+    );
 
     let usage = kneebench().args(["run", "--bogus"]).output().unwrap();
     assert_eq!(usage.status.code(), Some(2));

@@ -251,18 +251,26 @@ fn discard_with_terminated_ends_the_run_cleanly_and_keeps_every_row() {
             ..
         } => {
             assert_eq!(component, "b");
-            assert!((last_successful_time - 0.3).abs() < 1e-12);
-            assert!((last_row_time - 0.3).abs() < 1e-12);
+            assert_eq!(*last_successful_time, 0.35);
+            assert_eq!(*last_row_time, 0.35);
         }
         o => panic!("expected Terminated, got {o:?}"),
     }
-    assert_eq!(out.results.len(), 4, "rows at 0, 0.1, 0.2, 0.3");
+    assert_eq!(
+        out.results.len(),
+        5,
+        "rows at 0, 0.1, 0.2, 0.3 and b's end, 0.35"
+    );
     let csv = d.path().join("terminated.csv");
     out.results.write_csv_file(&csv).unwrap();
     let text = std::fs::read_to_string(&csv).unwrap();
-    assert_eq!(text.lines().count(), 5);
+    assert_eq!(text.lines().count(), 6);
     assert!(text.starts_with("time,a.x,b.u,b.y,b.steps\n"));
-    assert_eq!(text.lines().last().unwrap(), "0.3,3.0,3.0,6.5,3");
+    // b's values at its end (its input was set from a.x = 4 before the step that it ended);
+    // a.x as last read (a stepped to 0.4 first, in Gauss-Seidel order).
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[4], "0.3,3.0,3.0,6.5,3");
+    assert_eq!(lines[5], "0.35,4.0,4.0,8.5,3");
 }
 
 #[test]
@@ -440,4 +448,76 @@ fn parallel_multi_rate_run_with_every_type_gives_the_same_rows() {
             );
         }
     }
+}
+
+/// A cycle through outputs without direct feedthrough (`a.x -> b.u`, `b.x -> a.u`) has no
+/// dependency level between `a` and `b`, yet the sequential order (a, then b) hands b the `x`
+/// that a computed in the same step. `--parallel` must step them one after the other (and
+/// may step `c`, fed by neither, with `a`): the rows are the sequential ones, bit for bit.
+#[test]
+fn parallel_follows_every_connection_and_equals_sequential() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    for name in ["a", "b", "c"] {
+        s.add_component(name, fmu.clone()).unwrap();
+    }
+    s.set_value_str("a.b", "0.25").unwrap();
+    s.set_value_str("c.u", "2").unwrap();
+    s.connect("a.x", "b.u").unwrap();
+    s.connect("b.x", "a.u").unwrap();
+    s.connect("a.y", "c.i_in").unwrap_err();
+    s.connect("b.i_out", "c.i_in").unwrap();
+    s.set_value_str("b.i_in", "3").unwrap();
+    // a.x starts at 1 so the loop moves: x_a += u_a = x_b, x_b += u_b = x_a.
+    s.set_value_str("a.x", "1").unwrap();
+    let (order, _) = s.dependency_order().unwrap();
+    assert_eq!(order, [0, 1, 2]);
+    assert_eq!(
+        s.parallel_groups(&order, Algorithm::GaussSeidel),
+        [vec![0], vec![1], vec![2]],
+        "b is fed by a, c by b"
+    );
+    // Without the b -> c connection, c joins b's group.
+    let mut free = System::new();
+    for name in ["a", "b", "c"] {
+        free.add_component(name, fmu.clone()).unwrap();
+    }
+    free.connect("a.x", "b.u").unwrap();
+    free.connect("b.x", "a.u").unwrap();
+    assert_eq!(
+        free.parallel_groups(&[0, 1, 2], Algorithm::GaussSeidel),
+        [vec![0], vec![1, 2]]
+    );
+    assert_eq!(
+        free.parallel_groups(&[0, 1, 2], Algorithm::Jacobi),
+        [vec![0, 1, 2]]
+    );
+
+    let bits = |r: &kneebench_harness::Results| -> Vec<Vec<u64>> {
+        r.rows()
+            .map(|row| row.iter().map(|v| v.to_bits()).collect())
+            .collect()
+    };
+    for algorithm in [Algorithm::GaussSeidel, Algorithm::Jacobi] {
+        let sequential = s.run(&config(algorithm, 2.0)).unwrap();
+        let parallel = s
+            .run(&RunConfig {
+                parallel: true,
+                ..config(algorithm, 2.0)
+            })
+            .unwrap();
+        assert!(matches!(sequential.outcome, Outcome::Completed { .. }));
+        assert!(matches!(parallel.outcome, Outcome::Completed { .. }));
+        assert_eq!(sequential.results.len(), 21);
+        assert!(
+            bits(&sequential.results) == bits(&parallel.results),
+            "{algorithm:?}: parallel rows differ from the sequential ones"
+        );
+    }
+    // Gauss-Seidel: b sees a's fresh x (with a's x from the start of the step it would
+    // be 2 at row 2, as the dependency-level grouping had it).
+    let gs = s.run(&config(Algorithm::GaussSeidel, 2.0)).unwrap();
+    let bx = gs.results.column("b.x").unwrap();
+    let ax = gs.results.column("a.x").unwrap();
+    assert_eq!([ax[1], bx[1], ax[2], bx[2]], [1.0, 1.0, 2.0, 3.0]);
 }

@@ -1039,6 +1039,16 @@ impl<M: Model> FmiInstance for Instance<M> {
         if h <= 0.0 {
             return self.refuse(f, &format!("communicationStepSize {h} must be positive"));
         }
+        let max = self.model.max_step_size();
+        if h > max {
+            return self.refuse(
+                f,
+                &format!(
+                    "communicationStepSize {h} s exceeds this model's largest step per call, {max} s ({} internal steps with the current parameters); split the step",
+                    crate::model::MAX_INTERNAL_STEPS_PER_CALL
+                ),
+            );
+        }
         if !same_time(t, self.time) {
             return self.refuse(
                 f,

@@ -1334,6 +1334,12 @@ impl Model for BenchHardwareModel {
         Ok(())
     }
 
+    /// [`MAX_INTERNAL_STEPS_PER_CALL`](crate::model::MAX_INTERNAL_STEPS_PER_CALL) internal
+    /// integration steps of `maxInternalStep`.
+    fn max_step_size(&self) -> f64 {
+        crate::model::MAX_INTERNAL_STEPS_PER_CALL * self.params.max_internal_step
+    }
+
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         self.step(t, h)
     }

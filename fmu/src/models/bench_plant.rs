@@ -1054,6 +1054,12 @@ impl Model for BenchPlantModel {
         Ok(())
     }
 
+    /// [`MAX_INTERNAL_STEPS_PER_CALL`](crate::model::MAX_INTERNAL_STEPS_PER_CALL) internal
+    /// integration steps of `maxInternalStep`.
+    fn max_step_size(&self) -> f64 {
+        crate::model::MAX_INTERNAL_STEPS_PER_CALL * self.params.max_internal_step
+    }
+
     fn do_step(&mut self, _t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         if self.parameters_changed {
             let p = self.parameters()?;

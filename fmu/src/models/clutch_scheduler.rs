@@ -404,6 +404,10 @@ impl Model for ClutchScheduler {
         Ok(())
     }
 
+    fn max_step_size(&self) -> f64 {
+        self.clock.max_step_size()
+    }
+
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         let s = self.settings()?;
         let (phase, velocity) = (self.gait_phase, self.velocity_reference);

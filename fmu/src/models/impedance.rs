@@ -99,6 +99,26 @@ pub struct ImpedanceSignals {
     pub saturated: bool,
 }
 
+impl ImpedanceSignals {
+    /// Fails naming the first output (by its FMI name) that is NaN or infinite at time `t`:
+    /// gains or inputs so large that the law overflows never pass as fmi2OK.
+    pub fn check_finite(&self, t: f64) -> Result<(), ModelError> {
+        let values = [
+            ("currentCommand", self.current_command),
+            ("desiredTorque", self.desired_torque),
+            ("springTorqueEstimate", self.spring_torque),
+            ("torqueError", self.torque_error),
+            ("measuredDeflection", self.spring_deflection),
+        ];
+        match values.iter().find(|(_, v)| !v.is_finite()) {
+            None => Ok(()),
+            Some((name, v)) => Err(ModelError::new(format!(
+                "output {name} is {v} at t = {t} s: the gains or inputs overflow the control law"
+            ))),
+        }
+    }
+}
+
 /// The impedance controller's parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImpedanceSettings {
@@ -506,7 +526,11 @@ impl Model for ImpedanceController {
         self.signals = self.clock.outputs_at(t, self.held, |_| {
             impedance_sample(&s, &self.state, &self.inputs).0
         });
-        Ok(())
+        self.signals.check_finite(t)
+    }
+
+    fn max_step_size(&self) -> f64 {
+        self.clock.max_step_size()
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
@@ -516,6 +540,7 @@ impl Model for ImpedanceController {
                 impedance_sample(&s, state, &self.inputs)
             })?;
         self.signals = self.held;
+        self.signals.check_finite(t + h)?;
         Ok(StepOutcome::Completed)
     }
 
@@ -578,6 +603,21 @@ mod tests {
         m.output_max = 4.0;
         m.initialize(0.0).unwrap();
         m
+    }
+
+    #[test]
+    fn an_overflowing_law_answers_an_error_naming_the_output() {
+        let mut m = model();
+        m.inputs.actuation_angle = 1e308;
+        m.inputs.load_angle = -1e308;
+        let e = m.calculate(0.0).unwrap_err();
+        assert!(
+            e.message
+                .contains("output springTorqueEstimate is inf at t = 0 s"),
+            "{e}"
+        );
+        let e = m.do_step(0.0, 1e-3).unwrap_err();
+        assert!(e.message.contains("is inf at t = 0.001 s"), "{e}");
     }
 
     #[test]

@@ -162,6 +162,17 @@ impl SampleClock {
         }
     }
 
+    /// The largest step whose samples [`SampleClock::run_step`] executes in one call:
+    /// [`MAX_INTERNAL_STEPS_PER_CALL`](crate::model::MAX_INTERNAL_STEPS_PER_CALL) periods
+    /// (unbounded before the clock has a period).
+    pub fn max_step_size(&self) -> f64 {
+        if self.period > 0.0 {
+            crate::model::MAX_INTERNAL_STEPS_PER_CALL * self.period
+        } else {
+            f64::INFINITY
+        }
+    }
+
     /// Whether `t` is the next sample instant (to be executed by the next step).
     #[inline]
     pub fn is_next_sample_instant(&self, t: f64) -> bool {
@@ -584,6 +595,29 @@ pub struct PidSignals {
     pub unsaturated: f64,
     /// The output was clipped at a limit.
     pub saturated: bool,
+}
+
+impl PidSignals {
+    /// Fails naming the first output (by its FMI name) that is NaN or infinite at time `t`:
+    /// gains or inputs so large that the law overflows never pass as fmi2OK.
+    pub fn check_finite(&self, t: f64) -> Result<(), ModelError> {
+        let values = [
+            ("u", self.output),
+            ("reference", self.reference),
+            ("error", self.error),
+            ("pTerm", self.proportional),
+            ("iTerm", self.integral),
+            ("dTerm", self.derivative),
+            ("feedForwardTerm", self.feed_forward),
+            ("uUnsaturated", self.unsaturated),
+        ];
+        match values.iter().find(|(_, v)| !v.is_finite()) {
+            None => Ok(()),
+            Some((name, v)) => Err(ModelError::new(format!(
+                "output {name} is {v} at t = {t} s: the gains or inputs overflow the control law"
+            ))),
+        }
+    }
 }
 
 /// One PID sample: the signals at this instant and the state for the next (module docs).
@@ -1040,7 +1074,11 @@ impl Model for PidController {
             return Err(ModelError::new("the PID settings are not available"));
         };
         *signals = clock.outputs_at(t, *held, |_| pid_sample(settings, state, inputs).0);
-        Ok(())
+        signals.check_finite(t)
+    }
+
+    fn max_step_size(&self) -> f64 {
+        self.clock.max_step_size()
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
@@ -1061,6 +1099,7 @@ impl Model for PidController {
             pid_sample(settings, state, inputs)
         })?;
         *signals = *held;
+        signals.check_finite(t + h)?;
         Ok(StepOutcome::Completed)
     }
 
@@ -1517,6 +1556,24 @@ mod tests {
         set(&mut m, "outputMax", 5.0);
         m.do_step(2e-3, 1e-3).unwrap();
         assert_eq!(m.signals.output, 5.0, "limit 5");
+    }
+
+    #[test]
+    fn an_overflowing_law_answers_an_error_naming_the_output() {
+        let mut m = fresh_model::<PidController>();
+        m.kp = 1.0;
+        m.ki = 0.0;
+        m.kd = 0.0;
+        m.initialize(0.0).unwrap();
+        m.inputs.setpoint = 1e308;
+        m.inputs.measurement = -1e308;
+        let e = m.calculate(0.0).unwrap_err();
+        assert!(e.message.contains("output error is inf at t = 0 s"), "{e}");
+        let e = m.do_step(0.0, 1e-3).unwrap_err();
+        assert!(
+            e.message.contains("output error is inf at t = 0.001 s"),
+            "{e}"
+        );
     }
 
     #[test]

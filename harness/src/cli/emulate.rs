@@ -12,8 +12,8 @@ use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench emulate --bind 127.0.0.1:47000 --fmu BenchPlant.fmu
-  kneebench emulate --bind 127.0.0.1:0 --param configuration=2 --fault stuck:1
+  kneebench emulate --bind 127.0.0.1:47000 --fmu out/fmus/BenchPlant.fmu --duration 60
+  kneebench emulate --bind 127.0.0.1:0 --fmu out/fmus/BenchPlant.fmu --param configuration=2 --fault stuck:1 --duration 60
 Faults (--fault, repeatable; also injectable at run time by FaultInject frames):
   drop:N          drop the next N replies
   delay:N:SECONDS send the next N replies SECONDS late

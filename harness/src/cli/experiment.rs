@@ -10,8 +10,11 @@ use kneebench_harness::experiment::{Bench, BenchKind, bode, calibration, map, st
 #[command(after_help = "\
 Examples:
   kneebench experiment step --fmu out/fmus/BenchPlant.fmu --out out/experiments
-  kneebench experiment map --fmu out/fmus/BenchPlant.fmu --param frictionModel=3 --param actuationDamping=0
-  kneebench experiment bode --fmu out/fmus/BenchPlant.fmu --param frictionModel=0 --stages 40
+  kneebench experiment map --fmu out/fmus/BenchPlant.fmu --param frictionModel=3 --param actuationDamping=0 --param loadRegenPowerLimit=1000 --speeds 3,50,150 --torques -9,0,9
+  kneebench experiment bode --fmu out/fmus/BenchPlant.fmu --param frictionModel=0 --start-frequency 0.5 --stages 6
+  kneebench experiment triangle --fmu out/fmus/BenchPlant.fmu
+  kneebench experiment calibration --fmu out/fmus/BenchPlant.fmu --param frictionModel=0
+On the bench, the same schedule through BenchHardware (refused unless its interlocks are armed):
   kneebench experiment triangle --fmu out/fmus/BenchHardware.fmu --param backend=1 --param pacing=1 \\
       --param serverAddress=127.0.0.1:47000
 

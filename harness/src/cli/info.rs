@@ -9,7 +9,7 @@ use model_description::{Causality, VariableKind};
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench info GaitReference.fmu
+  kneebench info out/fmus/GaitReference.fmu
 The archive is extracted safely into a temporary directory; the binary is not loaded.")]
 pub struct Args {
     /// The FMU archive.

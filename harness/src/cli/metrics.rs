@@ -10,8 +10,9 @@ use kneebench_harness::metrics::{step_metrics, tracking_error};
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench metrics step.csv --signal plant.actuationAngle --target 0.5 --from 1.0
-  kneebench metrics gait.csv --signal plant.actuationAngle --reference gait.kneeAngleReference
+  kneebench metrics open-loop.csv --signal actuationVelocity --from 0
+  kneebench metrics open-loop.csv --signal actuationVelocity --target 0.02 --from 0
+  kneebench metrics out/study/SEA.csv --signal plant.actuationAngle --reference gait.kneeAngleReference
 
 With --target (or neither option), the signal is treated as a step response starting at
 --from: rise time to 90 %, settling time in a 5 % band, overshoot and peak time (the bench

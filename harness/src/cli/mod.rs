@@ -18,16 +18,25 @@ pub mod validate;
 pub const EXIT_OK: i32 = 0;
 /// A run, validation or I/O error.
 pub const EXIT_ERROR: i32 = 1;
-/// The run was ended early by an FMU (fmi2Discard with fmi2Terminated).
+/// A usage error (bad arguments, a stop time off the grid, an unusable input file).
+pub const EXIT_USAGE: i32 = 2;
+/// The run was ended by an FMU (fmi2Discard with fmi2Terminated).
 pub const EXIT_TERMINATED: i32 = 3;
+/// The run's `--timeout` passed.
+pub const EXIT_TIMEOUT: i32 = 4;
 
 const EXIT_CODES: &str = "\
 Exit codes:
-  0  success
-  1  run error (an FMU failed, a file could not be read or written), or validation problems
-  2  usage error (bad arguments)
-  3  the run was ended early by an FMU (fmi2Discard with fmi2Terminated); the results up to
-     the last completed communication point are written";
+  0    success
+  1    error (an FMU failed, a non-finite output, a file could not be read or written), or
+       validation problems
+  2    usage error (bad arguments, a stop time off the step grid, an unusable --inputs file,
+       an FMU that validate rejects without --force)
+  3    `run`: an FMU ended the run (fmi2Discard with fmi2Terminated); the results are written
+       up to and including its last successful time
+  4    `run`: the --timeout passed; the rows so far are in OUTPUT.partial
+  129  `run` stopped by SIGHUP, 130 by SIGINT, 143 by SIGTERM; the rows so far are in
+       OUTPUT.partial";
 
 /// kneebench: a co-simulation harness for FMI 2.0 FMUs and SSP 1.0 systems.
 #[derive(Debug, Parser)]

@@ -10,7 +10,7 @@ use kneebench_harness::results::plot::plot_signals;
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench plot gait.csv --signals kneeAngleReference,kneeTorqueReference --out gait.svg
+  kneebench plot gait.csv --signals kneeAngleReference,kneeVelocityReference --out knee.svg
   kneebench plot gait.csv --out all.png          # every column, when there are at most 12
 The format follows the extension of --out (.svg or .png). Text uses an embedded font, so no
 system font library is needed. A file with more than 12 columns is refused without --signals:

@@ -14,7 +14,7 @@ use kneebench_harness::study::{
 Examples:
   kneebench export --out out/fmus && kneebench study --fmus out/fmus --out out/study
   kneebench study --fmus out/fmus --out out/clutch --scenario bench-clutch
-  kneebench study --fmus out/fmus --out out/big --scale 1.3 --actuators sea
+  kneebench study --fmus out/fmus --out out/big --scenario bench-full --scale 1.7 --actuators sea   # trips an interlock: exit code 3
 
 Scenarios, each run as on the bench for one of its published tables (gait 2.5 s, peak external
 torque 9 N m):

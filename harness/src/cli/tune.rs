@@ -13,7 +13,8 @@ use kneebench_harness::metrics::{
 #[command(after_help = "\
 Examples:
   kneebench tune --ku 8000 --tu 0.12
-  kneebench tune --step-response open-loop.csv --signal plant.actuationAngle --input-step 1.0
+  kneebench run out/fmus/BenchPlant.fmu --stop-time 2 --param testCurrentCommand=1 --output open-loop.csv
+  kneebench tune --step-response open-loop.csv --signal actuationVelocity --input-step 1.0
 
 Ultimate-gain method: raise a P-only gain until the loop oscillates steadily; that gain is
 Ku, the period Tu: kp = 0.6 Ku, Ti = Tu/2, Td = Tu/8. Reaction-curve method: record the

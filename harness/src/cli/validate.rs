@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
 use kneebench_harness::{Fmu, InstanceOptions, LoadOptions};
+use model_description::ModelDescription;
 
 /// Arguments of `kneebench validate`.
 #[derive(Debug, clap::Args)]
@@ -18,8 +19,9 @@ Checks, in order (the first failing step stops):
   5. fmi2Instantiate accepts the description's GUID
 
 Examples:
-  kneebench validate GaitReference.fmu
-  kneebench validate --preload /usr/lib/x86_64-linux-gnu/libpython3.11.so.1.0 PythonSlave.fmu
+  kneebench validate out/fmus/GaitReference.fmu
+An FMU that needs a host runtime (a Python slave needs libpython, for example) is checked
+with that library loaded first: --preload /path/to/libpython3.so.
 Exit code 0 when valid, 1 when a problem was found.")]
 pub struct Args {
     /// The FMU archive.
@@ -41,9 +43,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         }
     };
     println!("ok: archive extracted safely; modelDescription.xml parsed");
-    for p in md.check() {
-        problems.push(format!("model description: {}", p.message));
-    }
+    problems.extend(description_problems(&md));
     let fmu = match Fmu::load(
         &a.fmu,
         &LoadOptions {
@@ -64,6 +64,32 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             .unwrap_or(fmu.binary_path())
             .display()
     );
+    problems.extend(binary_problems(&fmu));
+    match fmu.instantiate("validate", &InstanceOptions::default()) {
+        Ok(i) => {
+            drop(i);
+            println!("ok: fmi2Instantiate accepted GUID {}", md.guid);
+        }
+        Err(e) => problems.push(e.to_string()),
+    }
+    report(problems)
+}
+
+/// The semantic problems of a model description (`kneebench run` refuses an FMU with any
+/// unless `--force`).
+pub fn description_problems(md: &ModelDescription) -> Vec<String> {
+    md.check()
+        .into_iter()
+        .map(|p| format!("model description: {}", p.message))
+        .collect()
+}
+
+/// The problems of a loaded FMU that loading itself accepts: the types platform, and
+/// optional functions its capability flags promise but its binary does not export
+/// (`kneebench run` refuses such an FMU unless `--force`).
+pub fn binary_problems(fmu: &Fmu) -> Vec<String> {
+    let md = fmu.model_description();
+    let mut problems = Vec::new();
     let platform = fmu.types_platform();
     if platform != "default" {
         problems.push(format!(
@@ -99,14 +125,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             ));
         }
     }
-    match fmu.instantiate("validate", &InstanceOptions::default()) {
-        Ok(i) => {
-            drop(i);
-            println!("ok: fmi2Instantiate accepted GUID {}", md.guid);
-        }
-        Err(e) => problems.push(e.to_string()),
-    }
-    report(problems)
+    problems
 }
 
 fn report(problems: Vec<String>) -> anyhow::Result<i32> {

@@ -8,7 +8,9 @@
  *          i_out = 2 * i_in (output, vr 2)
  * Boolean: b_in (input, vr 0), b_out = !b_in (output, vr 1)
  *
- * discard_at >= 0: the step that would pass it returns fmi2Discard and the FMU terminates.
+ * discard_at >= 0: the step that would pass it integrates up to discard_at (x += u times the
+ *   fraction of the step), returns fmi2Discard and terminates there: fmi2LastSuccessfulTime
+ *   and the output t are discard_at.
  * error_at >= 0: the step that would pass it returns fmi2Error with a log message.
  */
 #include <stdlib.h>
@@ -141,8 +143,13 @@ EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], 
 EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet) {
     Inst *i = c; State *s = &i->s; (void)noSet;
     if (s->r[6] >= 0 && t + h > s->r[6] + 1e-9) {
+        /* The model ends at discard_at (or at t, if that is already past it): it integrates up
+         * to there, so its outputs are those at its last successful time. */
+        double end = s->r[6] > t ? s->r[6] : t;
+        s->r[4] += s->r[0] * (end - t) / h;
+        s->r[5] = end;
         s->terminated = 1;
-        s->last_time = t;
+        s->last_time = end;
         LOG(i, fmi2Discard, "terminating: t + h = %g passes discard_at = %g", t + h, s->r[6]);
         return fmi2Discard;
     }

@@ -1,9 +1,17 @@
-//! Recorded results: a buffer of rows, CSV output, a summary table and plots.
+//! Recorded results: one sink interface ([`ResultSink`]) that every writer implements, the
+//! in-memory rows ([`Results`]), the streamed CSV writer ([`csv`]), a summary table and plots.
 //!
-//! Rows are buffered in one `Vec<f64>` (time first, then one value per column) and written at
-//! the end of a run, never per step. The CSV has the header `time,<names>`; `Real` values are
-//! written with Rust's shortest round-trip formatting (`{:?}`: parsing the text gives back the
-//! same bits), `Integer` and `Boolean` columns as integers (`0`/`1` for booleans).
+//! The master hands each recorded row to a [`ResultSink`]: time first, then one value per
+//! column (`Integer` columns as whole numbers, `Boolean` ones as 0 or 1). [`Results`] keeps the
+//! rows in one `Vec<f64>`; [`csv::CsvWriter`] formats them as they come into a buffered
+//! writer; [`csv::CsvFile`] streams them into `<output>.partial` next to the output and renames
+//! that file into place when the run is accepted. A columnar writer (Parquet, for example)
+//! implements the same trait: [`ResultSink::begin`] gives the schema, [`ResultSink::push_row`]
+//! the rows, [`ResultSink::flush`] the points where buffered rows must reach the file.
+//!
+//! The CSV has the header `time,<names>`; `Real` values are written in the shortest form that
+//! parses back to the same bits (the `ryu` algorithm), `Integer` and `Boolean` columns as
+//! integers (`0`/`1` for booleans).
 
 use std::fmt::Write as _;
 use std::io::{self, BufRead, Write};
@@ -19,6 +27,8 @@ pub enum ColumnKind {
     /// Boolean: written as 0 or 1.
     Boolean,
 }
+
+pub mod csv;
 
 /// Errors of reading, writing and plotting results.
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +57,166 @@ pub enum ResultsError {
     /// Drawing failed.
     #[error("plot: {0}")]
     Plot(String),
+    /// A time series that cannot be used as one (time not strictly increasing, a value not
+    /// finite).
+    #[error("{}: {problem}", path.display())]
+    Series {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, with the row and its time.
+        problem: String,
+    },
+    /// A row whose number of values differs from the number of columns.
+    #[error("a row of {got} values for {expected} columns")]
+    RowLength {
+        /// The number of columns.
+        expected: usize,
+        /// The number of values given.
+        got: usize,
+    },
+}
+
+/// Where recorded rows go: the one interface of every results writer.
+///
+/// The master calls [`begin`](Self::begin) once, before the first row, then
+/// [`push_row`](Self::push_row) for every recorded row in time order, and
+/// [`flush`](Self::flush) at least once per second of wall time when
+/// [`wants_periodic_flush`](Self::wants_periodic_flush) says so, and once at the end of every
+/// run, whatever its outcome. An error of the sink ends the run (the outcome names it).
+pub trait ResultSink {
+    /// The columns (time excluded): names and kinds, one each.
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError>;
+    /// One row: its time and one value per column.
+    fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError>;
+    /// Makes every row pushed so far durable against a crash of the process (written to the
+    /// file, not only buffered).
+    fn flush(&mut self) -> Result<(), ResultsError>;
+    /// Whether the master should call [`flush`](Self::flush) every second of wall time during
+    /// the run (a file does; memory does not).
+    fn wants_periodic_flush(&self) -> bool {
+        false
+    }
+}
+
+/// A sink that keeps only the [`SignalSummary`] of every column (bounded memory).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunningSummary {
+    summaries: Vec<SignalSummary>,
+    rows: u64,
+}
+
+impl RunningSummary {
+    /// An empty summary (the columns come with [`ResultSink::begin`]).
+    pub fn new() -> RunningSummary {
+        RunningSummary::default()
+    }
+
+    /// Min, max and last value of every column so far.
+    pub fn summaries(&self) -> &[SignalSummary] {
+        &self.summaries
+    }
+
+    /// Rows seen.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+}
+
+impl ResultSink for RunningSummary {
+    fn begin(&mut self, names: &[String], _kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        self.summaries = names
+            .iter()
+            .map(|n| SignalSummary {
+                name: n.clone(),
+                min: f64::INFINITY,
+                max: f64::NEG_INFINITY,
+                last: f64::NAN,
+            })
+            .collect();
+        Ok(())
+    }
+
+    fn push_row(&mut self, _time: f64, values: &[f64]) -> Result<(), ResultsError> {
+        if values.len() != self.summaries.len() {
+            return Err(ResultsError::RowLength {
+                expected: self.summaries.len(),
+                got: values.len(),
+            });
+        }
+        for (s, &v) in self.summaries.iter_mut().zip(values) {
+            if !v.is_nan() {
+                s.min = s.min.min(v);
+                s.max = s.max.max(v);
+            }
+            s.last = v;
+        }
+        self.rows += 1;
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        Ok(())
+    }
+}
+
+/// Two sinks fed the same rows (a file and a [`RunningSummary`], for example).
+#[derive(Debug)]
+pub struct Tee<A, B>(pub A, pub B);
+
+impl<A: ResultSink, B: ResultSink> ResultSink for Tee<A, B> {
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        self.0.begin(names, kinds)?;
+        self.1.begin(names, kinds)
+    }
+
+    #[inline]
+    fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
+        self.0.push_row(time, values)?;
+        self.1.push_row(time, values)
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        self.0.flush()?;
+        self.1.flush()
+    }
+
+    fn wants_periodic_flush(&self) -> bool {
+        self.0.wants_periodic_flush() || self.1.wants_periodic_flush()
+    }
+}
+
+/// Rows reserved up front by [`Results::with_capacity`] at most (the rest grows on demand), so
+/// a long run never reserves gigabytes it may not fill.
+pub const MAX_RESERVED_ROWS: usize = 1 << 16;
+
+impl ResultSink for Results {
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        if !self.data.is_empty() && (self.names != names || self.kinds != kinds) {
+            return Err(ResultsError::RowLength {
+                expected: self.names.len(),
+                got: names.len(),
+            });
+        }
+        self.names = names.to_vec();
+        self.kinds = kinds.to_vec();
+        Ok(())
+    }
+
+    fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
+        if values.len() != self.names.len() {
+            return Err(ResultsError::RowLength {
+                expected: self.names.len(),
+                got: values.len(),
+            });
+        }
+        self.data.push(time);
+        self.data.extend_from_slice(values);
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        Ok(())
+    }
 }
 
 /// Recorded rows: time plus one value per named column.
@@ -71,14 +241,15 @@ pub struct SignalSummary {
 }
 
 impl Results {
-    /// Empty results with the given columns (time excluded) and room for `rows` rows.
+    /// Empty results with the given columns (time excluded) and room for `rows` rows (at most
+    /// [`MAX_RESERVED_ROWS`] are reserved; more rows grow the buffer).
     pub fn with_capacity(names: Vec<String>, kinds: Vec<ColumnKind>, rows: usize) -> Results {
         assert_eq!(names.len(), kinds.len());
         let stride = names.len() + 1;
         Results {
             names,
             kinds,
-            data: Vec::with_capacity(rows.saturating_mul(stride)),
+            data: Vec::with_capacity(rows.min(MAX_RESERVED_ROWS).saturating_mul(stride)),
         }
     }
 
@@ -197,46 +368,25 @@ impl Results {
         Ok(out)
     }
 
-    /// Writes the CSV (header `time,<names>`).
-    pub fn write_csv(&self, mut w: impl Write) -> io::Result<()> {
-        let mut line = String::with_capacity(32 * self.stride());
-        line.push_str("time");
-        for n in &self.names {
-            line.push(',');
-            line.push_str(&csv_field(n));
-        }
-        line.push('\n');
-        w.write_all(line.as_bytes())?;
+    /// Writes the CSV (header `time,<names>`) through [`csv::CsvWriter`].
+    pub fn write_csv(&self, w: impl Write) -> io::Result<()> {
+        let mut out = csv::CsvWriter::new(w);
+        out.header(&self.names, &self.kinds)?;
         for r in self.rows() {
-            line.clear();
-            let _ = write!(line, "{:?}", r[0]);
-            for (v, k) in r[1..].iter().zip(&self.kinds) {
-                line.push(',');
-                match k {
-                    ColumnKind::Real => {
-                        let _ = write!(line, "{v:?}");
-                    }
-                    _ => {
-                        let _ = write!(line, "{}", *v as i64);
-                    }
-                }
-            }
-            line.push('\n');
-            w.write_all(line.as_bytes())?;
+            out.row(r[0], &r[1..])?;
         }
-        w.flush()
+        out.into_inner().map(drop)
     }
 
-    /// Writes the CSV to a file.
+    /// Writes the CSV to a file: streamed into `<path>.partial`, renamed into place when
+    /// complete (an earlier file at `path` survives a failed write).
     pub fn write_csv_file(&self, path: impl AsRef<Path>) -> Result<(), ResultsError> {
-        let path = path.as_ref();
-        let io_err = |source| ResultsError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let f = std::fs::File::create(path).map_err(io_err)?;
-        self.write_csv(io::BufWriter::with_capacity(1 << 20, f))
-            .map_err(io_err)
+        let mut file = csv::CsvFile::create(path.as_ref())?;
+        file.begin(&self.names, &self.kinds)?;
+        for r in self.rows() {
+            file.push_row(r[0], &r[1..])?;
+        }
+        file.commit().map(drop)
     }
 
     /// Reads a CSV with a header whose first column is time (any name). Every value is read as
@@ -315,6 +465,42 @@ impl Results {
         Ok(res)
     }
 
+    /// Checks that the rows form a usable time series, as `kneebench metrics` and `run
+    /// --inputs` need: at least one row, every time and value finite, time strictly
+    /// increasing. `path` names the source in the error.
+    pub fn check_series(&self, path: &Path) -> Result<(), ResultsError> {
+        let err = |problem: String| ResultsError::Series {
+            path: path.to_path_buf(),
+            problem,
+        };
+        if self.is_empty() {
+            return Err(err("no data rows".into()));
+        }
+        let mut previous = f64::NEG_INFINITY;
+        for (i, r) in self.rows().enumerate() {
+            let t = r[0];
+            if !t.is_finite() {
+                return Err(err(format!("data row {}: time {t} is not finite", i + 1)));
+            }
+            if let Some(j) = r[1..].iter().position(|v| !v.is_finite()) {
+                return Err(err(format!(
+                    "data row {} (t = {t}): {} = {} is not finite",
+                    i + 1,
+                    self.names[j],
+                    r[j + 1]
+                )));
+            }
+            if t <= previous {
+                return Err(err(format!(
+                    "data row {} (t = {t}): time is not strictly increasing (previous row: t = {previous})",
+                    i + 1
+                )));
+            }
+            previous = t;
+        }
+        Ok(())
+    }
+
     /// Minimum, maximum and final value of every column.
     pub fn summary(&self) -> Vec<SignalSummary> {
         (0..self.names.len())
@@ -342,29 +528,33 @@ impl Results {
 
     /// The summary as an aligned text table.
     pub fn summary_table(&self) -> String {
-        let s = self.summary();
-        let w = s
-            .iter()
-            .map(|x| x.name.len())
-            .chain(std::iter::once(6))
-            .max()
-            .unwrap_or(6);
-        let mut out = format!(
-            "{:<w$}  {:>14}  {:>14}  {:>14}\n",
-            "signal", "min", "max", "final"
-        );
-        for x in &s {
-            let _ = writeln!(
-                out,
-                "{:<w$}  {:>14}  {:>14}  {:>14}",
-                x.name,
-                fmt_num(x.min),
-                fmt_num(x.max),
-                fmt_num(x.last)
-            );
-        }
-        out
+        summary_table(&self.summary())
     }
+}
+
+/// Summaries as an aligned text table: signal, min, max, final.
+pub fn summary_table(s: &[SignalSummary]) -> String {
+    let w = s
+        .iter()
+        .map(|x| x.name.len())
+        .chain(std::iter::once(6))
+        .max()
+        .unwrap_or(6);
+    let mut out = format!(
+        "{:<w$}  {:>14}  {:>14}  {:>14}\n",
+        "signal", "min", "max", "final"
+    );
+    for x in s {
+        let _ = writeln!(
+            out,
+            "{:<w$}  {:>14}  {:>14}  {:>14}",
+            x.name,
+            fmt_num(x.min),
+            fmt_num(x.max),
+            fmt_num(x.last)
+        );
+    }
+    out
 }
 
 fn fmt_num(v: f64) -> String {
@@ -374,14 +564,6 @@ fn fmt_num(v: f64) -> String {
         format!("{v:.6e}")
     } else {
         format!("{v:.6}")
-    }
-}
-
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
     }
 }
 
@@ -405,173 +587,4 @@ fn split_csv(line: &str) -> Vec<String> {
     out
 }
 
-/// Plotting chosen signals against time, as SVG or PNG.
-pub mod plot {
-    use super::{Results, ResultsError};
-    use plotters::prelude::*;
-    use std::path::Path;
-    use std::sync::Once;
-
-    /// The font used for all text: DejaVu Sans Mono, embedded (see `assets/DejaVu-LICENSE.txt`),
-    /// so plotting needs no system font library.
-    static FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
-
-    fn register_font() {
-        static ONCE: Once = Once::new();
-        ONCE.call_once(|| {
-            for style in [FontStyle::Normal, FontStyle::Bold] {
-                let _ = plotters::style::register_font("sans-serif", style, FONT);
-            }
-        });
-    }
-
-    /// Plots `signals` (column names) of `results` against time into `out`; the format follows
-    /// the extension (`.svg` or `.png`). `size` is in pixels.
-    pub fn plot_signals(
-        results: &Results,
-        signals: &[&str],
-        out: &Path,
-        size: (u32, u32),
-    ) -> Result<(), ResultsError> {
-        plot_signals_with(results, signals, out, size, &PlotLabels::default())
-    }
-
-    /// Axis labels and title of a plot.
-    #[derive(Debug, Clone, PartialEq)]
-    pub struct PlotLabels {
-        /// Label of the x axis (the results' first column).
-        pub x: String,
-        /// Label of the y axis (empty: none).
-        pub y: String,
-        /// Title above the chart (empty: none).
-        pub title: String,
-    }
-
-    impl Default for PlotLabels {
-        fn default() -> Self {
-            PlotLabels {
-                x: "time [s]".into(),
-                y: String::new(),
-                title: String::new(),
-            }
-        }
-    }
-
-    /// [`plot_signals`] with axis labels and a title: the first column need not be time (a
-    /// gait cycle in percent, for example).
-    pub fn plot_signals_with(
-        results: &Results,
-        signals: &[&str],
-        out: &Path,
-        size: (u32, u32),
-        labels: &PlotLabels,
-    ) -> Result<(), ResultsError> {
-        let ext = out
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase());
-        match ext.as_deref() {
-            Some("svg") => draw(
-                SVGBackend::new(out, size).into_drawing_area(),
-                results,
-                signals,
-                labels,
-            ),
-            Some("png") => draw(
-                BitMapBackend::new(out, size).into_drawing_area(),
-                results,
-                signals,
-                labels,
-            ),
-            _ => Err(ResultsError::Plot(format!(
-                "unknown plot format for '{}': use .svg or .png",
-                out.display()
-            ))),
-        }
-    }
-
-    fn draw<DB: DrawingBackend>(
-        root: DrawingArea<DB, plotters::coord::Shift>,
-        results: &Results,
-        signals: &[&str],
-        labels: &PlotLabels,
-    ) -> Result<(), ResultsError>
-    where
-        DB::ErrorType: 'static,
-    {
-        register_font();
-        let e = |x: &dyn std::fmt::Display| ResultsError::Plot(x.to_string());
-        let times = results.times();
-        let mut series = Vec::new();
-        for s in signals {
-            let col = results.column(s).ok_or_else(|| {
-                ResultsError::UnknownSignal(s.to_string(), results.names().join(", "))
-            })?;
-            series.push((s.to_string(), col));
-        }
-        let (t0, t1) = match (times.first(), times.last()) {
-            (Some(&a), Some(&b)) if b > a => (a, b),
-            (Some(&a), _) => (a, a + 1.0),
-            _ => (0.0, 1.0),
-        };
-        let finite = series
-            .iter()
-            .flat_map(|(_, c)| c.iter().copied())
-            .filter(|v| v.is_finite());
-        let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
-            (l.min(v), h.max(v))
-        });
-        if !lo.is_finite() {
-            (lo, hi) = (0.0, 1.0);
-        }
-        if hi - lo < 1e-12 * (1.0 + lo.abs()) {
-            lo -= 0.5;
-            hi += 0.5;
-        }
-        let pad = (hi - lo) * 0.05;
-        root.fill(&WHITE).map_err(|x| e(&x))?;
-        let mut builder = ChartBuilder::on(&root);
-        if !labels.title.is_empty() {
-            builder.caption(&labels.title, ("sans-serif", 18));
-        }
-        let mut chart = builder
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d(t0..t1, (lo - pad)..(hi + pad))
-            .map_err(|x| e(&x))?;
-        chart
-            .configure_mesh()
-            .x_desc(labels.x.as_str())
-            .y_desc(labels.y.as_str())
-            .label_style(("sans-serif", 14))
-            .draw()
-            .map_err(|x| e(&x))?;
-        for (k, (name, col)) in series.iter().enumerate() {
-            let color = Palette99::pick(k).to_rgba();
-            chart
-                .draw_series(LineSeries::new(
-                    times
-                        .iter()
-                        .copied()
-                        .zip(col.iter().copied())
-                        .filter(|(_, v)| v.is_finite()),
-                    color.stroke_width(2),
-                ))
-                .map_err(|x| e(&x))?
-                .label(name.clone())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-                });
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()
-            .map_err(|x| e(&x))?;
-        root.present().map_err(|x| e(&x))?;
-        Ok(())
-    }
-}
+pub mod plot;

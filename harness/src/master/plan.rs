@@ -1,0 +1,408 @@
+//! The master's run-time tables: where every value it moves lives (the bus), what each
+//! component reads and writes (its ports), and one component at run time.
+
+use std::collections::HashMap;
+
+use super::{Signal, VarRef, VarType};
+use crate::instance::{FmuError, Instance, Status};
+/// The index of a type's buffer: 0 `Real`, 1 `Integer` (and `Enumeration`), 2 `Boolean`.
+pub(super) fn ty_index(ty: VarType) -> usize {
+    match ty {
+        VarType::Real => 0,
+        VarType::Integer => 1,
+        _ => 2,
+    }
+}
+
+/// The values the master reads after each step, one flat buffer per type (the "bus"): the
+/// values a component's `fmi2Get*` call of one type returns occupy one contiguous range of that
+/// type's buffer ([`Ports::out`]); the components' ranges follow each other in declaration
+/// order. Booleans are kept as the FMU's `fmi2Boolean` (a C int).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(super) struct Bus {
+    pub(super) real: Vec<f64>,
+    pub(super) int: Vec<i32>,
+    pub(super) boolean: Vec<i32>,
+}
+
+/// One component's part of the [`Bus`], per type.
+pub(super) struct Outs<'a> {
+    pub(super) real: &'a mut [f64],
+    pub(super) int: &'a mut [i32],
+    pub(super) boolean: &'a mut [i32],
+}
+
+impl Bus {
+    /// A bus of `len` values per type (`Real`, `Integer`, `Boolean`), all zero.
+    pub(super) fn new(len: [usize; 3]) -> Bus {
+        Bus {
+            real: vec![0.0; len[0]],
+            int: vec![0; len[1]],
+            boolean: vec![0; len[2]],
+        }
+    }
+
+    /// Every component's part at once (for stepping on threads): `ranges` are the components'
+    /// [`Ports::out`] in declaration order, which tile the bus.
+    pub(super) fn split(
+        &mut self,
+        ranges: impl Iterator<Item = [(usize, usize); 3]>,
+    ) -> Vec<Outs<'_>> {
+        let (mut real, mut int, mut boolean) = (
+            self.real.as_mut_slice(),
+            self.int.as_mut_slice(),
+            self.boolean.as_mut_slice(),
+        );
+        ranges
+            .map(|out| {
+                let (r, rest) = std::mem::take(&mut real).split_at_mut(out[0].1 - out[0].0);
+                real = rest;
+                let (i, rest) = std::mem::take(&mut int).split_at_mut(out[1].1 - out[1].0);
+                int = rest;
+                let (b, rest) = std::mem::take(&mut boolean).split_at_mut(out[2].1 - out[2].0);
+                boolean = rest;
+                Outs {
+                    real: r,
+                    int: i,
+                    boolean: b,
+                }
+            })
+            .collect()
+    }
+}
+
+/// A run of consecutive recorded columns that are consecutive values of one type on the
+/// [`Bus`] (start, end): a recorded row is built with one copy per run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum RowRun {
+    /// `Real` values, copied as they are.
+    Real(usize, usize),
+    /// `Integer` values, converted to `f64`.
+    Integer(usize, usize),
+    /// `Boolean` values, recorded as 0.0 or 1.0.
+    Boolean(usize, usize),
+}
+
+/// Groups recorded columns, given as (type index, bus index), into [`RowRun`]s.
+pub(super) fn row_runs(columns: &[(usize, usize)]) -> Vec<RowRun> {
+    let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+    for &(t, k) in columns {
+        match runs.last_mut() {
+            Some((rt, _, end)) if *rt == t && *end == k => *end += 1,
+            _ => runs.push((t, k, k + 1)),
+        }
+    }
+    runs.into_iter()
+        .map(|(t, a, b)| match t {
+            0 => RowRun::Real(a, b),
+            1 => RowRun::Integer(a, b),
+            _ => RowRun::Boolean(a, b),
+        })
+        .collect()
+}
+
+/// What one component reads and writes, as indices (built once per run by [`Plan::new`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(super) struct Ports {
+    /// Value references read after each step, per type (recorded ones first, in recording
+    /// order, then the connected ones; each once).
+    pub(super) out_vrs: [Vec<u32>; 3],
+    /// Where their values go on the bus, per type: (start, end).
+    pub(super) out: [(usize, usize); 3],
+    /// Value references of the inputs set before each step, per type: the connected ones in
+    /// connection order, then the signal-fed ones.
+    pub(super) in_vrs: [Vec<u32>; 3],
+    /// The bus index of each connected input's source, per type (the first `in_from[t].len()`
+    /// entries of `in_vrs[t]`).
+    pub(super) in_from: [Vec<usize>; 3],
+    /// The signal-fed inputs: (type index, position in `in_vrs[type]`, signal index).
+    pub(super) in_signals: Vec<(usize, usize, usize)>,
+    /// Whether there are `Integer` or `Boolean` outputs to read (the hot path reads `Real`s
+    /// only).
+    pub(super) out_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs to set.
+    pub(super) in_other: bool,
+    /// Whether there are `Integer` or `Boolean` inputs or signal-fed inputs to gather.
+    pub(super) in_rare: bool,
+}
+
+/// The layout of a run: every component's [`Ports`], the bus size and the recorded row.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Plan {
+    /// Per component, in declaration order.
+    pub(super) ports: Vec<Ports>,
+    /// Bus length per type.
+    pub(super) bus_len: [usize; 3],
+    /// The recorded columns, as runs of bus values.
+    pub(super) row: Vec<RowRun>,
+}
+
+impl Plan {
+    /// The layout for `n` components recording `recorded`, with `connections` (source,
+    /// destination) and the inputs `fed` by signals (in signal order).
+    pub(super) fn new(
+        n: usize,
+        recorded: &[VarRef],
+        connections: &[(VarRef, VarRef)],
+        fed: &[&VarRef],
+    ) -> Plan {
+        let mut ports: Vec<Ports> = vec![Ports::default(); n];
+        // Position of each value read per component, type and value reference, in order of
+        // first use.
+        let mut slots: Vec<HashMap<(usize, u32), usize>> = vec![HashMap::new(); n];
+        let mut slot_of = |ports: &mut [Ports], comp: usize, ty: VarType, vr: u32| -> usize {
+            let t = ty_index(ty);
+            *slots[comp].entry((t, vr)).or_insert_with(|| {
+                ports[comp].out_vrs[t].push(vr);
+                ports[comp].out_vrs[t].len() - 1
+            })
+        };
+        let rec: Vec<(usize, usize, usize)> = recorded
+            .iter()
+            .map(|r| {
+                (
+                    r.comp,
+                    ty_index(r.ty),
+                    slot_of(&mut ports, r.comp, r.ty, r.vr),
+                )
+            })
+            .collect();
+        let sources: Vec<usize> = connections
+            .iter()
+            .map(|(s, _)| slot_of(&mut ports, s.comp, s.ty, s.vr))
+            .collect();
+        let mut bus_len = [0; 3];
+        for p in &mut ports {
+            for ((out, vrs), len) in p.out.iter_mut().zip(&p.out_vrs).zip(&mut bus_len) {
+                *out = (*len, *len + vrs.len());
+                *len = out.1;
+            }
+        }
+        for ((s, d), slot) in connections.iter().zip(sources) {
+            let t = ty_index(s.ty);
+            let from = ports[s.comp].out[t].0 + slot;
+            let p = &mut ports[d.comp];
+            p.in_vrs[t].push(d.vr);
+            p.in_from[t].push(from);
+        }
+        for (k, d) in fed.iter().enumerate() {
+            let t = ty_index(d.ty);
+            let p = &mut ports[d.comp];
+            p.in_signals.push((t, p.in_vrs[t].len(), k));
+            p.in_vrs[t].push(d.vr);
+        }
+        for p in &mut ports {
+            p.out_other = !(p.out_vrs[1].is_empty() && p.out_vrs[2].is_empty());
+            p.in_other = !(p.in_vrs[1].is_empty() && p.in_vrs[2].is_empty());
+            p.in_rare = p.in_other || !p.in_signals.is_empty();
+        }
+        let columns: Vec<(usize, usize)> = rec
+            .iter()
+            .map(|&(c, t, slot)| (t, ports[c].out[t].0 + slot))
+            .collect();
+        let row = row_runs(&columns);
+        Plan {
+            ports,
+            bus_len,
+            row,
+        }
+    }
+}
+
+/// The input values of one component, set before each of its steps (same layout as
+/// [`Ports::in_vrs`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(super) struct InValues {
+    pub(super) real: Vec<f64>,
+    pub(super) int: Vec<i32>,
+    pub(super) boolean: Vec<i32>,
+}
+
+impl InValues {
+    /// Zeroed buffers for the inputs of `ports`.
+    pub(super) fn for_ports(ports: &Ports) -> InValues {
+        InValues {
+            real: vec![0.0; ports.in_vrs[0].len()],
+            int: vec![0; ports.in_vrs[1].len()],
+            boolean: vec![0; ports.in_vrs[2].len()],
+        }
+    }
+
+    /// Takes the connected inputs from the bus and the signal-fed ones from their signals at
+    /// time `t`.
+    #[inline(always)]
+    pub(super) fn gather(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.real.iter_mut().zip(&ports.in_from[0]) {
+            *v = bus.real[k];
+        }
+        if ports.in_rare {
+            self.gather_rare(ports, bus, signals, t);
+        }
+    }
+
+    /// The `Integer` and `Boolean` part of [`gather`](Self::gather) and the signal-fed inputs.
+    #[inline(never)]
+    pub(super) fn gather_rare(&mut self, ports: &Ports, bus: &Bus, signals: &[Signal], t: f64) {
+        for (v, &k) in self.int.iter_mut().zip(&ports.in_from[1]) {
+            *v = bus.int[k];
+        }
+        for (v, &k) in self.boolean.iter_mut().zip(&ports.in_from[2]) {
+            *v = (bus.boolean[k] != 0) as i32;
+        }
+        if !ports.in_signals.is_empty() {
+            self.sample_signals(ports, signals, t);
+        }
+    }
+
+    /// The signal-fed inputs at time `t` (rare: single-FMU runs with an input file).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn sample_signals(&mut self, ports: &Ports, signals: &[Signal], t: f64) {
+        for &(ty, k, s) in &ports.in_signals {
+            let x = signals[s].at(t);
+            match ty {
+                0 => self.real[k] = x,
+                1 => self.int[k] = x.round() as i32,
+                _ => self.boolean[k] = (x != 0.0) as i32,
+            }
+        }
+    }
+}
+
+/// One component at run time: its instance, its [`Ports`] and its input values.
+pub(super) struct Rt {
+    pub(super) inst: Instance,
+    pub(super) multiple: u64,
+    pub(super) h: f64,
+    pub(super) ports: Ports,
+    pub(super) inputs: InValues,
+    pub(super) steps: u64,
+}
+
+pub(super) enum StepEnd {
+    Done,
+    Discard,
+}
+
+impl Rt {
+    pub(super) fn new(inst: Instance, multiple: u64, h: f64, ports: Ports) -> Rt {
+        Rt {
+            inst,
+            multiple,
+            h,
+            inputs: InValues::for_ports(&ports),
+            ports,
+            steps: 0,
+        }
+    }
+
+    /// Takes the input values (see [`InValues::gather`]).
+    #[inline(always)]
+    pub(super) fn gather(&mut self, bus: &Bus, signals: &[Signal], t: f64) {
+        self.inputs.gather(&self.ports, bus, signals, t);
+    }
+
+    /// Reads the outputs into the component's part of the bus.
+    #[inline(always)]
+    pub(super) fn read(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let (a, b) = self.ports.out[0];
+        self.inst
+            .get_real(&self.ports.out_vrs[0], &mut bus.real[a..b])?;
+        if self.ports.out_other {
+            self.read_other(bus)?;
+        }
+        Ok(())
+    }
+
+    /// The `Integer` and `Boolean` part of [`read`](Self::read).
+    #[inline(never)]
+    pub(super) fn read_other(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
+        let [_, (a, b), (c, d)] = self.ports.out;
+        self.inst
+            .get_integer(&self.ports.out_vrs[1], &mut bus.int[a..b])?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], &mut bus.boolean[c..d])?;
+        Ok(())
+    }
+
+    /// Reads the outputs into `out` (the component's part of the bus).
+    pub(super) fn read_into(&mut self, out: Outs<'_>) -> Result<(), FmuError> {
+        self.inst.get_real(&self.ports.out_vrs[0], out.real)?;
+        self.inst.get_integer(&self.ports.out_vrs[1], out.int)?;
+        self.inst
+            .get_boolean_raw(&self.ports.out_vrs[2], out.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the input values.
+    #[inline(always)]
+    pub(super) fn write(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_real(&self.ports.in_vrs[0], &self.inputs.real)?;
+        if self.ports.in_other {
+            self.write_other()?;
+        }
+        Ok(())
+    }
+
+    /// The `Integer` and `Boolean` part of [`write`](Self::write).
+    #[inline(never)]
+    pub(super) fn write_other(&mut self) -> Result<(), FmuError> {
+        self.inst
+            .set_integer(&self.ports.in_vrs[1], &self.inputs.int)?;
+        self.inst
+            .set_boolean_raw(&self.ports.in_vrs[2], &self.inputs.boolean)?;
+        Ok(())
+    }
+
+    /// Sets the inputs and steps from `t`.
+    #[inline(always)]
+    pub(super) fn write_step(&mut self, t: f64) -> Result<StepEnd, FmuError> {
+        self.write()?;
+        self.steps += 1;
+        match self.inst.do_step(t, self.h)? {
+            Status::Discard => Ok(StepEnd::Discard),
+            Status::Ok | Status::Warning => Ok(StepEnd::Done),
+        }
+    }
+
+    /// Sets the inputs, steps from `t` and reads the outputs onto the bus.
+    #[inline(always)]
+    pub(super) fn step_read(&mut self, bus: &mut Bus, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read(bus).map(|_| StepEnd::Done),
+        }
+    }
+
+    /// [`step_read`](Self::step_read) into the component's part of the bus (on a thread).
+    pub(super) fn step_read_into(&mut self, out: Outs<'_>, t: f64) -> Result<StepEnd, FmuError> {
+        match self.write_step(t)? {
+            StepEnd::Discard => Ok(StepEnd::Discard),
+            StepEnd::Done => self.read_into(out).map(|_| StepEnd::Done),
+        }
+    }
+}
+
+/// Whether a component stepping every `multiple` base steps steps at base step `n` (no
+/// division for the common `multiple == 1`: a 64-bit division per component and step is a
+/// measurable part of a small system's step).
+#[inline(always)]
+pub(super) fn steps_at(n: u64, multiple: u64) -> bool {
+    multiple == 1 || n.is_multiple_of(multiple)
+}
+
+/// Fills `values` with the recorded values on `bus` (the columns in `row`).
+#[inline]
+pub(super) fn fill_row(values: &mut Vec<f64>, row: &[RowRun], bus: &Bus) {
+    values.clear();
+    for run in row {
+        match *run {
+            RowRun::Real(a, b) => values.extend_from_slice(&bus.real[a..b]),
+            RowRun::Integer(a, b) => values.extend(bus.int[a..b].iter().map(|&v| v as f64)),
+            RowRun::Boolean(a, b) => {
+                values.extend(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
+            }
+        }
+    }
+}

@@ -1,0 +1,330 @@
+//! Streamed CSV: [`CsvWriter`] formats rows as they come (one buffered pass, shortest
+//! round-trip floats), [`CsvFile`] is the crash-safe file sink of `kneebench run --output`.
+//!
+//! # The file protocol of [`CsvFile`]
+//!
+//! - [`CsvFile::create`] checks the output before any row exists: the directory must exist,
+//!   the output must not be a directory, and `<output>.partial` (in the same directory) must
+//!   be creatable; that file receives every row.
+//! - Rows are buffered (64 KiB) and written out by [`ResultSink::flush`], which the master
+//!   calls at least once per second of wall time and at the end of the run: a process that
+//!   dies leaves `<output>.partial` with every row up to the last flush, each row complete
+//!   (a cut line can only be the last one).
+//! - [`CsvFile::commit`] flushes, syncs and renames `<output>.partial` to `<output>` (atomic
+//!   within the directory). [`CsvFile::keep_partial`] flushes and leaves the partial file for
+//!   a run that failed or was stopped: an earlier `<output>` is never truncated or replaced by
+//!   an incomplete run.
+
+use std::ffi::OsString;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use super::{ColumnKind, ResultSink, ResultsError};
+
+/// Bytes buffered before a write to the file.
+const BUFFER: usize = 64 * 1024;
+
+/// Formats rows as CSV into a writer: header `time,<names>`, `Real` values in the shortest
+/// form that parses back to the same bits, `Integer` and `Boolean` values as integers.
+pub struct CsvWriter<W: Write> {
+    out: W,
+    kinds: Vec<ColumnKind>,
+    line: Vec<u8>,
+    floats: ryu::Buffer,
+}
+
+impl<W: Write> std::fmt::Debug for CsvWriter<W> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CsvWriter")
+            .field("kinds", &self.kinds)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<W: Write> CsvWriter<W> {
+    /// A writer into `out` (which should be buffered: each row is one `write_all`).
+    pub fn new(out: W) -> CsvWriter<W> {
+        CsvWriter {
+            out,
+            kinds: Vec::new(),
+            line: Vec::with_capacity(256),
+            floats: ryu::Buffer::new(),
+        }
+    }
+
+    /// Writes the header line and remembers the column kinds.
+    pub fn header(&mut self, names: &[String], kinds: &[ColumnKind]) -> io::Result<()> {
+        self.kinds = kinds.to_vec();
+        self.line.clear();
+        self.line.extend_from_slice(b"time");
+        for n in names {
+            self.line.push(b',');
+            self.line.extend_from_slice(field(n).as_bytes());
+        }
+        self.line.push(b'\n');
+        self.out.write_all(&self.line)
+    }
+
+    /// Writes one row (`values` has one value per column of the header).
+    #[inline]
+    pub fn row(&mut self, time: f64, values: &[f64]) -> io::Result<()> {
+        self.line.clear();
+        self.line
+            .extend_from_slice(self.floats.format(time).as_bytes());
+        for (&v, k) in values.iter().zip(&self.kinds) {
+            self.line.push(b',');
+            match k {
+                ColumnKind::Real => self
+                    .line
+                    .extend_from_slice(self.floats.format(v).as_bytes()),
+                ColumnKind::Integer | ColumnKind::Boolean => {
+                    let _ = write!(self.line, "{}", v as i64);
+                }
+            }
+        }
+        self.line.push(b'\n');
+        self.out.write_all(&self.line)
+    }
+
+    /// Flushes the underlying writer.
+    pub fn flush(&mut self) -> io::Result<()> {
+        self.out.flush()
+    }
+
+    /// Flushes and gives back the underlying writer.
+    pub fn into_inner(mut self) -> io::Result<W> {
+        self.out.flush()?;
+        Ok(self.out)
+    }
+
+    /// The underlying writer.
+    pub fn get_ref(&self) -> &W {
+        &self.out
+    }
+}
+
+/// A CSV field, quoted when it contains a comma, a quote or a line break.
+fn field(s: &str) -> std::borrow::Cow<'_, str> {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\"")).into()
+    } else {
+        s.into()
+    }
+}
+
+/// `path` with `.partial` appended to its file name.
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name: OsString = path.file_name().map(OsString::from).unwrap_or_default();
+    name.push(".partial");
+    path.with_file_name(name)
+}
+
+/// The crash-safe CSV file sink (see the [module documentation](self)).
+#[derive(Debug)]
+pub struct CsvFile {
+    path: PathBuf,
+    partial: PathBuf,
+    writer: CsvWriter<BufWriter<File>>,
+    rows: u64,
+}
+
+impl CsvFile {
+    /// Checks the output path and creates `<path>.partial`; nothing is written to `path`
+    /// before [`commit`](Self::commit).
+    pub fn create(path: &Path) -> Result<CsvFile, ResultsError> {
+        let io_err = |path: &Path, source: io::Error| ResultsError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        if path.is_dir() {
+            return Err(io_err(
+                path,
+                io::Error::new(io::ErrorKind::IsADirectory, "is a directory"),
+            ));
+        }
+        if path.file_name().is_none() {
+            return Err(io_err(
+                path,
+                io::Error::new(io::ErrorKind::InvalidInput, "not a file name"),
+            ));
+        }
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        match std::fs::metadata(dir) {
+            Ok(m) if m.is_dir() => {}
+            Ok(_) => {
+                return Err(io_err(
+                    dir,
+                    io::Error::new(io::ErrorKind::NotADirectory, "not a directory"),
+                ));
+            }
+            Err(e) => return Err(io_err(dir, e)),
+        }
+        let partial = partial_path(path);
+        let file = File::create(&partial).map_err(|e| io_err(&partial, e))?;
+        Ok(CsvFile {
+            path: path.to_path_buf(),
+            partial,
+            writer: CsvWriter::new(BufWriter::with_capacity(BUFFER, file)),
+            rows: 0,
+        })
+    }
+
+    /// The final path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The partial file the rows go to until [`commit`](Self::commit).
+    pub fn partial_path(&self) -> &Path {
+        &self.partial
+    }
+
+    /// Rows written so far.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    fn io(&self, source: io::Error) -> ResultsError {
+        ResultsError::Io {
+            path: self.partial.clone(),
+            source,
+        }
+    }
+
+    /// Flushes, syncs the file to disk and renames it into place; returns the final path.
+    pub fn commit(mut self) -> Result<PathBuf, ResultsError> {
+        self.writer.flush().map_err(|e| self.io(e))?;
+        self.writer
+            .get_ref()
+            .get_ref()
+            .sync_all()
+            .map_err(|e| self.io(e))?;
+        std::fs::rename(&self.partial, &self.path).map_err(|source| ResultsError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        Ok(self.path)
+    }
+
+    /// Flushes and leaves the rows in the partial file (a failed or stopped run); returns its
+    /// path.
+    pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
+        self.writer.flush().map_err(|e| self.io(e))?;
+        Ok(self.partial)
+    }
+}
+
+impl ResultSink for CsvFile {
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        if names.len() != kinds.len() {
+            return Err(ResultsError::RowLength {
+                expected: names.len(),
+                got: kinds.len(),
+            });
+        }
+        self.writer.header(names, kinds).map_err(|e| self.io(e))
+    }
+
+    #[inline]
+    fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
+        if values.len() != self.writer.kinds.len() {
+            return Err(ResultsError::RowLength {
+                expected: self.writer.kinds.len(),
+                got: values.len(),
+            });
+        }
+        self.rows += 1;
+        self.writer.row(time, values).map_err(|e| self.io(e))
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        self.writer.flush().map_err(|e| self.io(e))
+    }
+
+    fn wants_periodic_flush(&self) -> bool {
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::results::Results;
+
+    #[test]
+    fn floats_round_trip_and_integers_stay_integers() {
+        let mut w = CsvWriter::new(Vec::new());
+        let kinds = [ColumnKind::Real, ColumnKind::Integer, ColumnKind::Boolean];
+        let names: Vec<String> = ["a,b", "i", "flag"].iter().map(|s| s.to_string()).collect();
+        w.header(&names, &kinds).unwrap();
+        let values = [
+            0.1 + 0.2,
+            1e-300,
+            -0.0,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            5e-324,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            1.0,
+        ];
+        for (k, &v) in values.iter().enumerate() {
+            w.row(k as f64 * 1e-3, &[v, -(k as f64), (k % 2) as f64])
+                .unwrap();
+        }
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(text.starts_with("time,\"a,b\",i,flag\n0.0,0.30000000000000004,0,0\n"));
+        let back = Results::read_csv(text.as_bytes(), Path::new("mem")).unwrap();
+        let col = back.column("a,b").unwrap();
+        for (a, b) in values.iter().zip(&col) {
+            assert_eq!(a.to_bits(), b.to_bits(), "{a}");
+        }
+        assert_eq!(back.column("i").unwrap()[3], -3.0);
+    }
+
+    #[test]
+    fn the_partial_file_is_renamed_only_on_commit() {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("r.csv");
+        std::fs::write(&out, "earlier\n").unwrap();
+        let names = vec!["x".to_string()];
+        let mut f = CsvFile::create(&out).unwrap();
+        assert_eq!(f.partial_path(), d.path().join("r.csv.partial"));
+        f.begin(&names, &[ColumnKind::Real]).unwrap();
+        f.push_row(0.0, &[1.5]).unwrap();
+        let partial = f.keep_partial().unwrap();
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "earlier\n");
+        assert_eq!(
+            std::fs::read_to_string(&partial).unwrap(),
+            "time,x\n0.0,1.5\n"
+        );
+        let mut f = CsvFile::create(&out).unwrap();
+        f.begin(&names, &[ColumnKind::Real]).unwrap();
+        f.push_row(0.0, &[2.5]).unwrap();
+        assert_eq!(f.commit().unwrap(), out);
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "time,x\n0.0,2.5\n");
+        assert!(!partial.exists());
+    }
+
+    #[test]
+    fn a_bad_output_path_is_refused_before_any_row() {
+        let d = tempfile::tempdir().unwrap();
+        let e = CsvFile::create(&d.path().join("missing/r.csv")).unwrap_err();
+        assert!(e.to_string().contains("missing"), "{e}");
+        let e = CsvFile::create(d.path()).unwrap_err();
+        assert!(e.to_string().contains("directory"), "{e}");
+        let mut f = CsvFile::create(&d.path().join("r.csv")).unwrap();
+        f.begin(&["x".to_string()], &[ColumnKind::Real]).unwrap();
+        assert!(matches!(
+            f.push_row(0.0, &[1.0, 2.0]),
+            Err(ResultsError::RowLength {
+                expected: 1,
+                got: 2
+            })
+        ));
+    }
+}
