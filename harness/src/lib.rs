@@ -44,6 +44,7 @@ pub mod bench_protocol;
 pub mod emulator;
 pub mod experiment;
 pub mod instance;
+pub mod isolate;
 pub mod load;
 pub mod master;
 pub mod metrics;
@@ -54,8 +55,9 @@ pub mod study;
 pub mod time;
 
 pub use instance::{
-    FmuError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
+    FmuError, HostError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
+pub use isolate::{HostFailure, HostOptions, Isolation};
 pub use load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
 pub use master::{Algorithm, MasterError, Outcome, RunConfig, RunOutput, System, Value};
 pub use results::Results;
