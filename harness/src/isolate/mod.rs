@@ -7,8 +7,8 @@
 //! the same `Instance` API; a crash (`SIGSEGV`, `abort()`), an `exit()` or a hang of the FMU
 //! becomes an [`FmuError::Host`](crate::FmuError::Host) naming the FMU, the instance, the call
 //! and the signal or exit code, and the master carries on (it stops the run and keeps the rows
-//! recorded so far). Each call is bounded by [`HostOptions::call_timeout`] (60 s by default):
-//! past it the host is killed and the call fails.
+//! recorded so far). Each call is bounded by [`HostOptions::call_timeout`] (60 s by default,
+//! or [`CALL_TIMEOUT_VAR`] seconds): past it the host is killed and the call fails.
 //!
 //! The master and a host talk over two pipes with a compact binary protocol (see the
 //! `protocol` module's source); a master step (set inputs, `fmi2DoStep`, get outputs) is one
@@ -97,12 +97,22 @@ pub struct HostOptions {
     pub call_timeout: Duration,
 }
 
+/// The environment variable that sets the default call timeout, in seconds.
+pub const CALL_TIMEOUT_VAR: &str = "KNEEBENCH_FMU_CALL_TIMEOUT";
+
 impl Default for HostOptions {
-    /// No explicit helper, 60 s per call.
+    /// No explicit helper; the call timeout from `KNEEBENCH_FMU_CALL_TIMEOUT` (seconds, a
+    /// positive number; anything else is ignored), else 60 s.
     fn default() -> Self {
+        let call_timeout = std::env::var(CALL_TIMEOUT_VAR)
+            .ok()
+            .and_then(|v| v.trim().parse::<f64>().ok())
+            .and_then(|s| Duration::try_from_secs_f64(s).ok())
+            .filter(|d| !d.is_zero())
+            .unwrap_or(Duration::from_secs(60));
         HostOptions {
             helper: None,
-            call_timeout: Duration::from_secs(60),
+            call_timeout,
         }
     }
 }
