@@ -58,6 +58,6 @@ pub use instance::{
     FmuError, HostError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
 pub use isolate::{HostFailure, HostOptions, Isolation};
-pub use load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
+pub use load::{ArchiveBudget, ArchiveLimits, Fmu, LoadError, LoadOptions};
 pub use master::{Algorithm, MasterError, Outcome, RunConfig, RunOutput, System, Value};
 pub use results::Results;

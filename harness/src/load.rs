@@ -27,6 +27,7 @@ use std::fs;
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 use model_description::ModelDescription;
 
@@ -56,11 +57,48 @@ impl Default for ArchiveLimits {
     }
 }
 
+/// What one run may still extract: the [`ArchiveLimits`] counted across every archive the run
+/// opens (an SSP and the FMUs inside it share one budget, so an archive inside an archive gets
+/// what is left, not a fresh allowance). The per-entry limit applies to each entry.
+#[derive(Debug)]
+pub struct ArchiveBudget {
+    limits: ArchiveLimits,
+    entries: AtomicUsize,
+    bytes: AtomicU64,
+}
+
+impl ArchiveBudget {
+    /// A full budget of `limits`.
+    pub fn new(limits: ArchiveLimits) -> Arc<ArchiveBudget> {
+        Arc::new(ArchiveBudget {
+            limits,
+            entries: AtomicUsize::new(0),
+            bytes: AtomicU64::new(0),
+        })
+    }
+    /// The limits.
+    pub fn limits(&self) -> &ArchiveLimits {
+        &self.limits
+    }
+    /// Entries extracted so far.
+    pub fn used_entries(&self) -> usize {
+        self.entries.load(Ordering::Relaxed)
+    }
+    /// Decompressed bytes written so far.
+    pub fn used_bytes(&self) -> u64 {
+        self.bytes.load(Ordering::Relaxed)
+    }
+}
+
 /// Options of [`Fmu::load`].
 #[derive(Debug, Clone, Default)]
 pub struct LoadOptions {
     /// Bounds on the archive.
     pub limits: ArchiveLimits,
+    /// The budget of the run this load belongs to (see [`ArchiveBudget`]); `None`: a fresh one
+    /// of [`limits`](Self::limits) for this archive alone. [`crate::ssp::load_system`] sets one
+    /// for the SSP and its FMUs.
+    pub budget: Option<Arc<ArchiveBudget>>,
     /// Shared libraries opened with `RTLD_NOW | RTLD_GLOBAL` before the FMU's binary, so that
     /// their symbols resolve the binary's undefined ones (for example the `libpython3.x.so` a
     /// PythonFMU export expects from its host). They stay loaded while the FMU is. With
@@ -118,9 +156,10 @@ pub enum LoadError {
         /// The limit in bytes.
         limit: u64,
     },
-    /// The entries together decompress to more than the total limit.
+    /// The entries together (of every archive of the run) decompress to more than the total
+    /// limit.
     #[error(
-        "refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total"
+        "refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total (counting every archive of this run, nested ones included)"
     )]
     TotalTooLarge {
         /// The entry at which the limit was passed.
@@ -128,8 +167,10 @@ pub enum LoadError {
         /// The limit in bytes.
         limit: u64,
     },
-    /// Too many entries.
-    #[error("refusing archive: {count} entries (limit {limit})")]
+    /// Too many entries (in every archive of the run together).
+    #[error(
+        "refusing archive: {count} entries (limit {limit}, counting every archive of this run, nested ones included)"
+    )]
     TooManyEntries {
         /// Number of entries in the archive.
         count: usize,
@@ -273,6 +314,19 @@ pub fn extract_archive(
     dest: &Path,
     limits: &ArchiveLimits,
 ) -> Result<Vec<PathBuf>, LoadError> {
+    extract_archive_within(archive, dest, &ArchiveBudget::new(*limits))
+}
+
+/// Extracts `archive` into `dest` (an existing, empty, private directory), counting its entries
+/// and bytes against `budget` (which other archives of the same run share).
+///
+/// Returns the relative paths of the extracted files.
+pub fn extract_archive_within(
+    archive: &Path,
+    dest: &Path,
+    budget: &ArchiveBudget,
+) -> Result<Vec<PathBuf>, LoadError> {
+    let limits = &budget.limits;
     let file = fs::File::open(archive).map_err(io_err("cannot open", archive))?;
     let zip_err = |entry: Option<String>| {
         move |source| LoadError::Zip {
@@ -282,13 +336,13 @@ pub fn extract_archive(
         }
     };
     let mut zip = zip::ZipArchive::new(io::BufReader::new(file)).map_err(zip_err(None))?;
-    if zip.len() > limits.max_entries {
+    let before = budget.entries.fetch_add(zip.len(), Ordering::Relaxed);
+    if before + zip.len() > limits.max_entries {
         return Err(LoadError::TooManyEntries {
-            count: zip.len(),
+            count: before + zip.len(),
             limit: limits.max_entries,
         });
     }
-    let mut total: u64 = 0;
     let mut files = Vec::new();
     for i in 0..zip.len() {
         let mut entry = zip.by_index(i).map_err(zip_err(None))?;
@@ -334,7 +388,7 @@ pub fn extract_archive(
             })?;
         let mut out = io::BufWriter::new(out);
         // Copy at most limit + 1 bytes: more means the entry is too large, whatever it claims.
-        let remaining_total = limits.max_total_bytes.saturating_sub(total);
+        let remaining_total = limits.max_total_bytes.saturating_sub(budget.used_bytes());
         let cap = limits.max_entry_bytes.min(remaining_total);
         let copied = copy_bounded(&mut entry, &mut out, cap + 1).map_err(|e| {
             if e.kind() == io::ErrorKind::InvalidData || e.kind() == io::ErrorKind::UnexpectedEof {
@@ -367,7 +421,7 @@ pub fn extract_archive(
             });
         }
         out.flush().map_err(io_err("cannot write", &target))?;
-        total += copied;
+        budget.bytes.fetch_add(copied, Ordering::Relaxed);
         files.push(rel);
     }
     Ok(files)
@@ -691,6 +745,14 @@ pub fn extract_and_parse(
     path: &Path,
     limits: &ArchiveLimits,
 ) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
+    extract_and_parse_within(path, &ArchiveBudget::new(*limits))
+}
+
+/// [`extract_and_parse`] counting against a run's `budget`.
+pub fn extract_and_parse_within(
+    path: &Path,
+    budget: &ArchiveBudget,
+) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
     let dir = tempfile::Builder::new()
         .prefix("kneebench-fmu-")
         .tempdir()
@@ -700,7 +762,7 @@ pub fn extract_and_parse(
         fs::set_permissions(dir.path(), fs::Permissions::from_mode(0o700))
             .map_err(io_err("cannot restrict permissions of", dir.path()))?;
     }
-    extract_archive(path, dir.path(), limits)?;
+    extract_archive_within(path, dir.path(), budget)?;
     let md_path = dir.path().join("modelDescription.xml");
     let bytes = match fs::read(&md_path) {
         Ok(b) => b,
@@ -727,7 +789,10 @@ impl Fmu {
     /// version and then serves the first instance.
     pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Fmu, LoadError> {
         let path = path.as_ref();
-        let (dir, md) = extract_and_parse(path, &options.limits)?;
+        let (dir, md) = match &options.budget {
+            Some(b) => extract_and_parse_within(path, b)?,
+            None => extract_and_parse(path, &options.limits)?,
+        };
         let cs = md.co_simulation.as_ref().ok_or(LoadError::NoCoSimulation)?;
         let rel = format!("binaries/linux64/{}.so", cs.model_identifier);
         let binary = dir.path().join(&rel);
