@@ -764,6 +764,16 @@ pub fn extract_and_parse_within(
     }
     extract_archive_within(path, dir.path(), budget)?;
     let md_path = dir.path().join("modelDescription.xml");
+    // Refused unread past the reader's bound (the archive may hold up to the entry limit).
+    if let Ok(meta) = fs::metadata(&md_path) {
+        let limit = model_description::read::MAX_DOCUMENT_BYTES;
+        if meta.len() > limit as u64 {
+            return Err(LoadError::ModelDescription(format!(
+                "the document is {} bytes long (limit {limit})",
+                meta.len()
+            )));
+        }
+    }
     let bytes = match fs::read(&md_path) {
         Ok(b) => b,
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
