@@ -72,7 +72,9 @@ pub fn model_description(generation_tool: &str) -> String {
 fn build_dir() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let d = std::env::temp_dir().join(format!("kneebench-hostile-{}", std::process::id()));
+        // Inside the target directory (removed by `cargo clean`), one per test process.
+        let d =
+            Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("hostile-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
         d
     })
