@@ -36,7 +36,7 @@ struct Host {
     ints: Vec<i32>,
 }
 
-/// Runs the host on standard input and output until the master closes the pipe.
+/// Runs the host on standard input and output (a socket) until the master closes its end.
 pub(crate) fn serve() -> io::Result<()> {
     // SAFETY: prctl(PR_SET_PDEATHSIG) and getppid take no pointers.
     unsafe {
@@ -45,7 +45,7 @@ pub(crate) fn serve() -> io::Result<()> {
             return Err(io::Error::other("the master process is gone"));
         }
     }
-    // SAFETY: dup/dup2 on the standard descriptors, which are open (the master made them pipes).
+    // SAFETY: dup/dup2 on the standard descriptors, which are open (the master made them its socket).
     let out_fd = unsafe {
         let fd = libc::dup(1);
         if fd < 0 || libc::dup2(2, 1) < 0 {

@@ -10,7 +10,7 @@
 //! recorded so far). Each call is bounded by [`HostOptions::call_timeout`] (60 s by default,
 //! or [`CALL_TIMEOUT_VAR`] seconds): past it the host is killed and the call fails.
 //!
-//! The master and a host talk over two pipes with a compact binary protocol (see the
+//! The master and a host talk over a Unix socket pair with a compact binary protocol (see the
 //! `protocol` module's source); a master step (set inputs, `fmi2DoStep`, get outputs) is one
 //! round trip: sets are queued and sent with the next call, and the reads made after the last
 //! step are made again right after this one, in the same request.

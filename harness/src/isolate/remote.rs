@@ -1,5 +1,5 @@
-//! The master's side of an isolated FMU: the host process, its watchdog, and the instance proxy
-//! that batches the master's calls.
+//! The master's side of an isolated FMU: the host process (a Unix socket pair as its standard
+//! input and output), its watchdog, and the instance proxy that batches the master's calls.
 //!
 //! # Batching
 //!
@@ -17,11 +17,12 @@
 //!
 //! So the steady state is one round trip per instance and step.
 
-use std::io::{self, Read, Write};
-use std::os::fd::AsRawFd;
+use std::io::{self, Read};
+use std::os::fd::{AsRawFd, OwnedFd};
+use std::os::unix::net::UnixStream;
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -31,11 +32,12 @@ use crate::fmi2::fmi2StatusCode;
 use crate::instance::{LogContext, LogMessage, LogStatus};
 use crate::load::{LoadError, OPTIONAL_FUNCTIONS};
 
-/// A running host process and the pipes to it.
+/// A running host process and the socket to it.
 pub(crate) struct Process {
     child: Child,
-    to: Option<ChildStdin>,
-    from: ChildStdout,
+    /// The master's end of the socket pair (the host has the other end as its standard input
+    /// and output); `None` once closed.
+    sock: Option<UnixStream>,
     /// Bytes read and not yet consumed (`rbuf[rpos..]`).
     rbuf: Vec<u8>,
     rpos: usize,
@@ -43,17 +45,6 @@ pub(crate) struct Process {
     reply: Vec<u8>,
     timeout: Duration,
     dead: Option<HostFailure>,
-}
-
-fn set_nonblocking(fd: i32) -> io::Result<()> {
-    // SAFETY: fcntl on a descriptor we own; no pointers.
-    unsafe {
-        let flags = libc::fcntl(fd, libc::F_GETFL);
-        if flags < 0 || libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) < 0 {
-            return Err(io::Error::last_os_error());
-        }
-    }
-    Ok(())
 }
 
 /// Waits until `fd` is ready for `events` or the deadline passes (false then).
@@ -87,22 +78,23 @@ fn wait_fd(fd: i32, events: i16, deadline: Instant) -> io::Result<bool> {
 impl Process {
     /// Starts `helper` as an FMU host.
     pub(crate) fn spawn(helper: &Path, timeout: Duration) -> Result<Process, HostFailure> {
-        let mut child = Command::new(helper)
+        // A socket pair rather than pipes: the master sends with MSG_NOSIGNAL, so a host that
+        // died between two calls is an error of the next call, never a SIGPIPE (which
+        // `kneebench` leaves at its default action, terminating).
+        let start = |e: io::Error| HostFailure::Start(e.to_string());
+        let (sock, theirs) = UnixStream::pair().map_err(start)?;
+        let theirs_out = theirs.try_clone().map_err(start)?;
+        let child = Command::new(helper)
             .arg(HOST_ARG)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
+            .stdin(Stdio::from(OwnedFd::from(theirs)))
+            .stdout(Stdio::from(OwnedFd::from(theirs_out)))
             .stderr(Stdio::inherit())
             .spawn()
             .map_err(|e| HostFailure::Start(format!("cannot start '{}': {e}", helper.display())))?;
-        let to = child.stdin.take().expect("piped");
-        let from = child.stdout.take().expect("piped");
-        for fd in [to.as_raw_fd(), from.as_raw_fd()] {
-            set_nonblocking(fd).map_err(|e| HostFailure::Start(e.to_string()))?;
-        }
+        sock.set_nonblocking(true).map_err(start)?;
         Ok(Process {
             child,
-            to: Some(to),
-            from,
+            sock: Some(sock),
             rbuf: Vec::with_capacity(4096),
             rpos: 0,
             reply: Vec::new(),
@@ -162,7 +154,9 @@ impl Process {
                 _ => {
                     let _ = self.child.kill();
                     let _ = self.child.wait();
-                    return HostFailure::Protocol("closed its pipe without ending (killed)".into());
+                    return HostFailure::Protocol(
+                        "closed its socket without ending (killed)".into(),
+                    );
                 }
             }
         }
@@ -174,23 +168,28 @@ impl Process {
         deadline: Instant,
         log: &mut dyn FnMut(LogMessage),
     ) -> Result<(), Exchange> {
-        let to = self.to.as_mut().ok_or(Exchange::Closed)?;
+        let fd = self.sock.as_ref().ok_or(Exchange::Closed)?.as_raw_fd();
         let mut sent = 0;
         while sent < frame.len() {
-            match to.write(&frame[sent..]) {
-                Ok(0) => return Err(Exchange::Closed),
-                Ok(n) => sent += n,
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    if !wait_fd(to.as_raw_fd(), libc::POLLOUT, deadline)
-                        .map_err(|_| Exchange::Closed)?
-                    {
+            let rest = &frame[sent..];
+            // SAFETY: a valid buffer of `rest.len()` bytes on our socket.
+            let n = unsafe { libc::send(fd, rest.as_ptr().cast(), rest.len(), libc::MSG_NOSIGNAL) };
+            if n > 0 {
+                sent += n as usize;
+                continue;
+            }
+            let e = io::Error::last_os_error();
+            match e.kind() {
+                io::ErrorKind::WouldBlock => {
+                    if !wait_fd(fd, libc::POLLOUT, deadline).map_err(|_| Exchange::Closed)? {
                         return Err(Exchange::Timeout);
                     }
                 }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(_) => return Err(Exchange::Closed),
+                io::ErrorKind::Interrupted => {}
+                _ => return Err(Exchange::Closed),
             }
         }
+        let mut from = self.sock.as_ref().ok_or(Exchange::Closed)?;
         loop {
             // Every complete frame in the buffer.
             while self.rbuf.len() - self.rpos >= 4 {
@@ -226,7 +225,7 @@ impl Process {
             }
             let old = self.rbuf.len();
             self.rbuf.resize(old + 64 * 1024, 0);
-            let r = self.from.read(&mut self.rbuf[old..]);
+            let r = from.read(&mut self.rbuf[old..]);
             match r {
                 Ok(0) => {
                     self.rbuf.truncate(old);
@@ -237,9 +236,7 @@ impl Process {
                     self.rbuf.truncate(old);
                     match e.kind() {
                         io::ErrorKind::WouldBlock => {
-                            if !wait_fd(self.from.as_raw_fd(), libc::POLLIN, deadline)
-                                .map_err(|_| Exchange::Closed)?
-                            {
+                            if !wait_fd(fd, libc::POLLIN, deadline).map_err(|_| Exchange::Closed)? {
                                 return Err(Exchange::Timeout);
                             }
                         }
@@ -253,10 +250,14 @@ impl Process {
 }
 
 impl Drop for Process {
-    /// Closes the request pipe (the host then terminates and frees its instance and exits) and
+    /// Closes the sending half of the socket (the host then terminates and frees its instance and exits) and
     /// waits for the process, at most the call timeout, then kills it.
     fn drop(&mut self) {
-        drop(self.to.take());
+        let Some(sock) = self.sock.take() else {
+            return;
+        };
+        // Our sending half closes; the host reads end of file.
+        let _ = sock.shutdown(std::net::Shutdown::Write);
         if self.dead.is_some() {
             return;
         }
@@ -267,12 +268,12 @@ impl Drop for Process {
                 Ok(None) if Instant::now() < until => {
                     // Wait for the host to close its end (it exits right after).
                     let _ = wait_fd(
-                        self.from.as_raw_fd(),
+                        sock.as_raw_fd(),
                         libc::POLLIN,
                         Instant::now() + Duration::from_millis(20),
                     );
                     let mut sink = [0u8; 4096];
-                    while let Ok(n) = self.from.read(&mut sink) {
+                    while let Ok(n) = (&sock).read(&mut sink) {
                         if n == 0 {
                             break;
                         }

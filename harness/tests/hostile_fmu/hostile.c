@@ -15,9 +15,11 @@
  * Every behaviour first logs "hostile: <what> at t=<t>" with the status it is about to cause.
  */
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "fmi2Functions.h"
@@ -38,7 +40,16 @@ enum {
     MODE_FATAL = 10,   /* fmi2Fatal */
     MODE_PENDING = 11, /* fmi2Pending (never allowed: the importer did not ask for async) */
     MODE_STDOUT = 12,  /* writes garbage to standard output and continues (fmi2OK) */
+    MODE_EXIT_LATER = 13, /* fmi2OK, and a thread ends the process 200 ms later (_exit(7)) */
 };
+
+static void *exit_later(void *arg) {
+    (void)arg;
+    struct timespec ms200 = {0, 200000000L};
+    nanosleep(&ms200, NULL);
+    _exit(7);
+    return NULL;
+}
 
 typedef struct {
     fmi2Real u, t, at;
@@ -227,6 +238,13 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
             fflush(stdout);
             (void)!write(1, "\x01\x02\x03garbage", 10);
             break;
+        case MODE_EXIT_LATER: {
+            LOG(i, fmi2OK, "hostile: the process ends in 200 ms, from t=%g", t);
+            pthread_t thread;
+            if (pthread_create(&thread, NULL, exit_later, NULL) != 0) return fmi2Error;
+            pthread_detach(thread);
+            break;
+        }
         default:
             LOG(i, fmi2Error, "hostile: unknown mode %d", s->mode);
             return fmi2Error;

@@ -38,6 +38,8 @@ pub const MODE_FATAL: i32 = 10;
 pub const MODE_PENDING: i32 = 11;
 /// Garbage on standard output, then fmi2OK.
 pub const MODE_STDOUT: i32 = 12;
+/// fmi2OK, and a thread ends the process with `_exit(7)` 200 ms later.
+pub const MODE_EXIT_LATER: i32 = 13;
 
 /// The model description of the hostile FMU (`generation_tool` as given).
 pub fn model_description(generation_tool: &str) -> String {
