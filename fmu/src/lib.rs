@@ -12,6 +12,7 @@ pub mod hardware;
 pub mod model;
 pub mod models;
 pub mod registry;
+mod release;
 
 export_models!(
     models::gait::GaitReference,

@@ -56,7 +56,8 @@ pub struct ModelEntry {
     instantiate: fn(&'static ModelInfo, Logger) -> Box<dyn FmiInstance>,
     /// Text of the reference-run inputs (CSV) for `extra/`, if the model has inputs.
     pub reference_inputs: fn() -> Option<String>,
-    info: OnceLock<ModelInfo>,
+    /// Built on first use; released when the library is unloaded (`crate::release`).
+    info: crate::release::Once<ModelInfo>,
 }
 
 fn build<M: Model>() -> ModelInfo {
@@ -107,7 +108,7 @@ impl ModelEntry {
             build: build::<M>,
             instantiate: instantiate::<M>,
             reference_inputs: M::reference_inputs,
-            info: OnceLock::new(),
+            info: crate::release::Once::new(),
         }
     }
 

@@ -18,7 +18,9 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Arc, Mutex};
 
 use crate::fmi2::*;
-use crate::load::{Fmu, FmuShared, cstr_lossy};
+use crate::isolate::remote::{RemoteFail, RemoteInstance};
+use crate::isolate::{HostFailure, *};
+use crate::load::{Exec, Fmu, FmuShared, Functions, LoadError, cstr_lossy};
 
 /// How many of an instance's most recent log messages are kept (and attached to errors).
 pub const RECENT_MESSAGES: usize = 32;
@@ -178,6 +180,36 @@ pub enum FmuError {
     /// A string to pass contains a NUL byte.
     #[error("string value contains a NUL byte")]
     NulInString,
+    /// The host process of an isolated instance crashed, exited, hung or broke the protocol
+    /// during a call ([`crate::isolate`]). The instance is unusable afterwards.
+    #[error("{0}")]
+    Host(Box<HostError>),
+}
+
+/// The details of [`FmuError::Host`].
+#[derive(Debug, thiserror::Error)]
+#[error("FMU '{model}', instance '{instance}': {function}{}: {failure}{}", queued_note(*.queued), format_messages(.messages))]
+pub struct HostError {
+    /// The model name of the FMU.
+    pub model: String,
+    /// The instance name.
+    pub instance: String,
+    /// The FMI function the master was waiting for.
+    pub function: &'static str,
+    /// How many queued calls (sets) were sent in the same request before it.
+    pub queued: usize,
+    /// How the host failed.
+    pub failure: HostFailure,
+    /// The instance's last log messages, oldest first (those logged before a crash included).
+    pub messages: Vec<LogMessage>,
+}
+
+fn queued_note(queued: usize) -> String {
+    match queued {
+        0 => String::new(),
+        1 => " (sent with 1 queued set before it)".into(),
+        n => format!(" (sent with {n} queued sets before it)"),
+    }
 }
 
 impl FmuError {
@@ -185,6 +217,7 @@ impl FmuError {
     pub fn messages(&self) -> &[LogMessage] {
         match self {
             FmuError::Call { messages, .. } | FmuError::Instantiate { messages, .. } => messages,
+            FmuError::Host(h) => &h.messages,
             _ => &[],
         }
     }
@@ -207,13 +240,20 @@ fn format_messages(messages: &[LogMessage]) -> String {
 }
 
 /// The per-instance context the FMU's `componentEnvironment` points to.
-struct LogContext {
+pub(crate) struct LogContext {
     handler: Option<LogHandler>,
     debug_print: bool,
     recent: Mutex<VecDeque<LogMessage>>,
 }
 
 impl LogContext {
+    pub(crate) fn new(handler: Option<LogHandler>, debug_print: bool) -> Box<LogContext> {
+        Box::new(LogContext {
+            handler,
+            debug_print,
+            recent: Mutex::new(VecDeque::with_capacity(RECENT_MESSAGES)),
+        })
+    }
     fn take_recent(&self) -> Vec<LogMessage> {
         match self.recent.lock() {
             Ok(mut r) => r.drain(..).collect(),
@@ -226,6 +266,38 @@ impl LogContext {
             Err(p) => p.into_inner().clear(),
         }
     }
+    /// Prints (with `KNEEBENCH_DEBUG`), hands to the handler and keeps one message.
+    pub(crate) fn deliver(&self, msg: LogMessage) {
+        if self.debug_print {
+            eprintln!("{msg}");
+        }
+        if let Some(h) = &self.handler {
+            h(&msg);
+        }
+        let mut recent = match self.recent.lock() {
+            Ok(r) => r,
+            Err(p) => p.into_inner(),
+        };
+        if recent.len() == RECENT_MESSAGES {
+            recent.pop_front();
+        }
+        recent.push_back(msg);
+    }
+}
+
+/// The callbacks passed to `fmi2Instantiate`: the logging shim with `ctx` as the environment,
+/// libc's allocator. Boxed: the FMU may keep the pointer.
+pub(crate) fn callbacks_for(ctx: &LogContext) -> Box<fmi2CallbackFunctions> {
+    // SAFETY: kneebench_logger has the C signature of fmi2CallbackLogger (the status is a C
+    // enum, passed as int).
+    let logger: fmi2CallbackLogger = Some(kneebench_logger);
+    Box::new(fmi2CallbackFunctions {
+        logger,
+        allocateMemory: Some(fmi_calloc),
+        freeMemory: Some(fmi_free),
+        stepFinished: None,
+        componentEnvironment: ctx as *const LogContext as *mut c_void,
+    })
 }
 
 unsafe extern "C" {
@@ -254,8 +326,8 @@ extern "C" fn kneebench_log_sink(
             return;
         }
         // SAFETY: env is the LogContext we passed as componentEnvironment; it lives in a Box
-        // owned by the Instance until after fmi2FreeInstance returns. The strings are
-        // NUL-terminated or NULL (cstr_lossy checks NULL).
+        // owned by the Instance (or the host) until after fmi2FreeInstance returns. The strings
+        // are NUL-terminated or NULL (cstr_lossy checks NULL).
         let ctx = unsafe { &*(env as *const LogContext) };
         let msg = unsafe {
             LogMessage {
@@ -265,20 +337,7 @@ extern "C" fn kneebench_log_sink(
                 message: cstr_lossy(formatted),
             }
         };
-        if ctx.debug_print {
-            eprintln!("{msg}");
-        }
-        if let Some(h) = &ctx.handler {
-            h(&msg);
-        }
-        let mut recent = match ctx.recent.lock() {
-            Ok(r) => r,
-            Err(p) => p.into_inner(),
-        };
-        if recent.len() == RECENT_MESSAGES {
-            recent.pop_front();
-        }
-        recent.push_back(msg);
+        ctx.deliver(msg);
     }));
 }
 
@@ -309,20 +368,39 @@ pub struct FmuState {
 
 /// One FMI 2.0 co-simulation instance. Dropping it terminates it when it is initialized and
 /// frees it (except after `fmi2Fatal`, when freeing is not allowed and the instance is leaked).
+///
+/// The instance runs in this process or, for an FMU loaded with isolation, in a host process of
+/// its own ([`crate::isolate`]): the API is the same.
 pub struct Instance {
     fmu: Arc<FmuShared>,
-    c: fmi2Component,
     name: String,
     phase: Phase,
-    // Boxed so that their addresses stay fixed: the FMU may keep both pointers.
-    _callbacks: Box<fmi2CallbackFunctions>,
+    backend: Backend,
+    // Boxed so that its address stays fixed: the FMU keeps the pointer.
     ctx: Box<LogContext>,
+}
+
+// The in-process variant carries the function table inline (no pointer chase on the hot
+// path); there is one Instance per component, so the size does not matter.
+#[allow(clippy::large_enum_variant)]
+enum Backend {
+    Local(Local),
+    Remote(Box<RemoteInstance>),
+}
+
+/// An instance in this process.
+struct Local {
+    c: fmi2Component,
+    f: Functions,
+    // Boxed so that its address stays fixed: the FMU may keep the pointer.
+    _callbacks: Box<fmi2CallbackFunctions>,
     _name_c: CString,
 }
 
 // SAFETY: an fmi2Component may be used from any thread as long as calls are not concurrent,
 // which &mut self guarantees. FMUs are expected not to share mutable state between instances
-// (parallel stepping is opt-in and documented as requiring that).
+// (parallel stepping is opt-in and documented as requiring that). A remote instance is pipes
+// and plain data.
 unsafe impl Send for Instance {}
 
 impl fmt::Debug for Instance {
@@ -330,58 +408,93 @@ impl fmt::Debug for Instance {
         f.debug_struct("Instance")
             .field("name", &self.name)
             .field("phase", &self.phase)
+            .field("isolated", &matches!(self.backend, Backend::Remote(_)))
             .finish()
     }
 }
 
 impl Fmu {
     /// Instantiates the FMU for co-simulation (`fmi2Instantiate` with the GUID of the model
-    /// description; an FMU whose binary was built for another description refuses here).
+    /// description; an FMU whose binary was built for another description refuses here). For
+    /// an isolated FMU this starts the instance's host process.
     pub fn instantiate(&self, name: &str, options: &InstanceOptions) -> Result<Instance, FmuError> {
         let name_c = CString::new(name).map_err(|_| FmuError::NulInString)?;
-        let ctx = Box::new(LogContext {
-            handler: options.log_handler.clone(),
-            debug_print: std::env::var_os("KNEEBENCH_DEBUG").is_some(),
-            recent: Mutex::new(VecDeque::with_capacity(RECENT_MESSAGES)),
-        });
-        // SAFETY: kneebench_logger has the C signature of fmi2CallbackLogger (the status is a
-        // C enum, passed as int).
-        let logger: fmi2CallbackLogger = Some(kneebench_logger);
-        let callbacks = Box::new(fmi2CallbackFunctions {
-            logger,
-            allocateMemory: Some(fmi_calloc),
-            freeMemory: Some(fmi_free),
-            stepFinished: None,
-            componentEnvironment: &*ctx as *const LogContext as *mut c_void,
-        });
-        let f = &self.shared.functions;
-        // SAFETY: all pointers are valid NUL-terminated strings / a callbacks struct that live
-        // as long as the instance.
-        let c = unsafe {
-            (f.instantiate)(
-                name_c.as_ptr(),
-                fmi2Type::fmi2CoSimulation,
-                self.shared.guid.as_ptr(),
-                self.shared.resource_uri.as_ptr(),
-                &*callbacks,
-                options.visible as fmi2Boolean,
-                options.logging_on as fmi2Boolean,
-            )
+        let ctx = LogContext::new(
+            options.log_handler.clone(),
+            std::env::var_os("KNEEBENCH_DEBUG").is_some(),
+        );
+        let backend = match &self.shared.exec {
+            Exec::Local(b) => {
+                let callbacks = callbacks_for(&ctx);
+                let f = b.functions;
+                // SAFETY: all pointers are valid NUL-terminated strings / a callbacks struct
+                // that live as long as the instance.
+                let c = unsafe {
+                    (f.instantiate)(
+                        name_c.as_ptr(),
+                        fmi2Type::fmi2CoSimulation,
+                        self.shared.guid.as_ptr(),
+                        self.shared.resource_uri.as_ptr(),
+                        &*callbacks,
+                        options.visible as fmi2Boolean,
+                        options.logging_on as fmi2Boolean,
+                    )
+                };
+                if c.is_null() {
+                    return Err(FmuError::Instantiate {
+                        instance: name.to_string(),
+                        messages: ctx.take_recent(),
+                    });
+                }
+                Backend::Local(Local {
+                    c,
+                    f,
+                    _callbacks: callbacks,
+                    _name_c: name_c,
+                })
+            }
+            Exec::Remote(r) => {
+                let host_err = |failure| {
+                    FmuError::Host(Box::new(HostError {
+                        model: self.shared.md.model_name.clone(),
+                        instance: name.to_string(),
+                        function: "fmi2Instantiate",
+                        queued: 0,
+                        failure,
+                        messages: ctx.take_recent(),
+                    }))
+                };
+                let process = r.process().map_err(|e| match e {
+                    LoadError::Host { failure, .. } => host_err(failure),
+                    other => host_err(HostFailure::Start(other.to_string())),
+                })?;
+                let remote = RemoteInstance::instantiate(
+                    process,
+                    name,
+                    &self.shared.md.guid,
+                    self.resource_uri(),
+                    options.visible,
+                    options.logging_on,
+                    &ctx,
+                )
+                .map_err(host_err)?;
+                match remote {
+                    Some(remote) => Backend::Remote(Box::new(remote)),
+                    None => {
+                        return Err(FmuError::Instantiate {
+                            instance: name.to_string(),
+                            messages: ctx.take_recent(),
+                        });
+                    }
+                }
+            }
         };
-        if c.is_null() {
-            return Err(FmuError::Instantiate {
-                instance: name.to_string(),
-                messages: ctx.take_recent(),
-            });
-        }
         Ok(Instance {
             fmu: self.shared.clone(),
-            c,
             name: name.to_string(),
             phase: Phase::Instantiated,
-            _callbacks: callbacks,
+            backend,
             ctx,
-            _name_c: name_c,
         })
     }
 }
@@ -401,6 +514,34 @@ unsafe extern "C" {
     fn libc_free(obj: *mut c_void);
 }
 
+/// Runs `$local` (an expression over the in-process `Local` `$l`) or `$remote` (over the
+/// `RemoteInstance` `$r` and the `LogContext` `$ctx`, giving `Result<T, RemoteFail>`), mapping
+/// a remote failure to an `FmuError` (the enclosing function returns it).
+macro_rules! dispatch {
+    ($self:ident, $l:ident => $local:expr, ($r:ident, $ctx:ident) => $remote:expr) => {
+        match &mut $self.backend {
+            Backend::Local($l) => $local,
+            Backend::Remote($r) => {
+                let $ctx = &*$self.ctx;
+                match $remote {
+                    Ok(v) => v,
+                    Err(e) => return Err($self.remote_fail(e)),
+                }
+            }
+        }
+    };
+}
+
+/// A call of the remote instance that sends `op` with `args` and decodes nothing.
+fn plain(
+    r: &mut RemoteInstance,
+    ctx: &LogContext,
+    op: u8,
+    args: impl FnOnce(&mut Enc),
+) -> Result<fmi2StatusCode, RemoteFail> {
+    r.call(ctx, op, args, false, |_| Ok(())).map(|x| x.0)
+}
+
 impl Instance {
     /// The instance name.
     pub fn name(&self) -> &str {
@@ -417,6 +558,11 @@ impl Instance {
         Fmu {
             shared: self.fmu.clone(),
         }
+    }
+
+    /// Whether the instance runs in a host process ([`crate::isolate`]).
+    pub fn is_isolated(&self) -> bool {
+        matches!(self.backend, Backend::Remote(_))
     }
 
     /// The instance's recent log messages (they are also attached to errors), oldest first;
@@ -461,10 +607,43 @@ impl Instance {
         }
     }
 
+    /// The error of a remote call that did not give a status: a queued set that failed, or the
+    /// host process that died (the instance is then unusable: phase [`Phase::Error`]).
+    #[cold]
+    fn remote_fail(&mut self, e: RemoteFail) -> FmuError {
+        match e {
+            RemoteFail::Call { function, code } => self.error(function, code),
+            RemoteFail::Host {
+                function,
+                queued,
+                failure,
+            } => {
+                self.phase = Phase::Error;
+                FmuError::Host(Box::new(HostError {
+                    model: self.fmu.md.model_name.clone(),
+                    instance: self.name.clone(),
+                    function,
+                    queued,
+                    failure,
+                    messages: self.ctx.take_recent(),
+                }))
+            }
+        }
+    }
+
     #[inline]
     fn alive(&self) -> Result<(), FmuError> {
         if self.phase == Phase::Fatal {
             Err(FmuError::AfterFatal(self.name.clone()))
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Whether the binary exports the optional function `name`.
+    fn has(&self, name: &'static str) -> Result<(), FmuError> {
+        if self.fmu.missing_optional().contains(&name) {
+            Err(FmuError::Unsupported(name))
         } else {
             Ok(())
         }
@@ -478,15 +657,19 @@ impl Instance {
             .map(|c| CString::new(*c).map_err(|_| FmuError::NulInString))
             .collect::<Result<_, _>>()?;
         let ptrs: Vec<fmi2String> = owned.iter().map(|c| c.as_ptr()).collect();
-        // SAFETY: valid component and an array of valid strings.
-        let s = unsafe {
-            (self.fmu.functions.set_debug_logging)(
-                self.c,
-                on as fmi2Boolean,
-                ptrs.len(),
-                ptrs.as_ptr(),
-            )
-        };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: valid component and an array of valid strings.
+                unsafe { (l.f.set_debug_logging)(l.c, on as fmi2Boolean, ptrs.len(), ptrs.as_ptr()) }
+            },
+            (r, ctx) => plain(r, ctx, CALL_SET_DEBUG_LOGGING, |e| {
+                e.u8(on as u8);
+                e.u32(categories.len() as u32);
+                for c in categories {
+                    e.str(c);
+                }
+            })
+        );
         self.check("fmi2SetDebugLogging", s)
     }
 
@@ -498,36 +681,67 @@ impl Instance {
         stop_time: Option<f64>,
     ) -> Result<Status, FmuError> {
         self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe {
-            (self.fmu.functions.setup_experiment)(
-                self.c,
-                tolerance.is_some() as fmi2Boolean,
-                tolerance.unwrap_or(0.0),
-                start_time,
-                stop_time.is_some() as fmi2Boolean,
-                stop_time.unwrap_or(0.0),
-            )
-        };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: valid component.
+                unsafe {
+                    (l.f.setup_experiment)(
+                        l.c,
+                        tolerance.is_some() as fmi2Boolean,
+                        tolerance.unwrap_or(0.0),
+                        start_time,
+                        stop_time.is_some() as fmi2Boolean,
+                        stop_time.unwrap_or(0.0),
+                    )
+                }
+            },
+            (r, ctx) => plain(r, ctx, CALL_SETUP_EXPERIMENT, |e| {
+                e.u8(tolerance.is_some() as u8);
+                e.f64(tolerance.unwrap_or(0.0));
+                e.f64(start_time);
+                e.u8(stop_time.is_some() as u8);
+                e.f64(stop_time.unwrap_or(0.0));
+            })
+        );
         self.check("fmi2SetupExperiment", s)
+    }
+
+    /// A call with the component as its only argument.
+    fn component_only(
+        &mut self,
+        op: u8,
+        function: &'static str,
+        local: impl FnOnce(&Functions) -> fmi2ComponentOnlyTYPE,
+    ) -> Result<Status, FmuError> {
+        self.alive()?;
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: valid component.
+                unsafe { local(&l.f)(l.c) }
+            },
+            (r, ctx) => plain(r, ctx, op, |_| {})
+        );
+        self.check(function, s)
     }
 
     /// `fmi2EnterInitializationMode`.
     pub fn enter_initialization_mode(&mut self) -> Result<Status, FmuError> {
-        self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe { (self.fmu.functions.enter_initialization_mode)(self.c) };
-        let r = self.check("fmi2EnterInitializationMode", s)?;
+        let r = self.component_only(
+            CALL_ENTER_INITIALIZATION,
+            "fmi2EnterInitializationMode",
+            |f| f.enter_initialization_mode,
+        )?;
         self.phase = Phase::Initialization;
         Ok(r)
     }
 
     /// `fmi2ExitInitializationMode`.
     pub fn exit_initialization_mode(&mut self) -> Result<Status, FmuError> {
-        self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe { (self.fmu.functions.exit_initialization_mode)(self.c) };
-        let r = self.check("fmi2ExitInitializationMode", s)?;
+        let r = self.component_only(
+            CALL_EXIT_INITIALIZATION,
+            "fmi2ExitInitializationMode",
+            |f| f.exit_initialization_mode,
+        )?;
         self.phase = Phase::StepComplete;
         Ok(r)
     }
@@ -538,36 +752,43 @@ impl Instance {
     /// [`terminated`](Self::terminated) and [`last_successful_time`](Self::last_successful_time).
     #[inline]
     pub fn do_step(&mut self, current_time: f64, step_size: f64) -> Result<Status, FmuError> {
-        // SAFETY: valid component (a Fatal instance is refused by the caller's phase check in
-        // `alive`, kept out of this hot path: after fmi2Fatal the master stops).
-        let s = unsafe { (self.fmu.functions.do_step)(self.c, current_time, step_size, fmi2True) };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: valid component (a Fatal instance is refused by the caller's phase
+                // check in `alive`, kept out of this hot path: after fmi2Fatal the master stops).
+                unsafe { (l.f.do_step)(l.c, current_time, step_size, fmi2True) }
+            },
+            (r, ctx) => r
+                .call(
+                    ctx,
+                    CALL_DO_STEP,
+                    |e| {
+                        e.f64(current_time);
+                        e.f64(step_size);
+                    },
+                    true,
+                    |_| Ok(()),
+                )
+                .map(|x| x.0)
+        );
         self.check("fmi2DoStep", s)
     }
 
     /// `fmi2CancelStep`.
     pub fn cancel_step(&mut self) -> Result<Status, FmuError> {
-        self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe { (self.fmu.functions.cancel_step)(self.c) };
-        self.check("fmi2CancelStep", s)
+        self.component_only(CALL_CANCEL_STEP, "fmi2CancelStep", |f| f.cancel_step)
     }
 
     /// `fmi2Terminate`.
     pub fn terminate(&mut self) -> Result<Status, FmuError> {
-        self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe { (self.fmu.functions.terminate)(self.c) };
-        let r = self.check("fmi2Terminate", s)?;
+        let r = self.component_only(CALL_TERMINATE, "fmi2Terminate", |f| f.terminate)?;
         self.phase = Phase::Terminated;
         Ok(r)
     }
 
     /// `fmi2Reset`: back to the state after instantiation.
     pub fn reset(&mut self) -> Result<Status, FmuError> {
-        self.alive()?;
-        // SAFETY: valid component.
-        let s = unsafe { (self.fmu.functions.reset)(self.c) };
-        let r = self.check("fmi2Reset", s)?;
+        let r = self.component_only(CALL_RESET, "fmi2Reset", |f| f.reset)?;
         self.phase = Phase::Instantiated;
         self.ctx.clear();
         Ok(r)
@@ -582,10 +803,13 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.get_real)(self.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr())
-        };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.get_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
+            },
+            (r, ctx) => r.get_real(ctx, vrs, values)
+        );
         self.check("fmi2GetReal", s)
     }
 
@@ -598,10 +822,13 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.get_integer)(self.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr())
-        };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.get_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
+            },
+            (r, ctx) => r.get_ints(ctx, CALL_GET_INTEGER, vrs, values)
+        );
         self.check("fmi2GetInteger", s)
     }
 
@@ -618,10 +845,13 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.get_boolean)(self.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr())
-        };
+        let s = dispatch!(self,
+            l => {
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.get_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
+            },
+            (r, ctx) => r.get_ints(ctx, CALL_GET_BOOLEAN, vrs, values)
+        );
         self.check("fmi2GetBoolean", s)
     }
 
@@ -640,20 +870,31 @@ impl Instance {
 
     /// `fmi2GetString`: the strings are copied before the next FMI call.
     pub fn get_string(&mut self, vrs: &[u32]) -> Result<Vec<String>, FmuError> {
-        let mut ptrs: Vec<fmi2String> = vec![std::ptr::null(); vrs.len()];
         if vrs.is_empty() {
             return Ok(Vec::new());
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.get_string)(self.c, vrs.as_ptr(), vrs.len(), ptrs.as_mut_ptr())
-        };
+        let (s, strings) = dispatch!(self,
+            l => {
+                let mut ptrs: Vec<fmi2String> = vec![std::ptr::null(); vrs.len()];
+                // SAFETY: arrays of the given length.
+                let s = unsafe { (l.f.get_string)(l.c, vrs.as_ptr(), vrs.len(), ptrs.as_mut_ptr()) };
+                // SAFETY: after a successful call the FMU returned NUL-terminated strings (or
+                // NULL) valid until the next call.
+                let strings = if s.0 <= 2 {
+                    ptrs.iter().map(|&p| unsafe { cstr_lossy(p) }).collect()
+                } else {
+                    Vec::new()
+                };
+                (s, strings)
+            },
+            (r, ctx) => r.call(ctx, CALL_GET_STRING, |e| e.u32s(vrs), false, |d| d.strings())
+        );
         self.check("fmi2GetString", s)?;
-        // SAFETY: the FMU returned NUL-terminated strings (or NULL) valid until the next call.
-        Ok(ptrs.iter().map(|&p| unsafe { cstr_lossy(p) }).collect())
+        Ok(strings)
     }
 
-    /// `fmi2SetReal`.
+    /// `fmi2SetReal`. For an isolated instance the set is queued and sent with the next call
+    /// that needs an answer (which reports its error, see [`crate::isolate`]).
     #[inline]
     pub fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
@@ -662,14 +903,23 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.set_real)(self.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+        let s = match &mut self.backend {
+            // SAFETY: arrays of the given length.
+            Backend::Local(l) => unsafe {
+                (l.f.set_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+            },
+            Backend::Remote(r) => {
+                r.queue(CALL_SET_REAL, |e| {
+                    e.u32s(vrs);
+                    e.f64s(values);
+                });
+                fmi2StatusCode(0)
+            }
         };
         self.check("fmi2SetReal", s)
     }
 
-    /// `fmi2SetInteger`.
+    /// `fmi2SetInteger` (queued for an isolated instance, as [`set_real`](Self::set_real)).
     #[inline]
     pub fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
@@ -678,14 +928,23 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.set_integer)(self.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+        let s = match &mut self.backend {
+            // SAFETY: arrays of the given length.
+            Backend::Local(l) => unsafe {
+                (l.f.set_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+            },
+            Backend::Remote(r) => {
+                r.queue(CALL_SET_INTEGER, |e| {
+                    e.u32s(vrs);
+                    e.i32s(values);
+                });
+                fmi2StatusCode(0)
+            }
         };
         self.check("fmi2SetInteger", s)
     }
 
-    /// `fmi2SetBoolean` from C ints (0 false, 1 true).
+    /// `fmi2SetBoolean` from C ints (0 false, 1 true; queued for an isolated instance).
     #[inline]
     pub fn set_boolean_raw(
         &mut self,
@@ -698,9 +957,18 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            (self.fmu.functions.set_boolean)(self.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+        let s = match &mut self.backend {
+            // SAFETY: arrays of the given length.
+            Backend::Local(l) => unsafe {
+                (l.f.set_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
+            },
+            Backend::Remote(r) => {
+                r.queue(CALL_SET_BOOLEAN, |e| {
+                    e.u32s(vrs);
+                    e.i32s(values);
+                });
+                fmi2StatusCode(0)
+            }
         };
         self.check("fmi2SetBoolean", s)
     }
@@ -711,7 +979,7 @@ impl Instance {
         self.set_boolean_raw(vrs, &raw)
     }
 
-    /// `fmi2SetString`.
+    /// `fmi2SetString` (queued for an isolated instance).
     pub fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
             return Err(mismatch("fmi2SetString", vrs.len(), values.len()));
@@ -724,9 +992,21 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        // SAFETY: arrays of the given length of valid strings.
-        let s = unsafe {
-            (self.fmu.functions.set_string)(self.c, vrs.as_ptr(), vrs.len(), ptrs.as_ptr())
+        let s = match &mut self.backend {
+            // SAFETY: arrays of the given length of valid strings.
+            Backend::Local(l) => unsafe {
+                (l.f.set_string)(l.c, vrs.as_ptr(), vrs.len(), ptrs.as_ptr())
+            },
+            Backend::Remote(r) => {
+                r.queue(CALL_SET_STRING, |e| {
+                    e.u32s(vrs);
+                    e.u32(values.len() as u32);
+                    for v in values {
+                        e.str(v);
+                    }
+                });
+                fmi2StatusCode(0)
+            }
         };
         self.check("fmi2SetString", s)
     }
@@ -738,29 +1018,31 @@ impl Instance {
         orders: &[i32],
         values: &mut [f64],
     ) -> Result<Status, FmuError> {
-        let f = self
-            .fmu
-            .functions
-            .get_real_output_derivatives
-            .ok_or(FmuError::Unsupported("fmi2GetRealOutputDerivatives"))?;
+        const NAME: &str = "fmi2GetRealOutputDerivatives";
+        self.has(NAME)?;
         if vrs.len() != values.len() || vrs.len() != orders.len() {
-            return Err(mismatch(
-                "fmi2GetRealOutputDerivatives",
-                vrs.len(),
-                values.len().min(orders.len()),
-            ));
+            return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            f(
-                self.c,
-                vrs.as_ptr(),
-                vrs.len(),
-                orders.as_ptr(),
-                values.as_mut_ptr(),
-            )
-        };
-        self.check("fmi2GetRealOutputDerivatives", s)
+        let s = dispatch!(self,
+            l => {
+                let f = l.f.get_real_output_derivatives.ok_or(FmuError::Unsupported(NAME))?;
+                // SAFETY: arrays of the given length.
+                unsafe { f(l.c, vrs.as_ptr(), vrs.len(), orders.as_ptr(), values.as_mut_ptr()) }
+            },
+            (r, ctx) => r
+                .call(
+                    ctx,
+                    CALL_GET_OUTPUT_DERIVATIVES,
+                    |e| {
+                        e.u32s(vrs);
+                        e.i32s(orders);
+                    },
+                    false,
+                    |d| d.f64s_into(values),
+                )
+                .map(|x| x.0)
+        );
+        self.check(NAME, s)
     }
 
     /// `fmi2SetRealInputDerivatives`.
@@ -770,139 +1052,187 @@ impl Instance {
         orders: &[i32],
         values: &[f64],
     ) -> Result<Status, FmuError> {
-        let f = self
-            .fmu
-            .functions
-            .set_real_input_derivatives
-            .ok_or(FmuError::Unsupported("fmi2SetRealInputDerivatives"))?;
+        const NAME: &str = "fmi2SetRealInputDerivatives";
+        self.has(NAME)?;
         if vrs.len() != values.len() || vrs.len() != orders.len() {
-            return Err(mismatch(
-                "fmi2SetRealInputDerivatives",
-                vrs.len(),
-                values.len().min(orders.len()),
-            ));
+            return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
         }
-        // SAFETY: arrays of the given length.
-        let s = unsafe {
-            f(
-                self.c,
-                vrs.as_ptr(),
-                vrs.len(),
-                orders.as_ptr(),
-                values.as_ptr(),
-            )
-        };
-        self.check("fmi2SetRealInputDerivatives", s)
+        let s = dispatch!(self,
+            l => {
+                let f = l.f.set_real_input_derivatives.ok_or(FmuError::Unsupported(NAME))?;
+                // SAFETY: arrays of the given length.
+                unsafe { f(l.c, vrs.as_ptr(), vrs.len(), orders.as_ptr(), values.as_ptr()) }
+            },
+            (r, ctx) => plain(r, ctx, CALL_SET_INPUT_DERIVATIVES, |e| {
+                e.u32s(vrs);
+                e.i32s(orders);
+                e.f64s(values);
+            })
+        );
+        self.check(NAME, s)
+    }
+
+    /// `fmi2GetFMUstate` into `ptr` (NULL: a new state).
+    fn get_state_into(&mut self, ptr: &mut fmi2FMUstate) -> Result<Status, FmuError> {
+        const NAME: &str = "fmi2GetFMUstate";
+        self.alive()?;
+        self.has(NAME)?;
+        let s = dispatch!(self,
+            l => {
+                let f = l.f.get_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
+                // SAFETY: valid component; the state is NULL or one made by this instance.
+                unsafe { f(l.c, ptr) }
+            },
+            (r, ctx) => r
+                .call(ctx, CALL_GET_FMU_STATE, |e| e.u64(*ptr as usize as u64), false, |d| d.u64())
+                .map(|(s, p)| {
+                    *ptr = p as usize as fmi2FMUstate;
+                    s
+                })
+        );
+        self.check(NAME, s)
     }
 
     /// `fmi2GetFMUstate`: a new saved state.
     pub fn get_fmu_state(&mut self) -> Result<FmuState, FmuError> {
-        self.alive()?;
-        let f = self
-            .fmu
-            .functions
-            .get_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2GetFMUstate"))?;
         let mut ptr: fmi2FMUstate = std::ptr::null_mut();
-        // SAFETY: valid component, out pointer initialized to NULL (asks for a new state).
-        let s = unsafe { f(self.c, &mut ptr) };
-        self.check("fmi2GetFMUstate", s)?;
+        self.get_state_into(&mut ptr)?;
         Ok(FmuState { ptr })
     }
 
     /// `fmi2GetFMUstate` into an existing state (overwrites it).
     pub fn update_fmu_state(&mut self, state: &mut FmuState) -> Result<Status, FmuError> {
-        self.alive()?;
-        let f = self
-            .fmu
-            .functions
-            .get_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2GetFMUstate"))?;
-        // SAFETY: valid component and a state made by this instance.
-        let s = unsafe { f(self.c, &mut state.ptr) };
-        self.check("fmi2GetFMUstate", s)
+        self.get_state_into(&mut state.ptr)
     }
 
     /// `fmi2SetFMUstate`.
     pub fn set_fmu_state(&mut self, state: &FmuState) -> Result<Status, FmuError> {
+        const NAME: &str = "fmi2SetFMUstate";
         self.alive()?;
-        let f = self
-            .fmu
-            .functions
-            .set_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2SetFMUstate"))?;
-        // SAFETY: valid component and a state made by this instance.
-        let s = unsafe { f(self.c, state.ptr) };
-        self.check("fmi2SetFMUstate", s)
+        self.has(NAME)?;
+        let s = dispatch!(self,
+            l => {
+                let f = l.f.set_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
+                // SAFETY: valid component and a state made by this instance.
+                unsafe { f(l.c, state.ptr) }
+            },
+            (r, ctx) => plain(r, ctx, CALL_SET_FMU_STATE, |e| e.u64(state.ptr as usize as u64))
+        );
+        self.check(NAME, s)
     }
 
     /// `fmi2FreeFMUstate`.
     pub fn free_fmu_state(&mut self, state: FmuState) -> Result<Status, FmuError> {
+        const NAME: &str = "fmi2FreeFMUstate";
         self.alive()?;
-        let f = self
-            .fmu
-            .functions
-            .free_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2FreeFMUstate"))?;
+        self.has(NAME)?;
         let mut ptr = state.ptr;
-        // SAFETY: valid component and a state made by this instance.
-        let s = unsafe { f(self.c, &mut ptr) };
-        self.check("fmi2FreeFMUstate", s)
+        let s = dispatch!(self,
+            l => {
+                let f = l.f.free_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
+                // SAFETY: valid component and a state made by this instance.
+                unsafe { f(l.c, &mut ptr) }
+            },
+            (r, ctx) => plain(r, ctx, CALL_FREE_FMU_STATE, |e| e.u64(ptr as usize as u64))
+        );
+        self.check(NAME, s)
     }
 
     /// `fmi2SerializedFMUstateSize` + `fmi2SerializeFMUstate`.
     pub fn serialize_fmu_state(&mut self, state: &FmuState) -> Result<Vec<u8>, FmuError> {
         self.alive()?;
-        let size_f = self
-            .fmu
-            .functions
-            .serialized_fmu_state_size
-            .ok_or(FmuError::Unsupported("fmi2SerializedFMUstateSize"))?;
-        let ser_f = self
-            .fmu
-            .functions
-            .serialize_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2SerializeFMUstate"))?;
-        let mut size = 0usize;
-        // SAFETY: valid component and state.
-        let s = unsafe { size_f(self.c, state.ptr, &mut size) };
-        self.check("fmi2SerializedFMUstateSize", s)?;
-        let mut buf = vec![0u8; size];
-        // SAFETY: buffer of the announced size.
-        let s = unsafe { ser_f(self.c, state.ptr, buf.as_mut_ptr() as *mut fmi2Byte, size) };
-        self.check("fmi2SerializeFMUstate", s)?;
+        self.has("fmi2SerializedFMUstateSize")?;
+        self.has("fmi2SerializeFMUstate")?;
+        let (s, buf, name) = dispatch!(self,
+            l => {
+                let size_f = l
+                    .f
+                    .serialized_fmu_state_size
+                    .ok_or(FmuError::Unsupported("fmi2SerializedFMUstateSize"))?;
+                let ser_f = l
+                    .f
+                    .serialize_fmu_state
+                    .ok_or(FmuError::Unsupported("fmi2SerializeFMUstate"))?;
+                let mut size = 0usize;
+                // SAFETY: valid component and state.
+                let s = unsafe { size_f(l.c, state.ptr, &mut size) };
+                if s.0 > 1 {
+                    (s, Vec::new(), "fmi2SerializedFMUstateSize")
+                } else {
+                    let mut buf = vec![0u8; size];
+                    // SAFETY: buffer of the announced size.
+                    let s = unsafe {
+                        ser_f(l.c, state.ptr, buf.as_mut_ptr() as *mut fmi2Byte, size)
+                    };
+                    (s, buf, "fmi2SerializeFMUstate")
+                }
+            },
+            (r, ctx) => r
+                .call(
+                    ctx,
+                    CALL_SERIALIZE_FMU_STATE,
+                    |e| e.u64(state.ptr as usize as u64),
+                    false,
+                    |d| d.bytes().map(<[u8]>::to_vec),
+                )
+                .map(|(s, b)| (s, b, "fmi2SerializeFMUstate"))
+        );
+        self.check(name, s)?;
         Ok(buf)
     }
 
     /// `fmi2DeSerializeFMUstate`: a new state from bytes made by
     /// [`serialize_fmu_state`](Self::serialize_fmu_state).
     pub fn deserialize_fmu_state(&mut self, bytes: &[u8]) -> Result<FmuState, FmuError> {
+        const NAME: &str = "fmi2DeSerializeFMUstate";
         self.alive()?;
-        let f = self
-            .fmu
-            .functions
-            .deserialize_fmu_state
-            .ok_or(FmuError::Unsupported("fmi2DeSerializeFMUstate"))?;
-        let mut ptr: fmi2FMUstate = std::ptr::null_mut();
-        // SAFETY: buffer of the given length, out pointer NULL (asks for a new state).
-        let s = unsafe {
-            f(
-                self.c,
-                bytes.as_ptr() as *const fmi2Byte,
-                bytes.len(),
-                &mut ptr,
-            )
-        };
-        self.check("fmi2DeSerializeFMUstate", s)?;
+        self.has(NAME)?;
+        let (s, ptr) = dispatch!(self,
+            l => {
+                let f = l.f.deserialize_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
+                let mut ptr: fmi2FMUstate = std::ptr::null_mut();
+                // SAFETY: buffer of the given length, out pointer NULL (asks for a new state).
+                let s = unsafe {
+                    f(l.c, bytes.as_ptr() as *const fmi2Byte, bytes.len(), &mut ptr)
+                };
+                (s, ptr)
+            },
+            (r, ctx) => r
+                .call(ctx, CALL_DESERIALIZE_FMU_STATE, |e| e.bytes(bytes), false, |d| d.u64())
+                .map(|(s, p)| (s, p as usize as fmi2FMUstate))
+        );
+        self.check(NAME, s)?;
         Ok(FmuState { ptr })
+    }
+
+    /// A status query: `op` remotely, `local` in this process; the value decoded by `decode`.
+    fn status_query<T>(
+        &mut self,
+        op: u8,
+        kind: fmi2StatusKind,
+        local: impl FnOnce(&Local) -> (fmi2StatusCode, T),
+        decode: impl FnOnce(&mut Dec<'_>) -> Result<T, ProtocolError>,
+    ) -> Result<(fmi2StatusCode, T), FmuError> {
+        self.alive()?;
+        Ok(dispatch!(self,
+            l => local(l),
+            (r, ctx) => r.call(ctx, op, |e| e.i32(kind as i32), false, decode)
+        ))
     }
 
     /// `fmi2GetStatus(fmi2DoStepStatus)`.
     pub fn get_status(&mut self, kind: fmi2StatusKind) -> Result<fmi2Status, FmuError> {
-        self.alive()?;
-        let mut v = fmi2StatusCode(0);
-        // SAFETY: valid component and out pointer (a C int).
-        let s = unsafe { (self.fmu.functions.get_status)(self.c, kind, &mut v) };
+        let (s, v) = self.status_query(
+            CALL_GET_STATUS,
+            kind,
+            |l| {
+                let mut v = fmi2StatusCode(0);
+                // SAFETY: valid component and out pointer (a C int).
+                let s = unsafe { (l.f.get_status)(l.c, kind, &mut v) };
+                (s, v)
+            },
+            |d| d.i32().map(fmi2StatusCode),
+        )?;
         self.check("fmi2GetStatus", s)?;
         v.status().ok_or(FmuError::Call {
             function: "fmi2GetStatus",
@@ -914,10 +1244,17 @@ impl Instance {
 
     /// `fmi2GetRealStatus` (e.g. `fmi2LastSuccessfulTime`).
     pub fn get_real_status(&mut self, kind: fmi2StatusKind) -> Result<f64, FmuError> {
-        self.alive()?;
-        let mut v = 0.0;
-        // SAFETY: valid component and out pointer.
-        let s = unsafe { (self.fmu.functions.get_real_status)(self.c, kind, &mut v) };
+        let (s, v) = self.status_query(
+            CALL_GET_REAL_STATUS,
+            kind,
+            |l| {
+                let mut v = 0.0;
+                // SAFETY: valid component and out pointer.
+                let s = unsafe { (l.f.get_real_status)(l.c, kind, &mut v) };
+                (s, v)
+            },
+            |d| d.f64(),
+        )?;
         match self.check("fmi2GetRealStatus", s)? {
             Status::Discard => Err(FmuError::Unsupported("fmi2GetRealStatus for this kind")),
             _ => Ok(v),
@@ -926,10 +1263,17 @@ impl Instance {
 
     /// `fmi2GetIntegerStatus`.
     pub fn get_integer_status(&mut self, kind: fmi2StatusKind) -> Result<i32, FmuError> {
-        self.alive()?;
-        let mut v = 0;
-        // SAFETY: valid component and out pointer.
-        let s = unsafe { (self.fmu.functions.get_integer_status)(self.c, kind, &mut v) };
+        let (s, v) = self.status_query(
+            CALL_GET_INTEGER_STATUS,
+            kind,
+            |l| {
+                let mut v = 0;
+                // SAFETY: valid component and out pointer.
+                let s = unsafe { (l.f.get_integer_status)(l.c, kind, &mut v) };
+                (s, v)
+            },
+            |d| d.i32(),
+        )?;
         match self.check("fmi2GetIntegerStatus", s)? {
             Status::Discard => Err(FmuError::Unsupported("fmi2GetIntegerStatus for this kind")),
             _ => Ok(v),
@@ -938,10 +1282,17 @@ impl Instance {
 
     /// `fmi2GetBooleanStatus` (e.g. `fmi2Terminated`).
     pub fn get_boolean_status(&mut self, kind: fmi2StatusKind) -> Result<bool, FmuError> {
-        self.alive()?;
-        let mut v = fmi2False;
-        // SAFETY: valid component and out pointer.
-        let s = unsafe { (self.fmu.functions.get_boolean_status)(self.c, kind, &mut v) };
+        let (s, v) = self.status_query(
+            CALL_GET_BOOLEAN_STATUS,
+            kind,
+            |l| {
+                let mut v = fmi2False;
+                // SAFETY: valid component and out pointer.
+                let s = unsafe { (l.f.get_boolean_status)(l.c, kind, &mut v) };
+                (s, v)
+            },
+            |d| d.i32(),
+        )?;
         match self.check("fmi2GetBooleanStatus", s)? {
             Status::Discard => Err(FmuError::Unsupported("fmi2GetBooleanStatus for this kind")),
             _ => Ok(v != 0),
@@ -950,13 +1301,25 @@ impl Instance {
 
     /// `fmi2GetStringStatus`.
     pub fn get_string_status(&mut self, kind: fmi2StatusKind) -> Result<String, FmuError> {
-        self.alive()?;
-        let mut v: fmi2String = std::ptr::null();
-        // SAFETY: valid component and out pointer.
-        let s = unsafe { (self.fmu.functions.get_string_status)(self.c, kind, &mut v) };
+        let (s, v) = self.status_query(
+            CALL_GET_STRING_STATUS,
+            kind,
+            |l| {
+                let mut v: fmi2String = std::ptr::null();
+                // SAFETY: valid component and out pointer.
+                let s = unsafe { (l.f.get_string_status)(l.c, kind, &mut v) };
+                // SAFETY: NUL-terminated or NULL after a successful call.
+                let text = if s.0 <= 2 {
+                    unsafe { cstr_lossy(v) }
+                } else {
+                    String::new()
+                };
+                (s, text)
+            },
+            |d| d.string(),
+        )?;
         self.check("fmi2GetStringStatus", s)?;
-        // SAFETY: NUL-terminated or NULL.
-        Ok(unsafe { cstr_lossy(v) })
+        Ok(v)
     }
 
     /// Whether the FMU asks to end the simulation (`fmi2GetBooleanStatus(fmi2Terminated)`);
@@ -983,17 +1346,25 @@ fn mismatch(function: &'static str, refs: usize, values: usize) -> FmuError {
 
 impl Drop for Instance {
     fn drop(&mut self) {
-        let f = &self.fmu.functions;
-        // SAFETY: the component is valid; the callbacks and context outlive the free call.
-        unsafe {
-            match self.phase {
-                Phase::Fatal => return, // no call allowed: leak
-                Phase::Initialization | Phase::StepComplete => {
-                    let _ = (f.terminate)(self.c);
+        match &mut self.backend {
+            Backend::Local(l) => {
+                let f = &l.f;
+                // SAFETY: the component is valid; the callbacks and context outlive the free
+                // call.
+                unsafe {
+                    match self.phase {
+                        Phase::Fatal => return, // no call allowed: leak
+                        Phase::Initialization | Phase::StepComplete => {
+                            let _ = (f.terminate)(l.c);
+                        }
+                        _ => {}
+                    }
+                    (f.free_instance)(l.c);
                 }
-                _ => {}
             }
-            (f.free_instance)(self.c);
+            // The host terminates (when initialized) and frees its instance when its pipe
+            // closes (dropping the process), and leaves it alone after fmi2Fatal.
+            Backend::Remote(_) => {}
         }
     }
 }

@@ -45,6 +45,7 @@ pub mod control;
 pub mod emulator;
 pub mod experiment;
 pub mod instance;
+pub mod isolate;
 pub mod load;
 pub mod master;
 pub mod metrics;
@@ -57,9 +58,10 @@ pub mod tempdirs;
 pub mod time;
 
 pub use instance::{
-    FmuError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
+    FmuError, HostError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
-pub use load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
+pub use isolate::{HostFailure, HostOptions, Isolation};
+pub use load::{ArchiveBudget, ArchiveLimits, Fmu, LoadError, LoadOptions};
 pub use master::{
     Algorithm, MasterError, Outcome, RunConfig, RunControl, RunOutput, RunSummary, StopReason,
     System, Value,

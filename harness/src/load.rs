@@ -27,10 +27,13 @@ use std::fs;
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 use model_description::ModelDescription;
 
 use crate::fmi2::*;
+use crate::isolate::remote::RemoteFmu;
+use crate::isolate::{HostFailure, HostOptions, Isolation};
 
 /// Bounds on what an archive may contain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,15 +57,58 @@ impl Default for ArchiveLimits {
     }
 }
 
+/// What one run may still extract: the [`ArchiveLimits`] counted across every archive the run
+/// opens (an SSP and the FMUs inside it share one budget, so an archive inside an archive gets
+/// what is left, not a fresh allowance). The per-entry limit applies to each entry.
+#[derive(Debug)]
+pub struct ArchiveBudget {
+    limits: ArchiveLimits,
+    entries: AtomicUsize,
+    bytes: AtomicU64,
+}
+
+impl ArchiveBudget {
+    /// A full budget of `limits`.
+    pub fn new(limits: ArchiveLimits) -> Arc<ArchiveBudget> {
+        Arc::new(ArchiveBudget {
+            limits,
+            entries: AtomicUsize::new(0),
+            bytes: AtomicU64::new(0),
+        })
+    }
+    /// The limits.
+    pub fn limits(&self) -> &ArchiveLimits {
+        &self.limits
+    }
+    /// Entries extracted so far.
+    pub fn used_entries(&self) -> usize {
+        self.entries.load(Ordering::Relaxed)
+    }
+    /// Decompressed bytes written so far.
+    pub fn used_bytes(&self) -> u64 {
+        self.bytes.load(Ordering::Relaxed)
+    }
+}
+
 /// Options of [`Fmu::load`].
 #[derive(Debug, Clone, Default)]
 pub struct LoadOptions {
     /// Bounds on the archive.
     pub limits: ArchiveLimits,
+    /// The budget of the run this load belongs to (see [`ArchiveBudget`]); `None`: a fresh one
+    /// of [`limits`](Self::limits) for this archive alone. [`crate::ssp::load_system`] sets one
+    /// for the SSP and its FMUs.
+    pub budget: Option<Arc<ArchiveBudget>>,
     /// Shared libraries opened with `RTLD_NOW | RTLD_GLOBAL` before the FMU's binary, so that
     /// their symbols resolve the binary's undefined ones (for example the `libpython3.x.so` a
-    /// PythonFMU export expects from its host). They stay loaded while the FMU is.
+    /// PythonFMU export expects from its host). They stay loaded while the FMU is. With
+    /// isolation, the host process loads them.
     pub preload: Vec<PathBuf>,
+    /// Where the binary runs: in this process (the default) or in host processes
+    /// ([`crate::isolate`]).
+    pub isolation: Isolation,
+    /// How host processes are found, started and watched (with isolation).
+    pub host: HostOptions,
 }
 
 /// Why an FMU could not be loaded.
@@ -110,9 +156,10 @@ pub enum LoadError {
         /// The limit in bytes.
         limit: u64,
     },
-    /// The entries together decompress to more than the total limit.
+    /// The entries together (of every archive of the run) decompress to more than the total
+    /// limit.
     #[error(
-        "refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total"
+        "refusing archive: entries up to '{entry}' decompress to more than {limit} bytes in total (counting every archive of this run, nested ones included)"
     )]
     TotalTooLarge {
         /// The entry at which the limit was passed.
@@ -120,8 +167,10 @@ pub enum LoadError {
         /// The limit in bytes.
         limit: u64,
     },
-    /// Too many entries.
-    #[error("refusing archive: {count} entries (limit {limit})")]
+    /// Too many entries (in every archive of the run together).
+    #[error(
+        "refusing archive: {count} entries (limit {limit}, counting every archive of this run, nested ones included)"
+    )]
     TooManyEntries {
         /// Number of entries in the archive.
         count: usize,
@@ -170,6 +219,31 @@ pub enum LoadError {
     /// `fmi2GetVersion` does not return "2.0".
     #[error("the FMU binary reports FMI version '{0}', expected '2.0'")]
     WrongVersion(String),
+    /// The host process that loads an isolated FMU's binary failed.
+    #[error("loading '{}' in a host process: {failure}", binary.display())]
+    Host {
+        /// The binary.
+        binary: PathBuf,
+        /// How the host failed.
+        failure: HostFailure,
+    },
+    /// The host process could not load an isolated FMU's binary.
+    #[error("the host process cannot load '{}': {message}", binary.display())]
+    HostLoad {
+        /// The binary.
+        binary: PathBuf,
+        /// The host's error.
+        message: String,
+    },
+    /// Isolation was asked for and no host executable was found.
+    #[error(
+        "FMU isolation needs the host executable 'kneebench-fmu-host' (built with kneebench; \
+         set KNEEBENCH_FMU_HOST or LoadOptions::host.helper); tried: {tried}"
+    )]
+    HelperNotFound {
+        /// The paths tried.
+        tried: String,
+    },
 }
 
 /// `libloading::Error` displays as "dlopen failed" and keeps `dlerror()`'s text (the missing
@@ -240,6 +314,19 @@ pub fn extract_archive(
     dest: &Path,
     limits: &ArchiveLimits,
 ) -> Result<Vec<PathBuf>, LoadError> {
+    extract_archive_within(archive, dest, &ArchiveBudget::new(*limits))
+}
+
+/// Extracts `archive` into `dest` (an existing, empty, private directory), counting its entries
+/// and bytes against `budget` (which other archives of the same run share).
+///
+/// Returns the relative paths of the extracted files.
+pub fn extract_archive_within(
+    archive: &Path,
+    dest: &Path,
+    budget: &ArchiveBudget,
+) -> Result<Vec<PathBuf>, LoadError> {
+    let limits = &budget.limits;
     let file = fs::File::open(archive).map_err(io_err("cannot open", archive))?;
     let zip_err = |entry: Option<String>| {
         move |source| LoadError::Zip {
@@ -249,13 +336,13 @@ pub fn extract_archive(
         }
     };
     let mut zip = zip::ZipArchive::new(io::BufReader::new(file)).map_err(zip_err(None))?;
-    if zip.len() > limits.max_entries {
+    let before = budget.entries.fetch_add(zip.len(), Ordering::Relaxed);
+    if before + zip.len() > limits.max_entries {
         return Err(LoadError::TooManyEntries {
-            count: zip.len(),
+            count: before + zip.len(),
             limit: limits.max_entries,
         });
     }
-    let mut total: u64 = 0;
     let mut files = Vec::new();
     for i in 0..zip.len() {
         let mut entry = zip.by_index(i).map_err(zip_err(None))?;
@@ -301,7 +388,7 @@ pub fn extract_archive(
             })?;
         let mut out = io::BufWriter::new(out);
         // Copy at most limit + 1 bytes: more means the entry is too large, whatever it claims.
-        let remaining_total = limits.max_total_bytes.saturating_sub(total);
+        let remaining_total = limits.max_total_bytes.saturating_sub(budget.used_bytes());
         let cap = limits.max_entry_bytes.min(remaining_total);
         let copied = copy_bounded(&mut entry, &mut out, cap + 1).map_err(|e| {
             if e.kind() == io::ErrorKind::InvalidData || e.kind() == io::ErrorKind::UnexpectedEof {
@@ -334,7 +421,7 @@ pub fn extract_archive(
             });
         }
         out.flush().map_err(io_err("cannot write", &target))?;
-        total += copied;
+        budget.bytes.fetch_add(copied, Ordering::Relaxed);
         files.push(rel);
     }
     Ok(files)
@@ -527,20 +614,110 @@ impl Functions {
     }
 }
 
-/// What an instance keeps alive: the binary (and the libraries preloaded for it) and the
-/// extraction directory with its resources.
-pub(crate) struct FmuShared {
+/// A binary loaded into this process: its library (and the libraries preloaded for it) and
+/// its resolved functions.
+pub(crate) struct LocalBinary {
     pub(crate) functions: Functions,
+    pub(crate) version: String,
+    pub(crate) types_platform: String,
+    pub(crate) missing_optional: Vec<&'static str>,
+    // Drop order: the binary first, then the preloaded libraries.
+    _library: libloading::Library,
+    _preloaded: Vec<libloading::os::unix::Library>,
+}
+
+impl LocalBinary {
+    /// Preloads `preload` globally, loads `binary` with `RTLD_NOW | RTLD_LOCAL` and resolves
+    /// the FMI functions (the version is not checked here).
+    pub(crate) fn open(binary: &Path, preload: &[PathBuf]) -> Result<LocalBinary, LoadError> {
+        let mut preloaded = Vec::new();
+        for lib in preload {
+            // SAFETY: loading a library runs its initializers; the user asked for it.
+            let handle = unsafe {
+                libloading::os::unix::Library::open(
+                    Some(lib),
+                    libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_GLOBAL,
+                )
+            }
+            .map_err(|source| LoadError::Library {
+                path: lib.clone(),
+                source,
+                hint: "",
+            })?;
+            preloaded.push(handle);
+        }
+        // SAFETY: loading the FMU's binary runs its initializers; this is what importing an FMU
+        // means. RTLD_LOCAL keeps its symbols from clashing with other FMUs.
+        let library: libloading::Library = unsafe {
+            libloading::os::unix::Library::open(
+                Some(binary),
+                libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_LOCAL,
+            )
+        }
+        .map_err(|source| LoadError::Library {
+            path: binary.to_path_buf(),
+            source,
+            hint: " (if the binary expects symbols from a host runtime such as libpython, preload \
+                   that library: LoadOptions::preload / --preload)",
+        })?
+        .into();
+        let functions = Functions::resolve(&library)?;
+        // SAFETY: fmi2GetVersion and fmi2GetTypesPlatform take no arguments and return static
+        // strings.
+        let (version, types_platform) = unsafe {
+            (
+                cstr_lossy((functions.get_version)()),
+                cstr_lossy((functions.get_types_platform)()),
+            )
+        };
+        let missing_optional = OPTIONAL_FUNCTIONS
+            .iter()
+            .copied()
+            .filter(|name| {
+                let cname = format!("{name}\0");
+                // SAFETY: only checks that the symbol exists.
+                unsafe { library.get::<*const c_void>(cname.as_bytes()) }.is_err()
+            })
+            .collect();
+        Ok(LocalBinary {
+            functions,
+            version,
+            types_platform,
+            missing_optional,
+            _library: library,
+            _preloaded: preloaded,
+        })
+    }
+}
+
+/// Where an FMU's binary runs.
+pub(crate) enum Exec {
+    /// Loaded into this process.
+    Local(LocalBinary),
+    /// Loaded by host processes, one per instance.
+    Remote(RemoteFmu),
+}
+
+/// What an instance keeps alive: the binary (or its host's description) and the extraction
+/// directory with its resources.
+pub(crate) struct FmuShared {
     pub(crate) md: ModelDescription,
     pub(crate) resource_uri: CString,
     pub(crate) guid: CString,
     pub(crate) source: PathBuf,
     pub(crate) binary: PathBuf,
-    pub(crate) missing_optional: Vec<&'static str>,
-    // Drop order: the binary first, then the preloaded libraries, then the directory.
-    _library: libloading::Library,
-    _preloaded: Vec<libloading::os::unix::Library>,
+    // Drop order: the binary first, then the directory.
+    pub(crate) exec: Exec,
     dir: tempfile::TempDir,
+}
+
+impl FmuShared {
+    pub(crate) fn missing_optional(&self) -> &[&'static str] {
+        match &self.exec {
+            Exec::Local(b) => &b.missing_optional,
+            Exec::Remote(r) => &r.probe.missing_optional,
+        }
+    }
 }
 
 /// A loaded FMU: extracted archive, parsed model description and resolved functions.
@@ -568,6 +745,14 @@ pub fn extract_and_parse(
     path: &Path,
     limits: &ArchiveLimits,
 ) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
+    extract_and_parse_within(path, &ArchiveBudget::new(*limits))
+}
+
+/// [`extract_and_parse`] counting against a run's `budget`.
+pub fn extract_and_parse_within(
+    path: &Path,
+    budget: &ArchiveBudget,
+) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
     let dir = crate::tempdirs::create("fmu")
         .map_err(io_err("cannot create a temporary directory for", path))?;
     {
@@ -575,8 +760,18 @@ pub fn extract_and_parse(
         fs::set_permissions(dir.path(), fs::Permissions::from_mode(0o700))
             .map_err(io_err("cannot restrict permissions of", dir.path()))?;
     }
-    extract_archive(path, dir.path(), limits)?;
+    extract_archive_within(path, dir.path(), budget)?;
     let md_path = dir.path().join("modelDescription.xml");
+    // Refused unread past the reader's bound (the archive may hold up to the entry limit).
+    if let Ok(meta) = fs::metadata(&md_path) {
+        let limit = model_description::read::MAX_DOCUMENT_BYTES;
+        if meta.len() > limit as u64 {
+            return Err(LoadError::ModelDescription(format!(
+                "the document is {} bytes long (limit {limit})",
+                meta.len()
+            )));
+        }
+    }
     let bytes = match fs::read(&md_path) {
         Ok(b) => b,
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
@@ -597,80 +792,64 @@ pub fn parse_model_description(bytes: &[u8]) -> Result<ModelDescription, LoadErr
 }
 
 impl Fmu {
-    /// Extracts, parses and loads the FMU at `path`.
+    /// Extracts, parses and loads the FMU at `path`: into this process, or (with
+    /// [`LoadOptions::isolation`]) into a host process that reports the binary's functions and
+    /// version and then serves the first instance.
     pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Fmu, LoadError> {
         let path = path.as_ref();
-        let mut preloaded = Vec::new();
-        for lib in &options.preload {
-            // SAFETY: loading a library runs its initializers; the user asked for it.
-            let handle = unsafe {
-                libloading::os::unix::Library::open(
-                    Some(lib),
-                    libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_GLOBAL,
-                )
-            }
-            .map_err(|source| LoadError::Library {
-                path: lib.clone(),
-                source,
-                hint: "",
-            })?;
-            preloaded.push(handle);
-        }
-        let (dir, md) = extract_and_parse(path, &options.limits)?;
+        let (dir, md) = match &options.budget {
+            Some(b) => extract_and_parse_within(path, b)?,
+            None => extract_and_parse(path, &options.limits)?,
+        };
         let cs = md.co_simulation.as_ref().ok_or(LoadError::NoCoSimulation)?;
         let rel = format!("binaries/linux64/{}.so", cs.model_identifier);
         let binary = dir.path().join(&rel);
         if sanitize_entry_name(&rel).is_err() || !binary.is_file() {
             return Err(LoadError::MissingBinary { expected: rel });
         }
-        // SAFETY: loading the FMU's binary runs its initializers; this is what importing an FMU
-        // means. RTLD_LOCAL keeps its symbols from clashing with other FMUs.
-        let library: libloading::Library = unsafe {
-            libloading::os::unix::Library::open(
-                Some(&binary),
-                libloading::os::unix::RTLD_NOW | libloading::os::unix::RTLD_LOCAL,
-            )
-        }
-        .map_err(|source| LoadError::Library {
-            path: binary.clone(),
-            source,
-            hint: " (if the binary expects symbols from a host runtime such as libpython, preload \
-                   that library: LoadOptions::preload / --preload)",
-        })?
-        .into();
-        let functions = Functions::resolve(&library)?;
-        // SAFETY: fmi2GetVersion takes no arguments and returns a static string.
-        let version = unsafe { cstr_lossy((functions.get_version)()) };
-        if version != "2.0" {
-            return Err(LoadError::WrongVersion(version));
-        }
-        let missing_optional = OPTIONAL_FUNCTIONS
-            .iter()
-            .copied()
-            .filter(|name| {
-                let cname = format!("{name}\0");
-                // SAFETY: only checks that the symbol exists.
-                unsafe { library.get::<*const c_void>(cname.as_bytes()) }.is_err()
+        let exec = if options.isolation.isolates(md.generation_tool.as_deref()) {
+            let helper = crate::isolate::find_helper(options.host.helper.as_deref())?;
+            let timeout = options.host.call_timeout;
+            let (process, probe) =
+                crate::isolate::remote::load(&helper, timeout, &binary, &options.preload)?;
+            if probe.version != "2.0" {
+                return Err(LoadError::WrongVersion(probe.version));
+            }
+            Exec::Remote(RemoteFmu {
+                helper,
+                timeout,
+                binary: binary.clone(),
+                preload: options.preload.clone(),
+                probe,
+                spare: std::sync::Mutex::new(Some(process)),
             })
-            .collect();
+        } else {
+            let local = LocalBinary::open(&binary, &options.preload)?;
+            if local.version != "2.0" {
+                return Err(LoadError::WrongVersion(local.version));
+            }
+            Exec::Local(local)
+        };
         let resource_uri =
             CString::new(file_uri(&dir.path().join("resources"))).expect("a path has no NUL byte");
         let guid = CString::new(md.guid.clone())
             .map_err(|_| LoadError::ModelDescription("the guid contains a NUL byte".into()))?;
         Ok(Fmu {
             shared: Arc::new(FmuShared {
-                functions,
                 md,
                 resource_uri,
                 guid,
                 source: path.to_path_buf(),
                 binary,
-                missing_optional,
-                _library: library,
-                _preloaded: preloaded,
+                exec,
                 dir,
             }),
         })
+    }
+
+    /// Whether the binary runs in host processes ([`crate::isolate`]).
+    pub fn is_isolated(&self) -> bool {
+        matches!(self.shared.exec, Exec::Remote(_))
     }
 
     /// The parsed model description.
@@ -702,20 +881,25 @@ impl Fmu {
         &self.shared.source
     }
 
-    /// The resolved functions.
-    pub fn functions(&self) -> &Functions {
-        &self.shared.functions
+    /// The resolved functions (`None` when the binary runs in host processes).
+    pub fn functions(&self) -> Option<&Functions> {
+        match &self.shared.exec {
+            Exec::Local(b) => Some(&b.functions),
+            Exec::Remote(_) => None,
+        }
     }
 
     /// Optional FMI functions the binary does not export.
     pub fn missing_optional_functions(&self) -> &[&'static str] {
-        &self.shared.missing_optional
+        self.shared.missing_optional()
     }
 
     /// What `fmi2GetTypesPlatform` returns (should be `"default"`).
     pub fn types_platform(&self) -> String {
-        // SAFETY: no arguments, returns a static string.
-        unsafe { cstr_lossy((self.shared.functions.get_types_platform)()) }
+        match &self.shared.exec {
+            Exec::Local(b) => b.types_platform.clone(),
+            Exec::Remote(r) => r.probe.types_platform.clone(),
+        }
     }
 
     /// Looks up a variable by name.

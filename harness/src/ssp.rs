@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 
 use quick_xml::events::{BytesStart, Event};
 
-use crate::load::{ArchiveLimits, Fmu, LoadError, LoadOptions};
+use crate::load::{ArchiveBudget, ArchiveLimits, Fmu, LoadError, LoadOptions};
 use crate::master::{Algorithm, MasterError, RunConfig, System, Value, VarType};
 
 /// SSD namespace.
@@ -918,6 +918,14 @@ pub fn read_file(
     path: &Path,
     limits: &ArchiveLimits,
 ) -> Result<(Ssd, PathBuf, Option<tempfile::TempDir>), SspError> {
+    read_file_within(path, &ArchiveBudget::new(*limits))
+}
+
+/// [`read_file`] counting the archive against a run's `budget`.
+pub fn read_file_within(
+    path: &Path,
+    budget: &ArchiveBudget,
+) -> Result<(Ssd, PathBuf, Option<tempfile::TempDir>), SspError> {
     let is_ssd = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("ssd"));
@@ -931,7 +939,7 @@ pub fn read_file(
             path: path.to_path_buf(),
             source,
         })?;
-        crate::load::extract_archive(path, dir.path(), limits).map_err(|source| {
+        crate::load::extract_archive_within(path, dir.path(), budget).map_err(|source| {
             SspError::Load {
                 context: format!("extracting {}", path.display()),
                 source,
@@ -954,8 +962,19 @@ pub fn read_file(
 
 /// Reads an SSP (`.ssp` or `.ssd`) and builds the [`System`]: loads each distinct FMU once,
 /// adds the components, connections (component to component only) and parameter values.
+///
+/// The SSP archive and the FMUs in it share one [`ArchiveBudget`] (the one in `options`, or a
+/// fresh one of `options.limits`).
 pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, SspError> {
-    let (ssd, base, dir) = read_file(path, &options.limits)?;
+    let budget = options
+        .budget
+        .clone()
+        .unwrap_or_else(|| ArchiveBudget::new(options.limits));
+    let options = &LoadOptions {
+        budget: Some(budget.clone()),
+        ..options.clone()
+    };
+    let (ssd, base, dir) = read_file_within(path, &budget)?;
     let file = path.display().to_string();
     let mut system = System::new();
     let mut fmus: HashMap<String, Fmu> = HashMap::new();

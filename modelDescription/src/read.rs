@@ -13,6 +13,13 @@
 //!   schema allows none, a repeated singleton element, a `ScalarVariable` or `SimpleType`
 //!   without (or with two) type elements, a missing `ModelVariables` or `ModelStructure`.
 //!
+//! Sizes are bounded before anything is copied, so that a hostile document cannot make the
+//! reader (or a tool printing what it read) hold huge strings: the document
+//! ([`MAX_DOCUMENT_BYTES`]), element and attribute names ([`MAX_NAME_BYTES`]), the number of
+//! attributes of an element ([`MAX_ATTRIBUTES`]), an attribute value ([`MAX_ATTRIBUTE_BYTES`])
+//! and the verbatim inner XML of a `Tool` annotation ([`MAX_ANNOTATION_BYTES`]). Past a bound
+//! the document is refused with [`ParseError::TooLarge`].
+//!
 //! Values are taken as the XML attribute-value normalization gives them (entities and character
 //! references resolved, literal tabs and newlines turned into spaces). Numbers, booleans and
 //! enumeration values may carry surrounding whitespace (the XSD types collapse it); strings are
@@ -24,6 +31,18 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::name::QName;
 
 use crate::types::*;
+
+/// The largest document read, in bytes (512 MiB).
+pub const MAX_DOCUMENT_BYTES: usize = 512 << 20;
+/// The longest element or attribute name, in bytes.
+pub const MAX_NAME_BYTES: usize = 4 << 10;
+/// The most attributes one element may have.
+pub const MAX_ATTRIBUTES: usize = 1024;
+/// The longest attribute value, in bytes before normalization (4 MiB: room for the
+/// `dependencies` list of a model with a few hundred thousand variables).
+pub const MAX_ATTRIBUTE_BYTES: usize = 4 << 20;
+/// The longest verbatim inner XML of a `Tool` annotation, in bytes (16 MiB).
+pub const MAX_ANNOTATION_BYTES: usize = 16 << 20;
 
 /// Why a document could not be read. Lines are 1-based and count from the start of the
 /// document.
@@ -94,6 +113,19 @@ pub enum ParseError {
         /// Its line.
         line: usize,
     },
+    /// Something is larger than the reader's bound for it (see the module documentation).
+    #[error("line {line}: {what} is {size} bytes long (limit {limit})")]
+    TooLarge {
+        /// What is too large (for example `"the value of attribute description of
+        /// <fmiModelDescription>"`).
+        what: String,
+        /// Its size (bytes, or a count for the number of attributes).
+        size: usize,
+        /// The bound.
+        limit: usize,
+        /// The line where it starts.
+        line: usize,
+    },
     /// A structural rule of the schema is broken (no type element in a variable, two type
     /// elements, a missing `ModelVariables`...).
     #[error("line {line}: {message}")]
@@ -115,6 +147,7 @@ impl ParseError {
             | ParseError::MissingAttribute { line, .. }
             | ParseError::InvalidValue { line, .. }
             | ParseError::UnexpectedElement { line, .. }
+            | ParseError::TooLarge { line, .. }
             | ParseError::Structure { line, .. } => Some(*line),
             ParseError::UnsupportedVersion(_) => None,
         }
@@ -125,6 +158,14 @@ impl ModelDescription {
     /// Reads a model description from XML text. A leading byte order mark is skipped.
     pub fn from_xml(xml: &str) -> Result<ModelDescription, ParseError> {
         let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
+        if xml.len() > MAX_DOCUMENT_BYTES {
+            return Err(ParseError::TooLarge {
+                what: "the document".into(),
+                size: xml.len(),
+                limit: MAX_DOCUMENT_BYTES,
+                line: 1,
+            });
+        }
         Parser::new(xml).document()
     }
 
@@ -229,13 +270,50 @@ impl<'a> Parser<'a> {
 
     fn elem(&mut self, e: &BytesStart<'_>, pos: usize, empty: bool) -> Result<Elem, ParseError> {
         let line = self.line_at(pos);
-        let name = e.name().as_ref().to_owned();
+        let raw_name = e.name();
+        let too_large = |what: String, size: usize, limit: usize| ParseError::TooLarge {
+            what,
+            size,
+            limit,
+            line,
+        };
+        if raw_name.as_ref().len() > MAX_NAME_BYTES {
+            return Err(too_large(
+                "an element name".into(),
+                raw_name.as_ref().len(),
+                MAX_NAME_BYTES,
+            ));
+        }
+        let name = raw_name.as_ref().to_owned();
         let mut attrs = Vec::new();
         for attr in e.attributes() {
             let attr = match attr {
                 Ok(a) => a,
                 Err(err) => return Err(self.xml_error(format!("in <{name}>: {err}"), pos)),
             };
+            if attrs.len() == MAX_ATTRIBUTES {
+                return Err(ParseError::TooLarge {
+                    what: format!("the attribute list of <{name}> (count)"),
+                    size: e.attributes().count(),
+                    limit: MAX_ATTRIBUTES,
+                    line,
+                });
+            }
+            let key = attr.key.as_ref();
+            if key.len() > MAX_NAME_BYTES {
+                return Err(too_large(
+                    format!("an attribute name in <{name}>"),
+                    key.len(),
+                    MAX_NAME_BYTES,
+                ));
+            }
+            if attr.value.len() > MAX_ATTRIBUTE_BYTES {
+                return Err(too_large(
+                    format!("the value of attribute {key} of <{name}>"),
+                    attr.value.len(),
+                    MAX_ATTRIBUTE_BYTES,
+                ));
+            }
             let value = match attr.normalized_value(XmlVersion::Implicit1_0) {
                 Ok(v) => v.into_owned(),
                 Err(err) => return Err(self.xml_error(format!("in <{name}>: {err}"), pos)),
@@ -296,6 +374,14 @@ impl<'a> Parser<'a> {
             }
         };
         let (start, end) = (to_usize(span.start), to_usize(span.end));
+        if end.saturating_sub(start) > MAX_ANNOTATION_BYTES {
+            return Err(ParseError::TooLarge {
+                what: format!("the content of <{}>", e.name),
+                size: end - start,
+                limit: MAX_ANNOTATION_BYTES,
+                line: e.line,
+            });
+        }
         match self.src.get(start..end) {
             Some(s) => Ok(s.to_owned()),
             None => Err(self.xml_error(format!("bad content span in <{}>", e.name), start)),

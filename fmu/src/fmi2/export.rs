@@ -69,7 +69,7 @@ fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
 /// The file name, without extension, of the shared library this code was loaded from
 /// (`binaries/<platform>/<modelIdentifier>.so` inside an FMU), once per process.
 fn library_stem() -> Option<&'static str> {
-    static STEM: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    static STEM: crate::release::Once<Option<String>> = crate::release::Once::new();
     STEM.get_or_init(|| {
         let path = loaded_from()?;
         let stem = std::path::Path::new(&path).file_stem()?.to_str()?;
@@ -791,8 +791,7 @@ pub extern "C" fn kneebench_model_file(index: usize, kind: c_int) -> *const c_ch
 
 fn catalog_file(index: usize, kind: c_int) -> *const c_char {
     use std::ffi::CString;
-    use std::sync::OnceLock;
-    static FILES: OnceLock<Vec<[Option<CString>; 4]>> = OnceLock::new();
+    static FILES: crate::release::Once<Vec<[Option<CString>; 4]>> = crate::release::Once::new();
     let files = FILES.get_or_init(|| {
         crate::MODELS
             .iter()

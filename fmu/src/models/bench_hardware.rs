@@ -175,7 +175,7 @@
 //! `fmi2GetFMUstate` works; restoring a state saved after initialization is refused: the
 //! physical bench cannot be rewound.
 
-use std::sync::LazyLock;
+use crate::release::Lazy;
 use std::time::Duration;
 
 use super::bench::{
@@ -262,39 +262,42 @@ impl Backend {
     }
 }
 
-static ENUMERATIONS: LazyLock<Vec<EnumerationType>> = LazyLock::new(|| {
-    let mut v = super::bench_plant::ENUMERATIONS.to_vec();
-    v.push(EnumerationType {
-        name: "Backend",
-        description: "Where the bench's I/O is",
-        items: &[
-            (
-                "Simulated",
-                0,
-                "The plant physics in process, through its raw sensors",
-            ),
-            (
-                "Udp",
-                1,
-                "A real-time I/O server (bench controller or `kneebench emulate`) over UDP",
-            ),
-        ],
-    });
-    v.push(EnumerationType {
-        name: "Pacing",
-        description: "How fmi2DoStep keeps time",
-        items: &[
-            ("None", 0, "As fast as possible (Simulated backend only)"),
-            (
-                "Soft",
-                1,
-                "Real time; overruns are counted and logged as warnings",
-            ),
-            ("Hard", 2, "Real time; an overrun trips the bench"),
-        ],
-    });
-    v
-});
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static ENUMERATIONS: Lazy<Vec<EnumerationType>> = unsafe {
+    Lazy::new(|| {
+        let mut v = super::bench_plant::ENUMERATIONS.to_vec();
+        v.push(EnumerationType {
+            name: "Backend",
+            description: "Where the bench's I/O is",
+            items: &[
+                (
+                    "Simulated",
+                    0,
+                    "The plant physics in process, through its raw sensors",
+                ),
+                (
+                    "Udp",
+                    1,
+                    "A real-time I/O server (bench controller or `kneebench emulate`) over UDP",
+                ),
+            ],
+        });
+        v.push(EnumerationType {
+            name: "Pacing",
+            description: "How fmi2DoStep keeps time",
+            items: &[
+                ("None", 0, "As fast as possible (Simulated backend only)"),
+                (
+                    "Soft",
+                    1,
+                    "Real time; overruns are counted and logged as warnings",
+                ),
+                ("Hard", 2, "Real time; an overrun trips the bench"),
+            ],
+        });
+        v
+    })
+};
 
 /// What exists only between initialization and the end of the instance.
 struct Runtime {
@@ -438,45 +441,47 @@ const SHARED_PARAMETERS: &[&str] = &[
     "motorTorqueLimit",
 ];
 
-static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(|| {
-    type V = Variable<BenchHardwareModel>;
-    let d = BenchParameters::default();
-    let range = |field: &str| {
-        BenchParameters::PARAMETER_LIMITS
-            .iter()
-            .find(|(n, _, _)| *n == field)
-            .map(|&(_, lo, hi)| (lo, hi))
-            .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
-    };
-    macro_rules! window {
-        ($name:literal, $vr:expr, $ch:expr, $end:tt, $desc:literal) => {
-            V::real(
-                $name,
-                $vr,
-                |m| m.plausibility.analog[$ch as usize].$end,
-                |m, v| m.plausibility.analog[$ch as usize].$end = v,
-            )
-            .parameter(Start::Real(Plausibility::DEFAULT.analog[$ch as usize].$end))
-            .unit("V")
-            .range(-10.0, 10.0)
-            .describe($desc)
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
+    Lazy::new(|| {
+        type V = Variable<BenchHardwareModel>;
+        let d = BenchParameters::default();
+        let range = |field: &str| {
+            BenchParameters::PARAMETER_LIMITS
+                .iter()
+                .find(|(n, _, _)| *n == field)
+                .map(|&(_, lo, hi)| (lo, hi))
+                .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
         };
-    }
-    macro_rules! local {
-        (real $name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
-            V::real($name, $vr, |m| m.$field, |m, v| m.$field = v)
-                .discrete()
-                .unit($unit)
+        macro_rules! window {
+            ($name:literal, $vr:expr, $ch:expr, $end:tt, $desc:literal) => {
+                V::real(
+                    $name,
+                    $vr,
+                    |m| m.plausibility.analog[$ch as usize].$end,
+                    |m, v| m.plausibility.analog[$ch as usize].$end = v,
+                )
+                .parameter(Start::Real(Plausibility::DEFAULT.analog[$ch as usize].$end))
+                .unit("V")
+                .range(-10.0, 10.0)
                 .describe($desc)
-        };
-        (int $name:literal, $vr:expr, $field:ident, $desc:literal) => {
-            V::integer($name, $vr, |m| m.$field, |m, v| m.$field = v)
-                .discrete()
-                .describe($desc)
-        };
-    }
-    use AnalogChannel as A;
-    let mut v = vec![
+            };
+        }
+        macro_rules! local {
+            (real $name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
+                V::real($name, $vr, |m| m.$field, |m, v| m.$field = v)
+                    .discrete()
+                    .unit($unit)
+                    .describe($desc)
+            };
+            (int $name:literal, $vr:expr, $field:ident, $desc:literal) => {
+                V::integer($name, $vr, |m| m.$field, |m, v| m.$field = v)
+                    .discrete()
+                    .describe($desc)
+            };
+        }
+        use AnalogChannel as A;
+        let mut v = vec![
         V::enumeration(
             "configuration",
             1,
@@ -631,25 +636,26 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         local!(real "lastReplyTime", 455, last_reply_time, "s", "How long the last step's sample took to arrive after its request"),
         local!(real "maxReplyTime", 456, max_reply_time, "s", "Longest reply time so far"),
     ];
-    // The plant's parameters that the measurements need (calibration, conversions, limits),
-    // from the plant's own list: same name, value reference, unit, range and meaning; fixed
-    // here, as the bench is set up once per run.
-    macro_rules! param {
-        ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {
-            if SHARED_PARAMETERS.contains(&$name) {
-                let (lo, hi) = range(stringify!($field));
-                let var = V::real($name, $vr, |m| m.params.$field, |m, x| m.params.$field = x)
-                    .parameter(Start::Real(d.$field))
-                    .range(lo, hi)
-                    .describe($desc);
-                v.push(with_unit(var, unit_of!($unit)));
-            }
-        };
-    }
-    for_each_bench_parameter!(param);
-    v.extend(io_variables::<BenchHardwareModel>());
-    v
-});
+        // The plant's parameters that the measurements need (calibration, conversions, limits),
+        // from the plant's own list: same name, value reference, unit, range and meaning; fixed
+        // here, as the bench is set up once per run.
+        macro_rules! param {
+            ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {
+                if SHARED_PARAMETERS.contains(&$name) {
+                    let (lo, hi) = range(stringify!($field));
+                    let var = V::real($name, $vr, |m| m.params.$field, |m, x| m.params.$field = x)
+                        .parameter(Start::Real(d.$field))
+                        .range(lo, hi)
+                        .describe($desc);
+                    v.push(with_unit(var, unit_of!($unit)));
+                }
+            };
+        }
+        for_each_bench_parameter!(param);
+        v.extend(io_variables::<BenchHardwareModel>());
+        v
+    })
+};
 
 fn saturate(x: u64) -> i32 {
     i32::try_from(x).unwrap_or(i32::MAX)
@@ -1367,8 +1373,10 @@ impl Model for BenchHardwareModel {
     }
 
     fn documentation() -> &'static str {
-        static HTML: LazyLock<String> =
-            LazyLock::new(|| crate::model::module_doc_html(include_str!("bench_hardware.rs")));
+        // SAFETY: a static (Lazy registers its address for the release at unload).
+        static HTML: Lazy<String> = unsafe {
+            Lazy::new(|| crate::model::module_doc_html(include_str!("bench_hardware.rs")))
+        };
         &HTML
     }
 }

@@ -10,8 +10,8 @@
 //! for the next step do not change them (no direct feedthrough), which is what lets a
 //! controller and the plant run in a Gauss-Seidel loop without an algebraic loop.
 
+use crate::release::Lazy;
 use std::cell::{Cell, RefCell};
-use std::sync::LazyLock;
 
 use super::bench::{
     BenchInputs, BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel,
@@ -887,78 +887,81 @@ macro_rules! unit_of {
 }
 pub(crate) use unit_of;
 
-static VARIABLES: LazyLock<Vec<Variable<BenchPlantModel>>> = LazyLock::new(|| {
-    type V = Variable<BenchPlantModel>;
-    let d = BenchParameters::default();
-    let range = |field: &str| {
-        BenchParameters::PARAMETER_LIMITS
-            .iter()
-            .find(|(n, _, _)| *n == field)
-            .map(|&(_, lo, hi)| (lo, hi))
-            .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
-    };
-    let mut v: Vec<V> = Vec::new();
-    // A tunable parameter of the plant: a change reaches the physics at the next step.
-    macro_rules! param {
-        ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {{
-            let (lo, hi) = range(stringify!($field));
-            let var = V::real(
-                $name,
-                $vr,
-                |m| m.params.$field,
-                |m, x| {
-                    m.params.$field = x;
-                    m.parameters_changed = true;
-                },
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
+    Lazy::new(|| {
+        type V = Variable<BenchPlantModel>;
+        let d = BenchParameters::default();
+        let range = |field: &str| {
+            BenchParameters::PARAMETER_LIMITS
+                .iter()
+                .find(|(n, _, _)| *n == field)
+                .map(|&(_, lo, hi)| (lo, hi))
+                .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
+        };
+        let mut v: Vec<V> = Vec::new();
+        // A tunable parameter of the plant: a change reaches the physics at the next step.
+        macro_rules! param {
+            ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {{
+                let (lo, hi) = range(stringify!($field));
+                let var = V::real(
+                    $name,
+                    $vr,
+                    |m| m.params.$field,
+                    |m, x| {
+                        m.params.$field = x;
+                        m.parameters_changed = true;
+                    },
+                )
+                .tunable(Start::Real(d.$field))
+                .range(lo, hi)
+                .describe($desc);
+                v.push(with_unit(var, unit_of!($unit)));
+            }};
+        }
+        v.extend([
+            V::enumeration(
+                "configuration",
+                1,
+                "Configuration",
+                |m| m.configuration,
+                |m, v| m.configuration = v,
             )
-            .tunable(Start::Real(d.$field))
-            .range(lo, hi)
-            .describe($desc);
-            v.push(with_unit(var, unit_of!($unit)));
-        }};
-    }
-    v.extend([
-        V::enumeration(
-            "configuration",
-            1,
-            "Configuration",
-            |m| m.configuration,
-            |m, v| m.configuration = v,
-        )
-        .parameter(Start::Integer(d.configuration.as_i32()))
-        .describe("Actuator configuration: DA, SEA or CSEA"),
-        V::enumeration(
-            "frictionModel",
-            2,
-            "FrictionModel",
-            |m| m.friction_model,
-            |m, v| m.friction_model = v,
-        )
-        .parameter(Start::Integer(d.friction_model.as_i32()))
-        .describe("Friction law"),
-        V::enumeration(
-            "testDriverMode",
-            3,
-            "DriverMode",
-            |m| m.test_driver_mode,
-            |m, v| m.test_driver_mode = v,
-        )
-        .parameter(Start::Integer(d.test_driver_mode.as_i32()))
-        .describe("Test-motor driver: voltage or current command"),
-        V::enumeration(
-            "loadDriverMode",
-            4,
-            "DriverMode",
-            |m| m.load_driver_mode,
-            |m, v| m.load_driver_mode = v,
-        )
-        .parameter(Start::Integer(d.load_driver_mode.as_i32()))
-        .describe("Load-motor driver: voltage or current command"),
-    ]);
-    for_each_bench_parameter!(param);
-    v.extend(io_variables::<BenchPlantModel>());
-    v
-});
+            .parameter(Start::Integer(d.configuration.as_i32()))
+            .describe("Actuator configuration: DA, SEA or CSEA"),
+            V::enumeration(
+                "frictionModel",
+                2,
+                "FrictionModel",
+                |m| m.friction_model,
+                |m, v| m.friction_model = v,
+            )
+            .parameter(Start::Integer(d.friction_model.as_i32()))
+            .describe("Friction law"),
+            V::enumeration(
+                "testDriverMode",
+                3,
+                "DriverMode",
+                |m| m.test_driver_mode,
+                |m, v| m.test_driver_mode = v,
+            )
+            .parameter(Start::Integer(d.test_driver_mode.as_i32()))
+            .describe("Test-motor driver: voltage or current command"),
+            V::enumeration(
+                "loadDriverMode",
+                4,
+                "DriverMode",
+                |m| m.load_driver_mode,
+                |m, v| m.load_driver_mode = v,
+            )
+            .parameter(Start::Integer(d.load_driver_mode.as_i32()))
+            .describe("Load-motor driver: voltage or current command"),
+        ]);
+        for_each_bench_parameter!(param);
+        v.extend(io_variables::<BenchPlantModel>());
+        v
+    })
+};
 
 impl BenchPlantModel {
     /// The parameters with the enumeration parameters applied.
@@ -1159,8 +1162,9 @@ impl Model for BenchPlantModel {
     }
 
     fn documentation() -> &'static str {
-        static HTML: LazyLock<String> =
-            LazyLock::new(|| crate::model::module_doc_html(include_str!("bench/mod.rs")));
+        // SAFETY: a static (Lazy registers its address for the release at unload).
+        static HTML: Lazy<String> =
+            unsafe { Lazy::new(|| crate::model::module_doc_html(include_str!("bench/mod.rs"))) };
         &HTML
     }
 }

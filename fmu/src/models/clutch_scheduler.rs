@@ -37,7 +37,7 @@
 //! dwell, `timeInState`) are counted in whole samples: a duration is reached at the first
 //! sample at least that long after its start.
 
-use std::sync::LazyLock;
+use crate::release::Lazy;
 
 use super::pid::SampleClock;
 use crate::model::{
@@ -250,10 +250,12 @@ static ENUMERATIONS: &[EnumerationType] = &[EnumerationType {
     ],
 }];
 
-static VARIABLES: LazyLock<Vec<Variable<ClutchScheduler>>> = LazyLock::new(|| {
-    use Start::{Boolean, Integer, Real};
-    type V = Variable<ClutchScheduler>;
-    vec![
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<ClutchScheduler>>> = unsafe {
+    Lazy::new(|| {
+        use Start::{Boolean, Integer, Real};
+        type V = Variable<ClutchScheduler>;
+        vec![
         V::enumeration("mode", vr::MODE, "ClutchMode", |m| m.mode, |m, v| m.mode = v)
             .tunable(Integer(ClutchMode::GaitPhase as i32))
             .describe("How the scheduler decides"),
@@ -315,7 +317,8 @@ static VARIABLES: LazyLock<Vec<Variable<ClutchScheduler>>> = LazyLock::new(|| {
             .unit("s")
             .describe("Time since the last switch of the clutch command (since the start before the first)"),
     ]
-});
+    })
+};
 
 impl ClutchScheduler {
     /// The settings, checked.
@@ -455,8 +458,10 @@ impl Model for ClutchScheduler {
     }
 
     fn documentation() -> &'static str {
-        static HTML: LazyLock<String> =
-            LazyLock::new(|| crate::model::module_doc_html(include_str!("clutch_scheduler.rs")));
+        // SAFETY: a static (Lazy registers its address for the release at unload).
+        static HTML: Lazy<String> = unsafe {
+            Lazy::new(|| crate::model::module_doc_html(include_str!("clutch_scheduler.rs")))
+        };
         &HTML
     }
 }

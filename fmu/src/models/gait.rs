@@ -21,6 +21,7 @@
 //! bench's 20 N m torque interlocks leave once the load side's own dynamics are added, and
 //! at odds with the report that 9 N m was the load the drivers could still brake.
 
+use crate::release::Lazy;
 use std::f64::consts::{PI, TAU};
 
 use crate::model::{EnumerationType, Model, ModelError, Start, StepOutcome, Variable};
@@ -449,8 +450,9 @@ const ALL_PARAMETERS: &[&str] = &[
     "fadeInTime",
 ];
 
-static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync::LazyLock::new(
-    || {
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<GaitReference>>> = unsafe {
+    Lazy::new(|| {
         use Start::{Integer, Real};
         type V = Variable<GaitReference>;
         let deg = PI / 180.0;
@@ -571,8 +573,8 @@ static VARIABLES: std::sync::LazyLock<Vec<Variable<GaitReference>>> = std::sync:
                 .constant(Integer(HARMONICS as i32))
                 .describe("Number of harmonics of the gait Fourier series"),
         ]
-    },
-);
+    })
+};
 
 static ENUMERATIONS: &[EnumerationType] = &[
     EnumerationType {

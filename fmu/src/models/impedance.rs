@@ -49,7 +49,7 @@
 //! sample periods from the grid or stay inside one period, else `fmi2Error`; at a sample
 //! instant the outputs are computed from the inputs just set; between instants they are held.
 
-use std::sync::LazyLock;
+use crate::release::Lazy;
 
 use super::pid::{
     ANTI_WINDUP_ITEMS, AUXILIARIES, AntiWindup, HoldAction, PidInputs, PidSettings, PidSignals,
@@ -284,10 +284,12 @@ static ENUMERATIONS: &[EnumerationType] = &[
     },
 ];
 
-static VARIABLES: LazyLock<Vec<Variable<ImpedanceController>>> = LazyLock::new(|| {
-    use Start::{Boolean, Integer, Real};
-    type V = Variable<ImpedanceController>;
-    vec![
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<ImpedanceController>>> = unsafe {
+    Lazy::new(|| {
+        use Start::{Boolean, Integer, Real};
+        type V = Variable<ImpedanceController>;
+        vec![
         V::real("virtualStiffness", vr::VIRTUAL_STIFFNESS, |m| m.virtual_stiffness, |m, v| m.virtual_stiffness = v)
             .tunable(Real(200.0))
             .unit("N.m/rad")
@@ -417,7 +419,8 @@ static VARIABLES: LazyLock<Vec<Variable<ImpedanceController>>> = LazyLock::new(|
             .output(KNOWNS)
             .describe("The current command was clipped at the last sample"),
     ]
-});
+    })
+};
 
 impl ImpedanceController {
     /// The settings, checked.
@@ -575,8 +578,9 @@ impl Model for ImpedanceController {
     }
 
     fn documentation() -> &'static str {
-        static HTML: LazyLock<String> =
-            LazyLock::new(|| crate::model::module_doc_html(include_str!("impedance.rs")));
+        // SAFETY: a static (Lazy registers its address for the release at unload).
+        static HTML: Lazy<String> =
+            unsafe { Lazy::new(|| crate::model::module_doc_html(include_str!("impedance.rs"))) };
         &HTML
     }
 }

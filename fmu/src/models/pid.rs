@@ -116,7 +116,7 @@
 //! deflection per unit of each (shaft torque / k), feed-forward weights = the motor current
 //! per unit of each (damping, inertia and torque over i_HD Km1).
 
-use std::sync::LazyLock;
+use crate::release::Lazy;
 
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -795,44 +795,52 @@ const KNOWNS: &[&str] = &[
     "feedForwardWeight3",
 ];
 
-static PRESET_ITEMS: LazyLock<Vec<(&'static str, i32, &'static str)>> = LazyLock::new(|| {
-    let mut items = vec![(
-        "Custom",
-        0,
-        "Use the kp, ki and kd parameters (the default)",
-    )];
-    items.extend(PRESETS.iter().map(|p| (p.name, p.value, p.description)));
-    items
-});
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static PRESET_ITEMS: Lazy<Vec<(&'static str, i32, &'static str)>> = unsafe {
+    Lazy::new(|| {
+        let mut items = vec![(
+            "Custom",
+            0,
+            "Use the kp, ki and kd parameters (the default)",
+        )];
+        items.extend(PRESETS.iter().map(|p| (p.name, p.value, p.description)));
+        items
+    })
+};
 
-static ENUMERATIONS: LazyLock<Vec<EnumerationType>> = LazyLock::new(|| {
-    vec![
-        EnumerationType {
-            name: "PidPreset",
-            description: "Gain sets the bench used (bench facts, section 6); units: see the documentation",
-            items: PRESET_ITEMS.as_slice(),
-        },
-        EnumerationType {
-            name: "AntiWindup",
-            description: "Anti-windup scheme of the PID's integrator",
-            items: ANTI_WINDUP_ITEMS,
-        },
-        EnumerationType {
-            name: "HoldAction",
-            description: "What the PID's output does while hold is true",
-            items: &[
-                ("HoldLastOutput", 1, "Keep the output of the last sample"),
-                ("ZeroOutput", 2, "Output zero"),
-            ],
-        },
-    ]
-});
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static ENUMERATIONS: Lazy<Vec<EnumerationType>> = unsafe {
+    Lazy::new(|| {
+        vec![
+            EnumerationType {
+                name: "PidPreset",
+                description: "Gain sets the bench used (bench facts, section 6); units: see the documentation",
+                items: PRESET_ITEMS.as_slice(),
+            },
+            EnumerationType {
+                name: "AntiWindup",
+                description: "Anti-windup scheme of the PID's integrator",
+                items: ANTI_WINDUP_ITEMS,
+            },
+            EnumerationType {
+                name: "HoldAction",
+                description: "What the PID's output does while hold is true",
+                items: &[
+                    ("HoldLastOutput", 1, "Keep the output of the last sample"),
+                    ("ZeroOutput", 2, "Output zero"),
+                ],
+            },
+        ]
+    })
+};
 
-static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
-    use Start::{Boolean, Integer, Real};
-    type V = Variable<PidController>;
-    // A parameter of the settings: its setter also drops the cached checked settings.
-    macro_rules! setting {
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static VARIABLES: Lazy<Vec<Variable<PidController>>> = unsafe {
+    Lazy::new(|| {
+        use Start::{Boolean, Integer, Real};
+        type V = Variable<PidController>;
+        // A parameter of the settings: its setter also drops the cached checked settings.
+        macro_rules! setting {
         (enumeration $name:literal, $vr:expr, $type_name:literal, $($field:tt)+) => {
             V::enumeration($name, $vr, $type_name, |m| m.$($field)+, |m, v| {
                 m.$($field)+ = v;
@@ -846,7 +854,7 @@ static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
             })
         };
     }
-    vec![
+        vec![
         setting!(enumeration "preset", vr::PRESET, "PidPreset", preset)
             .tunable(Integer(0))
             .describe("Gain set: Custom uses kp, ki, kd; any other item is a gain set of the bench and ignores them"),
@@ -960,7 +968,8 @@ static VARIABLES: LazyLock<Vec<Variable<PidController>>> = LazyLock::new(|| {
             .output(KNOWNS)
             .describe("The output was clipped at outputMin or outputMax at the last sample"),
     ]
-});
+    })
+};
 
 impl PidController {
     /// [`Self::settings`], computed once per parameter change.
@@ -1117,8 +1126,9 @@ impl Model for PidController {
     }
 
     fn documentation() -> &'static str {
-        static HTML: LazyLock<String> =
-            LazyLock::new(|| crate::model::module_doc_html(include_str!("pid.rs")));
+        // SAFETY: a static (Lazy registers its address for the release at unload).
+        static HTML: Lazy<String> =
+            unsafe { Lazy::new(|| crate::model::module_doc_html(include_str!("pid.rs"))) };
         &HTML
     }
 }

@@ -49,6 +49,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         &LoadOptions {
             limits,
             preload: a.preload.clone(),
+            ..LoadOptions::default()
         },
     ) {
         Ok(f) => f,

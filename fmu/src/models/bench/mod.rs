@@ -207,7 +207,7 @@ mod hd_loss;
 mod mechanics;
 mod outputs;
 mod params;
-mod plant;
+pub(crate) mod plant;
 mod sensors;
 mod state;
 

@@ -31,6 +31,16 @@ static SHARED_DISCRETIZATIONS: std::sync::Mutex<
     Option<std::collections::HashMap<SharedKey, Arc<Discretization>>>,
 > = std::sync::Mutex::new(None);
 
+/// Empties the shared cache (the library is being unloaded: `crate::release`).
+pub(crate) fn release_shared_discretizations() {
+    drop(
+        SHARED_DISCRETIZATIONS
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take(),
+    );
+}
+
 /// The discretisation of `m` (mode `key`) at step `h`, from the shared cache or built now.
 fn shared_discretization(m: &AugMatrix, key: u8, h: f64) -> Arc<Discretization> {
     let mut bits = [0u64; NZ * NZ];
