@@ -215,6 +215,14 @@ pub enum SspError {
         /// What.
         what: String,
     },
+    /// `--replace`: the component does not exist, or the FMU does not fit its interface.
+    #[error("replacing component '{component}': {problem}")]
+    Replacement {
+        /// The component.
+        component: String,
+        /// Why.
+        problem: String,
+    },
     /// The archive could not be extracted, or a component's FMU could not be loaded.
     #[error("{context}: {source}")]
     Load {
@@ -966,6 +974,75 @@ pub fn read_file_within(
 /// The SSP archive and the FMUs in it share one [`ArchiveBudget`] (the one in `options`, or a
 /// fresh one of `options.limits`).
 pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, SspError> {
+    load_system_replacing(path, options, &[])
+}
+
+/// Where an FMU's interface differs from what a component of a system needs: each input and
+/// output connector of `component`, and each parameter it binds a value to, must be a variable
+/// of `md` with the same causality and type (parameters it leaves at their defaults need not
+/// exist: the plant's and the hardware's parameters differ, their signals do not).
+pub fn interface_mismatches(
+    component: &SspComponent,
+    md: &model_description::ModelDescription,
+) -> Vec<String> {
+    use model_description::Causality;
+    let mut problems = Vec::new();
+    let needed = component.connectors.iter().filter(|k| {
+        !matches!(
+            k.kind,
+            ConnectorKind::Parameter | ConnectorKind::CalculatedParameter
+        ) || component.parameters.iter().any(|p| p.name == k.name)
+    });
+    for k in needed {
+        let Some(v) = md.model_variables.iter().find(|v| v.name == k.name) else {
+            problems.push(format!("no variable '{}' ({})", k.name, k.kind.as_str()));
+            continue;
+        };
+        // FMI 2.0: a missing causality is `local`.
+        let causality = v.causality.unwrap_or(Causality::Local);
+        let causality_matches = match k.kind {
+            ConnectorKind::Input => causality == Causality::Input,
+            ConnectorKind::Output => causality == Causality::Output,
+            ConnectorKind::Parameter => causality == Causality::Parameter,
+            ConnectorKind::CalculatedParameter => causality == Causality::CalculatedParameter,
+            ConnectorKind::Inout => true,
+        };
+        if !causality_matches {
+            problems.push(format!(
+                "'{}' is {:?} there, the system needs {}",
+                k.name,
+                causality,
+                k.kind.as_str()
+            ));
+        }
+        if let Some(ty) = &k.ty {
+            let (want, have) = (connector_var_type(ty), VarType::of(v));
+            if want != have {
+                problems.push(format!(
+                    "'{}' is {have:?} there, the system needs {want:?}",
+                    k.name
+                ));
+            }
+        }
+    }
+    for p in &component.parameters {
+        if !md.model_variables.iter().any(|v| v.name == p.name) {
+            problems.push(format!("no variable '{}' for its parameter value", p.name));
+        }
+    }
+    problems.dedup();
+    problems
+}
+
+/// [`load_system`] with some components' FMUs replaced: `(component, FMU file)` (e.g. the plant
+/// by `BenchHardware.fmu`, to run the same schedule on the bench). A replacement must offer
+/// every connector of its component with the same causality and type
+/// ([`interface_mismatches`]); the component keeps its parameter values and connections.
+pub fn load_system_replacing(
+    path: &Path,
+    options: &LoadOptions,
+    replacements: &[(String, PathBuf)],
+) -> Result<LoadedSystem, SspError> {
     let budget = options
         .budget
         .clone()
@@ -978,7 +1055,47 @@ pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, S
     let file = path.display().to_string();
     let mut system = System::new();
     let mut fmus: HashMap<String, Fmu> = HashMap::new();
+    for (name, _) in replacements {
+        if !ssd.system.components.iter().any(|c| &c.name == name) {
+            return Err(SspError::Replacement {
+                component: name.clone(),
+                problem: format!(
+                    "the system has no such component (it has {})",
+                    ssd.system
+                        .components
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
+        }
+    }
     for c in &ssd.system.components {
+        if let Some((_, replacement)) = replacements.iter().find(|(n, _)| *n == c.name) {
+            let fmu = Fmu::load(replacement, options).map_err(|source| SspError::Load {
+                context: format!(
+                    "replacement of component '{}' ({})",
+                    c.name,
+                    replacement.display()
+                ),
+                source,
+            })?;
+            let problems = interface_mismatches(c, fmu.model_description());
+            if !problems.is_empty() {
+                return Err(SspError::Replacement {
+                    component: c.name.clone(),
+                    problem: format!(
+                        "{} does not fit: {}",
+                        replacement.display(),
+                        problems.join("; ")
+                    ),
+                });
+            }
+            system.add_component(&c.name, fmu)?;
+            set_component_values(&mut system, c)?;
+            continue;
+        }
         let fmu = match fmus.get(&c.source) {
             Some(f) => f.clone(),
             None => {
@@ -992,25 +1109,7 @@ pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, S
             }
         };
         system.add_component(&c.name, fmu)?;
-        if let Some(m) = c.step_multiple {
-            system.set_step_multiple(&c.name, m)?;
-        }
-        for p in &c.parameters {
-            let reference = format!("{}.{}", c.name, p.name);
-            // Integer parameters may be written for Real variables (and vice versa) by other
-            // tools: convert through text.
-            let text = match &p.value {
-                Value::Real(v) => format!("{v:?}"),
-                Value::Integer(v) => v.to_string(),
-                Value::Boolean(v) => v.to_string(),
-                Value::String(v) => v.clone(),
-            };
-            match system.set_value(&reference, p.value.clone()) {
-                Ok(()) => {}
-                Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
-                Err(e) => return Err(e.into()),
-            }
-        }
+        set_component_values(&mut system, c)?;
     }
     for c in &ssd.system.connections {
         let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) else {
@@ -1051,6 +1150,30 @@ pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, S
         config,
         _dir: dir,
     })
+}
+
+/// A component's step multiple and parameter values.
+fn set_component_values(system: &mut System, c: &SspComponent) -> Result<(), SspError> {
+    if let Some(m) = c.step_multiple {
+        system.set_step_multiple(&c.name, m)?;
+    }
+    for p in &c.parameters {
+        let reference = format!("{}.{}", c.name, p.name);
+        // Integer parameters may be written for Real variables (and vice versa) by other
+        // tools: convert through text.
+        let text = match &p.value {
+            Value::Real(v) => format!("{v:?}"),
+            Value::Integer(v) => v.to_string(),
+            Value::Boolean(v) => v.to_string(),
+            Value::String(v) => v.clone(),
+        };
+        match system.set_value(&reference, p.value.clone()) {
+            Ok(()) => {}
+            Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(())
 }
 
 /// The variable type a connector type stands for.

@@ -687,13 +687,61 @@ impl System {
 
     /// Parses `text` as a value of the variable's type and sets it (see
     /// [`set_value`](Self::set_value)).
+    ///
+    /// An Enumeration variable also takes an item's name (`plant.backend=Udp`).
     pub fn set_value_str(&mut self, reference: &str, text: &str) -> Result<(), MasterError> {
         let (r, _) = self.resolve(reference)?;
-        let value = Value::parse(r.ty, text).ok_or_else(|| MasterError::BadValue {
-            reference: reference.to_string(),
-            problem: format!("'{text}' is not a {:?}", r.ty),
-        })?;
+        let value = match Value::parse(r.ty, text) {
+            Some(v) => v,
+            None => {
+                self.enumeration_item(reference, text)?
+                    .ok_or_else(|| MasterError::BadValue {
+                        reference: reference.to_string(),
+                        problem: format!("'{text}' is not a {:?}", r.ty),
+                    })?
+            }
+        };
         self.set_value(reference, value)
+    }
+
+    /// The value of item `name` when `reference` is an Enumeration variable (`None` when it is
+    /// not one); an unknown item is an error listing the items.
+    fn enumeration_item(&self, reference: &str, name: &str) -> Result<Option<Value>, MasterError> {
+        let (c, v) = reference
+            .split_once('.')
+            .ok_or_else(|| MasterError::BadReference(reference.to_string()))?;
+        let md = self.components[self.comp_index(c)?].fmu.model_description();
+        let Some((_, var)) = find_var(md, v) else {
+            return Ok(None);
+        };
+        let model_description::VariableKind::Enumeration { declared_type, .. } = &var.kind else {
+            return Ok(None);
+        };
+        let items = md.type_definitions.iter().find_map(|t| match &t.kind {
+            model_description::SimpleTypeKind::Enumeration { items, .. }
+                if t.name == *declared_type =>
+            {
+                Some(items)
+            }
+            _ => None,
+        });
+        let Some(items) = items else {
+            return Ok(None);
+        };
+        match items.iter().find(|i| i.name == name.trim()) {
+            Some(item) => Ok(Some(Value::Integer(item.value))),
+            None => Err(MasterError::BadValue {
+                reference: reference.to_string(),
+                problem: format!(
+                    "'{name}' is no item of {declared_type} ({})",
+                    items
+                        .iter()
+                        .map(|i| format!("{} = {}", i.name, i.value))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            }),
+        }
     }
 
     /// Feeds an input from a time series, applied at the start of every step of its component.

@@ -1,0 +1,134 @@
+//! `kneebench run SYSTEM --replace plant=BenchHardware.fmu`: the study's schedule on the
+//! hardware FMU (its in-process simulated backend here), the interface checked, enumeration
+//! parameters by item name.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use kneebench_harness::package::export_all;
+use kneebench_harness::ssp::{self, SspError};
+use kneebench_harness::study::{Actuator, StudyScenario, gait_scenario, write_ssp};
+use kneebench_harness::{LoadOptions, MasterError, Outcome};
+use kneebench_tests::fmu_library;
+
+fn fmus() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::Builder::new()
+            .prefix("kneebench-replace-fmus")
+            .tempdir()
+            .unwrap()
+            .keep();
+        export_all(&fmu_library(), &dir).expect("export");
+        dir
+    })
+}
+
+fn sea_ssp(dir: &Path) -> PathBuf {
+    let study = StudyScenario::BenchFull;
+    let scenario = gait_scenario(Actuator::Sea, study.gait(), study.gains(Actuator::Sea), 1);
+    let path = dir.join("SEA.ssp");
+    write_ssp(&scenario, fmus(), &path).unwrap();
+    path
+}
+
+#[test]
+fn the_study_schedule_runs_on_the_hardware_fmu_and_tracks_like_the_plant() {
+    let d = tempfile::tempdir().unwrap();
+    let path = sea_ssp(d.path());
+    let hardware = fmus().join("BenchHardware.fmu");
+    let replaced = ssp::load_system_replacing(
+        &path,
+        &LoadOptions::default(),
+        &[("plant".into(), hardware)],
+    )
+    .unwrap();
+    let mut system = replaced.system;
+    let model = |s: &kneebench_harness::System| {
+        s.components()
+            .find(|(n, _)| *n == "plant")
+            .map(|(_, f)| f.model_description().model_name.clone())
+            .unwrap()
+    };
+    assert_eq!(model(&system), "BenchHardware");
+    system.set_value_str("plant.backend", "Simulated").unwrap();
+    system.set_value_str("plant.pacing", "None").unwrap();
+    let out = system.run(&replaced.config).unwrap();
+    assert!(
+        matches!(out.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        out.outcome
+    );
+    let plant = ssp::load_system(&path, &LoadOptions::default()).unwrap();
+    assert_eq!(model(&plant.system), "BenchPlant");
+    let reference = plant.system.run(&plant.config).unwrap();
+    let knee = |r: &kneebench_harness::Results| r.column("plant.loadAngle").unwrap();
+    let (a, b) = (knee(&out.results), knee(&reference.results));
+    assert_eq!(a.len(), b.len());
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f64, f64::max);
+    // Same schedule, same physics behind the hardware's calibrated sensors: the knee angles
+    // agree to well under a degree over the whole cycle.
+    assert!(worst < 0.5f64.to_radians(), "{} deg", worst.to_degrees());
+}
+
+#[test]
+fn a_replacement_that_does_not_fit_or_names_no_component_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let path = sea_ssp(d.path());
+    let wrong = ssp::load_system_replacing(
+        &path,
+        &LoadOptions::default(),
+        &[("plant".into(), fmus().join("GaitReference.fmu"))],
+    )
+    .err()
+    .expect("GaitReference is no plant");
+    let text = wrong.to_string();
+    assert!(matches!(wrong, SspError::Replacement { .. }), "{text}");
+    assert!(
+        text.contains("does not fit") && text.contains("no variable 'testCurrentCommand' (input)"),
+        "{text}"
+    );
+    let unknown = ssp::load_system_replacing(
+        &path,
+        &LoadOptions::default(),
+        &[("plantx".into(), fmus().join("BenchHardware.fmu"))],
+    )
+    .err()
+    .expect("no such component")
+    .to_string();
+    assert!(
+        unknown.contains("no such component (it has gait, torque, position, plant)"),
+        "{unknown}"
+    );
+}
+
+#[test]
+fn enumeration_parameters_take_item_names() {
+    let d = tempfile::tempdir().unwrap();
+    let path = sea_ssp(d.path());
+    let mut loaded = ssp::load_system_replacing(
+        &path,
+        &LoadOptions::default(),
+        &[("plant".into(), fmus().join("BenchHardware.fmu"))],
+    )
+    .unwrap();
+    loaded.system.set_value_str("plant.backend", "Udp").unwrap();
+    loaded.system.set_value_str("plant.backend", "1").unwrap();
+    match loaded.system.set_value_str("plant.backend", "Serial") {
+        Err(MasterError::BadValue { problem, .. }) => {
+            assert!(problem.contains("Simulated = 0, Udp = 1"), "{problem}")
+        }
+        other => panic!("{other:?}"),
+    }
+    // A plain Integer variable still wants a number.
+    assert!(
+        loaded
+            .system
+            .set_value_str("plant.realtimePriority", "High")
+            .is_err()
+    );
+}
