@@ -85,7 +85,7 @@ fn a_replacement_that_does_not_fit_or_names_no_component_is_refused() {
         &[("plant".into(), fmus().join("GaitReference.fmu"))],
     )
     .err()
-    .expect("GaitReference is no plant");
+    .unwrap_or_else(|| panic!("GaitReference is no plant"));
     let text = wrong.to_string();
     assert!(matches!(wrong, SspError::Replacement { .. }), "{text}");
     assert!(
@@ -98,7 +98,7 @@ fn a_replacement_that_does_not_fit_or_names_no_component_is_refused() {
         &[("plantx".into(), fmus().join("BenchHardware.fmu"))],
     )
     .err()
-    .expect("no such component")
+    .unwrap_or_else(|| panic!("no such component"))
     .to_string();
     assert!(
         unknown.contains("no such component (it has gait, torque, position, plant)"),
