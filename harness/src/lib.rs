@@ -11,7 +11,10 @@
 //! - [`master`]: a system of components and connections ([`System`]) run by a fixed-step
 //!   master on an integer time base, Gauss-Seidel or Jacobi, multi-rate, with early termination.
 //! - [`ssp`]: SSP 1.0 system structure files (`.ssp` archives and bare `.ssd`), read and written.
-//! - [`results`]: the recorded rows: CSV with round-trip floats, a summary table, plots.
+//! - [`results`]: where recorded rows go, behind one sink interface ([`ResultSink`]): in
+//!   memory ([`Results`]), or streamed into a crash-safe CSV file
+//!   ([`results::csv::CsvFile`]); CSV with round-trip floats, a summary table, plots.
+//! - [`control`]: stopping a run from outside (signals, a time limit, a watchdog).
 //! - [`package`]: turns the kneebench FMU binary into one reproducible `.fmu` per model.
 //!
 //! ```no_run
@@ -25,6 +28,13 @@
 //! let config = RunConfig { stop_time: 1.0, step_size: 1e-3, algorithm: Algorithm::GaussSeidel, ..RunConfig::default() };
 //! let output = system.run(&config)?;
 //! output.results.write_csv_file("results.csv")?;
+//!
+//! // The same run streamed to disk as it goes (bounded memory, crash-safe).
+//! let mut file = kneebench_harness::results::csv::CsvFile::create("streamed.csv".as_ref())?;
+//! let summary = system.run_into(&config, &mut file)?;
+//! if matches!(summary.outcome, kneebench_harness::Outcome::Completed { .. }) {
+//!     file.commit()?;
+//! }
 //! # Ok(()) }
 //! ```
 

@@ -245,6 +245,45 @@ fn sigint_and_sigterm_stop_the_run_with_every_row_on_disk_and_the_temp_dirs_gone
     }
 }
 
+/// Rows reach the disk every second even when they are far too few to fill the write buffer
+/// (64 KiB; here about 20 bytes a row, one row per 100,000 steps): the flush is timed, not
+/// triggered by a full buffer.
+#[test]
+fn rows_are_flushed_every_second_of_wall_time() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let mut child = kneebench()
+        .current_dir(d.path())
+        .arg("run")
+        .arg(&fmu)
+        .args(["-q", "--output", "r.csv", "--variables", "x"])
+        .args(["--record-every", "100000"])
+        .args(LONG)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let partial = d.path().join("r.csv.partial");
+    let start = Instant::now();
+    let mut seen = 0;
+    // A buffer-full flush would need about 3,000 rows, minutes of this run.
+    while start.elapsed() < Duration::from_secs(60) && seen < 4 {
+        std::thread::sleep(Duration::from_millis(100));
+        seen = std::fs::read_to_string(&partial)
+            .map(|t| t.lines().count())
+            .unwrap_or(0);
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(seen >= 4, "{seen} lines in {:?}", start.elapsed());
+    let text = std::fs::read_to_string(&partial).unwrap();
+    assert!(text.len() < 64 * 1024, "{} bytes", text.len());
+    assert!(
+        text.starts_with("time,x\n0.0,0.0\n100.0,100000.0\n"),
+        "{text}"
+    );
+}
+
 #[test]
 fn the_time_limit_stops_the_run_with_exit_code_4() {
     let d = tempfile::tempdir().unwrap();

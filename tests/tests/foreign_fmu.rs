@@ -320,27 +320,32 @@ fn child_runs_the_pythonfmu_export() {
 
     // CLI path, with the first FMU still loaded (the second copy of the binary reuses the
     // interpreter): `kneebench run FirstOrder.fmu --preload LIBPYTHON --inputs ... --param k=3`.
+    // PythonFMU's description lists no InitialUnknowns for its calculated outputs, a problem
+    // `kneebench validate` reports: `run` refuses it (usage error) unless `--force`.
     let inputs = dir.join("inputs.csv");
     let cli_out = dir.join("cli.csv");
-    let args = cli::Cli::try_parse_from([
-        "kneebench".as_ref(),
-        "run".as_ref(),
-        fmu_path.as_os_str(),
-        "--preload".as_ref(),
-        libpython.as_os_str(),
-        "--inputs".as_ref(),
-        inputs.as_os_str(),
-        "--param".as_ref(),
-        "k=3".as_ref(),
-        "--output".as_ref(),
-        cli_out.as_os_str(),
-        "--quiet".as_ref(),
-        // PythonFMU's export has a problem `validate` reports (its ModelStructure): run
-        // refuses it unless forced.
-        "--force".as_ref(),
-    ] as [&std::ffi::OsStr; 13])
-    .unwrap();
-    let code = cli::dispatch(args).unwrap();
-    assert_eq!(code, cli::EXIT_OK);
+    let run = |force: bool| {
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "kneebench".as_ref(),
+            "run".as_ref(),
+            fmu_path.as_os_str(),
+            "--preload".as_ref(),
+            libpython.as_os_str(),
+            "--inputs".as_ref(),
+            inputs.as_os_str(),
+            "--param".as_ref(),
+            "k=3".as_ref(),
+            "--output".as_ref(),
+            cli_out.as_os_str(),
+            "--quiet".as_ref(),
+        ];
+        if force {
+            args.push("--force".as_ref());
+        }
+        cli::dispatch(cli::Cli::try_parse_from(args).unwrap()).unwrap()
+    };
+    assert_eq!(run(false), cli::EXIT_USAGE);
+    assert!(!cli_out.exists());
+    assert_eq!(run(true), cli::EXIT_OK);
     drop(fmu);
 }

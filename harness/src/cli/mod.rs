@@ -74,6 +74,8 @@ pub enum Command {
 
 /// Runs a parsed command line; returns the exit code.
 pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
+    // Extraction directories that crashed or killed runs left behind.
+    kneebench_harness::tempdirs::remove_stale();
     match cli.command {
         Command::Export(a) => export::run(a),
         Command::Run(a) => run::run(a),

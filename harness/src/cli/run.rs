@@ -158,7 +158,6 @@ fn usage(message: impl std::fmt::Display) -> anyhow::Result<i32> {
 
 /// Runs `kneebench run`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    kneebench_harness::tempdirs::remove_stale();
     // Stop requests (signals) are honoured from the start; until the run begins they end the
     // command at its next check.
     let control = RunControl::new();

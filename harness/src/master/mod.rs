@@ -977,10 +977,10 @@ impl System {
     /// for a configuration that cannot start (as [`check_config`](Self::check_config));
     /// everything after is in [`RunSummary::outcome`], and every row recorded up to the end of
     /// the run is in the sink, flushed.
-    pub fn run_into(
+    pub fn run_into<S: ResultSink + ?Sized>(
         &self,
         config: &RunConfig,
-        sink: &mut dyn ResultSink,
+        sink: &mut S,
     ) -> Result<RunSummary, MasterError> {
         let started = std::time::Instant::now();
         let grid = self.check_config(config)?;
@@ -1016,6 +1016,7 @@ impl System {
             .collect();
         let record_every = config.record_every.max(1);
         sink.begin(&names, &kinds)?;
+        sink.expect_rows(grid.n_steps / record_every + 1);
 
         // Runtime tables: where every value the master moves lives.
         let fed: Vec<&VarRef> = self.signals.iter().map(|(d, _)| d).collect();

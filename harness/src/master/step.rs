@@ -8,8 +8,18 @@ use crate::control::RunControl;
 use crate::instance::FmuError;
 use crate::results::ResultSink;
 use crate::time::Grid;
+/// Whether every value is finite: one OR over the exponent tests, without early exit, so the
+/// compiler vectorizes it (a short-circuiting `all` costs a branch per value on the hot path).
+#[inline(always)]
+pub(super) fn all_finite(values: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
+    values.iter().fold(0u64, |any, v| {
+        any | u64::from(v.to_bits() & EXPONENT == EXPONENT)
+    }) == 0
+}
+
 /// Flushes `sink` at the end of a run; a failed flush fails a run that had not failed.
-pub(super) fn flushed(sink: &mut dyn ResultSink, outcome: Outcome) -> Outcome {
+pub(super) fn flushed<S: ResultSink + ?Sized>(sink: &mut S, outcome: Outcome) -> Outcome {
     match (sink.flush(), outcome) {
         (Err(e), Outcome::Completed { .. } | Outcome::Terminated { .. }) => {
             Outcome::Failed(MasterError::Sink(e))
@@ -120,19 +130,28 @@ impl Run<'_> {
     }
 
     #[inline]
-    pub(super) fn record(&mut self, sink: &mut dyn ResultSink, t: f64) -> Result<(), Stop> {
+    pub(super) fn record<S: ResultSink + ?Sized>(
+        &mut self,
+        sink: &mut S,
+        t: f64,
+    ) -> Result<(), Stop> {
         self.record_row(sink, t).map_err(Stop::Failed)
     }
 
     /// Hands the row at `t` to the sink.
     #[inline]
-    pub(super) fn record_row(
+    pub(super) fn record_row<S: ResultSink + ?Sized>(
         &mut self,
-        sink: &mut dyn ResultSink,
+        sink: &mut S,
         t: f64,
     ) -> Result<(), MasterError> {
-        fill_row(&mut self.row_buf, &self.row, &self.bus);
-        sink.push_row(t, &self.row_buf)?;
+        // Every recorded column a Real and consecutive on the bus: the bus slice is the row.
+        if let [RowRun::Real(a, b)] = self.row[..] {
+            sink.push_row(t, &self.bus.real[a..b])?;
+        } else {
+            fill_row(&mut self.row_buf, &self.row, &self.bus);
+            sink.push_row(t, &self.row_buf)?;
+        }
         self.rows += 1;
         self.last_row_time = Some(t);
         Ok(())
@@ -142,7 +161,11 @@ impl Run<'_> {
     /// `t`, after its row.
     #[cold]
     #[inline(never)]
-    pub(super) fn attend(&mut self, sink: &mut dyn ResultSink, t: f64) -> Result<(), Stop> {
+    pub(super) fn attend<S: ResultSink + ?Sized>(
+        &mut self,
+        sink: &mut S,
+        t: f64,
+    ) -> Result<(), Stop> {
         if self.control.take_flush()
             && let Err(e) = sink.flush()
         {
@@ -162,7 +185,7 @@ impl Run<'_> {
     #[inline(always)]
     pub(super) fn check_finite(&self, i: usize, t: f64) -> Result<(), Stop> {
         let (a, b) = self.rts[i].ports.out[0];
-        if self.allow_nonfinite || self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+        if self.allow_nonfinite || all_finite(&self.bus.real[a..b]) {
             Ok(())
         } else {
             Err(Stop::Failed(self.nonfinite(i, t)))
@@ -193,12 +216,12 @@ impl Run<'_> {
         }
     }
 
-    pub(super) fn execute(
+    pub(super) fn execute<S: ResultSink + ?Sized>(
         &mut self,
         config: &RunConfig,
         order: &[usize],
         groups: &[Vec<usize>],
-        sink: &mut dyn ResultSink,
+        sink: &mut S,
         record_every: u64,
     ) -> Outcome {
         let t0 = self.grid.start;
@@ -244,10 +267,10 @@ impl Run<'_> {
     /// Every macro step with `step`, recording every `record_every`-th row and reporting
     /// progress.
     #[inline(always)]
-    pub(super) fn step_loop(
+    pub(super) fn step_loop<S: ResultSink + ?Sized>(
         &mut self,
         config: &RunConfig,
-        sink: &mut dyn ResultSink,
+        sink: &mut S,
         record_every: u64,
         mut step: impl FnMut(&mut Self, u64, f64) -> Result<(), Stop>,
     ) -> Result<(), Stop> {
@@ -278,7 +301,7 @@ impl Run<'_> {
         Ok(())
     }
 
-    pub(super) fn finish(&mut self, stop: Stop, sink: &mut dyn ResultSink) -> Outcome {
+    pub(super) fn finish<S: ResultSink + ?Sized>(&mut self, stop: Stop, sink: &mut S) -> Outcome {
         // The row at the terminating component's last successful time, read before any
         // instance is terminated.
         let last_row = match &stop {
@@ -310,11 +333,11 @@ impl Run<'_> {
     /// Records the row at `time`, the last successful time of component `comp` that ended
     /// the run, when it is after the last row: `comp`'s outputs read now, the others' as
     /// they are.
-    pub(super) fn last_row(
+    pub(super) fn last_row<S: ResultSink + ?Sized>(
         &mut self,
         comp: usize,
         time: f64,
-        sink: &mut dyn ResultSink,
+        sink: &mut S,
     ) -> Result<(), MasterError> {
         if self.last_row_time.is_some_and(|last| time <= last) || !time.is_finite() {
             return Ok(());
@@ -327,7 +350,7 @@ impl Run<'_> {
             });
         }
         let (a, b) = self.rts[comp].ports.out[0];
-        if !self.allow_nonfinite && !self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+        if !self.allow_nonfinite && !all_finite(&self.bus.real[a..b]) {
             return Err(self.nonfinite(comp, time));
         }
         self.record_row(sink, time)
@@ -414,7 +437,7 @@ impl Run<'_> {
     #[inline(always)]
     pub(super) fn check_finite_after_step(&self, i: usize, n: u64) -> Result<(), Stop> {
         let (a, b) = self.rts[i].ports.out[0];
-        if self.allow_nonfinite || self.bus.real[a..b].iter().all(|v| v.is_finite()) {
+        if self.allow_nonfinite || all_finite(&self.bus.real[a..b]) {
             Ok(())
         } else {
             let end = self.grid.time(n + self.rts[i].multiple);

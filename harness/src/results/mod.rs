@@ -96,6 +96,10 @@ pub trait ResultSink {
     fn wants_periodic_flush(&self) -> bool {
         false
     }
+
+    /// Told before the first row how many rows the run will push at most (a hint: the run may
+    /// end earlier). A sink may reserve room for them; the default ignores it.
+    fn expect_rows(&mut self, _rows: u64) {}
 }
 
 /// A sink that keeps only the [`SignalSummary`] of every column (bounded memory).
@@ -183,6 +187,11 @@ impl<A: ResultSink, B: ResultSink> ResultSink for Tee<A, B> {
     fn wants_periodic_flush(&self) -> bool {
         self.0.wants_periodic_flush() || self.1.wants_periodic_flush()
     }
+
+    fn expect_rows(&mut self, rows: u64) {
+        self.0.expect_rows(rows);
+        self.1.expect_rows(rows);
+    }
 }
 
 /// Rows reserved up front by [`Results::with_capacity`] at most (the rest grows on demand), so
@@ -202,6 +211,7 @@ impl ResultSink for Results {
         Ok(())
     }
 
+    #[inline]
     fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
         if values.len() != self.names.len() {
             return Err(ResultsError::RowLength {
