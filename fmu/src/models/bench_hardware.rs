@@ -52,7 +52,8 @@
 //!   frame, `docs/bench-protocol.md`).
 //!
 //! Re-arming needs a new instance: a tripped instance never sends a drive command again, and
-//! the server keeps the safe state until a new session begins.
+//! the server keeps the safe state latched across sessions until a master acknowledges it
+//! (below, "The bench link").
 //!
 //! | tripCode | cause | status |
 //! |---|---|---|
@@ -69,6 +70,19 @@
 //! | 13 | sensor fault: the load cell disagrees with `i_HD Km1` x the measured test-motor current | Discard / Error |
 //!
 //! (Discard when the safe state is acknowledged, Error when it is not.)
+//!
+//! ## The bench link (`keyFile`, `acknowledgeSafeState`)
+//! The Udp backend opens an authenticated session (`docs/bench-protocol.md`, version 2): it
+//! reads the bench's key from `keyFile` (made by `kneebench key new`; refused if its group or
+//! others may read it; empty: the public loopback key, only for a server on this machine),
+//! proves it in a handshake that also carries `configuration`, `testDriverMode` and
+//! `loadDriverMode` (a server set up differently refuses, naming the setting, and the
+//! initialization fails with that text), and tags every frame with the session's keys. A
+//! server held by another master is asked again until the handshake's 0.2 s end. A bench
+//! whose safe state is latched from an earlier session (a trip, its watchdog, the button)
+//! fails the initialization with the latch's reason unless `acknowledgeSafeState` is true:
+//! then the FMU acknowledges it (logged as a warning) and goes on if the bench leaves the safe
+//! state (not while the emergency stop is pressed).
 //!
 //! ## Calibration and initialization
 //! During initialization samples are awaited up to 0.2 s (the server may be starting its
@@ -186,9 +200,9 @@ use super::bench_plant::{
 };
 use crate::hardware::calibration::{Calibration, Plausibility, Side, Tare, Unwrapper};
 use crate::hardware::consistency::{ConsistencyCheck, Inconsistency};
-use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, kind_of};
+use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, UdpSetup, kind_of};
 use crate::hardware::pacing::{Pacer, PacingMode};
-use crate::hardware::protocol::{AnalogChannel, Command, Sample, reason, status};
+use crate::hardware::protocol::{AnalogChannel, BenchSetup, Command, Key, Sample, reason, status};
 use crate::hardware::realtime::{RealtimeThread, lock_memory, now_ns};
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -366,6 +380,8 @@ pub struct BenchHardwareModel {
     spin_margin: f64,
     realtime_priority: i32,
     lock_memory: bool,
+    key_file: String,
+    acknowledge_safe_state: bool,
     plausibility: Plausibility,
     consistency_tolerance: f64,
     consistency_relative: f64,
@@ -573,6 +589,22 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         )
         .parameter(Start::Boolean(false))
         .describe("Pacing Soft/Hard: lock the importer process's pages in memory (mlockall, process-wide, not undone) at initialization. Refused: a warning"),
+        V::string(
+            "keyFile",
+            425,
+            |m| &m.key_file,
+            |m, v| m.key_file = v.to_owned(),
+        )
+        .parameter(Start::String(""))
+        .describe("Udp backend: the bench's key file (`kneebench key new FILE`; readable by its owner only). Empty: the public loopback key, allowed only for a server on this machine"),
+        V::boolean(
+            "acknowledgeSafeState",
+            426,
+            |m| m.acknowledge_safe_state,
+            |m, v| m.acknowledge_safe_state = v,
+        )
+        .parameter(Start::Boolean(false))
+        .describe("Udp backend: at initialization, clear a safe state the bench latched in an earlier session (a trip, its watchdog, the button) by an explicit acknowledgement. Set it only after checking the bench; false: such a latch fails the initialization"),
         V::real(
             "maxEncoderSpeed",
             407,
@@ -734,13 +766,36 @@ impl BenchHardwareModel {
                         "the Udp backend needs real-time pacing (pacing = Soft or Hard)",
                     ));
                 }
-                Ok(Box::new(
-                    // Initialization (session start, tare) may wait longer than a period.
-                    UdpBench::connect(
-                        &self.server_address,
-                        Duration::from_secs_f64(self.reply_timeout.max(INIT_REPLY_TIMEOUT)),
+                let key = if self.key_file.is_empty() {
+                    None
+                } else {
+                    Some(
+                        Key::load_file(std::path::Path::new(&self.key_file))
+                            .map_err(|e| ModelError::new(format!("keyFile: {e}")))?,
                     )
-                    .map_err(|e| ModelError::new(e.to_string()))?,
+                };
+                let setup =
+                    UdpSetup {
+                        address: self.server_address.clone(),
+                        key,
+                        setup: BenchSetup {
+                            configuration: p.configuration.as_i32() as u8,
+                            test_kind: kind_of(p.test_driver_mode),
+                            load_kind: kind_of(p.load_driver_mode),
+                        },
+                        // A server whose previous session was not released is free again after
+                        // its heartbeat timeout (at most 100 ms): asked again until then.
+                        handshake_timeout: Duration::from_secs_f64(INIT_REPLY_TIMEOUT.max(
+                            crate::hardware::protocol::MAX_HEARTBEAT_TIMEOUT.as_secs_f64() * 2.0,
+                        )),
+                        // Initialization (tare) may wait longer than a period.
+                        reply_timeout: Duration::from_secs_f64(
+                            self.reply_timeout.max(INIT_REPLY_TIMEOUT),
+                        ),
+                        spin: Duration::from_secs_f64(self.spin_margin),
+                    };
+                Ok(Box::new(
+                    UdpBench::connect(&setup).map_err(|e| ModelError::new(e.to_string()))?,
                 ))
             }
         }
@@ -754,6 +809,25 @@ impl BenchHardwareModel {
         let safe = Command::safe(kind_of(p.test_driver_mode), kind_of(p.load_driver_mode));
         let io_err =
             |what: &str, e: IoError| ModelError::new(format!("initialization: {what}: {e}"));
+        let latched = io.latched();
+        if latched != reason::NONE {
+            if !self.acknowledge_safe_state {
+                return Err(ModelError::new(format!(
+                    "initialization: the bench is latched in its safe state ({}) from an earlier session; check the bench, then set acknowledgeSafeState = true to clear the latch",
+                    reason_name(latched)
+                )));
+            }
+            let s = io
+                .acknowledge(latched)
+                .map_err(|e| io_err("acknowledging the latched safe state", e))?;
+            if s.has(status::SAFE_STATE) {
+                return Err(ModelError::new(format!(
+                    "initialization: the bench kept its safe state after the acknowledgement ({}, status {:#04x}): release the emergency stop",
+                    reason_name(s.safe_reason),
+                    s.status
+                )));
+            }
+        }
         let seq = io
             .write(0.0, &safe)
             .map_err(|e| io_err("disabling the drivers", e))?;
@@ -782,6 +856,12 @@ impl BenchHardwareModel {
             realtime_tried: false,
             reply_time: (0.0, 0.0),
         };
+        if latched != reason::NONE {
+            rt.warnings.push(format!(
+                "acknowledged the bench's latched safe state ({}) as acknowledgeSafeState asked",
+                reason_name(latched)
+            ));
+        }
         if self.lock_memory
             && pacing != PacingMode::None
             && let Err(e) = lock_memory()
@@ -1028,6 +1108,18 @@ impl BenchHardwareModel {
             return self.trip(code, t + h);
         }
         Ok(StepOutcome::Completed)
+    }
+}
+
+/// The log text of a safe-state reason.
+fn reason_name(r: u8) -> &'static str {
+    match r {
+        reason::CLIENT_REQUEST => "a master's trip",
+        reason::HEARTBEAT_TIMEOUT => "the server's heartbeat watchdog",
+        reason::EMERGENCY_STOP => "the emergency stop",
+        reason::SESSION_END => "a session end",
+        reason::BENCH_PROTECTION => "the bench's own protection",
+        _ => "unknown reason",
     }
 }
 
