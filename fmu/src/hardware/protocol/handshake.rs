@@ -317,7 +317,7 @@ pub struct ClientHandshake {
     session: u32,
     nonce: [u8; NONCE_LEN],
     hello: Vec<u8>,
-    rx: Receiver,
+    counters: super::Counters,
 }
 
 impl ClientHandshake {
@@ -331,7 +331,14 @@ impl ClientHandshake {
                 break v;
             }
         };
-        let nonce = super::auth::nonce()?;
+        Ok(Self::with_nonce(key, setup, session, super::auth::nonce()?))
+    }
+
+    /// A handshake with a given session number (nonzero) and nonce: for tests and fuzzing,
+    /// which need it reproducible. A real client draws both at random ([`Self::new`]): a
+    /// reused nonce lets an old WELCOME be replayed.
+    pub fn with_nonce(key: &Key, setup: BenchSetup, session: u32, nonce: [u8; NONCE_LEN]) -> Self {
+        let session = session.max(1);
         let handshake = key.handshake();
         let hello = Frame {
             session,
@@ -339,14 +346,14 @@ impl ClientHandshake {
             payload: Payload::Hello(Hello { nonce, setup }),
         }
         .encode(&handshake);
-        Ok(Self {
+        Self {
             key: key.clone(),
-            rx: Receiver::new(session, handshake.clone()),
+            counters: super::Counters::default(),
             handshake,
             session,
             nonce,
             hello,
-        })
+        }
     }
 
     /// The session number.
@@ -361,31 +368,45 @@ impl ClientHandshake {
 
     /// Frames rejected so far.
     pub fn counters(&self) -> super::Counters {
-        self.rx.counters
+        self.counters
     }
 
     /// Reads a datagram from the server: a WELCOME or a REFUSE answering this HELLO. Anything
     /// else (another session's, unauthenticated, an answer to another nonce) is rejected and
-    /// counted.
+    /// counted. The echoed nonce, fresh for this handshake, is what makes an answer new (the
+    /// server numbers both answers 1).
     pub fn receive(&mut self, bytes: &[u8]) -> Result<HandshakeReply, Rejection> {
-        let frame = self.rx.accept(bytes)?;
+        let header = Frame::peek(bytes).inspect_err(|&e| self.counters.count(e))?;
+        if header.session != self.session {
+            self.counters.wrong_session += 1;
+            return Err(Rejection::WrongSession {
+                got: header.session,
+                expected: self.session,
+            });
+        }
+        let frame =
+            Frame::decode(bytes, &self.handshake).inspect_err(|&e| self.counters.count(e))?;
         match frame.payload {
             Payload::Welcome(w) if w.client_nonce == self.nonce => {
+                self.counters.accepted += 1;
                 let keys = self.key.session(self.session, &self.nonce, &w.server_nonce);
                 let mut tx = Sender::new(self.session, keys.client_to_server);
                 tx.sequence = 1;
                 let mut rx = Receiver::new(self.session, keys.server_to_client);
                 rx.last_sequence = frame.sequence;
-                rx.counters = self.rx.counters;
+                rx.counters = self.counters;
                 Ok(HandshakeReply::Welcome(Box::new(Session {
                     tx,
                     rx,
                     latched: w.latched,
                 })))
             }
-            Payload::Refuse(r) if r.client_nonce == self.nonce => Ok(HandshakeReply::Refused(r)),
+            Payload::Refuse(r) if r.client_nonce == self.nonce => {
+                self.counters.accepted += 1;
+                Ok(HandshakeReply::Refused(r))
+            }
             _ => {
-                self.rx.counters.malformed += 1;
+                self.counters.malformed += 1;
                 Err(Rejection::Malformed(DecodeError::BadPayload(
                     "not an answer to this handshake",
                 )))
@@ -453,8 +474,20 @@ mod tests {
         ));
         let (_, hb) = server_tx.frame(Payload::Heartbeat);
         assert!(s.rx.accept(&hb).is_ok());
-        // The welcome again (a replay) is not taken for a new session.
-        assert!(c.receive(&w).is_err());
+        // The welcome again (resent by the server for a lost one) gives the same keys: the
+        // nonce makes it this handshake's answer, not a new session.
+        let HandshakeReply::Welcome(again) = c.receive(&w).unwrap() else {
+            panic!()
+        };
+        let (_, hb2) = server_tx.frame(Payload::Heartbeat);
+        assert!(again.rx.clone().accept(&hb2).is_ok());
+        // Another handshake's welcome (another session number) is not.
+        let other = ClientHandshake::new(&key, setup()).unwrap();
+        let (w2, _, _) = welcome(&key, other.hello(), 0);
+        assert!(matches!(
+            c.receive(&w2),
+            Err(Rejection::WrongSession { .. })
+        ));
     }
 
     #[test]

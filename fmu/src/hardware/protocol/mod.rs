@@ -20,6 +20,7 @@
 #![allow(dead_code)]
 
 pub mod auth;
+pub mod fuzzing;
 pub mod handshake;
 
 use std::time::Duration;
