@@ -116,6 +116,31 @@ proptest! {
         handshake_decoder(&data);
     }
 
+    /// Well-formed headers with random payloads of the right length, tagged: every field
+    /// decoder sees arbitrary values (random bytes alone rarely get past the header).
+    #[test]
+    fn every_payload_decoder_takes_any_fields(
+        ty in 1u8..=10,
+        session in any::<u32>(),
+        sequence in any::<u32>(),
+        fill in proptest::collection::vec(any::<u8>(), 84),
+        sparse in any::<bool>(),
+    ) {
+        use kneebench_harness::bench_protocol::FrameType;
+        let len = FrameType::from_u8(ty).unwrap().payload_len();
+        let mut bytes = vec![b'K', b'N', b'B', b'P', 2, ty];
+        bytes.extend_from_slice(&(len as u16).to_be_bytes());
+        bytes.extend_from_slice(&session.to_be_bytes());
+        bytes.extend_from_slice(&sequence.to_be_bytes());
+        // Sparse payloads (mostly zeros) reach the checks behind the reserved fields.
+        bytes.extend(fill[..len].iter().map(|&b| if sparse && b % 4 != 0 { 0 } else { b }));
+        bytes.extend_from_slice(&[0; 16]);
+        let tagged = kneebench_harness::bench_protocol::fuzzing::with_valid_tag(&bytes, &session_key());
+        frame_decoder(&tagged);
+        let hk = fuzz_key().handshake();
+        handshake_decoder(&kneebench_harness::bench_protocol::fuzzing::with_valid_tag(&bytes, &hk));
+    }
+
     #[test]
     fn valid_frames_round_trip_and_every_mutation_is_refused(
         payload in payload(),

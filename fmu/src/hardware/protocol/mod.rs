@@ -364,6 +364,17 @@ impl FaultInjection {
     }
 
     fn decode(kind: u8, channel: u8, value: f64, count: u32) -> Result<Self, DecodeError> {
+        // A field the kind does not use must be zero: nothing is silently dropped (found by
+        // fuzzing: a Force with a count re-encoded without it).
+        let (uses_value, uses_count) = match kind {
+            1 => (false, true),
+            2 => (true, true),
+            4 => (true, false),
+            _ => (false, false),
+        };
+        if (!uses_value && value.to_bits() != 0) || (!uses_count && count != 0) {
+            return Err(DecodeError::BadPayload("unused fault field not zero"));
+        }
         let no_channel = |f: Self| {
             if channel == 0 {
                 Ok(f)
