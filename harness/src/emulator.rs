@@ -80,6 +80,9 @@ const MAX_PENDING: usize = 8;
 const PENDING_LIFETIME: Duration = Duration::from_secs(1);
 /// Version refusals sent at most per second (they are unauthenticated: never a reflector).
 const VERSION_REFUSALS_PER_SECOND: u64 = 10;
+/// The receive buffer the server asks for \[bytes\] (granted up to the system's limit, or
+/// fully with `CAP_NET_ADMIN`).
+const RECEIVE_BUFFER: usize = 8 << 20;
 /// The longest the serving loop waits without looking at its stop flag and fault queue.
 const IDLE_WAIT: Duration = Duration::from_millis(1);
 
@@ -383,7 +386,12 @@ impl Server {
         check_bind(&config.bind, config.key.is_some())?;
         let fmu = Fmu::load(&config.fmu, &LoadOptions::default())?;
         let socket = UdpSocket::bind(&config.bind)?;
+        // Non-blocking: the serving loop drains what is queued and waits in `ppoll`. (Its
+        // send buffer only ever holds its own replies, a few hundred bytes a period.)
         socket.set_nonblocking(true)?;
+        // Room for 8 MB of datagrams: a flood of junk that arrives while the thread is
+        // descheduled must not push the master's frames out of the queue.
+        realtime::set_receive_buffer(socket.as_raw_fd(), RECEIVE_BUFFER);
         let key = config.key.clone().unwrap_or_else(Key::loopback);
         let mut server = Self {
             socket,
@@ -535,15 +543,23 @@ impl Server {
             for _ in 0..256 {
                 match self.socket.recv_from(&mut buf) {
                     Ok((n, from)) => {
-                        self.handle(&buf[..n.min(buf.len())], from)?;
-                        // Published before the replies go out: whoever gets a reply sees
-                        // the frame's effect in the statistics.
-                        self.publish(stats);
+                        if self.handle(&buf[..n.min(buf.len())], from)? {
+                            // Published before the replies go out: whoever gets a reply
+                            // sees the frame's effect in the statistics.
+                            self.publish(stats);
+                        }
                         for (bytes, to) in self.outbox.drain(..) {
                             let _ = self.socket.send_to(&bytes, to);
                         }
                     }
-                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) =>
+                    {
+                        break;
+                    }
                     // ICMP errors of earlier sends (a master gone): not this socket's failure.
                     Err(e)
                         if matches!(
@@ -913,28 +929,35 @@ impl Server {
         self.outbox.push((frame, from));
     }
 
-    fn handle(&mut self, bytes: &[u8], from: SocketAddr) -> Result<(), EmulatorError> {
+    /// Handles one datagram; returns whether it was acted on (a session frame accepted or a
+    /// handshake answered), so that the statistics are published before the reply.
+    fn handle(&mut self, bytes: &[u8], from: SocketAddr) -> Result<bool, EmulatorError> {
         let header = match Frame::peek(bytes) {
             Ok(h) => h,
             Err(DecodeError::WrongVersion(v)) => {
                 self.rejected.wrong_version += 1;
                 self.refuse_version(v, bytes, from);
-                return Ok(());
+                return Ok(!self.outbox.is_empty());
             }
             Err(e) => {
                 self.rejected.count(e);
                 self.log_refusal(&e, from);
-                return Ok(());
+                return Ok(false);
             }
         };
         if self.silent {
-            return Ok(());
+            return Ok(false);
         }
         if header.frame_type == FrameType::Hello {
             self.on_hello(bytes, header, from);
-            return Ok(());
+            return Ok(!self.outbox.is_empty());
         }
-        self.on_session_frame(bytes, header, from)
+        let before = self.stats.faults_injected + self.rejected.accepted;
+        let accepted = self.session.as_ref().map_or(0, |s| s.rx.counters.accepted);
+        self.on_session_frame(bytes, header, from)?;
+        let after = self.stats.faults_injected + self.rejected.accepted;
+        let accepted_now = self.session.as_ref().map_or(0, |s| s.rx.counters.accepted);
+        Ok(accepted_now != accepted || after != before || !self.outbox.is_empty())
     }
 
     fn on_hello(&mut self, bytes: &[u8], header: Header, from: SocketAddr) {

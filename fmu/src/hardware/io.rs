@@ -299,7 +299,10 @@ impl UdpBench {
         };
         let socket = UdpSocket::bind(local)?;
         socket.connect(server)?;
-        socket.set_nonblocking(true)?;
+        // The socket stays blocking (a full send buffer on a loaded machine delays a send
+        // rather than failing it); receives wait in `ppoll` first, so they never block.
+        #[cfg(not(target_os = "linux"))]
+        socket.set_read_timeout(Some(Duration::from_micros(100)))?;
         let mut hs =
             ClientHandshake::new(&key, setup.setup).map_err(|e| IoError::Setup(e.to_string()))?;
         let spin_ns = u64::try_from(setup.spin.as_nanos()).unwrap_or(u64::MAX);
@@ -394,12 +397,12 @@ fn duration_ns(d: Duration) -> u64 {
     u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
 }
 
-/// Receives one datagram from the connected non-blocking `socket` if one is there before the
-/// monotonic clock reads `deadline_ns`: waits in `ppoll` until `spin_ns` before the deadline,
-/// then spins. The socket is read before the deadline is checked, so a datagram already
-/// queued when a descheduled thread runs again is still read (the slack is the thread's
-/// scheduling latency, not the kernel's tick); while the thread runs, nothing that arrives
-/// after the deadline is read. `Ok(None)`: the deadline passed.
+/// Receives one datagram from the connected `socket` if one is there before the monotonic
+/// clock reads `deadline_ns`: waits in `ppoll` until `spin_ns` before the deadline, then spins
+/// (polling without waiting). A datagram already queued is read before the deadline is
+/// checked, so one that arrived while a descheduled thread was not running is still read
+/// (the slack is the thread's scheduling latency, not the kernel's tick); while the thread
+/// runs, nothing that arrives after the deadline is read. `Ok(None)`: the deadline passed.
 pub fn recv_until(
     socket: &UdpSocket,
     buf: &mut [u8],
@@ -407,21 +410,34 @@ pub fn recv_until(
     spin_ns: u64,
 ) -> Result<Option<usize>, IoError> {
     use std::os::fd::AsRawFd;
+    let fd = socket.as_raw_fd();
     loop {
-        match socket.recv(buf) {
-            Ok(n) => return Ok(Some(n)),
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-            // ICMP port unreachable (the server is not there): as a missing reply.
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
-            Err(e) => return Err(e.into()),
+        let now = now_ns();
+        let wait_until = if now < deadline_ns && deadline_ns - now > spin_ns {
+            deadline_ns - spin_ns
+        } else {
+            // Past the deadline or in the spin: only look.
+            0
+        };
+        if wait_readable_until(fd, wait_until) {
+            match socket.recv(buf) {
+                Ok(n) => return Ok(Some(n)),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            // ICMP port unreachable (the server is not there): as no reply.
+                            | std::io::ErrorKind::ConnectionRefused
+                    ) => {}
+                Err(e) => return Err(e.into()),
+            }
         }
         let now = now_ns();
         if now >= deadline_ns {
             return Ok(None);
         }
-        if deadline_ns - now > spin_ns {
-            wait_readable_until(socket.as_raw_fd(), deadline_ns - spin_ns);
-        } else {
+        if deadline_ns - now <= spin_ns {
             std::hint::spin_loop();
         }
     }

@@ -87,6 +87,20 @@ mod sys {
         pub fn gettid() -> c_int;
         pub fn prctl(option: c_int, ...) -> c_int;
         pub fn mlockall(flags: c_int) -> c_int;
+        pub fn setsockopt(
+            fd: c_int,
+            level: c_int,
+            name: c_int,
+            value: *const std::ffi::c_void,
+            len: u32,
+        ) -> c_int;
+        pub fn getsockopt(
+            fd: c_int,
+            level: c_int,
+            name: c_int,
+            value: *mut std::ffi::c_void,
+            len: *mut u32,
+        ) -> c_int;
         pub fn ppoll(
             fds: *mut PollFd,
             nfds: std::ffi::c_ulong,
@@ -104,6 +118,9 @@ mod sys {
     }
 
     pub const POLLIN: i16 = 1;
+    pub const SOL_SOCKET: c_int = 1;
+    pub const SO_RCVBUF: c_int = 8;
+    pub const SO_RCVBUFFORCE: c_int = 33;
 
     pub fn errno() -> i32 {
         std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
@@ -200,7 +217,7 @@ pub fn wait_readable_until(fd: std::os::fd::RawFd, deadline_ns: u64) -> bool {
 }
 
 /// Waits until `fd` may be readable or the deadline passes (elsewhere than on Linux: short
-/// sleeps; the caller reads without blocking and decides).
+/// sleeps; the caller reads with a short receive timeout and decides).
 #[cfg(not(target_os = "linux"))]
 pub fn wait_readable_until(_fd: i32, deadline_ns: u64) -> bool {
     let now = now_ns();
@@ -210,6 +227,41 @@ pub fn wait_readable_until(_fd: i32, deadline_ns: u64) -> bool {
         ));
     }
     true
+}
+
+/// Asks for a socket receive buffer of `bytes` (`SO_RCVBUFFORCE`, which needs
+/// `CAP_NET_ADMIN`, else `SO_RCVBUF`, capped by `net.core.rmem_max`); returns the size the
+/// kernel granted (it doubles the request for its bookkeeping), or `None` if it cannot be
+/// read. A server keeps its legitimate frames through a burst of junk only if the junk that
+/// arrives while it is descheduled fits in this buffer.
+#[cfg(target_os = "linux")]
+pub fn set_receive_buffer(fd: std::os::fd::RawFd, bytes: usize) -> Option<usize> {
+    let v = i32::try_from(bytes).unwrap_or(i32::MAX);
+    let size = std::mem::size_of::<i32>() as u32;
+    // SAFETY: `v` and `got` are valid ints of the length given; the calls only read or write
+    // them.
+    unsafe {
+        let p = (&v as *const i32).cast();
+        if sys::setsockopt(fd, sys::SOL_SOCKET, sys::SO_RCVBUFFORCE, p, size) != 0 {
+            sys::setsockopt(fd, sys::SOL_SOCKET, sys::SO_RCVBUF, p, size);
+        }
+        let mut got = 0i32;
+        let mut len = size;
+        (sys::getsockopt(
+            fd,
+            sys::SOL_SOCKET,
+            sys::SO_RCVBUF,
+            (&mut got as *mut i32).cast(),
+            &mut len,
+        ) == 0)
+            .then_some(usize::try_from(got).unwrap_or(0))
+    }
+}
+
+/// The receive buffer stays the system's default here.
+#[cfg(not(target_os = "linux"))]
+pub fn set_receive_buffer(_fd: i32, _bytes: usize) -> Option<usize> {
+    None
 }
 
 /// The calling thread raised to a real-time policy; dropping it restores the thread's

@@ -160,6 +160,11 @@
 //!   pacing`); in normal scheduling under the same load p99 0.7-1.3 ms, which no setting
 //!   below the period can carry: there `realtimePriority` is the remedy, not a longer timeout.
 //!
+//! The timeout is an absolute deadline kept to the microsecond (`ppoll` until `spinMargin`
+//! before it, a spin for the rest: `hardware::io::recv_until`), never a socket receive timeout,
+//! which the kernel rounds up to its tick (0.8 ms became 4 ms at 250 Hz, and replies 2-5 ms
+//! late were accepted). A reply that is late by even 10 % trips (`tests/tests/bench_link.rs`).
+//!
 //! A `replyTimeout` not below the step size is logged as a warning at the first step. For
 //! another control period scale it with the period (0.8 h).
 //!
@@ -658,7 +663,7 @@ static VARIABLES: LazyLock<Vec<Variable<BenchHardwareModel>>> = LazyLock::new(||
         local!(int "overrunCount", 450, overrun_count, "Pacing overruns so far"),
         local!(real "lastLateness", 451, last_lateness, "s", "Lateness of the last step's deadline"),
         local!(real "maxLateness", 452, max_lateness, "s", "Largest lateness so far"),
-        local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (malformed, replayed, out of order, wrong version or session)"),
+        local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (unauthenticated, malformed, replayed, out of order, wrong version or session)"),
         local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
         local!(real "lastReplyTime", 455, last_reply_time, "s", "How long the last step's sample took to arrive after its request"),
         local!(real "maxReplyTime", 456, max_reply_time, "s", "Longest reply time so far"),
