@@ -102,7 +102,9 @@
 //! * Derived from measurements each period: velocities (backward difference of the encoder
 //!   angles over the time between the two samples: the server's timestamps over UDP, so a late
 //!   sample does not read as a speed jump; `h`, taken to the nanosecond, on the simulated
-//!   backend), accelerations (difference of velocities),
+//!   backend; a sample less than half a period after the last, as when the loop catches up
+//!   after a stall, widens the difference to the last two intervals, so that a count over a
+//!   tenth of a period does not read as a speed spike), accelerations (difference of velocities),
 //!   spring deflection and torque (`k (theta1 - theta2)`, `k` of the configuration), motor
 //!   and output torques (`Km i`, ratios), armature voltages (the set value in voltage mode;
 //!   `R i + Ke w_m` in current mode and for a disabled driver), driver saturation (that voltage at the measured supply),
@@ -1208,7 +1210,25 @@ fn measure(
             let [now, before] = rt.delta;
             let [dt, dt_before] = rt.dt;
             let dt = if dt > 0.0 { dt } else { h };
-            if dt_before == dt || dt_before <= 0.0 {
+            if dt < 0.5 * h && dt_before > 0.0 {
+                // The loop catching up after a stall: this sample follows the last by much
+                // less than a period, too short for its counts to make a velocity (one count
+                // over 0.1 ms reads as a speed spike, and the powers and the regenerated-power
+                // interlock with it). The window widens to the last two intervals.
+                let span = dt + dt_before;
+                let w = |side, counts| cal.angle(side, counts) / span;
+                let w_before = |side, counts| cal.angle(side, counts) / dt_before;
+                let (w1, w2) = (
+                    w(Side::Actuation, now[0] + before[0]),
+                    w(Side::Load, now[1] + before[1]),
+                );
+                (
+                    w1,
+                    w2,
+                    (w1 - w_before(Side::Actuation, before[0])) / (0.5 * span),
+                    (w2 - w_before(Side::Load, before[1])) / (0.5 * span),
+                )
+            } else if dt_before == dt || dt_before <= 0.0 {
                 (
                     cal.angle(Side::Actuation, now[0]) / dt,
                     cal.angle(Side::Load, now[1]) / dt,
@@ -1729,6 +1749,9 @@ mod tests {
         late: usize,
         delay: f64,
         slip: f64,
+        /// Taken off the slip at the sample after the late one: that sample comes less than a
+        /// period after the late one (the loop catching up).
+        catch_up: f64,
     }
 
     impl BenchIo for LateBench {
@@ -1739,6 +1762,9 @@ mod tests {
             self.reads += 1;
             if self.reads == self.late {
                 self.slip += self.delay;
+            }
+            if self.reads == self.late + 1 {
+                self.slip -= self.catch_up;
             }
             self.bench.read(t + self.slip)
         }
@@ -1769,6 +1795,7 @@ mod tests {
             late: 400,
             delay: 2e-3,
             slip: 0.0,
+            catch_up: 0.0,
         });
         rt.server_us = 0;
         // A steady current: the shaft turns at a nearly constant speed (about 50 counts per
@@ -1784,6 +1811,40 @@ mod tests {
         assert!(before > 0.1, "{before}");
         // The late sample covers 3 ms of motion; its speed is still the shaft's.
         assert!((late - before).abs() < 0.1 * before, "{before} {late}");
+    }
+
+    #[test]
+    fn a_sample_right_after_a_late_one_does_not_read_as_a_speed_spike() {
+        let mut m = started(|_| {});
+        let p = m.runtime.0.as_ref().unwrap().p.clone();
+        let mut sim = p.clone();
+        sim.spring_deflection_limit = 10.0;
+        sim.motor_torque_limit = 1e4;
+        let h = 1e-3;
+        let rt = m.runtime.0.as_mut().unwrap();
+        rt.io = Box::new(LateBench {
+            bench: SimulatedBench::new(sim).unwrap(),
+            reads: 0,
+            late: 400,
+            delay: 2e-3,
+            slip: 0.0,
+            // The next sample 0.1 ms after the late one.
+            catch_up: 0.9e-3,
+        });
+        rt.server_us = 0;
+        m.commands.test_current = 3.0;
+        let mut speeds = Vec::new();
+        for k in 0..402 {
+            assert_eq!(m.do_step(k as f64 * h, h).unwrap(), StepOutcome::Completed);
+            speeds.push(m.outputs.actuation_velocity);
+        }
+        let (before, caught_up) = (speeds[398], speeds[400]);
+        assert!(before > 0.1, "{before}");
+        // About 5 counts in 0.1 ms: a one-count error alone would be 20 %.
+        assert!(
+            (caught_up - before).abs() < 0.05 * before,
+            "{before} {caught_up}"
+        );
     }
 
     #[test]
