@@ -9,10 +9,11 @@ use kneebench_harness::bench_protocol::Key;
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench key new bench.key            # 32 random bytes as hex, mode 0600
-  kneebench emulate --key bench.key --bind 0.0.0.0:47000 --fmu BenchPlant.fmu
-The same file goes to every master (the BenchHardware parameter keyFile). A key file that
-its group or others may read is refused.")]
+  kneebench key new lab-bench.key      # 32 random bytes as hex, mode 0600
+  kneebench key check lab-bench.key
+The bench server uses it (kneebench emulate --key FILE); the same file goes to every master
+(the BenchHardware parameter keyFile). A key file that its group or others may read is
+refused.")]
 pub struct Args {
     /// What to do.
     #[command(subcommand)]
