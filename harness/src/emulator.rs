@@ -5,31 +5,49 @@
 //! The plant is loaded like any FMU ([`Fmu::load`]); its raw sensor outputs (encoder counts,
 //! volts) are what the samples carry. The plant's time is the wall time since the session
 //! began: on every frame the emulator first advances the plant to *now* with the command held
-//! so far, then acts on the frame. A session begins with the first valid frame of a new session
-//! identifier when no session is active (none yet, the previous one ended, or it has been
-//! silent for the heartbeat timeout); each session gets a fresh plant at rest, prepared in
+//! so far, then acts on the frame. Each session gets a fresh plant at rest, prepared in
 //! advance so the first frames are answered at once.
 //!
-//! Faults are injected by [`FaultInjection`] frames (from any address: an emulator-only frame
-//! type) or [`EmulatorHandle::inject`]: dropped or delayed replies, a stuck or forced channel,
-//! the emergency-stop button, silence (the link lost).
+//! **Sessions** are authenticated (protocol §6): a master proves it holds the bench key in a
+//! handshake that also carries its bench setup (a master set up differently is refused with
+//! the setting that differs); every later frame is tagged with the session's keys. One master
+//! at a time: while a session is live, a HELLO of any other master is refused (busy) and
+//! frames from any other address or session are dropped and counted; the bench is free again
+//! after the master's release (SAFE_STATE, reason session end) or its heartbeat watchdog.
+//! **The safe state latches across sessions**: a trip, the watchdog or the emergency stop
+//! keeps the outputs safe in every later session until the session's master acknowledges it
+//! explicitly (ACKNOWLEDGE, authenticated). Rejected frames are counted
+//! ([`EmulatorStats::rejected`] and the fields after it) and logged on stderr at most once a
+//! second.
+//!
+//! Faults are injected in process ([`EmulatorHandle::inject`], the CLI's `--fault`) or by
+//! FAULT_INJECT frames of the live, authenticated session (a bench server refuses the type):
+//! dropped or delayed replies, a stuck or forced channel, the emergency-stop button, silence
+//! (the link lost).
+//!
+//! Timing: the serving loop waits in `ppoll` until the next event it owes (a delayed reply,
+//! the session's watchdog deadline) or a datagram, so the watchdog and delayed replies keep
+//! their configured times whatever the kernel's tick.
 
 use std::collections::VecDeque;
-use std::net::{SocketAddr, UdpSocket};
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::os::fd::AsRawFd;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use crate::bench_protocol::auth::{NONCE_LEN, nonce};
 use crate::bench_protocol::{
-    ANALOG_CHANNELS, Command, Counters, FaultInjection, Frame, Payload, Receiver, Sample, Sender,
-    SetValueKind, reason, status,
+    ANALOG_CHANNELS, BenchSetup, Command, Counters, DecodeError, FaultInjection, Frame, FrameType,
+    Header, Key, Payload, Receiver, Refusal, Sample, Sender, SessionKeys, SetValueKind, TAG_LEN,
+    TagKey, VERSION, Welcome, reason, refusal, status,
 };
 use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, Status};
 
-/// The real-time support of the `fmu` crate's pacing (`SCHED_FIFO`), shared by including its
-/// file as the protocol codec is.
+/// The real-time support of the `fmu` crate's pacing (`SCHED_FIFO`, `ppoll`), shared by
+/// including its file as the protocol codec is.
 #[path = "../../fmu/src/hardware/realtime.rs"]
 #[allow(dead_code)]
 mod realtime;
@@ -50,9 +68,23 @@ mod vr {
     /// sense, test supply sense, load supply sense.
     pub const ANALOG: [u32; 6] = [322, 324, 328, 329, 326, 327];
     pub const TRIP_CODE: u32 = 373;
+    pub const CONFIGURATION: u32 = 1;
     pub const TEST_DRIVER_MODE: u32 = 3;
     pub const LOAD_DRIVER_MODE: u32 = 4;
 }
+
+/// Handshakes answered but not yet completed that the server remembers (the oldest is
+/// forgotten first).
+const MAX_PENDING: usize = 8;
+/// How long an answered handshake waits for its first session frame.
+const PENDING_LIFETIME: Duration = Duration::from_secs(1);
+/// Version refusals sent at most per second (they are unauthenticated: never a reflector).
+const VERSION_REFUSALS_PER_SECOND: u64 = 10;
+/// The receive buffer the server asks for \[bytes\] (granted up to the system's limit, or
+/// fully with `CAP_NET_ADMIN`).
+const RECEIVE_BUFFER: usize = 8 << 20;
+/// The longest the serving loop waits without looking at its stop flag and fault queue.
+const IDLE_WAIT: Duration = Duration::from_millis(1);
 
 /// How to run an emulator.
 #[derive(Debug, Clone)]
@@ -72,10 +104,16 @@ pub struct EmulatorConfig {
     /// refusal is reported on stderr and in [`EmulatorStats::realtime_priority`] (0), and the
     /// emulator serves anyway.
     pub realtime_priority: Option<i32>,
+    /// The bench key; `None`: the public loopback key (protocol §6.1), refused unless `bind`
+    /// is a loopback address.
+    pub key: Option<Key>,
+    /// Log refused frames on stderr (at most one line a second).
+    pub log_rejections: bool,
 }
 
 impl EmulatorConfig {
-    /// Defaults: the protocol's heartbeat timeout, no parameters, no faults.
+    /// Defaults: the protocol's heartbeat timeout, no parameters, no faults, no key (loopback
+    /// only), rejections logged.
     pub fn new(bind: impl Into<String>, fmu: impl Into<PathBuf>) -> Self {
         Self {
             bind: bind.into(),
@@ -84,6 +122,8 @@ impl EmulatorConfig {
             heartbeat_timeout: crate::bench_protocol::HEARTBEAT_TIMEOUT,
             faults: Vec::new(),
             realtime_priority: None,
+            key: None,
+            log_rejections: true,
         }
     }
 }
@@ -114,12 +154,19 @@ pub struct EmulatorStats {
     pub session: u32,
     /// Commands applied in the current session.
     pub commands_applied: u64,
+    /// Commands applied in all sessions.
+    pub commands_applied_total: u64,
+    /// Drive commands (anything on or nonzero) applied in all sessions.
+    pub drive_commands_applied_total: u64,
+    /// The outputs the drivers hold now (set values, enables, clutch).
+    pub outputs: Option<Command>,
     /// Commands refused (set-value kind differing from the drivers' mode).
     pub commands_refused: u64,
-    /// Drive commands (anything on or nonzero) received in the safe state, never applied.
+    /// Drive commands (anything on or nonzero) received in the safe state, never applied
+    /// (current session).
     pub drive_commands_in_safe_state: u64,
     /// Drive commands received after the client's own safe-state request (a correct client
-    /// sends none).
+    /// sends none; current session).
     pub drive_commands_after_safe_request: u64,
     /// Safe-state requests received.
     pub safe_state_requests: u64,
@@ -129,18 +176,33 @@ pub struct EmulatorStats {
     pub samples_sent: u64,
     /// Replies dropped or held back by injected faults.
     pub replies_dropped: u64,
-    /// The reason of the safe state of the current session, if in it.
+    /// The latched safe state's reason, if latched (it survives sessions).
     pub safe_reason: Option<u8>,
-    /// Plant time \[s\] at which the safe state was entered.
+    /// Plant time \[s\] at which the safe state was entered (in the session that latched it).
     pub safe_since: Option<f64>,
     /// The plant's own trip code, if it tripped.
     pub plant_trip: Option<i32>,
     /// Plant time \[s\] of the current session.
     pub plant_time: f64,
-    /// Frames rejected, by cause (all sessions).
+    /// Frames rejected, by cause (all sessions and the handshakes).
     pub rejected: Counters,
-    /// Fault-injection frames applied.
+    /// Frames of the live (or a pending) session from another address: a second master or a
+    /// spoofer; dropped.
+    pub foreign_frames: u64,
+    /// Handshakes refused because another master's session was live.
+    pub busy_refusals: u64,
+    /// Handshakes refused because the master's bench setup differs.
+    pub setup_refusals: u64,
+    /// Frames of another protocol version answered with a version refusal.
+    pub version_refusals: u64,
+    /// Latches cleared by an acknowledgement.
+    pub acknowledgements: u64,
+    /// Acknowledgements refused (wrong reason, the button still pressed, nothing latched).
+    pub acknowledgements_refused: u64,
+    /// Fault injections applied (in process and by authenticated frames).
     pub faults_injected: u64,
+    /// Lines logged about refused frames (at most one a second).
+    pub log_lines: u64,
     /// The `SCHED_FIFO` priority the serving thread runs at (0: normal scheduling).
     pub realtime_priority: i32,
 }
@@ -151,6 +213,7 @@ pub struct EmulatorHandle {
     addr: SocketAddr,
     stop: Arc<AtomicBool>,
     stats: Arc<Mutex<EmulatorStats>>,
+    faults: Arc<Mutex<VecDeque<FaultInjection>>>,
     thread: Option<JoinHandle<Result<(), EmulatorError>>>,
 }
 
@@ -165,17 +228,22 @@ impl EmulatorHandle {
         self.stats.lock().map(|s| s.clone()).unwrap_or_default()
     }
 
-    /// Sends a fault-injection frame to the emulator (as any client could).
-    pub fn inject(&self, fault: FaultInjection) -> std::io::Result<()> {
-        let socket = UdpSocket::bind(("127.0.0.1", 0))?;
-        let (_, bytes) = Sender::new(0xFA17).frame(Payload::FaultInject(fault));
-        // Count before sending: the emulator may apply the fault before this thread looks.
+    /// Injects a fault in process (the emulator's owner is trusted; over the network only the
+    /// live session may) and waits until the emulator has applied it.
+    pub fn inject(&self, fault: FaultInjection) -> Result<(), EmulatorError> {
         let before = self.stats().faults_injected;
-        socket.send_to(&bytes, self.addr)?;
-        // Wait until the emulator has applied it.
+        self.faults
+            .lock()
+            .map_err(|_| EmulatorError::Config("emulator fault queue poisoned".into()))?
+            .push_back(fault);
         let start = Instant::now();
-        while self.stats().faults_injected == before && start.elapsed() < Duration::from_secs(1) {
-            std::thread::sleep(Duration::from_micros(100));
+        while self.stats().faults_injected == before {
+            if start.elapsed() > Duration::from_secs(1) {
+                return Err(EmulatorError::Config(
+                    "the emulator did not apply the fault within 1 s".into(),
+                ));
+            }
+            std::thread::sleep(Duration::from_micros(50));
         }
         Ok(())
     }
@@ -206,6 +274,7 @@ pub fn spawn(config: EmulatorConfig) -> Result<EmulatorHandle, EmulatorError> {
     let addr = server.socket.local_addr()?;
     let stop = Arc::new(AtomicBool::new(false));
     let stats = Arc::new(Mutex::new(EmulatorStats::default()));
+    let faults = server.injected.clone();
     let (s2, st2) = (stop.clone(), stats.clone());
     let thread = std::thread::Builder::new()
         .name("kneebench-emulator".into())
@@ -214,6 +283,7 @@ pub fn spawn(config: EmulatorConfig) -> Result<EmulatorHandle, EmulatorError> {
         addr,
         stop,
         stats,
+        faults,
         thread: Some(thread),
     })
 }
@@ -230,6 +300,23 @@ pub fn run(
     server.serve(stop, stats)
 }
 
+/// Checks that serving on `bind` without a key is allowed: only on a loopback address.
+pub fn check_bind(bind: &str, has_key: bool) -> Result<(), EmulatorError> {
+    if has_key {
+        return Ok(());
+    }
+    let addrs: Vec<SocketAddr> = bind
+        .to_socket_addrs()
+        .map_err(|e| EmulatorError::Config(format!("bind address `{bind}`: {e}")))?
+        .collect();
+    if let Some(a) = addrs.iter().find(|a| !a.ip().is_loopback()) {
+        return Err(EmulatorError::Config(format!(
+            "refusing to serve on {a} without a key: every host that reaches it could drive the bench; give a key file (--key FILE, or --new-key FILE to make one) or bind a loopback address"
+        )));
+    }
+    Ok(())
+}
+
 struct Session {
     id: u32,
     peer: SocketAddr,
@@ -241,21 +328,43 @@ struct Session {
     last_valid: Instant,
     held: Command,
     last_command: u32,
-    safe: Option<u8>,
     safe_requested: bool,
     server_trip: bool,
+    /// Released by its master (SAFE_STATE with reason session end).
     ended: bool,
+    /// Its heartbeat watchdog expired.
+    expired: bool,
+}
+
+/// A handshake answered with a WELCOME, waiting for its first session frame.
+struct Pending {
+    session: u32,
+    peer: SocketAddr,
+    client_nonce: [u8; NONCE_LEN],
+    welcome: Vec<u8>,
+    keys: SessionKeys,
+    created: Instant,
 }
 
 struct Server {
     socket: UdpSocket,
     fmu: Fmu,
     config: EmulatorConfig,
+    key: Key,
+    handshake: TagKey,
+    setup: BenchSetup,
     kinds: [SetValueKind; 2],
     ready: Option<Instance>,
     session: Option<Session>,
+    pending: VecDeque<Pending>,
+    /// The latched safe state's reason (survives sessions; cleared only by ACKNOWLEDGE).
+    latch: Option<u8>,
     stats: EmulatorStats,
-    rejected: Receiver,
+    /// Rejections outside the sessions' own receivers (handshakes, strangers, old sessions).
+    rejected: Counters,
+    /// Rejections of ended sessions' receivers.
+    rejected_before: Counters,
+    injected: Arc<Mutex<VecDeque<FaultInjection>>>,
     drop_replies: u32,
     delay: Option<(u32, Duration)>,
     delayed: VecDeque<(Instant, SocketAddr, Vec<u8>)>,
@@ -264,21 +373,45 @@ struct Server {
     forced: [Option<f64>; ANALOG_CHANNELS],
     emergency_stop: bool,
     silent: bool,
+    /// (second of the last log line, refusals not logged since)
+    log: (Option<Instant>, u64),
+    /// (start of the current second, version refusals sent in it)
+    version_budget: (Instant, u64),
+    /// Datagrams to send once the frame at hand is handled and the statistics published.
+    outbox: Vec<(Vec<u8>, SocketAddr)>,
 }
 
 impl Server {
     fn new(config: EmulatorConfig) -> Result<Self, EmulatorError> {
+        check_bind(&config.bind, config.key.is_some())?;
         let fmu = Fmu::load(&config.fmu, &LoadOptions::default())?;
         let socket = UdpSocket::bind(&config.bind)?;
-        socket.set_read_timeout(Some(Duration::from_micros(500)))?;
+        // Non-blocking: the serving loop drains what is queued and waits in `ppoll`. (Its
+        // send buffer only ever holds its own replies, a few hundred bytes a period.)
+        socket.set_nonblocking(true)?;
+        // Room for 8 MB of datagrams: a flood of junk that arrives while the thread is
+        // descheduled must not push the master's frames out of the queue.
+        realtime::set_receive_buffer(socket.as_raw_fd(), RECEIVE_BUFFER);
+        let key = config.key.clone().unwrap_or_else(Key::loopback);
         let mut server = Self {
             socket,
             fmu,
+            handshake: key.handshake(),
+            key,
+            setup: BenchSetup {
+                configuration: 0,
+                test_kind: SetValueKind::Current,
+                load_kind: SetValueKind::Current,
+            },
             kinds: [SetValueKind::Current; 2],
             ready: None,
             session: None,
+            pending: VecDeque::new(),
+            latch: None,
             stats: EmulatorStats::default(),
-            rejected: Receiver::new(0),
+            rejected: Counters::default(),
+            rejected_before: Counters::default(),
+            injected: Arc::new(Mutex::new(VecDeque::new())),
             drop_replies: 0,
             delay: None,
             delayed: VecDeque::new(),
@@ -287,12 +420,21 @@ impl Server {
             forced: [None; ANALOG_CHANNELS],
             emergency_stop: false,
             silent: false,
+            log: (None, 0),
+            version_budget: (Instant::now(), 0),
+            outbox: Vec::new(),
             config,
         };
-        let plant = server.prepare()?;
-        let mut modes = [0; 2];
-        let mut p = plant;
-        p.get_integer(&[vr::TEST_DRIVER_MODE, vr::LOAD_DRIVER_MODE], &mut modes)?;
+        let mut plant = server.prepare()?;
+        let mut modes = [0; 3];
+        plant.get_integer(
+            &[
+                vr::CONFIGURATION,
+                vr::TEST_DRIVER_MODE,
+                vr::LOAD_DRIVER_MODE,
+            ],
+            &mut modes,
+        )?;
         let kind = |m: i32| {
             if m == 0 {
                 SetValueKind::Voltage
@@ -300,8 +442,13 @@ impl Server {
                 SetValueKind::Current
             }
         };
-        server.kinds = [kind(modes[0]), kind(modes[1])];
-        server.ready = Some(p);
+        server.kinds = [kind(modes[1]), kind(modes[2])];
+        server.setup = BenchSetup {
+            configuration: u8::try_from(modes[0]).unwrap_or(u8::MAX),
+            test_kind: server.kinds[0],
+            load_kind: server.kinds[1],
+        };
+        server.ready = Some(plant);
         for fault in server.config.faults.clone() {
             server.apply_fault(fault);
         }
@@ -366,6 +513,13 @@ impl Server {
         };
         let mut buf = [0u8; 2048];
         while !stop.load(Ordering::Relaxed) {
+            let queued: Vec<FaultInjection> = match self.injected.lock() {
+                Ok(mut q) => q.drain(..).collect(),
+                Err(_) => Vec::new(),
+            };
+            for f in queued {
+                self.apply_fault(f);
+            }
             let now = Instant::now();
             while let Some((due, _, _)) = self.delayed.front() {
                 if *due > now {
@@ -380,34 +534,83 @@ impl Server {
                 && self
                     .session
                     .as_ref()
-                    .is_none_or(|s| s.ended || s.safe.is_some())
+                    .is_none_or(|s| s.ended || s.expired || self.latch.is_some())
             {
                 self.ready = Some(self.prepare()?);
             }
-            match self.socket.recv_from(&mut buf) {
-                Ok((n, from)) => self.handle(&buf[..n], from)?,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) => {}
-                Err(e) => return Err(e.into()),
-            }
-            if let Ok(mut s) = stats.lock() {
-                *s = self.stats.clone();
-                s.rejected = self.rejected.counters;
-                if let Some(session) = &self.session {
-                    let c = session.rx.counters;
-                    let r = &mut s.rejected;
-                    r.replayed += c.replayed;
-                    r.out_of_order += c.out_of_order;
-                    r.wrong_session += c.wrong_session;
-                    r.accepted += c.accepted;
-                    r.gaps += c.gaps;
+            // A bounded batch, so that delayed replies and the watchdog keep their times under
+            // a flood.
+            for _ in 0..256 {
+                match self.socket.recv_from(&mut buf) {
+                    Ok((n, from)) => {
+                        if self.handle(&buf[..n.min(buf.len())], from)? {
+                            // Published before the replies go out: whoever gets a reply
+                            // sees the frame's effect in the statistics.
+                            self.publish(stats);
+                        }
+                        for (bytes, to) in self.outbox.drain(..) {
+                            let _ = self.socket.send_to(&bytes, to);
+                        }
+                    }
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) =>
+                    {
+                        break;
+                    }
+                    // ICMP errors of earlier sends (a master gone): not this socket's failure.
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::ConnectionRefused
+                                | std::io::ErrorKind::ConnectionReset
+                        ) => {}
+                    Err(e) => return Err(e.into()),
                 }
             }
+            self.publish(stats);
+            let mut wake = Instant::now() + IDLE_WAIT;
+            if let Some((due, _, _)) = self.delayed.front() {
+                wake = wake.min(*due);
+            }
+            if let Some(s) = &self.session
+                && !s.ended
+                && !s.expired
+            {
+                wake = wake.min(s.last_valid + self.config.heartbeat_timeout);
+            }
+            let left = wake.saturating_duration_since(Instant::now());
+            realtime::wait_readable_until(
+                self.socket.as_raw_fd(),
+                realtime::now_ns() + u64::try_from(left.as_nanos()).unwrap_or(u64::MAX),
+            );
         }
+        self.publish(stats);
         Ok(())
+    }
+
+    fn publish(&self, stats: &Mutex<EmulatorStats>) {
+        if let Ok(mut s) = stats.lock() {
+            *s = self.stats.clone();
+            s.safe_reason = self.latch;
+            let mut r = self.rejected;
+            r.add(&self.rejected_before);
+            if let Some(session) = &self.session {
+                r.add(&session.rx.counters);
+                s.outputs = Some(session.held);
+            }
+            s.rejected = r;
+        }
+    }
+
+    /// The session whose master holds the bench: begun, not released, its watchdog not
+    /// expired.
+    fn live(&self) -> bool {
+        self.session.as_ref().is_some_and(|s| {
+            !s.ended && !s.expired && s.last_valid.elapsed() <= self.config.heartbeat_timeout
+        })
     }
 
     fn watchdog(&mut self, now: Instant) -> Result<(), EmulatorError> {
@@ -415,8 +618,11 @@ impl Server {
         let Some(s) = self.session.as_mut() else {
             return Ok(());
         };
-        if s.safe.is_none() && !s.ended && now.duration_since(s.last_valid) > timeout {
-            s.server_trip = true;
+        if !s.ended && !s.expired && now.duration_since(s.last_valid) > timeout {
+            s.expired = true;
+            if self.latch.is_none() {
+                s.server_trip = true;
+            }
             self.enter_safe(reason::HEARTBEAT_TIMEOUT)?;
         }
         Ok(())
@@ -483,14 +689,15 @@ impl Server {
         Ok(())
     }
 
+    /// Outputs safe; latched with `why` unless already latched (the first reason stays).
     fn enter_safe(&mut self, why: u8) -> Result<(), EmulatorError> {
         let Some(s) = self.session.as_mut() else {
+            self.latch.get_or_insert(why);
             return Ok(());
         };
         s.held = Command::safe(s.held.test_kind, s.held.load_kind);
-        if s.safe.is_none() {
-            s.safe = Some(why);
-            self.stats.safe_reason = Some(why);
+        if why != reason::SESSION_END && self.latch.is_none() {
+            self.latch = Some(why);
             self.stats.safe_since = Some(s.plant_time);
         }
         if self.stats.plant_trip.is_none() {
@@ -537,7 +744,7 @@ impl Server {
             (c.test_enable, status::TEST_ENABLED),
             (c.load_enable, status::LOAD_ENABLED),
             (c.clutch, status::CLUTCH),
-            (s.safe.is_some(), status::SAFE_STATE),
+            (self.latch.is_some() || s.ended, status::SAFE_STATE),
             (self.emergency_stop, status::EMERGENCY_STOP),
             (s.server_trip, status::SERVER_TRIP),
         ] {
@@ -550,7 +757,11 @@ impl Server {
             last_command_sequence: s.last_command,
             server_time_us: (s.plant_time * 1e6).round() as u64,
             status: bits,
-            safe_reason: s.safe.unwrap_or(reason::NONE),
+            safe_reason: match (self.latch, s.ended) {
+                (Some(r), _) => r,
+                (None, true) => reason::SESSION_END,
+                (None, false) => reason::NONE,
+            },
             test_counts: values[0] as i64 as i32,
             load_counts: values[1] as i64 as i32,
             analog,
@@ -579,7 +790,7 @@ impl Server {
                 .push_back((Instant::now() + delay, peer, bytes));
             return;
         }
-        let _ = self.socket.send_to(&bytes, peer);
+        self.outbox.push((bytes, peer));
     }
 
     fn apply_fault(&mut self, fault: FaultInjection) {
@@ -618,35 +829,42 @@ impl Server {
         }
     }
 
-    fn begin_session(&mut self, id: u32, peer: SocketAddr) -> Result<(), EmulatorError> {
+    fn begin_session(&mut self, p: Pending) -> Result<(), EmulatorError> {
         let plant = match self.ready.take() {
-            Some(p) => p,
+            Some(plant) => plant,
             None => self.prepare()?,
         };
+        if let Some(old) = self.session.take() {
+            self.rejected_before.add(&old.rx.counters);
+        }
         let now = Instant::now();
+        let mut tx = Sender::new(p.session, p.keys.server_to_client);
+        // The WELCOME was the server's frame 1.
+        tx.sequence = 1;
+        let mut rx = Receiver::new(p.session, p.keys.client_to_server);
+        // The HELLO was the client's frame 1.
+        rx.last_sequence = 1;
         self.session = Some(Session {
-            id,
-            peer,
-            rx: Receiver::new(id),
-            tx: Sender::new(id),
+            id: p.session,
+            peer: p.peer,
+            rx,
+            tx,
             plant,
             plant_time: 0.0,
             origin: now,
             last_valid: now,
             held: Command::safe(self.kinds[0], self.kinds[1]),
             last_command: 0,
-            safe: None,
             safe_requested: false,
             server_trip: false,
             ended: false,
+            expired: false,
         });
         self.stats.sessions += 1;
-        self.stats.session = id;
+        self.stats.session = p.session;
         self.stats.commands_applied = 0;
         self.stats.drive_commands_in_safe_state = 0;
         self.stats.drive_commands_after_safe_request = 0;
-        self.stats.safe_reason = None;
-        self.stats.safe_since = None;
         self.stats.plant_trip = None;
         self.stats.plant_time = 0.0;
         if self.emergency_stop {
@@ -658,55 +876,240 @@ impl Server {
         Ok(())
     }
 
-    fn handle(&mut self, bytes: &[u8], from: SocketAddr) -> Result<(), EmulatorError> {
-        let frame = match Frame::decode(bytes) {
-            Ok(f) => f,
-            Err(_) => {
-                // Counted by the same filter the sessions use.
-                let _ = self.rejected.accept(bytes);
-                return Ok(());
+    /// Logs a refused frame, at most one line a second (the rest are counted in the line).
+    fn log_refusal(&mut self, what: &dyn std::fmt::Display, from: SocketAddr) {
+        if !self.config.log_rejections {
+            return;
+        }
+        let now = Instant::now();
+        match self.log.0 {
+            Some(last) if now.duration_since(last) < Duration::from_secs(1) => self.log.1 += 1,
+            _ => {
+                let more = std::mem::take(&mut self.log.1);
+                eprintln!(
+                    "kneebench emulate: refused a frame from {from}: {what} ({more} more refused since the last report)"
+                );
+                self.stats.log_lines += 1;
+                self.log.0 = Some(now);
+            }
+        }
+    }
+
+    fn send_handshake(&mut self, session: u32, payload: Payload, to: SocketAddr) {
+        let (_, bytes) = Sender::new(session.max(1), self.handshake.clone()).frame(payload);
+        self.outbox.push((bytes, to));
+    }
+
+    /// A frame of another version: answered with an unauthenticated REFUSE saying which
+    /// version this server speaks, at most [`VERSION_REFUSALS_PER_SECOND`] a second.
+    fn refuse_version(&mut self, got: u8, bytes: &[u8], from: SocketAddr) {
+        self.log_refusal(&DecodeError::WrongVersion(got), from);
+        let now = Instant::now();
+        if now.duration_since(self.version_budget.0) >= Duration::from_secs(1) {
+            self.version_budget = (now, 0);
+        }
+        if self.version_budget.1 >= VERSION_REFUSALS_PER_SECOND {
+            return;
+        }
+        self.version_budget.1 += 1;
+        self.stats.version_refusals += 1;
+        let session = bytes
+            .get(8..12)
+            .map(|b| u32::from_be_bytes([b[0], b[1], b[2], b[3]]))
+            .unwrap_or(0);
+        let text = format!("protocol version {got} refused: this server speaks version {VERSION}");
+        let mut frame = Frame {
+            session: session.max(1),
+            sequence: 1,
+            payload: Payload::Refuse(Refusal::new(refusal::VERSION, [0; NONCE_LEN], &text)),
+        }
+        .encode_body();
+        // Unauthenticated (the peer's key is not known to be ours): a zero tag.
+        frame.extend_from_slice(&[0; TAG_LEN]);
+        self.outbox.push((frame, from));
+    }
+
+    /// Handles one datagram; returns whether it was acted on (a session frame accepted or a
+    /// handshake answered), so that the statistics are published before the reply.
+    fn handle(&mut self, bytes: &[u8], from: SocketAddr) -> Result<bool, EmulatorError> {
+        let header = match Frame::peek(bytes) {
+            Ok(h) => h,
+            Err(DecodeError::WrongVersion(v)) => {
+                self.rejected.wrong_version += 1;
+                self.refuse_version(v, bytes, from);
+                return Ok(!self.outbox.is_empty());
+            }
+            Err(e) => {
+                self.rejected.count(e);
+                self.log_refusal(&e, from);
+                return Ok(false);
             }
         };
-        if let Payload::FaultInject(fault) = frame.payload {
-            self.apply_fault(fault);
-            return Ok(());
-        }
         if self.silent {
-            return Ok(());
+            return Ok(false);
         }
-        let timeout = self.config.heartbeat_timeout;
-        let new_session = match &self.session {
-            None => true,
-            Some(s) => {
-                s.id != frame.session
-                    && (s.ended || s.last_valid.elapsed() > timeout || s.safe.is_some())
+        if header.frame_type == FrameType::Hello {
+            self.on_hello(bytes, header, from);
+            return Ok(!self.outbox.is_empty());
+        }
+        let before = self.stats.faults_injected + self.rejected.accepted;
+        let accepted = self.session.as_ref().map_or(0, |s| s.rx.counters.accepted);
+        self.on_session_frame(bytes, header, from)?;
+        let after = self.stats.faults_injected + self.rejected.accepted;
+        let accepted_now = self.session.as_ref().map_or(0, |s| s.rx.counters.accepted);
+        Ok(accepted_now != accepted || after != before || !self.outbox.is_empty())
+    }
+
+    fn on_hello(&mut self, bytes: &[u8], header: Header, from: SocketAddr) {
+        let frame = match Frame::decode(bytes, &self.handshake) {
+            Ok(f) => f,
+            Err(e) => {
+                self.rejected.count(e);
+                self.log_refusal(&format!("handshake: {e}"), from);
+                return;
             }
         };
-        if new_session {
-            // A late frame of an ended session must not begin a session of its own.
-            if matches!(frame.payload, Payload::SafeState(_)) {
+        let Payload::Hello(hello) = frame.payload else {
+            return;
+        };
+        // The same HELLO again (our WELCOME was lost): the same WELCOME.
+        if let Some(p) = self.pending.iter().find(|p| {
+            p.session == header.session && p.client_nonce == hello.nonce && p.peer == from
+        }) {
+            self.outbox.push((p.welcome.clone(), from));
+            return;
+        }
+        if let Some(diff) = self.setup.difference(&hello.setup) {
+            self.stats.setup_refusals += 1;
+            self.log_refusal(&format!("handshake: {diff}"), from);
+            let r = Refusal::new(refusal::SETUP, hello.nonce, &diff);
+            self.send_handshake(frame.session, Payload::Refuse(r), from);
+            return;
+        }
+        if self.live() {
+            self.stats.busy_refusals += 1;
+            self.log_refusal(&"handshake while another master's session is live", from);
+            let r = Refusal::new(
+                refusal::BUSY,
+                hello.nonce,
+                "another master's session is live (until its release or watchdog)",
+            );
+            self.send_handshake(frame.session, Payload::Refuse(r), from);
+            return;
+        }
+        let server_nonce = match nonce() {
+            Ok(n) => n,
+            Err(e) => {
+                eprintln!("kneebench emulate: {e}; handshake not answered");
+                return;
+            }
+        };
+        let (_, welcome) =
+            Sender::new(frame.session, self.handshake.clone()).frame(Payload::Welcome(Welcome {
+                client_nonce: hello.nonce,
+                server_nonce,
+                latched: self.latch.unwrap_or(reason::NONE),
+            }));
+        let now = Instant::now();
+        self.pending
+            .retain(|p| now.duration_since(p.created) < PENDING_LIFETIME);
+        while self.pending.len() >= MAX_PENDING {
+            self.pending.pop_front();
+        }
+        self.outbox.push((welcome.clone(), from));
+        self.pending.push_back(Pending {
+            session: frame.session,
+            peer: from,
+            client_nonce: hello.nonce,
+            keys: self.key.session(frame.session, &hello.nonce, &server_nonce),
+            welcome,
+            created: now,
+        });
+    }
+
+    fn on_session_frame(
+        &mut self,
+        bytes: &[u8],
+        header: Header,
+        from: SocketAddr,
+    ) -> Result<(), EmulatorError> {
+        let current = self
+            .session
+            .as_ref()
+            .is_some_and(|s| s.id == header.session);
+        let frame = if current {
+            let Some(s) = self.session.as_mut() else {
+                return Ok(());
+            };
+            if from != s.peer {
+                self.stats.foreign_frames += 1;
+                self.log_refusal(&"a frame of the session from another address", from);
                 return Ok(());
             }
-            self.begin_session(frame.session, from)?;
-        }
-        let Some(s) = self.session.as_mut() else {
+            let accepted = s.rx.accept(bytes);
+            match accepted {
+                Ok(f) => f,
+                Err(e) => {
+                    self.log_refusal(&e, from);
+                    return Ok(());
+                }
+            }
+        } else if let Some(i) = self
+            .pending
+            .iter()
+            .position(|p| p.session == header.session)
+        {
+            if from != self.pending[i].peer {
+                self.stats.foreign_frames += 1;
+                self.log_refusal(&"a frame of a handshake from another address", from);
+                return Ok(());
+            }
+            let frame = match Frame::decode(bytes, &self.pending[i].keys.client_to_server) {
+                Ok(f) => f,
+                Err(e) => {
+                    self.rejected.count(e);
+                    self.log_refusal(&e, from);
+                    return Ok(());
+                }
+            };
+            if self.live() {
+                // Another master completed its handshake first.
+                self.stats.busy_refusals += 1;
+                self.log_refusal(&"a new session while another master's is live", from);
+                return Ok(());
+            }
+            if let Some(p) = self.pending.remove(i) {
+                self.begin_session(p)?;
+            }
+            let Some(s) = self.session.as_mut() else {
+                return Ok(());
+            };
+            if let Err(e) = s.rx.check(&frame) {
+                self.log_refusal(&e, from);
+                return Ok(());
+            }
+            frame
+        } else {
+            // An old session's frame, a stranger's, or a forged session number.
+            self.rejected.wrong_session += 1;
+            self.log_refusal(&"a frame of no session in force", from);
             return Ok(());
         };
-        if from != s.peer {
-            s.rx.counters.wrong_session += 1;
-            return Ok(());
+        if let Some(s) = self.session.as_mut() {
+            s.last_valid = Instant::now();
         }
-        if s.rx.check(&frame).is_err() {
-            return Ok(());
-        }
-        s.last_valid = Instant::now();
+        self.act(frame)
+    }
+
+    /// Acts on an authenticated, new frame of the current session.
+    fn act(&mut self, frame: Frame) -> Result<(), EmulatorError> {
         self.advance()?;
         let Some(s) = self.session.as_mut() else {
             return Ok(());
         };
         match frame.payload {
             Payload::Command(c) => {
-                if s.safe.is_some() {
+                if self.latch.is_some() || s.ended || s.expired {
                     if c.drives() {
                         self.stats.drive_commands_in_safe_state += 1;
                         if s.safe_requested {
@@ -719,6 +1122,10 @@ impl Server {
                     s.held = c;
                     s.last_command = frame.sequence;
                     self.stats.commands_applied += 1;
+                    self.stats.commands_applied_total += 1;
+                    if c.drives() {
+                        self.stats.drive_commands_applied_total += 1;
+                    }
                 }
             }
             Payload::Heartbeat => {
@@ -729,19 +1136,42 @@ impl Server {
             Payload::SafeState(r) => {
                 self.stats.safe_state_requests += 1;
                 s.safe_requested = true;
-                self.enter_safe(r.reason)?;
-                if r.reason == reason::SESSION_END
-                    && let Some(s) = self.session.as_mut()
-                {
+                if r.reason == reason::SESSION_END {
                     s.ended = true;
                 }
+                self.enter_safe(r.reason)?;
                 let sample = self.sample(frame.sequence)?;
                 self.stats.safe_state_acks += 1;
                 self.reply(Payload::SafeStateAck(sample));
             }
-            Payload::Sample(_) | Payload::SafeStateAck(_) | Payload::FaultInject(_) => {
+            Payload::Acknowledge(a) => {
+                let plant_tripped = self.stats.plant_trip.is_some();
+                if self.latch == Some(a.reason)
+                    && !self.emergency_stop
+                    && !plant_tripped
+                    && !s.ended
+                    && !s.expired
+                {
+                    self.latch = None;
+                    s.server_trip = false;
+                    s.safe_requested = false;
+                    self.stats.acknowledgements += 1;
+                    self.stats.safe_since = None;
+                } else {
+                    self.stats.acknowledgements_refused += 1;
+                }
+                let sample = self.sample(frame.sequence)?;
+                self.stats.samples_sent += 1;
+                self.reply(Payload::Sample(sample));
+            }
+            Payload::FaultInject(f) => self.apply_fault(f),
+            Payload::Sample(_)
+            | Payload::SafeStateAck(_)
+            | Payload::Hello(_)
+            | Payload::Welcome(_)
+            | Payload::Refuse(_) => {
                 // Server-to-client frames are not acted on.
-                self.rejected.counters.malformed += 1;
+                self.rejected.malformed += 1;
             }
         }
         Ok(())

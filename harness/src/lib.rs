@@ -48,7 +48,7 @@ pub mod fmi2;
 
 /// The UDP bench protocol's frame codec, shared with the `fmu` crate by including its file
 /// (`docs/bench-protocol.md`).
-#[path = "../../fmu/src/hardware/protocol.rs"]
+#[path = "../../fmu/src/hardware/protocol/mod.rs"]
 pub mod bench_protocol;
 
 pub mod control;

@@ -125,6 +125,7 @@ fn every_example_of_the_readme_and_the_help_texts_works_in_order() {
         "metrics",
         "tune",
         "emulate",
+        "key",
         "experiment",
     ];
     let mut ran = 0;

@@ -6,13 +6,24 @@
 //! cargo bench -p kneebench-tests --bench pacing            # 60 s, SCHED_FIFO 80 and mlockall if permitted
 //! KNEEBENCH_PACING_SECONDS=5 cargo bench -p kneebench-tests --bench pacing
 //! KNEEBENCH_PACING_RT=0 KNEEBENCH_PACING_LOCK=0 cargo bench -p kneebench-tests --bench pacing   # as before them
+//! KNEEBENCH_PACING_FLOOD=100000 cargo bench -p kneebench-tests --bench pacing   # under a flood of junk
 //! ```
 //!
 //! Environment: `KNEEBENCH_PACING_SECONDS` (run length, default 60), `KNEEBENCH_PACING_RT`
 //! (the FMU's `realtimePriority` and the emulator thread's, default 80; 0 leaves both in
 //! normal scheduling), `KNEEBENCH_PACING_LOCK` (the FMU's `lockMemory`, default 1; 0: off),
 //! `KNEEBENCH_PACING_REPLY_TIMEOUT` and `KNEEBENCH_PACING_SPIN` (the FMU's `replyTimeout` and
-//! `spinMargin` in seconds; default: the FMU's).
+//! `spinMargin` in seconds; default: the FMU's), `KNEEBENCH_PACING_FLOOD` (datagrams of junk
+//! a second sent at the emulator during the run from another socket, default 0: random bytes,
+//! truncated frames, frames under another key, forged frames of the live session, replays of
+//! an earlier session's frames; the `flood` line tells how many were sent and how the
+//! emulator counted them).
+//!
+//! The `authentication` line is the cost of the frame tags per control period's round trip
+//! (COMMAND and HEARTBEAT out, SAMPLE back: three frames tagged and three verified), measured
+//! in the same run: the codec of those three frames with their tags (`Sender::frame`,
+//! `Receiver::accept`) against the same codec without them (`Frame::encode_body`,
+//! `Frame::peek` and `Frame::decode_fields`).
 //!
 //! The lateness of a step is read from the FMU's `lastLateness` after every step: how far
 //! after its absolute deadline `fmi2DoStep` continued. An overrun is a step that reached its
@@ -28,8 +39,13 @@
 //! without steal time: on a shared virtual machine the overruns follow the other processes'
 //! load (see the `BenchHardware` documentation, "Pacing"), so compare runs of similar load.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
+use kneebench_harness::bench_protocol::auth::TagKey;
+use kneebench_harness::bench_protocol::{
+    BenchSetup, ClientHandshake, Command, Frame, HandshakeReply, Key, Payload, Receiver, Sample,
+    Sender, SetValueKind,
+};
 use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_harness::package::export_all;
 use kneebench_harness::{Fmu, InstanceOptions, LoadOptions, Status};
@@ -78,8 +94,195 @@ fn machine_time() -> (u64, u64) {
     (get(0) + get(1) + get(2) + get(5) + get(6), get(7))
 }
 
+/// Records an earlier session's frames at the emulator (for the flood's replays).
+fn recorded_session(addr: std::net::SocketAddr) -> Vec<Vec<u8>> {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    let setup = BenchSetup {
+        configuration: 1,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    };
+    let mut hs = ClientHandshake::new(&Key::loopback(), setup).unwrap();
+    socket.send_to(hs.hello(), addr).unwrap();
+    let mut buf = [0u8; 256];
+    let mut session = loop {
+        let n = socket.recv(&mut buf).expect("the emulator answers");
+        if let Ok(HandshakeReply::Welcome(s)) = hs.receive(&buf[..n]) {
+            break s;
+        }
+    };
+    let safe = Command::safe(SetValueKind::Current, SetValueKind::Current);
+    let mut frames = Vec::new();
+    for _ in 0..50 {
+        for p in [Payload::Command(safe), Payload::Heartbeat] {
+            let (_, b) = session.tx.frame(p);
+            socket.send_to(&b, addr).unwrap();
+            frames.push(b);
+        }
+    }
+    let (_, b) = session.tx.frame(Payload::SafeState(
+        kneebench_harness::bench_protocol::SafeStateRequest { reason: 4 },
+    ));
+    socket.send_to(&b, addr).unwrap();
+    frames.push(b);
+    std::thread::sleep(Duration::from_millis(20));
+    frames
+}
+
+/// Sends `rate` junk datagrams a second at `addr` until `stop`; returns how many.
+fn flood(
+    addr: std::net::SocketAddr,
+    rate: u64,
+    recorded: Vec<Vec<u8>>,
+    live: std::sync::Arc<std::sync::atomic::AtomicU32>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> u64 {
+    use std::sync::atomic::Ordering;
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let wrong = Key::from_bytes([0x77; 32]);
+    let wrong_hello = ClientHandshake::new(
+        &wrong,
+        BenchSetup {
+            configuration: 1,
+            test_kind: SetValueKind::Current,
+            load_kind: SetValueKind::Current,
+        },
+    )
+    .unwrap();
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng
+    };
+    let drive = Command {
+        test_set_value: 1.0,
+        load_set_value: 1.0,
+        test_enable: true,
+        load_enable: true,
+        clutch: true,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    };
+    let mut sent = 0u64;
+    let start = Instant::now();
+    while !stop.load(Ordering::Relaxed) {
+        // Send what is due by now (batches of 1 ms).
+        let due = (start.elapsed().as_secs_f64() * rate as f64) as u64;
+        while sent < due {
+            let session = live.load(Ordering::Relaxed).max(1);
+            let bytes: Vec<u8> = match next() % 5 {
+                0 => (0..next() % 130).map(|_| next() as u8).collect(),
+                1 => {
+                    let r = &recorded[(next() as usize) % recorded.len()];
+                    r[..(next() as usize) % r.len()].to_vec()
+                }
+                2 if next() % 2 == 0 => wrong_hello.hello().to_vec(),
+                2 => {
+                    let mut tx = Sender::new(
+                        session,
+                        wrong.session(session, &[0; 16], &[0; 16]).client_to_server,
+                    );
+                    tx.sequence = next() as u32 >> 1;
+                    tx.frame(Payload::Command(drive)).1
+                }
+                3 => {
+                    let mut f = Frame {
+                        session,
+                        sequence: (next() as u32).max(1),
+                        payload: Payload::Command(drive),
+                    }
+                    .encode_body();
+                    f.extend((0..16).map(|_| next() as u8));
+                    f
+                }
+                _ => recorded[(next() as usize) % recorded.len()].clone(),
+            };
+            let _ = socket.send_to(&bytes, addr);
+            sent += 1;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    sent
+}
+
+/// Nanoseconds per control period's round trip for the codec of its three frames, with
+/// their tags and without (see the file's docs).
+fn authentication_cost() -> (f64, f64) {
+    let c2s = TagKey::new(b"client to server");
+    let s2c = TagKey::new(b"server to client");
+    let command = Payload::Command(Command {
+        test_set_value: 1.5,
+        load_set_value: -0.5,
+        test_enable: true,
+        load_enable: true,
+        clutch: false,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    });
+    let n = 200_000u32;
+    let sample = |seq| {
+        Payload::Sample(Sample {
+            request_sequence: seq,
+            last_command_sequence: seq - 1,
+            server_time_us: u64::from(seq) * 1000,
+            status: 0,
+            safe_reason: 0,
+            test_counts: 1234,
+            load_counts: -77,
+            analog: [5.4, 0.25, 2.5, 2.5, 3.3, 6.7],
+        })
+    };
+    let mut sink = 0u64;
+    // With tags: the real path.
+    let (mut ctx, mut srx) = (Sender::new(9, c2s.clone()), Receiver::new(9, c2s.clone()));
+    let (mut stx, mut crx) = (Sender::new(9, s2c.clone()), Receiver::new(9, s2c.clone()));
+    let t = Instant::now();
+    for _ in 0..n {
+        let (_, a) = ctx.frame(command);
+        let (seq, b) = ctx.frame(Payload::Heartbeat);
+        sink += u64::from(srx.accept(&a).is_ok()) + u64::from(srx.accept(&b).is_ok());
+        let (_, c) = stx.frame(sample(seq));
+        sink += u64::from(crx.accept(&c).is_ok());
+    }
+    let with = t.elapsed().as_nanos() as f64 / f64::from(n);
+    // The same frames without tags.
+    let t = Instant::now();
+    for k in 1..=n {
+        let seq = 2 * k;
+        let enc = |sequence, payload| {
+            let mut v = Frame {
+                session: 9,
+                sequence,
+                payload,
+            }
+            .encode_body();
+            v.extend_from_slice(&[0; 16]);
+            v
+        };
+        let dec = |bytes: &[u8]| {
+            Frame::peek(bytes)
+                .and_then(|h| Frame::decode_fields(h, &bytes[16..bytes.len() - 16]))
+                .is_ok()
+        };
+        let a = enc(seq - 1, command);
+        let b = enc(seq, Payload::Heartbeat);
+        sink += u64::from(dec(&a)) + u64::from(dec(&b));
+        let c = enc(k, sample(seq));
+        sink += u64::from(dec(&c));
+    }
+    let without = t.elapsed().as_nanos() as f64 / f64::from(n);
+    assert_eq!(sink, 6 * u64::from(n));
+    (with, without)
+}
+
 fn main() {
     let seconds: f64 = env("KNEEBENCH_PACING_SECONDS").unwrap_or(60.0);
+    let flood_rate: u64 = env("KNEEBENCH_PACING_FLOOD").unwrap_or(0);
     let priority: i32 = env("KNEEBENCH_PACING_RT").unwrap_or(80);
     let lock: i32 = env("KNEEBENCH_PACING_LOCK").unwrap_or(1);
     let reply_timeout: Option<f64> = env("KNEEBENCH_PACING_REPLY_TIMEOUT");
@@ -96,7 +299,9 @@ fn main() {
     };
     let mut config = EmulatorConfig::new("127.0.0.1:0", path("BenchPlant"));
     config.realtime_priority = (priority > 0).then_some(priority);
+    config.log_rejections = false;
     let emu = spawn(config).unwrap();
+    let recorded = recorded_session(emu.addr());
     let fmu = Fmu::load(path("BenchHardware"), &LoadOptions::default()).unwrap();
     let vr = |name: &str| fmu.variable(name).map(|v| v.value_reference);
     let mut i = fmu.instantiate("hw", &InstanceOptions::default()).unwrap();
@@ -120,6 +325,13 @@ fn main() {
     let mut timeout = [0.0, 0.0];
     i.get_real(&[404, 406], &mut timeout).unwrap();
     i.exit_initialization_mode().unwrap();
+    let live = std::sync::Arc::new(std::sync::atomic::AtomicU32::new(emu.stats().session));
+    let stop_flood = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flooder = (flood_rate > 0).then(|| {
+        let (l, s) = (live.clone(), stop_flood.clone());
+        let addr = emu.addr();
+        std::thread::spawn(move || flood(addr, flood_rate, recorded, l, s))
+    });
     let n = (seconds / h).round() as usize;
     let mut lateness = Vec::with_capacity(n);
     let mut replies = Vec::with_capacity(n);
@@ -163,6 +375,8 @@ fn main() {
         }
     }
     let wall = start.elapsed().as_secs_f64();
+    stop_flood.store(true, std::sync::atomic::Ordering::Relaxed);
+    let flooded = flooder.map(|t| t.join().unwrap_or(0));
     let (faults1, machine1) = (page_faults(), machine_time());
     let mut overruns = [0];
     i.get_integer(&[450], &mut overruns).unwrap();
@@ -222,6 +436,26 @@ fn main() {
             .filter(|(_, s)| *s == 0)
             .map(|(o, _)| o)
             .sum::<i32>()
+    );
+    if let Some(sent) = flooded {
+        println!(
+            "  flood            {sent} junk datagrams ({:.0}/s asked {flood_rate}/s); emulator rejected {} (unauthenticated {}, truncated {}, malformed {}, wrong session {}, replayed or out of order {}), foreign {}",
+            sent as f64 / wall,
+            stats.rejected.rejected(),
+            stats.rejected.unauthenticated,
+            stats.rejected.truncated,
+            stats.rejected.malformed,
+            stats.rejected.wrong_session,
+            stats.rejected.replayed + stats.rejected.out_of_order,
+            stats.foreign_frames
+        );
+    }
+    let (with, without) = authentication_cost();
+    println!(
+        "  authentication   {:.2} us per round trip (3 frames tagged and verified: {:.2} us with tags, {:.2} us without)",
+        (with - without) * 1e-3,
+        with * 1e-3,
+        without * 1e-3
     );
     if let Some(why) = ended {
         println!("  RUN ENDED EARLY  {why}");

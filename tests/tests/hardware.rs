@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
 
-use kneebench_harness::bench_protocol::{FaultInjection, reason};
+use kneebench_harness::bench_protocol::{FaultInjection, Key, reason};
 use kneebench_harness::emulator::{EmulatorConfig, EmulatorHandle, EmulatorStats, spawn};
 use kneebench_harness::master::Signal;
 use kneebench_harness::package::{ExportedFmu, export_all};
@@ -55,8 +55,26 @@ fn fmu_path(id: &str) -> PathBuf {
         .clone()
 }
 
+/// The bench key of these tests: a key file made by `Key::create_file` (mode 0600), given to
+/// every emulator and every hardware instance, so the runs here go through the authenticated
+/// handshake and tagged frames as on the bench.
+fn key_file() -> &'static (tempfile::TempDir, PathBuf, Key) {
+    static KEY: OnceLock<(tempfile::TempDir, PathBuf, Key)> = OnceLock::new();
+    KEY.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bench.key");
+        let key = Key::create_file(&path).unwrap();
+        (dir, path, key)
+    })
+}
+
+fn key_path() -> String {
+    key_file().1.to_str().unwrap().to_owned()
+}
+
 fn emulator(params: &[(&str, &str)]) -> EmulatorHandle {
     let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    config.key = Some(key_file().2.clone());
     config.parameters = params
         .iter()
         .map(|(n, v)| (n.to_string(), v.to_string()))
@@ -141,6 +159,7 @@ fn hardware_params(addr: std::net::SocketAddr) -> Vec<(&'static str, String)> {
         ("backend", "1".into()),
         ("pacing", "1".into()),
         ("serverAddress", addr.to_string()),
+        ("keyFile", key_path()),
     ]
 }
 
@@ -186,6 +205,11 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     let emu = emulator(&[("configuration", "1")]);
     let mut params = hardware_params(emu.addr());
     params.push(("configuration", "1".into()));
+    // The reply timeout is kept to the microsecond (not rounded up to the kernel's tick): on
+    // a loaded test machine in normal scheduling, replies of a few milliseconds happen. This
+    // test compares trajectories (its tolerance uses the measured lateness); the watchdog is
+    // tested in bench_link.rs.
+    params.push(("replyTimeout", "0.02".into()));
     let (hw, stats) = run_bench("BenchHardware", &params, inputs(), stop);
     assert!(
         matches!(hw.outcome, Outcome::Completed { .. }),
@@ -314,6 +338,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     // Real-time scheduling where permitted (else a warning): a loaded test machine then
     // disturbs the run less; the tolerance uses what the run measured either way.
     config.realtime_priority = Some(50);
+    config.key = Some(key_file().2.clone());
     let emu = spawn(config).expect("emulator");
     component.fmu = "BenchHardware.fmu".into();
     component
@@ -326,6 +351,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             "serverAddress".to_string(),
             Value::String(emu.addr().to_string()),
         ),
+        ("keyFile".to_string(), Value::String(key_path())),
         ("tareSamples".to_string(), Value::Integer(0)),
         // Generous for a loaded test machine: the comparison's tolerance uses the measured
         // reply times, the watchdog is tested elsewhere.
@@ -478,10 +504,13 @@ fn drive_configured(
     if let Some(c) = configuration {
         i.set_integer(&[1], &[c]).unwrap();
     }
-    i.set_string(&[401], &[&emu.addr().to_string()]).unwrap();
-    // A 2 ms link watchdog: loopback answers in tens of microseconds, but a descheduled
-    // emulator thread on a loaded 2-core machine can take longer than the 0.5 ms default.
-    i.set_real(&[404], &[0.002]).unwrap();
+    i.set_string(&[401, 425], &[&emu.addr().to_string(), &key_path()])
+        .unwrap();
+    // A 10 ms link watchdog: loopback answers in tens of microseconds, but a descheduled
+    // emulator thread on a loaded 2-core machine (load average 7 seen) can take milliseconds,
+    // and the reply timeout is now kept to the microsecond, no longer rounded up to the
+    // kernel's tick. The watchdog's own timing is tested in bench_link.rs.
+    i.set_real(&[404], &[0.01]).unwrap();
     i.setup_experiment(None, 0.0, None).unwrap();
     i.enter_initialization_mode().unwrap();
     i.exit_initialization_mode().unwrap();
@@ -728,13 +757,26 @@ fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
 #[test]
 fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
     let _real_time = one_at_a_time();
-    use kneebench_harness::bench_protocol::{Command, Payload, Sender, SetValueKind};
+    use kneebench_harness::bench_protocol::{
+        BenchSetup, ClientHandshake, Command, HandshakeReply, Payload, SetValueKind,
+    };
     let emu = emulator(&[]);
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     socket
         .set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
-    let mut tx = Sender::new(0x1234_5678);
+    let setup = BenchSetup {
+        configuration: 1,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    };
+    let mut hs = ClientHandshake::new(&key_file().2, setup).unwrap();
+    socket.send_to(hs.hello(), emu.addr()).unwrap();
+    let mut buf = [0u8; 256];
+    let n = socket.recv(&mut buf).unwrap();
+    let HandshakeReply::Welcome(mut session) = hs.receive(&buf[..n]).unwrap() else {
+        panic!("refused")
+    };
     let drive = Command {
         test_set_value: 1.0,
         load_set_value: 0.0,
@@ -744,11 +786,11 @@ fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
         test_kind: SetValueKind::Current,
         load_kind: SetValueKind::Current,
     };
-    let (_, first) = tx.frame(Payload::Command(drive));
+    let (first_seq, first) = session.tx.frame(Payload::Command(drive));
     socket.send_to(&first, emu.addr()).unwrap();
     // Replay, truncation, corruption and a wrong version: none is applied.
     socket.send_to(&first, emu.addr()).unwrap();
-    let (_, second) = tx.frame(Payload::Command(drive));
+    let (_, second) = session.tx.frame(Payload::Command(drive));
     socket.send_to(&second[..10], emu.addr()).unwrap();
     let mut corrupt = second.clone();
     corrupt[20] ^= 0xFF;
@@ -756,19 +798,25 @@ fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
     let mut version = second.clone();
     version[4] = 9;
     socket.send_to(&version, emu.addr()).unwrap();
-    let (_, hb) = tx.frame(Payload::Heartbeat);
+    let (_, hb) = session.tx.frame(Payload::Heartbeat);
     socket.send_to(&hb, emu.addr()).unwrap();
-    let mut buf = [0u8; 256];
-    let n = socket.recv(&mut buf).unwrap();
-    let reply = kneebench_harness::bench_protocol::Frame::decode(&buf[..n]).unwrap();
-    match reply.payload {
-        Payload::Sample(s) => assert_eq!(s.last_command_sequence, 1),
+    // The version refusal comes first (unauthenticated: the client cannot check it), then
+    // the sample.
+    let sample = loop {
+        let n = socket.recv(&mut buf).unwrap();
+        if let Ok(f) = session.rx.accept(&buf[..n]) {
+            break f;
+        }
+    };
+    match sample.payload {
+        Payload::Sample(s) => assert_eq!(s.last_command_sequence, first_seq),
         other => panic!("{other:?}"),
     }
     let s = emu.stop().unwrap();
     assert_eq!(s.commands_applied, 1);
     assert_eq!(s.rejected.replayed, 1);
     assert_eq!(s.rejected.truncated, 1);
-    assert_eq!(s.rejected.bad_crc, 1);
+    assert_eq!(s.rejected.unauthenticated, 1);
     assert_eq!(s.rejected.wrong_version, 1);
+    assert_eq!(s.version_refusals, 1);
 }

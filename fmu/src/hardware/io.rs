@@ -14,14 +14,15 @@
 //! * [`UdpBench`]: a client of a real-time I/O server speaking the protocol of
 //!   `docs/bench-protocol.md` ([`super::protocol`]). Time is the wall clock: `read` samples now.
 
-use std::hash::{BuildHasher, Hasher};
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
 use super::protocol::{
-    ANALOG_CHANNELS, AnalogChannel, Command, Counters, FrameType, MAX_FRAME_LEN, Payload, Receiver,
-    SafeStateRequest, Sample, Sender, SetValueKind, reason, status,
+    ANALOG_CHANNELS, Acknowledge, AnalogChannel, BenchSetup, ClientHandshake, Command, Counters,
+    FrameType, HandshakeReply, Key, MAX_FRAME_LEN, Payload, SafeStateRequest, Sample, Session,
+    SetValueKind, VERSION, reason, refusal, status,
 };
+use super::realtime::{now_ns, wait_readable_until};
 use crate::models::bench::{BenchInputs, BenchParameters, BenchPlant, DriverMode, Interlock};
 
 /// An I/O failure: the bench did not answer, or answered wrongly.
@@ -84,6 +85,22 @@ pub trait BenchIo: Send {
     /// Replies that arrived for an earlier request (late) and were ignored.
     fn stale_replies(&self) -> u64 {
         0
+    }
+
+    /// The [`reason`] of a safe state the bench was latched in when the session began (an
+    /// earlier session's trip, its watchdog, the button), 0 for none. Only an explicit
+    /// [`BenchIo::acknowledge`] clears it.
+    fn latched(&self) -> u8 {
+        reason::NONE
+    }
+
+    /// Acknowledges the latched safe state of reason `latch` (authenticated); returns the
+    /// sample that answers it, which shows the safe state gone unless the bench keeps it (the
+    /// emergency stop still pressed).
+    fn acknowledge(&mut self, latch: u8) -> Result<Sample, IoError> {
+        Err(IoError::Refused(format!(
+            "nothing to acknowledge (latch reason {latch})"
+        )))
     }
 }
 
@@ -223,38 +240,42 @@ impl BenchIo for SimulatedBench {
     }
 }
 
-/// A random nonzero session identifier (std's per-process random hash keys, the time and a
-/// counter).
-pub fn random_session() -> u32 {
-    use std::sync::atomic::{AtomicU32, Ordering};
-    static COUNTER: AtomicU32 = AtomicU32::new(0);
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u32(COUNTER.fetch_add(1, Ordering::Relaxed));
-    h.write_u128(
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0),
-    );
-    let v = h.finish();
-    ((v >> 32) as u32 ^ v as u32).max(1)
-}
+/// How long the client waits for an answer to one HELLO before sending it again.
+const HELLO_RESEND: Duration = Duration::from_millis(20);
 
-/// A client of a bench I/O server over UDP.
+/// A client of a bench I/O server over UDP, in an authenticated session.
 #[derive(Debug)]
 pub struct UdpBench {
     socket: UdpSocket,
-    tx: Sender,
-    rx: Receiver,
+    session: Session,
     reply_timeout: Duration,
+    spin_ns: u64,
     stale: u64,
     buf: [u8; 2048],
 }
 
+/// What [`UdpBench::connect`] needs.
+#[derive(Debug, Clone)]
+pub struct UdpSetup {
+    /// "host:port" of the server.
+    pub address: String,
+    /// The bench key; `None`: the public loopback key, allowed only towards a loopback
+    /// address.
+    pub key: Option<Key>,
+    /// The bench setup the server must have.
+    pub setup: BenchSetup,
+    /// How long the handshake may take (a busy server is asked again until then).
+    pub handshake_timeout: Duration,
+    /// How long a reply is awaited.
+    pub reply_timeout: Duration,
+    /// The last part of each wait that is spun rather than slept.
+    pub spin: Duration,
+}
+
 impl UdpBench {
-    /// Opens a session with the server at `address` ("host:port"); replies are awaited for
-    /// `reply_timeout`.
-    pub fn connect(address: &str, reply_timeout: Duration) -> Result<Self, IoError> {
+    /// Opens an authenticated session with the server (`docs/bench-protocol.md`, §6).
+    pub fn connect(setup: &UdpSetup) -> Result<Self, IoError> {
+        let address = &setup.address;
         let server: SocketAddr = address
             .to_socket_addrs()
             .map_err(|e| IoError::Setup(format!("server address `{address}`: {e}")))?
@@ -262,6 +283,15 @@ impl UdpBench {
             .ok_or_else(|| {
                 IoError::Setup(format!("server address `{address}` resolves to nothing"))
             })?;
+        let key = match &setup.key {
+            Some(k) => k.clone(),
+            None if server.ip().is_loopback() => Key::loopback(),
+            None => {
+                return Err(IoError::Setup(format!(
+                    "server {server} is not on this machine: a key file is needed (`kneebench key new FILE` on the bench; keyFile)"
+                )));
+            }
+        };
         let local = if server.is_ipv4() {
             "0.0.0.0:0"
         } else {
@@ -269,50 +299,81 @@ impl UdpBench {
         };
         let socket = UdpSocket::bind(local)?;
         socket.connect(server)?;
-        let session = random_session();
-        Ok(Self {
-            socket,
-            tx: Sender::new(session),
-            rx: Receiver::new(session),
-            reply_timeout,
-            stale: 0,
-            buf: [0; 2048],
+        // The socket stays blocking (a full send buffer on a loaded machine delays a send
+        // rather than failing it); receives wait in `ppoll` first, so they never block.
+        #[cfg(not(target_os = "linux"))]
+        socket.set_read_timeout(Some(Duration::from_micros(100)))?;
+        let mut hs =
+            ClientHandshake::new(&key, setup.setup).map_err(|e| IoError::Setup(e.to_string()))?;
+        let spin_ns = u64::try_from(setup.spin.as_nanos()).unwrap_or(u64::MAX);
+        let mut buf = [0u8; 2048];
+        let end = now_ns() + duration_ns(setup.handshake_timeout);
+        let mut busy: Option<String> = None;
+        while now_ns() < end {
+            // A refused send (ICMP port unreachable: no server yet) is retried until the end.
+            let _ = socket.send(hs.hello());
+            let until = (now_ns() + duration_ns(HELLO_RESEND)).min(end);
+            while let Some(n) = recv_until(&socket, &mut buf, until, spin_ns)? {
+                match hs.receive(&buf[..n]) {
+                    Ok(HandshakeReply::Welcome(session)) => {
+                        return Ok(Self {
+                            socket,
+                            session: *session,
+                            reply_timeout: setup.reply_timeout,
+                            spin_ns,
+                            stale: 0,
+                            buf,
+                        });
+                    }
+                    Ok(HandshakeReply::Refused(r)) if r.code == refusal::BUSY => {
+                        // Another master's session is live: it may end (release or its
+                        // watchdog) before our timeout.
+                        busy = Some(r.text().to_owned());
+                    }
+                    Ok(HandshakeReply::Refused(r)) => {
+                        return Err(IoError::Refused(format!(
+                            "the bench at {server} refused the session: {}",
+                            r.text()
+                        )));
+                    }
+                    Err(_) => {}
+                }
+            }
+        }
+        Err(match busy {
+            Some(text) => IoError::Refused(format!(
+                "the bench at {server} refused the session for {:?}: {text}",
+                setup.handshake_timeout
+            )),
+            None => IoError::Setup(format!(
+                "no answer to the handshake from {server} within {:?}: the server is not running or not reachable, holds another key, or speaks another protocol version (this client speaks version {VERSION}); {} frames rejected",
+                setup.handshake_timeout,
+                hs.counters().rejected()
+            )),
         })
     }
 
     /// The session identifier.
     pub fn session(&self) -> u32 {
-        self.tx.session
+        self.session.tx.session
     }
 
-    /// Sends `payload`, waits up to the reply timeout for the reply of type `expect` to it.
+    /// Sends `payload`, waits up to the reply timeout (an absolute deadline, kept to the
+    /// microsecond whatever the kernel's tick: [`recv_until`]) for the reply of type `expect`
+    /// to it.
     fn exchange(&mut self, payload: Payload, expect: FrameType) -> Result<Sample, IoError> {
-        let (sequence, bytes) = self.tx.frame(payload);
+        let (sequence, bytes) = self.session.tx.frame(payload);
         self.socket.send(&bytes)?;
-        let deadline = Instant::now() + self.reply_timeout;
+        let deadline = now_ns() + duration_ns(self.reply_timeout);
         loop {
-            let now = Instant::now();
-            if now >= deadline {
+            let Some(n) = recv_until(&self.socket, &mut self.buf, deadline, self.spin_ns)? else {
                 return Err(IoError::Timeout(self.reply_timeout));
-            }
-            self.socket.set_read_timeout(Some(deadline - now))?;
-            let n = match self.socket.recv(&mut self.buf) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) =>
-                {
-                    return Err(IoError::Timeout(self.reply_timeout));
-                }
-                Err(e) => return Err(e.into()),
             };
             if n > MAX_FRAME_LEN {
-                self.rx.counters.malformed += 1;
+                self.session.rx.counters.malformed += 1;
                 continue;
             }
-            let Ok(frame) = self.rx.accept(&self.buf[..n]) else {
+            let Ok(frame) = self.session.rx.accept(&self.buf[..n]) else {
                 continue;
             };
             let sample = match (frame.payload, expect) {
@@ -332,9 +393,59 @@ impl UdpBench {
     }
 }
 
+fn duration_ns(d: Duration) -> u64 {
+    u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
+}
+
+/// Receives one datagram from the connected `socket` if one is there before the monotonic
+/// clock reads `deadline_ns`: waits in `ppoll` until `spin_ns` before the deadline, then spins
+/// (polling without waiting). A datagram already queued is read before the deadline is
+/// checked, so one that arrived while a descheduled thread was not running is still read
+/// (the slack is the thread's scheduling latency, not the kernel's tick); while the thread
+/// runs, nothing that arrives after the deadline is read. `Ok(None)`: the deadline passed.
+pub fn recv_until(
+    socket: &UdpSocket,
+    buf: &mut [u8],
+    deadline_ns: u64,
+    spin_ns: u64,
+) -> Result<Option<usize>, IoError> {
+    use std::os::fd::AsRawFd;
+    let fd = socket.as_raw_fd();
+    loop {
+        let now = now_ns();
+        let wait_until = if now < deadline_ns && deadline_ns - now > spin_ns {
+            deadline_ns - spin_ns
+        } else {
+            // Past the deadline or in the spin: only look.
+            0
+        };
+        if wait_readable_until(fd, wait_until) {
+            match socket.recv(buf) {
+                Ok(n) => return Ok(Some(n)),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            // ICMP port unreachable (the server is not there): as no reply.
+                            | std::io::ErrorKind::ConnectionRefused
+                    ) => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+        let now = now_ns();
+        if now >= deadline_ns {
+            return Ok(None);
+        }
+        if deadline_ns - now <= spin_ns {
+            std::hint::spin_loop();
+        }
+    }
+}
+
 impl BenchIo for UdpBench {
     fn write(&mut self, _t: f64, command: &Command) -> Result<u32, IoError> {
-        let (sequence, bytes) = self.tx.frame(Payload::Command(*command));
+        let (sequence, bytes) = self.session.tx.frame(Payload::Command(*command));
         self.socket.send(&bytes)?;
         Ok(sequence)
     }
@@ -368,6 +479,21 @@ impl BenchIo for UdpBench {
         }
     }
 
+    fn latched(&self) -> u8 {
+        self.session.latched
+    }
+
+    fn acknowledge(&mut self, latch: u8) -> Result<Sample, IoError> {
+        let s = self.exchange(
+            Payload::Acknowledge(Acknowledge { reason: latch }),
+            FrameType::Sample,
+        )?;
+        if !s.has(status::SAFE_STATE) {
+            self.session.latched = reason::NONE;
+        }
+        Ok(s)
+    }
+
     fn set_reply_timeout(&mut self, timeout: Duration) {
         self.reply_timeout = timeout;
     }
@@ -377,7 +503,7 @@ impl BenchIo for UdpBench {
     }
 
     fn counters(&self) -> Counters {
-        self.rx.counters
+        self.session.rx.counters
     }
 
     fn stale_replies(&self) -> u64 {
@@ -387,9 +513,9 @@ impl BenchIo for UdpBench {
 
 impl Drop for UdpBench {
     fn drop(&mut self) {
-        // End the session at once rather than by the server's heartbeat timeout (best effort:
-        // the server's watchdog covers a lost frame).
-        let (_, bytes) = self.tx.frame(Payload::SafeState(SafeStateRequest {
+        // Release the bench at once rather than by the server's heartbeat timeout (best
+        // effort: the server's watchdog covers a lost frame).
+        let (_, bytes) = self.session.tx.frame(Payload::SafeState(SafeStateRequest {
             reason: reason::SESSION_END,
         }));
         let _ = self.socket.send(&bytes);
@@ -443,9 +569,43 @@ mod tests {
     }
 
     #[test]
-    fn sessions_are_nonzero_and_differ() {
-        let a = random_session();
-        let b = random_session();
-        assert!(a != 0 && b != 0 && a != b);
+    fn keyless_sessions_are_refused_towards_another_machine() {
+        let setup = UdpSetup {
+            address: "192.0.2.1:47000".into(),
+            key: None,
+            setup: BenchSetup {
+                configuration: 0,
+                test_kind: SetValueKind::Current,
+                load_kind: SetValueKind::Current,
+            },
+            handshake_timeout: Duration::from_millis(10),
+            reply_timeout: Duration::from_millis(1),
+            spin: Duration::ZERO,
+        };
+        let e = UdpBench::connect(&setup).unwrap_err().to_string();
+        assert!(e.contains("a key file is needed"), "{e}");
+    }
+
+    #[test]
+    fn a_silent_server_is_reported_after_the_handshake_timeout() {
+        // A bound socket that never answers.
+        let quiet = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let setup = UdpSetup {
+            address: quiet.local_addr().unwrap().to_string(),
+            key: None,
+            setup: BenchSetup {
+                configuration: 0,
+                test_kind: SetValueKind::Current,
+                load_kind: SetValueKind::Current,
+            },
+            handshake_timeout: Duration::from_millis(50),
+            reply_timeout: Duration::from_millis(1),
+            spin: Duration::ZERO,
+        };
+        let start = Instant::now();
+        let e = UdpBench::connect(&setup).unwrap_err().to_string();
+        assert!(start.elapsed() >= Duration::from_millis(50));
+        assert!(e.contains("no answer to the handshake"), "{e}");
+        assert!(e.contains("version 2"), "{e}");
     }
 }

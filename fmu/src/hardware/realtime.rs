@@ -87,7 +87,40 @@ mod sys {
         pub fn gettid() -> c_int;
         pub fn prctl(option: c_int, ...) -> c_int;
         pub fn mlockall(flags: c_int) -> c_int;
+        pub fn setsockopt(
+            fd: c_int,
+            level: c_int,
+            name: c_int,
+            value: *const std::ffi::c_void,
+            len: u32,
+        ) -> c_int;
+        pub fn getsockopt(
+            fd: c_int,
+            level: c_int,
+            name: c_int,
+            value: *mut std::ffi::c_void,
+            len: *mut u32,
+        ) -> c_int;
+        pub fn ppoll(
+            fds: *mut PollFd,
+            nfds: std::ffi::c_ulong,
+            timeout: *const Timespec,
+            sigmask: *const std::ffi::c_void,
+        ) -> c_int;
     }
+
+    /// `struct pollfd`.
+    #[repr(C)]
+    pub struct PollFd {
+        pub fd: c_int,
+        pub events: i16,
+        pub revents: i16,
+    }
+
+    pub const POLLIN: i16 = 1;
+    pub const SOL_SOCKET: c_int = 1;
+    pub const SO_RCVBUF: c_int = 8;
+    pub const SO_RCVBUFFORCE: c_int = 33;
 
     pub fn errno() -> i32 {
         std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
@@ -149,6 +182,86 @@ pub fn sleep_until_ns(deadline_ns: u64) {
     if deadline_ns > now {
         std::thread::sleep(std::time::Duration::from_nanos(deadline_ns - now));
     }
+}
+
+/// Waits until the file descriptor `fd` is readable or the monotonic clock reads
+/// `deadline_ns`, whichever comes first; returns whether it is readable. The wait is
+/// `ppoll` with a nanosecond timeout recomputed from the absolute deadline on every
+/// (interrupted) call, so it ends within the timer slack of the deadline (50 us for a normal
+/// thread, 1 ns under [`RealtimeThread`]), never rounded up to the kernel's tick as a
+/// socket's receive timeout (`SO_RCVTIMEO`) is. Callers that need the deadline to the
+/// microsecond wait until a margin before it and spin for the rest, as the pacer does.
+#[cfg(target_os = "linux")]
+pub fn wait_readable_until(fd: std::os::fd::RawFd, deadline_ns: u64) -> bool {
+    loop {
+        let now = now_ns();
+        let left = deadline_ns.saturating_sub(now);
+        let ts = sys::Timespec {
+            tv_sec: (left / 1_000_000_000) as _,
+            tv_nsec: (left % 1_000_000_000) as _,
+        };
+        let mut pfd = sys::PollFd {
+            fd,
+            events: sys::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask (NULL: unchanged).
+        let rc = unsafe { sys::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+        if rc > 0 {
+            return true;
+        }
+        if rc == 0 || sys::errno() != sys::EINTR || now_ns() >= deadline_ns {
+            return false;
+        }
+    }
+}
+
+/// Waits until `fd` may be readable or the deadline passes (elsewhere than on Linux: short
+/// sleeps; the caller reads with a short receive timeout and decides).
+#[cfg(not(target_os = "linux"))]
+pub fn wait_readable_until(_fd: i32, deadline_ns: u64) -> bool {
+    let now = now_ns();
+    if deadline_ns > now {
+        std::thread::sleep(std::time::Duration::from_nanos(
+            (deadline_ns - now).min(50_000),
+        ));
+    }
+    true
+}
+
+/// Asks for a socket receive buffer of `bytes` (`SO_RCVBUFFORCE`, which needs
+/// `CAP_NET_ADMIN`, else `SO_RCVBUF`, capped by `net.core.rmem_max`); returns the size the
+/// kernel granted (it doubles the request for its bookkeeping), or `None` if it cannot be
+/// read. A server keeps its legitimate frames through a burst of junk only if the junk that
+/// arrives while it is descheduled fits in this buffer.
+#[cfg(target_os = "linux")]
+pub fn set_receive_buffer(fd: std::os::fd::RawFd, bytes: usize) -> Option<usize> {
+    let v = i32::try_from(bytes).unwrap_or(i32::MAX);
+    let size = std::mem::size_of::<i32>() as u32;
+    // SAFETY: `v` and `got` are valid ints of the length given; the calls only read or write
+    // them.
+    unsafe {
+        let p = (&v as *const i32).cast();
+        if sys::setsockopt(fd, sys::SOL_SOCKET, sys::SO_RCVBUFFORCE, p, size) != 0 {
+            sys::setsockopt(fd, sys::SOL_SOCKET, sys::SO_RCVBUF, p, size);
+        }
+        let mut got = 0i32;
+        let mut len = size;
+        (sys::getsockopt(
+            fd,
+            sys::SOL_SOCKET,
+            sys::SO_RCVBUF,
+            (&mut got as *mut i32).cast(),
+            &mut len,
+        ) == 0)
+            .then_some(usize::try_from(got).unwrap_or(0))
+    }
+}
+
+/// The receive buffer stays the system's default here.
+#[cfg(not(target_os = "linux"))]
+pub fn set_receive_buffer(_fd: i32, _bytes: usize) -> Option<usize> {
+    None
 }
 
 /// The calling thread raised to a real-time policy; dropping it restores the thread's
@@ -287,6 +400,22 @@ mod tests {
         sleep_until_ns(before.saturating_sub(1_000_000));
         assert!(now_ns() - before < 5_000_000);
         assert!(start.elapsed() >= std::time::Duration::from_micros(2500));
+    }
+
+    #[test]
+    fn waits_for_readable_end_at_the_deadline_or_on_data() {
+        use std::os::fd::AsRawFd;
+        let a = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let b = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        // Nothing to read: returns false, not before the deadline.
+        let deadline = now_ns() + 300_000;
+        assert!(!wait_readable_until(a.as_raw_fd(), deadline));
+        let end = now_ns();
+        assert!(end >= deadline);
+        b.send_to(b"x", a.local_addr().unwrap()).unwrap();
+        assert!(wait_readable_until(a.as_raw_fd(), now_ns() + 1_000_000_000));
+        // A past deadline with data waiting still reports it.
+        assert!(wait_readable_until(a.as_raw_fd(), 0));
     }
 
     #[test]

@@ -52,7 +52,8 @@
 //!   frame, `docs/bench-protocol.md`).
 //!
 //! Re-arming needs a new instance: a tripped instance never sends a drive command again, and
-//! the server keeps the safe state until a new session begins.
+//! the server keeps the safe state latched across sessions until a master acknowledges it
+//! (below, "The bench link").
 //!
 //! | tripCode | cause | status |
 //! |---|---|---|
@@ -69,6 +70,19 @@
 //! | 13 | sensor fault: the load cell disagrees with `i_HD Km1` x the measured test-motor current | Discard / Error |
 //!
 //! (Discard when the safe state is acknowledged, Error when it is not.)
+//!
+//! ## The bench link (`keyFile`, `acknowledgeSafeState`)
+//! The Udp backend opens an authenticated session (`docs/bench-protocol.md`, version 2): it
+//! reads the bench's key from `keyFile` (made by `kneebench key new`; refused if its group or
+//! others may read it; empty: the public loopback key, only for a server on this machine),
+//! proves it in a handshake that also carries `configuration`, `testDriverMode` and
+//! `loadDriverMode` (a server set up differently refuses, naming the setting, and the
+//! initialization fails with that text), and tags every frame with the session's keys. A
+//! server held by another master is asked again until the handshake's 0.2 s end. A bench
+//! whose safe state is latched from an earlier session (a trip, its watchdog, the button)
+//! fails the initialization with the latch's reason unless `acknowledgeSafeState` is true:
+//! then the FMU acknowledges it (logged as a warning) and goes on if the bench leaves the safe
+//! state (not while the emergency stop is pressed).
 //!
 //! ## Calibration and initialization
 //! During initialization samples are awaited up to 0.2 s (the server may be starting its
@@ -88,7 +102,9 @@
 //! * Derived from measurements each period: velocities (backward difference of the encoder
 //!   angles over the time between the two samples: the server's timestamps over UDP, so a late
 //!   sample does not read as a speed jump; `h`, taken to the nanosecond, on the simulated
-//!   backend), accelerations (difference of velocities),
+//!   backend; a sample less than half a period after the last, as when the loop catches up
+//!   after a stall, widens the difference to the last two intervals, so that a count over a
+//!   tenth of a period does not read as a speed spike), accelerations (difference of velocities),
 //!   spring deflection and torque (`k (theta1 - theta2)`, `k` of the configuration), motor
 //!   and output torques (`Km i`, ratios), armature voltages (the set value in voltage mode;
 //!   `R i + Ke w_m` in current mode and for a disabled driver), driver saturation (that voltage at the measured supply),
@@ -146,6 +162,11 @@
 //!   pacing`); in normal scheduling under the same load p99 0.7-1.3 ms, which no setting
 //!   below the period can carry: there `realtimePriority` is the remedy, not a longer timeout.
 //!
+//! The timeout is an absolute deadline kept to the microsecond (`ppoll` until `spinMargin`
+//! before it, a spin for the rest: `hardware::io::recv_until`), never a socket receive timeout,
+//! which the kernel rounds up to its tick (0.8 ms became 4 ms at 250 Hz, and replies 2-5 ms
+//! late were accepted). A reply that is late by even 10 % trips (`tests/tests/bench_link.rs`).
+//!
 //! A `replyTimeout` not below the step size is logged as a warning at the first step. For
 //! another control period scale it with the period (0.8 h).
 //!
@@ -186,9 +207,9 @@ use super::bench_plant::{
 };
 use crate::hardware::calibration::{Calibration, Plausibility, Side, Tare, Unwrapper};
 use crate::hardware::consistency::{ConsistencyCheck, Inconsistency};
-use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, kind_of};
+use crate::hardware::io::{BenchIo, IoError, SimulatedBench, UdpBench, UdpSetup, kind_of};
 use crate::hardware::pacing::{Pacer, PacingMode};
-use crate::hardware::protocol::{AnalogChannel, Command, Sample, reason, status};
+use crate::hardware::protocol::{AnalogChannel, BenchSetup, Command, Key, Sample, reason, status};
 use crate::hardware::realtime::{RealtimeThread, lock_memory, now_ns};
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -369,6 +390,8 @@ pub struct BenchHardwareModel {
     spin_margin: f64,
     realtime_priority: i32,
     lock_memory: bool,
+    key_file: String,
+    acknowledge_safe_state: bool,
     plausibility: Plausibility,
     consistency_tolerance: f64,
     consistency_relative: f64,
@@ -578,6 +601,22 @@ static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
         )
         .parameter(Start::Boolean(false))
         .describe("Pacing Soft/Hard: lock the importer process's pages in memory (mlockall, process-wide, not undone) at initialization. Refused: a warning"),
+        V::string(
+            "keyFile",
+            425,
+            |m| &m.key_file,
+            |m, v| m.key_file = v.to_owned(),
+        )
+        .parameter(Start::String(""))
+        .describe("Udp backend: the bench's key file (`kneebench key new FILE`; readable by its owner only). Empty: the public loopback key, allowed only for a server on this machine"),
+        V::boolean(
+            "acknowledgeSafeState",
+            426,
+            |m| m.acknowledge_safe_state,
+            |m, v| m.acknowledge_safe_state = v,
+        )
+        .parameter(Start::Boolean(false))
+        .describe("Udp backend: at initialization, clear a safe state the bench latched in an earlier session (a trip, its watchdog, the button) by an explicit acknowledgement. Set it only after checking the bench; false: such a latch fails the initialization"),
         V::real(
             "maxEncoderSpeed",
             407,
@@ -631,7 +670,7 @@ static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
         local!(int "overrunCount", 450, overrun_count, "Pacing overruns so far"),
         local!(real "lastLateness", 451, last_lateness, "s", "Lateness of the last step's deadline"),
         local!(real "maxLateness", 452, max_lateness, "s", "Largest lateness so far"),
-        local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (malformed, replayed, out of order, wrong version or session)"),
+        local!(int "rejectedFrames", 453, rejected_frames, "Frames from the server rejected (unauthenticated, malformed, replayed, out of order, wrong version or session)"),
         local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
         local!(real "lastReplyTime", 455, last_reply_time, "s", "How long the last step's sample took to arrive after its request"),
         local!(real "maxReplyTime", 456, max_reply_time, "s", "Longest reply time so far"),
@@ -740,13 +779,36 @@ impl BenchHardwareModel {
                         "the Udp backend needs real-time pacing (pacing = Soft or Hard)",
                     ));
                 }
-                Ok(Box::new(
-                    // Initialization (session start, tare) may wait longer than a period.
-                    UdpBench::connect(
-                        &self.server_address,
-                        Duration::from_secs_f64(self.reply_timeout.max(INIT_REPLY_TIMEOUT)),
+                let key = if self.key_file.is_empty() {
+                    None
+                } else {
+                    Some(
+                        Key::load_file(std::path::Path::new(&self.key_file))
+                            .map_err(|e| ModelError::new(format!("keyFile: {e}")))?,
                     )
-                    .map_err(|e| ModelError::new(e.to_string()))?,
+                };
+                let setup =
+                    UdpSetup {
+                        address: self.server_address.clone(),
+                        key,
+                        setup: BenchSetup {
+                            configuration: p.configuration.as_i32() as u8,
+                            test_kind: kind_of(p.test_driver_mode),
+                            load_kind: kind_of(p.load_driver_mode),
+                        },
+                        // A server whose previous session was not released is free again after
+                        // its heartbeat timeout (at most 100 ms): asked again until then.
+                        handshake_timeout: Duration::from_secs_f64(INIT_REPLY_TIMEOUT.max(
+                            crate::hardware::protocol::MAX_HEARTBEAT_TIMEOUT.as_secs_f64() * 2.0,
+                        )),
+                        // Initialization (tare) may wait longer than a period.
+                        reply_timeout: Duration::from_secs_f64(
+                            self.reply_timeout.max(INIT_REPLY_TIMEOUT),
+                        ),
+                        spin: Duration::from_secs_f64(self.spin_margin),
+                    };
+                Ok(Box::new(
+                    UdpBench::connect(&setup).map_err(|e| ModelError::new(e.to_string()))?,
                 ))
             }
         }
@@ -760,6 +822,25 @@ impl BenchHardwareModel {
         let safe = Command::safe(kind_of(p.test_driver_mode), kind_of(p.load_driver_mode));
         let io_err =
             |what: &str, e: IoError| ModelError::new(format!("initialization: {what}: {e}"));
+        let latched = io.latched();
+        if latched != reason::NONE {
+            if !self.acknowledge_safe_state {
+                return Err(ModelError::new(format!(
+                    "initialization: the bench is latched in its safe state ({}) from an earlier session; check the bench, then set acknowledgeSafeState = true to clear the latch",
+                    reason_name(latched)
+                )));
+            }
+            let s = io
+                .acknowledge(latched)
+                .map_err(|e| io_err("acknowledging the latched safe state", e))?;
+            if s.has(status::SAFE_STATE) {
+                return Err(ModelError::new(format!(
+                    "initialization: the bench kept its safe state after the acknowledgement ({}, status {:#04x}): release the emergency stop",
+                    reason_name(s.safe_reason),
+                    s.status
+                )));
+            }
+        }
         let seq = io
             .write(0.0, &safe)
             .map_err(|e| io_err("disabling the drivers", e))?;
@@ -788,6 +869,12 @@ impl BenchHardwareModel {
             realtime_tried: false,
             reply_time: (0.0, 0.0),
         };
+        if latched != reason::NONE {
+            rt.warnings.push(format!(
+                "acknowledged the bench's latched safe state ({}) as acknowledgeSafeState asked",
+                reason_name(latched)
+            ));
+        }
         if self.lock_memory
             && pacing != PacingMode::None
             && let Err(e) = lock_memory()
@@ -1037,6 +1124,18 @@ impl BenchHardwareModel {
     }
 }
 
+/// The log text of a safe-state reason.
+fn reason_name(r: u8) -> &'static str {
+    match r {
+        reason::CLIENT_REQUEST => "a master's trip",
+        reason::HEARTBEAT_TIMEOUT => "the server's heartbeat watchdog",
+        reason::EMERGENCY_STOP => "the emergency stop",
+        reason::SESSION_END => "a session end",
+        reason::BENCH_PROTECTION => "the bench's own protection",
+        _ => "unknown reason",
+    }
+}
+
 /// The interlock of bench-model.md §7 the outputs violate (code 1-6), or 0.
 fn interlock(p: &BenchParameters, o: &BenchOutputs) -> i32 {
     if o.spring_deflection.abs() > p.spring_deflection_limit {
@@ -1117,7 +1216,25 @@ fn measure(
             let [now, before] = rt.delta;
             let [dt, dt_before] = rt.dt;
             let dt = if dt > 0.0 { dt } else { h };
-            if dt_before == dt || dt_before <= 0.0 {
+            if dt < 0.5 * h && dt_before > 0.0 {
+                // The loop catching up after a stall: this sample follows the last by much
+                // less than a period, too short for its counts to make a velocity (one count
+                // over 0.1 ms reads as a speed spike, and the powers and the regenerated-power
+                // interlock with it). The window widens to the last two intervals.
+                let span = dt + dt_before;
+                let w = |side, counts| cal.angle(side, counts) / span;
+                let w_before = |side, counts| cal.angle(side, counts) / dt_before;
+                let (w1, w2) = (
+                    w(Side::Actuation, now[0] + before[0]),
+                    w(Side::Load, now[1] + before[1]),
+                );
+                (
+                    w1,
+                    w2,
+                    (w1 - w_before(Side::Actuation, before[0])) / (0.5 * span),
+                    (w2 - w_before(Side::Load, before[1])) / (0.5 * span),
+                )
+            } else if dt_before == dt || dt_before <= 0.0 {
                 (
                     cal.angle(Side::Actuation, now[0]) / dt,
                     cal.angle(Side::Load, now[1]) / dt,
@@ -1640,6 +1757,9 @@ mod tests {
         late: usize,
         delay: f64,
         slip: f64,
+        /// Taken off the slip at the sample after the late one: that sample comes less than a
+        /// period after the late one (the loop catching up).
+        catch_up: f64,
     }
 
     impl BenchIo for LateBench {
@@ -1650,6 +1770,9 @@ mod tests {
             self.reads += 1;
             if self.reads == self.late {
                 self.slip += self.delay;
+            }
+            if self.reads == self.late + 1 {
+                self.slip -= self.catch_up;
             }
             self.bench.read(t + self.slip)
         }
@@ -1680,6 +1803,7 @@ mod tests {
             late: 400,
             delay: 2e-3,
             slip: 0.0,
+            catch_up: 0.0,
         });
         rt.server_us = 0;
         // A steady current: the shaft turns at a nearly constant speed (about 50 counts per
@@ -1695,6 +1819,40 @@ mod tests {
         assert!(before > 0.1, "{before}");
         // The late sample covers 3 ms of motion; its speed is still the shaft's.
         assert!((late - before).abs() < 0.1 * before, "{before} {late}");
+    }
+
+    #[test]
+    fn a_sample_right_after_a_late_one_does_not_read_as_a_speed_spike() {
+        let mut m = started(|_| {});
+        let p = m.runtime.0.as_ref().unwrap().p.clone();
+        let mut sim = p.clone();
+        sim.spring_deflection_limit = 10.0;
+        sim.motor_torque_limit = 1e4;
+        let h = 1e-3;
+        let rt = m.runtime.0.as_mut().unwrap();
+        rt.io = Box::new(LateBench {
+            bench: SimulatedBench::new(sim).unwrap(),
+            reads: 0,
+            late: 400,
+            delay: 2e-3,
+            slip: 0.0,
+            // The next sample 0.1 ms after the late one.
+            catch_up: 0.9e-3,
+        });
+        rt.server_us = 0;
+        m.commands.test_current = 3.0;
+        let mut speeds = Vec::new();
+        for k in 0..402 {
+            assert_eq!(m.do_step(k as f64 * h, h).unwrap(), StepOutcome::Completed);
+            speeds.push(m.outputs.actuation_velocity);
+        }
+        let (before, caught_up) = (speeds[398], speeds[400]);
+        assert!(before > 0.1, "{before}");
+        // About 5 counts in 0.1 ms: a one-count error alone would be 20 %.
+        assert!(
+            (caught_up - before).abs() < 0.05 * before,
+            "{before} {caught_up}"
+        );
     }
 
     #[test]

@@ -5,16 +5,20 @@ use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, bail};
-use kneebench_harness::bench_protocol::FaultInjection;
+use kneebench_harness::bench_protocol::{FaultInjection, Key};
 use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
 
 /// Arguments of `kneebench emulate`.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
-  kneebench emulate --bind 127.0.0.1:47000 --fmu out/fmus/BenchPlant.fmu --duration 60
-  kneebench emulate --bind 127.0.0.1:0 --fmu out/fmus/BenchPlant.fmu --param configuration=2 --fault stuck:1 --duration 60
-Faults (--fault, repeatable; also injectable at run time by FaultInject frames):
+  kneebench emulate --bind 127.0.0.1:47000 --fmu out/fmus/BenchPlant.fmu --duration 60   # loopback: public key
+  kneebench emulate --new-key lab.key --bind 0.0.0.0:47000 --fmu out/fmus/BenchPlant.fmu --duration 60
+  kneebench emulate --key lab.key --bind 127.0.0.1:0 --fmu out/fmus/BenchPlant.fmu --param configuration=2 --fault stuck:1 --duration 60
+Without a key the emulator serves only on a loopback address (the public loopback key, which
+authenticates nothing); on any other address it needs --key or --new-key.
+Faults (--fault, repeatable; also injectable at run time by FaultInject frames of the
+authenticated session):
   drop:N          drop the next N replies
   delay:N:SECONDS send the next N replies SECONDS late
   stuck:CH        hold channel CH (0 load cell, 1 transducer, 2/3 test/load current sensor,
@@ -32,6 +36,12 @@ pub struct Args {
     /// A plant parameter, NAME=VALUE (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
+    /// The bench key file (from `kneebench key new`; readable by its owner only).
+    #[arg(long, value_name = "FILE", conflicts_with = "new_key")]
+    pub key: Option<PathBuf>,
+    /// Create a new key file (mode 0600) and serve with it.
+    #[arg(long, value_name = "FILE")]
+    pub new_key: Option<PathBuf>,
     /// Heartbeat timeout in seconds: silence after which the server enters the safe state.
     #[arg(long, default_value_t = 0.05)]
     pub heartbeat_timeout: f64,
@@ -90,7 +100,23 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if !(args.heartbeat_timeout.is_finite() && args.heartbeat_timeout > 0.0) {
         bail!("--heartbeat-timeout must be a positive number of seconds");
     }
+    if args.heartbeat_timeout > 0.1 {
+        bail!("--heartbeat-timeout must not exceed 0.1 s (docs/bench-protocol.md, §7)");
+    }
     config.heartbeat_timeout = std::time::Duration::from_secs_f64(args.heartbeat_timeout);
+    config.key = match (&args.key, &args.new_key) {
+        (Some(path), _) => Some(Key::load_file(path)?),
+        (None, Some(path)) => {
+            let key = Key::create_file(path)?;
+            eprintln!(
+                "kneebench emulate: wrote a new bench key to {} (mode 0600)",
+                path.display()
+            );
+            Some(key)
+        }
+        (None, None) => None,
+    };
+    emulator::check_bind(&args.bind, config.key.is_some())?;
     for f in &args.faults {
         config.faults.push(parse_fault(f)?);
     }
@@ -137,6 +163,49 @@ mod tests {
                 "{bad}"
             );
         }
+    }
+
+    #[test]
+    fn a_key_is_needed_off_loopback_and_key_files_are_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let fmu = dir.path().join("missing.fmu");
+        let args = |extra: &[&str]| {
+            let mut v = vec!["emulate", "--fmu", fmu.to_str().unwrap(), "--duration", "0"];
+            v.extend_from_slice(extra);
+            Cli::try_parse_from(v).unwrap().args
+        };
+        let e = run(args(&["--bind", "0.0.0.0:0"])).unwrap_err().to_string();
+        assert!(e.contains("without a key"), "{e}");
+        // A key created on the spot is private and accepted (the missing FMU fails next).
+        let key = dir.path().join("bench.key");
+        let e = run(args(&[
+            "--bind",
+            "0.0.0.0:0",
+            "--new-key",
+            key.to_str().unwrap(),
+        ]))
+        .unwrap_err()
+        .to_string();
+        assert!(!e.contains("without a key"), "{e}");
+        assert!(key.exists());
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o644)).unwrap();
+            let e = run(args(&[
+                "--bind",
+                "0.0.0.0:0",
+                "--key",
+                key.to_str().unwrap(),
+            ]))
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("chmod 600"), "{e}");
+        }
+        assert!(
+            Cli::try_parse_from(["emulate", "--key", "a", "--new-key", "b"]).is_err(),
+            "--key and --new-key together"
+        );
     }
 
     #[test]

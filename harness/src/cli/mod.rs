@@ -7,6 +7,7 @@ pub mod emulate;
 pub mod experiment;
 pub mod export;
 pub mod info;
+pub mod key;
 pub mod metrics;
 pub mod plot;
 pub mod run;
@@ -70,6 +71,8 @@ pub enum Command {
     Experiment(experiment::Args),
     /// Serve the UDP bench protocol with the BenchPlant FMU running in real time behind it.
     Emulate(emulate::Args),
+    /// Make or check the bench's secret key file (authenticates the bench protocol).
+    Key(key::Args),
 }
 
 /// Runs a parsed command line; returns the exit code.
@@ -87,5 +90,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),
+        Command::Key(a) => key::run(a),
     }
 }

@@ -1,38 +1,51 @@
-//! The kneebench UDP bench protocol: frames, their big-endian codec, and the receive filter
-//! that rejects malformed, replayed and out-of-order frames.
+//! The kneebench UDP bench protocol, version 2: frames, their big-endian codec, their
+//! authentication, the handshake, and the receive filter that rejects unauthenticated,
+//! malformed, replayed and out-of-order frames.
 //!
 //! The normative description is `docs/bench-protocol.md`; this module implements it for both
 //! ends: the hardware FMU (client) and the emulator (`kneebench emulate`, server). It depends on
-//! nothing but `std` and `thiserror`, so the harness includes this very file with `#[path]`
-//! (it never links the models) and both ends share one codec.
+//! `std`, `thiserror` and the RustCrypto `hmac`/`sha2` and `getrandom` crates only, so the
+//! harness includes this very directory with `#[path]` (it never links the models) and both
+//! ends share one codec.
 //!
 //! A frame is a 16-byte header, a payload whose length the header states and which must equal
-//! the length of its type, and a CRC-32/ISO-HDLC trailer over header and payload:
+//! the length of its type, and a 16-byte tag, HMAC-SHA256 over header and payload truncated
+//! to 128 bits (the `auth` module):
 //!
 //! ```text
 //! magic u32 "KNBP" | version u8 | type u8 | payload length u16 | session u32 | sequence u32
-//! payload ... | crc32 u32
+//! payload ... | tag [16]
 //! ```
 
 #![allow(dead_code)]
 
+pub mod auth;
+pub mod fuzzing;
+pub mod handshake;
+
 use std::time::Duration;
+
+pub use auth::{Key, KeyError, SessionKeys, TAG_LEN, TagKey};
+pub use handshake::{
+    Acknowledge, BenchSetup, ClientHandshake, HandshakeReply, Hello, Refusal, Session, Welcome,
+    refusal,
+};
 
 /// `"KNBP"`: the first four bytes of every frame.
 pub const MAGIC: u32 = 0x4B4E_4250;
 /// The protocol version this codec speaks; frames of any other version are rejected.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Bytes of the header.
 pub const HEADER_LEN: usize = 16;
-/// Bytes of the CRC trailer.
-pub const CRC_LEN: usize = 4;
-/// No valid frame is longer than this (the longest payload is the sample's 76 bytes).
-pub const MAX_FRAME_LEN: usize = HEADER_LEN + SAMPLE_LEN + CRC_LEN;
+/// No valid frame is longer than this (the longest payload is the refusal's 84 bytes).
+pub const MAX_FRAME_LEN: usize = HEADER_LEN + handshake::REFUSE_LEN + TAG_LEN;
 /// The port a bench I/O server listens on unless configured otherwise.
 pub const DEFAULT_PORT: u16 = 47000;
 /// The longest a server waits for a valid frame of its session before it enters the safe state
 /// by itself (the link watchdog of the server side).
 pub const HEARTBEAT_TIMEOUT: Duration = Duration::from_millis(50);
+/// The longest heartbeat timeout a server may be configured with.
+pub const MAX_HEARTBEAT_TIMEOUT: Duration = Duration::from_millis(100);
 /// The longest interval between two frames of a client that wants to keep its session alive
 /// (half the server's timeout, so one lost heartbeat is survivable).
 pub const HEARTBEAT_INTERVAL: Duration = Duration::from_millis(25);
@@ -65,8 +78,18 @@ pub enum FrameType {
     SafeState = 4,
     /// Server to client: the safe state is in force; carries a sample taken after entering it.
     SafeStateAck = 5,
-    /// Client to an emulator: inject a fault (a real bench server rejects it).
+    /// Client to an emulator, in an authenticated session: inject a fault (a real bench server
+    /// rejects it).
     FaultInject = 6,
+    /// Client to server: opens a handshake (nonce, the client's bench setup).
+    Hello = 7,
+    /// Server to client: accepts a handshake (both nonces, the server's latch).
+    Welcome = 8,
+    /// Server to client: refuses a handshake (why, in a code and a text).
+    Refuse = 9,
+    /// Client to server: clears the latched safe state (an explicit, authenticated
+    /// acknowledgement); answered by a sample.
+    Acknowledge = 10,
 }
 
 impl FrameType {
@@ -79,6 +102,10 @@ impl FrameType {
             4 => Self::SafeState,
             5 => Self::SafeStateAck,
             6 => Self::FaultInject,
+            7 => Self::Hello,
+            8 => Self::Welcome,
+            9 => Self::Refuse,
+            10 => Self::Acknowledge,
             _ => return None,
         })
     }
@@ -91,7 +118,17 @@ impl FrameType {
             Self::Sample | Self::SafeStateAck => SAMPLE_LEN,
             Self::SafeState => SAFE_STATE_LEN,
             Self::FaultInject => FAULT_LEN,
+            Self::Hello => handshake::HELLO_LEN,
+            Self::Welcome => handshake::WELCOME_LEN,
+            Self::Refuse => handshake::REFUSE_LEN,
+            Self::Acknowledge => handshake::ACKNOWLEDGE_LEN,
         }
+    }
+
+    /// Whether frames of this type are tagged with the handshake key (rather than a session
+    /// key).
+    pub fn is_handshake(self) -> bool {
+        matches!(self, Self::Hello | Self::Welcome | Self::Refuse)
     }
 }
 
@@ -208,7 +245,7 @@ impl AnalogChannel {
 
 /// Status bits of a sample.
 pub mod status {
-    /// The server is in the safe state (latched until a new session).
+    /// The server is in the safe state (latched until an authenticated acknowledgement).
     pub const SAFE_STATE: u8 = 1 << 0;
     /// The emergency-stop button is pressed.
     pub const EMERGENCY_STOP: u8 = 1 << 1;
@@ -220,11 +257,12 @@ pub mod status {
     pub const CLUTCH: u8 = 1 << 4;
     /// The server entered the safe state by itself (its heartbeat watchdog or the button).
     pub const SERVER_TRIP: u8 = 1 << 5;
-    /// Bits a version-1 server may set.
+    /// Bits a version-2 server may set.
     pub const DEFINED: u8 = 0x3F;
 }
 
-/// Why the safe state was entered (sample byte 17, safe-state request byte 0).
+/// Why the safe state was entered (sample byte 17, safe-state request byte 0, welcome byte
+/// 32, acknowledgement byte 0).
 pub mod reason {
     /// Not in the safe state.
     pub const NONE: u8 = 0;
@@ -234,7 +272,7 @@ pub mod reason {
     pub const HEARTBEAT_TIMEOUT: u8 = 2;
     /// The emergency-stop button.
     pub const EMERGENCY_STOP: u8 = 3;
-    /// The client ended its session normally.
+    /// The client ended its session normally (a release: not latched).
     pub const SESSION_END: u8 = 4;
     /// The bench's own protection stopped it (a driver fault, a server-side interlock).
     pub const BENCH_PROTECTION: u8 = 5;
@@ -326,6 +364,17 @@ impl FaultInjection {
     }
 
     fn decode(kind: u8, channel: u8, value: f64, count: u32) -> Result<Self, DecodeError> {
+        // A field the kind does not use must be zero: nothing is silently dropped (found by
+        // fuzzing: a Force with a count re-encoded without it).
+        let (uses_value, uses_count) = match kind {
+            1 => (false, true),
+            2 => (true, true),
+            4 => (true, false),
+            _ => (false, false),
+        };
+        if (!uses_value && value.to_bits() != 0) || (!uses_count && count != 0) {
+            return Err(DecodeError::BadPayload("unused fault field not zero"));
+        }
         let no_channel = |f: Self| {
             if channel == 0 {
                 Ok(f)
@@ -373,6 +422,14 @@ pub enum Payload {
     SafeStateAck(Sample),
     /// [`FrameType::FaultInject`].
     FaultInject(FaultInjection),
+    /// [`FrameType::Hello`].
+    Hello(Hello),
+    /// [`FrameType::Welcome`].
+    Welcome(Welcome),
+    /// [`FrameType::Refuse`].
+    Refuse(Refusal),
+    /// [`FrameType::Acknowledge`].
+    Acknowledge(Acknowledge),
 }
 
 impl Payload {
@@ -385,6 +442,10 @@ impl Payload {
             Self::SafeState(_) => FrameType::SafeState,
             Self::SafeStateAck(_) => FrameType::SafeStateAck,
             Self::FaultInject(_) => FrameType::FaultInject,
+            Self::Hello(_) => FrameType::Hello,
+            Self::Welcome(_) => FrameType::Welcome,
+            Self::Refuse(_) => FrameType::Refuse,
+            Self::Acknowledge(_) => FrameType::Acknowledge,
         }
     }
 }
@@ -400,10 +461,22 @@ pub struct Frame {
     pub payload: Payload,
 }
 
+/// The header of a datagram whose structure (length, magic, version, type) is valid, read
+/// before its tag is checked, so that a receiver can choose the key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Header {
+    /// The frame type.
+    pub frame_type: FrameType,
+    /// The session number (not yet checked to be nonzero).
+    pub session: u32,
+    /// The sequence number (not yet checked to be nonzero).
+    pub sequence: u32,
+}
+
 /// Why bytes are not a valid frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum DecodeError {
-    /// Shorter than a header and a CRC, or shorter than the header's length says.
+    /// Shorter than a header and a tag, or shorter than the header's length says.
     #[error("truncated frame ({0} bytes)")]
     Truncated(usize),
     /// Longer than the header's length says, or than any frame.
@@ -413,7 +486,7 @@ pub enum DecodeError {
     #[error("bad magic number {0:#010x}")]
     BadMagic(u32),
     /// A version this codec does not speak.
-    #[error("unsupported protocol version {0}")]
+    #[error("unsupported protocol version {0} (this end speaks version {VERSION})")]
     WrongVersion(u8),
     /// An unknown frame type.
     #[error("unknown frame type {0}")]
@@ -426,45 +499,16 @@ pub enum DecodeError {
         /// The type's length.
         expected: usize,
     },
-    /// The CRC does not match.
-    #[error("CRC mismatch")]
-    BadCrc,
+    /// The tag does not authenticate the frame under the key in force (a wrong key, another
+    /// session's key, or a corrupted frame).
+    #[error("authentication failed")]
+    BadTag,
     /// Session 0 or sequence 0.
     #[error("session and sequence must be nonzero")]
     ZeroSequence,
     /// A payload field out of its range (reserved bits set, unknown enumeration, non-finite).
     #[error("malformed payload: {0}")]
     BadPayload(&'static str),
-}
-
-/// CRC-32/ISO-HDLC (the CRC of Ethernet, zlib and PNG): polynomial 0x04C11DB7 reflected
-/// (0xEDB88320), initial value 0xFFFFFFFF, final XOR 0xFFFFFFFF. `crc32(b"123456789")` is
-/// 0xCBF43926.
-pub fn crc32(bytes: &[u8]) -> u32 {
-    const TABLE: [u32; 256] = {
-        let mut table = [0u32; 256];
-        let mut i = 0;
-        while i < 256 {
-            let mut c = i as u32;
-            let mut k = 0;
-            while k < 8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-                k += 1;
-            }
-            table[i] = c;
-            i += 1;
-        }
-        table
-    };
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in bytes {
-        crc = TABLE[((crc ^ b as u32) & 0xFF) as usize] ^ (crc >> 8);
-    }
-    crc ^ 0xFFFF_FFFF
 }
 
 struct Writer(Vec<u8>);
@@ -487,6 +531,9 @@ impl Writer {
     }
     fn f64(&mut self, v: f64) {
         self.0.extend_from_slice(&v.to_bits().to_be_bytes());
+    }
+    fn bytes(&mut self, v: &[u8]) {
+        self.0.extend_from_slice(v);
     }
 }
 
@@ -574,11 +621,11 @@ fn decode_sample(r: &mut Reader<'_>) -> Result<Sample, DecodeError> {
 }
 
 impl Frame {
-    /// The frame's bytes on the wire.
-    pub fn encode(&self) -> Vec<u8> {
+    /// The frame's header and payload (everything the tag covers), without the tag.
+    pub fn encode_body(&self) -> Vec<u8> {
         let ty = self.payload.frame_type();
         let len = ty.payload_len();
-        let mut w = Writer(Vec::with_capacity(HEADER_LEN + len + CRC_LEN));
+        let mut w = Writer(Vec::with_capacity(HEADER_LEN + len + TAG_LEN));
         w.u32(MAGIC);
         w.u8(VERSION);
         w.u8(ty as u8);
@@ -611,15 +658,30 @@ impl Frame {
                 w.f64(value);
                 w.u32(count);
             }
+            Payload::Hello(h) => h.encode(&mut w),
+            Payload::Welcome(h) => h.encode(&mut w),
+            Payload::Refuse(h) => h.encode(&mut w),
+            Payload::Acknowledge(h) => h.encode(&mut w),
         }
-        let crc = crc32(&w.0);
-        w.u32(crc);
         w.0
     }
 
-    /// Decodes one datagram. Never panics; every malformation is an error.
-    pub fn decode(bytes: &[u8]) -> Result<Frame, DecodeError> {
-        if bytes.len() < HEADER_LEN + CRC_LEN {
+    /// The frame's bytes on the wire, tagged with `key`.
+    pub fn encode(&self, key: &TagKey) -> Vec<u8> {
+        let mut bytes = self.encode_body();
+        let tag = key.tag(&bytes);
+        bytes.extend_from_slice(&tag);
+        bytes
+    }
+
+    /// Checks the structure of a datagram (length, magic, version, type, payload length: the
+    /// checks 1-4 of the protocol's acceptance order) and reads its header. Never panics.
+    pub fn peek(bytes: &[u8]) -> Result<Header, DecodeError> {
+        // A peer of another version is told so whatever its frames' lengths.
+        if bytes.len() >= 5 && bytes[..4] == MAGIC.to_be_bytes() && bytes[4] != VERSION {
+            return Err(DecodeError::WrongVersion(bytes[4]));
+        }
+        if bytes.len() < HEADER_LEN + TAG_LEN {
             return Err(DecodeError::Truncated(bytes.len()));
         }
         if bytes.len() > MAX_FRAME_LEN {
@@ -643,29 +705,43 @@ impl Frame {
                 expected: ty.payload_len(),
             });
         }
-        let total = HEADER_LEN + len + CRC_LEN;
+        let total = HEADER_LEN + len + TAG_LEN;
         if bytes.len() < total {
             return Err(DecodeError::Truncated(bytes.len()));
         }
         if bytes.len() > total {
             return Err(DecodeError::TooLong(bytes.len()));
         }
-        let body = &bytes[..HEADER_LEN + len];
-        let crc = u32::from_be_bytes([
-            bytes[total - 4],
-            bytes[total - 3],
-            bytes[total - 2],
-            bytes[total - 1],
-        ]);
-        if crc32(body) != crc {
-            return Err(DecodeError::BadCrc);
+        Ok(Header {
+            frame_type: ty,
+            session: r.u32(),
+            sequence: r.u32(),
+        })
+    }
+
+    /// Decodes one datagram authenticated with `key`. Never panics; every malformation and a
+    /// tag that does not match is an error, and no field is read before the tag is checked.
+    pub fn decode(bytes: &[u8], key: &TagKey) -> Result<Frame, DecodeError> {
+        let header = Self::peek(bytes)?;
+        let body_len = bytes.len() - TAG_LEN;
+        if !key.verify(&bytes[..body_len], &bytes[body_len..]) {
+            return Err(DecodeError::BadTag);
         }
-        let session = r.u32();
-        let sequence = r.u32();
+        Self::decode_fields(header, &bytes[HEADER_LEN..body_len])
+    }
+
+    /// The fields of a frame whose structure `peek` checked and whose tag was verified (or,
+    /// for measuring the cost of authentication, deliberately not: never act on such a frame).
+    pub fn decode_fields(header: Header, payload: &[u8]) -> Result<Frame, DecodeError> {
+        let Header {
+            frame_type: ty,
+            session,
+            sequence,
+        } = header;
         if session == 0 || sequence == 0 {
             return Err(DecodeError::ZeroSequence);
         }
-        let mut r = Reader(&bytes[HEADER_LEN..HEADER_LEN + len]);
+        let mut r = Reader(payload);
         let payload = match ty {
             FrameType::Command => {
                 let test_set_value = r.f64();
@@ -718,6 +794,10 @@ impl Frame {
                 let count = r.u32();
                 Payload::FaultInject(FaultInjection::decode(kind, channel, value, count)?)
             }
+            FrameType::Hello => Payload::Hello(Hello::decode(&mut r)?),
+            FrameType::Welcome => Payload::Welcome(Welcome::decode(&mut r)?),
+            FrameType::Refuse => Payload::Refuse(Refusal::decode(&mut r)?),
+            FrameType::Acknowledge => Payload::Acknowledge(Acknowledge::decode(&mut r)?),
         };
         Ok(Frame {
             session,
@@ -730,7 +810,7 @@ impl Frame {
 /// Why a decoded frame is not acted on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum Rejection {
-    /// The bytes are not a valid frame.
+    /// The bytes are not a valid, authenticated frame.
     #[error(transparent)]
     Malformed(#[from] DecodeError),
     /// A frame of another session.
@@ -763,8 +843,8 @@ pub struct Counters {
     pub truncated: u64,
     /// A frame of a version other than [`VERSION`].
     pub wrong_version: u64,
-    /// A CRC mismatch.
-    pub bad_crc: u64,
+    /// A tag that does not authenticate the frame (wrong key, stale session, corruption).
+    pub unauthenticated: u64,
     /// Any other malformation (magic, type, length, payload fields).
     pub malformed: u64,
     /// Of a session other than the one in force.
@@ -782,47 +862,79 @@ impl Counters {
     pub fn rejected(&self) -> u64 {
         self.truncated
             + self.wrong_version
-            + self.bad_crc
+            + self.unauthenticated
             + self.malformed
             + self.wrong_session
             + self.replayed
             + self.out_of_order
     }
+
+    /// Counts a decoding error under its cause.
+    pub fn count(&mut self, e: DecodeError) {
+        match e {
+            DecodeError::Truncated(_) => self.truncated += 1,
+            DecodeError::WrongVersion(_) => self.wrong_version += 1,
+            DecodeError::BadTag => self.unauthenticated += 1,
+            _ => self.malformed += 1,
+        }
+    }
+
+    /// Adds `other`'s counts to these.
+    pub fn add(&mut self, other: &Counters) {
+        self.accepted += other.accepted;
+        self.truncated += other.truncated;
+        self.wrong_version += other.wrong_version;
+        self.unauthenticated += other.unauthenticated;
+        self.malformed += other.malformed;
+        self.wrong_session += other.wrong_session;
+        self.replayed += other.replayed;
+        self.out_of_order += other.out_of_order;
+        self.gaps += other.gaps;
+    }
 }
 
-/// The receive side of one session: decodes, checks the session and the sequence number, and
-/// counts every rejection. A frame it returns is new, in order, of the session and well formed.
-#[derive(Debug, Clone, Default)]
+/// The receive side of one session: checks the tag under the session's key, decodes, checks
+/// the session and the sequence number, and counts every rejection. A frame it returns is
+/// authentic, new, in order, of the session and well formed.
+#[derive(Debug, Clone)]
 pub struct Receiver {
-    /// The session in force (0: adopt the session of the first valid frame).
+    /// The session in force.
     pub session: u32,
     /// The last accepted sequence number (0: none yet).
     pub last_sequence: u32,
     /// What was accepted and rejected.
     pub counters: Counters,
+    key: TagKey,
 }
 
 impl Receiver {
-    /// A receiver for frames of `session` (0: adopt the first valid frame's session).
-    pub fn new(session: u32) -> Self {
+    /// A receiver for frames of `session` tagged with `key`.
+    pub fn new(session: u32, key: TagKey) -> Self {
         Self {
             session,
-            ..Self::default()
+            last_sequence: 0,
+            counters: Counters::default(),
+            key,
         }
     }
 
-    /// Decodes and checks `bytes`; counts the outcome.
+    /// Decodes, authenticates and checks `bytes`; counts the outcome.
     pub fn accept(&mut self, bytes: &[u8]) -> Result<Frame, Rejection> {
-        let frame = match Frame::decode(bytes) {
+        match Frame::peek(bytes) {
+            Ok(h) if h.session != self.session => {
+                // Not of this session: its tag is not ours to check.
+                self.counters.wrong_session += 1;
+                return Err(Rejection::WrongSession {
+                    got: h.session,
+                    expected: self.session,
+                });
+            }
+            _ => {}
+        }
+        let frame = match Frame::decode(bytes, &self.key) {
             Ok(f) => f,
             Err(e) => {
-                let c = &mut self.counters;
-                match e {
-                    DecodeError::Truncated(_) => c.truncated += 1,
-                    DecodeError::WrongVersion(_) => c.wrong_version += 1,
-                    DecodeError::BadCrc => c.bad_crc += 1,
-                    _ => c.malformed += 1,
-                }
+                self.counters.count(e);
                 return Err(e.into());
             }
         };
@@ -830,11 +942,8 @@ impl Receiver {
         Ok(frame)
     }
 
-    /// Checks the session and sequence number of a decoded frame; counts the outcome.
+    /// Checks the session and sequence number of an authenticated frame; counts the outcome.
     pub fn check(&mut self, frame: &Frame) -> Result<(), Rejection> {
-        if self.session == 0 {
-            self.session = frame.session;
-        }
         if frame.session != self.session {
             self.counters.wrong_session += 1;
             return Err(Rejection::WrongSession {
@@ -860,33 +969,37 @@ impl Receiver {
     }
 }
 
-/// The send side of one session: numbers frames 1, 2, 3, ...
+/// The send side of one session: numbers frames 1, 2, 3, ... and tags them.
 #[derive(Debug, Clone)]
 pub struct Sender {
     /// The session.
     pub session: u32,
     /// The sequence number of the last frame sent.
     pub sequence: u32,
+    key: TagKey,
 }
 
 impl Sender {
-    /// A sender for `session`.
-    pub fn new(session: u32) -> Self {
+    /// A sender for `session`, tagging with `key`.
+    pub fn new(session: u32, key: TagKey) -> Self {
         Self {
             session,
             sequence: 0,
+            key,
         }
     }
 
-    /// The next frame with `payload`, encoded.
+    /// The next frame with `payload`, encoded. A session never wraps its numbers: at the
+    /// 2^32 - 1st frame (50 days at 1 kHz) the sender stays there and the receiver refuses
+    /// further frames as replays; a new session is needed.
     pub fn frame(&mut self, payload: Payload) -> (u32, Vec<u8>) {
-        self.sequence = self.sequence.wrapping_add(1).max(1);
+        self.sequence = self.sequence.saturating_add(1);
         let bytes = Frame {
             session: self.session,
             sequence: self.sequence,
             payload,
         }
-        .encode();
+        .encode(&self.key);
         (self.sequence, bytes)
     }
 }
@@ -894,6 +1007,17 @@ impl Sender {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn key() -> TagKey {
+        TagKey::new(b"test key")
+    }
+
+    /// Re-tags a modified frame, so that the check under test is the one that fails.
+    fn retag(b: &mut [u8]) {
+        let n = b.len() - TAG_LEN;
+        let t = key().tag(&b[..n]);
+        b[n..].copy_from_slice(&t);
+    }
 
     fn sample() -> Sample {
         Sample {
@@ -934,12 +1058,28 @@ mod tests {
                 volts: 9.5,
             }),
             Payload::FaultInject(FaultInjection::Stuck { channel: 7 }),
+            Payload::Hello(Hello {
+                nonce: [3; 16],
+                setup: BenchSetup {
+                    configuration: 2,
+                    test_kind: SetValueKind::Voltage,
+                    load_kind: SetValueKind::Current,
+                },
+            }),
+            Payload::Welcome(Welcome {
+                client_nonce: [3; 16],
+                server_nonce: [4; 16],
+                latched: reason::EMERGENCY_STOP,
+            }),
+            Payload::Refuse(Refusal::new(
+                refusal::SETUP,
+                [3; 16],
+                "configuration differs",
+            )),
+            Payload::Acknowledge(Acknowledge {
+                reason: reason::HEARTBEAT_TIMEOUT,
+            }),
         ]
-    }
-
-    #[test]
-    fn crc_check_value() {
-        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
     }
 
     #[test]
@@ -950,27 +1090,32 @@ mod tests {
                 sequence: k as u32 + 1,
                 payload,
             };
-            let bytes = f.encode();
+            let bytes = f.encode(&key());
             assert_eq!(
                 bytes.len(),
-                HEADER_LEN + payload.frame_type().payload_len() + CRC_LEN
+                HEADER_LEN + payload.frame_type().payload_len() + TAG_LEN
             );
-            assert_eq!(Frame::decode(&bytes), Ok(f));
+            assert!(bytes.len() <= MAX_FRAME_LEN);
+            assert_eq!(Frame::decode(&bytes, &key()), Ok(f));
+            assert_eq!(
+                Frame::decode(&bytes, &TagKey::new(b"another key")),
+                Err(DecodeError::BadTag)
+            );
         }
     }
 
     #[test]
     fn header_is_big_endian() {
-        let (_, bytes) = Sender::new(0x0102_0304).frame(Payload::Heartbeat);
+        let (_, bytes) = Sender::new(0x0102_0304, key()).frame(Payload::Heartbeat);
         assert_eq!(
             &bytes[..HEADER_LEN],
-            &[b'K', b'N', b'B', b'P', 1, 2, 0, 0, 1, 2, 3, 4, 0, 0, 0, 1]
+            &[b'K', b'N', b'B', b'P', 2, 2, 0, 0, 1, 2, 3, 4, 0, 0, 0, 1]
         );
     }
 
     fn rx_with_one_frame() -> (Receiver, Sender) {
-        let mut tx = Sender::new(9);
-        let mut rx = Receiver::new(9);
+        let mut tx = Sender::new(9, key());
+        let mut rx = Receiver::new(9, key());
         let (_, b) = tx.frame(Payload::Heartbeat);
         rx.accept(&b).unwrap();
         (rx, tx)
@@ -998,20 +1143,18 @@ mod tests {
         )));
         let mut bad_magic = good.clone();
         bad_magic[0] ^= 0x20;
-        let mut bad_crc = good.clone();
-        bad_crc[HEADER_LEN] ^= 1;
+        let mut bad_tag = good.clone();
+        bad_tag[HEADER_LEN] ^= 1;
         let mut long = good.clone();
         long.push(0);
         let mut bad_type = good.clone();
         bad_type[5] = 99;
         let mut reserved = good.clone();
         reserved[HEADER_LEN + 16] = 0x80;
-        let n = reserved.len();
-        let crc = crc32(&reserved[..n - 4]).to_be_bytes();
-        reserved[n - 4..].copy_from_slice(&crc);
+        retag(&mut reserved);
         for (bytes, what) in [
             (&bad_magic, "magic"),
-            (&bad_crc, "crc"),
+            (&bad_tag, "tag"),
             (&long, "length"),
             (&bad_type, "type"),
             (&reserved, "reserved bits"),
@@ -1021,7 +1164,7 @@ mod tests {
                 "{what}"
             );
         }
-        assert_eq!(rx.counters.bad_crc, 1);
+        assert_eq!(rx.counters.unauthenticated, 1);
         assert_eq!(rx.counters.malformed, 4);
         assert_eq!(rx.counters.accepted, 1);
     }
@@ -1030,21 +1173,19 @@ mod tests {
     fn wrong_version_is_rejected_and_counted() {
         let (mut rx, mut tx) = rx_with_one_frame();
         let (_, mut b) = tx.frame(Payload::Heartbeat);
-        b[4] = 2;
-        let n = b.len();
-        let crc = crc32(&b[..n - 4]).to_be_bytes();
-        b[n - 4..].copy_from_slice(&crc);
+        b[4] = 1;
+        retag(&mut b);
         assert_eq!(
             rx.accept(&b),
-            Err(Rejection::Malformed(DecodeError::WrongVersion(2)))
+            Err(Rejection::Malformed(DecodeError::WrongVersion(1)))
         );
         assert_eq!(rx.counters.wrong_version, 1);
     }
 
     #[test]
     fn replayed_and_out_of_order_frames_are_rejected_and_counted() {
-        let mut tx = Sender::new(5);
-        let mut rx = Receiver::new(5);
+        let mut tx = Sender::new(5, key());
+        let mut rx = Receiver::new(5, key());
         let frames: Vec<Vec<u8>> = (0..4).map(|_| tx.frame(Payload::Heartbeat).1).collect();
         rx.accept(&frames[0]).unwrap();
         rx.accept(&frames[2]).unwrap();
@@ -1067,8 +1208,8 @@ mod tests {
 
     #[test]
     fn frames_of_another_session_are_rejected() {
-        let mut rx = Receiver::new(5);
-        let (_, b) = Sender::new(6).frame(Payload::Heartbeat);
+        let mut rx = Receiver::new(5, key());
+        let (_, b) = Sender::new(6, key()).frame(Payload::Heartbeat);
         assert!(matches!(
             rx.accept(&b),
             Err(Rejection::WrongSession { got: 6, .. })
@@ -1079,7 +1220,7 @@ mod tests {
             sequence: 0,
             payload: Payload::Heartbeat,
         }
-        .encode();
+        .encode(&key());
         assert_eq!(
             rx.accept(&zero),
             Err(Rejection::Malformed(DecodeError::ZeroSequence))
@@ -1097,7 +1238,7 @@ mod tests {
             }),
         };
         assert!(matches!(
-            Frame::decode(&f.encode()),
+            Frame::decode(&f.encode(&key()), &key()),
             Err(DecodeError::BadPayload(_))
         ));
     }
@@ -1128,7 +1269,7 @@ mod tests {
                     sequence: k as u32 + 1,
                     payload,
                 }
-                .encode()
+                .encode(&key())
             })
             .collect();
         let mut decoded_mutants = 0;
@@ -1159,13 +1300,13 @@ mod tests {
             if valid.contains(&bytes) {
                 continue;
             }
-            if let Ok(f) = Frame::decode(&bytes) {
+            if let Ok(f) = Frame::decode(&bytes, &key()) {
                 // Anything that decodes must re-encode to the same bytes (no silent repair).
-                assert_eq!(f.encode(), bytes);
+                assert_eq!(f.encode(&key()), bytes);
                 decoded_mutants += 1;
             }
         }
-        // CRC-32 detects every 1-4 bit error in frames this short: no mutant may pass.
+        // A forged tag passes with probability 2^-128: no mutant may pass.
         assert_eq!(decoded_mutants, 0);
     }
 }
