@@ -385,6 +385,15 @@ impl Server {
     fn new(config: EmulatorConfig) -> Result<Self, EmulatorError> {
         check_bind(&config.bind, config.key.is_some())?;
         let fmu = Fmu::load(&config.fmu, &LoadOptions::default())?;
+        // The emulator drives the plant's own interface: another model would be driven through
+        // value references it does not have.
+        let model = &fmu.model_description().model_name;
+        if model != "BenchPlant" {
+            return Err(EmulatorError::Config(format!(
+                "{} is a {model}, not the bench plant (BenchPlant.fmu)",
+                config.fmu.display()
+            )));
+        }
         let socket = UdpSocket::bind(&config.bind)?;
         // Non-blocking: the serving loop drains what is queued and waits in `ppoll`. (Its
         // send buffer only ever holds its own replies, a few hundred bytes a period.)

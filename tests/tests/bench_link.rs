@@ -767,3 +767,15 @@ fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
     assert!(s.rejected.rejected() + s.foreign_frames > sent / 2, "{s:?}");
     assert!(s.log_lines <= 4, "{s:?}");
 }
+
+/// The emulator serves the bench plant only: another model (whose value references the
+/// emulator would drive blindly) is refused before the socket opens, naming what it is.
+#[test]
+fn the_emulator_refuses_a_model_that_is_not_the_plant() {
+    let config = EmulatorConfig::new("127.0.0.1:0", fmu_path("GaitReference"));
+    let e = spawn(config)
+        .err()
+        .expect("GaitReference is no plant")
+        .to_string();
+    assert!(e.contains("is a GaitReference, not the bench plant"), "{e}");
+}

@@ -88,6 +88,9 @@ pub fn parse_fault(text: &str) -> anyhow::Result<FaultInjection> {
     })
 }
 
+/// The longest `--duration` \[s\]: a year.
+const MAX_DURATION: f64 = 365.0 * 86400.0;
+
 /// Runs `kneebench emulate`.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let mut config = EmulatorConfig::new(args.bind.clone(), args.fmu.clone());
@@ -124,9 +127,12 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let stop = std::sync::Arc::new(AtomicBool::new(false));
     let stats = Mutex::new(EmulatorStats::default());
     if let Some(d) = args.duration {
+        if !(d.is_finite() && (0.0..=MAX_DURATION).contains(&d)) {
+            bail!("--duration must be a number of seconds from 0 to {MAX_DURATION} (a year)");
+        }
         let stop = stop.clone();
         std::thread::spawn(move || {
-            std::thread::sleep(std::time::Duration::from_secs_f64(d.max(0.0)));
+            std::thread::sleep(std::time::Duration::from_secs_f64(d));
             stop.store(true, std::sync::atomic::Ordering::SeqCst);
         });
     }
@@ -162,6 +168,25 @@ mod tests {
                 Cli::try_parse_from(["emulate", "--realtime-priority", bad]).is_err(),
                 "{bad}"
             );
+        }
+    }
+
+    #[test]
+    fn durations_out_of_range_are_refused_before_anything_starts() {
+        for bad in ["nan", "inf", "-1", "1e300"] {
+            let bad = &format!("--duration={bad}");
+            let args = Cli::try_parse_from([
+                "emulate",
+                "--fmu",
+                "missing.fmu",
+                "--bind",
+                "127.0.0.1:0",
+                bad,
+            ])
+            .unwrap()
+            .args;
+            let e = run(args).unwrap_err().to_string();
+            assert!(e.contains("--duration must be"), "{bad}: {e}");
         }
     }
 
