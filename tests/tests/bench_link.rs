@@ -775,7 +775,7 @@ fn the_emulator_refuses_a_model_that_is_not_the_plant() {
     let config = EmulatorConfig::new("127.0.0.1:0", fmu_path("GaitReference"));
     let e = spawn(config)
         .err()
-        .expect("GaitReference is no plant")
+        .unwrap_or_else(|| panic!("GaitReference is no plant"))
         .to_string();
     assert!(e.contains("is a GaitReference, not the bench plant"), "{e}");
 }
