@@ -48,6 +48,7 @@ pub mod load;
 pub mod master;
 pub mod metrics;
 pub mod package;
+pub mod params;
 pub mod results;
 pub mod ssp;
 pub mod study;
