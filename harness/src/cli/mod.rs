@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 pub mod emulate;
 pub mod experiment;
 pub mod export;
+pub mod identify;
 pub mod info;
 pub mod metrics;
 pub mod plot;
