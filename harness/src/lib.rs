@@ -43,6 +43,7 @@ pub mod bench_protocol;
 
 pub mod emulator;
 pub mod experiment;
+pub mod identify;
 pub mod instance;
 pub mod load;
 pub mod master;
