@@ -50,7 +50,7 @@ pub struct Args {
     /// A parameter of the bench FMU, NAME=VALUE (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
-    /// A parameter set (.ssv) for the bench FMU, applied before --param; named in <name>.md.
+    /// A parameter set (.ssv) for the bench FMU, applied before --param; named in NAME.md.
     #[arg(long = "params", value_name = "SET.ssv")]
     pub parameter_set: Option<PathBuf>,
     /// map: speed magnitudes (deg/s), each run both ways (default the bench's 0, 3, 6, 10, 20,

@@ -60,6 +60,8 @@ pub enum Command {
     Tune(tune::Args),
     /// Run a bench experiment (map, bode, triangle, calibration, step) on BenchPlant or BenchHardware.
     Experiment(experiment::Args),
+    /// Fit the plant's parameters to experiment logs; write them as an SSP parameter set (.ssv).
+    Identify(identify::Args),
     /// Serve the UDP bench protocol with the BenchPlant FMU running in real time behind it.
     Emulate(emulate::Args),
 }
@@ -77,5 +79,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),
+        Command::Identify(a) => identify::run(a),
     }
 }
