@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use super::IdentifyError;
 use super::smooth::derivatives;
-use crate::results::Results;
 
 /// Channels a log must have (names of the bench FMU's outputs; a `plant.` prefix, as
 /// `kneebench experiment` writes, is accepted).
@@ -66,10 +65,97 @@ pub struct Log {
     pub notes: Vec<String>,
 }
 
-fn find(results: &Results, name: &str) -> Option<Vec<f64>> {
-    results
-        .column(&format!("plant.{name}"))
-        .or_else(|| results.column(name))
+/// The columns of a CSV log that identification reads, parsed without the others (a log of
+/// `kneebench experiment` has some 120 columns; parsing only these is several times faster).
+struct Table {
+    /// The first column.
+    time: Vec<f64>,
+    /// Per wanted name, its column if the header has it.
+    columns: Vec<Option<Vec<f64>>>,
+    /// The file line of each row (1-based).
+    lines: Vec<usize>,
+}
+
+fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
+    use std::io::BufRead;
+    let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let mut r = std::io::BufReader::with_capacity(1 << 20, f);
+    let mut buf = String::new();
+    let mut line = 0usize;
+    let header = loop {
+        buf.clear();
+        line += 1;
+        if r.read_line(&mut buf)
+            .map_err(|e| format!("line {line}: {e}"))?
+            == 0
+        {
+            return Err("empty file".into());
+        }
+        let l = buf.trim();
+        if !l.is_empty() && !l.starts_with('#') {
+            break l
+                .split(',')
+                .map(|s| s.trim().trim_matches('"').to_string())
+                .collect::<Vec<_>>();
+        }
+    };
+    let index: Vec<Option<usize>> = wanted
+        .iter()
+        .map(|w| header.iter().position(|h| h == w))
+        .collect();
+    let mut table = Table {
+        time: Vec::new(),
+        columns: index.iter().map(|i| i.map(|_| Vec::new())).collect(),
+        lines: Vec::new(),
+    };
+    // Field position -> slot in `columns`.
+    let mut slot = vec![None; header.len()];
+    for (k, i) in index.iter().enumerate() {
+        if let Some(i) = i {
+            slot[*i] = Some(k);
+        }
+    }
+    let parse = |f: &str, line: usize, name: &str| -> Result<f64, String> {
+        match f.trim() {
+            "true" | "True" => Ok(1.0),
+            "false" | "False" => Ok(0.0),
+            t => t
+                .parse()
+                .map_err(|_| format!("line {line}: {name} '{t}' is not a number")),
+        }
+    };
+    loop {
+        buf.clear();
+        line += 1;
+        if r.read_line(&mut buf)
+            .map_err(|e| format!("line {line}: {e}"))?
+            == 0
+        {
+            break;
+        }
+        let l = buf.trim_end();
+        if l.trim().is_empty() || l.starts_with('#') {
+            continue;
+        }
+        let mut count = 0;
+        for (j, field) in l.split(',').enumerate() {
+            count += 1;
+            if j == 0 {
+                table.time.push(parse(field, line, &header[0])?);
+            } else if let Some(Some(k)) = slot.get(j) {
+                let v = parse(field, line, &header[j])?;
+                table.columns[*k].as_mut().expect("a found column").push(v);
+            }
+        }
+        if count != header.len() {
+            return Err(format!(
+                "line {line}: {count} fields, the header has {}",
+                header.len()
+            ));
+        }
+        table.lines.push(line);
+    }
+    Ok(table)
 }
 
 /// Reads and checks a log: every required channel present, time strictly increasing and
@@ -80,11 +166,23 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
         path: path.to_path_buf(),
         problem,
     };
-    let results = Results::read_csv_file(path).map_err(|e| bad(e.to_string()))?;
+    let mut wanted: Vec<String> = Vec::new();
+    for n in REQUIRED.iter().chain(&OPTIONAL) {
+        wanted.push(format!("plant.{n}"));
+        wanted.push(n.to_string());
+    }
+    wanted.push(COMMAND.to_string());
+    let table = read_table(path, &wanted).map_err(bad)?;
+    let find = |name: &str| -> Option<Vec<f64>> {
+        let k = wanted.iter().position(|w| *w == format!("plant.{name}"))?;
+        table.columns[k]
+            .clone()
+            .or_else(|| table.columns[k + 1].clone())
+    };
     let missing: Vec<&str> = REQUIRED
         .iter()
         .copied()
-        .filter(|n| find(&results, n).is_none())
+        .filter(|n| find(n).is_none())
         .collect();
     if !missing.is_empty() {
         return Err(bad(format!(
@@ -92,9 +190,8 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
             missing.join(", ")
         )));
     }
-    let time = results.times();
-    // CSV line of row i: the header is line 1.
-    let line = |i: usize| i + 2;
+    let time = table.time.clone();
+    let line = |i: usize| table.lines[i];
     let min_rows = 2 * m + 1 + 200;
     if time.len() < min_rows {
         return Err(bad(format!(
@@ -124,7 +221,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
         )));
     }
     let get = |name: &str| -> Result<Option<Vec<f64>>, IdentifyError> {
-        let Some(v) = find(&results, name) else {
+        let Some(v) = find(name) else {
             return Ok(None);
         };
         if let Some(i) = v.iter().position(|x| !x.is_finite()) {
@@ -139,7 +236,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let current = [req(REQUIRED[2])?, req(REQUIRED[3])?];
     let torque = req(REQUIRED[4])?;
     let voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
-    let command = match results.column(COMMAND) {
+    let command = match table.columns[wanted.len() - 1].clone() {
         Some(v) => {
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
                 return Err(bad(format!("line {}: {COMMAND} is {}", line(i), v[i])));
