@@ -286,3 +286,89 @@ fn ssp_with_a_binding_to_an_ssv_resource_is_read_by_us_and_by_fmpy() {
         );
     }
 }
+
+#[test]
+fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
+    use kneebench_harness::study::{
+        ScenarioSection, StudyConfig, StudyScenario, run_study, write_report,
+    };
+    let md = plant_md();
+    let mut set = ParameterSet::new("bench-c", "4");
+    set.set_real("actuationDamping", 12.5, Some("N.m.s/rad"));
+    set.set_real("loadStaticFriction", 0.4, Some("N.m"));
+    set.define_units(&md);
+    let out = tempfile::tempdir().unwrap();
+    let config = StudyConfig {
+        fmu_dir: fmus().to_path_buf(),
+        out_dir: out.path().to_path_buf(),
+        scenario: StudyScenario::BenchFull,
+        cycles: 1,
+        scale: 1.0,
+        gains: None,
+        actuators: vec![Actuator::Sea],
+        // --param wins over the set.
+        overrides: vec![("plant.loadStaticFriction".into(), Value::Real(0.38))],
+        parameter_set: Some(set.clone()),
+    };
+    let runs = run_study(&config).unwrap();
+    let run = &runs[0];
+    assert_eq!(run.plant_set.as_deref(), Some(set.label().as_str()));
+    assert!(
+        run.parameters
+            .contains(&"plant.actuationDamping = 12.5".to_string())
+    );
+    assert!(
+        run.parameters
+            .contains(&"plant.loadStaticFriction = 0.38".to_string())
+    );
+    // The SSP binds the set as a resource; what our reader applies is the record's value.
+    let (ssd, _base, _dir) = ssp::read_file(&run.scenario, &ArchiveLimits::default()).unwrap();
+    let plant = ssd
+        .system
+        .components
+        .iter()
+        .find(|c| c.name == "plant")
+        .unwrap();
+    assert_eq!(
+        plant.parameter_sources,
+        vec!["resources/plant.ssv".to_string()]
+    );
+    let last = |name: &str| {
+        plant
+            .parameters
+            .iter()
+            .rev()
+            .find(|p| p.name == name)
+            .map(|p| p.value.clone())
+    };
+    assert_eq!(last("actuationDamping"), Some(Value::Real(12.5)));
+    assert_eq!(last("loadStaticFriction"), Some(Value::Real(0.38)));
+    let report = write_report(
+        out.path(),
+        &[ScenarioSection {
+            scenario: StudyScenario::BenchFull,
+            runs: &runs,
+            figures: &[],
+        }],
+        "test",
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(report).unwrap();
+    assert!(
+        text.contains(&format!("plant parameter set: {}", set.label())),
+        "{text}"
+    );
+    // A set the plant refuses stops the study before anything runs.
+    let mut bad = set.clone();
+    bad.set_real("actuationDamping", -1.0, Some("N.m.s/rad"));
+    let e = run_study(&StudyConfig {
+        parameter_set: Some(bad),
+        ..config
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("actuationDamping") && e.contains("outside"),
+        "{e}"
+    );
+}
