@@ -134,10 +134,14 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     let id = identify(&a.logs, &a.fmu, prior.as_ref(), &config)?;
     for e in &id.estimates {
-        let (v, ci) = e.value();
+        let (mut v, mut ci) = e.value();
         let status = match &e.status {
             Status::Identified => String::new(),
-            Status::NotIdentifiable(why) => format!("  NOT IDENTIFIABLE: {why}"),
+            Status::NotIdentifiable(why) => {
+                // The written set keeps the prior.
+                (v, ci) = (e.prior, f64::NAN);
+                format!("  NOT IDENTIFIABLE (prior kept): {why}")
+            }
         };
         println!(
             "{:32} {:>12.6} +- {:<10.4} {}{status}",

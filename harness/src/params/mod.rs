@@ -395,12 +395,12 @@ impl ParameterSet {
                         VariableKind::Enumeration { .. } => "Enumeration",
                     };
                     return Err(bad(format!(
-                        "a {} value for a {declared} variable",
+                        "{} value for a {declared} variable",
                         match value {
-                            ParamValue::Real(_) => "Real",
-                            ParamValue::Integer(_) => "Integer",
-                            ParamValue::Boolean(_) => "Boolean",
-                            ParamValue::String(_) => "String",
+                            ParamValue::Real(_) => "a Real",
+                            ParamValue::Integer(_) => "an Integer",
+                            ParamValue::Boolean(_) => "a Boolean",
+                            ParamValue::String(_) => "a String",
                         }
                     )));
                 }
