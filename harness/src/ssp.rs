@@ -11,7 +11,9 @@
 //! namespaces, `version="1.0"`, elements in schema order) and only writes `Real`, `Integer` and
 //! `Boolean` connector types, so fmpy's `read_ssd` (which validates against the 1.0 schema),
 //! OMSimulator, libcosim and ecos load it. Parameter values are written inline as an
-//! `ssv:ParameterSet` inside `ssd:ParameterValues`.
+//! `ssv:ParameterSet` inside `ssd:ParameterValues`, after one `ParameterBinding source=".."`
+//! per `.ssv` file bound to the component ([`SspComponent::parameter_sources`]; the files
+//! themselves go into the archive with [`write_ssp`]'s `files`).
 //!
 //! Reading matches elements by local name (any prefix), accepts parameter values inline or in an
 //! `.ssv` file referenced by `source`, and refuses what the master cannot run (nested systems,
@@ -84,6 +86,12 @@ pub struct SspComponent {
     pub source: String,
     /// `Connectors/Connector`.
     pub connectors: Vec<SspConnector>,
+    /// Parameter-value files (`.ssv`) bound to the component, as URIs relative to the SSD
+    /// (e.g. `resources/plant.ssv`), applied before the inline values. Written as one
+    /// `ParameterBinding source=".."` each; on reading, a binding's file is recorded here and
+    /// its values are appended to [`Self::parameters`] (in binding order), so the values a
+    /// master applies are in `parameters` either way.
+    pub parameter_sources: Vec<String>,
     /// Inline parameter values.
     pub parameters: Vec<SspParameter>,
     /// The step multiple (kneebench annotation).
@@ -386,8 +394,18 @@ fn write_component(x: &mut String, c: &SspComponent) {
         }
         x.push_str("        </ssd:Connectors>\n");
     }
+    if !c.parameters.is_empty() || !c.parameter_sources.is_empty() {
+        x.push_str("        <ssd:ParameterBindings>\n");
+    }
+    for src in &c.parameter_sources {
+        let _ = writeln!(
+            x,
+            "          <ssd:ParameterBinding source=\"{}\"/>",
+            esc(src)
+        );
+    }
     if !c.parameters.is_empty() {
-        x.push_str("        <ssd:ParameterBindings>\n          <ssd:ParameterBinding>\n            <ssd:ParameterValues>\n");
+        x.push_str("          <ssd:ParameterBinding>\n            <ssd:ParameterValues>\n");
         let _ = writeln!(
             x,
             "              <ssv:ParameterSet version=\"1.0\" name=\"{}\">\n                <ssv:Parameters>",
@@ -415,7 +433,10 @@ fn write_component(x: &mut String, c: &SspComponent) {
             }
             x.push_str("\n                  </ssv:Parameter>\n");
         }
-        x.push_str("                </ssv:Parameters>\n              </ssv:ParameterSet>\n            </ssd:ParameterValues>\n          </ssd:ParameterBinding>\n        </ssd:ParameterBindings>\n");
+        x.push_str("                </ssv:Parameters>\n              </ssv:ParameterSet>\n            </ssd:ParameterValues>\n          </ssd:ParameterBinding>\n");
+    }
+    if !c.parameters.is_empty() || !c.parameter_sources.is_empty() {
+        x.push_str("        </ssd:ParameterBindings>\n");
     }
     if let Some(m) = c.step_multiple {
         let _ = writeln!(
@@ -528,6 +549,7 @@ impl SspComponent {
             name: name.to_string(),
             source: source.to_string(),
             connectors,
+            parameter_sources: Vec::new(),
             parameters: Vec::new(),
             step_multiple: None,
         }
@@ -773,6 +795,9 @@ pub fn read_ssd_with(
             b"ParameterBinding" => {
                 binding_prefix = a.get("prefix").cloned().unwrap_or_default();
                 if let Some(src) = a.get("source") {
+                    if let Some(c) = comp.as_mut() {
+                        c.parameter_sources.push(src.clone());
+                    }
                     let text = read_file(src)?;
                     let params = read_parameter_set(&text, src)?;
                     push_params(comp.as_mut(), params, &binding_prefix, file)?;

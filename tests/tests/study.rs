@@ -63,6 +63,7 @@ fn config(out: &Path, actuators: Vec<Actuator>, cycles: u32, scale: f64) -> Stud
         gains: None,
         actuators,
         overrides: Vec::new(),
+        parameter_set: None,
     }
 }
 

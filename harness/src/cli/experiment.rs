@@ -53,6 +53,9 @@ pub struct Args {
     /// A parameter of the bench FMU, NAME=VALUE (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
+    /// A parameter set (.ssv) for the bench FMU, applied before --param; named in NAME.md.
+    #[arg(long = "params", value_name = "SET.ssv")]
+    pub parameter_set: Option<PathBuf>,
     /// map: speed magnitudes (deg/s), each run both ways (default the bench's 0, 3, 6, 10, 20,
     /// 30, 50, 70, 90, 110, 130, 150).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -123,14 +126,16 @@ pub struct Args {
 
 /// Runs `kneebench experiment`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let params = a
-        .params
+    let set = super::identify::read_set_for(a.parameter_set.as_deref(), &a.fmu)?;
+    let params = set
         .iter()
-        .map(|p| {
+        .flat_map(|s| s.parameters.iter())
+        .map(|p| Ok((p.name.clone(), p.value.to_text())))
+        .chain(a.params.iter().map(|p| {
             p.split_once('=')
                 .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
                 .with_context(|| format!("--param '{p}' is not NAME=VALUE"))
-        })
+        }))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let bench = Bench::load(&a.fmu, params, a.fmus.clone())?;
     if bench.kind() == BenchKind::Hardware {
@@ -310,6 +315,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     for f in written.data.iter().chain(&written.figures) {
         println!("written: {}", f.display());
+    }
+    if let Some(set) = &set {
+        super::identify::append_set_line(&written.markdown, set)?;
     }
     println!("section: {}", written.markdown.display());
     Ok(if tripped {

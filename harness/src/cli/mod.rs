@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 pub mod emulate;
 pub mod experiment;
 pub mod export;
+pub mod identify;
 pub mod info;
 pub mod key;
 pub mod metrics;
@@ -69,6 +70,8 @@ pub enum Command {
     Tune(tune::Args),
     /// Run a bench experiment (map, bode, triangle, calibration, step) on BenchPlant or BenchHardware.
     Experiment(experiment::Args),
+    /// Fit the plant's parameters to experiment logs; write them as an SSP parameter set (.ssv).
+    Identify(identify::Args),
     /// Serve the UDP bench protocol with the BenchPlant FMU running in real time behind it.
     Emulate(emulate::Args),
     /// Make or check the bench's secret key file (authenticates the bench protocol).
@@ -91,5 +94,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),
         Command::Key(a) => key::run(a),
+        Command::Identify(a) => identify::run(a),
     }
 }

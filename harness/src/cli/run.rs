@@ -98,6 +98,10 @@ pub struct Args {
     /// Set a parameter or start value before initialization (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
+    /// A parameter set (.ssv) to apply before the --param values: SET.ssv for a single FMU
+    /// or the system's `plant`, COMPONENT=SET.ssv for another component (repeatable).
+    #[arg(long = "params", value_name = "[COMPONENT=]SET.ssv")]
+    pub parameter_sets: Vec<String>,
     /// Keep every N-th row only.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     pub record_every: u64,
@@ -245,6 +249,15 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             name.to_string()
         }
     };
+    for spec in &a.parameter_sets {
+        let set = kneebench_harness::params::apply_spec(
+            &mut system,
+            &a.system,
+            single.then_some(first.as_str()),
+            spec,
+        )?;
+        eprintln!("parameter set: {}", set.label());
+    }
     for p in &a.params {
         let Some((name, value)) = p.split_once('=') else {
             return usage(format_args!("--param '{p}': expected NAME=VALUE"));

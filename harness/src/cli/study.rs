@@ -51,6 +51,10 @@ pub struct Args {
     /// `--param plant.actuationDamping=10` for another bench.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
+    /// A parameter set (.ssv) for the plant (e.g. from `kneebench identify`): checked against
+    /// BenchPlant.fmu, embedded in every scenario SSP, named in report.md; --param wins over it.
+    #[arg(long = "params", value_name = "SET.ssv")]
+    pub parameter_set: Option<PathBuf>,
 }
 
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
@@ -103,6 +107,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         a.scale.is_finite() && a.scale > 0.0,
         "--scale must be positive"
     );
+    let parameter_set = a
+        .parameter_set
+        .as_deref()
+        .map(kneebench_harness::params::ParameterSet::read_file)
+        .transpose()?;
     let mut all = Vec::new();
     for scenario in scenarios {
         let config = StudyConfig {
@@ -114,6 +123,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             gains: None,
             actuators: actuators.clone(),
             overrides: overrides.clone(),
+            parameter_set: parameter_set.clone(),
         };
         let runs = run_study(&config)?;
         let figures = plot_study(&runs, &a.out)?;

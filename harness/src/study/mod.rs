@@ -179,6 +179,9 @@ pub struct StudyRun {
     pub parameters: Vec<String>,
     /// SHA-256 (hex) of [`Self::parameters`], one per line: names the parameter set.
     pub parameters_hash: String,
+    /// The plant's parameter set the run used ([`crate::params::ParameterSet::label`]: name,
+    /// version, content hash), when one was given.
+    pub plant_set: Option<String>,
 }
 
 /// Settings of a study.
@@ -200,8 +203,13 @@ pub struct StudyConfig {
     /// Which of the scenario's actuators to run (empty: all of them).
     pub actuators: Vec<Actuator>,
     /// Parameter values that replace the scenario's or add to them, `("plant.name", value)`
-    /// (a different bench, a what-if).
+    /// (a different bench, a what-if). They win over [`Self::parameter_set`].
     pub overrides: Vec<(String, Value)>,
+    /// A parameter set for the component `plant` (`--params set.ssv`): checked against the
+    /// plant FMU, embedded in each scenario's SSP as `resources/plant.ssv` (a
+    /// `ParameterBinding` to it; the scenario's own plant values that the set also names
+    /// give way to the set's).
+    pub parameter_set: Option<crate::params::ParameterSet>,
 }
 
 /// The sorted `component.name = value` lines of a scenario's parameters and their SHA-256.
@@ -261,10 +269,25 @@ fn apply_overrides(
     Ok(())
 }
 
+/// The component of the scenarios that a `--params` set applies to.
+const PLANT: &str = "plant";
+
 /// Runs one scenario of the study: writes `scenarios/<stem>.ssp`, runs each with this
 /// harness's master, writes `<stem>.csv`, and returns the runs. A run ended by an interlock
 /// keeps its rows and names the interlock in its report.
 pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
+    if let Some(set) = &config.parameter_set {
+        let fmu = config.fmu_dir.join("BenchPlant.fmu");
+        let (_dir, md) =
+            crate::load::extract_and_parse(&fmu, &crate::load::ArchiveLimits::default()).map_err(
+                |e| StudyError::Fmu {
+                    path: fmu.clone(),
+                    message: e.to_string(),
+                },
+            )?;
+        set.check(&md, &format!("parameter set '{}'", set.name))
+            .map_err(|e| StudyError::Parameter(e.to_string()))?;
+    }
     let scenarios = config.out_dir.join("scenarios");
     std::fs::create_dir_all(&scenarios).map_err(|e| StudyError::Fmu {
         path: scenarios.clone(),
@@ -282,12 +305,33 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             .gains
             .unwrap_or_else(|| config.scenario.gains(actuator));
         let mut scenario = gait_scenario(actuator, gait, gains, config.cycles);
+        // The values the run uses: the scenario's, the set's over them, the overrides over
+        // both; the record (`parameters`) lists them all.
+        let mut effective = scenario.clone();
+        if let Some(set) = &config.parameter_set {
+            let set_values: Vec<(String, Value)> = set
+                .assignments()
+                .into_iter()
+                .map(|(n, v)| (format!("{PLANT}.{n}"), v))
+                .collect();
+            apply_overrides(&mut effective, &set_values)?;
+            // What the SSP binds inline: the scenario's values minus the set's names.
+            if let Some(c) = scenario.components.iter_mut().find(|c| c.name == PLANT) {
+                c.parameters
+                    .retain(|(n, _)| !set.parameters.iter().any(|p| &p.name == n));
+            }
+        }
+        apply_overrides(&mut effective, &config.overrides)?;
         apply_overrides(&mut scenario, &config.overrides)?;
         let stem = config.scenario.file_stem(actuator);
         scenario.name = stem.clone();
-        let (parameters, parameters_hash) = parameter_set(&scenario);
+        effective.name = stem.clone();
+        let (parameters, parameters_hash) = parameter_set(&effective);
         let path = scenarios.join(format!("{stem}.ssp"));
-        write_ssp(&scenario, &config.fmu_dir, &path)?;
+        match &config.parameter_set {
+            None => write_ssp(&scenario, &config.fmu_dir, &path)?,
+            Some(set) => write_ssp_with_set(&scenario, &config.fmu_dir, &path, PLANT, set)?,
+        }
         let loaded = ssp::load_system(&path, &crate::load::LoadOptions::default())?;
         let output = loaded
             .system
@@ -336,6 +380,7 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             csv,
             parameters,
             parameters_hash,
+            plant_set: config.parameter_set.as_ref().map(|s| s.label()),
         });
     }
     Ok(runs)

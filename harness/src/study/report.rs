@@ -275,6 +275,9 @@ pub fn write_report(
                 relative(&r.csv, out_dir).display(),
                 r.parameters_hash
             );
+            if let Some(set) = &r.plant_set {
+                let _ = writeln!(s, "  - plant parameter set: {set}");
+            }
         }
         s.push('\n');
         let _ = writeln!(

@@ -113,6 +113,48 @@ pub fn write_ssp(scenario: &Scenario, fmu_dir: &Path, out: &Path) -> Result<(), 
     Ok(())
 }
 
+/// Writes the scenario as an `.ssp` archive holding its FMUs and `set` as
+/// `resources/<component>.ssv`, bound to `component` before its inline values (SSP 1.0
+/// `ParameterBinding source=".."`).
+pub fn write_ssp_with_set(
+    scenario: &Scenario,
+    fmu_dir: &Path,
+    out: &Path,
+    component: &str,
+    set: &crate::params::ParameterSet,
+) -> Result<(), StudyError> {
+    let mut ssd = scenario.to_ssd(fmu_dir)?;
+    let resource = format!("resources/{component}.ssv");
+    let c = ssd
+        .system
+        .components
+        .iter_mut()
+        .find(|c| c.name == component)
+        .ok_or_else(|| {
+            StudyError::Parameter(format!(
+                "the parameter set is for component '{component}', which the scenario lacks"
+            ))
+        })?;
+    c.parameter_sources.push(resource.clone());
+    let dir = tempfile::tempdir().map_err(|e| StudyError::Fmu {
+        path: out.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let ssv = dir.path().join(format!("{component}.ssv"));
+    set.write_file(&ssv)
+        .map_err(|e| StudyError::Parameter(e.to_string()))?;
+    let mut files: Vec<(String, PathBuf)> = scenario
+        .components
+        .iter()
+        .map(|c| (format!("resources/{}", c.fmu), fmu_dir.join(&c.fmu)))
+        .collect();
+    files.sort();
+    files.dedup();
+    files.push((resource, ssv));
+    ssp::write_ssp(&ssd, &files, out)?;
+    Ok(())
+}
+
 /// The actuator configurations of the bench.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Actuator {

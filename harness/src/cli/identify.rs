@@ -1,0 +1,163 @@
+//! `kneebench identify`, and the `--params SET.ssv` helpers the experiment command shares.
+
+use std::path::Path;
+
+use anyhow::Context;
+use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
+use kneebench_harness::params::ParameterSet;
+
+/// Reads the parameter set at `path` (if any) and checks it against the FMU at `fmu`.
+pub fn read_set_for(path: Option<&Path>, fmu: &Path) -> anyhow::Result<Option<ParameterSet>> {
+    let Some(path) = path else { return Ok(None) };
+    let (_dir, md) = extract_and_parse(fmu, &ArchiveLimits::default())
+        .with_context(|| format!("reading {}", fmu.display()))?;
+    Ok(Some(ParameterSet::read_for(path, &md)?))
+}
+
+/// Appends "Parameter set: name vN (sha256 ...)" to a Markdown section.
+pub fn append_set_line(markdown: &Path, set: &ParameterSet) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .append(true)
+        .open(markdown)
+        .with_context(|| format!("opening {}", markdown.display()))?;
+    writeln!(f, "\nParameter set: {}", set.label())
+        .with_context(|| format!("writing {}", markdown.display()))?;
+    Ok(())
+}
+
+/// Arguments of `kneebench identify`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Examples:
+  K=kneebench F=out/fmus
+  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/test --stages 6 --dwell 10 ...
+  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/load --input load ...
+  $K identify logs/test/bode.csv logs/load/bode.csv --fmu $F/BenchPlant.fmu --out out/identify
+  $K study --fmus $F --params out/identify/identified.ssv
+  $K identify --defaults --fmu $F/BenchPlant.fmu --out out/params   # the bench facts as .ssv
+
+Fits the plant's parameters to logs of the bench's experiments (the CSV `kneebench experiment`
+writes): linear least squares on the smoothed encoder signals (inertias, viscous and Coulomb
+friction per side, spring stiffness, motor torque constants; resistance, inductance and
+back-emf constant where the driver's voltage is logged; the transducer's torque offset), then
+an output-error refinement that re-runs the plant FMU over the logged currents. Writes
+<out>/<name>.ssv (the prior set with every identified value replaced), <out>/identify.md
+(estimates with 95 % intervals, residuals, correlations, what is not identifiable and which
+experiment to add) and the measured-vs-twin figure identify-fit.png/.svg.")]
+pub struct Args {
+    /// Experiment logs (CSV).
+    pub logs: Vec<std::path::PathBuf>,
+    /// The plant FMU (BenchPlant.fmu): its parameters are the prior, the refinement runs it.
+    #[arg(long)]
+    pub fmu: std::path::PathBuf,
+    /// Output directory.
+    #[arg(long, default_value = "out/identify")]
+    pub out: std::path::PathBuf,
+    /// A prior parameter set (.ssv) instead of the FMU's defaults.
+    #[arg(long = "params", value_name = "SET.ssv")]
+    pub prior: Option<std::path::PathBuf>,
+    /// A plant parameter as the logs were recorded, NAME=VALUE (configuration, frictionModel,
+    /// ...), for the refinement's simulation (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Name of the written set.
+    #[arg(long, default_value = "identified")]
+    pub name: String,
+    /// Version of the written set.
+    #[arg(long = "set-version", default_value = "1")]
+    pub set_version: String,
+    /// Skip the output-error refinement (linear least squares only).
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Seconds of each log the refinement simulates.
+    #[arg(long, default_value_t = 6.0)]
+    pub refine_seconds: f64,
+    /// Half width of the smoothing window (samples).
+    #[arg(long, default_value_t = 25)]
+    pub window: usize,
+    /// Half width (samples) of the smoothing of the logged currents fed to the refinement's
+    /// simulation.
+    #[arg(long, default_value_t = 75)]
+    pub drive_window: usize,
+    /// Write the FMU's default parameter set (the bench facts) as OUT/NAME.ssv and stop.
+    #[arg(long)]
+    pub defaults: bool,
+}
+
+/// Runs `kneebench identify`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
+    if a.defaults {
+        let (_dir, md) = extract_and_parse(&a.fmu, &ArchiveLimits::default())
+            .with_context(|| format!("reading {}", a.fmu.display()))?;
+        let name = if a.name == "identified" {
+            "bench-facts"
+        } else {
+            a.name.as_str()
+        };
+        let set = ParameterSet::defaults_of(&md, name, &a.set_version);
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+        let path = a.out.join(format!("{name}.ssv"));
+        set.write_file(&path)?;
+        println!("written: {} ({})", path.display(), set.label());
+        return Ok(super::EXIT_OK);
+    }
+    anyhow::ensure!(
+        !a.logs.is_empty(),
+        "no log given (kneebench identify LOG.csv ... --fmu BenchPlant.fmu)"
+    );
+    anyhow::ensure!(a.window >= 2, "--window must be at least 2");
+    anyhow::ensure!(
+        a.refine_seconds.is_finite() && a.refine_seconds > 0.0,
+        "--refine-seconds must be positive"
+    );
+    let prior = read_set_for(a.prior.as_deref(), &a.fmu)?;
+    let plant_parameters = a
+        .params
+        .iter()
+        .map(|p| {
+            p.split_once('=')
+                .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
+                .with_context(|| format!("--param '{p}' is not NAME=VALUE"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let config = IdentifyConfig {
+        window: a.window,
+        drive_window: a.drive_window.max(2),
+        refine: !a.no_refine,
+        refine_seconds: a.refine_seconds,
+        plant_parameters,
+        name: a.name.clone(),
+        version: a.set_version.clone(),
+        ..IdentifyConfig::default()
+    };
+    let id = identify(&a.logs, &a.fmu, prior.as_ref(), &config)?;
+    for e in &id.estimates {
+        let (mut v, mut ci) = e.value();
+        let status = match &e.status {
+            Status::Identified => String::new(),
+            Status::NotIdentifiable(why) => {
+                // The written set keeps the prior.
+                (v, ci) = (e.prior, f64::NAN);
+                format!("  NOT IDENTIFIABLE (prior kept): {why}")
+            }
+        };
+        println!(
+            "{:32} {:>12.6} +- {:<10.4} {}{status}",
+            e.quantity.parameter.unwrap_or(e.quantity.label),
+            v,
+            ci,
+            e.quantity.unit
+        );
+    }
+    for n in &id.notes {
+        println!("note: {n}");
+    }
+    for f in write_outputs(&id, &a.out)? {
+        println!("written: {}", f.display());
+    }
+    println!("set: {}", id.set.label());
+    println!("identification took {:.2} s", id.seconds);
+    Ok(super::EXIT_OK)
+}

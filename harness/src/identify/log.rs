@@ -1,0 +1,316 @@
+//! Reading and checking an experiment log for identification, and the smoothed signals the
+//! regressions use.
+
+use std::path::{Path, PathBuf};
+
+use super::IdentifyError;
+use super::smooth::derivatives;
+
+/// Channels a log must have (names of the bench FMU's outputs; a `plant.` prefix, as
+/// `kneebench experiment` writes, is accepted).
+pub const REQUIRED: [&str; 5] = [
+    "actuationEncoderAngle",
+    "loadEncoderAngle",
+    "testMotorCurrent",
+    "loadMotorCurrent",
+    "transducerTorque",
+];
+
+/// Channels used when present: the drivers' voltages (the motors' electrical parameters),
+/// and the flags that exclude rows.
+pub const OPTIONAL: [&str; 5] = [
+    "testMotorVoltage",
+    "loadMotorVoltage",
+    "testDriverSaturated",
+    "loadDriverSaturated",
+    "tripCode",
+];
+
+/// The current set value of the motor an experiment drives (`kneebench experiment`'s driving
+/// controller `drive`, whose output is the set value in A): used, when present, as the
+/// refinement's drive for the motor whose current follows it.
+pub const COMMAND: &str = "drive.u";
+
+/// A checked log with its smoothed signals (NaN where the smoothing window does not fit or
+/// the row is excluded).
+#[derive(Debug, Clone)]
+pub struct Log {
+    /// The file.
+    pub path: PathBuf,
+    /// Sample period \[s\].
+    pub dt: f64,
+    /// Times \[s\].
+    pub time: Vec<f64>,
+    /// Raw encoder angles, actuation and load side \[rad\].
+    pub angle: [Vec<f64>; 2],
+    /// Smoothed velocities \[rad/s\].
+    pub velocity: [Vec<f64>; 2],
+    /// Smoothed accelerations \[rad/s^2\].
+    pub acceleration: [Vec<f64>; 2],
+    /// Logged (actual) motor currents, test and load \[A\].
+    pub current: [Vec<f64>; 2],
+    /// Smoothed currents \[A\].
+    pub current_smooth: [Vec<f64>; 2],
+    /// Current derivatives \[A/s\].
+    pub current_rate: [Vec<f64>; 2],
+    /// Motor voltages \[V\], when logged.
+    pub voltage: [Option<Vec<f64>>; 2],
+    /// Transducer (shaft) torque [N m].
+    pub torque: Vec<f64>,
+    /// The logged current set value ([`COMMAND`]), when present.
+    pub command: Option<Vec<f64>>,
+    /// Rows the regressions may use (not excluded, inside the smoothing window).
+    pub usable: Vec<bool>,
+    /// What was excluded and why, for the report.
+    pub notes: Vec<String>,
+}
+
+/// The columns of a CSV log that identification reads, parsed without the others (a log of
+/// `kneebench experiment` has some 120 columns; parsing only these is several times faster).
+struct Table {
+    /// The first column.
+    time: Vec<f64>,
+    /// Per wanted name, its column if the header has it.
+    columns: Vec<Option<Vec<f64>>>,
+    /// The file line of each row (1-based).
+    lines: Vec<usize>,
+}
+
+fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
+    use std::io::BufRead;
+    let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let mut r = std::io::BufReader::with_capacity(1 << 20, f);
+    let mut buf = String::new();
+    let mut line = 0usize;
+    let header = loop {
+        buf.clear();
+        line += 1;
+        if r.read_line(&mut buf)
+            .map_err(|e| format!("line {line}: {e}"))?
+            == 0
+        {
+            return Err("empty file".into());
+        }
+        let l = buf.trim();
+        if !l.is_empty() && !l.starts_with('#') {
+            break l
+                .split(',')
+                .map(|s| s.trim().trim_matches('"').to_string())
+                .collect::<Vec<_>>();
+        }
+    };
+    let index: Vec<Option<usize>> = wanted
+        .iter()
+        .map(|w| header.iter().position(|h| h == w))
+        .collect();
+    let mut table = Table {
+        time: Vec::new(),
+        columns: index.iter().map(|i| i.map(|_| Vec::new())).collect(),
+        lines: Vec::new(),
+    };
+    // Field position -> slot in `columns`.
+    let mut slot = vec![None; header.len()];
+    for (k, i) in index.iter().enumerate() {
+        if let Some(i) = i {
+            slot[*i] = Some(k);
+        }
+    }
+    let parse = |f: &str, line: usize, name: &str| -> Result<f64, String> {
+        match f.trim() {
+            "true" | "True" => Ok(1.0),
+            "false" | "False" => Ok(0.0),
+            t => t
+                .parse()
+                .map_err(|_| format!("line {line}: {name} '{t}' is not a number")),
+        }
+    };
+    loop {
+        buf.clear();
+        line += 1;
+        if r.read_line(&mut buf)
+            .map_err(|e| format!("line {line}: {e}"))?
+            == 0
+        {
+            break;
+        }
+        let l = buf.trim_end();
+        if l.trim().is_empty() || l.starts_with('#') {
+            continue;
+        }
+        let mut count = 0;
+        for (j, field) in l.split(',').enumerate() {
+            count += 1;
+            if j == 0 {
+                table.time.push(parse(field, line, &header[0])?);
+            } else if let Some(Some(k)) = slot.get(j) {
+                let v = parse(field, line, &header[j])?;
+                table.columns[*k].as_mut().expect("a found column").push(v);
+            }
+        }
+        if count != header.len() {
+            return Err(format!(
+                "line {line}: {count} fields, the header has {}",
+                header.len()
+            ));
+        }
+        table.lines.push(line);
+    }
+    Ok(table)
+}
+
+/// Reads and checks a log: every required channel present, time strictly increasing and
+/// uniformly sampled, no NaN or infinity, long enough for the smoothing window `m` and the
+/// regressions. Rows with a saturated driver or a tripped interlock are excluded with a note.
+pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
+    let bad = |problem: String| IdentifyError::Log {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let mut wanted: Vec<String> = Vec::new();
+    for n in REQUIRED.iter().chain(&OPTIONAL) {
+        wanted.push(format!("plant.{n}"));
+        wanted.push(n.to_string());
+    }
+    wanted.push(COMMAND.to_string());
+    let table = read_table(path, &wanted).map_err(bad)?;
+    let find = |name: &str| -> Option<Vec<f64>> {
+        let k = wanted.iter().position(|w| *w == format!("plant.{name}"))?;
+        table.columns[k]
+            .clone()
+            .or_else(|| table.columns[k + 1].clone())
+    };
+    let missing: Vec<&str> = REQUIRED
+        .iter()
+        .copied()
+        .filter(|n| find(n).is_none())
+        .collect();
+    if !missing.is_empty() {
+        return Err(bad(format!(
+            "missing channels: {} (a log of `kneebench experiment` on BenchPlant or BenchHardware has them)",
+            missing.join(", ")
+        )));
+    }
+    let time = table.time.clone();
+    let line = |i: usize| table.lines[i];
+    let min_rows = 2 * m + 1 + 200;
+    if time.len() < min_rows {
+        return Err(bad(format!(
+            "too short: {} rows, identification needs at least {min_rows} (the smoothing window of {} samples plus 200)",
+            time.len(),
+            2 * m + 1
+        )));
+    }
+    for (i, t) in time.iter().enumerate() {
+        if !t.is_finite() {
+            return Err(bad(format!("line {}: time is {t}", line(i))));
+        }
+        if i > 0 && *t <= time[i - 1] {
+            return Err(bad(format!(
+                "line {}: time {t} does not increase (previous {})",
+                line(i),
+                time[i - 1]
+            )));
+        }
+    }
+    let dt = (time[time.len() - 1] - time[0]) / (time.len() - 1) as f64;
+    if let Some(i) = (1..time.len()).find(|&i| ((time[i] - time[i - 1]) - dt).abs() > 1e-6 * dt) {
+        return Err(bad(format!(
+            "line {}: sampling is not uniform (step {} s, the log's mean {dt} s)",
+            line(i),
+            time[i] - time[i - 1]
+        )));
+    }
+    let get = |name: &str| -> Result<Option<Vec<f64>>, IdentifyError> {
+        let Some(v) = find(name) else {
+            return Ok(None);
+        };
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(bad(format!("line {}: {name} is {}", line(i), v[i])));
+        }
+        Ok(Some(v))
+    };
+    let req = |name: &str| -> Result<Vec<f64>, IdentifyError> {
+        get(name).map(|v| v.expect("required channels were checked"))
+    };
+    let angle = [req(REQUIRED[0])?, req(REQUIRED[1])?];
+    let current = [req(REQUIRED[2])?, req(REQUIRED[3])?];
+    let torque = req(REQUIRED[4])?;
+    let voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
+    let command = match table.columns[wanted.len() - 1].clone() {
+        Some(v) => {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(bad(format!("line {}: {COMMAND} is {}", line(i), v[i])));
+            }
+            Some(v)
+        }
+        None => None,
+    };
+    let n = time.len();
+    let mut usable = vec![true; n];
+    let mut notes = Vec::new();
+    for (flag, what) in [
+        (OPTIONAL[2], "test driver saturated"),
+        (OPTIONAL[3], "load driver saturated"),
+        (OPTIONAL[4], "interlock tripped"),
+    ] {
+        let Some(v) = get(flag)? else { continue };
+        let mut i = 0;
+        while i < n {
+            if v[i] != 0.0 {
+                let start = i;
+                while i < n && v[i] != 0.0 {
+                    usable[i] = false;
+                    i += 1;
+                }
+                notes.push(format!(
+                    "{}: lines {}-{} (t = {:.3}-{:.3} s) excluded: {what}",
+                    path.display(),
+                    line(start),
+                    line(i - 1),
+                    time[start],
+                    time[i - 1]
+                ));
+            }
+            i += 1;
+        }
+    }
+    let [_, v1, a1] = derivatives(&angle[0], dt, m);
+    let [_, v2, a2] = derivatives(&angle[1], dt, m);
+    let [i1, di1, _] = derivatives(&current[0], dt, m);
+    let [i2, di2, _] = derivatives(&current[1], dt, m);
+    // A row next to an excluded one has excluded samples in its window.
+    let mut near = usable.clone();
+    for (i, _) in usable.iter().enumerate().filter(|(_, u)| !**u) {
+        for flag in near
+            .iter_mut()
+            .take((i + m + 1).min(n))
+            .skip(i.saturating_sub(m))
+        {
+            *flag = false;
+        }
+    }
+    for (i, u) in near.iter_mut().enumerate() {
+        *u &= v1[i].is_finite();
+    }
+    if near.iter().filter(|u| **u).count() < 200 {
+        return Err(bad(
+            "fewer than 200 usable rows after excluding saturated and tripped segments".into(),
+        ));
+    }
+    Ok(Log {
+        path: path.to_path_buf(),
+        dt,
+        time,
+        angle,
+        velocity: [v1, v2],
+        acceleration: [a1, a2],
+        current,
+        current_smooth: [i1, i2],
+        current_rate: [di1, di2],
+        voltage,
+        torque,
+        command,
+        usable: near,
+        notes,
+    })
+}

@@ -1,0 +1,360 @@
+//! Identification (`kneebench_harness::identify`, `kneebench identify`) on synthetic logs:
+//! `BenchPlant` with known perturbed parameters runs the bench's Bode experiment on each motor
+//! (`kneebench_harness::experiment::bode`, shortened), sensor noise is added to the logs, and
+//! the identification must return the perturbed values; a constant-velocity log must report
+//! the inertias as not identifiable and name the experiment to add; bad logs are refused with
+//! the file and line.
+//!
+//! Noise added (the bench facts give no noise figures; these are the sensors' usual levels):
+//! white Gaussian, transducer torque 0.05 N m RMS, the drivers' current readings 0.02 A RMS,
+//! their voltages 0.05 V RMS. The encoders' quantisation is the plant's own (2000 counts per
+//! motor revolution through the gear ratios).
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use kneebench_harness::experiment::{Bench, RunEnd, bode};
+use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
+use kneebench_harness::master::Value;
+use kneebench_harness::package::export_all;
+use kneebench_harness::params::ParameterSet;
+use kneebench_harness::results::{ColumnKind, Results};
+use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, System};
+use kneebench_tests::*;
+
+fn fmus() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::Builder::new()
+            .prefix("kneebench-identify-")
+            .tempdir()
+            .unwrap()
+            .keep();
+        export_all(&fmu_library(), &dir).expect("export");
+        dir
+    })
+}
+
+fn plant_path() -> PathBuf {
+    fmus().join("BenchPlant.fmu")
+}
+
+/// The perturbed bench: Coulomb friction +30 % on both sides, spring -10 %, inertias +20 %.
+const TRUTH: [(&str, f64); 7] = [
+    ("actuationStaticFriction", 5.0 * 1.3),
+    ("loadStaticFriction", 0.35 * 1.3),
+    ("springStiffness", 340.54 * 0.9),
+    ("actuationInertia", 0.825 * 1.2),
+    ("loadInertia", 0.605 * 1.2),
+    ("actuationDamping", 12.0),
+    ("loadDamping", 1.0),
+];
+
+/// Standard normal noise, deterministic (xorshift64 and Box-Muller).
+fn noise(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed;
+    let mut u = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    (0..n)
+        .map(|_| (-2.0 * u().ln()).sqrt() * (2.0 * std::f64::consts::PI * u()).cos())
+        .collect()
+}
+
+/// The channels of a log, with the noise added to each (RMS). `drive.u` is the current set
+/// value the experiment's controller sent (a number in the controller, no sensor).
+const CHANNELS: [(&str, f64); 11] = [
+    ("drive.u", 0.0),
+    ("plant.actuationEncoderAngle", 0.0),
+    ("plant.loadEncoderAngle", 0.0),
+    ("plant.testMotorCurrent", 0.02),
+    ("plant.loadMotorCurrent", 0.02),
+    ("plant.transducerTorque", 0.05),
+    ("plant.testMotorVoltage", 0.05),
+    ("plant.loadMotorVoltage", 0.05),
+    ("plant.testDriverSaturated", 0.0),
+    ("plant.loadDriverSaturated", 0.0),
+    ("plant.tripCode", 0.0),
+];
+
+/// Writes the identification's channels of `run` (rows from `from` s) with noise added.
+fn noisy_log(run: &Results, path: &Path, seed: u64, from: f64) {
+    let channels: Vec<(&str, f64)> = CHANNELS
+        .iter()
+        .copied()
+        .filter(|(n, _)| run.column(n).is_some() || !n.starts_with("drive."))
+        .collect();
+    let cols: Vec<Vec<f64>> = channels
+        .iter()
+        .enumerate()
+        .map(|(k, (name, sigma))| {
+            let c = run.column(name).unwrap_or_else(|| panic!("{name}"));
+            let e = noise(c.len(), seed * 31 + k as u64 + 1);
+            c.iter().zip(e).map(|(x, e)| x + sigma * e).collect()
+        })
+        .collect();
+    let mut out = Results::with_capacity(
+        channels.iter().map(|(n, _)| n.to_string()).collect(),
+        vec![ColumnKind::Real; channels.len()],
+        run.len(),
+    );
+    for (i, t) in run.times().iter().enumerate() {
+        if *t >= from - 1e-9 {
+            let row: Vec<f64> = cols.iter().map(|c| c[i]).collect();
+            out.push_row(*t, &row);
+        }
+    }
+    out.write_csv_file(path).unwrap();
+}
+
+/// The synthetic experiment set: a Bode sweep on each motor of the perturbed plant.
+fn perturbed_logs() -> &'static Vec<PathBuf> {
+    static LOGS: OnceLock<Vec<PathBuf>> = OnceLock::new();
+    LOGS.get_or_init(|| {
+        let dir = tempfile::Builder::new()
+            .prefix("kneebench-identify-logs-")
+            .tempdir()
+            .unwrap()
+            .keep();
+        let params = TRUTH
+            .iter()
+            .map(|(n, v)| (n.to_string(), format!("{v:?}")))
+            .collect();
+        let bench = Bench::load(&plant_path(), params, None).unwrap();
+        let mut logs = Vec::new();
+        for (k, (input, amplitude)) in [
+            (bode::SweepInput::Test, 10.0),
+            (bode::SweepInput::Load, 5.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let out = dir.join(format!("run{k}"));
+            let r = bode::run_bode(
+                &bench,
+                &bode::BodeConfig {
+                    input,
+                    amplitude,
+                    start_frequency: 0.4,
+                    ratio: 2.0,
+                    dwell: 6.0,
+                    stages: 4,
+                    ..bode::BodeConfig::default()
+                },
+                &out,
+            )
+            .unwrap();
+            assert_eq!(r.end, RunEnd::Completed);
+            let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+            let path = dir.join(format!("bode-{k}.csv"));
+            noisy_log(&run, &path, k as u64 + 1, 0.0);
+            logs.push(path);
+        }
+        logs
+    })
+}
+
+#[test]
+fn perturbed_parameters_are_recovered_from_noisy_bode_logs() {
+    let logs = perturbed_logs();
+    let id = identify(logs, &plant_path(), None, &IdentifyConfig::default()).unwrap();
+    let mut report = String::new();
+    for (name, truth) in TRUTH {
+        let e = id
+            .estimates
+            .iter()
+            .find(|e| e.quantity.parameter == Some(name))
+            .unwrap();
+        let (v, ci) = e.value();
+        let err = (v - truth) / truth;
+        report.push_str(&format!(
+            "{name}: {v} +- {ci} (truth {truth}, {:.3} %)\n",
+            100.0 * err
+        ));
+        assert_eq!(e.status, Status::Identified, "{name}");
+        let within_3 = err.abs() <= 0.03;
+        let within_ci = (v - truth).abs() <= ci && ci < 0.1 * truth;
+        assert!(within_3 || within_ci, "{report}");
+        assert_eq!(id.set.real(name), Some(v), "{name} in the written set");
+    }
+    // The motors' constants the sweeps excite.
+    for (name, truth) in [
+        ("testMotorTorqueConstant", 0.037),
+        ("loadMotorTorqueConstant", 0.114),
+        ("testMotorResistance", 0.608),
+        ("loadMotorResistance", 1.1),
+    ] {
+        let e = id
+            .estimates
+            .iter()
+            .find(|e| e.quantity.parameter == Some(name))
+            .unwrap();
+        let (v, _) = e.value();
+        assert!((v - truth).abs() < 0.03 * truth, "{name}: {v}\n{report}");
+    }
+    let r = id.refinement.as_ref().expect("refined");
+    assert!(r.residual_rms.1 < r.residual_rms.0, "{r:?}");
+    // Outputs: the set reads back and is accepted by the FMU, the report has the figure.
+    let out = tempfile::tempdir().unwrap();
+    let written = write_outputs(&id, out.path()).unwrap();
+    let (_d, md) = kneebench_harness::load::extract_and_parse(
+        &plant_path(),
+        &kneebench_harness::ArchiveLimits::default(),
+    )
+    .unwrap();
+    let set = ParameterSet::read_for(&out.path().join("identified.ssv"), &md).unwrap();
+    assert_eq!(set.content_hash(), id.set.content_hash());
+    let md_text = std::fs::read_to_string(out.path().join("identify.md")).unwrap();
+    assert!(md_text.contains("![Measured vs identified twin](identify-fit.png)"));
+    assert!(md_text.contains(&id.set.content_hash()));
+    assert!(written.iter().any(|p| p.ends_with("identify-fit.png")));
+    eprintln!("{report}identification took {:.2} s", id.seconds);
+}
+
+/// A log at constant speed: the plant driven by a constant current, the start-up cut off.
+fn constant_velocity_log(dir: &Path) -> PathBuf {
+    let fmu = Fmu::load(plant_path(), &LoadOptions::default()).unwrap();
+    let mut s = System::new();
+    s.add_component("plant", fmu).unwrap();
+    s.set_value("plant.testCurrentCommand", Value::Real(3.0))
+        .unwrap();
+    let out = s
+        .run(&RunConfig {
+            stop_time: 9.0,
+            step_size: 1e-3,
+            ..RunConfig::default()
+        })
+        .unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { .. }));
+    let path = dir.join("constant.csv");
+    // The spring mode (damping ratio 0.035) has died out after 6 s.
+    noisy_log(&out.results, &path, 9, 6.0);
+    path
+}
+
+#[test]
+fn inertia_from_a_constant_velocity_log_is_reported_not_identifiable() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = constant_velocity_log(dir.path());
+    let config = IdentifyConfig {
+        refine: false,
+        ..IdentifyConfig::default()
+    };
+    let id = identify(&[log], &plant_path(), None, &config).unwrap();
+    let i1 = id
+        .estimates
+        .iter()
+        .find(|e| e.quantity.parameter == Some("actuationInertia"))
+        .unwrap();
+    assert!(matches!(i1.status, Status::NotIdentifiable(_)), "{i1:?}");
+    // The written set keeps the prior for it.
+    assert_eq!(id.set.real("actuationInertia"), Some(0.825));
+    write_outputs(&id, dir.path()).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("identify.md")).unwrap();
+    assert!(md.contains("### Not identifiable from these logs"), "{md}");
+    assert!(
+        md.contains("- I1 (kg.m2): a log with acceleration of the actuation side: `kneebench experiment bode --input test`"),
+        "{md}"
+    );
+}
+
+fn write_text(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// A minimal well-formed log of `n` rows (the plant at rest with a little signal).
+fn small_log(n: usize, edit: impl Fn(usize, &mut [String; 6])) -> String {
+    let mut s = String::from(
+        "time,plant.actuationEncoderAngle,plant.loadEncoderAngle,plant.testMotorCurrent,plant.loadMotorCurrent,plant.transducerTorque\n",
+    );
+    for i in 0..n {
+        let t = i as f64 * 1e-3;
+        let mut row = [
+            format!("{t:?}"),
+            format!("{:?}", (t * 3.0).sin() * 0.1),
+            format!("{:?}", (t * 3.0).sin() * 0.099),
+            format!("{:?}", (t * 3.0).cos()),
+            "0".to_string(),
+            format!("{:?}", (t * 3.0).sin() * 0.3),
+        ];
+        edit(i, &mut row);
+        s.push_str(&row.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+#[test]
+fn bad_logs_are_refused_with_the_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = IdentifyConfig {
+        refine: false,
+        ..IdentifyConfig::default()
+    };
+    let run = |name: &str, text: String| {
+        let p = write_text(dir.path(), name, &text);
+        identify(&[p], &plant_path(), None, &config)
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
+    let missing = small_log(1000, |_, _| {}).replace("plant.transducerTorque", "plant.other");
+    let e = run("missing.csv", missing);
+    assert!(
+        e.contains("missing.csv: missing channels: transducerTorque"),
+        "{e}"
+    );
+    let e = run(
+        "time.csv",
+        small_log(1000, |i, r| {
+            if i == 500 {
+                r[0] = "0.4".into();
+            }
+        }),
+    );
+    assert!(
+        e.contains("time.csv: line 502: time 0.4 does not increase"),
+        "{e}"
+    );
+    let e = run(
+        "nan.csv",
+        small_log(1000, |i, r| {
+            if i == 700 {
+                r[4] = "NaN".into();
+            }
+        }),
+    );
+    assert!(
+        e.contains("nan.csv: line 702: loadMotorCurrent is NaN"),
+        "{e}"
+    );
+    let e = run("short.csv", small_log(100, |_, _| {}));
+    assert!(e.contains("short.csv: too short: 100 rows"), "{e}");
+    // A saturated segment is excluded with a note, the rest is used.
+    let mut text = small_log(3000, |_, _| {});
+    text = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| match i {
+            0 => format!("{l},plant.testDriverSaturated"),
+            i if (1001..=1200).contains(&i) => format!("{l},1"),
+            _ => format!("{l},0"),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let p = write_text(dir.path(), "saturated.csv", &text);
+    let id = identify(&[p], &plant_path(), None, &config).unwrap();
+    assert!(
+        id.notes
+            .iter()
+            .any(|n| n.contains("saturated.csv: lines 1002-1201")
+                && n.contains("test driver saturated")),
+        "{:?}",
+        id.notes
+    );
+}
