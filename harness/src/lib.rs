@@ -8,6 +8,8 @@
 //!   ([`Fmu::load`]).
 //! - [`instance`]: a safe wrapper of one `fmi2Component` ([`Instance`]): every call maps the
 //!   FMU's status to a `Result`, log messages are forwarded to a handler.
+//! - [`isolate`]: the same instance in a host process of its own (opt-in by
+//!   [`LoadOptions::isolation`]), so that a crash, `exit()` or hang of the FMU is an error.
 //! - [`master`]: a system of components and connections ([`System`]) run by a fixed-step
 //!   master on an integer time base, Gauss-Seidel or Jacobi, multi-rate, with early termination.
 //! - [`ssp`]: SSP 1.0 system structure files (`.ssp` archives and bare `.ssd`), read and written.

@@ -1,8 +1,9 @@
 //! The hostile FMU through `kneebench run`: isolated by default (it is not a kneebench FMU), so
 //! a segfault, abort, exit(0) or hang is an error of the run (exit code 1) that names the FMU,
-//! the instance, the call and the signal or exit code, with the rows up to the failure on disk;
-//! in process (`--isolate never`) every status and NaN/Inf outputs give the documented exit
-//! code, and a segfault takes kneebench down (which is why isolation is the default for it).
+//! the instance, the call and the signal or exit code, with every row up to the failure in
+//! `OUTPUT.partial`; in process and isolated, every status and NaN/Inf outputs give the
+//! documented exit code and files; in process (`--isolate never`) a segfault takes kneebench
+//! down, leaving only the rows flushed so far (which is why isolation is the default for it).
 
 mod hostile_fmu;
 
@@ -80,70 +81,93 @@ fn isolated_crashes_exits_and_hangs_are_errors_with_the_rows_on_disk() {
             );
             assert!(err.contains(what), "{err}");
             assert!(err.contains(log), "{err}");
-            // A failed run keeps its rows in the partial file and writes no results file.
+            assert!(err.contains("kept 4 rows to "), "{err}");
+            assert!(!d.path().join("r.csv").exists());
             assert_eq!(
                 std::fs::read_to_string(d.path().join("r.csv.partial")).unwrap(),
                 FOUR_ROWS
             );
-            assert!(!d.path().join("r.csv").exists());
+            std::fs::remove_file(d.path().join("r.csv.partial")).unwrap();
         }
     }
 }
 
 #[test]
-fn in_process_every_status_gives_the_documented_exit_code() {
-    for (mode, code, needle) in [
-        (0, 0, None),
-        (MODE_WARNING, 0, Some("hostile: warning at t=0.3")),
-        (MODE_DISCARD, 3, Some("hostile: discard at t=0.3")),
+fn every_status_and_nonfinite_output_gives_the_documented_exit_code_and_file() {
+    for (mode, extra, code, needle) in [
+        (0, None, 0, None),
+        (MODE_WARNING, None, 0, Some("hostile: warning at t=0.3")),
+        (MODE_DISCARD, None, 3, Some("hostile: discard at t=0.3")),
         (
             MODE_ERROR,
+            None,
             1,
             Some("fmi2DoStep returned Error (instance 'hostile')"),
         ),
         (
             MODE_FATAL,
+            None,
             1,
             Some("fmi2DoStep returned Fatal (instance 'hostile')"),
         ),
         (
             MODE_PENDING,
+            None,
             1,
             Some("fmi2DoStep returned Pending (instance 'hostile')"),
         ),
-        // A non-finite output ends the run with an error naming it (issue 14 item 6).
-        (MODE_NAN, 1, Some("output 'y' is NaN at t = 0.4")),
-        (MODE_INF, 1, Some("output 'y' is")),
+        (
+            MODE_NAN,
+            None,
+            1,
+            Some("component 'hostile': output 'y' is NaN at t = 0.4"),
+        ),
+        (
+            MODE_INF,
+            None,
+            1,
+            Some("component 'hostile': output 'y' is inf at t = 0.4"),
+        ),
+        (MODE_NAN, Some("--allow-nonfinite"), 0, None),
+        (MODE_INF, Some("--allow-nonfinite"), 0, None),
     ] {
         for isolate in ["never", "always"] {
             let d = tempfile::tempdir().unwrap();
-            let o = run(d.path(), mode, &["--isolate", isolate]);
+            let mut args = vec!["--isolate", isolate];
+            args.extend(extra);
+            let o = run(d.path(), mode, &args);
             let err = stderr(&o);
-            assert_eq!(o.status.code(), Some(code), "mode {mode} {isolate}: {err}");
+            let what = format!("mode {mode} {args:?}");
+            assert_eq!(o.status.code(), Some(code), "{what}: {err}");
             if let Some(n) = needle {
-                assert!(err.contains(n), "mode {mode} {isolate}: {err}");
+                assert!(err.contains(n), "{what}: {err}");
             }
-            let file = if code == 1 { "r.csv.partial" } else { "r.csv" };
+            // Completed or ended by the FMU: OUTPUT; failed: OUTPUT.partial, never OUTPUT.
+            let (file, other) = if code == 1 {
+                ("r.csv.partial", "r.csv")
+            } else {
+                ("r.csv", "r.csv.partial")
+            };
+            assert!(!d.path().join(other).exists(), "{what}");
             let csv = std::fs::read_to_string(d.path().join(file)).unwrap();
-            let rows = csv.lines().count() - 1;
-            match mode {
-                MODE_ERROR | MODE_FATAL | MODE_PENDING | MODE_NAN | MODE_INF => {
-                    assert_eq!(csv, FOUR_ROWS, "mode {mode} {isolate}")
+            match (mode, code) {
+                (_, 1) | (MODE_DISCARD, _) => assert_eq!(csv, FOUR_ROWS, "{what}"),
+                (MODE_NAN, 0) => {
+                    assert_eq!(csv.lines().count(), 12, "{what}");
+                    assert!(
+                        csv.ends_with(
+                            "0.4,NaN\n0.5,NaN\n0.6,NaN\n0.7,NaN\n0.8,NaN\n0.9,NaN\n1.0,NaN\n"
+                        ),
+                        "{csv}"
+                    );
                 }
-                // The FMU ended the run at 0.3: its row at the last successful time is the last.
-                MODE_DISCARD => assert_eq!(csv, FOUR_ROWS, "mode {mode} {isolate}"),
-                _ => assert_eq!(rows, 11, "mode {mode} {isolate}"),
+                (MODE_INF, 0) => {
+                    assert_eq!(csv.lines().count(), 12, "{what}");
+                    assert!(csv.ends_with("0.9,inf\n1.0,inf\n"), "{csv}");
+                }
+                _ => assert_eq!(csv.lines().count(), 12, "{what}"),
             }
         }
-    }
-    // --allow-nonfinite records them instead.
-    for (mode, last) in [(MODE_NAN, "1.0,NaN\n"), (MODE_INF, "1.0,inf\n")] {
-        let d = tempfile::tempdir().unwrap();
-        let o = run(d.path(), mode, &["--isolate", "never", "--allow-nonfinite"]);
-        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-        let csv = std::fs::read_to_string(d.path().join("r.csv")).unwrap();
-        assert_eq!(csv.lines().count() - 1, 11);
-        assert!(csv.ends_with(last), "{csv}");
     }
 }
 

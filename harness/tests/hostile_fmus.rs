@@ -33,6 +33,17 @@ fn options(isolation: Isolation, timeout: Duration) -> LoadOptions {
 /// Runs Hostile.fmu as component `h` from 0 to 1 s in steps of 0.1 s with `mode` firing in the
 /// step that passes `at` (0.3: the step from 0.3 to 0.4), input u = 1.5.
 fn run(dir: &Path, isolation: Isolation, mode: i32, timeout: Duration) -> (RunOutput, Vec<String>) {
+    run_with(dir, isolation, mode, timeout, false)
+}
+
+/// [`run`], recording non-finite outputs when `allow_nonfinite`.
+fn run_with(
+    dir: &Path,
+    isolation: Isolation,
+    mode: i32,
+    timeout: Duration,
+    allow_nonfinite: bool,
+) -> (RunOutput, Vec<String>) {
     let fmu = Fmu::load(hostile_fmu(dir), &options(isolation, timeout)).unwrap();
     assert_eq!(fmu.is_isolated(), isolation == Isolation::Process);
     let logs = Arc::new(Mutex::new(Vec::new()));
@@ -51,6 +62,7 @@ fn run(dir: &Path, isolation: Isolation, mode: i32, timeout: Duration) -> (RunOu
     let config = RunConfig {
         stop_time: 1.0,
         step_size: 0.1,
+        allow_nonfinite,
         ..RunConfig::default()
     };
     let out = system.run(&config).unwrap();
@@ -66,6 +78,14 @@ fn fmu_error(out: &RunOutput) -> (&FmuError, String) {
 }
 
 const MINUTE: Duration = Duration::from_secs(60);
+
+/// The rows' bits (NaN compared by its bits).
+fn bits(o: &RunOutput) -> Vec<Vec<u64>> {
+    o.results
+        .rows()
+        .map(|r| r.iter().map(|x| x.to_bits()).collect())
+        .collect()
+}
 
 #[test]
 fn survivable_behaviours_give_the_same_outcome_and_rows_in_process_and_isolated() {
@@ -83,12 +103,6 @@ fn survivable_behaviours_give_the_same_outcome_and_rows_in_process_and_isolated(
         let (local, local_logs) = run(d.path(), Isolation::InProcess, mode, MINUTE);
         let (remote, remote_logs) = run(d.path(), Isolation::Process, mode, MINUTE);
         // Bit for bit the same rows (NaN compared by its bits).
-        let bits = |o: &RunOutput| -> Vec<Vec<u64>> {
-            o.results
-                .rows()
-                .map(|r| r.iter().map(|x| x.to_bits()).collect())
-                .collect()
-        };
         assert_eq!(bits(&local), bits(&remote), "mode {mode}");
         assert_eq!(local.results.names(), remote.results.names(), "mode {mode}");
         assert_eq!(local_logs, remote_logs, "mode {mode}");
@@ -110,22 +124,37 @@ fn survivable_behaviours_give_the_same_outcome_and_rows_in_process_and_isolated(
                 }
             }
             MODE_NAN | MODE_INF => {
-                // A non-finite output fails the run, naming it (RunConfig::allow_nonfinite
-                // records it instead); the rows before it are kept.
+                // A non-finite output ends the run with an error naming it, after the rows
+                // before it.
                 match &local.outcome {
                     Outcome::Failed(MasterError::NonFinite {
                         component,
                         variable,
+                        value,
                         time,
-                        ..
                     }) => {
                         assert_eq!((component.as_str(), variable.as_str()), ("h", "y"));
+                        assert_eq!(value.is_nan(), mode == MODE_NAN);
                         assert!((time - 0.4).abs() < 1e-12, "{time}");
                     }
-                    other => panic!("mode {mode}: {other:?}"),
+                    o => panic!("{o:?}"),
                 }
-                assert_eq!(y.len(), 4, "{y:?}");
-                assert!(y.iter().all(|&v| v == 3.0), "{y:?}");
+                assert_eq!(times.len(), 4, "{times:?}");
+                // Recorded as they come when allowed, the same in process and isolated.
+                let (a, _) = run_with(d.path(), Isolation::InProcess, mode, MINUTE, true);
+                let (b, _) = run_with(d.path(), Isolation::Process, mode, MINUTE, true);
+                assert_eq!(bits(&a), bits(&b));
+                assert!(matches!(a.outcome, Outcome::Completed { .. }), "{mode}");
+                let y = a.results.column("h.y").unwrap();
+                assert!(y[..4].iter().all(|&v| v == 3.0), "{y:?}");
+                assert!(
+                    y[4..].iter().all(|v| if mode == MODE_NAN {
+                        v.is_nan()
+                    } else {
+                        *v == f64::INFINITY
+                    }),
+                    "{y:?}"
+                );
             }
             MODE_DISCARD => match &local.outcome {
                 Outcome::Terminated {
