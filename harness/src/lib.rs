@@ -54,6 +54,7 @@ pub mod package;
 pub mod results;
 pub mod ssp;
 pub mod study;
+pub mod sweep;
 pub mod tempdirs;
 pub mod time;
 

@@ -11,6 +11,7 @@ pub mod metrics;
 pub mod plot;
 pub mod run;
 pub mod study;
+pub mod sweep;
 pub mod tune;
 pub mod validate;
 
@@ -62,6 +63,8 @@ pub enum Command {
     Plot(plot::Args),
     /// Run the DA/SEA/CSEA gait study: scenarios, results, figures and the comparison table.
     Study(study::Args),
+    /// Run a parameter sweep (TOML spec) on every local core; one table row per run (Parquet or CSV).
+    Sweep(sweep::Args),
     /// Step-response quality (rise, settling, overshoot, peak) or tracking error of a signal.
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
@@ -82,6 +85,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Plot(a) => plot::run(a),
         Command::Metrics(a) => metrics::run(a),
         Command::Study(a) => study::run(a),
+        Command::Sweep(a) => sweep::run(a),
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),
