@@ -8,6 +8,7 @@ pub mod experiment;
 pub mod export;
 pub mod info;
 pub mod metrics;
+pub mod output;
 pub mod plot;
 pub mod run;
 pub mod study;
