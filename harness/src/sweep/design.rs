@@ -78,7 +78,7 @@ pub fn levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The points of `spec`'s design (after [`SweepSpec::check_against`], which sets the
+/// The points of `spec`'s design (after [`Prepared::new`](super::Prepared::new), which sets the
 /// parameters' types).
 pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
     let dims = spec.parameters.len();

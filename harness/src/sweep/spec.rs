@@ -186,7 +186,7 @@ pub struct Parameter {
     pub levels: Option<usize>,
     /// Grid: the levels themselves.
     pub values: Option<Vec<f64>>,
-    /// The variable's type (known after [`SweepSpec::check_against`]).
+    /// The variable's type (known after [`Prepared::new`](super::Prepared::new)).
     pub ty: ParameterType,
     /// 1-based line of the parameter in the spec.
     pub line: usize,
@@ -304,7 +304,7 @@ fn seed(p: &mut Problems<'_>, d: &RawDesign) -> u64 {
 
 impl SweepSpec {
     /// Reads and parses a spec file (paths in it are relative to its directory). The result is
-    /// not yet checked against the system's FMUs: see [`SweepSpec::check_against`].
+    /// not yet checked against the system's FMUs: see [`Prepared::new`](super::Prepared::new).
     pub fn from_file(path: &Path) -> Result<SweepSpec, SweepError> {
         let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
             path: path.to_path_buf(),
