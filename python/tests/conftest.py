@@ -30,7 +30,7 @@ def fmus(tmp_path_factory: pytest.TempPathFactory) -> Path:
 SWEEP = """\
 system = "SEA"
 fmus = "{fmus}"
-cycles = 2
+cycles = {cycles}
 
 [design]
 kind = "latin-hypercube"
@@ -56,9 +56,9 @@ from = 2.5
 
 @pytest.fixture()
 def sweep_spec(fmus: Path, tmp_path: Path):
-    def make(points: int) -> Path:
-        p = tmp_path / f"sweep{points}.toml"
-        p.write_text(SWEEP.format(fmus=fmus, points=points))
+    def make(points: int, cycles: int = 2) -> Path:
+        p = tmp_path / f"sweep{points}-{cycles}.toml"
+        p.write_text(SWEEP.format(fmus=fmus, points=points, cycles=cycles))
         return p
 
     return make

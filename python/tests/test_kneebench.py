@@ -121,3 +121,39 @@ def test_sweep_on_a_dask_cluster_equals_the_local_table(sweep_spec):
         who = client.run(lambda: __import__("os").getpid())
         assert len(set(who.values())) == 2
     assert_bit_identical(local, table)
+
+
+def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
+    distributed = pytest.importorskip("distributed")
+    import os
+    import signal
+    import threading
+    import time
+
+    # 40 gait cycles per run (100 s simulated, tens of milliseconds each), one point per
+    # batch: the sweep lasts long enough to kill a worker while it runs a batch.
+    spec = sweep_spec(12, cycles=40)
+    local = kneebench.sweep(spec, workers=2)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        victim = sorted(client.scheduler_info()["workers"])[0]
+        pid = client.run(os.getpid)[victim]
+        killed = threading.Event()
+
+        def kill_when_busy() -> None:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                if client.processing().get(victim):
+                    os.kill(pid, signal.SIGKILL)
+                    killed.set()
+                    return
+                time.sleep(0.005)
+
+        killer = threading.Thread(target=kill_when_busy)
+        killer.start()
+        table = kneebench.sweep(spec, client=client, batch_size=1)
+        killer.join()
+        assert killed.is_set(), "the worker was not killed during the sweep"
+        assert victim not in client.scheduler_info()["workers"]
+    assert_bit_identical(local, table)
