@@ -66,12 +66,17 @@ def study(
     actuators: Sequence[str] = ("DA", "SEA", "CSEA"),
     cycles: int = 4,
     scale: float = 1.0,
+    scenario: str = "bench-full",
 ) -> pd.DataFrame:
     """Run the gait study (the bench's gait on each actuator, FMUs from ``fmus``; scenarios
     and CSV results written under ``out``) and return one row per actuator: tracking errors
-    [rad], peak torques [N m], energy terms per gait cycle [J], and the interlock trip if
-    any (``trip``, ``trip_time`` [s])."""
-    reports = _native.study(os.fspath(fmus), os.fspath(out), list(actuators), cycles, scale)
+    [rad], peak torques [N m], energy terms per gait cycle [J] (the columns of a sweep's study
+    metrics), and the interlock trip if any (``trip``, ``trip_time`` [s]). ``scenario`` is
+    ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg, SEA/CSEA under
+    impedance control)."""
+    reports = _native.study(
+        os.fspath(fmus), os.fspath(out), list(actuators), cycles, scale, scenario
+    )
     return pd.DataFrame(reports).set_index("actuator")
 
 

@@ -27,6 +27,7 @@ def study(
     actuators: Sequence[str] = ("DA", "SEA", "CSEA"),
     cycles: int = 4,
     scale: float = 1.0,
+    scenario: str = "bench-full",
 ) -> pd.DataFrame: ...
 def sweep_info(spec: str | os.PathLike[str]) -> dict[str, Any]: ...
 def sweep(

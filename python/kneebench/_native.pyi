@@ -15,7 +15,7 @@ def run(
     step: float | None = None,
 ) -> dict[str, Any]: ...
 def study(
-    fmus: str, out: str, actuators: list[str], cycles: int, scale: float
+    fmus: str, out: str, actuators: list[str], cycles: int, scale: float, scenario: str
 ) -> list[dict[str, Any]]: ...
 def sweep(
     spec: str, workers: int | None = None, output: str | None = None, resume: bool = False

@@ -10,7 +10,8 @@
 use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::{Outcome, RunConfig, System};
-use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, run_study};
+use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study};
+use kneebench_harness::sweep::runner::{STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{Prepared, Row, SweepError, SweepOptions, SweepSpec, run_sweep};
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
@@ -217,35 +218,22 @@ fn run<'py>(
 fn report_dict<'py>(py: Python<'py>, r: &ActuatorReport) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("actuator", &r.name)?;
-    d.set_item("cycles", r.cycles)?;
-    for (k, v) in [
-        ("rms_error_actuation", r.rms_error_actuation),
-        ("max_error_actuation", r.max_error_actuation),
-        ("rms_error_knee", r.rms_error_knee),
-        ("max_error_knee", r.max_error_knee),
-        ("peak_test_torque", r.peak_test_torque),
-        ("peak_load_torque", r.peak_load_torque),
-        ("test_mechanical_energy", r.test_mechanical),
-        (
-            "test_mechanical_energy_consumed",
-            r.test_mechanical_consumed,
-        ),
-        ("electrical_energy", r.electrical),
-        ("electrical_energy_consumed", r.electrical_consumed),
-        ("loss_energy", r.loss),
-        ("kinetic_energy_change", r.kinetic),
-        ("potential_energy_change", r.potential),
-    ] {
-        d.set_item(k, v)?;
+    let values = study_metric_values(r);
+    for (k, v) in STUDY_METRICS.iter().zip(values) {
+        if *k == "cycles" {
+            d.set_item(k, r.cycles)?;
+        } else {
+            d.set_item(k, v)?;
+        }
     }
     d.set_item("trip", r.trip.as_ref().map(|t| t.0.clone()))?;
-    d.set_item("trip_time", r.trip.as_ref().map(|t| t.1))?;
     Ok(d)
 }
 
-/// Runs the DA/SEA/CSEA study; returns one report dict per actuator.
+/// Runs the DA/SEA/CSEA study (`scenario`: bench-full or bench-clutch); returns one report
+/// dict per actuator.
 #[pyfunction]
-#[pyo3(signature = (fmus, out, actuators, cycles, scale))]
+#[pyo3(signature = (fmus, out, actuators, cycles, scale, scenario))]
 fn study<'py>(
     py: Python<'py>,
     fmus: PathBuf,
@@ -253,6 +241,7 @@ fn study<'py>(
     actuators: Vec<String>,
     cycles: u32,
     scale: f64,
+    scenario: String,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
     let mut list = Vec::new();
     for a in &actuators {
@@ -270,10 +259,16 @@ fn study<'py>(
     let config = StudyConfig {
         fmu_dir: fmus,
         out_dir: out,
+        scenario: StudyScenario::from_name(&scenario).ok_or_else(|| {
+            err(format!(
+                "unknown scenario '{scenario}' (bench-full, bench-clutch)"
+            ))
+        })?,
         cycles,
         scale,
         gains: None,
         actuators: list,
+        overrides: Vec::new(),
     };
     let runs = py.detach(|| run_study(&config)).map_err(err)?;
     runs.iter().map(|r| report_dict(py, &r.report)).collect()

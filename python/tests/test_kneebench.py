@@ -72,7 +72,10 @@ def test_study_reports_one_row_per_actuator(fmus: Path, tmp_path: Path):
     assert sea["cycles"] == 1
     assert sea["trip"] is None
     assert 0 < sea["rms_error_knee"] < np.radians(0.7)
-    assert sea["electrical_energy"] > 0
+    assert sea["bench_electrical_energy"] > 0
+    assert abs(sea["balance_residual"]) < 1e-6 * abs(sea["test_mechanical_energy"]) + 1e-9
+    with pytest.raises(kneebench.KneebenchError, match="unknown scenario 'x'"):
+        kneebench.study(fmus, tmp_path / "s3", actuators=["SEA"], scenario="x")
     with pytest.raises(kneebench.KneebenchError, match="unknown actuator 'XY'"):
         kneebench.study(fmus, tmp_path / "s2", actuators=["XY"])
 

@@ -63,6 +63,39 @@ pub const STUDY_METRICS: [&str; 25] = [
     "trip_time",
 ];
 
+/// The values of [`STUDY_METRICS`] for one analysed run, in that order.
+pub fn study_metric_values(r: &study::ActuatorReport) -> [f64; STUDY_METRICS.len()] {
+    let trip_time = r.trip.as_ref().map_or(f64::NAN, |t| t.1);
+    let e = &r.energy;
+    [
+        r.cycles as f64,
+        r.rms_error_actuation,
+        r.max_error_actuation,
+        r.rms_error_knee,
+        r.max_error_knee,
+        r.peak_test_torque,
+        r.peak_shaft_torque,
+        r.peak_load_torque,
+        e.test_mechanical,
+        e.test_mechanical_consumed,
+        e.test_electrical,
+        e.bench_electrical,
+        e.clutch,
+        e.clutch_engaged_fraction,
+        e.drive_loss,
+        e.load_mechanical,
+        e.load_electrical,
+        e.load_loss,
+        e.all_electrical,
+        e.kinetic_change,
+        e.potential_change,
+        e.kinetic_stored,
+        e.potential_stored,
+        e.balance_residual,
+        trip_time,
+    ]
+}
+
 /// The gait reference's period parameter (`gait.gaitPeriod`): when swept, each point's study
 /// metrics use its value.
 pub const GAIT_PERIOD: &str = "gait.gaitPeriod";
@@ -588,35 +621,7 @@ impl Prepared {
             }
             let r = study::analyse("run", results, period, &Columns::default())
                 .map_err(|e| e.to_string())?;
-            let trip_time = r.trip.as_ref().map_or(f64::NAN, |t| t.1);
-            let e = &r.energy;
-            let m = [
-                r.cycles as f64,
-                r.rms_error_actuation,
-                r.max_error_actuation,
-                r.rms_error_knee,
-                r.max_error_knee,
-                r.peak_test_torque,
-                r.peak_shaft_torque,
-                r.peak_load_torque,
-                e.test_mechanical,
-                e.test_mechanical_consumed,
-                e.test_electrical,
-                e.bench_electrical,
-                e.clutch,
-                e.clutch_engaged_fraction,
-                e.drive_loss,
-                e.load_mechanical,
-                e.load_electrical,
-                e.load_loss,
-                e.all_electrical,
-                e.kinetic_change,
-                e.potential_change,
-                e.kinetic_stored,
-                e.potential_stored,
-                e.balance_residual,
-                trip_time,
-            ];
+            let m = study_metric_values(&r);
             row.metrics[..m.len()].copy_from_slice(&m);
             k = m.len();
             if let Some((name, t)) = &r.trip
