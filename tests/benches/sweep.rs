@@ -1,6 +1,6 @@
 //! Sweep machinery and results writers: `cargo bench -p kneebench-tests --bench sweep`.
 //!
-//! - **throughput**: 24 points of a Latin hypercube over the SEA scenario (spring stiffness x
+//! - **throughput**: 200 points of a Latin hypercube over the SEA scenario (spring stiffness x
 //!   harmonic-drive ratio, two gait cycles at 1 kHz per run, the study metrics), run by
 //!   `Prepared::run_points` with 1 and with 2 worker threads, interleaved, [`REPEATS`] times;
 //!   runs per second and their ratio (medians). Each call includes every worker's loading of
@@ -45,8 +45,8 @@ fn main() {
     let fmus: PathBuf = dir.path().join("fmus");
     export_all(&fmu_library(), &fmus).unwrap();
 
-    let p = spec(&fmus, 24);
-    let ids: Vec<u64> = (0..24).collect();
+    let p = spec(&fmus, 200);
+    let ids: Vec<u64> = (0..200).collect();
     let mut rate = [Vec::new(), Vec::new()];
     for _ in 0..REPEATS {
         for (k, workers) in [1usize, 2].into_iter().enumerate() {
