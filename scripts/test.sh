@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: formatting, lints, the API docs (no broken links), every Rust test (unit, integration, end-to-end with
-# the fmpy oracle). Installs what it needs (the pinned Python venv) first.
+# the fmpy oracle) and the Python package's pytest suite (its wheel built by maturin into the venv).
+# Installs what it needs (the pinned Python venv) first.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -15,5 +16,17 @@ echo "== cargo test"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 cargo test --workspace --locked --release 2>&1 | tee "$log"
-# One closing line for the whole suite (cargo prints one per test binary).
-awk '/^test result:/ { p += $4; f += $6; i += $8 } END { printf "%d passed, %d failed, %d skipped\n", p, f, i }' "$log"
+echo "== python package (maturin wheel into the venv, pytest)"
+# The kneebench binary (the Python tests compare with the CLI and export the FMUs with it),
+# then the wheel of python/ built by the pinned maturin and installed into the venv.
+cargo build --release --locked -p kneebench-harness --bin kneebench --quiet
+target_dir=${CARGO_TARGET_DIR:-$root/target}
+rm -rf "$target_dir/wheels"
+"$KNEEBENCH_PYTHON" -m maturin build --release --locked --quiet -i "$KNEEBENCH_PYTHON" -m python/Cargo.toml -o "$target_dir/wheels" >&2
+"$KNEEBENCH_PYTHON" -m pip install --quiet --disable-pip-version-check --no-deps --force-reinstall "$target_dir"/wheels/kneebench-*.whl
+"$KNEEBENCH_PYTHON" -m pytest python/tests -q -p no:cacheprovider 2>&1 | tee -a "$log"
+# One closing line for the whole suite (cargo prints one per test binary, pytest one).
+awk '/^test result:/ { p += $4; f += $6; i += $8 }
+     /^[0-9]+ (passed|failed)/ { for (k = 1; k < NF; k++) { n = $k + 0; w = $(k + 1); sub(/[,;]$/, "", w);
+       if (w == "passed") p += n; else if (w == "failed") f += n; else if (w == "skipped") i += n } }
+     END { printf "%d passed, %d failed, %d skipped\n", p, f, i }' "$log"

@@ -68,6 +68,7 @@ pub mod params;
 pub mod results;
 pub mod ssp;
 pub mod study;
+pub mod sweep;
 pub mod tempdirs;
 pub mod time;
 

@@ -10,9 +10,11 @@ pub mod identify;
 pub mod info;
 pub mod key;
 pub mod metrics;
+pub mod output;
 pub mod plot;
 pub mod run;
 pub mod study;
+pub mod sweep;
 pub mod tune;
 pub mod validate;
 
@@ -64,6 +66,8 @@ pub enum Command {
     Plot(plot::Args),
     /// Run the DA/SEA/CSEA gait study: scenarios, results, figures and the comparison table.
     Study(study::Args),
+    /// Run a parameter sweep (TOML spec) on every local core; one table row per run (Parquet or CSV).
+    Sweep(sweep::Args),
     /// Step-response quality (rise, settling, overshoot, peak) or tracking error of a signal.
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
@@ -90,6 +94,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Plot(a) => plot::run(a),
         Command::Metrics(a) => metrics::run(a),
         Command::Study(a) => study::run(a),
+        Command::Sweep(a) => sweep::run(a),
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),

@@ -9,7 +9,6 @@ use anyhow::Context;
 use kneebench_harness::instance::{LogStatus, stderr_log_handler};
 use kneebench_harness::master::{Signal, VarType};
 use kneebench_harness::num::Num;
-use kneebench_harness::results::csv::CsvFile;
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
     Algorithm, Fmu, InstanceOptions, Isolation, LoadOptions, MasterError, Outcome, Results,
@@ -85,7 +84,8 @@ pub struct Args {
     /// Master algorithm (default: the SSP's annotation, or gauss-seidel).
     #[arg(long, value_enum)]
     pub algorithm: Option<AlgorithmArg>,
-    /// Results CSV to write (streamed to OUTPUT.partial, renamed at the end).
+    /// Results file to write: CSV, or Parquet for `.parquet` (streamed to OUTPUT.partial,
+    /// renamed at the end).
     #[arg(long, short, default_value = "results.csv")]
     pub output: PathBuf,
     /// Comma-separated variables to record (default: every output). For a system:
@@ -196,7 +196,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         return usage("--inputs is for a single FMU; connect inputs in the system instead");
     }
     // The output is checked (and its partial file created) before anything is loaded.
-    let file = CsvFile::create(&a.output)?;
+    let mut file = super::output::OutputFile::create(&a.output)?;
     let mut guard = PartialGuard(Some(file.partial_path().to_path_buf()));
     let (mut system, mut config) = match ext.as_str() {
         "fmu" => {
@@ -322,6 +322,19 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     } else {
         None
     };
+    // Parquet keeps the run's metadata: system, parameters, FMU GUIDs (and the version).
+    let mut meta = vec![(
+        "kneebench.system".to_string(),
+        a.system.display().to_string(),
+    )];
+    meta.push(("kneebench.parameters".into(), a.params.join(";")));
+    for (name, fmu) in system.components() {
+        meta.push((
+            format!("kneebench.guid.{name}"),
+            fmu.model_description().guid.clone(),
+        ));
+    }
+    file.set_metadata(meta);
     let started = std::time::Instant::now();
     let mut sink = Tee(file, RunningSummary::new());
     let summary = system.run_into(&config, &mut sink)?;

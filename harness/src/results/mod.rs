@@ -29,6 +29,7 @@ pub enum ColumnKind {
 }
 
 pub mod csv;
+pub mod parquet;
 
 /// Errors of reading, writing and plotting results.
 #[derive(Debug, thiserror::Error)]

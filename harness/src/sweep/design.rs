@@ -1,0 +1,330 @@
+//! The points of a sweep: full grid, Latin hypercube, Sobol, random (all seeded, so the same
+//! spec gives the same points on every machine) or the rows of a CSV file.
+//!
+//! Point `i` of a design is the same whatever runs it: the whole design is computed before
+//! any run, in one thread. Random numbers come from SplitMix64 (a fixed, documented generator,
+//! not a library's default one whose stream may change between versions); Sobol points from
+//! `sobol_burley` (Owen-scrambled, single precision in [0, 1) before scaling to [min, max]).
+//! `Integer` variables take the nearest whole value.
+
+use std::path::Path;
+
+use super::SweepError;
+use super::spec::{DesignKind, ParameterType, SpecProblem, SweepSpec};
+
+/// The points of a sweep, one value per parameter each, in spec order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Design {
+    /// `component.variable` of each parameter.
+    pub names: Vec<String>,
+    /// The points; point `i` has id `i`.
+    pub points: Vec<Vec<f64>>,
+}
+
+/// SplitMix64 (Steele, Lea and Flood 2014): a 64-bit generator whose stream is fixed by its
+/// seed.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    /// A generator started at `seed`.
+    pub fn new(seed: u64) -> SplitMix64 {
+        SplitMix64(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// A uniform number in [0, 1) with 53 random bits.
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// A uniform integer in [0, n) (n > 0), without modulo bias.
+    pub fn below(&mut self, n: u64) -> u64 {
+        let zone = u64::MAX - u64::MAX % n;
+        loop {
+            let x = self.next_u64();
+            if x < zone {
+                return x % n;
+            }
+        }
+    }
+}
+
+fn scale(u: f64, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * u
+}
+
+/// `n` evenly spaced values from `lo` to `hi` (both included; `lo` alone for one level).
+pub fn levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+    if n == 1 {
+        return vec![lo];
+    }
+    (0..n)
+        .map(|i| {
+            if i == n - 1 {
+                hi
+            } else {
+                lo + (hi - lo) * i as f64 / (n - 1) as f64
+            }
+        })
+        .collect()
+}
+
+/// The points of `spec`'s design (after [`Prepared::new`](super::Prepared::new), which sets the
+/// parameters' types).
+pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
+    let dims = spec.parameters.len();
+    let bounds: Vec<(f64, f64)> = spec
+        .parameters
+        .iter()
+        .map(|p| (p.min.unwrap_or(0.0), p.max.unwrap_or(0.0)))
+        .collect();
+    let mut points: Vec<Vec<f64>> = match &spec.design {
+        DesignKind::Grid => {
+            let axes: Vec<Vec<f64>> = spec
+                .parameters
+                .iter()
+                .map(|p| match (&p.values, p.levels, p.min, p.max) {
+                    (Some(v), _, _, _) => v.clone(),
+                    (None, Some(n), Some(lo), Some(hi)) => levels(lo, hi, n),
+                    _ => Vec::new(),
+                })
+                .collect();
+            let total = axes.iter().try_fold(1usize, |n, a| n.checked_mul(a.len()));
+            match total {
+                None | Some(0) => {
+                    return Err(SweepError::Invalid(vec![spec.problem(
+                        0,
+                        "empty design: the grid has no points (or more than fit in memory)",
+                    )]));
+                }
+                Some(n) if n > MAX_POINTS => {
+                    return Err(SweepError::Invalid(vec![spec.problem(
+                        0,
+                        format!("the grid has {n} points, more than {MAX_POINTS}"),
+                    )]));
+                }
+                Some(_) => {}
+            }
+            let mut out = vec![Vec::new()];
+            for axis in &axes {
+                out = out
+                    .into_iter()
+                    .flat_map(|p| {
+                        axis.iter().map(move |&v| {
+                            let mut q = p.clone();
+                            q.push(v);
+                            q
+                        })
+                    })
+                    .collect();
+            }
+            out
+        }
+        DesignKind::Random { points, seed } => {
+            check_count(spec, *points)?;
+            let mut rng = SplitMix64::new(*seed);
+            (0..*points)
+                .map(|_| {
+                    bounds
+                        .iter()
+                        .map(|&(lo, hi)| scale(rng.next_f64(), lo, hi))
+                        .collect()
+                })
+                .collect()
+        }
+        DesignKind::LatinHypercube { points, seed } => {
+            check_count(spec, *points)?;
+            let n = *points;
+            let mut rng = SplitMix64::new(*seed);
+            let mut out = vec![vec![0.0; dims]; n];
+            for (d, &(lo, hi)) in bounds.iter().enumerate() {
+                // A random permutation of the strata (Fisher-Yates), a random place in each.
+                let mut strata: Vec<usize> = (0..n).collect();
+                for i in (1..n).rev() {
+                    let j = rng.below(i as u64 + 1) as usize;
+                    strata.swap(i, j);
+                }
+                for (i, point) in out.iter_mut().enumerate() {
+                    let u = (strata[i] as f64 + rng.next_f64()) / n as f64;
+                    point[d] = scale(u, lo, hi);
+                }
+            }
+            out
+        }
+        DesignKind::Sobol { points, seed } => {
+            check_count(spec, *points)?;
+            if dims > sobol_burley::NUM_DIMENSIONS as usize {
+                return Err(SweepError::Invalid(vec![spec.problem(
+                    0,
+                    format!(
+                        "the Sobol design has at most {} parameters",
+                        sobol_burley::NUM_DIMENSIONS
+                    ),
+                )]));
+            }
+            let seed = (*seed ^ (*seed >> 32)) as u32;
+            (0..*points)
+                .map(|i| {
+                    bounds
+                        .iter()
+                        .enumerate()
+                        .map(|(d, &(lo, hi))| {
+                            let u = sobol_burley::sample(i as u32, d as u32, seed);
+                            scale(f64::from(u), lo, hi)
+                        })
+                        .collect()
+                })
+                .collect()
+        }
+        DesignKind::Csv(path) => read_csv(spec, path)?,
+    };
+    for (d, p) in spec.parameters.iter().enumerate() {
+        if p.ty == ParameterType::Integer {
+            for point in &mut points {
+                point[d] = point[d].round();
+            }
+        }
+    }
+    Ok(Design {
+        names: spec.parameters.iter().map(|p| p.name.clone()).collect(),
+        points,
+    })
+}
+
+/// The largest design accepted (ids, journal and table stay manageable).
+pub const MAX_POINTS: usize = 10_000_000;
+
+fn check_count(spec: &SweepSpec, n: usize) -> Result<(), SweepError> {
+    if n > MAX_POINTS {
+        return Err(SweepError::Invalid(vec![
+            spec.problem(0, format!("{n} points, more than {MAX_POINTS}")),
+        ]));
+    }
+    Ok(())
+}
+
+fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> {
+    let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let problem = |line: usize, message: String| SpecProblem {
+        file: path.to_path_buf(),
+        line,
+        message,
+    };
+    let mut problems = Vec::new();
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let Some((_, header)) = lines.next() else {
+        return Err(SweepError::Invalid(vec![problem(
+            0,
+            "empty design: the CSV has no header".into(),
+        )]));
+    };
+    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    let mut index = Vec::new();
+    for c in &columns {
+        match spec.parameters.iter().position(|p| p.name == *c) {
+            Some(i) => index.push(i),
+            None => problems.push(problem(
+                1,
+                format!("column '{c}' is not a parameter of the spec"),
+            )),
+        }
+    }
+    for p in &spec.parameters {
+        if !columns.contains(&p.name.as_str()) {
+            problems.push(problem(1, format!("no column for parameter '{}'", p.name)));
+        }
+    }
+    if !problems.is_empty() {
+        return Err(SweepError::Invalid(problems));
+    }
+    let mut points = Vec::new();
+    for (i, l) in lines {
+        let line = i + 1;
+        let cells: Vec<&str> = l.split(',').map(str::trim).collect();
+        if cells.len() != columns.len() {
+            problems.push(problem(
+                line,
+                format!("{} values for {} columns", cells.len(), columns.len()),
+            ));
+            continue;
+        }
+        let mut point = vec![0.0; columns.len()];
+        for (k, cell) in cells.iter().enumerate() {
+            let par = &spec.parameters[index[k]];
+            match cell.parse::<f64>() {
+                Ok(v) if v.is_finite() => {
+                    if par.min.is_some_and(|lo| v < lo) || par.max.is_some_and(|hi| v > hi) {
+                        problems.push(problem(
+                            line,
+                            format!(
+                                "{} = {v} is outside [{}, {}]",
+                                par.name,
+                                par.min.unwrap_or(f64::NEG_INFINITY),
+                                par.max.unwrap_or(f64::INFINITY)
+                            ),
+                        ));
+                    }
+                    if par.ty == ParameterType::Integer && v.fract() != 0.0 {
+                        problems.push(problem(
+                            line,
+                            format!("{} is an Integer variable, not {v}", par.name),
+                        ));
+                    }
+                    point[index[k]] = v;
+                }
+                _ => problems.push(problem(
+                    line,
+                    format!("'{cell}' for {} is not a finite number", par.name),
+                )),
+            }
+        }
+        points.push(point);
+    }
+    if points.is_empty() && problems.is_empty() {
+        problems.push(problem(0, "empty design: the CSV has no points".into()));
+    }
+    if points.len() > MAX_POINTS {
+        problems.push(problem(0, format!("more than {MAX_POINTS} points")));
+    }
+    if !problems.is_empty() {
+        return Err(SweepError::Invalid(problems));
+    }
+    Ok(points)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splitmix_matches_the_reference_stream() {
+        // The first outputs of SplitMix64 seeded with 1234567 (the reference implementation's
+        // test vector).
+        let mut r = SplitMix64::new(1234567);
+        assert_eq!(r.next_u64(), 6457827717110365317);
+        assert_eq!(r.next_u64(), 3203168211198807973);
+        assert_eq!(r.next_u64(), 9817491932198370423);
+    }
+
+    #[test]
+    fn levels_include_both_ends() {
+        assert_eq!(levels(1.0, 3.0, 3), vec![1.0, 2.0, 3.0]);
+        assert_eq!(levels(0.1, 0.7, 7)[6], 0.7);
+        assert_eq!(levels(5.0, 9.0, 1), vec![5.0]);
+    }
+}

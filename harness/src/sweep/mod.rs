@@ -1,0 +1,63 @@
+//! Parameter sweeps: many runs of one system over a design of parameter values, one table row
+//! per run.
+//!
+//! - [`spec`]: the TOML specification ([`SweepSpec`]), refused with the line of every problem.
+//! - [`design`]: the points (grid, Latin hypercube, Sobol, random, CSV).
+//! - [`runner`]: checks the spec against the system's FMUs ([`Prepared`]), runs points on
+//!   worker threads (each with its own loaded FMUs and a fresh system per point), computes the
+//!   metrics, journals finished points for `--resume`.
+//! - [`table`]: the rows ([`SweepTable`]) written as Parquet or CSV.
+//!
+//! Every point is run by a fresh system whose values depend on the point alone, and rows are
+//! sorted by point id: the table is the same, bit for bit, whatever the number of workers and
+//! the order in which they take points.
+
+pub mod design;
+pub mod runner;
+pub mod spec;
+pub mod table;
+
+use std::path::PathBuf;
+
+pub use design::Design;
+pub use runner::{Prepared, SweepOptions, run_sweep};
+pub use spec::{SpecProblem, SweepSpec};
+pub use table::{Row, RunStatus, SweepTable};
+
+/// Errors of a sweep.
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    /// The spec (or its design CSV) is refused; one problem per entry, each with its line.
+    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Invalid(Vec<SpecProblem>),
+    /// A file could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The system could not be built or loaded.
+    #[error("{0}")]
+    System(String),
+    /// Writing or reading the table failed.
+    #[error("{}: {message}", path.display())]
+    Table {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// The journal of an earlier sweep does not fit this one, or is unreadable.
+    #[error("{}: {message}", path.display())]
+    Journal {
+        /// The journal.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A worker ended without returning every point it took.
+    #[error("points without a row: {0:?}")]
+    Missing(Vec<u64>),
+}

@@ -1,0 +1,872 @@
+//! Running a sweep: the spec checked against the system's FMUs ([`Prepared::new`]), the points
+//! run on worker threads ([`Prepared::run_points`]), and the whole sweep with its journal
+//! ([`run_sweep`]).
+//!
+//! Each worker loads the system once (its own extracted FMUs) and builds a fresh [`System`]
+//! per point from that: the SSP's parameter values, then the point's. A point's row depends
+//! on the point alone.
+//!
+//! **Journal and `--resume`.** Every finished row is appended to `<output>.journal` (first line:
+//! the sweep's fingerprint, a SHA-256 of the spec text and of every point's bits; then one line
+//! per row, floats as their 64-bit patterns in hex) and flushed. A resumed sweep reads the
+//! journal, refuses it if the fingerprint differs, skips the points it holds and runs the rest;
+//! a torn last line (the process was killed while writing it) is ignored. The journal is
+//! removed once the table is written.
+
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc;
+
+use model_description::{Causality, ModelDescription, Variability, VariableKind};
+use sha2::{Digest, Sha256};
+
+use super::SweepError;
+use super::design::{self, Design};
+use super::spec::{ParameterType, SpecProblem, Stat, SweepSpec, SystemSource};
+use super::table::{Row, RunStatus, SweepTable};
+use crate::master::{MasterError, Outcome, RunConfig, System, Value};
+use crate::results::Results;
+use crate::ssp::{self, LoadedSystem};
+use crate::study::{self, Columns};
+use crate::{Fmu, LoadOptions};
+
+/// The study metrics' column names, in table order: [`study::ActuatorReport`] and its
+/// [`study::EnergyTerms`] (angles in rad, torques in N m, energies in J per gait cycle, the
+/// clutch's engaged fraction of the cycle, `trip_time` in s, NaN without a trip).
+pub const STUDY_METRICS: [&str; 25] = [
+    "cycles",
+    "rms_error_actuation",
+    "max_error_actuation",
+    "rms_error_knee",
+    "max_error_knee",
+    "peak_test_torque",
+    "peak_shaft_torque",
+    "peak_load_torque",
+    "test_mechanical_energy",
+    "test_mechanical_energy_consumed",
+    "test_electrical_energy",
+    "bench_electrical_energy",
+    "clutch_energy",
+    "clutch_engaged_fraction",
+    "drive_loss_energy",
+    "load_mechanical_energy",
+    "load_electrical_energy",
+    "load_loss_energy",
+    "all_electrical_energy",
+    "kinetic_energy_change",
+    "potential_energy_change",
+    "kinetic_energy_stored",
+    "potential_energy_stored",
+    "balance_residual",
+    "trip_time",
+];
+
+/// The values of [`STUDY_METRICS`] for one analysed run, in that order.
+pub fn study_metric_values(r: &study::ActuatorReport) -> [f64; STUDY_METRICS.len()] {
+    let trip_time = r.trip.as_ref().map_or(f64::NAN, |t| t.1);
+    let e = &r.energy;
+    [
+        r.cycles as f64,
+        r.rms_error_actuation,
+        r.max_error_actuation,
+        r.rms_error_knee,
+        r.max_error_knee,
+        r.peak_test_torque,
+        r.peak_shaft_torque,
+        r.peak_load_torque,
+        e.test_mechanical,
+        e.test_mechanical_consumed,
+        e.test_electrical,
+        e.bench_electrical,
+        e.clutch,
+        e.clutch_engaged_fraction,
+        e.drive_loss,
+        e.load_mechanical,
+        e.load_electrical,
+        e.load_loss,
+        e.all_electrical,
+        e.kinetic_change,
+        e.potential_change,
+        e.kinetic_stored,
+        e.potential_stored,
+        e.balance_residual,
+        trip_time,
+    ]
+}
+
+/// The gait reference's period parameter (`gait.gaitPeriod`): when swept, each point's study
+/// metrics use its value.
+pub const GAIT_PERIOD: &str = "gait.gaitPeriod";
+
+/// How a sweep runs.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    /// Worker threads (at least 1).
+    pub workers: usize,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+    /// Continue an interrupted sweep from its journal.
+    pub resume: bool,
+}
+
+impl Default for SweepOptions {
+    fn default() -> Self {
+        SweepOptions {
+            workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            progress: false,
+            resume: false,
+        }
+    }
+}
+
+/// A spec checked against its system, with its points: ready to run.
+#[derive(Debug)]
+pub struct Prepared {
+    /// The spec (parameter types set from the FMUs).
+    pub spec: SweepSpec,
+    /// The points.
+    pub design: Design,
+    /// The system file every worker loads (the spec's, or the scenario written as `.ssp`).
+    pub system_file: PathBuf,
+    /// The run configuration (stop time and step from the spec where it gives them).
+    pub config: RunConfig,
+    /// The gait period of the study metrics, unless each point sets it.
+    pub period: Option<f64>,
+    /// The metric columns.
+    pub metric_names: Vec<String>,
+    /// The recorded columns.
+    pub recorded: Vec<String>,
+    /// The GUID of every component's FMU (`component` -> GUID).
+    pub guids: Vec<(String, String)>,
+    /// The sweep's fingerprint (spec text and points).
+    pub fingerprint: String,
+    _dir: Option<tempfile::TempDir>,
+}
+
+fn system_error(e: impl std::fmt::Display) -> SweepError {
+    SweepError::System(e.to_string())
+}
+
+fn variable_problems(
+    spec: &mut SweepSpec,
+    component_md: &dyn Fn(&str) -> Option<ModelDescription>,
+) -> Vec<SpecProblem> {
+    let mut problems = Vec::new();
+    let file = spec.file.clone();
+    for p in &mut spec.parameters {
+        let at = |m: String| SpecProblem {
+            file: file.clone(),
+            line: p.line,
+            message: m,
+        };
+        let Some((comp, var)) = p.name.split_once('.') else {
+            continue;
+        };
+        let Some(md) = component_md(comp) else {
+            problems.push(at(format!(
+                "unknown variable '{}': the system has no component '{comp}'",
+                p.name
+            )));
+            continue;
+        };
+        let Some(v) = md.model_variables.iter().find(|v| v.name == var) else {
+            problems.push(at(format!(
+                "unknown variable '{}': component '{comp}' ({}) has no variable '{var}'",
+                p.name, md.model_name
+            )));
+            continue;
+        };
+        let causality = v.causality.unwrap_or(Causality::Local);
+        if !matches!(causality, Causality::Parameter | Causality::Input) {
+            problems.push(at(format!(
+                "'{}' is a {causality:?} variable; only parameters and inputs can be set",
+                p.name
+            )));
+        }
+        if v.variability == Some(Variability::Constant) {
+            problems.push(at(format!("'{}' is a constant", p.name)));
+        }
+        let (ty, lo, hi) = match &v.kind {
+            VariableKind::Real { attributes, .. } => {
+                (ParameterType::Real, attributes.min, attributes.max)
+            }
+            VariableKind::Integer { attributes, .. } => (
+                ParameterType::Integer,
+                attributes.min.map(f64::from),
+                attributes.max.map(f64::from),
+            ),
+            VariableKind::Enumeration { min, max, .. } => (
+                ParameterType::Integer,
+                min.map(f64::from),
+                max.map(f64::from),
+            ),
+            VariableKind::Boolean { .. } | VariableKind::String { .. } => {
+                problems.push(at(format!(
+                    "'{}' is a Boolean or String variable; sweeps vary Real and Integer ones",
+                    p.name
+                )));
+                continue;
+            }
+        };
+        p.ty = ty;
+        let mut values: Vec<f64> = [p.min, p.max].into_iter().flatten().collect();
+        values.extend(p.values.iter().flatten());
+        for x in values {
+            if lo.is_some_and(|lo| x < lo) || hi.is_some_and(|hi| x > hi) {
+                problems.push(at(format!(
+                    "'{}': {x} is outside the variable's [min, max] = [{}, {}]",
+                    p.name,
+                    lo.unwrap_or(f64::NEG_INFINITY),
+                    hi.unwrap_or(f64::INFINITY)
+                )));
+            }
+            if ty == ParameterType::Integer && x.fract() != 0.0 {
+                problems.push(at(format!(
+                    "'{}' is an Integer variable; {x} is not a whole number",
+                    p.name
+                )));
+            }
+        }
+    }
+    problems
+}
+
+/// A fresh system from a loaded SSP: components (the loaded FMUs, shared), step multiples,
+/// the SSP's parameter values and its connections, as [`ssp::load_system`] builds it.
+fn fresh_system(loaded: &LoadedSystem) -> Result<System, MasterError> {
+    let fmus: HashMap<&str, &Fmu> = loaded.system.components().collect();
+    let mut system = System::new();
+    for c in &loaded.ssd.system.components {
+        let fmu = fmus
+            .get(c.name.as_str())
+            .ok_or_else(|| MasterError::UnknownComponent(c.name.clone()))?;
+        system.add_component(&c.name, (*fmu).clone())?;
+        if let Some(m) = c.step_multiple {
+            system.set_step_multiple(&c.name, m)?;
+        }
+        for p in &c.parameters {
+            let reference = format!("{}.{}", c.name, p.name);
+            let text = match &p.value {
+                Value::Real(v) => format!("{v:?}"),
+                Value::Integer(v) => v.to_string(),
+                Value::Boolean(v) => v.to_string(),
+                Value::String(v) => v.clone(),
+            };
+            match system.set_value(&reference, p.value.clone()) {
+                Ok(()) => {}
+                Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    for c in &loaded.ssd.system.connections {
+        if let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) {
+            system.connect(
+                &format!("{se}.{}", c.start_connector),
+                &format!("{ee}.{}", c.end_connector),
+            )?;
+        }
+    }
+    Ok(system)
+}
+
+fn ssd_parameter(loaded: &LoadedSystem, reference: &str) -> Option<f64> {
+    let (comp, var) = reference.split_once('.')?;
+    let c = loaded
+        .ssd
+        .system
+        .components
+        .iter()
+        .find(|c| c.name == comp)?;
+    c.parameters
+        .iter()
+        .find(|p| p.name == var)
+        .and_then(|p| match p.value {
+            Value::Real(v) => Some(v),
+            Value::Integer(v) => Some(f64::from(v)),
+            _ => None,
+        })
+}
+
+impl Prepared {
+    /// Checks `spec` against its system (every problem with its line: unknown variables,
+    /// values outside a variable's `[min, max]`, wrong types, unknown signals, a missing gait
+    /// period) and computes its points. Nothing runs.
+    pub fn new(mut spec: SweepSpec) -> Result<Prepared, SweepError> {
+        let (system_file, dir) = match &spec.system {
+            SystemSource::File(p) => {
+                if !p.is_file() {
+                    return Err(SweepError::Invalid(vec![spec.problem(
+                        1,
+                        format!("system file {} does not exist", p.display()),
+                    )]));
+                }
+                (p.clone(), None)
+            }
+            SystemSource::Scenario {
+                actuator,
+                fmu_dir,
+                cycles,
+            } => {
+                let dir = crate::tempdirs::create("sweep").map_err(|source| SweepError::Io {
+                    path: std::env::temp_dir(),
+                    source,
+                })?;
+                // The study's bench-full scenario: its gait and the actuator's tuned gains.
+                let bench = study::StudyScenario::BenchFull;
+                let scenario =
+                    study::gait_scenario(*actuator, bench.gait(), bench.gains(*actuator), *cycles);
+                let path = dir.path().join(format!("{}.ssp", actuator.name()));
+                study::write_ssp(&scenario, fmu_dir, &path).map_err(system_error)?;
+                (path, Some(dir))
+            }
+        };
+        let loaded =
+            ssp::load_system(&system_file, &LoadOptions::default()).map_err(system_error)?;
+        let descriptions: HashMap<String, ModelDescription> = loaded
+            .system
+            .components()
+            .map(|(n, f)| (n.to_string(), f.model_description().clone()))
+            .collect();
+        let mut problems = variable_problems(&mut spec, &|c| descriptions.get(c).cloned());
+
+        let mut recorded: Vec<String> = Vec::new();
+        let mut metric_names: Vec<String> = Vec::new();
+        if spec.study_metrics {
+            recorded.extend(Columns::default().names());
+            metric_names.extend(STUDY_METRICS.iter().map(|s| s.to_string()));
+        }
+        for s in &spec.signals {
+            if !recorded.contains(&s.signal) {
+                recorded.push(s.signal.clone());
+            }
+            for st in &s.stats {
+                metric_names.push(format!("{}({})", st.name(), s.signal));
+            }
+        }
+        let mut probe = fresh_system(&loaded).map_err(system_error)?;
+        for r in &recorded {
+            if let Err(e) = probe.record(&[r.as_str()]) {
+                let line = spec
+                    .signals
+                    .iter()
+                    .find(|s| &s.signal == r)
+                    .map_or(0, |s| s.line);
+                let what = if line == 0 {
+                    "the study metrics need"
+                } else {
+                    "signal"
+                };
+                problems.push(spec.problem(line, format!("{what} '{r}': {e}")));
+            }
+        }
+        let swept_period = spec.parameters.iter().any(|p| p.name == GAIT_PERIOD);
+        let period = spec.period.or_else(|| ssd_parameter(&loaded, GAIT_PERIOD));
+        if spec.study_metrics && period.is_none() && !swept_period {
+            problems.push(spec.problem(
+                0,
+                format!(
+                    "the study metrics need the gait period: set [metrics] period or {GAIT_PERIOD}"
+                ),
+            ));
+        }
+        let mut config = loaded.config.clone();
+        config.progress = None;
+        if let Some(t) = spec.stop_time {
+            config.stop_time = t;
+        }
+        if let Some(h) = spec.step {
+            config.step_size = h;
+        }
+        if let Err(e) = probe.check_config(&config) {
+            problems.push(spec.problem(0, format!("stop_time and step: {e}")));
+        }
+        if !problems.is_empty() {
+            return Err(SweepError::Invalid(problems));
+        }
+        let design = design::generate(&spec)?;
+        let mut h = Sha256::new();
+        h.update(spec.text.as_bytes());
+        for n in &design.names {
+            h.update(n.as_bytes());
+            h.update([0]);
+        }
+        for p in &design.points {
+            for v in p {
+                h.update(v.to_bits().to_le_bytes());
+            }
+        }
+        let fingerprint: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
+        let guids = loaded
+            .system
+            .components()
+            .map(|(n, f)| (n.to_string(), f.model_description().guid.clone()))
+            .collect();
+        Ok(Prepared {
+            spec,
+            design,
+            system_file,
+            config,
+            period,
+            metric_names,
+            recorded,
+            guids,
+            fingerprint,
+            _dir: dir,
+        })
+    }
+
+    /// The table's metadata: the sweep's fingerprint, system, version and FMU GUIDs.
+    pub fn metadata(&self) -> Vec<(String, String)> {
+        let mut out = vec![
+            (
+                "kneebench.version".to_string(),
+                env!("CARGO_PKG_VERSION").to_string(),
+            ),
+            (
+                "kneebench.sweep.fingerprint".into(),
+                self.fingerprint.clone(),
+            ),
+            (
+                "kneebench.system".into(),
+                match &self.spec.system {
+                    SystemSource::Scenario { actuator, .. } => actuator.name().to_string(),
+                    SystemSource::File(p) => p.display().to_string(),
+                },
+            ),
+            ("kneebench.sweep.spec".into(), self.spec.text.clone()),
+        ];
+        for (c, g) in &self.guids {
+            out.push((format!("kneebench.guid.{c}"), g.clone()));
+        }
+        out
+    }
+
+    /// The first line of this sweep's journal (with its newline).
+    pub fn journal_header(&self) -> String {
+        format!("{JOURNAL_MAGIC} {}\n", self.fingerprint)
+    }
+
+    /// An empty table with this sweep's columns and metadata.
+    pub fn empty_table(&self) -> SweepTable {
+        SweepTable {
+            parameter_names: self.design.names.clone(),
+            metric_names: self.metric_names.clone(),
+            rows: Vec::new(),
+            metadata: self.metadata(),
+        }
+    }
+
+    /// Runs the points `ids` on `workers` threads, handing each row to `on_row` as it comes
+    /// (in completion order). Every id gets a row; an id outside the design is an error.
+    pub fn run_points(
+        &self,
+        ids: &[u64],
+        workers: usize,
+        on_row: &mut dyn FnMut(Row) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
+        if let Some(bad) = ids
+            .iter()
+            .find(|&&i| i as usize >= self.design.points.len())
+        {
+            return Err(SweepError::System(format!(
+                "point {bad} is not in the design ({} points)",
+                self.design.points.len()
+            )));
+        }
+        let workers = workers.max(1).min(ids.len().max(1));
+        let next = AtomicUsize::new(0);
+        let (tx, rx) = mpsc::channel::<Result<Row, SweepError>>();
+        let mut done = vec![false; ids.len()];
+        let mut outcome = Ok(());
+        std::thread::scope(|scope| {
+            for _ in 0..workers {
+                let tx = tx.clone();
+                let next = &next;
+                scope.spawn(move || {
+                    let loaded = match ssp::load_system(&self.system_file, &LoadOptions::default())
+                    {
+                        Ok(l) => l,
+                        Err(e) => {
+                            let _ = tx.send(Err(system_error(e)));
+                            return;
+                        }
+                    };
+                    loop {
+                        let k = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&id) = ids.get(k) else { break };
+                        let row = self.run_point(&loaded, id);
+                        if tx.send(Ok(row)).is_err() {
+                            break;
+                        }
+                    }
+                });
+            }
+            drop(tx);
+            let index: HashMap<u64, usize> =
+                ids.iter().enumerate().map(|(k, &id)| (id, k)).collect();
+            for msg in rx {
+                let r = msg.and_then(|row| {
+                    if let Some(&k) = index.get(&row.point) {
+                        done[k] = true;
+                    }
+                    on_row(row)
+                });
+                if let Err(e) = r {
+                    // Stop handing out points; the workers finish the one they hold.
+                    next.store(usize::MAX / 2, Ordering::Relaxed);
+                    if outcome.is_ok() {
+                        outcome = Err(e);
+                    }
+                }
+            }
+        });
+        outcome?;
+        let missing: Vec<u64> = ids
+            .iter()
+            .zip(&done)
+            .filter(|(_, d)| !**d)
+            .map(|(&i, _)| i)
+            .collect();
+        if !missing.is_empty() {
+            return Err(SweepError::Missing(missing));
+        }
+        Ok(())
+    }
+
+    /// Runs one point on a loaded system: its row, whatever happens.
+    pub fn run_point(&self, loaded: &LoadedSystem, id: u64) -> Row {
+        let values = self.design.points[id as usize].clone();
+        let mut row = Row {
+            point: id,
+            parameters: values.clone(),
+            metrics: vec![f64::NAN; self.metric_names.len()],
+            status: RunStatus::Ok,
+            message: String::new(),
+        };
+        let fail = |mut row: Row, message: String| {
+            row.status = RunStatus::Failed;
+            row.message = message;
+            row
+        };
+        let mut system = match fresh_system(loaded) {
+            Ok(s) => s,
+            Err(e) => return fail(row, e.to_string()),
+        };
+        for (p, &v) in self.spec.parameters.iter().zip(&values) {
+            let value = match p.ty {
+                ParameterType::Real => Value::Real(v),
+                ParameterType::Integer => Value::Integer(v as i32),
+            };
+            if let Err(e) = system.set_value(&p.name, value) {
+                return fail(row, e.to_string());
+            }
+        }
+        let refs: Vec<&str> = self.recorded.iter().map(String::as_str).collect();
+        if let Err(e) = system.record(&refs) {
+            return fail(row, e.to_string());
+        }
+        let output = match system.run(&self.config) {
+            Ok(o) => o,
+            Err(e) => return fail(row, e.to_string()),
+        };
+        match &output.outcome {
+            Outcome::Completed { .. } => {}
+            Outcome::Terminated {
+                component,
+                last_successful_time,
+                messages,
+                ..
+            } => {
+                let reason = messages
+                    .last()
+                    .and_then(|m| m.rsplit(": ").next())
+                    .unwrap_or("terminated");
+                row.status = RunStatus::Tripped;
+                row.message = format!(
+                    "{component}: {reason} at t = {}",
+                    crate::num::Num(*last_successful_time)
+                );
+            }
+            Outcome::Failed(e) => {
+                row.status = RunStatus::Failed;
+                row.message = e.to_string();
+            }
+        }
+        // A run that tripped or failed keeps its own message; metrics it could not give stay NaN.
+        if let Err(message) = self.metrics(&output.results, &values, &mut row)
+            && row.status == RunStatus::Ok
+        {
+            row.status = RunStatus::Failed;
+            row.message = message;
+        }
+        row
+    }
+
+    fn metrics(&self, results: &Results, values: &[f64], row: &mut Row) -> Result<(), String> {
+        let mut k = 0;
+        if self.spec.study_metrics {
+            let period = self
+                .spec
+                .parameters
+                .iter()
+                .position(|p| p.name == GAIT_PERIOD)
+                .map(|i| values[i])
+                .or(self.period)
+                .unwrap_or(f64::NAN);
+            if results.times().is_empty() {
+                return Err("no rows recorded".into());
+            }
+            let r = study::analyse("run", results, period, &Columns::default())
+                .map_err(|e| e.to_string())?;
+            let m = study_metric_values(&r);
+            row.metrics[..m.len()].copy_from_slice(&m);
+            k = m.len();
+            if let Some((name, t)) = &r.trip
+                && row.status == RunStatus::Ok
+            {
+                row.status = RunStatus::Tripped;
+                row.message = format!("{name} at t = {}", crate::num::Num(*t));
+            }
+        }
+        let times = results.times();
+        for s in &self.spec.signals {
+            let col = results
+                .column(&s.signal)
+                .ok_or_else(|| format!("no column '{}'", s.signal))?;
+            let from = s.from.unwrap_or(f64::NEG_INFINITY);
+            let to = s.to.unwrap_or(f64::INFINITY);
+            let window: Vec<f64> = times
+                .iter()
+                .zip(&col)
+                .filter(|(t, _)| **t >= from && **t <= to)
+                .map(|(_, v)| *v)
+                .collect();
+            for st in &s.stats {
+                row.metrics[k] = if window.is_empty() {
+                    f64::NAN
+                } else {
+                    let n = window.len() as f64;
+                    match st {
+                        Stat::Min => window.iter().copied().fold(f64::INFINITY, f64::min),
+                        Stat::Max => window.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                        Stat::Mean => window.iter().sum::<f64>() / n,
+                        Stat::Rms => (window.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+                    }
+                };
+                k += 1;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `<output>.journal`.
+pub fn journal_path(output: &Path) -> PathBuf {
+    let mut name = output
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
+    name.push(".journal");
+    output.with_file_name(name)
+}
+
+const JOURNAL_MAGIC: &str = "kneebench-sweep-journal 1";
+
+fn escape(s: &str) -> String {
+    s.replace('\\', "\\\\")
+        .replace('\t', "\\t")
+        .replace('\n', "\\n")
+        .replace('\r', "\\r")
+}
+
+fn unescape(s: &str) -> String {
+    let mut out = String::new();
+    let mut it = s.chars();
+    while let Some(c) = it.next() {
+        if c == '\\' {
+            match it.next() {
+                Some('t') => out.push('\t'),
+                Some('n') => out.push('\n'),
+                Some('r') => out.push('\r'),
+                Some(o) => out.push(o),
+                None => {}
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// One journal line: a finished row (see the module documentation).
+pub fn journal_line(row: &Row) -> String {
+    let hex = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{:016x}", x.to_bits()))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    format!(
+        "{}\t{}\t{}\t{}\n",
+        row.point,
+        row.status.name(),
+        hex(&row.metrics),
+        escape(&row.message)
+    )
+}
+
+fn parse_journal_line(line: &str, prepared: &Prepared) -> Option<Row> {
+    let mut parts = line.splitn(4, '\t');
+    let point: u64 = parts.next()?.parse().ok()?;
+    let status = RunStatus::from_name(parts.next()?)?;
+    let metrics_text = parts.next()?;
+    let message = unescape(parts.next()?);
+    let metrics: Vec<f64> = if metrics_text.is_empty() {
+        Vec::new()
+    } else {
+        metrics_text
+            .split(',')
+            .map(|h| u64::from_str_radix(h, 16).ok().map(f64::from_bits))
+            .collect::<Option<_>>()?
+    };
+    if metrics.len() != prepared.metric_names.len() {
+        return None;
+    }
+    let parameters = prepared.design.points.get(point as usize)?.clone();
+    Some(Row {
+        point,
+        parameters,
+        metrics,
+        status,
+        message,
+    })
+}
+
+/// Reads the rows of a journal; refuses one of another sweep.
+fn read_journal(path: &Path, prepared: &Prepared) -> Result<BTreeMap<u64, Row>, SweepError> {
+    let bad = |message: String| SweepError::Journal {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut lines = text.split_inclusive('\n');
+    let header = lines.next().unwrap_or("").trim_end();
+    let want = format!("{JOURNAL_MAGIC} {}", prepared.fingerprint);
+    if header != want {
+        return Err(bad(
+            "belongs to another sweep (the spec or its points changed); remove it to start afresh"
+                .into(),
+        ));
+    }
+    let mut rows = BTreeMap::new();
+    for (i, line) in lines.enumerate() {
+        // A line without its newline was torn by a kill: that point runs again.
+        let Some(line) = line.strip_suffix('\n') else {
+            break;
+        };
+        let row = parse_journal_line(line, prepared)
+            .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
+        rows.insert(row.point, row);
+    }
+    Ok(rows)
+}
+
+/// Runs a whole sweep, writing the table to `output` (`.parquet`, else CSV) when given, with a
+/// journal next to it for `--resume`. Returns the table (rows sorted by point id).
+pub fn run_sweep(
+    prepared: &Prepared,
+    output: Option<&Path>,
+    options: &SweepOptions,
+) -> Result<SweepTable, SweepError> {
+    let mut finished: BTreeMap<u64, Row> = BTreeMap::new();
+    let mut journal = None;
+    if let Some(out) = output {
+        let jpath = journal_path(out);
+        let exists = jpath.exists();
+        if exists && !options.resume {
+            return Err(SweepError::Journal {
+                path: jpath,
+                message: "an unfinished sweep's journal exists: pass --resume to continue it, or remove it".into(),
+            });
+        }
+        let io = |source| SweepError::Io {
+            path: jpath.clone(),
+            source,
+        };
+        let file = if exists {
+            finished = read_journal(&jpath, prepared)?;
+            // Rewrite the journal with the complete rows only (drops a torn last line).
+            let mut f = std::fs::File::create(&jpath).map_err(io)?;
+            let mut text = format!("{JOURNAL_MAGIC} {}\n", prepared.fingerprint);
+            for r in finished.values() {
+                text.push_str(&journal_line(r));
+            }
+            f.write_all(text.as_bytes()).map_err(io)?;
+            f
+        } else {
+            let mut f = std::fs::File::create(&jpath).map_err(io)?;
+            writeln!(f, "{JOURNAL_MAGIC} {}", prepared.fingerprint).map_err(io)?;
+            f
+        };
+        journal = Some((jpath, file));
+    }
+    let todo: Vec<u64> = (0..prepared.design.points.len() as u64)
+        .filter(|i| !finished.contains_key(i))
+        .collect();
+    let bar = if options.progress {
+        let pb = indicatif::ProgressBar::new(prepared.design.points.len() as u64);
+        pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} runs ({eta} left)",
+        ) {
+            pb.set_style(style.progress_chars("=> "));
+        }
+        pb.set_position(finished.len() as u64);
+        Some(pb)
+    } else {
+        None
+    };
+    prepared.run_points(&todo, options.workers, &mut |row| {
+        if let Some((path, file)) = &mut journal {
+            file.write_all(journal_line(&row).as_bytes())
+                .map_err(|source| SweepError::Io {
+                    path: path.clone(),
+                    source,
+                })?;
+        }
+        if let Some(pb) = &bar {
+            pb.inc(1);
+        }
+        finished.insert(row.point, row);
+        Ok(())
+    })?;
+    if let Some(pb) = bar {
+        pb.finish_and_clear();
+    }
+    let mut table = prepared.empty_table();
+    table.rows = finished.into_values().collect();
+    if let Some(out) = output {
+        table.write(out)?;
+        if let Some((path, file)) = journal {
+            drop(file);
+            std::fs::remove_file(&path).map_err(|source| SweepError::Io { path, source })?;
+        }
+    }
+    Ok(table)
+}
+
+/// Rows of `table` as `(point, status)` counts: (ok, tripped, failed).
+pub fn status_counts(table: &SweepTable) -> (usize, usize, usize) {
+    let count = |s| table.rows.iter().filter(|r| r.status == s).count();
+    (
+        count(RunStatus::Ok),
+        count(RunStatus::Tripped),
+        count(RunStatus::Failed),
+    )
+}

@@ -1,0 +1,664 @@
+//! The sweep specification: a TOML file read with `serde`, every value kept with its place in
+//! the file so that each refusal names its line.
+//!
+//! ```toml
+//! system = "SEA"          # DA, SEA, CSEA (the study's scenarios) or a path to an .ssp/.ssd
+//! fmus = "../out/fmus"    # where the scenario's FMUs are (relative to this file)
+//! cycles = 2              # scenario: gait cycles per run (the first is the start-up)
+//! stop_time = 5.0         # optional: default cycles x gait period, or the SSP's experiment
+//! step = 0.001            # optional
+//!
+//! [design]
+//! kind = "latin-hypercube"  # grid, latin-hypercube, sobol, random, csv
+//! points = 20               # all but grid and csv
+//! seed = 7                  # latin-hypercube, sobol, random
+//! # file = "points.csv"     # csv: a header naming the parameters, one row per point
+//!
+//! [[parameters]]
+//! name = "plant.springStiffness"
+//! min = 200.0
+//! max = 500.0
+//! levels = 3                # grid: evenly spaced values from min to max ...
+//! # values = [250.0, 340.54] # ... or the values themselves
+//!
+//! [metrics]
+//! study = true              # the study's per-cycle energy terms, tracking errors, peaks
+//! # period = 2.5            # gait period for the study metrics (default: the system's gait)
+//! [[metrics.signals]]
+//! signal = "plant.shaftTorque"
+//! stats = ["min", "max", "mean", "rms"]
+//! from = 2.5                # window start [s] (default: start of the run)
+//! to = 5.0                  # window end [s] (default: end of the run)
+//! ```
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::SweepError;
+
+/// One problem of a spec: where it is and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SpecProblem {
+    /// The file the problem is in (the spec, or a design CSV).
+    pub file: PathBuf,
+    /// 1-based line (0 when the problem concerns the file as a whole).
+    pub line: usize,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl std::fmt::Display for SpecProblem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.line == 0 {
+            write!(f, "{}: {}", self.file.display(), self.message)
+        } else {
+            write!(
+                f,
+                "{}, line {}: {}",
+                self.file.display(),
+                self.line,
+                self.message
+            )
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSpec {
+    system: Spanned<String>,
+    fmus: Option<Spanned<String>>,
+    cycles: Option<Spanned<i64>>,
+    stop_time: Option<Spanned<f64>>,
+    step: Option<Spanned<f64>>,
+    design: Spanned<RawDesign>,
+    #[serde(default)]
+    parameters: Vec<Spanned<RawParameter>>,
+    #[serde(default)]
+    metrics: Option<RawMetrics>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDesign {
+    kind: Spanned<String>,
+    points: Option<Spanned<i64>>,
+    seed: Option<Spanned<i64>>,
+    file: Option<Spanned<String>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawParameter {
+    name: Spanned<String>,
+    min: Option<Spanned<f64>>,
+    max: Option<Spanned<f64>>,
+    levels: Option<Spanned<i64>>,
+    values: Option<Spanned<Vec<f64>>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMetrics {
+    study: Option<bool>,
+    period: Option<Spanned<f64>>,
+    #[serde(default)]
+    signals: Vec<Spanned<RawSignalMetric>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSignalMetric {
+    signal: Spanned<String>,
+    stats: Spanned<Vec<String>>,
+    from: Option<Spanned<f64>>,
+    to: Option<Spanned<f64>>,
+}
+
+/// What system a sweep runs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SystemSource {
+    /// One of the study's gait scenarios, built from the FMUs in `fmu_dir`.
+    Scenario {
+        /// The actuator.
+        actuator: crate::study::Actuator,
+        /// The directory of the exported FMUs.
+        fmu_dir: PathBuf,
+        /// Gait cycles per run.
+        cycles: u32,
+    },
+    /// An `.ssp` archive or `.ssd` file.
+    File(PathBuf),
+}
+
+/// How the points are chosen.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DesignKind {
+    /// Every combination of the parameters' levels (the last parameter varies fastest).
+    Grid,
+    /// A Latin hypercube of `points` points.
+    LatinHypercube {
+        /// Number of points.
+        points: usize,
+        /// Random seed.
+        seed: u64,
+    },
+    /// The first `points` points of an Owen-scrambled Sobol sequence.
+    Sobol {
+        /// Number of points.
+        points: usize,
+        /// Scrambling seed.
+        seed: u64,
+    },
+    /// Independent uniform points.
+    Random {
+        /// Number of points.
+        points: usize,
+        /// Random seed.
+        seed: u64,
+    },
+    /// The rows of a CSV file.
+    Csv(PathBuf),
+}
+
+/// The type of a swept variable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParameterType {
+    /// `Real`: any value.
+    Real,
+    /// `Integer` or `Enumeration`: whole values only.
+    Integer,
+}
+
+/// One swept variable.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parameter {
+    /// `component.variable`.
+    pub name: String,
+    /// Lower bound of the design (inclusive).
+    pub min: Option<f64>,
+    /// Upper bound of the design (inclusive).
+    pub max: Option<f64>,
+    /// Grid: number of evenly spaced levels from `min` to `max`.
+    pub levels: Option<usize>,
+    /// Grid: the levels themselves.
+    pub values: Option<Vec<f64>>,
+    /// The variable's type (known after [`Prepared::new`](super::Prepared::new)).
+    pub ty: ParameterType,
+    /// 1-based line of the parameter in the spec.
+    pub line: usize,
+}
+
+/// One statistic of a signal over a window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stat {
+    /// Smallest value.
+    Min,
+    /// Largest value.
+    Max,
+    /// Mean of the samples.
+    Mean,
+    /// Root mean square of the samples.
+    Rms,
+}
+
+impl Stat {
+    /// The name used in the spec and in column names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stat::Min => "min",
+            Stat::Max => "max",
+            Stat::Mean => "mean",
+            Stat::Rms => "rms",
+        }
+    }
+}
+
+/// Statistics of one recorded signal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SignalMetric {
+    /// `component.variable`.
+    pub signal: String,
+    /// The statistics, each a column `<stat>(<signal>)`.
+    pub stats: Vec<Stat>,
+    /// Window start \[s\] (default: the run's start).
+    pub from: Option<f64>,
+    /// Window end \[s\] (default: the run's end).
+    pub to: Option<f64>,
+    /// 1-based line in the spec.
+    pub line: usize,
+}
+
+/// A parsed, checked sweep specification.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepSpec {
+    /// The spec file (for messages) or `<string>`.
+    pub file: PathBuf,
+    /// The system.
+    pub system: SystemSource,
+    /// Stop time \[s\] (`None`: cycles x period for a scenario, the SSP's experiment otherwise).
+    pub stop_time: Option<f64>,
+    /// Base step \[s\] (`None`: the system's).
+    pub step: Option<f64>,
+    /// The design.
+    pub design: DesignKind,
+    /// The swept variables, in spec order.
+    pub parameters: Vec<Parameter>,
+    /// Whether the study's metrics are computed.
+    pub study_metrics: bool,
+    /// The gait period for the study metrics, if given.
+    pub period: Option<f64>,
+    /// Statistics of recorded signals.
+    pub signals: Vec<SignalMetric>,
+    /// The spec's text (its fingerprint identifies a sweep's journal).
+    pub text: String,
+}
+
+/// 1-based line of a byte offset.
+pub(crate) fn line_of(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+struct Problems<'a> {
+    file: &'a Path,
+    text: &'a str,
+    list: Vec<SpecProblem>,
+}
+
+impl Problems<'_> {
+    fn at(&mut self, span: Range<usize>, message: impl Into<String>) {
+        self.list.push(SpecProblem {
+            file: self.file.to_path_buf(),
+            line: line_of(self.text, span.start),
+            message: message.into(),
+        });
+    }
+}
+
+fn count(p: &mut Problems<'_>, v: &Spanned<i64>, what: &str) -> Option<usize> {
+    let n = *v.get_ref();
+    if n < 1 {
+        p.at(v.span(), format!("{what} must be at least 1, not {n}"));
+        return None;
+    }
+    Some(n as usize)
+}
+
+fn seed(p: &mut Problems<'_>, d: &RawDesign) -> u64 {
+    match &d.seed {
+        Some(s) if *s.get_ref() < 0 => {
+            p.at(s.span(), "seed must not be negative");
+            0
+        }
+        Some(s) => *s.get_ref() as u64,
+        None => 0,
+    }
+}
+
+impl SweepSpec {
+    /// Reads and parses a spec file (paths in it are relative to its directory). The result is
+    /// not yet checked against the system's FMUs: see [`Prepared::new`](super::Prepared::new).
+    pub fn from_file(path: &Path) -> Result<SweepSpec, SweepError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        SweepSpec::parse(&text, path, &base)
+    }
+
+    /// Parses spec text; `file` names it in messages, `base` resolves relative paths.
+    pub fn parse(text: &str, file: &Path, base: &Path) -> Result<SweepSpec, SweepError> {
+        let raw: RawSpec = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start)).unwrap_or(0);
+            SweepError::Invalid(vec![SpecProblem {
+                file: file.to_path_buf(),
+                line,
+                message: e.message().trim().to_string(),
+            }])
+        })?;
+        let mut p = Problems {
+            file,
+            text,
+            list: Vec::new(),
+        };
+        let resolve = |s: &str| {
+            let path = PathBuf::from(s);
+            if path.is_absolute() {
+                path
+            } else {
+                base.join(path)
+            }
+        };
+        let cycles = match &raw.cycles {
+            Some(c) => count(&mut p, c, "cycles").unwrap_or(1) as u32,
+            None => 2,
+        };
+        let name = raw.system.get_ref().trim();
+        let system = match crate::study::Actuator::ALL
+            .into_iter()
+            .find(|a| a.name().eq_ignore_ascii_case(name))
+        {
+            Some(actuator) => {
+                let fmu_dir = raw
+                    .fmus
+                    .as_ref()
+                    .map(|f| resolve(f.get_ref()))
+                    .unwrap_or_else(|| resolve("out/fmus"));
+                SystemSource::Scenario {
+                    actuator,
+                    fmu_dir,
+                    cycles,
+                }
+            }
+            None => {
+                let lower = name.to_ascii_lowercase();
+                if !(lower.ends_with(".ssp") || lower.ends_with(".ssd")) {
+                    p.at(
+                        raw.system.span(),
+                        format!(
+                            "system '{name}' is neither a scenario (DA, SEA, CSEA) nor an .ssp/.ssd file"
+                        ),
+                    );
+                }
+                if let Some(f) = &raw.fmus {
+                    p.at(f.span(), "fmus is for a scenario system (DA, SEA, CSEA)");
+                }
+                SystemSource::File(resolve(name))
+            }
+        };
+        let positive = |p: &mut Problems<'_>, v: &Option<Spanned<f64>>, what: &str| match v {
+            Some(s) if !(s.get_ref().is_finite() && *s.get_ref() > 0.0) => {
+                p.at(
+                    s.span(),
+                    format!("{what} must be positive and finite, not {}", s.get_ref()),
+                );
+                None
+            }
+            Some(s) => Some(*s.get_ref()),
+            None => None,
+        };
+        let stop_time = positive(&mut p, &raw.stop_time, "stop_time");
+        let step = positive(&mut p, &raw.step, "step");
+
+        let d = raw.design.get_ref();
+        let points = |p: &mut Problems<'_>| match &d.points {
+            Some(n) => count(p, n, "points").unwrap_or(1),
+            None => {
+                p.at(
+                    raw.design.span(),
+                    format!("design '{}' needs points", d.kind.get_ref()),
+                );
+                1
+            }
+        };
+        let design = match d.kind.get_ref().as_str() {
+            "grid" => DesignKind::Grid,
+            "latin-hypercube" => DesignKind::LatinHypercube {
+                points: points(&mut p),
+                seed: seed(&mut p, d),
+            },
+            "sobol" => DesignKind::Sobol {
+                points: points(&mut p),
+                seed: seed(&mut p, d),
+            },
+            "random" => DesignKind::Random {
+                points: points(&mut p),
+                seed: seed(&mut p, d),
+            },
+            "csv" => match &d.file {
+                Some(f) => DesignKind::Csv(resolve(f.get_ref())),
+                None => {
+                    p.at(raw.design.span(), "design 'csv' needs file");
+                    DesignKind::Csv(PathBuf::new())
+                }
+            },
+            other => {
+                p.at(
+                    d.kind.span(),
+                    format!(
+                        "unknown design kind '{other}' (grid, latin-hypercube, sobol, random, csv)"
+                    ),
+                );
+                DesignKind::Grid
+            }
+        };
+        let random_kind = matches!(
+            design,
+            DesignKind::LatinHypercube { .. }
+                | DesignKind::Sobol { .. }
+                | DesignKind::Random { .. }
+        );
+        if !random_kind && let Some(s) = &d.seed {
+            p.at(
+                s.span(),
+                "seed is for latin-hypercube, sobol and random designs",
+            );
+        }
+        if !matches!(design, DesignKind::Csv(_))
+            && let Some(f) = &d.file
+        {
+            p.at(f.span(), "file is for the csv design");
+        }
+        if matches!(design, DesignKind::Grid | DesignKind::Csv(_))
+            && let Some(n) = &d.points
+        {
+            p.at(
+                n.span(),
+                "points is for latin-hypercube, sobol and random designs",
+            );
+        }
+
+        if raw.parameters.is_empty() {
+            p.at(raw.design.span(), "empty design: no [[parameters]] to vary");
+        }
+        let mut parameters: Vec<Parameter> = Vec::new();
+        for sp in &raw.parameters {
+            let r = sp.get_ref();
+            let line = line_of(text, sp.span().start);
+            let name = r.name.get_ref().trim().to_string();
+            if !name.contains('.') {
+                p.at(
+                    r.name.span(),
+                    format!("parameter '{name}': expected component.variable"),
+                );
+            }
+            if parameters.iter().any(|q| q.name == name) {
+                p.at(r.name.span(), format!("parameter '{name}' is given twice"));
+            }
+            let min = r.min.as_ref().map(|v| *v.get_ref());
+            let max = r.max.as_ref().map(|v| *v.get_ref());
+            for v in [&r.min, &r.max].into_iter().flatten() {
+                if !v.get_ref().is_finite() {
+                    p.at(
+                        v.span(),
+                        format!("parameter '{name}': bound must be finite"),
+                    );
+                }
+            }
+            if let (Some(lo), Some(hi)) = (min, max)
+                && lo > hi
+            {
+                p.at(
+                    sp.span(),
+                    format!("parameter '{name}': min {lo} is greater than max {hi}"),
+                );
+            }
+            let levels = match &r.levels {
+                Some(l) => count(&mut p, l, &format!("parameter '{name}': levels")),
+                None => None,
+            };
+            let values = r.values.as_ref().map(|v| v.get_ref().clone());
+            if let Some(v) = &r.values {
+                if v.get_ref().is_empty() {
+                    p.at(
+                        v.span(),
+                        format!("empty design: parameter '{name}' has no values"),
+                    );
+                }
+                for x in v.get_ref() {
+                    let out = !x.is_finite()
+                        || min.is_some_and(|lo| *x < lo)
+                        || max.is_some_and(|hi| *x > hi);
+                    if out {
+                        p.at(
+                            v.span(),
+                            format!(
+                                "parameter '{name}': value {x} is outside [{}, {}]",
+                                min.map_or("-inf".into(), |x| x.to_string()),
+                                max.map_or("inf".into(), |x| x.to_string())
+                            ),
+                        );
+                    }
+                }
+            }
+            match design {
+                DesignKind::Grid => match (&r.levels, &r.values) {
+                    (Some(_), Some(v)) => p.at(
+                        v.span(),
+                        format!("parameter '{name}': give levels or values, not both"),
+                    ),
+                    (None, None) => p.at(
+                        sp.span(),
+                        format!(
+                            "parameter '{name}': the grid needs levels (with min and max) or values"
+                        ),
+                    ),
+                    (Some(l), None) if min.is_none() || max.is_none() => p.at(
+                        l.span(),
+                        format!("parameter '{name}': levels need min and max"),
+                    ),
+                    _ => {}
+                },
+                DesignKind::Csv(_) => {
+                    if let Some(l) = &r.levels {
+                        p.at(
+                            l.span(),
+                            format!("parameter '{name}': levels is for the grid design"),
+                        );
+                    }
+                    if let Some(v) = &r.values {
+                        p.at(
+                            v.span(),
+                            format!("parameter '{name}': values is for the grid design"),
+                        );
+                    }
+                }
+                _ => {
+                    if min.is_none() || max.is_none() {
+                        p.at(
+                            sp.span(),
+                            format!("parameter '{name}': this design needs min and max"),
+                        );
+                    }
+                    if let Some(l) = &r.levels {
+                        p.at(
+                            l.span(),
+                            format!("parameter '{name}': levels is for the grid design"),
+                        );
+                    }
+                    if let Some(v) = &r.values {
+                        p.at(
+                            v.span(),
+                            format!("parameter '{name}': values is for the grid design"),
+                        );
+                    }
+                }
+            }
+            parameters.push(Parameter {
+                name,
+                min,
+                max,
+                levels,
+                values,
+                ty: ParameterType::Real,
+                line,
+            });
+        }
+
+        let metrics = raw.metrics.as_ref();
+        let study_metrics = metrics
+            .and_then(|m| m.study)
+            .unwrap_or(matches!(system, SystemSource::Scenario { .. }));
+        let period = positive(&mut p, &metrics.and_then(|m| m.period.clone()), "period");
+        let mut signals = Vec::new();
+        for s in metrics.map(|m| m.signals.as_slice()).unwrap_or_default() {
+            let r = s.get_ref();
+            let mut stats = Vec::new();
+            for name in r.stats.get_ref() {
+                match name.as_str() {
+                    "min" => stats.push(Stat::Min),
+                    "max" => stats.push(Stat::Max),
+                    "mean" => stats.push(Stat::Mean),
+                    "rms" => stats.push(Stat::Rms),
+                    other => p.at(
+                        r.stats.span(),
+                        format!("unknown statistic '{other}' (min, max, mean, rms)"),
+                    ),
+                }
+            }
+            if r.stats.get_ref().is_empty() {
+                p.at(r.stats.span(), "stats is empty");
+            }
+            let from = r.from.as_ref().map(|v| *v.get_ref());
+            let to = r.to.as_ref().map(|v| *v.get_ref());
+            for v in [&r.from, &r.to].into_iter().flatten() {
+                if !v.get_ref().is_finite() {
+                    p.at(v.span(), "window bounds must be finite");
+                }
+            }
+            if let (Some(a), Some(b)) = (from, to)
+                && a > b
+            {
+                p.at(
+                    s.span(),
+                    format!("window from {a} s is after its end {b} s"),
+                );
+            }
+            signals.push(SignalMetric {
+                signal: r.signal.get_ref().trim().to_string(),
+                stats,
+                from,
+                to,
+                line: line_of(text, s.span().start),
+            });
+        }
+        if !study_metrics && signals.is_empty() {
+            p.at(
+                0..0,
+                "no metrics: set [metrics] study = true or add [[metrics.signals]]",
+            );
+        }
+        if !p.list.is_empty() {
+            return Err(SweepError::Invalid(p.list));
+        }
+        Ok(SweepSpec {
+            file: file.to_path_buf(),
+            system,
+            stop_time,
+            step,
+            design,
+            parameters,
+            study_metrics,
+            period,
+            signals,
+            text: text.to_string(),
+        })
+    }
+
+    /// A problem at `line` of the spec.
+    pub(crate) fn problem(&self, line: usize, message: impl Into<String>) -> SpecProblem {
+        SpecProblem {
+            file: self.file.clone(),
+            line,
+            message: message.into(),
+        }
+    }
+}

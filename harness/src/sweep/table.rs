@@ -1,0 +1,340 @@
+//! The sweep table: one row per point (its id, parameter values, metrics, status and
+//! message), written as Parquet (`point` INT64, parameters and metrics DOUBLE, `status` and
+//! `message` UTF-8 strings, key-value metadata) or as CSV (round-trip floats).
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+use std::sync::Arc;
+
+use parquet::basic::{LogicalType, Repetition, Type as PhysicalType};
+use parquet::data_type::{ByteArray, ByteArrayType, DoubleType, Int64Type};
+use parquet::file::metadata::KeyValue;
+use parquet::file::properties::WriterProperties;
+use parquet::file::writer::SerializedFileWriter;
+use parquet::schema::types::Type;
+
+use super::SweepError;
+
+/// How a run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunStatus {
+    /// Completed without an interlock trip.
+    Ok,
+    /// An interlock tripped (the FMU ended the run or its trip code was set).
+    Tripped,
+    /// The run failed (an FMU error, a refused parameter value, an analysis error).
+    Failed,
+}
+
+impl RunStatus {
+    /// `ok`, `tripped` or `failed`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunStatus::Ok => "ok",
+            RunStatus::Tripped => "tripped",
+            RunStatus::Failed => "failed",
+        }
+    }
+
+    /// The status named `name`.
+    pub fn from_name(name: &str) -> Option<RunStatus> {
+        match name {
+            "ok" => Some(RunStatus::Ok),
+            "tripped" => Some(RunStatus::Tripped),
+            "failed" => Some(RunStatus::Failed),
+            _ => None,
+        }
+    }
+}
+
+/// One run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Row {
+    /// The point's id (its index in the design).
+    pub point: u64,
+    /// The parameter values, in spec order.
+    pub parameters: Vec<f64>,
+    /// The metrics, in [`SweepTable::metric_names`] order (NaN where not available).
+    pub metrics: Vec<f64>,
+    /// How the run ended.
+    pub status: RunStatus,
+    /// Why it tripped or failed (empty when ok).
+    pub message: String,
+}
+
+impl Row {
+    /// Whether two rows are equal bit for bit (NaN equals NaN of the same bits).
+    pub fn bit_identical(&self, other: &Row) -> bool {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        self.point == other.point
+            && bits(&self.parameters) == bits(&other.parameters)
+            && bits(&self.metrics) == bits(&other.metrics)
+            && self.status == other.status
+            && self.message == other.message
+    }
+}
+
+/// The rows of a sweep, sorted by point id.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepTable {
+    /// Parameter columns (`component.variable`).
+    pub parameter_names: Vec<String>,
+    /// Metric columns.
+    pub metric_names: Vec<String>,
+    /// The rows.
+    pub rows: Vec<Row>,
+    /// Key-value metadata written with the table (spec fingerprint, system, version).
+    pub metadata: Vec<(String, String)>,
+}
+
+impl SweepTable {
+    /// Every column name in order: `point`, the parameters, the metrics, `status`, `message`.
+    pub fn column_names(&self) -> Vec<String> {
+        let mut out = vec!["point".to_string()];
+        out.extend(self.parameter_names.iter().cloned());
+        out.extend(self.metric_names.iter().cloned());
+        out.push("status".into());
+        out.push("message".into());
+        out
+    }
+
+    /// Whether two tables are equal bit for bit (names and rows; metadata ignored).
+    pub fn bit_identical(&self, other: &SweepTable) -> bool {
+        self.parameter_names == other.parameter_names
+            && self.metric_names == other.metric_names
+            && self.rows.len() == other.rows.len()
+            && self
+                .rows
+                .iter()
+                .zip(&other.rows)
+                .all(|(a, b)| a.bit_identical(b))
+    }
+
+    /// Writes the table as CSV (header of [`column_names`](Self::column_names); floats in the
+    /// shortest form that reads back to the same bits, NaN as `NaN`; strings quoted when
+    /// needed).
+    pub fn write_csv(&self, path: &Path) -> Result<(), SweepError> {
+        let io = |source| SweepError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut w = BufWriter::new(File::create(path).map_err(io)?);
+        let header: Vec<String> = self.column_names().iter().map(|n| quote(n)).collect();
+        writeln!(w, "{}", header.join(",")).map_err(io)?;
+        let mut buf = ryu::Buffer::new();
+        for r in &self.rows {
+            let mut line = r.point.to_string();
+            for v in r.parameters.iter().chain(&r.metrics) {
+                line.push(',');
+                if v.is_finite() {
+                    line.push_str(buf.format_finite(*v));
+                } else {
+                    line.push_str(&v.to_string());
+                }
+            }
+            line.push(',');
+            line.push_str(r.status.name());
+            line.push(',');
+            line.push_str(&quote(&r.message));
+            writeln!(w, "{line}").map_err(io)?;
+        }
+        w.flush().map_err(io)
+    }
+
+    /// Writes the table as one Parquet file (one row group, uncompressed).
+    pub fn write_parquet(&self, path: &Path) -> Result<(), SweepError> {
+        let err = |e: parquet::errors::ParquetError| SweepError::Table {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
+        let prim = |name: &str, t: PhysicalType, logical: Option<LogicalType>| {
+            Type::primitive_type_builder(name, t)
+                .with_repetition(Repetition::REQUIRED)
+                .with_logical_type(logical)
+                .build()
+                .map(Arc::new)
+        };
+        let mut fields = vec![prim("point", PhysicalType::INT64, None).map_err(err)?];
+        for n in self.parameter_names.iter().chain(&self.metric_names) {
+            fields.push(prim(n, PhysicalType::DOUBLE, None).map_err(err)?);
+        }
+        for n in ["status", "message"] {
+            fields.push(prim(n, PhysicalType::BYTE_ARRAY, Some(LogicalType::String)).map_err(err)?);
+        }
+        let schema = Arc::new(
+            Type::group_type_builder("sweep")
+                .with_fields(fields)
+                .build()
+                .map_err(err)?,
+        );
+        let props = WriterProperties::builder()
+            .set_created_by(format!("kneebench {}", env!("CARGO_PKG_VERSION")))
+            .set_key_value_metadata(Some(
+                self.metadata
+                    .iter()
+                    .map(|(k, v)| KeyValue::new(k.clone(), v.clone()))
+                    .collect(),
+            ))
+            .build();
+        let file = File::create(path).map_err(|source| SweepError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut writer = SerializedFileWriter::new(BufWriter::new(file), schema, Arc::new(props))
+            .map_err(err)?;
+        let mut group = writer.next_row_group().map_err(err)?;
+        let points: Vec<i64> = self.rows.iter().map(|r| r.point as i64).collect();
+        let mut col = group.next_column().map_err(err)?.ok_or_else(|| {
+            err(parquet::errors::ParquetError::General(
+                "missing column".into(),
+            ))
+        })?;
+        col.typed::<Int64Type>()
+            .write_batch(&points, None, None)
+            .map_err(err)?;
+        col.close().map_err(err)?;
+        let n_par = self.parameter_names.len();
+        for k in 0..n_par + self.metric_names.len() {
+            let values: Vec<f64> = self
+                .rows
+                .iter()
+                .map(|r| {
+                    if k < n_par {
+                        r.parameters[k]
+                    } else {
+                        r.metrics[k - n_par]
+                    }
+                })
+                .collect();
+            let mut col = group.next_column().map_err(err)?.ok_or_else(|| {
+                err(parquet::errors::ParquetError::General(
+                    "missing column".into(),
+                ))
+            })?;
+            col.typed::<DoubleType>()
+                .write_batch(&values, None, None)
+                .map_err(err)?;
+            col.close().map_err(err)?;
+        }
+        for k in 0..2 {
+            let values: Vec<ByteArray> = self
+                .rows
+                .iter()
+                .map(|r| {
+                    ByteArray::from(if k == 0 {
+                        r.status.name()
+                    } else {
+                        r.message.as_str()
+                    })
+                })
+                .collect();
+            let mut col = group.next_column().map_err(err)?.ok_or_else(|| {
+                err(parquet::errors::ParquetError::General(
+                    "missing column".into(),
+                ))
+            })?;
+            col.typed::<ByteArrayType>()
+                .write_batch(&values, None, None)
+                .map_err(err)?;
+            col.close().map_err(err)?;
+        }
+        group.close().map_err(err)?;
+        writer.close().map_err(err)?;
+        Ok(())
+    }
+
+    /// Writes Parquet for a `.parquet` path, CSV otherwise.
+    pub fn write(&self, path: &Path) -> Result<(), SweepError> {
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"))
+        {
+            self.write_parquet(path)
+        } else {
+            self.write_csv(path)
+        }
+    }
+}
+
+fn quote(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+
+    fn table() -> SweepTable {
+        SweepTable {
+            parameter_names: vec!["plant.springStiffness".into()],
+            metric_names: vec!["rms_error_knee".into()],
+            rows: vec![
+                Row {
+                    point: 0,
+                    parameters: vec![0.1],
+                    metrics: vec![1.0 / 3.0],
+                    status: RunStatus::Ok,
+                    message: String::new(),
+                },
+                Row {
+                    point: 1,
+                    parameters: vec![2.5],
+                    metrics: vec![f64::NAN],
+                    status: RunStatus::Failed,
+                    message: "plant: \"bad\", value".into(),
+                },
+            ],
+            metadata: vec![("kneebench.version".into(), "0.1.0".into())],
+        }
+    }
+
+    #[test]
+    fn parquet_round_trips_values_strings_and_metadata() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let t = table();
+        t.write_parquet(&path).unwrap();
+        let reader = SerializedFileReader::new(File::open(&path).unwrap()).unwrap();
+        let meta = reader.metadata().file_metadata();
+        assert_eq!(meta.num_rows(), 2);
+        let kv = meta.key_value_metadata().unwrap();
+        assert!(
+            kv.iter()
+                .any(|k| k.key == "kneebench.version" && k.value.as_deref() == Some("0.1.0"))
+        );
+        let rows: Vec<_> = reader
+            .get_row_iter(None)
+            .unwrap()
+            .map(|r| r.unwrap())
+            .collect();
+        use parquet::record::RowAccessor;
+        assert_eq!(rows[0].get_long(0).unwrap(), 0);
+        assert_eq!(
+            rows[0].get_double(2).unwrap().to_bits(),
+            (1.0f64 / 3.0).to_bits()
+        );
+        assert!(rows[1].get_double(2).unwrap().is_nan());
+        assert_eq!(rows[1].get_string(3).unwrap(), "failed");
+        assert_eq!(rows[1].get_string(4).unwrap(), "plant: \"bad\", value");
+    }
+
+    #[test]
+    fn csv_quotes_messages_and_keeps_bits() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.csv");
+        table().write_csv(&path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text,
+            "point,plant.springStiffness,rms_error_knee,status,message\n\
+             0,0.1,0.3333333333333333,ok,\n\
+             1,2.5,NaN,failed,\"plant: \"\"bad\"\", value\"\n"
+        );
+    }
+}

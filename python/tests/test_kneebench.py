@@ -1,0 +1,162 @@
+"""The kneebench Python package: run/study/sweep, their DataFrames, units and exceptions, the
+tables against the CLI's, and a sweep on a real Dask cluster (scheduler and two worker
+processes) against the local one."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+import kneebench
+from conftest import kneebench_bin
+
+
+def assert_bit_identical(a: pd.DataFrame, b: pd.DataFrame) -> None:
+    assert list(a.columns) == list(b.columns)
+    assert len(a) == len(b)
+    for c in a.columns:
+        x, y = a[c].to_numpy(), b[c].to_numpy()
+        if x.dtype == np.float64:
+            assert y.dtype == np.float64, c
+            assert np.array_equal(x.view(np.int64), y.view(np.int64)), c
+        else:
+            assert list(x) == list(y), c
+
+
+def test_run_returns_float64_columns_with_units_equal_to_the_cli(fmus: Path, tmp_path: Path):
+    gait = fmus / "GaitReference.fmu"
+    df = kneebench.run(gait, params={"gaitPeriod": 1.25}, stop_time=2.0, step=0.001)
+    assert df.columns[0] == "time"
+    assert "kneeAngleReference" in df.columns
+    assert all(df[c].dtype == np.float64 for c in df.columns)
+    assert len(df) == 2001
+    assert df.attrs["units"]["time"] == "s"
+    assert df.attrs["units"]["kneeAngleReference"] == "rad"
+    assert df.attrs["status"] == "completed"
+    csv = tmp_path / "gait.csv"
+    subprocess.run(
+        [kneebench_bin(), "run", gait, "--stop-time", "2", "--step", "0.001",
+         "--param", "gaitPeriod=1.25", "--output", csv, "-q"],
+        check=True, capture_output=True,
+    )
+    cli = pd.read_csv(csv).astype(np.float64)
+    assert_bit_identical(df, cli)
+    # The period took effect: the reference repeats after 1.25 s.
+    ref = df["kneeAngleReference"].to_numpy()
+    assert ref[250] == pytest.approx(ref[1500], abs=1e-9)
+    sub = kneebench.run(gait, variables=["kneeAngleReference"], stop_time=0.5)
+    assert list(sub.columns) == ["time", "kneeAngleReference"]
+
+
+def test_run_raises_with_the_rust_message(fmus: Path):
+    gait = fmus / "GaitReference.fmu"
+    with pytest.raises(kneebench.KneebenchError, match="has no variable 'nope'"):
+        kneebench.run(gait, params={"nope": 1.0})
+    with pytest.raises(kneebench.KneebenchError, match="expected an .fmu, .ssp or .ssd"):
+        kneebench.run(fmus / "missing.txt")
+    with pytest.raises(kneebench.KneebenchError, match="variables"):
+        kneebench.run(gait, variables=["noSuchOutput"])
+    with pytest.raises(kneebench.KneebenchError):
+        kneebench.run(gait, stop_time=1.0, step=0.3)  # stop time off the step grid
+
+
+def test_study_reports_one_row_per_actuator(fmus: Path, tmp_path: Path):
+    df = kneebench.study(fmus, tmp_path / "study", actuators=["SEA"], cycles=2)
+    assert list(df.index) == ["SEA"]
+    sea = df.loc["SEA"]
+    assert sea["cycles"] == 1
+    assert sea["trip"] is None
+    assert 0 < sea["rms_error_knee"] < np.radians(0.7)
+    assert sea["bench_electrical_energy"] > 0
+    assert abs(sea["balance_residual"]) < 1e-6 * abs(sea["test_mechanical_energy"]) + 1e-9
+    with pytest.raises(kneebench.KneebenchError, match="unknown scenario 'x'"):
+        kneebench.study(fmus, tmp_path / "s3", actuators=["SEA"], scenario="x")
+    with pytest.raises(kneebench.KneebenchError, match="unknown actuator 'XY'"):
+        kneebench.study(fmus, tmp_path / "s2", actuators=["XY"])
+
+
+def test_sweep_equals_the_cli_table_whatever_the_workers(sweep_spec, tmp_path: Path):
+    spec = sweep_spec(6)
+    one = kneebench.sweep(spec, workers=1)
+    two = kneebench.sweep(spec, workers=2)
+    assert_bit_identical(one, two)
+    assert list(one["point"]) == list(range(6))
+    assert set(one["status"]) == {"ok"}
+    assert one["rms_error_knee"].nunique() == 6
+    out = tmp_path / "cli.parquet"
+    subprocess.run(
+        [kneebench_bin(), "sweep", spec, "--output", out, "--workers", "2"],
+        check=True, capture_output=True,
+    )
+    table = pq.read_table(out)
+    meta = {k.decode(): v.decode() for k, v in table.schema.metadata.items()}
+    assert meta["kneebench.system"] == "SEA"
+    assert meta["kneebench.guid.plant"].startswith("{")
+    cli = table.to_pandas()
+    cli["status"] = cli["status"].astype(object)
+    cli["message"] = cli["message"].astype(object)
+    assert_bit_identical(one.astype({"status": object, "message": object}), cli)
+
+
+def test_a_bad_spec_raises_spec_error_naming_the_line(sweep_spec, tmp_path: Path):
+    spec = sweep_spec(4)
+    text = spec.read_text().replace("plant.harmonicDriveRatio", "plant.gearRatio")
+    spec.write_text(text)
+    with pytest.raises(kneebench.SpecError, match=r"line 15: unknown variable 'plant.gearRatio'"):
+        kneebench.sweep(spec)
+
+
+def test_sweep_on_a_dask_cluster_equals_the_local_table(sweep_spec):
+    distributed = pytest.importorskip("distributed")
+    spec = sweep_spec(20)
+    local = kneebench.sweep(spec, workers=1)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        table = kneebench.sweep(spec, client=client, batch_size=3)
+        # Two worker processes, each its own interpreter and loaded FMUs.
+        who = client.run(lambda: __import__("os").getpid())
+        assert len(set(who.values())) == 2
+    assert_bit_identical(local, table)
+
+
+def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
+    distributed = pytest.importorskip("distributed")
+    import os
+    import signal
+    import threading
+    import time
+
+    # 40 gait cycles per run (100 s simulated, tens of milliseconds each), one point per
+    # batch: the sweep lasts long enough to kill a worker while it runs a batch.
+    spec = sweep_spec(12, cycles=40)
+    local = kneebench.sweep(spec, workers=2)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        victim = sorted(client.scheduler_info()["workers"])[0]
+        pid = client.run(os.getpid)[victim]
+        killed = threading.Event()
+
+        def kill_when_busy() -> None:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                if client.processing().get(victim):
+                    os.kill(pid, signal.SIGKILL)
+                    killed.set()
+                    return
+                time.sleep(0.005)
+
+        killer = threading.Thread(target=kill_when_busy)
+        killer.start()
+        table = kneebench.sweep(spec, client=client, batch_size=1)
+        killer.join()
+        assert killed.is_set(), "the worker was not killed during the sweep"
+        assert victim not in client.scheduler_info()["workers"]
+    assert_bit_identical(local, table)
