@@ -463,3 +463,64 @@ pub unsafe fn read_cstr(p: *const c_char) -> String {
     // SAFETY: guaranteed by the caller.
     unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned()
 }
+
+/// Every kneebench FMU, exported once per test binary into a temporary directory kept for the
+/// process.
+pub fn exported_fmus() -> &'static (
+    tempfile::TempDir,
+    Vec<kneebench_harness::package::ExportedFmu>,
+) {
+    static FMUS: OnceLock<(
+        tempfile::TempDir,
+        Vec<kneebench_harness::package::ExportedFmu>,
+    )> = OnceLock::new();
+    FMUS.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let fmus =
+            kneebench_harness::package::export_all(&fmu_library(), dir.path()).expect("export");
+        (dir, fmus)
+    })
+}
+
+/// The exported FMU of model `identifier` (see [`exported_fmus`]).
+pub fn exported_fmu(identifier: &str) -> PathBuf {
+    exported_fmus()
+        .1
+        .iter()
+        .find(|f| f.identifier == identifier)
+        .unwrap_or_else(|| panic!("no {identifier}"))
+        .path
+        .clone()
+}
+
+/// Serialises the real-time tests of a test binary: they pace against the wall clock (1 ms
+/// deadlines, a link watchdog of a few ms) with an emulator thread each; run side by side on a
+/// 2-core machine they steal each other's cores and trip the watchdog spuriously. One at a
+/// time, as on the bench. A failed test poisons the lock; the next one still runs.
+pub fn one_real_time_test_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static REAL_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    REAL_TIME
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// A bench key file made by `Key::create_file` (mode 0600) and its key, once per test binary,
+/// so the hardware runs go through the authenticated handshake and tagged frames as on the
+/// bench.
+pub fn bench_key_file() -> &'static (
+    tempfile::TempDir,
+    PathBuf,
+    kneebench_harness::bench_protocol::Key,
+) {
+    static KEY: OnceLock<(
+        tempfile::TempDir,
+        PathBuf,
+        kneebench_harness::bench_protocol::Key,
+    )> = OnceLock::new();
+    KEY.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bench.key");
+        let key = kneebench_harness::bench_protocol::Key::create_file(&path).unwrap();
+        (dir, path, key)
+    })
+}

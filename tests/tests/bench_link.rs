@@ -7,8 +7,6 @@
 //! Every "no effect" is asserted on the emulator's driver outputs and command counters.
 
 use std::net::{SocketAddr, UdpSocket};
-use std::path::PathBuf;
-use std::sync::{Mutex, MutexGuard, OnceLock};
 use std::time::{Duration, Instant};
 
 use kneebench_harness::bench_protocol::{
@@ -16,56 +14,17 @@ use kneebench_harness::bench_protocol::{
     Refusal, Sample, Session, SetValueKind, reason, refusal, status,
 };
 use kneebench_harness::emulator::{EmulatorConfig, EmulatorHandle, EmulatorStats, spawn};
-use kneebench_harness::package::{ExportedFmu, export_all};
 use kneebench_harness::{Fmu, Instance, InstanceOptions, LoadOptions, Status};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
 
-/// Real-time tests one at a time (as in hardware.rs).
-fn one_at_a_time() -> MutexGuard<'static, ()> {
-    static REAL_TIME: Mutex<()> = Mutex::new(());
-    REAL_TIME
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-fn exported() -> &'static (tempfile::TempDir, Vec<ExportedFmu>) {
-    static FMUS: OnceLock<(tempfile::TempDir, Vec<ExportedFmu>)> = OnceLock::new();
-    FMUS.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let fmus = export_all(&fmu_library(), dir.path()).expect("export");
-        (dir, fmus)
-    })
-}
-
-fn fmu_path(id: &str) -> PathBuf {
-    exported()
-        .1
-        .iter()
-        .find(|f| f.identifier == id)
-        .unwrap_or_else(|| panic!("no {id}"))
-        .path
-        .clone()
-}
-
-/// The bench key file (mode 0600) and its key.
-fn key_file() -> &'static (tempfile::TempDir, PathBuf, Key) {
-    static KEY: OnceLock<(tempfile::TempDir, PathBuf, Key)> = OnceLock::new();
-    KEY.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("bench.key");
-        let key = Key::create_file(&path).unwrap();
-        (dir, path, key)
-    })
-}
-
 fn key() -> Key {
-    key_file().2.clone()
+    bench_key_file().2.clone()
 }
 
 fn emulator_with(configure: impl FnOnce(&mut EmulatorConfig)) -> EmulatorHandle {
-    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
     config.key = Some(key());
     // The protocol's longest: a master of these tests pauses between its frames to let
     // other sockets' frames arrive (the watchdog is tested with its own timeouts).
@@ -173,7 +132,7 @@ fn outputs_driven(s: &EmulatorStats) -> bool {
 
 #[test]
 fn the_right_key_opens_a_session_and_drives_the_bench() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     let mut a = handshake(&emu, &key()).expect("handshake");
     assert_eq!(a.session.latched, reason::NONE);
@@ -189,7 +148,7 @@ fn the_right_key_opens_a_session_and_drives_the_bench() {
 
 #[test]
 fn unauthenticated_wrong_key_replayed_stale_and_second_master_frames_have_no_effect() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     let mut a = handshake(&emu, &key()).expect("handshake");
     let safe = Command::safe(SetValueKind::Current, SetValueKind::Current);
@@ -277,7 +236,7 @@ fn unauthenticated_wrong_key_replayed_stale_and_second_master_frames_have_no_eff
 
 #[test]
 fn a_silent_master_loses_the_bench_to_the_watchdog_and_the_latch_stays() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|c| c.heartbeat_timeout = Duration::from_millis(20));
     let mut a = handshake(&emu, &key()).expect("handshake");
     a.send(Payload::Command(DRIVE));
@@ -304,7 +263,7 @@ fn a_silent_master_loses_the_bench_to_the_watchdog_and_the_latch_stays() {
 
 #[test]
 fn the_latch_survives_new_sessions_and_only_an_acknowledgement_clears_it() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     let mut a = handshake(&emu, &key()).expect("handshake");
     a.send(Payload::Command(DRIVE));
@@ -354,7 +313,7 @@ fn the_latch_survives_new_sessions_and_only_an_acknowledgement_clears_it() {
 
 #[test]
 fn the_emergency_stop_latch_cannot_be_acknowledged_while_pressed() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     emu.inject(FaultInjection::EmergencyStop).unwrap();
     let mut a = handshake(&emu, &key()).expect("handshake");
@@ -374,7 +333,7 @@ fn the_emergency_stop_latch_cannot_be_acknowledged_while_pressed() {
 
 #[test]
 fn fault_injection_frames_are_obeyed_only_from_the_live_session() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     let mut a = handshake(&emu, &key()).expect("handshake");
     a.heartbeat();
@@ -395,7 +354,7 @@ fn fault_injection_frames_are_obeyed_only_from_the_live_session() {
 
 #[test]
 fn an_old_protocol_version_is_refused_with_a_clear_message() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     // A version-1 heartbeat (header, CRC-32 trailer), as the previous client sent it.
     let mut v1 = vec![b'K', b'N', b'B', b'P', 1, 2, 0, 0, 0, 0, 0, 7, 0, 0, 0, 1];
@@ -442,14 +401,17 @@ fn hardware(
     emu: &EmulatorHandle,
     configure: impl FnOnce(&Fmu, &mut Instance),
 ) -> Result<(Fmu, Instance), String> {
-    let fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    let fmu = Fmu::load(exported_fmu("BenchHardware"), &LoadOptions::default()).unwrap();
     let mut i = fmu.instantiate("hw", &InstanceOptions::default()).unwrap();
     let vr = |n: &str| fmu.variable(n).unwrap().value_reference;
     i.set_integer(&[vr("backend"), vr("pacing")], &[1, 1])
         .unwrap();
     i.set_string(
         &[vr("serverAddress"), vr("keyFile")],
-        &[&emu.addr().to_string(), key_file().1.to_str().unwrap()],
+        &[
+            &emu.addr().to_string(),
+            bench_key_file().1.to_str().unwrap(),
+        ],
     )
     .unwrap();
     i.set_integer(&[vr("tareSamples")], &[5]).unwrap();
@@ -471,7 +433,7 @@ fn init_error(emu: &EmulatorHandle, configure: impl FnOnce(&Fmu, &mut Instance))
 
 #[test]
 fn bench_hardware_refuses_wrong_keys_open_key_files_and_a_differing_setup() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     let dir = tempfile::tempdir().unwrap();
     // Another bench's key: the server never answers the handshake.
@@ -519,7 +481,7 @@ fn bench_hardware_refuses_wrong_keys_open_key_files_and_a_differing_setup() {
 
 #[test]
 fn bench_hardware_acknowledges_a_latch_only_when_told_to() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|c| c.heartbeat_timeout = Duration::from_millis(20));
     // A master that goes silent: the watchdog latches.
     let mut a = handshake(&emu, &key()).expect("handshake");
@@ -559,7 +521,7 @@ fn bench_hardware_acknowledges_a_latch_only_when_told_to() {
 /// ticks of 4 ms at 250 Hz, i.e. 8 ms) the 1.1 x reply was accepted.
 #[test]
 fn the_reply_timeout_holds_whatever_the_kernel_tick() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let timeout = 0.005;
     for (factor, trips) in [(0.5, false), (1.1, true), (5.0, true)] {
         let emu = emulator_with(|_| {});
@@ -604,7 +566,7 @@ fn the_reply_timeout_holds_whatever_the_kernel_tick() {
 /// timeout do not trip it, 1.1 x and 5 x do.
 #[test]
 fn the_server_watchdog_holds_whatever_the_kernel_tick() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let timeout = Duration::from_millis(20);
     for (factor, trips) in [(0.5, false), (1.1, true), (5.0, true)] {
         let emu = emulator_with(|c| c.heartbeat_timeout = timeout);
@@ -640,7 +602,7 @@ fn the_server_watchdog_holds_whatever_the_kernel_tick() {
 /// are counted and logged at most once a second.
 #[test]
 fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
-    let _rt = one_at_a_time();
+    let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
     // An earlier session, recorded for replay.
     let mut old = handshake(&emu, &key()).expect("handshake");
@@ -772,7 +734,7 @@ fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
 /// emulator would drive blindly) is refused before the socket opens, naming what it is.
 #[test]
 fn the_emulator_refuses_a_model_that_is_not_the_plant() {
-    let config = EmulatorConfig::new("127.0.0.1:0", fmu_path("GaitReference"));
+    let config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("GaitReference"));
     let e = spawn(config)
         .err()
         .unwrap_or_else(|| panic!("GaitReference is no plant"))

@@ -10,14 +10,11 @@
 //!
 //! Every real-time run is short (at most 1.2 s): the whole file takes a few seconds.
 
-use std::path::PathBuf;
-use std::sync::{Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
 
-use kneebench_harness::bench_protocol::{FaultInjection, Key, reason};
+use kneebench_harness::bench_protocol::{FaultInjection, reason};
 use kneebench_harness::emulator::{EmulatorConfig, EmulatorHandle, EmulatorStats, spawn};
 use kneebench_harness::master::Signal;
-use kneebench_harness::package::{ExportedFmu, export_all};
 use kneebench_harness::{
     Fmu, InstanceOptions, LoadOptions, Outcome, Results, RunConfig, RunOutput, Status, System,
 };
@@ -25,56 +22,13 @@ use kneebench_tests::*;
 
 const H: f64 = 1e-3;
 
-/// The tests here pace against the wall clock (1 ms deadlines, a link watchdog of a few ms) with
-/// an emulator thread each; run side by side on a 2-core machine they steal each other's cores
-/// and trip the watchdog spuriously. One at a time, as on the bench.
-fn one_at_a_time() -> MutexGuard<'static, ()> {
-    static REAL_TIME: Mutex<()> = Mutex::new(());
-    // A failed test poisons the lock; the next one still runs.
-    REAL_TIME
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-fn exported() -> &'static (tempfile::TempDir, Vec<ExportedFmu>) {
-    static FMUS: OnceLock<(tempfile::TempDir, Vec<ExportedFmu>)> = OnceLock::new();
-    FMUS.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let fmus = export_all(&fmu_library(), dir.path()).expect("export");
-        (dir, fmus)
-    })
-}
-
-fn fmu_path(id: &str) -> PathBuf {
-    exported()
-        .1
-        .iter()
-        .find(|f| f.identifier == id)
-        .unwrap_or_else(|| panic!("no {id}"))
-        .path
-        .clone()
-}
-
-/// The bench key of these tests: a key file made by `Key::create_file` (mode 0600), given to
-/// every emulator and every hardware instance, so the runs here go through the authenticated
-/// handshake and tagged frames as on the bench.
-fn key_file() -> &'static (tempfile::TempDir, PathBuf, Key) {
-    static KEY: OnceLock<(tempfile::TempDir, PathBuf, Key)> = OnceLock::new();
-    KEY.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("bench.key");
-        let key = Key::create_file(&path).unwrap();
-        (dir, path, key)
-    })
-}
-
 fn key_path() -> String {
-    key_file().1.to_str().unwrap().to_owned()
+    bench_key_file().1.to_str().unwrap().to_owned()
 }
 
 fn emulator(params: &[(&str, &str)]) -> EmulatorHandle {
-    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
-    config.key = Some(key_file().2.clone());
+    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
+    config.key = Some(bench_key_file().2.clone());
     config.parameters = params
         .iter()
         .map(|(n, v)| (n.to_string(), v.to_string()))
@@ -117,7 +71,7 @@ fn run_bench(
     inputs: Vec<(&str, Signal)>,
     stop: f64,
 ) -> (RunOutput, Option<(i32, f64)>) {
-    let fmu = Fmu::load(fmu_path(id), &LoadOptions::default()).unwrap();
+    let fmu = Fmu::load(exported_fmu(id), &LoadOptions::default()).unwrap();
     let mut system = System::new();
     system.add_component("b", fmu).unwrap();
     for (name, value) in params {
@@ -183,7 +137,7 @@ fn tolerance(x: &[f64], quantum: f64, offset: f64) -> f64 {
 
 #[test]
 fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     let stop = 1.2;
     let inputs = || {
         vec![
@@ -300,7 +254,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// and every signal must move by more than 5 times its largest tolerance.
 #[test]
 fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolerance() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     use kneebench_harness::Value;
     use kneebench_harness::ssp::load_system;
     use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
@@ -312,8 +266,8 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         1,
     );
     scenario.stop_time = stop;
-    let fmu_dir = exported().0.path();
-    let hw_fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    let fmu_dir = exported_fmus().0.path();
+    let hw_fmu = Fmu::load(exported_fmu("BenchHardware"), &LoadOptions::default()).unwrap();
     // The plant swapped for the hardware, pointed at an emulator with the plant's parameters.
     let mut hw_scenario = scenario.clone();
     let component = hw_scenario
@@ -333,12 +287,12 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         .iter()
         .map(|(n, v)| (n.clone(), text(v)))
         .collect();
-    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
     config.parameters = plant_params;
     // Real-time scheduling where permitted (else a warning): a loaded test machine then
     // disturbs the run less; the tolerance uses what the run measured either way.
     config.realtime_priority = Some(50);
-    config.key = Some(key_file().2.clone());
+    config.key = Some(bench_key_file().2.clone());
     let emu = spawn(config).expect("emulator");
     component.fmu = "BenchHardware.fmu".into();
     component
@@ -492,7 +446,7 @@ fn drive_configured(
     current: impl Fn(f64) -> f64,
     fault: Option<(usize, FaultInjection)>,
 ) -> Ended {
-    let fmu = Fmu::load(fmu_path("BenchHardware"), &LoadOptions::default()).unwrap();
+    let fmu = Fmu::load(exported_fmu("BenchHardware"), &LoadOptions::default()).unwrap();
     let vr = |n: &str| fmu.variable(n).unwrap().value_reference;
     let others_vr = [
         vr("springTorque"),
@@ -575,7 +529,7 @@ fn assert_safe(stats: &EmulatorStats) {
 
 #[test]
 fn motor_torque_interlock_trips_in_the_first_violating_sample() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     // The load side held by friction, the emulated plant's own torque interlock out of the way:
     // the test motor winds the spring and the hardware FMU's interlock (on the transducer's
     // shaft torque) must act.
@@ -597,7 +551,7 @@ fn motor_torque_interlock_trips_in_the_first_violating_sample() {
 
 #[test]
 fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     // As in the interlock test above: the load side held, the test motor winds the spring.
     let emu = emulator(&[("loadStaticFriction", "100"), ("motorTorqueLimit", "100")]);
     let stop = 0.4;
@@ -635,7 +589,7 @@ fn a_tripped_run_through_the_master_keeps_every_row_up_to_the_trip() {
 
 #[test]
 fn injected_faults_trip_within_one_period_with_the_documented_status() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     let k = 150;
     let tk = k as f64 * H;
     let steady = |_t: f64| 0.5;
@@ -695,7 +649,7 @@ fn injected_faults_trip_within_one_period_with_the_documented_status() {
 /// the safe state acknowledged and no drive command after it.
 #[test]
 fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     let k = 50;
     let persistence = 10;
     let allowance = |a: f64, b: f64| 1.0 + 0.25 * a.abs().max(b.abs());
@@ -756,7 +710,7 @@ fn a_sensor_stuck_inside_its_window_trips_the_consistency_interlock() {
 
 #[test]
 fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
-    let _real_time = one_at_a_time();
+    let _real_time = one_real_time_test_at_a_time();
     use kneebench_harness::bench_protocol::{
         BenchSetup, ClientHandshake, Command, HandshakeReply, Payload, SetValueKind,
     };
@@ -770,7 +724,7 @@ fn malformed_and_replayed_frames_to_the_emulator_are_counted_and_ignored() {
         test_kind: SetValueKind::Current,
         load_kind: SetValueKind::Current,
     };
-    let mut hs = ClientHandshake::new(&key_file().2, setup).unwrap();
+    let mut hs = ClientHandshake::new(&bench_key_file().2, setup).unwrap();
     socket.send_to(hs.hello(), emu.addr()).unwrap();
     let mut buf = [0u8; 256];
     let n = socket.recv(&mut buf).unwrap();
