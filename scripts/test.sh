@@ -17,9 +17,10 @@ log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 cargo test --workspace --locked --release 2>&1 | tee "$log"
 echo "== python package (maturin wheel into the venv, pytest)"
-# The kneebench binary (the Python tests compare with the CLI and export the FMUs with it),
-# then the wheel of python/ built by the pinned maturin and installed into the venv.
-cargo build --release --locked -p kneebench-harness --bin kneebench --quiet
+# The kneebench binaries and the FMU library next to them (the Python tests compare with the
+# CLI and export the FMUs with it; `cargo test` does not put libkneebench_fmu.so there), then
+# the wheel of python/ built by the pinned maturin and installed into the venv.
+cargo build --release --locked -p kneebench-harness --bins -p kneebench-fmu --lib --quiet
 target_dir=${CARGO_TARGET_DIR:-$root/target}
 rm -rf "$target_dir/wheels"
 "$KNEEBENCH_PYTHON" -m maturin build --release --locked --quiet -i "$KNEEBENCH_PYTHON" -m python/Cargo.toml -o "$target_dir/wheels" >&2
