@@ -219,8 +219,11 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// The plant's parameters go to the emulator's plant, and to the hardware component where it
 /// declares them; `tareSamples` = 0 makes the hardware read the torque channels with the
 /// published calibration offsets, exactly as the plant's outputs do (the tare is tested
-/// elsewhere). The first 1.25 s (half a gait period, the soft start: the knee moves through
-/// about 15 degrees) in real time.
+/// elsewhere). The first 1.75 s in real time: the soft start (half a gait period) and the
+/// beginning of the swing, where the knee moves fast (up to 2.2 rad/s). The window reaches into
+/// the swing so that one period of extra delay (`R h`) stands clear of the sustained tolerance:
+/// over the soft start alone (R = 0.81 rad/s) a mean I/O shift of 190 us, what protocol 2's
+/// authenticated round trips measure here, already made them equal.
 ///
 /// **Tolerance.** What differs between the two runs, for a recorded signal `x`:
 /// * the encoders: both runs floor the same kind of angle, but states that differ slightly
@@ -258,7 +261,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     use kneebench_harness::Value;
     use kneebench_harness::ssp::load_system;
     use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
-    let stop = 1.25;
+    let stop = 1.75;
     let mut scenario = gait_scenario(
         Actuator::Sea,
         Gait::bench_full(),
