@@ -114,6 +114,10 @@ fn hardware_params(addr: std::net::SocketAddr) -> Vec<(&'static str, String)> {
         ("pacing", "1".into()),
         ("serverAddress", addr.to_string()),
         ("keyFile", key_path()),
+        // Generous for a loaded test machine, as in `drive`: the default 0.8 ms is enforced to
+        // the microsecond now, and one slow loopback reply would trip the link watchdog; the
+        // deadline itself is tested in bench_link.rs.
+        ("replyTimeout", "0.01".into()),
     ]
 }
 
