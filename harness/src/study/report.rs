@@ -151,7 +151,7 @@ pub fn plot_study(runs: &[StudyRun], out_dir: &Path) -> Result<Vec<Figure>, Stud
     figure(
         "tracking",
         "Knee angle over one gait cycle",
-        "knee angle [deg], extension positive",
+        "knee angle [deg], as the gait series",
         tracking,
     )?;
     let mut torques = Vec::new();
@@ -314,9 +314,10 @@ const CONVENTIONS: &str = "\
 
 - Angles in degrees in this report (rad in the CSV files), torques in N m at the knee axis,
   energies in J per 2.5 s gait cycle, averaged over the analysed cycles.
-- Positive angle and torque = knee extension. The gait's knee torque is the actuator's
-  (internal) torque; the load motor applies the ground reaction, its inverse, whose peak is the
-  scenario's external torque (9 N m).
+- Torques: positive = knee extension (bench facts). Angles follow the bench's gait series as
+  published: its peak (60 deg at 71.5 % of the cycle) is the swing's flexion. The gait's knee
+  torque is the actuator's (internal) torque; the load motor applies the ground reaction, its
+  inverse, whose peak is the scenario's external torque (9 N m).
 - Powers are positive into the named element from its source: the test motor's mechanical
   energy is positive while it drives the shaft, negative while it brakes; losses are negative
   (energy leaving the mechanics). `P_test + P_load + P_HD + P_load-side loss = dE_k/dt +
