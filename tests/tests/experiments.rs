@@ -6,14 +6,12 @@
 //! seconds; the linear experiments (Bode, calibration, step identification) run the plant
 //! with `frictionModel` = 0 (Off), as their module docs say.
 
-use std::path::PathBuf;
-use std::sync::{OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_harness::experiment::{
     Bench, ExperimentError, RunEnd, bode, calibration, map, step, triangle,
 };
-use kneebench_harness::package::{ExportedFmu, export_all};
 use kneebench_tests::*;
 
 /// The hardware test paces against the wall clock: it runs alone (write lock), the simulated
@@ -28,25 +26,12 @@ fn real_time() -> RwLockWriteGuard<'static, ()> {
     REAL_TIME.write().unwrap_or_else(|p| p.into_inner())
 }
 
-fn exported() -> &'static (tempfile::TempDir, Vec<ExportedFmu>) {
-    static FMUS: OnceLock<(tempfile::TempDir, Vec<ExportedFmu>)> = OnceLock::new();
-    FMUS.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let fmus = export_all(&fmu_library(), dir.path()).expect("export");
-        (dir, fmus)
-    })
-}
-
-fn fmu_path(id: &str) -> PathBuf {
-    exported().0.path().join(format!("{id}.fmu"))
-}
-
 fn plant(params: &[(&str, &str)]) -> Bench {
     let params = params
         .iter()
         .map(|(n, v)| (n.to_string(), v.to_string()))
         .collect();
-    Bench::load(&fmu_path("BenchPlant"), params, None).expect("bench")
+    Bench::load(&exported_fmu("BenchPlant"), params, None).expect("bench")
 }
 
 fn assert_files(w: &kneebench_harness::experiment::Written) {
@@ -299,7 +284,7 @@ fn step_identifies_damping_and_inertia_and_measures_the_position_step() {
 #[test]
 fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
     let _rt = real_time();
-    let mut config = EmulatorConfig::new("127.0.0.1:0", fmu_path("BenchPlant"));
+    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
     config.parameters = vec![("frictionModel".into(), "0".into())];
     config.realtime_priority = Some(50);
     let emu = spawn(config).expect("emulator");
@@ -313,7 +298,7 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
         ("realtimePriority", "50".to_string()),
     ];
     let bench = Bench::load(
-        &fmu_path("BenchHardware"),
+        &exported_fmu("BenchHardware"),
         params
             .iter()
             .map(|(n, v)| (n.to_string(), v.clone()))
@@ -347,7 +332,7 @@ fn experiments_refuse_to_start_on_the_hardware_with_an_interlock_disarmed() {
     ];
     for (name, value, named) in cases {
         let bench = Bench::load(
-            &fmu_path("BenchHardware"),
+            &exported_fmu("BenchHardware"),
             vec![(name.to_string(), value.to_string())],
             None,
         )
@@ -364,7 +349,7 @@ fn experiments_refuse_to_start_on_the_hardware_with_an_interlock_disarmed() {
         assert!(matches!(e, ExperimentError::NotArmed(_)), "{e}");
     }
     // Armed at the defaults: the check passes (the simulated backend then runs the step).
-    let bench = Bench::load(&fmu_path("BenchHardware"), vec![], None).unwrap();
+    let bench = Bench::load(&exported_fmu("BenchHardware"), vec![], None).unwrap();
     bench.check_armed().unwrap();
     // And the plant has no such check.
     plant(&[("motorTorqueLimit", "25")]).check_armed().unwrap();

@@ -16,23 +16,12 @@ use std::sync::OnceLock;
 use kneebench_harness::experiment::{Bench, RunEnd, bode};
 use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
 use kneebench_harness::master::Value;
-use kneebench_harness::package::export_all;
 use kneebench_harness::params::ParameterSet;
 use kneebench_harness::results::{ColumnKind, Results};
 use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, System};
-use kneebench_tests::*;
 
 fn fmus() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-identify-")
-            .tempdir()
-            .unwrap()
-            .keep();
-        export_all(&fmu_library(), &dir).expect("export");
-        dir
-    })
+    kneebench_tests::exported_fmus().0.path()
 }
 
 fn plant_path() -> PathBuf {

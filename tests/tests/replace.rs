@@ -3,25 +3,13 @@
 //! parameters by item name.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
-use kneebench_harness::package::export_all;
 use kneebench_harness::ssp::{self, SspError};
 use kneebench_harness::study::{Actuator, StudyScenario, gait_scenario, write_ssp};
 use kneebench_harness::{LoadOptions, MasterError, Outcome};
-use kneebench_tests::fmu_library;
 
 fn fmus() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-replace-fmus")
-            .tempdir()
-            .unwrap()
-            .keep();
-        export_all(&fmu_library(), &dir).expect("export");
-        dir
-    })
+    kneebench_tests::exported_fmus().0.path()
 }
 
 fn sea_ssp(dir: &Path) -> PathBuf {

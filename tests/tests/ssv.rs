@@ -4,29 +4,18 @@
 //! an SSP binding a set as an `.ssv` resource is read by fmpy's SSP reader (which validates the
 //! `.ssv` against the SSP 1.0 schema) with the set's values.
 
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::path::Path;
 
 use kneebench_fmu::models::bench::BenchParameters;
 use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
 use kneebench_harness::master::Value;
-use kneebench_harness::package::export_all;
 use kneebench_harness::params::{ParamValue, ParameterSet, apply_spec};
 use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp_with_set};
 use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, System, ssp};
 use kneebench_tests::*;
 
 fn fmus() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-ssv-")
-            .tempdir()
-            .unwrap()
-            .keep();
-        export_all(&fmu_library(), &dir).expect("export");
-        dir
-    })
+    kneebench_tests::exported_fmus().0.path()
 }
 
 fn plant_md() -> model_description::ModelDescription {

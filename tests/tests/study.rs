@@ -26,31 +26,20 @@
 //!   (The first attempt, with the transducer's rest reading, differed from the first step on:
 //!   the torque loop saw -0.048 N m in our run and 0.0 in fmpy's.)
 
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::path::Path;
 
 use kneebench_harness::master::Value;
-use kneebench_harness::package::export_all;
 use kneebench_harness::ssp;
 use kneebench_harness::study::{
     Actuator, Gait, Quantity, ScenarioSection, StudyConfig, StudyGains, StudyScenario, compare,
     gait_scenario, interlock_name, plot_study, run_study, write_report, write_ssp,
 };
 use kneebench_harness::{Algorithm, LoadOptions, Outcome, Results};
-use kneebench_tests::{fmu_library, run_python};
+use kneebench_tests::run_python;
 
 /// The exported FMUs, once per test binary.
 fn fmus() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-study-fmus")
-            .tempdir()
-            .unwrap()
-            .keep();
-        export_all(&fmu_library(), &dir).expect("export");
-        dir
-    })
+    kneebench_tests::exported_fmus().0.path()
 }
 
 fn config(out: &Path, actuators: Vec<Actuator>, cycles: u32, scale: f64) -> StudyConfig {

@@ -3,28 +3,16 @@
 //! points; a tripped or failed run is a row with its status and message; `--resume` skips
 //! the journal's points and runs only the others.
 
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::path::Path;
 
-use kneebench_harness::package::export_all;
 use kneebench_harness::sweep::runner::journal_path;
 use kneebench_harness::sweep::{
     Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, SweepTable, run_sweep,
 };
-use kneebench_tests::fmu_library;
 
 /// The exported FMUs, once per test binary.
 fn fmus() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = tempfile::Builder::new()
-            .prefix("kneebench-sweep-fmus")
-            .tempdir()
-            .unwrap()
-            .keep();
-        export_all(&fmu_library(), &dir).expect("export");
-        dir
-    })
+    kneebench_tests::exported_fmus().0.path()
 }
 
 fn spec(text: &str, dir: &Path) -> Result<SweepSpec, SweepError> {

@@ -95,10 +95,7 @@ const MAX_DURATION: f64 = 365.0 * 86400.0;
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let mut config = EmulatorConfig::new(args.bind.clone(), args.fmu.clone());
     for p in &args.params {
-        let (name, value) = p
-            .split_once('=')
-            .with_context(|| format!("--param `{p}` is not NAME=VALUE"))?;
-        config.parameters.push((name.to_owned(), value.to_owned()));
+        config.parameters.push(super::name_value(p)?);
     }
     if !(args.heartbeat_timeout.is_finite() && args.heartbeat_timeout > 0.0) {
         bail!("--heartbeat-timeout must be a positive number of seconds");

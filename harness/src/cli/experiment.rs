@@ -131,11 +131,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .iter()
         .flat_map(|s| s.parameters.iter())
         .map(|p| Ok((p.name.clone(), p.value.to_text())))
-        .chain(a.params.iter().map(|p| {
-            p.split_once('=')
-                .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
-                .with_context(|| format!("--param '{p}' is not NAME=VALUE"))
-        }))
+        .chain(a.params.iter().map(|p| super::name_value(p)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let bench = Bench::load(&a.fmu, params, a.fmus.clone())?;
     if bench.kind() == BenchKind::Hardware {

@@ -116,11 +116,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let plant_parameters = a
         .params
         .iter()
-        .map(|p| {
-            p.split_once('=')
-                .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
-                .with_context(|| format!("--param '{p}' is not NAME=VALUE"))
-        })
+        .map(|p| super::name_value(p))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let config = IdentifyConfig {
         window: a.window,

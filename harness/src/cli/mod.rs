@@ -82,6 +82,14 @@ pub enum Command {
     Key(key::Args),
 }
 
+/// Splits a `--param NAME=VALUE` argument into its trimmed name and value (every subcommand's
+/// `--param` reads this way; `run` reports the same failure as a usage error itself).
+pub fn name_value(text: &str) -> anyhow::Result<(String, String)> {
+    text.split_once('=')
+        .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
+        .ok_or_else(|| anyhow::anyhow!("--param '{text}': expected NAME=VALUE"))
+}
+
 /// Runs a parsed command line; returns the exit code.
 pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
     // Extraction directories that crashed or killed runs left behind.

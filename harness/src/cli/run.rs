@@ -259,10 +259,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("parameter set: {}", set.label());
     }
     for p in &a.params {
-        let Some((name, value)) = p.split_once('=') else {
-            return usage(format_args!("--param '{p}': expected NAME=VALUE"));
+        let (name, value) = match super::name_value(p) {
+            Ok(pair) => pair,
+            Err(e) => return usage(e),
         };
-        if let Err(e) = system.set_value_str(&prefix(name.trim()), value.trim()) {
+        if let Err(e) = system.set_value_str(&prefix(&name), &value) {
             return usage(format_args!("--param '{p}': {e}"));
         }
     }

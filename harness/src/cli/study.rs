@@ -58,10 +58,8 @@ pub struct Args {
 }
 
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
-    let (name, value) = text
-        .split_once('=')
-        .ok_or_else(|| anyhow::anyhow!("--param '{text}': expected component.name=value"))?;
-    let value = value.trim();
+    let (name, value) = super::name_value(text)?;
+    let value = value.as_str();
     let parsed = if let Ok(i) = value.parse::<i32>() {
         Value::Integer(i)
     } else if let Ok(x) = value.parse::<f64>() {
@@ -72,7 +70,7 @@ fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     } else {
         anyhow::bail!("--param '{text}': '{value}' is not a number or true/false");
     };
-    Ok((name.trim().to_string(), parsed))
+    Ok((name, parsed))
 }
 
 /// Runs `kneebench study`.
