@@ -254,11 +254,24 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 ///
 /// So row `k` must agree within `Ms (2 q + 2 delta R + R s_k + A s^2 / 2)`, `R` and `A` the
 /// largest rate and acceleration of `x` in the plant run (the acceleration from a 10-period
-/// stencil, past the encoders' quantisation). The test also checks that the comparison can
-/// fail: the sustained part `Ms (2 q + 2 delta R)` must be finer than `R h`, what one extra
-/// period of delay in the hardware path would make (for the two angles; the spring deflection
-/// and the shaft torque proportional to it move by less than their two counts in a period),
-/// and every signal must move by more than 5 times its largest tolerance.
+/// stencil, past the encoders' quantisation). For the spring deflection and the shaft torque,
+/// two more things: the plant records the true deflection and the hardware the difference of
+/// its encoder angles (one count of each side more, outside the loop), and a time shift of
+/// either angle disturbs the deflection by that angle's rate until the torque loop rejects it;
+/// in the swing the angles move ten times faster than the deflection, so their `R` and `A` are
+/// the larger of their own and the angles' (times the stiffness for the torque). With the
+/// deflection's own rate alone the bound failed in 1 of about 10 runs, in the swing.
+///
+/// The test also checks that the comparison can fail: the sustained part `Ms (2 q + 2 delta R)`
+/// must be finer than `R h`, what one extra period of delay in the hardware path would make
+/// (for the two angles), and every signal must move by more than 5 times its sustained
+/// tolerance.
+///
+/// **Disturbed runs.** A host stall of several periods can make the emulated bench stop itself
+/// (its protection or its heartbeat watchdog; seen once in 8 quiet runs, after a 9 ms stall).
+/// Such a run measured its own disturbance (a stall above 5 ms, or the watchdog's reason) and
+/// is run again on a fresh emulator, at most three attempts; a run that ends early without
+/// such a measurement fails the test, and a completed run is always asserted on.
 #[test]
 fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     let _real_time = one_real_time_test_at_a_time();
@@ -294,13 +307,6 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         .iter()
         .map(|(n, v)| (n.clone(), text(v)))
         .collect();
-    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
-    config.parameters = plant_params;
-    // Real-time scheduling where permitted (else a warning): a loaded test machine then
-    // disturbs the run less; the tolerance uses what the run measured either way.
-    config.realtime_priority = Some(50);
-    config.key = Some(bench_key_file().2.clone());
-    let emu = spawn(config).expect("emulator");
     component.fmu = "BenchHardware.fmu".into();
     component
         .parameters
@@ -308,10 +314,6 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     component.parameters.extend([
         ("backend".to_string(), Value::Integer(1)),
         ("pacing".to_string(), Value::Integer(1)),
-        (
-            "serverAddress".to_string(),
-            Value::String(emu.addr().to_string()),
-        ),
         ("keyFile".to_string(), Value::String(key_path())),
         ("tareSamples".to_string(), Value::Integer(0)),
         // Generous for a loaded test machine: the comparison's tolerance uses the measured
@@ -337,36 +339,86 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             .collect();
         let refs: Vec<&str> = refs.iter().map(String::as_str).collect();
         loaded.system.record(&refs).unwrap();
-        let out = loaded.system.run(&loaded.config).unwrap();
-        assert!(
-            matches!(out.outcome, Outcome::Completed { .. }),
-            "{file}: {:?}",
-            out.outcome
-        );
-        out.results
+        loaded.system.run(&loaded.config).unwrap()
     };
     let plant = run(&scenario, "SEA-plant.ssp", &[]);
-    let hw = run(
-        &hw_scenario,
-        "SEA-hardware.ssp",
-        &["lastLateness", "lastReplyTime", "overrunCount"],
+    assert!(
+        matches!(plant.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        plant.outcome
     );
-    let stats = emu.stop().unwrap();
+    let plant = plant.results;
+    // Per-row stall of a hardware run: wake-up lateness plus reply time (row 0 is the initial
+    // sample).
+    let stalls = |hw: &Results| -> Vec<f64> {
+        let c = |v: &str| hw.column(&format!("{name}.{v}")).unwrap();
+        c("lastLateness")
+            .iter()
+            .zip(c("lastReplyTime"))
+            .map(|(l, r)| l + r)
+            .collect()
+    };
+    // The hardware run, on a fresh emulator each attempt. A run that the host disturbed so much
+    // that the emulated bench stopped itself (a stall of several periods, after which its own
+    // protection or heartbeat watchdog ends the run: seen once in 8 quiet runs) measured that
+    // disturbance itself and is run again, at most twice; any other outcome is asserted on.
+    let disturbance = 5e-3;
+    let mut attempt = 0;
+    let (hw, stats) = loop {
+        attempt += 1;
+        let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
+        config.parameters = plant_params.clone();
+        // Real-time scheduling where permitted (else a warning): a loaded test machine then
+        // disturbs the run less; the tolerance uses what the run measured either way.
+        config.realtime_priority = Some(50);
+        config.key = Some(bench_key_file().2.clone());
+        let emu = spawn(config).expect("emulator");
+        let mut attempt_scenario = hw_scenario.clone();
+        let component = attempt_scenario
+            .components
+            .iter_mut()
+            .find(|c| c.name == name)
+            .unwrap();
+        component.parameters.push((
+            "serverAddress".to_string(),
+            Value::String(emu.addr().to_string()),
+        ));
+        let out = run(
+            &attempt_scenario,
+            "SEA-hardware.ssp",
+            &["lastLateness", "lastReplyTime", "overrunCount"],
+        );
+        let stats = emu.stop().unwrap();
+        if matches!(out.outcome, Outcome::Completed { .. }) {
+            break (out.results, stats);
+        }
+        let largest = stalls(&out.results).into_iter().fold(0.0, f64::max);
+        let disturbed = largest > disturbance
+            || matches!(stats.safe_reason, Some(r) if r == reason::HEARTBEAT_TIMEOUT);
+        assert!(
+            disturbed && attempt < 3,
+            "attempt {attempt}: {:?} (largest stall {:.0} us, bench safe reason {:?})",
+            out.outcome,
+            largest * 1e6,
+            stats.safe_reason
+        );
+        eprintln!(
+            "attempt {attempt} disturbed by the host (largest stall {:.0} us, bench safe reason {:?}): {:?}; run again",
+            largest * 1e6,
+            stats.safe_reason,
+            out.outcome
+        );
+    };
     assert_eq!(stats.sessions, 1);
     assert_eq!(stats.rejected.rejected(), 0);
     assert_eq!(plant.len(), hw.len());
     let hw_col = |c: &str| hw.column(&format!("{name}.{c}")).unwrap();
-    // Per-row stall: wake-up lateness plus reply time (row 0 is the initial sample).
-    let stall: Vec<f64> = hw_col("lastLateness")
-        .iter()
-        .zip(hw_col("lastReplyTime"))
-        .map(|(l, r)| l + r)
-        .collect();
+    let stall = stalls(&hw);
     let steps = (stall.len() - 1) as f64;
     let delta = stall[1..].iter().sum::<f64>() / steps + 50e-6;
     let s_max = stall.iter().cloned().fold(0.0, f64::max);
     eprintln!(
-        "hardware run: {} overruns, mean shift {:.0} us, largest stall {:.0} us",
+        "hardware run (attempt {attempt}): {} overruns, mean shift {:.0} us, largest stall {:.0} us",
         hw_col("overrunCount").last().unwrap(),
         delta * 1e6,
         s_max * 1e6
@@ -374,14 +426,9 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let ms = 2.0;
     let res1 = std::f64::consts::TAU / (2000.0 * 160.0);
     let res2 = std::f64::consts::TAU / (2000.0 * 66.0);
-    for (signal, quantum) in [
-        ("actuationEncoderAngle", res1),
-        ("loadEncoderAngle", res2),
-        ("springDeflection", res1 + res2),
-        ("transducerTorque", 340.54 * (res1 + res2)),
-    ] {
-        let a = plant.column(&format!("{name}.{signal}")).unwrap();
-        let b = hw_col(signal);
+    // The largest rate and acceleration of a signal in the plant run (the acceleration from a
+    // 10-period stencil, past the encoders' quantisation).
+    let rate_and_acceleration = |a: &[f64]| {
         let rate = a
             .windows(2)
             .map(|w| ((w[1] - w[0]) / H).abs())
@@ -391,7 +438,38 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             .windows(2 * m + 1)
             .map(|w| ((w[2 * m] - 2.0 * w[m] + w[0]) / (m as f64 * H).powi(2)).abs())
             .fold(0.0, f64::max);
-        let sustained = ms * (2.0 * quantum + 2.0 * delta * rate);
+        (rate, accel)
+    };
+    let column = |signal: &str| plant.column(&format!("{name}.{signal}")).unwrap();
+    let (rate1, accel1) = rate_and_acceleration(&column("actuationEncoderAngle"));
+    let (rate2, accel2) = rate_and_acceleration(&column("loadEncoderAngle"));
+    let stiffness = 340.54;
+    // (signal, the count of what the controllers see, what the two runs' records differ by in
+    // kind, how much of the angles' motion enters the signal as a disturbance):
+    // * the plant records the true spring deflection, the hardware the difference of its
+    //   encoder angles, which differ by up to one count of each side whatever the trajectories;
+    // * the shaft torque is the transducer's reading of the true deflection in both runs;
+    // * a time shift of either angle moves the deflection by that angle's rate times the shift
+    //   until the torque loop rejects it, and in the swing the angles move 10 times faster
+    //   than the deflection: the deflection's (and the torque's) timing terms use the larger
+    //   of its own rate and the angles' (scaled by the stiffness for the torque).
+    for (signal, quantum, recorded, angle_share) in [
+        ("actuationEncoderAngle", res1, 0.0, 0.0),
+        ("loadEncoderAngle", res2, 0.0, 0.0),
+        ("springDeflection", res1 + res2, res1 + res2, 1.0),
+        (
+            "transducerTorque",
+            stiffness * (res1 + res2),
+            0.0,
+            stiffness,
+        ),
+    ] {
+        let a = column(signal);
+        let b = hw_col(signal);
+        let (own_rate, own_accel) = rate_and_acceleration(&a);
+        let rate = own_rate.max(angle_share * rate1.max(rate2));
+        let accel = own_accel.max(angle_share * accel1.max(accel2));
+        let sustained = recorded + ms * (2.0 * quantum + 2.0 * delta * rate);
         let tol = |k: usize| sustained + ms * (rate * stall[k] + 0.5 * accel * s_max * s_max);
         let (mut worst, mut worst_ratio, mut largest_tol) = (0.0f64, 0.0f64, 0.0f64);
         for (k, (x, y)) in a.iter().zip(&b).enumerate() {
@@ -410,13 +488,13 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         if signal.ends_with("EncoderAngle") {
             assert!(
                 sustained < rate * H,
-                "{signal}: {sustained} vs {}",
+                "{signal}: the comparison could not see one period of delay: {sustained} vs {}",
                 rate * H
             );
         }
         assert!(
-            range > 5.0 * largest_tol,
-            "{signal}: range {range} vs tolerance {largest_tol}"
+            range > 5.0 * sustained,
+            "{signal}: range {range} vs sustained tolerance {sustained}"
         );
     }
 }
