@@ -347,3 +347,99 @@ fn bad_logs_are_refused_with_the_file_and_line() {
         id.notes
     );
 }
+
+/// The same identification over logs recorded through `BenchHardware` (backend Udp, soft
+/// pacing) against the emulator serving the perturbed plant, in real time: the Bode sweep on
+/// each motor, shortened to 3 stages of 3 s (0.4, 0.8 and 1.6 Hz; 18 s of real time in all),
+/// the sensors' noise added as for the simulated logs. The logs' time column is the nominal one
+/// while the emulated bench integrated over the wall-time intervals between frames: the I/O
+/// jitter is part of what the identification must tolerate here.
+#[test]
+fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() {
+    use kneebench_harness::emulator::{EmulatorConfig, spawn};
+    let _real_time = kneebench_tests::one_real_time_test_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let mut logs = Vec::new();
+    for (k, (input, amplitude)) in [
+        (bode::SweepInput::Test, 10.0),
+        (bode::SweepInput::Load, 5.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut config = EmulatorConfig::new("127.0.0.1:0", plant_path());
+        config.parameters = TRUTH
+            .iter()
+            .map(|(n, v)| (n.to_string(), format!("{v:?}")))
+            .collect();
+        config.realtime_priority = Some(50);
+        let emu = spawn(config).expect("emulator");
+        let params = [
+            ("backend", "1".to_string()),
+            ("pacing", "1".to_string()),
+            ("serverAddress", emu.addr().to_string()),
+            ("tareSamples", "0".to_string()),
+            // Generous for a loaded test machine (the watchdog is tested in hardware.rs).
+            ("replyTimeout", "0.02".to_string()),
+            ("realtimePriority", "50".to_string()),
+        ];
+        let bench = Bench::load(
+            &fmus().join("BenchHardware.fmu"),
+            params
+                .iter()
+                .map(|(n, v)| (n.to_string(), v.clone()))
+                .collect(),
+            None,
+        )
+        .unwrap();
+        let out = dir.path().join(format!("run{k}"));
+        let r = bode::run_bode(
+            &bench,
+            &bode::BodeConfig {
+                input,
+                amplitude,
+                start_frequency: 0.4,
+                ratio: 2.0,
+                dwell: 3.0,
+                stages: 3,
+                ..bode::BodeConfig::default()
+            },
+            &out,
+        )
+        .unwrap();
+        assert_eq!(r.end, RunEnd::Completed);
+        emu.stop().unwrap();
+        let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+        let path = dir.path().join(format!("bode-hardware-{k}.csv"));
+        noisy_log(&run, &path, k as u64 + 11, 0.0);
+        logs.push(path);
+    }
+    let id = identify(&logs, &plant_path(), None, &IdentifyConfig::default()).unwrap();
+    let mut report = String::new();
+    for (name, truth) in TRUTH {
+        let e = id
+            .estimates
+            .iter()
+            .find(|e| e.quantity.parameter == Some(name))
+            .unwrap();
+        let (v, ci) = e.value();
+        report.push_str(&format!(
+            "{name}: {v} +- {ci} (truth {truth}, {:.3} %) {:?}\n",
+            100.0 * (v - truth) / truth,
+            e.status
+        ));
+    }
+    eprintln!("{report}");
+    for (name, truth) in TRUTH {
+        let e = id
+            .estimates
+            .iter()
+            .find(|e| e.quantity.parameter == Some(name))
+            .unwrap();
+        let (v, ci) = e.value();
+        assert_eq!(e.status, Status::Identified, "{name}\n{report}");
+        let within_3 = ((v - truth) / truth).abs() <= 0.03;
+        let within_ci = (v - truth).abs() <= ci && ci < 0.1 * truth;
+        assert!(within_3 || within_ci, "{name}\n{report}");
+    }
+}
