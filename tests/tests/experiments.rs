@@ -279,6 +279,27 @@ fn step_identifies_damping_and_inertia_and_measures_the_position_step() {
     let with_friction = plant(&[]);
     let r = step::run_step(&with_friction, &step::StepConfig::default(), out.path()).unwrap();
     assert!(r.damping > 15.0, "{}", r.damping);
+    // The raw run as Parquet: the same rows, the bench named in the file's metadata, the
+    // section links it.
+    let csv = kneebench_harness::Results::read_csv_file(out.path().join("step.csv")).unwrap();
+    let parquet_out = tempfile::tempdir().unwrap();
+    let r = step::run_step(
+        &plant(&[]).with_raw_format(kneebench_harness::experiment::RawFormat::Parquet),
+        &step::StepConfig::default(),
+        parquet_out.path(),
+    )
+    .unwrap();
+    assert_files(&r.written);
+    let path = parquet_out.path().join("step.parquet");
+    assert!(r.written.data.contains(&path));
+    let read = kneebench_harness::results::parquet_read::read_parquet(&path, None).unwrap();
+    assert_eq!(read.names(), csv.names());
+    assert_eq!(read.len(), csv.len());
+    let name = "plant.actuationEncoderAngle";
+    assert_eq!(read.column(name), csv.column(name));
+    let bytes = std::fs::read(&path).unwrap();
+    let text = String::from_utf8_lossy(&bytes);
+    assert!(text.contains("kneebench.bench_guid") && text.contains("kneebench.experiment"));
 }
 
 #[test]

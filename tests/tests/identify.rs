@@ -443,3 +443,65 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
         assert!(within_3 || within_ci, "{name}\n{report}");
     }
 }
+
+/// A Parquet log (`kneebench experiment --format parquet`, or any tool's table) gives the
+/// identification exactly what the same log as CSV gives: the CSV text round-trips every value,
+/// so the estimates are equal bit for bit.
+#[test]
+fn parquet_logs_identify_exactly_as_the_same_csv_logs() {
+    let csv = perturbed_logs();
+    let dir = tempfile::tempdir().unwrap();
+    let parquet: Vec<PathBuf> = csv
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let path = dir.path().join(format!("log-{k}.parquet"));
+            Results::read_csv_file(p)
+                .unwrap()
+                .write_parquet_file(&path, vec![])
+                .unwrap();
+            path
+        })
+        .collect();
+    let config = IdentifyConfig {
+        refine: false,
+        ..IdentifyConfig::default()
+    };
+    let from_csv = identify(csv, &plant_path(), None, &config).unwrap();
+    let from_parquet = identify(&parquet, &plant_path(), None, &config).unwrap();
+    assert_eq!(from_csv.estimates.len(), from_parquet.estimates.len());
+    for (a, b) in from_csv.estimates.iter().zip(&from_parquet.estimates) {
+        assert_eq!(a.quantity.parameter, b.quantity.parameter);
+        assert_eq!(
+            a.value().0.to_bits(),
+            b.value().0.to_bits(),
+            "{a:?} vs {b:?}"
+        );
+    }
+    // A bad Parquet log is refused with its file and row.
+    let mut r = Results::read_csv_file(&csv[0]).unwrap();
+    let names = r.names().to_vec();
+    let k = names
+        .iter()
+        .position(|n| n == "plant.transducerTorque")
+        .unwrap();
+    let mut bad =
+        Results::with_capacity(names.clone(), vec![ColumnKind::Real; names.len()], r.len());
+    for (i, row) in r.rows().enumerate() {
+        let mut values = row[1..].to_vec();
+        if i == 1500 {
+            values[k] = f64::NAN;
+        }
+        bad.push_row(row[0], &values);
+    }
+    r = bad;
+    let path = dir.path().join("bad.parquet");
+    r.write_parquet_file(&path, vec![]).unwrap();
+    let e = identify(&[path], &plant_path(), None, &config)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("bad.parquet") && e.contains("row 1501") && e.contains("NaN"),
+        "{e}"
+    );
+}

@@ -3,7 +3,18 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use kneebench_harness::experiment::{Bench, BenchKind, bode, calibration, map, step, triangle};
+use kneebench_harness::experiment::{
+    Bench, BenchKind, RawFormat, bode, calibration, map, step, triangle,
+};
+
+/// The raw run file's format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// `<name>.csv`.
+    Csv,
+    /// `<name>.parquet`.
+    Parquet,
+}
 
 /// Arguments of `kneebench experiment`.
 #[derive(Debug, clap::Args)]
@@ -35,8 +46,8 @@ Experiments (bench-model.md sections 5, 6, 8):
 The same schedule runs on BenchPlant and on BenchHardware (which runs in real time against
 the bench or `kneebench emulate`). On BenchHardware the experiment refuses to start unless
 every interlock is armed at or inside the bench's limits. Written into --out: <name>.csv (the
-run), <name>-result.csv (the analysed table), <name>.svg and .png, <name>.md. Other FMUs
-(GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
+run; <name>.parquet with --format parquet), <name>-result.csv (the analysed table), <name>.svg
+and .png, <name>.md. Other FMUs (GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
 Exit code 3 when an interlock ended the run (the triangle test's trip is its result: 0).")]
 pub struct Args {
     /// The experiment: map, bode, triangle, calibration or step.
@@ -56,6 +67,10 @@ pub struct Args {
     /// A parameter set (.ssv) for the bench FMU, applied before --param; named in NAME.md.
     #[arg(long = "params", value_name = "SET.ssv")]
     pub parameter_set: Option<PathBuf>,
+    /// Format of the raw run file `<name>.csv` or `<name>.parquet` (the bench FMU, its GUID and
+    /// parameters in the Parquet file's metadata); `kneebench identify` reads both.
+    #[arg(long, value_enum, default_value_t = Format::Csv)]
+    pub format: Format,
     /// map: speed magnitudes (deg/s), each run both ways (default the bench's 0, 3, 6, 10, 20,
     /// 30, 50, 70, 90, 110, 130, 150).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -133,7 +148,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .map(|p| Ok((p.name.clone(), p.value.to_text())))
         .chain(a.params.iter().map(|p| super::name_value(p)))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let bench = Bench::load(&a.fmu, params, a.fmus.clone())?;
+    let bench = Bench::load(&a.fmu, params, a.fmus.clone())?.with_raw_format(match a.format {
+        Format::Csv => RawFormat::Csv,
+        Format::Parquet => RawFormat::Parquet,
+    });
     if bench.kind() == BenchKind::Hardware {
         println!("bench: BenchHardware (checking the interlocks before anything moves)");
     }

@@ -37,8 +37,8 @@ Examples:
   $K study --fmus $F --params out/identify/identified.ssv
   $K identify --defaults --fmu $F/BenchPlant.fmu --out out/params   # the bench facts as .ssv
 
-Fits the plant's parameters to logs of the bench's experiments (the CSV `kneebench experiment`
-writes): linear least squares on the smoothed encoder signals (inertias, viscous and Coulomb
+Fits the plant's parameters to logs of the bench's experiments (the CSV or Parquet files
+`kneebench experiment` writes; a .parquet extension reads Parquet): linear least squares on the smoothed encoder signals (inertias, viscous and Coulomb
 friction per side, spring stiffness, motor torque constants; resistance, inductance and
 back-emf constant where the driver's voltage is logged; the transducer's torque offset), then
 an output-error refinement that re-runs the plant FMU over the logged currents. Writes
@@ -46,7 +46,7 @@ an output-error refinement that re-runs the plant FMU over the logged currents. 
 (estimates with 95 % intervals, residuals, correlations, what is not identifiable and which
 experiment to add) and the measured-vs-twin figure identify-fit.png/.svg.")]
 pub struct Args {
-    /// Experiment logs (CSV).
+    /// Experiment logs (CSV, or Parquet by the .parquet extension).
     pub logs: Vec<std::path::PathBuf>,
     /// The plant FMU (BenchPlant.fmu): its parameters are the prior, the refinement runs it.
     #[arg(long)]

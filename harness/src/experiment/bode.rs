@@ -383,6 +383,7 @@ fn write_bode(
         ));
     }
     let mut written = write_outputs(
+        bench,
         out,
         "bode",
         "Stepped-sine Bode sweep",

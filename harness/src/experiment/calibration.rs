@@ -299,6 +299,7 @@ fn write_calibration(
     }
     let series: Vec<&str> = names[4..].iter().map(String::as_str).collect();
     write_outputs(
+        bench,
         out,
         "calibration",
         "Pendulum calibration of the torque transducer and the load cell",

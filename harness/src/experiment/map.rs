@@ -425,6 +425,7 @@ fn write_map(
         ));
     }
     write_outputs(
+        bench,
         out,
         "map",
         "Steady-state map of the harmonic drive",

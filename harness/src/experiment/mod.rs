@@ -99,6 +99,18 @@ pub struct Bench {
     kind: BenchKind,
     parameters: Vec<(String, String)>,
     fmu_dir: PathBuf,
+    raw_format: RawFormat,
+}
+
+/// The format of an experiment's raw run file (`<name>.csv` or `<name>.parquet`); the analysed
+/// table stays CSV (a few hundred rows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RawFormat {
+    /// CSV, every signal as text.
+    #[default]
+    Csv,
+    /// Parquet, float64 columns with the bench FMU and its parameters as metadata.
+    Parquet,
 }
 
 /// The interlock limits of bench-model.md section 7: (parameter, largest armed value, what).
@@ -163,7 +175,14 @@ impl Bench {
             kind,
             parameters,
             fmu_dir,
+            raw_format: RawFormat::Csv,
         })
+    }
+
+    /// The same bench writing its experiments' raw runs in `format`.
+    pub fn with_raw_format(mut self, format: RawFormat) -> Bench {
+        self.raw_format = format;
+        self
     }
 
     /// Plant or hardware.
@@ -453,6 +472,7 @@ fn figure(
 /// `series` of the table) and the Markdown section (`body` after a heading, the figure linked).
 #[allow(clippy::too_many_arguments)]
 fn write_outputs(
+    bench: &Bench,
     out: &Path,
     name: &str,
     title: &str,
@@ -466,8 +486,39 @@ fn write_outputs(
         path: out.to_path_buf(),
         source,
     })?;
-    let raw = out.join(format!("{name}.csv"));
-    run.write_csv_file(&raw)?;
+    let raw = match bench.raw_format {
+        RawFormat::Csv => {
+            let raw = out.join(format!("{name}.csv"));
+            run.write_csv_file(&raw)?;
+            raw
+        }
+        RawFormat::Parquet => {
+            let raw = out.join(format!("{name}.parquet"));
+            let mut metadata = vec![
+                ("kneebench.experiment".to_string(), name.to_string()),
+                (
+                    "kneebench.bench_fmu".to_string(),
+                    bench.path.display().to_string(),
+                ),
+                (
+                    "kneebench.bench_guid".to_string(),
+                    bench.fmu.model_description().guid.clone(),
+                ),
+            ];
+            metadata.extend(
+                bench
+                    .parameters
+                    .iter()
+                    .map(|(n, v)| (format!("kneebench.parameter.{n}"), v.clone())),
+            );
+            run.write_parquet_file(&raw, metadata)?;
+            raw
+        }
+    };
+    let raw_name = raw
+        .file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let analysed = out.join(format!("{name}-result.csv"));
     table.write_csv(&analysed)?;
     let figures = figure(&table.to_results(), series, out, name, labels)?;
@@ -475,7 +526,7 @@ fn write_outputs(
     write_file(
         &markdown,
         &format!(
-            "## {title}\n\n![{title}]({name}.png)\n\n(vector: [{name}.svg]({name}.svg); data: [{name}-result.csv]({name}-result.csv), every signal of the run: [{name}.csv]({name}.csv))\n\n{body}\n"
+            "## {title}\n\n![{title}]({name}.png)\n\n(vector: [{name}.svg]({name}.svg); data: [{name}-result.csv]({name}-result.csv), every signal of the run: [{raw_name}]({raw_name}))\n\n{body}\n"
         ),
     )?;
     Ok(Written {

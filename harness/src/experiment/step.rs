@@ -318,6 +318,7 @@ fn write_step(
         }
     }
     write_outputs(
+        bench,
         out,
         "step",
         "Step responses and Ziegler-Nichols starting gains",

@@ -280,6 +280,7 @@ fn write_triangle(
     }
     let series: Vec<&str> = names.iter().map(String::as_str).collect();
     write_outputs(
+        bench,
         out,
         "triangle",
         "Triangle test: load torque raised until the braking limit trips",

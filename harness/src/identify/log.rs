@@ -72,12 +72,33 @@ struct Table {
     time: Vec<f64>,
     /// Per wanted name, its column if the header has it.
     columns: Vec<Option<Vec<f64>>>,
-    /// The file line of each row (1-based).
+    /// Where each row is in the file (1-based): its line in a CSV file, its row in Parquet.
     lines: Vec<usize>,
+    /// What [`Self::lines`] counts: "line" or "row".
+    place: &'static str,
+}
+
+/// Reads the wanted columns of a Parquet log (`.parquet`: `kneebench experiment --format
+/// parquet`, or any tool's table with a time column).
+fn read_parquet_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
+    let r = crate::results::parquet_read::read_parquet(path, Some(wanted))
+        .map_err(|e| e.to_string())?;
+    Ok(Table {
+        columns: wanted.iter().map(|w| r.column(w)).collect(),
+        lines: (1..=r.len()).collect(),
+        time: r.times().to_vec(),
+        place: "row",
+    })
 }
 
 fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
     use std::io::BufRead;
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("parquet"))
+    {
+        return read_parquet_table(path, wanted);
+    }
     let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
     let mut r = std::io::BufReader::with_capacity(1 << 20, f);
     let mut buf = String::new();
@@ -107,6 +128,7 @@ fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
         time: Vec::new(),
         columns: index.iter().map(|i| i.map(|_| Vec::new())).collect(),
         lines: Vec::new(),
+        place: "line",
     };
     // Field position -> slot in `columns`.
     let mut slot = vec![None; header.len()];
@@ -192,6 +214,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     }
     let time = table.time.clone();
     let line = |i: usize| table.lines[i];
+    let place = table.place;
     let min_rows = 2 * m + 1 + 200;
     if time.len() < min_rows {
         return Err(bad(format!(
@@ -202,11 +225,11 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     }
     for (i, t) in time.iter().enumerate() {
         if !t.is_finite() {
-            return Err(bad(format!("line {}: time is {t}", line(i))));
+            return Err(bad(format!("{place} {}: time is {t}", line(i))));
         }
         if i > 0 && *t <= time[i - 1] {
             return Err(bad(format!(
-                "line {}: time {t} does not increase (previous {})",
+                "{place} {}: time {t} does not increase (previous {})",
                 line(i),
                 time[i - 1]
             )));
@@ -215,7 +238,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let dt = (time[time.len() - 1] - time[0]) / (time.len() - 1) as f64;
     if let Some(i) = (1..time.len()).find(|&i| ((time[i] - time[i - 1]) - dt).abs() > 1e-6 * dt) {
         return Err(bad(format!(
-            "line {}: sampling is not uniform (step {} s, the log's mean {dt} s)",
+            "{place} {}: sampling is not uniform (step {} s, the log's mean {dt} s)",
             line(i),
             time[i] - time[i - 1]
         )));
@@ -225,7 +248,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
             return Ok(None);
         };
         if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(bad(format!("line {}: {name} is {}", line(i), v[i])));
+            return Err(bad(format!("{place} {}: {name} is {}", line(i), v[i])));
         }
         Ok(Some(v))
     };
@@ -239,7 +262,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let command = match table.columns[wanted.len() - 1].clone() {
         Some(v) => {
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-                return Err(bad(format!("line {}: {COMMAND} is {}", line(i), v[i])));
+                return Err(bad(format!("{place} {}: {COMMAND} is {}", line(i), v[i])));
             }
             Some(v)
         }
@@ -263,7 +286,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
                     i += 1;
                 }
                 notes.push(format!(
-                    "{}: lines {}-{} (t = {:.3}-{:.3} s) excluded: {what}",
+                    "{}: {place}s {}-{} (t = {:.3}-{:.3} s) excluded: {what}",
                     path.display(),
                     line(start),
                     line(i - 1),

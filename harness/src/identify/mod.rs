@@ -1,11 +1,11 @@
 //! Identification: fit the twin's parameters to a bench's own experiment logs
 //! (`kneebench identify`).
 //!
-//! **Input.** The CSV logs `kneebench experiment` writes (on `BenchHardware`, or on
-//! `BenchPlant` for testing): encoder angles, motor currents, transducer torque, and when
+//! **Input.** The CSV or Parquet logs `kneebench experiment` writes (on `BenchHardware`, or on
+//! `BenchPlant` for testing; Parquet by the `.parquet` extension, from any tool): encoder angles, motor currents, transducer torque, and when
 //! logged the drivers' voltages ([`log::REQUIRED`], [`log::OPTIONAL`]). Each log is checked
 //! ([`log::read`]): missing channels, non-monotonic or non-uniform time, NaN and too-short logs
-//! are refused with the file and line; rows with a saturated driver or a tripped interlock are
+//! are refused with the file and line (row in Parquet); rows with a saturated driver or a tripped interlock are
 //! excluded with a note in the report.
 //!
 //! **Stage 1, linear least squares** (the bench's own method: inverse dynamics on smoothed

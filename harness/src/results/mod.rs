@@ -30,6 +30,7 @@ pub enum ColumnKind {
 
 pub mod csv;
 pub mod parquet;
+pub mod parquet_read;
 
 /// Errors of reading, writing and plotting results.
 #[derive(Debug, thiserror::Error)]
@@ -393,6 +394,23 @@ impl Results {
     /// complete (an earlier file at `path` survives a failed write).
     pub fn write_csv_file(&self, path: impl AsRef<Path>) -> Result<(), ResultsError> {
         let mut file = csv::CsvFile::create(path.as_ref())?;
+        file.begin(&self.names, &self.kinds)?;
+        for r in self.rows() {
+            file.push_row(r[0], &r[1..])?;
+        }
+        file.commit().map(drop)
+    }
+
+    /// Writes the table as Parquet (a float64 column per signal after `time`, `metadata` as the
+    /// file's key-value metadata): streamed into `<path>.partial`, renamed into place when
+    /// complete. [`parquet_read::read_parquet`] reads it back bit for bit.
+    pub fn write_parquet_file(
+        &self,
+        path: impl AsRef<Path>,
+        metadata: Vec<(String, String)>,
+    ) -> Result<(), ResultsError> {
+        let mut file = parquet::ParquetFile::create(path.as_ref())?;
+        file.set_metadata(metadata);
         file.begin(&self.names, &self.kinds)?;
         for r in self.rows() {
             file.push_row(r[0], &r[1..])?;
