@@ -270,6 +270,7 @@ fn study<'py>(
         actuators: list,
         overrides: Vec::new(),
         parameter_set: None,
+        bench: None,
     };
     let runs = py.detach(|| run_study(&config)).map_err(err)?;
     runs.iter().map(|r| report_dict(py, &r.report)).collect()

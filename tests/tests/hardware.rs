@@ -218,10 +218,11 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 
 /// The study's SEA closed loop (`study::gait_scenario`: gait reference, position PID on the
 /// actuation encoder, shaft-torque PID on the transducer, feed-forwards) run twice as an SSP
-/// system: once as written, once with the plant component's FMU swapped for `BenchHardware`
-/// (backend Udp, pacing Soft) pointed at the emulator on loopback, everything else unchanged.
-/// The plant's parameters go to the emulator's plant, and to the hardware component where it
-/// declares them; `tareSamples` = 0 makes the hardware read the torque channels with the
+/// system: once as written, once with the plant component's FMU replaced by `BenchHardware`
+/// (`ssp::load_system_replacing`, what `kneebench run --replace plant=BenchHardware.fmu` does;
+/// backend Udp and pacing Soft set by item name) pointed at the emulator on loopback,
+/// everything else unchanged. The plant's parameters go to the emulator's plant, and stay
+/// bound to the hardware component, which declares them all; `tareSamples` = 0 makes the hardware read the torque channels with the
 /// published calibration offsets, exactly as the plant's outputs do (the tare is tested
 /// elsewhere). The first 1.75 s in real time: the soft start (half a gait period) and the
 /// beginning of the swing, where the knee moves fast (up to 2.2 rad/s). The window reaches into
@@ -276,7 +277,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     let _real_time = one_real_time_test_at_a_time();
     use kneebench_harness::Value;
-    use kneebench_harness::ssp::load_system;
+    use kneebench_harness::ssp::{load_system, load_system_replacing};
     use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
     let stop = 1.75;
     let mut scenario = gait_scenario(
@@ -287,40 +288,29 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     );
     scenario.stop_time = stop;
     let fmu_dir = exported_fmus().0.path();
-    let hw_fmu = Fmu::load(exported_fmu("BenchHardware"), &LoadOptions::default()).unwrap();
-    // The plant swapped for the hardware, pointed at an emulator with the plant's parameters.
-    let mut hw_scenario = scenario.clone();
-    let component = hw_scenario
+    let name = scenario
         .components
-        .iter_mut()
+        .iter()
         .find(|c| c.fmu == "BenchPlant.fmu")
-        .expect("the scenario has a BenchPlant component");
-    let name = component.name.clone();
+        .expect("the scenario has a BenchPlant component")
+        .name
+        .clone();
     let text = |v: &Value| match v {
         Value::Real(x) => format!("{x:?}"),
         Value::Integer(x) => x.to_string(),
         Value::Boolean(x) => x.to_string(),
         Value::String(x) => x.clone(),
     };
-    let plant_params: Vec<(String, String)> = component
+    // The emulated bench runs the plant with the scenario's plant parameters.
+    let plant_params: Vec<(String, String)> = scenario
+        .components
+        .iter()
+        .find(|c| c.name == name)
+        .unwrap()
         .parameters
         .iter()
         .map(|(n, v)| (n.clone(), text(v)))
         .collect();
-    component.fmu = "BenchHardware.fmu".into();
-    component
-        .parameters
-        .retain(|(n, _)| hw_fmu.variable(n).is_some());
-    component.parameters.extend([
-        ("backend".to_string(), Value::Integer(1)),
-        ("pacing".to_string(), Value::Integer(1)),
-        ("keyFile".to_string(), Value::String(key_path())),
-        ("tareSamples".to_string(), Value::Integer(0)),
-        // Generous for a loaded test machine: the comparison's tolerance uses the measured
-        // reply times, the watchdog is tested elsewhere.
-        ("replyTimeout".to_string(), Value::Real(0.02)),
-        ("realtimePriority".to_string(), Value::Integer(50)),
-    ]);
     let compared = [
         "actuationEncoderAngle",
         "loadEncoderAngle",
@@ -328,10 +318,29 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         "transducerTorque",
     ];
     let dir = tempfile::tempdir().unwrap();
-    let run = |scenario: &kneebench_harness::study::Scenario, file: &str, extra: &[&str]| {
-        let path = dir.path().join(file);
-        write_ssp(scenario, fmu_dir, &path).unwrap();
-        let mut loaded = load_system(&path, &LoadOptions::default()).unwrap();
+    let path = dir.path().join("SEA.ssp");
+    write_ssp(&scenario, fmu_dir, &path).unwrap();
+    // One SSP, run as written and, as `kneebench run SEA.ssp --replace plant=BenchHardware.fmu
+    // --param plant.backend=Udp ...` does, with the plant's FMU replaced by the hardware's.
+    let run = |replace: Option<&[(&str, String)]>, extra: &[&str]| {
+        let mut loaded = match replace {
+            None => load_system(&path, &LoadOptions::default()).unwrap(),
+            Some(parameters) => {
+                let mut loaded = load_system_replacing(
+                    &path,
+                    &LoadOptions::default(),
+                    &[(name.clone(), exported_fmu("BenchHardware"))],
+                )
+                .unwrap();
+                for (n, v) in parameters {
+                    loaded
+                        .system
+                        .set_value_str(&format!("{name}.{n}"), v)
+                        .unwrap();
+                }
+                loaded
+            }
+        };
         let refs: Vec<String> = compared
             .iter()
             .chain(extra)
@@ -341,7 +350,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         loaded.system.record(&refs).unwrap();
         loaded.system.run(&loaded.config).unwrap()
     };
-    let plant = run(&scenario, "SEA-plant.ssp", &[]);
+    let plant = run(None, &[]);
     assert!(
         matches!(plant.outcome, Outcome::Completed { .. }),
         "{:?}",
@@ -373,19 +382,19 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         config.realtime_priority = Some(50);
         config.key = Some(bench_key_file().2.clone());
         let emu = spawn(config).expect("emulator");
-        let mut attempt_scenario = hw_scenario.clone();
-        let component = attempt_scenario
-            .components
-            .iter_mut()
-            .find(|c| c.name == name)
-            .unwrap();
-        component.parameters.push((
-            "serverAddress".to_string(),
-            Value::String(emu.addr().to_string()),
-        ));
+        let parameters = [
+            ("backend", "Udp".to_string()),
+            ("pacing", "Soft".to_string()),
+            ("serverAddress", emu.addr().to_string()),
+            ("keyFile", key_path()),
+            ("tareSamples", "0".to_string()),
+            // Generous for a loaded test machine: the comparison's tolerance uses the
+            // measured reply times, the watchdog is tested elsewhere.
+            ("replyTimeout", "0.02".to_string()),
+            ("realtimePriority", "50".to_string()),
+        ];
         let out = run(
-            &attempt_scenario,
-            "SEA-hardware.ssp",
+            Some(&parameters),
             &["lastLateness", "lastReplyTime", "overrunCount"],
         );
         let stats = emu.stop().unwrap();

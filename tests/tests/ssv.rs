@@ -298,6 +298,7 @@ fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
         // --param wins over the set.
         overrides: vec![("plant.loadStaticFriction".into(), Value::Real(0.38))],
         parameter_set: Some(set.clone()),
+        bench: None,
     };
     let runs = run_study(&config).unwrap();
     let run = &runs[0];

@@ -53,6 +53,7 @@ fn config(out: &Path, actuators: Vec<Actuator>, cycles: u32, scale: f64) -> Stud
         actuators,
         overrides: Vec::new(),
         parameter_set: None,
+        bench: None,
     }
 }
 

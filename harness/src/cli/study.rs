@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use kneebench_harness::master::Value;
 use kneebench_harness::study::{
-    Actuator, ScenarioSection, StudyConfig, StudyScenario, markdown_table, plot_study, run_study,
-    write_report,
+    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyScenario, markdown_table, plot_study,
+    run_study, write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -15,6 +15,10 @@ Examples:
   kneebench export --out out/fmus && kneebench study --fmus out/fmus --out out/study
   kneebench study --fmus out/fmus --out out/clutch --scenario bench-clutch
   kneebench study --fmus out/fmus --out out/big --scenario bench-full --scale 1.7 --actuators sea   # trips an interlock: exit code 3
+On the bench (or the emulator: kneebench emulate --key bench.key --param configuration=1), the same
+schedule through BenchHardware, one actuator, in real time:
+  kneebench study --fmus out/fmus --out out/bench --scenario bench-full --actuators sea \\
+      --bench 192.168.1.20:47000 --key bench.key
 
 Scenarios, each run as on the bench for one of its published tables (gait 2.5 s, peak external
 torque 9 N m):
@@ -55,6 +59,17 @@ pub struct Args {
     /// BenchPlant.fmu, embedded in every scenario SSP, named in report.md; --param wins over it.
     #[arg(long = "params", value_name = "SET.ssv")]
     pub parameter_set: Option<PathBuf>,
+    /// Run on a bench (or `kneebench emulate`) at host:port instead of the plant: the plant
+    /// replaced by BenchHardware.fmu from --fmus, in real time; needs --key and one actuator.
+    #[arg(long, value_name = "ADDRESS", requires = "key")]
+    pub bench: Option<String>,
+    /// The bench's key file (kneebench key new), with --bench.
+    #[arg(long, value_name = "FILE", requires = "bench")]
+    pub key: Option<PathBuf>,
+    /// A BenchHardware parameter with --bench, NAME=VALUE (repeatable; an enumeration by its
+    /// item name), e.g. --bench-param replyTimeout=0.005.
+    #[arg(long = "bench-param", value_name = "NAME=VALUE", requires = "bench")]
+    pub bench_params: Vec<String>,
 }
 
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
@@ -110,6 +125,18 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .as_deref()
         .map(kneebench_harness::params::ParameterSet::read_file)
         .transpose()?;
+    let bench = match (&a.bench, &a.key) {
+        (Some(address), Some(key)) => Some(BenchLink {
+            address: address.clone(),
+            key_file: key.clone(),
+            parameters: a
+                .bench_params
+                .iter()
+                .map(|p| super::name_value(p))
+                .collect::<anyhow::Result<Vec<_>>>()?,
+        }),
+        _ => None,
+    };
     let mut all = Vec::new();
     for scenario in scenarios {
         let config = StudyConfig {
@@ -122,6 +149,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             actuators: actuators.clone(),
             overrides: overrides.clone(),
             parameter_set: parameter_set.clone(),
+            bench: bench.clone(),
         };
         let runs = run_study(&config)?;
         let figures = plot_study(&runs, &a.out)?;

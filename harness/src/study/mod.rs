@@ -111,7 +111,7 @@ pub use bench::*;
 pub use report::*;
 pub use scenario::*;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::master::Value;
 use crate::results::Results;
@@ -210,6 +210,24 @@ pub struct StudyConfig {
     /// `ParameterBinding` to it; the scenario's own plant values that the set also names
     /// give way to the set's).
     pub parameter_set: Option<crate::params::ParameterSet>,
+    /// Run the schedule on a bench instead of the plant (`kneebench study --bench`): the
+    /// `plant` component's FMU replaced by `BenchHardware.fmu` from [`Self::fmu_dir`], in real
+    /// time. One actuator per study ([`Self::actuators`]): the bench is built for one
+    /// configuration, and its server refuses a session for another.
+    pub bench: Option<BenchLink>,
+}
+
+/// Where and how the study reaches a bench (`kneebench study --bench ADDRESS --key FILE`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchLink {
+    /// The bench server's address, `host:port`.
+    pub address: String,
+    /// The bench's key file (`kneebench key new`).
+    pub key_file: PathBuf,
+    /// Further parameters of `BenchHardware` by name, values as text (an enumeration by its
+    /// item name): e.g. `tareSamples`, `replyTimeout`. Set after the link's own (`backend` =
+    /// Udp, `pacing` = Soft, `serverAddress`, `keyFile`), so they can replace them.
+    pub parameters: Vec<(String, String)>,
 }
 
 /// The sorted `component.name = value` lines of a scenario's parameters and their SHA-256.
@@ -272,10 +290,57 @@ fn apply_overrides(
 /// The component of the scenarios that a `--params` set applies to.
 const PLANT: &str = "plant";
 
+/// Loads the scenario's SSP with its `plant` replaced by `BenchHardware` pointed at `link`.
+fn on_the_bench(
+    path: &Path,
+    fmu_dir: &Path,
+    link: &BenchLink,
+) -> Result<ssp::LoadedSystem, StudyError> {
+    let hardware = fmu_dir.join("BenchHardware.fmu");
+    let mut loaded = ssp::load_system_replacing(
+        path,
+        &crate::load::LoadOptions::default(),
+        &[(PLANT.to_string(), hardware)],
+    )?;
+    let key = link.key_file.to_string_lossy().into_owned();
+    let own = [
+        ("backend", "Udp"),
+        ("pacing", "Soft"),
+        ("serverAddress", link.address.as_str()),
+        ("keyFile", key.as_str()),
+    ];
+    for (name, value) in own.into_iter().chain(
+        link.parameters
+            .iter()
+            .map(|(n, v)| (n.as_str(), v.as_str())),
+    ) {
+        loaded
+            .system
+            .set_value_str(&format!("{PLANT}.{name}"), value)
+            .map_err(|e| StudyError::Parameter(format!("bench parameter {name} = {value}: {e}")))?;
+    }
+    Ok(loaded)
+}
+
 /// Runs one scenario of the study: writes `scenarios/<stem>.ssp`, runs each with this
 /// harness's master, writes `<stem>.csv`, and returns the runs. A run ended by an interlock
 /// keeps its rows and names the interlock in its report.
 pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
+    if config.bench.is_some() && config.actuators.len() != 1 {
+        return Err(StudyError::Parameter(format!(
+            "on a bench the study runs one actuator (the one the bench is built as): name it, e.g. --actuators sea (given: {})",
+            if config.actuators.is_empty() {
+                "all".to_string()
+            } else {
+                config
+                    .actuators
+                    .iter()
+                    .map(|a| a.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        )));
+    }
     if let Some(set) = &config.parameter_set {
         let fmu = config.fmu_dir.join("BenchPlant.fmu");
         let (_dir, md) =
@@ -332,7 +397,10 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             None => write_ssp(&scenario, &config.fmu_dir, &path)?,
             Some(set) => write_ssp_with_set(&scenario, &config.fmu_dir, &path, PLANT, set)?,
         }
-        let loaded = ssp::load_system(&path, &crate::load::LoadOptions::default())?;
+        let loaded = match &config.bench {
+            None => ssp::load_system(&path, &crate::load::LoadOptions::default())?,
+            Some(link) => on_the_bench(&path, &config.fmu_dir, link)?,
+        };
         let output = loaded
             .system
             .run(&loaded.config)
