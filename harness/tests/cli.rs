@@ -113,3 +113,38 @@ fn a_closed_stdout_pipe_ends_quietly() {
         "{status:?}: {stderr}"
     );
 }
+
+/// `kneebench study --bench` needs the bench's key and one actuator, refused before anything
+/// runs (no FMU is read, nothing is written).
+#[test]
+fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
+    let out = tempfile::tempdir().unwrap();
+    let o = kneebench()
+        .args(["study", "--fmus", "no-such-dir", "--bench", "127.0.0.1:9"])
+        .arg("--out")
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("--key"), "{e}");
+    let key = out.path().join("bench.key");
+    let o = kneebench()
+        .args([
+            "study",
+            "--fmus",
+            "no-such-dir",
+            "--bench",
+            "127.0.0.1:9",
+            "--key",
+        ])
+        .arg(&key)
+        .arg("--out")
+        .arg(out.path().join("study"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("one actuator"), "{e}");
+    assert!(!out.path().join("study").exists());
+}
