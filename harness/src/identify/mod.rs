@@ -46,8 +46,16 @@
 //! [`IdentifyConfig::max_relative_ci`] (25 %) of the estimate; it keeps its prior value in the written set and the report names the experiment
 //! to add. Pairs of estimates correlated beyond 0.9 are listed.
 //!
-//! Not identified here (the logs of this stage do not separate them from the Coulomb/viscous
-//! pair): the Stribeck and loss-surface coefficients; they keep their prior values.
+//! **Exponential friction.** When the logs were recorded with the exponential (Stribeck-like)
+//! law (`frictionModel` = Exponential given as `--param` or in the prior set), each side's
+//! Coulomb column is replaced by the law `[a0 + a1 e^{-b1|w|} + a2 (1 - e^{-b2|w|})] sign(w)`,
+//! fitted by variable projection over its two rates ([`stribeck`]); the Coulomb level
+//! `Tfr,static` is then reported as not used.
+//!
+//! Not identified: the harmonic drive's loss-surface coefficients. They are not parameters of
+//! the FMU (the 2 x 21 polynomial coefficients of `shared/data/hd-loss-surface.csv` are
+//! compiled in, with only the clamping box as parameters), so a fitted surface could not be
+//! written to the set or used by the twin.
 
 pub mod lm;
 pub mod log;
@@ -55,6 +63,7 @@ pub mod lsq;
 mod refine;
 mod report;
 pub mod smooth;
+pub mod stribeck;
 
 use std::path::{Path, PathBuf};
 
@@ -228,6 +237,47 @@ const LOAD: [Quantity; 4] = [
         "a log moving the load side both ways: `kneebench experiment bode --input load`",
     ),
 ];
+/// The exponential friction law's coefficients of one side (`frictionModel` = Exponential),
+/// in [`stribeck::LawFit`]'s order after Km, I, c.
+const fn law(side: usize) -> [Quantity; 5] {
+    let experiment = "slow steady motion both ways, below and above the Stribeck speed: `kneebench experiment map` (its 3 deg/s holds) with the law active";
+    let growth = "steady speeds beyond 1/b2 (0.5 rad/s) both ways: `kneebench experiment map` or a Bode sweep of larger amplitude";
+    if side == 0 {
+        [
+            q(Some("actuationStribeckA0"), "a0,1", "N.m", experiment),
+            q(Some("actuationStribeckA1"), "a1,1", "N.m", experiment),
+            q(Some("actuationStribeckB1"), "b1,1", "s/rad", experiment),
+            q(Some("actuationStribeckA2"), "a2,1", "N.m", growth),
+            q(Some("actuationStribeckB2"), "b2,1", "s/rad", growth),
+        ]
+    } else {
+        [
+            q(Some("loadStribeckA0"), "a0,2", "N.m", experiment),
+            q(Some("loadStribeckA1"), "a1,2", "N.m", experiment),
+            q(Some("loadStribeckB1"), "b1,2", "s/rad", experiment),
+            q(Some("loadStribeckA2"), "a2,2", "N.m", growth),
+            q(Some("loadStribeckB2"), "b2,2", "s/rad", growth),
+        ]
+    }
+}
+
+/// Whether the logs were recorded with the exponential friction law: `frictionModel` =
+/// Exponential (2) among the simulation's parameters or in the prior set.
+fn exponential_friction(config: &IdentifyConfig, prior: Option<&ParameterSet>) -> bool {
+    let is_exponential = |v: &str| v.trim() == "2" || v.trim().eq_ignore_ascii_case("Exponential");
+    if let Some((_, v)) = config
+        .plant_parameters
+        .iter()
+        .rev()
+        .find(|(n, _)| n == "frictionModel")
+    {
+        return is_exponential(v);
+    }
+    prior
+        .and_then(|p| p.parameters.iter().find(|q| q.name == "frictionModel"))
+        .is_some_and(|q| matches!(q.value, crate::params::ParamValue::Integer(2)))
+}
+
 const TEST_MOTOR: [Quantity; 3] = [
     q(
         Some("testMotorResistance"),
@@ -511,6 +561,7 @@ pub fn identify(
     let i_hd = real("harmonicDriveRatio")?;
     let i_red = real("reductionRatio")?;
     let prior_of = |q: &Quantity| q.parameter.and_then(|p| set.real(p)).unwrap_or(f64::NAN);
+    let exponential = exponential_friction(config, prior);
 
     let logs_read: Vec<log::Log> = logs
         .iter()
@@ -597,6 +648,70 @@ pub fn identify(
                 });
             }
             continue;
+        }
+        if exponential {
+            let (velocity, _) = stack(
+                &logs_read,
+                &|l, i| mask_of(l, side, i),
+                &[&|l, i| l.velocity[side][i]],
+                &|l, i| l.torque[i] - tau0,
+            );
+            let rows = stribeck::SideRows {
+                current: &x[0],
+                acceleration: &x[1],
+                velocity: &velocity[0],
+                sign,
+                target: &y,
+            };
+            if let Some(f) = stribeck::fit(&rows) {
+                let quantities: Vec<Quantity> =
+                    [qs[0], qs[1], qs[2]].into_iter().chain(law(side)).collect();
+                let fit = lsq::LinearFit {
+                    values: f.values.to_vec(),
+                    stats: f.stats,
+                };
+                let mut side_estimates =
+                    estimates_of(&quantities, &fit, &prior_of, config.max_relative_ci);
+                // The levels are solved for the rates found: when a rate is not determined,
+                // neither are they (their intervals, conditional on the rates, would claim a
+                // precision they do not have).
+                if let Some(rate) = [5, 7]
+                    .into_iter()
+                    .find(|&k| side_estimates[k].status != Status::Identified)
+                {
+                    let why = format!(
+                        "the law's rate {} is not determined by these logs, and the law's levels depend on it",
+                        side_estimates[rate].quantity.label
+                    );
+                    for e in &mut side_estimates[3..] {
+                        if e.status == Status::Identified {
+                            e.status = Status::NotIdentifiable(why.clone());
+                        }
+                    }
+                }
+                estimates.extend(side_estimates);
+                estimates.push(Estimate {
+                    quantity: qs[3],
+                    prior: prior_of(&qs[3]),
+                    linear: f64::NAN,
+                    linear_ci: f64::NAN,
+                    refined: None,
+                    status: Status::NotIdentifiable(
+                        "not used by the exponential friction law the logs were recorded with (its a0 + a1 is the stiction)"
+                            .into(),
+                    ),
+                });
+                let label = if side == 0 {
+                    "actuation side (inverse dynamics, exponential friction law)"
+                } else {
+                    "load side (inverse dynamics, exponential friction law)"
+                };
+                regressions.push(regression(label, "N.m", &quantities, &fit));
+                continue;
+            }
+            notes.push(format!(
+                "{name}: the exponential friction law could not be fitted (its columns are not excited); the Coulomb level is fitted instead"
+            ));
         }
         let f = lsq::fit(&x, &y);
         estimates.extend(estimates_of(qs, &f, &prior_of, config.max_relative_ci));
