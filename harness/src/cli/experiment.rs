@@ -148,10 +148,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .map(|p| Ok((p.name.clone(), p.value.to_text())))
         .chain(a.params.iter().map(|p| super::name_value(p)))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let bench = Bench::load(&a.fmu, params, a.fmus.clone())?.with_raw_format(match a.format {
+    let mut bench = Bench::load(&a.fmu, params, a.fmus.clone())?.with_raw_format(match a.format {
         Format::Csv => RawFormat::Csv,
         Format::Parquet => RawFormat::Parquet,
     });
+    if let Some(set) = &set {
+        bench = bench.with_parameter_set(set.label());
+    }
     if bench.kind() == BenchKind::Hardware {
         println!("bench: BenchHardware (checking the interlocks before anything moves)");
     }

@@ -249,6 +249,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             name.to_string()
         }
     };
+    let mut set_labels = Vec::new();
     for spec in &a.parameter_sets {
         let set = kneebench_harness::params::apply_spec(
             &mut system,
@@ -257,6 +258,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             spec,
         )?;
         eprintln!("parameter set: {}", set.label());
+        set_labels.push(set.label());
     }
     for p in &a.params {
         let (name, value) = match super::name_value(p) {
@@ -328,6 +330,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         "kneebench.system".to_string(),
         a.system.display().to_string(),
     )];
+    meta.push(("kneebench.parameter_sets".into(), set_labels.join(";")));
     meta.push(("kneebench.parameters".into(), a.params.join(";")));
     for (name, fmu) in system.components() {
         meta.push((

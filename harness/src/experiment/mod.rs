@@ -100,6 +100,8 @@ pub struct Bench {
     parameters: Vec<(String, String)>,
     fmu_dir: PathBuf,
     raw_format: RawFormat,
+    /// The parameter set's label (`name vN (sha256 ...)`) when one was applied.
+    parameter_set: Option<String>,
 }
 
 /// The format of an experiment's raw run file (`<name>.csv` or `<name>.parquet`); the analysed
@@ -176,12 +178,20 @@ impl Bench {
             parameters,
             fmu_dir,
             raw_format: RawFormat::Csv,
+            parameter_set: None,
         })
     }
 
     /// The same bench writing its experiments' raw runs in `format`.
     pub fn with_raw_format(mut self, format: RawFormat) -> Bench {
         self.raw_format = format;
+        self
+    }
+
+    /// The same bench, its parameters coming from the set labelled `label` (named in the raw
+    /// run's Parquet metadata as `kneebench.parameter_set`).
+    pub fn with_parameter_set(mut self, label: String) -> Bench {
+        self.parameter_set = Some(label);
         self
     }
 
@@ -505,6 +515,9 @@ fn write_outputs(
                     bench.fmu.model_description().guid.clone(),
                 ),
             ];
+            if let Some(label) = &bench.parameter_set {
+                metadata.push(("kneebench.parameter_set".to_string(), label.clone()));
+            }
             metadata.extend(
                 bench
                     .parameters
