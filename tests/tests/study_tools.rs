@@ -10,14 +10,20 @@
 //!   block is taken from README.md and run as written, only the SSP's path replaced), completes
 //!   every scenario and agrees with `--algorithm jacobi` (fmpy's master is Jacobi; its row k,
 //!   labelled with the step's start time, is our row k + 1). Why the runs are not bit-identical
-//!   and the tolerances: see [`fmpy_runs_every_study_scenario_with_the_readme_recipe`].
+//!   and the tolerances: see [`angle_tolerance`]. The recipe applies a bound `.ssv` file too;
+//! - libcosim (libcosimpy) loads every scenario and skips the bindings to FMI 2.0 Enumeration
+//!   variables: the scenarios whose Enumeration settings are the FMUs' defaults (SEA and the
+//!   clutch comparison's CSEA) run as written and agree with Jacobi within 1e-9 rad, the others
+//!   run another system (the README says so).
+//!
+//! Each test needs the pinned venv (`scripts/setup-python.sh`: fmpy, libcosimpy).
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use kneebench_harness::ssp;
 use kneebench_harness::study::{StudyConfig, StudyScenario, run_study};
-use kneebench_harness::{Algorithm, LoadOptions, Outcome, Results};
+use kneebench_harness::{Algorithm, ArchiveLimits, LoadOptions, Outcome, Results};
 use kneebench_tests::run_python;
 
 /// The study's scenarios as `kneebench study` wrote them (both study scenarios, 4 cycles, the
@@ -217,6 +223,221 @@ fn fmpy_runs_every_study_scenario_with_the_readme_recipe() {
         assert!(
             column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
             "{stem}: an interlock tripped in fmpy's run"
+        );
+    }
+}
+
+/// Runs an SSP in libcosim (libcosimpy, pinned in `scripts/requirements.txt`) at the study's
+/// 1 ms step for `argv[2]` seconds, recording every plant angle and the trip code after each
+/// step into `argv[3]`; stops at the first step libcosim reports as failed. libcosim's warnings
+/// go to stdout.
+const LIBCOSIM_RUN: &str = r#"
+import sys
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimLogging import log_output_level, CosimLogLevel
+log_output_level(CosimLogLevel.WARNING)
+path, stop, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+ex = CosimExecution.from_ssp_file(ssp_path=path, step_size=1_000_000)
+obs = CosimObserver.create_last_value()
+ex.add_observer(observer=obs)
+real, integer = [], []
+for s in ex.slave_infos():
+    if s.name.decode() != "plant":
+        continue
+    for v in ex.slave_variables(s.index):
+        name = v.name.decode()
+        if name in ("loadAngle", "actuationAngle"):
+            real.append((s.index, v.reference, "plant." + name))
+        if name == "tripCode":
+            integer.append((s.index, v.reference, "plant." + name))
+with open(out, "w") as f:
+    f.write(",".join(["time"] + [n for _, _, n in real + integer]) + "\n")
+    for k in range(round(stop / 1e-3)):
+        if not ex.step():
+            break
+        row = [obs.last_real_values(i, [r])[0] for i, r, _ in real]
+        row += [obs.last_integer_values(i, [r])[0] for i, r, _ in integer]
+        f.write(",".join(repr(float(x)) for x in [(k + 1) * 1e-3] + row) + "\n")
+"#;
+
+/// The bindings of an SSP to an `Enumeration` variable of the component's FMU, as libcosim
+/// names them (`component:variable`).
+fn enumeration_bindings(path: &Path) -> Vec<String> {
+    let fmus = kneebench_tests::exported_fmus().0.path();
+    let (ssd, _, _dir) = ssp::read_file(path, &ArchiveLimits::default()).unwrap();
+    let mut found = Vec::new();
+    for c in &ssd.system.components {
+        let file = c.source.rsplit('/').next().unwrap();
+        let (_fmu_dir, md) =
+            kneebench_harness::load::extract_and_parse(&fmus.join(file), &ArchiveLimits::default())
+                .unwrap();
+        for p in &c.parameters {
+            let variable = md
+                .model_variables
+                .iter()
+                .find(|v| v.name == p.name)
+                .unwrap_or_else(|| panic!("{}.{} is not a variable", c.name, p.name));
+            if matches!(
+                variable.kind,
+                model_description::VariableKind::Enumeration { .. }
+            ) {
+                found.push(format!("{}:{}", c.name, p.name));
+            }
+        }
+    }
+    found
+}
+
+/// libcosim (libcosimpy 0.0.6, libcosim's fixed-step master: Jacobi, initial outputs
+/// propagated as ours are) loads every study scenario. It ignores FMI 2.0 `Enumeration`
+/// variables ("variable type not supported") and skips each binding to one with a warning
+/// naming the component's parameter set and the variable ("SSP parameter set plant: Invalid
+/// system structure: No such variable: plant:configuration"); the other bindings apply (read
+/// back: the impedance controller's virtualStiffness 150, not its default 200). Those settings
+/// keep the FMUs' defaults: the plant's configuration SEA, the clutch scheduler's mode
+/// GaitPhase, the impedance controller's holdAction 1. So:
+/// - SEA and the clutch comparison's CSEA run as written: every skipped value is the default
+///   or, for the CSEA's configuration, has the same physics (the plant's clutch input acts in
+///   every configuration, SEA and CSEA differ only in name). They complete and agree with
+///   `--algorithm jacobi` within 1e-9 rad (measured 7.7e-13 and 3.8e-14 rad: the same FMI
+///   calls, libcosim's time computed from integer nanoseconds as ours);
+/// - DA (run as a SEA), CSEA (clutch by gait phase instead of low speed) and the clutch
+///   comparison's SEA (clutch by gait phase instead of off) run another system than the one
+///   written: asserted to end early or to move the knee otherwise than ours (measured: DA trips
+///   at 0.66 s, CSEA at 1.09 s, the clutch comparison's SEA completes 0.11 rad from ours).
+///
+/// Asserted for all: the skipped bindings are exactly the scenario's Enumeration bindings.
+#[test]
+fn libcosim_runs_the_study_scenarios_whose_enumeration_settings_are_defaults() {
+    let dir = tempfile::tempdir().unwrap();
+    for (stem, path) in study_ssps() {
+        let csv = dir.path().join(format!("{stem}-libcosim.csv"));
+        let out = std::process::Command::new(kneebench_tests::python())
+            .arg("-c")
+            .arg(LIBCOSIM_RUN)
+            .args([
+                path.display().to_string(),
+                "10".into(),
+                csv.display().to_string(),
+            ])
+            .output()
+            .unwrap();
+        // libcosim logs to stdout.
+        let log = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(out.status.success(), "{stem}: libcosim failed:\n{log}");
+        let mut skipped: Vec<String> = log
+            .lines()
+            .filter_map(|l| l.split("No such variable: ").nth(1))
+            .map(|v| v.trim().to_string())
+            .collect();
+        skipped.sort();
+        skipped.dedup();
+        let mut expected = enumeration_bindings(path);
+        expected.sort();
+        eprintln!("{stem}: libcosim skipped the bindings to {skipped:?}");
+        assert_eq!(skipped, expected, "{stem}:\n{log}");
+        let theirs = Results::read_csv_file(&csv).unwrap();
+        let ours = run_jacobi(path);
+        let (our_t, their_t) = (ours.times(), theirs.times());
+        if !matches!(stem.as_str(), "SEA" | "clutch-CSEA") {
+            // Another system than the one written: it ends early (a trip) or its knee moves
+            // otherwise than ours.
+            assert!(!expected.is_empty(), "{stem} binds no Enumeration");
+            let (a, b) = (
+                column(&ours, "plant.loadAngle"),
+                column(&theirs, "plant.loadAngle"),
+            );
+            let worst = (0..theirs.len())
+                .map(|k| (a[k + 1] - b[k]).abs())
+                .fold(0.0f64, f64::max);
+            eprintln!(
+                "{stem}: libcosim ran {} steps, knee {worst:e} rad from ours",
+                theirs.len()
+            );
+            assert!(
+                theirs.len() < 10_000 || worst > 1e-3,
+                "{stem}: libcosim ran the system as written; update the README"
+            );
+            continue;
+        }
+        assert_eq!(theirs.len(), 10_000, "libcosim completed every step");
+        assert!(
+            column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
+            "an interlock tripped in libcosim's run"
+        );
+        for name in ["plant.loadAngle", "plant.actuationAngle"] {
+            let (a, b) = (column(&ours, name), column(&theirs, name));
+            let mut worst = 0.0f64;
+            for k in 0..10_000 {
+                assert!((their_t[k] - our_t[k + 1]).abs() < 1e-9, "row {k}");
+                worst = worst.max((a[k + 1] - b[k]).abs());
+            }
+            eprintln!("{stem} {name}: libcosim and Jacobi differ by at most {worst:e} rad");
+            assert!(worst <= 1e-9, "{stem} {name}: {worst:e} rad");
+        }
+    }
+}
+
+/// The README's recipe also hands fmpy the values of a bound `.ssv` file (`kneebench study
+/// --params set.ssv` embeds the set as `resources/plant.ssv`): the SEA, one cycle, with the
+/// plant's actuation damping 20 N m s/rad in the set (12 by default). fmpy agrees with our
+/// Jacobi run of the same SSP within the SEA's tolerance (measured 8.7e-6 rad), and ours
+/// differs from the run without the set by far more (3.2e-3 rad), so the bound value reached
+/// fmpy's plant.
+#[test]
+fn fmpy_applies_a_bound_parameter_file_with_the_readme_recipe() {
+    use kneebench_harness::params::ParameterSet;
+    use kneebench_harness::study::{
+        Actuator, Gait, StudyGains, gait_scenario, write_ssp, write_ssp_with_set,
+    };
+    let fmus = kneebench_tests::exported_fmus().0.path();
+    let (_fmu_dir, md) = kneebench_harness::load::extract_and_parse(
+        &fmus.join("BenchPlant.fmu"),
+        &ArchiveLimits::default(),
+    )
+    .unwrap();
+    let mut set = ParameterSet::defaults_of(&md, "heavier-drive", "1");
+    set.set_real("actuationDamping", 20.0, Some("N.m.s/rad"));
+    set.define_units(&md);
+    set.check(&md, "set").unwrap();
+    let scenario = gait_scenario(
+        Actuator::Sea,
+        Gait::bench_full(),
+        StudyGains::for_actuator(Actuator::Sea),
+        1,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let (plain, bound) = (dir.path().join("plain.ssp"), dir.path().join("bound.ssp"));
+    write_ssp(&scenario, fmus, &plain).unwrap();
+    write_ssp_with_set(&scenario, fmus, &bound, "plant", &set).unwrap();
+    let ours_plain = run_jacobi(&plain);
+    let ours = run_jacobi(&bound);
+    let theirs = run_fmpy(&readme_recipe(), &bound, &dir.path().join("fmpy.csv"));
+    let n = ours.len() - 1;
+    assert!(theirs.len() >= n, "fmpy completed every step");
+    for name in ["plant.loadAngle", "plant.actuationAngle"] {
+        let (a, b, c) = (
+            column(&ours, name),
+            column(&theirs, name),
+            column(&ours_plain, name),
+        );
+        let fmpy_vs_ours = (0..n).map(|k| (a[k + 1] - b[k]).abs()).fold(0.0, f64::max);
+        let set_vs_plain = (0..=n).map(|k| (a[k] - c[k]).abs()).fold(0.0, f64::max);
+        eprintln!(
+            "{name}: fmpy vs ours {fmpy_vs_ours:e} rad, with vs without the set {set_vs_plain:e} rad"
+        );
+        assert!(
+            fmpy_vs_ours <= angle_tolerance("SEA"),
+            "{name}: {fmpy_vs_ours:e}"
+        );
+        assert!(
+            set_vs_plain > 10.0 * angle_tolerance("SEA"),
+            "{name}: {set_vs_plain:e}"
         );
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! A [`Scenario`] is a list of components (an FMU file name and parameter values) and
 //! connections; [`Scenario::to_ssd`] turns it into an SSP 1.0 system that this harness, fmpy
-//! and other SSP tools can load, and [`write_ssp`] packs it with its FMUs. [`analyse`] takes
+//! and libcosim load (README, "Using it", for what each runs), and [`write_ssp`] packs it with its FMUs. [`analyse`] takes
 //! the results of a run and reports, per actuator: RMS and maximum tracking error, peak
 //! torques, energy per cycle (mechanical, electrical, harmonic-drive loss, dE_k and dE_p), and
 //! any interlock trip. [`markdown_table`] prints the comparison; [`plot_cycle`] draws one gait
