@@ -9,7 +9,8 @@
 //! - fmpy's `simulate_ssp`, given the system's bindings with the README's recipe (the Python
 //!   block is taken from README.md and run as written, only the SSP's path replaced), completes
 //!   every scenario and agrees with `--algorithm jacobi` (fmpy's master is Jacobi; its row k,
-//!   labelled with the step's start time, is our row k + 1). Why the runs are not bit-identical
+//!   labelled with the step's start time, is our row k + 1); without the recipe an interlock
+//!   ends every scenario in fmpy. Why the runs are not bit-identical
 //!   and the tolerances: see [`angle_tolerance`]. The recipe applies a bound `.ssv` file too;
 //! - libcosim (libcosimpy) loads every scenario and skips the bindings to FMI 2.0 Enumeration
 //!   variables: the scenarios whose Enumeration settings are the FMUs' defaults (SEA and the
@@ -224,8 +225,35 @@ fn fmpy_runs_every_study_scenario_with_the_readme_recipe() {
             column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
             "{stem}: an interlock tripped in fmpy's run"
         );
+        // Without the recipe fmpy applies no binding, and an interlock ends the run (fmpy
+        // leaves its extraction directories behind then: under the test's TMPDIR).
+        let out = std::process::Command::new(kneebench_tests::python())
+            .arg("-c")
+            .arg(FMPY_WITHOUT_BINDINGS)
+            .arg(path)
+            .env("TMPDIR", dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{stem}: {out:?}");
+        let bare = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            bare.contains("fmi2DoStep failed with status 2 (discard)"),
+            "{stem}: {bare}"
+        );
     }
 }
+
+/// fmpy's `simulate_ssp` without a `parameter_set` (as a new user would call it); prints the
+/// exception it ends with.
+const FMPY_WITHOUT_BINDINGS: &str = r#"
+import sys
+from fmpy.ssp.simulation import simulate_ssp
+try:
+    simulate_ssp(sys.argv[1], stop_time=10, step_size=1e-3)
+    print("completed")
+except Exception as e:
+    print(type(e).__name__, e)
+"#;
 
 /// Runs an SSP in libcosim (libcosimpy, pinned in `scripts/requirements.txt`) at the study's
 /// 1 ms step for `argv[2]` seconds, recording every plant angle and the trip code after each
