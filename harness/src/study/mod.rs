@@ -53,10 +53,10 @@
 //!   masters: Jacobi (fmpy's, libcosim's and `--algorithm jacobi`) adds one step (1 ms) of
 //!   delay to every connection. Measured, 4 cycles of `bench-full`: with kp 0.2 (the earlier
 //!   tuning) kd 0.0025 ... 0.005 runs under Gauss-Seidel but no kd runs under Jacobi (0,
-//!   0.0025, 0.005, 0.01 trip the load-motor torque interlock within 0.42 s); with kp 0.1 the
-//!   Jacobi window is kd 0.0015 ... 0.003; with kp 0.075 it is kd 0.0005 ... 0.003 (0 and >=
-//!   0.004 trip) while Gauss-Seidel runs all of 0 ... 0.005. kd 0.0015 sits in the middle of
-//!   that window (a factor 3 from the lower edge, 2 from the upper). The knee's tracking does
+//!   0.0025, 0.005, 0.01 trip the load-motor torque interlock within 0.42 s); with kp 0.1,
+//!   Jacobi runs kd 0.0015 ... 0.003 (0 and 0.005 trip); with kp 0.075, kd 0.0005 ... 0.003
+//!   (0, 0.004 and 0.005 trip) while Gauss-Seidel runs all of 0 ... 0.005. kd 0.0015 sits in
+//!   the middle of that window (a factor 3 from its lower edge, 2 from its upper). The knee's tracking does
 //!   not depend on it (the position loop sets it): 0.604 / 1.252 deg with either tuning.
 //!   Stronger integral action (ki 10, or ki 5 with smaller viscous shares) pulls the shaft
 //!   torque onto the plan in swing and trips the regen or load-motor torque interlock.
