@@ -9,8 +9,10 @@
 //!
 //! Writing follows `SystemStructureDescription.xsd` version 1.0 (the `ssd:`, `ssc:` and `ssv:`
 //! namespaces, `version="1.0"`, elements in schema order) and only writes `Real`, `Integer` and
-//! `Boolean` connector types, so fmpy's `read_ssd` (which validates against the 1.0 schema),
-//! OMSimulator, libcosim and ecos load it. Parameter values are written inline as an
+//! `Boolean` connector types, so fmpy's `read_ssd` (which validates against the 1.0 schema) and
+//! libcosim load it (both tested with the study's systems, `tests/tests/study_tools.rs`;
+//! libcosim skips a binding to an FMI 2.0 Enumeration variable, which it does not support).
+//! Parameter values are written inline as an
 //! `ssv:ParameterSet` inside `ssd:ParameterValues`, after one `ParameterBinding source=".."`
 //! per `.ssv` file bound to the component ([`SspComponent::parameter_sources`]; the files
 //! themselves go into the archive with [`write_ssp`]'s `files`).

@@ -75,7 +75,7 @@ struct Bounds {
 fn default_gait_completes_without_trips_and_tracks() {
     let out = tempfile::tempdir().unwrap();
     let runs = run_study(&config(out.path(), Actuator::ALL.to_vec(), 4, 1.0)).unwrap();
-    // Measured (deg): DA 0.604/1.247 actuation, 0.605/1.252 knee; SEA 1.060/2.081 (the
+    // Measured (deg): DA 0.603/1.246 actuation, 0.604/1.252 knee; SEA 1.060/2.081 (the
     // actuation side leads the knee by the planned spring deflection), 0.588/1.225; CSEA
     // 1.938/3.241, 1.428/2.365. Bounds: about 20 % headroom.
     let bounds = [
@@ -116,8 +116,8 @@ fn default_gait_completes_without_trips_and_tracks() {
         check("RMS knee error", r.rms_error_knee, b.knee.0);
         check("max knee error", r.max_error_knee, b.knee.1);
         // The interlock quantities over the whole run, start-up included (measured: shaft
-        // torque 11.32 / 11.06 / 16.25 N m, load-motor torque 10.98 / 10.07 / 9.00 N m,
-        // regenerated power 1.22 / 1.23 / 2.98 W, deflection 0.05 / 1.86 / 2.73 deg).
+        // torque 12.14 / 11.06 / 16.25 N m, load-motor torque 10.35 / 10.07 / 9.00 N m,
+        // regenerated power 1.15 / 1.23 / 2.98 W, deflection 0.05 / 1.86 / 2.73 deg).
         let res = &run.results;
         let shaft = peak(res, "plant.springTorque");
         let load = peak(res, "plant.loadOutputTorque");

@@ -3,7 +3,7 @@
 //!
 //! A [`Scenario`] is a list of components (an FMU file name and parameter values) and
 //! connections; [`Scenario::to_ssd`] turns it into an SSP 1.0 system that this harness, fmpy
-//! and other SSP tools can load, and [`write_ssp`] packs it with its FMUs. [`analyse`] takes
+//! and libcosim load (README, "Using it", for what each runs), and [`write_ssp`] packs it with its FMUs. [`analyse`] takes
 //! the results of a run and reports, per actuator: RMS and maximum tracking error, peak
 //! torques, energy per cycle (mechanical, electrical, harmonic-drive loss, dE_k and dE_p), and
 //! any interlock trip. [`markdown_table`] prints the comparison; [`plot_cycle`] draws one gait
@@ -45,13 +45,21 @@
 //!   harmonic drive's viscous loss, which a feedback loop alone would chase with degrees of
 //!   error). kp 1000 A/rad, ki 1000 A/(rad s), kd 15 A s/rad, Tf 2 ms, +-15 A: the feedback
 //!   only has the 5 N m Coulomb friction and the model mismatch left (about 0.5 deg).
-//! * torque loop gains: DA kp 0.2 A/(N m), ki 5 A/(N m s), kd 0.005 A s/(N m), Tf 2 ms; SEA the
-//!   same with kd 0.01; +-6 A. The derivative (on the measured shaft torque) damps the SEA's
-//!   spring mode (23.7 rad/s, damping ratio 0.035 on its own); the SEA trips with kd <= 0.003.
-//!   The DA's stiff coupling (193 rad/s) leaves a window: kd 0.003 ... 0.008 runs, 0 and >= 0.01
-//!   trip; 0.005 is its middle. Stronger integral action (ki 10, or ki 5 with smaller viscous
-//!   shares) pulls the shaft torque onto the plan in swing and trips the regen or load-motor
-//!   torque interlock.
+//! * torque loop gains: SEA kp 0.2 A/(N m), ki 5 A/(N m s), kd 0.01 A s/(N m), Tf 2 ms; DA kp
+//!   0.075, ki 5, kd 0.0015; +-6 A. The derivative (on the measured shaft torque) damps the
+//!   SEA's spring mode (23.7 rad/s, damping ratio 0.035 on its own); the SEA trips with kd <=
+//!   0.003. The DA's torque loop acts through the harmonic drive's stiff coupling (193 rad/s)
+//!   on a nearly undamped mode, and only a window of kd runs. The gains must run under both
+//!   masters: Jacobi (fmpy's, libcosim's and `--algorithm jacobi`) adds one step (1 ms) of
+//!   delay to every connection. Measured, 4 cycles of `bench-full`: with kp 0.2 (the earlier
+//!   tuning) kd 0.0025 ... 0.005 runs under Gauss-Seidel but no kd runs under Jacobi (0,
+//!   0.0025, 0.005, 0.01 trip the load-motor torque interlock within 0.42 s); with kp 0.1,
+//!   Jacobi runs kd 0.0015 ... 0.003 (0 and 0.005 trip); with kp 0.075, kd 0.0005 ... 0.003
+//!   (0, 0.004 and 0.005 trip) while Gauss-Seidel runs all of 0 ... 0.005. kd 0.0015 sits in
+//!   the middle of that window (a factor 3 from its lower edge, 2 from its upper). The knee's tracking does
+//!   not depend on it (the position loop sets it): 0.604 / 1.252 deg with either tuning.
+//!   Stronger integral action (ki 10, or ki 5 with smaller viscous shares) pulls the shaft
+//!   torque onto the plan in swing and trips the regen or load-motor torque interlock.
 //! * CSEA: the impedance controller (the bench's structure) with virtual stiffness 150 N m/rad,
 //!   damping 8 N m s/rad on the knee (load) angle, torque feed-forward `tau_plan + c1 w + I1 a`
 //!   (the knee-torque reference plus weighted velocity and acceleration), desired-torque limit
@@ -68,7 +76,9 @@
 //!   strike to 45 % of the cycle, the low-motion part of stance
 //!   ([`CLUTCH_STUDY_SCHEDULE`]); a window reaching into the fast flexion after 45 % trips the
 //!   shaft-torque interlock on release. The SEA of `bench-clutch` runs the same impedance
-//!   controller without the clutch, as on the bench.
+//!   controller without the clutch, as on the bench. Both run it with virtual damping 6
+//!   ([`CLUTCH_STUDY_VIRTUAL_DAMPING`]; 8 left the CSEA 0.4 N m from the shaft-torque
+//!   interlock after the clutch's first release, and it tripped under Jacobi).
 //!
 //! **A harness/FMU interaction to know about.** Our Gauss-Seidel master reads a controller's
 //! outputs after its `fmi2DoStep`, before its next inputs are set; the FMU then shows the next
@@ -85,15 +95,17 @@
 //! | | DA | SEA | CSEA |
 //! |---|---|---|---|
 //! | actuation side | 0.60 / 1.25 (bound 0.75 / 1.5) | 1.06 / 2.08 (1.3 / 2.5) | 1.94 / 3.24 (2.35 / 3.9) |
-//! | knee (load side) | 0.61 / 1.25 (0.75 / 1.5) | 0.59 / 1.23 (0.72 / 1.5) | 1.43 / 2.37 (1.75 / 2.9) |
+//! | knee (load side) | 0.60 / 1.25 (0.75 / 1.5) | 0.59 / 1.23 (0.72 / 1.5) | 1.43 / 2.37 (1.75 / 2.9) |
 //!
 //! The SEA's and CSEA's actuation-side error includes the planned spring deflection (up to
 //! 2 deg), which is intended. Peaks over the whole run, start-up included, against the
-//! interlocks: shaft torque 11.32 / 11.06 / 16.25 N m (limit 20; asserted < 18.8), load-motor
-//! torque 10.98 / 10.07 / 9.00 N m (20; < 13.2), load-driver regen 1.22 / 1.23 / 2.98 W (5;
-//! < 3.6), spring deflection 0.05 / 1.86 / 2.73 deg (5; < 4). `bench-clutch`: knee 1.41 / 2.30
-//! deg (SEA) and 1.75 / 3.89 deg (CSEA); the CSEA's shaft torque peaks at 19.6 N m in the
-//! start-up cycle (the clutch's first release), 16 N m afterwards. Scaling the gait's
+//! interlocks: shaft torque 12.14 / 11.06 / 16.25 N m (limit 20; asserted < 18.8), load-motor
+//! torque 10.35 / 10.07 / 9.00 N m (20; < 13.2), load-driver regen 1.15 / 1.23 / 2.98 W (5;
+//! < 3.6), spring deflection 0.05 / 1.86 / 2.73 deg (5; < 4). `bench-clutch`: knee 1.46 / 2.38
+//! deg (SEA) and 1.80 / 3.26 deg (CSEA); the CSEA's shaft torque peaks at 17.3 N m in the
+//! start-up cycle (the clutch's first release; 19.6 N m with virtual damping 8). Every scenario
+//! runs under Jacobi as well (asserted in `tests/tests/study.rs`); there the knee's RMS error
+//! is up to 0.06 deg larger (the extra step of delay). Scaling the gait's
 //! amplitudes: the SEA runs at 1.5x and trips at 1.6x on the load driver's braking limit
 //! (regenerated power, 2.31 s), as the bench did "at higher amplitudes or loads".
 //!

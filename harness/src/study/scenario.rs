@@ -279,6 +279,7 @@ impl StudyScenario {
                 // Both under the impedance controller, as on the bench; the SEA without the
                 // clutch, the CSEA with the stance-phase clutch.
                 let mut gains = StudyGains::for_actuator(Actuator::Csea);
+                gains.csea.damping = CLUTCH_STUDY_VIRTUAL_DAMPING;
                 gains.csea.clutch = if actuator == Actuator::Csea {
                     CLUTCH_STUDY_SCHEDULE
                 } else {
@@ -318,6 +319,15 @@ pub const CLUTCH_STUDY_SCHEDULE: ClutchSchedule = ClutchSchedule::GaitPhase {
     start: 0.0,
     end: 0.45,
 };
+
+/// The impedance controller's virtual damping in the clutch comparison [N m s/rad] (8 in
+/// `bench-full`). The damping acts on the knee (load) velocity, on the far side of the series
+/// spring from the test motor: non-collocated feedback, which takes damping from the spring
+/// mode rather than adding it. With 8, the ringing after the clutch's first release brought the
+/// shaft torque to 19.6 N m of the 20 N m interlock under Gauss-Seidel, and the one step more of
+/// delay under Jacobi tripped it (2.29 s); 6 gives 17.3 N m under both, 4 and 2 about 17.1,
+/// while 12 and 16 trip under both (module docs, "Measured tracking and margins").
+pub const CLUTCH_STUDY_VIRTUAL_DAMPING: f64 = 6.0;
 
 /// The clutch scheduler's mode and parameters (see `ClutchScheduler`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -446,7 +456,7 @@ impl StudyGains {
             },
         };
         match actuator {
-            Actuator::Da => {}
+            Actuator::Da => gains.torque = (0.075, 5.0, 0.0015),
             Actuator::Sea => gains.torque = (0.2, 5.0, 0.01),
             Actuator::Csea => {
                 gains.torque = (0.0, 0.0, 0.0);

@@ -1,0 +1,471 @@
+//! The study's SSPs as `kneebench study` writes them, under both of our masters and in fmpy:
+//!
+//! - every scenario (`bench-full` DA, SEA, CSEA; `bench-clutch` SEA, CSEA) completes without an
+//!   interlock trip under Gauss-Seidel and under Jacobi. Jacobi adds one step of delay to every
+//!   connection; the DA's torque loop and the clutch comparison's virtual damping are tuned for
+//!   both (`harness/src/study/mod.rs`, "Controllers and gains": with the earlier gains the DA
+//!   tripped the load-motor torque interlock at 0.17 s and the clutch comparison's CSEA the
+//!   shaft-torque interlock at 2.29 s under Jacobi);
+//! - fmpy's `simulate_ssp`, given the system's bindings with the README's recipe (the Python
+//!   block is taken from README.md and run as written, only the SSP's path replaced), completes
+//!   every scenario and agrees with `--algorithm jacobi` (fmpy's master is Jacobi; its row k,
+//!   labelled with the step's start time, is our row k + 1); without the recipe an interlock
+//!   ends every scenario in fmpy. Why the runs are not bit-identical
+//!   and the tolerances: see [`angle_tolerance`]. The recipe applies a bound `.ssv` file too;
+//! - libcosim (libcosimpy) loads every scenario and skips the bindings to FMI 2.0 Enumeration
+//!   variables: the scenarios whose Enumeration settings are the FMUs' defaults (SEA and the
+//!   clutch comparison's CSEA) run as written and agree with Jacobi within 1e-9 rad, the others
+//!   run another system (the README says so).
+//!
+//! Each test needs the pinned venv (`scripts/setup-python.sh`: fmpy, libcosimpy).
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use kneebench_harness::ssp;
+use kneebench_harness::study::{StudyConfig, StudyScenario, run_study};
+use kneebench_harness::{Algorithm, ArchiveLimits, LoadOptions, Outcome, Results};
+use kneebench_tests::run_python;
+
+/// The study's scenarios as `kneebench study` wrote them (both study scenarios, 4 cycles, the
+/// default bench), by file stem, once per test binary.
+fn study_ssps() -> &'static [(String, PathBuf)] {
+    static SSPS: OnceLock<(tempfile::TempDir, Vec<(String, PathBuf)>)> = OnceLock::new();
+    &SSPS
+        .get_or_init(|| {
+            let out = tempfile::tempdir().unwrap();
+            let mut ssps = Vec::new();
+            for scenario in StudyScenario::ALL {
+                let config = StudyConfig {
+                    fmu_dir: kneebench_tests::exported_fmus().0.path().to_path_buf(),
+                    out_dir: out.path().to_path_buf(),
+                    scenario,
+                    cycles: 4,
+                    scale: 1.0,
+                    gains: None,
+                    actuators: scenario.actuators().to_vec(),
+                    overrides: Vec::new(),
+                    parameter_set: None,
+                    bench: None,
+                };
+                for run in run_study(&config).unwrap() {
+                    assert!(
+                        matches!(run.outcome, Outcome::Completed { .. }),
+                        "Gauss-Seidel, {}: {:?}",
+                        run.report.name,
+                        run.outcome
+                    );
+                    assert_eq!(run.report.trip, None, "{}", run.report.name);
+                }
+                for &actuator in scenario.actuators() {
+                    let stem = scenario.file_stem(actuator);
+                    let path = out.path().join("scenarios").join(format!("{stem}.ssp"));
+                    assert!(path.is_file(), "{}", path.display());
+                    ssps.push((stem, path));
+                }
+            }
+            (out, ssps)
+        })
+        .1
+}
+
+fn run_jacobi(path: &Path) -> Results {
+    let mut loaded = ssp::load_system(path, &LoadOptions::default()).unwrap();
+    assert_eq!(
+        loaded.config.algorithm,
+        Algorithm::GaussSeidel,
+        "the SSP's annotation names Gauss-Seidel"
+    );
+    loaded.config.algorithm = Algorithm::Jacobi;
+    let out = loaded.system.run(&loaded.config).unwrap();
+    assert!(
+        matches!(out.outcome, Outcome::Completed { .. }),
+        "Jacobi, {}: {:?}",
+        path.display(),
+        out.outcome
+    );
+    out.results
+}
+
+fn column(results: &Results, name: &str) -> Vec<f64> {
+    results
+        .column(name)
+        .unwrap_or_else(|| panic!("no column {name}"))
+}
+
+#[test]
+fn every_study_scenario_completes_under_gauss_seidel_and_jacobi() {
+    // Gauss-Seidel: asserted by `study_ssps` (the study's own runs).
+    let ssps = study_ssps();
+    assert_eq!(ssps.len(), 5);
+    for (stem, path) in ssps {
+        let results = run_jacobi(path);
+        let times = results.times();
+        assert!(
+            (times[times.len() - 1] - 10.0).abs() < 1e-12,
+            "{stem}: ends at {}",
+            times[times.len() - 1]
+        );
+        assert!(
+            column(&results, "plant.tripCode").iter().all(|&c| c == 0.0),
+            "{stem}: an interlock tripped"
+        );
+        // Still a working closed loop: the knee follows the gait (RMS error over the analysed
+        // cycles, measured 0.67 / 0.65 / 1.47 deg bench-full, 1.49 / 1.85 deg bench-clutch).
+        let knee = column(&results, "plant.loadAngle");
+        let reference = column(&results, "gait.kneeAngleReference");
+        let analysed: Vec<f64> = times
+            .iter()
+            .zip(knee.iter().zip(reference))
+            .filter(|(t, _)| **t >= 2.5)
+            .map(|(_, (x, r))| x - r)
+            .collect();
+        let rms = (analysed.iter().map(|e| e * e).sum::<f64>() / analysed.len() as f64)
+            .sqrt()
+            .to_degrees();
+        eprintln!("{stem} under Jacobi: knee RMS error {rms:.3} deg");
+        assert!(rms < 2.3, "{stem}: knee RMS error {rms} deg under Jacobi");
+    }
+}
+
+/// The README's fmpy recipe (the Python block that defines `bindings`), as written.
+fn readme_recipe() -> String {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let start = readme
+        .find("```python\nfrom fmpy.ssp.ssd import")
+        .expect("the README holds the fmpy recipe");
+    let block = &readme[start + "```python\n".len()..];
+    block[..block.find("```").unwrap()].to_string()
+}
+
+/// After the recipe: writes `r` (every output connector, Booleans as 0/1) to a CSV.
+const WRITE_CSV: &str = r#"
+import sys
+outputs = [c.name + "." + k.name for c in read_ssd(SSP).system.elements
+           for k in c.connectors if k.kind == "output"]
+with open(sys.argv[1], "w") as f:
+    f.write(",".join(["time"] + outputs) + "\n")
+    for row in r:
+        f.write(",".join(repr(float(row[n])) for n in ["time"] + outputs) + "\n")
+"#;
+
+/// Runs the README's recipe on `ssp` (its path put in place of the README's), into `csv`.
+fn run_fmpy(recipe: &str, ssp: &Path, csv: &Path) -> Results {
+    const README_PATH: &str = "\"out/study/scenarios/DA.ssp\"";
+    assert_eq!(recipe.matches(README_PATH).count(), 2, "{recipe}");
+    let literal = format!("{:?}", ssp.display().to_string());
+    let script = format!(
+        "{}\nSSP = {literal}\n{WRITE_CSV}",
+        recipe.replace(README_PATH, &literal)
+    );
+    run_python(&script, &[&csv.display().to_string()]);
+    Results::read_csv_file(csv).unwrap()
+}
+
+/// Tolerance on the plant's angles [rad] (largest difference over the run) for one scenario,
+/// with the reason the runs differ at all.
+///
+/// fmpy starts every connection at 0.0 where our master propagates the initial outputs, and
+/// advances its time as a floating-point sum (`time += 0.001`, off by about 1e-13 s after a
+/// few thousand steps) where ours is an integer nanosecond grid.
+/// - CSEA and the clutch comparison's SEA: their load loop has no feedback (gains 0), so no
+///   component sees a nonzero initial output; only the time rounding differs (the gait
+///   reference is a function of time). Measured 2.2e-12 rad: 1e-9.
+/// - DA and SEA: the load loop reads the transducer's rest reading (-0.048 N m, its
+///   calibration phase) from the first step in ours and a step later in fmpy's. The quantised
+///   encoders keep that within counts; measured 1.3e-5 rad (DA), 7.8e-6 rad (SEA): 4e-5, two
+///   counts of the test side's encoder (2 pi / (4 x 500 x 160) = 1.96e-5 rad).
+/// - The clutch comparison's CSEA: its clutch releases at 45 % of the cycle, 1.125 s, exactly
+///   on our grid; fmpy's rounded time puts that instant a hair off, so the release moves by
+///   one step. Measured 1.8e-3 rad after the first release: 4e-3.
+fn angle_tolerance(stem: &str) -> f64 {
+    match stem {
+        "CSEA" | "clutch-SEA" => 1e-9,
+        "DA" | "SEA" => 4e-5,
+        "clutch-CSEA" => 4e-3,
+        other => panic!("no tolerance for scenario {other}"),
+    }
+}
+
+#[test]
+fn fmpy_runs_every_study_scenario_with_the_readme_recipe() {
+    let recipe = readme_recipe();
+    let dir = tempfile::tempdir().unwrap();
+    let step = 1e-3;
+    for (stem, path) in study_ssps() {
+        let ours = run_jacobi(path);
+        let theirs = run_fmpy(&recipe, path, &dir.path().join(format!("{stem}.csv")));
+        // 10 s at 1 ms: our 10001 rows (t = 0 included); fmpy's rows start at its first step
+        // and its float time takes one step past the stop time.
+        assert_eq!(ours.len(), 10_001, "{stem}");
+        assert_eq!(theirs.len(), 10_001, "{stem}: fmpy completed every step");
+        let (our_t, their_t) = (ours.times(), theirs.times());
+        for k in 0..10_000 {
+            assert!(
+                (their_t[k] + step - our_t[k + 1]).abs() < 1e-9,
+                "{stem} row {k}"
+            );
+        }
+        let tol = angle_tolerance(stem);
+        for name in ["plant.loadAngle", "plant.actuationAngle"] {
+            let (a, b) = (column(&ours, name), column(&theirs, name));
+            let (worst, at) = (0..10_000)
+                .map(|k| ((a[k + 1] - b[k]).abs(), our_t[k + 1]))
+                .fold((0.0f64, 0.0), |m, x| if x.0 > m.0 { x } else { m });
+            eprintln!("{stem} {name}: largest difference {worst:e} rad at t = {at}");
+            assert!(
+                worst <= tol,
+                "{stem} {name}: fmpy differs by {worst:e} rad at t = {at} (tolerance {tol:e})"
+            );
+        }
+        // fmpy's plant ran the scenario's configuration and ended without a trip.
+        assert!(
+            column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
+            "{stem}: an interlock tripped in fmpy's run"
+        );
+        // Without the recipe fmpy applies no binding, and an interlock ends the run (fmpy
+        // leaves its extraction directories behind then: under the test's TMPDIR).
+        let out = std::process::Command::new(kneebench_tests::python())
+            .arg("-c")
+            .arg(FMPY_WITHOUT_BINDINGS)
+            .arg(path)
+            .env("TMPDIR", dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{stem}: {out:?}");
+        let bare = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            bare.contains("fmi2DoStep failed with status 2 (discard)"),
+            "{stem}: {bare}"
+        );
+    }
+}
+
+/// fmpy's `simulate_ssp` without a `parameter_set` (as a new user would call it); prints the
+/// exception it ends with.
+const FMPY_WITHOUT_BINDINGS: &str = r#"
+import sys
+from fmpy.ssp.simulation import simulate_ssp
+try:
+    simulate_ssp(sys.argv[1], stop_time=10, step_size=1e-3)
+    print("completed")
+except Exception as e:
+    print(type(e).__name__, e)
+"#;
+
+/// Runs an SSP in libcosim (libcosimpy, pinned in `scripts/requirements.txt`) at the study's
+/// 1 ms step for `argv[2]` seconds, recording every plant angle and the trip code after each
+/// step into `argv[3]`; stops at the first step libcosim reports as failed. libcosim's warnings
+/// go to stdout.
+const LIBCOSIM_RUN: &str = r#"
+import sys
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimLogging import log_output_level, CosimLogLevel
+log_output_level(CosimLogLevel.WARNING)
+path, stop, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+ex = CosimExecution.from_ssp_file(ssp_path=path, step_size=1_000_000)
+obs = CosimObserver.create_last_value()
+ex.add_observer(observer=obs)
+real, integer = [], []
+for s in ex.slave_infos():
+    if s.name.decode() != "plant":
+        continue
+    for v in ex.slave_variables(s.index):
+        name = v.name.decode()
+        if name in ("loadAngle", "actuationAngle"):
+            real.append((s.index, v.reference, "plant." + name))
+        if name == "tripCode":
+            integer.append((s.index, v.reference, "plant." + name))
+with open(out, "w") as f:
+    f.write(",".join(["time"] + [n for _, _, n in real + integer]) + "\n")
+    for k in range(round(stop / 1e-3)):
+        if not ex.step():
+            break
+        row = [obs.last_real_values(i, [r])[0] for i, r, _ in real]
+        row += [obs.last_integer_values(i, [r])[0] for i, r, _ in integer]
+        f.write(",".join(repr(float(x)) for x in [(k + 1) * 1e-3] + row) + "\n")
+"#;
+
+/// The bindings of an SSP to an `Enumeration` variable of the component's FMU, as libcosim
+/// names them (`component:variable`).
+fn enumeration_bindings(path: &Path) -> Vec<String> {
+    let fmus = kneebench_tests::exported_fmus().0.path();
+    let (ssd, _, _dir) = ssp::read_file(path, &ArchiveLimits::default()).unwrap();
+    let mut found = Vec::new();
+    for c in &ssd.system.components {
+        let file = c.source.rsplit('/').next().unwrap();
+        let (_fmu_dir, md) =
+            kneebench_harness::load::extract_and_parse(&fmus.join(file), &ArchiveLimits::default())
+                .unwrap();
+        for p in &c.parameters {
+            let variable = md
+                .model_variables
+                .iter()
+                .find(|v| v.name == p.name)
+                .unwrap_or_else(|| panic!("{}.{} is not a variable", c.name, p.name));
+            if matches!(
+                variable.kind,
+                model_description::VariableKind::Enumeration { .. }
+            ) {
+                found.push(format!("{}:{}", c.name, p.name));
+            }
+        }
+    }
+    found
+}
+
+/// libcosim (libcosimpy 0.0.6, libcosim's fixed-step master: Jacobi, initial outputs
+/// propagated as ours are) loads every study scenario. It ignores FMI 2.0 `Enumeration`
+/// variables ("variable type not supported") and skips each binding to one with a warning
+/// naming the component's parameter set and the variable ("SSP parameter set plant: Invalid
+/// system structure: No such variable: plant:configuration"); the other bindings apply (read
+/// back: the impedance controller's virtualStiffness 150, not its default 200). Those settings
+/// keep the FMUs' defaults: the plant's configuration SEA, the clutch scheduler's mode
+/// GaitPhase, the impedance controller's holdAction 1. So:
+/// - SEA and the clutch comparison's CSEA run as written: every skipped value is the default
+///   or, for the CSEA's configuration, has the same physics (the plant's clutch input acts in
+///   every configuration, SEA and CSEA differ only in name). They complete and agree with
+///   `--algorithm jacobi` within 1e-9 rad (measured 7.7e-13 and 3.8e-14 rad: the same FMI
+///   calls, libcosim's time computed from integer nanoseconds as ours);
+/// - DA (run as a SEA), CSEA (clutch by gait phase instead of low speed) and the clutch
+///   comparison's SEA (clutch by gait phase instead of off) run another system than the one
+///   written: asserted to end early or to move the knee otherwise than ours (measured: DA trips
+///   at 0.66 s, CSEA at 1.09 s, the clutch comparison's SEA completes 0.11 rad from ours).
+///
+/// Asserted for all: the skipped bindings are exactly the scenario's Enumeration bindings.
+#[test]
+fn libcosim_runs_the_study_scenarios_whose_enumeration_settings_are_defaults() {
+    let dir = tempfile::tempdir().unwrap();
+    for (stem, path) in study_ssps() {
+        let csv = dir.path().join(format!("{stem}-libcosim.csv"));
+        let out = std::process::Command::new(kneebench_tests::python())
+            .arg("-c")
+            .arg(LIBCOSIM_RUN)
+            .args([
+                path.display().to_string(),
+                "10".into(),
+                csv.display().to_string(),
+            ])
+            .output()
+            .unwrap();
+        // libcosim logs to stdout.
+        let log = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(out.status.success(), "{stem}: libcosim failed:\n{log}");
+        let mut skipped: Vec<String> = log
+            .lines()
+            .filter_map(|l| l.split("No such variable: ").nth(1))
+            .map(|v| v.trim().to_string())
+            .collect();
+        skipped.sort();
+        skipped.dedup();
+        let mut expected = enumeration_bindings(path);
+        expected.sort();
+        eprintln!("{stem}: libcosim skipped the bindings to {skipped:?}");
+        assert_eq!(skipped, expected, "{stem}:\n{log}");
+        let theirs = Results::read_csv_file(&csv).unwrap();
+        let ours = run_jacobi(path);
+        let (our_t, their_t) = (ours.times(), theirs.times());
+        if !matches!(stem.as_str(), "SEA" | "clutch-CSEA") {
+            // Another system than the one written: it ends early (a trip) or its knee moves
+            // otherwise than ours.
+            assert!(!expected.is_empty(), "{stem} binds no Enumeration");
+            let (a, b) = (
+                column(&ours, "plant.loadAngle"),
+                column(&theirs, "plant.loadAngle"),
+            );
+            let worst = (0..theirs.len())
+                .map(|k| (a[k + 1] - b[k]).abs())
+                .fold(0.0f64, f64::max);
+            eprintln!(
+                "{stem}: libcosim ran {} steps, knee {worst:e} rad from ours",
+                theirs.len()
+            );
+            assert!(
+                theirs.len() < 10_000 || worst > 1e-3,
+                "{stem}: libcosim ran the system as written; update the README"
+            );
+            continue;
+        }
+        assert_eq!(theirs.len(), 10_000, "libcosim completed every step");
+        assert!(
+            column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
+            "an interlock tripped in libcosim's run"
+        );
+        for name in ["plant.loadAngle", "plant.actuationAngle"] {
+            let (a, b) = (column(&ours, name), column(&theirs, name));
+            let mut worst = 0.0f64;
+            for k in 0..10_000 {
+                assert!((their_t[k] - our_t[k + 1]).abs() < 1e-9, "row {k}");
+                worst = worst.max((a[k + 1] - b[k]).abs());
+            }
+            eprintln!("{stem} {name}: libcosim and Jacobi differ by at most {worst:e} rad");
+            assert!(worst <= 1e-9, "{stem} {name}: {worst:e} rad");
+        }
+    }
+}
+
+/// The README's recipe also hands fmpy the values of a bound `.ssv` file (`kneebench study
+/// --params set.ssv` embeds the set as `resources/plant.ssv`): the SEA, one cycle, with the
+/// plant's actuation damping 20 N m s/rad in the set (12 by default). fmpy agrees with our
+/// Jacobi run of the same SSP within the SEA's tolerance (measured 8.7e-6 rad), and ours
+/// differs from the run without the set by far more (3.2e-3 rad), so the bound value reached
+/// fmpy's plant.
+#[test]
+fn fmpy_applies_a_bound_parameter_file_with_the_readme_recipe() {
+    use kneebench_harness::params::ParameterSet;
+    use kneebench_harness::study::{
+        Actuator, Gait, StudyGains, gait_scenario, write_ssp, write_ssp_with_set,
+    };
+    let fmus = kneebench_tests::exported_fmus().0.path();
+    let (_fmu_dir, md) = kneebench_harness::load::extract_and_parse(
+        &fmus.join("BenchPlant.fmu"),
+        &ArchiveLimits::default(),
+    )
+    .unwrap();
+    let mut set = ParameterSet::defaults_of(&md, "heavier-drive", "1");
+    set.set_real("actuationDamping", 20.0, Some("N.m.s/rad"));
+    set.define_units(&md);
+    set.check(&md, "set").unwrap();
+    let scenario = gait_scenario(
+        Actuator::Sea,
+        Gait::bench_full(),
+        StudyGains::for_actuator(Actuator::Sea),
+        1,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let (plain, bound) = (dir.path().join("plain.ssp"), dir.path().join("bound.ssp"));
+    write_ssp(&scenario, fmus, &plain).unwrap();
+    write_ssp_with_set(&scenario, fmus, &bound, "plant", &set).unwrap();
+    let ours_plain = run_jacobi(&plain);
+    let ours = run_jacobi(&bound);
+    let theirs = run_fmpy(&readme_recipe(), &bound, &dir.path().join("fmpy.csv"));
+    let n = ours.len() - 1;
+    assert!(theirs.len() >= n, "fmpy completed every step");
+    for name in ["plant.loadAngle", "plant.actuationAngle"] {
+        let (a, b, c) = (
+            column(&ours, name),
+            column(&theirs, name),
+            column(&ours_plain, name),
+        );
+        let fmpy_vs_ours = (0..n).map(|k| (a[k + 1] - b[k]).abs()).fold(0.0, f64::max);
+        let set_vs_plain = (0..=n).map(|k| (a[k] - c[k]).abs()).fold(0.0, f64::max);
+        eprintln!(
+            "{name}: fmpy vs ours {fmpy_vs_ours:e} rad, with vs without the set {set_vs_plain:e} rad"
+        );
+        assert!(
+            fmpy_vs_ours <= angle_tolerance("SEA"),
+            "{name}: {fmpy_vs_ours:e}"
+        );
+        assert!(
+            set_vs_plain > 10.0 * angle_tolerance("SEA"),
+            "{name}: {set_vs_plain:e}"
+        );
+    }
+}
