@@ -509,7 +509,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             347,
             total_electrical_power,
             "W",
-            "Total electrical power incl. offset and clutch"
+            "Both drivers' electrical power V1 i1 + V2 i2 (signed) plus the hardware offset and the clutch; the bench's P_el (eq. 70) is testElectricalPower + offsetPower + clutchPower"
         ),
         out_real!(
             "kineticEnergy",
@@ -635,7 +635,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
             365,
             total_electrical_energy,
             "J",
-            "Total electrical energy incl. offset and clutch"
+            "Integral of totalElectricalPower: both drivers (V1 i1 + V2 i2, signed), the hardware offset and the clutch; the bench's electrical energy (eq. 70) is testElectricalEnergy + offsetEnergy + clutchEnergy"
         ),
         out_real!(
             "totalElectricalEnergyConsumed",

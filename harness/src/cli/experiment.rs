@@ -75,9 +75,13 @@ pub struct Args {
     /// 30, 50, 70, 90, 110, 130, 150).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub speeds: Option<Vec<f64>>,
-    /// map: load torques (N m) (default -9, -4.5, 0, 4.5, 9, 13.5, 17.5).
+    /// map: load torques (N m) (default -9, -4.5, 0, 4.5, 9).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub torques: Option<Vec<f64>>,
+    /// map: run only points whose predicted regenerated power in the load driver is at most this
+    /// fraction of loadRegenPowerLimit (the others are listed as skipped).
+    #[arg(long, default_value_t = map::DEFAULT_REGEN_FRACTION)]
+    pub regen_fraction: f64,
     /// map: settling time per point (s).
     #[arg(long, default_value_t = 1.5)]
     pub settle: f64,
@@ -124,6 +128,10 @@ pub struct Args {
     /// calibration: pendulum angles (deg) (default -45 ... 45 in steps of 9).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub angles: Option<Vec<f64>>,
+    /// calibration: the emulated pendulum's hanging direction from the encoder's zero (deg): the
+    /// c the fit recovers.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub pendulum_offset: f64,
     /// triangle, calibration, step: position-loop gains kp,ki,kd (A/rad, A/(rad s), A s/rad)
     /// (default 1000,1000,15 for triangle and calibration, 60,30,4 for the step).
     #[arg(long, value_delimiter = ',')]
@@ -169,6 +177,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             let mut c = map::MapConfig {
                 settle: a.settle,
                 measure: a.measure.unwrap_or(1.0),
+                regen_fraction: a.regen_fraction,
                 ..map::MapConfig::default()
             };
             if let Some(s) = a.speeds {
@@ -193,6 +202,12 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 r.points.len(),
                 100.0 * worst
             );
+            if !r.skipped.is_empty() {
+                println!(
+                    "map: {} points skipped (their braking would exceed the regenerated-power budget; listed in map.md)",
+                    r.skipped.len()
+                );
+            }
             (
                 r.written,
                 r.end != kneebench_harness::experiment::RunEnd::Completed,
@@ -266,6 +281,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             let mut c = calibration::CalibrationConfig {
                 measure: a.measure.unwrap_or(3.0),
                 hold: a.hold,
+                pendulum_offset: a.pendulum_offset.to_radians(),
                 ..calibration::CalibrationConfig::default()
             };
             if let Some(angles) = a.angles {

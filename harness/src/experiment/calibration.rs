@@ -3,19 +3,28 @@
 //! `V = a + b sin(theta + c)` is fitted to each sensor's raw volts.
 //!
 //! **The rig on the twin.** The actuation side is held at each angle `theta_k` by a position
-//! loop (`PidController` on `actuationEncoderAngle`, setpoint moved on ramps between the
-//! holds); the load motor applies the pendulum's gravity torque `-m g Lg sin(theta_k)`
-//! (`calibrationPendulumMoment` of the bench FMU). At rest the shaft then carries
+//! loop (`PidController` on `actuationEncoderAngle`, setpoint moved smoothly between the
+//! holds, without a velocity step); the load motor applies the pendulum's gravity torque
+//! `-m g Lg sin(theta + pendulum_offset)` along the way (`calibrationPendulumMoment` of the
+//! bench FMU). At rest the shaft then carries
 //! `m g Lg sin(theta_k)` through the transducer, and the test motor holds it (the load cell's
 //! reaction torque). Static friction adds to each side's balance (up to `Tfr,static`): on the
 //! plant, run it with `frictionModel` = 0 (Off) to see the sensors alone. The fit is linear in
 //! `(a, p, q)`: `V = a + p sin(theta) + q cos(theta)`, `b = p / cos(c)`, `c = atan(q / p)`,
 //! over the last `measure` seconds of each hold.
 //!
-//! Note on the plant: its sensors are linear in torque (`V = a + b sin(c) + b cos(c) T / (m g
-//! Lg)`, the small-angle form of the calibration), so a pendulum angle never enters them: the
-//! fit returns `a + b sin(c)`, `b cos(c)` and `c = 0` (the calibration's phase is not
-//! identifiable from a sensor that sees torque only).
+//! **The phase c is the pendulum's mounting offset.** `T = m g Lg sin(theta)` takes the
+//! pendulum's angle from its hanging direction, the fit `V = a + b sin(theta_enc + c)` the
+//! encoder's angle: c is the angle between the two, the encoder's zero against the direction
+//! in which the pendulum hangs (which is why the bench converts with `T = (m g Lg / b)(V - a)`,
+//! without c). A sensor sees torque only, so c is observable only through the rig: the
+//! emulated pendulum hangs `pendulum_offset` from the encoder's zero (its torque is
+//! `-m g Lg sin(theta_enc + pendulum_offset)`), and the fit returns that offset as c. With
+//! the default offset 0 the fit returns c = 0. The plant's running sensors keep their own
+//! documented small-angle form `V = a + b sin(c_s) + b cos(c_s) T / (m g Lg)` with `c_s` =
+//! `transducerPhase`, `loadCellPhase` (`fmu/src/models/bench/sensors.rs`), so on the plant the
+//! fit's a and b are `a + b sin(c_s)` and `b cos(c_s)` (0.03 % and 5e-5 from the published
+//! a and b).
 
 use std::path::Path;
 
@@ -26,6 +35,9 @@ use super::{
 };
 use crate::results::plot::PlotLabels;
 
+/// Spacing of the knots of a move between two angles \[s\].
+const MOVE_KNOT: f64 = 0.01;
+
 /// Settings of the calibration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationConfig {
@@ -35,10 +47,13 @@ pub struct CalibrationConfig {
     pub hold: f64,
     /// Averaging time at the end of each hold \[s\].
     pub measure: f64,
-    /// Speed of the moves between angles [rad/s].
+    /// Average speed of the (smooth) moves between angles [rad/s].
     pub speed: f64,
     /// Position loop: kp [A/rad], ki [A/(rad s)], kd [A s/rad].
     pub gains: (f64, f64, f64),
+    /// The emulated pendulum's hanging direction in the encoder's frame \[rad\]: its gravity
+    /// angle is `theta_enc + pendulum_offset` (the c the fit recovers).
+    pub pendulum_offset: f64,
 }
 
 impl Default for CalibrationConfig {
@@ -47,9 +62,11 @@ impl Default for CalibrationConfig {
             angles: (-5..=5).map(|k| f64::from(k * 9).to_radians()).collect(),
             hold: 6.0,
             measure: 3.0,
-            // Slow moves: a stop rings the SEA's lightly damped load side (about 1.2 s decay).
+            // Slow, smooth moves: what rings the SEA's lightly damped load side (about 1.2 s
+            // decay) still falls in the hold.
             speed: 5f64.to_radians(),
             gains: (1000.0, 1000.0, 15.0),
+            pendulum_offset: 0.0,
         }
     }
 }
@@ -130,24 +147,37 @@ pub fn run_calibration(
         || config.angles.iter().any(|a| !a.is_finite())
         || !(ok(config.hold) && ok(config.measure) && ok(config.speed))
         || config.measure > config.hold
+        || !config.pendulum_offset.is_finite()
+        || config.pendulum_offset.abs() >= std::f64::consts::FRAC_PI_2
     {
         return Err(ExperimentError::Invalid(
-            "calibration: give at least 3 finite angles, positive hold, measure (<= hold) and speed".into(),
+            "calibration: give at least 3 finite angles, positive hold, measure (<= hold) and speed, and a pendulum offset within +-90 deg".into(),
         ));
     }
     let moment = bench.real("calibrationPendulumMoment")?;
     let per_amp = bench.load_torque_per_ampere()?;
-    let (mut t, mut previous) = (0.0, 0.0);
-    let (mut angle_schedule, mut load_schedule) = (vec![(0.0, 0.0)], vec![(0.0, 0.0)]);
+    // The pendulum's gravity torque as the load motor's current at encoder angle `theta`.
+    let gravity = |theta: f64| -moment * (theta + config.pendulum_offset).sin() / per_amp;
+    let (mut t, mut previous): (f64, f64) = (0.0, 0.0);
+    let (mut angle_schedule, mut load_schedule) = (vec![(0.0, 0.0)], vec![(0.0, gravity(0.0))]);
     let mut windows = Vec::new();
     for &theta in &config.angles {
-        t += (theta - previous).abs() / config.speed;
-        let current = -moment * theta.sin() / per_amp;
+        // A smooth move (velocity `(1 - cos(2 pi s))` times the average speed, s the move's
+        // fraction, in knots of MOVE_KNOT seconds): it starts and stops without a velocity
+        // step, which would ring the SEA's lightly damped load side (3.8 Hz, about 1.2 s
+        // decay) into the averaging window. The gravity torque follows the angle.
+        let duration = (theta - previous).abs() / config.speed;
+        let knots = (duration / MOVE_KNOT).ceil().max(1.0) as usize;
+        for k in 1..=knots {
+            let s = k as f64 / knots as f64;
+            let shape = s - (std::f64::consts::TAU * s).sin() / std::f64::consts::TAU;
+            let angle = previous + (theta - previous) * shape;
+            angle_schedule.push((t + s * duration, angle));
+            load_schedule.push((t + s * duration, gravity(angle)));
+        }
+        t += duration + config.hold;
         angle_schedule.push((t, theta));
-        load_schedule.push((t, current));
-        t += config.hold;
-        angle_schedule.push((t, theta));
-        load_schedule.push((t, current));
+        load_schedule.push((t, gravity(theta)));
         windows.push((t - config.measure, t));
         previous = theta;
     }
@@ -197,7 +227,7 @@ pub fn run_calibration(
     let angles: Vec<f64> = holds.iter().map(|h| h.0).collect();
     let transducer = fit_sensor(&angles, &holds.iter().map(|h| h.1).collect::<Vec<_>>())?;
     let load_cell = fit_sensor(&angles, &holds.iter().map(|h| h.2).collect::<Vec<_>>())?;
-    let written = write_calibration(bench, &holds, &transducer, &load_cell, &end, r, out)?;
+    let written = write_calibration(bench, config, &holds, &transducer, &load_cell, &end, r, out)?;
     Ok(CalibrationResult {
         holds,
         transducer,
@@ -207,8 +237,10 @@ pub fn run_calibration(
     })
 }
 
+#[allow(clippy::too_many_arguments)]
 fn write_calibration(
     bench: &Bench,
+    config: &CalibrationConfig,
     holds: &[(f64, f64, f64)],
     transducer: &SensorFit,
     load_cell: &SensorFit,
@@ -273,12 +305,13 @@ fn write_calibration(
         )
     };
     let mut body = format!(
-        "Pendulum calibration on `{}`: {} angles from {:.1} to {:.1} deg, pendulum moment m g Lg = {} N m; fit of `V = a + b sin(theta + c)` to the raw volts (one standard deviation from the fit residual). The bench FMU's parameters are listed for comparison.\n\n",
+        "Pendulum calibration on `{}`: {} angles from {:.1} to {:.1} deg, pendulum moment m g Lg = {} N m hanging {} rad from the encoder's zero (its torque `-m g Lg sin(theta + offset)`; c is that offset); fit of `V = a + b sin(theta + c)` to the raw volts (one standard deviation from the fit residual). The bench FMU's parameters are listed for comparison.\n\n",
         bench.path().display(),
         holds.len(),
         holds.first().map_or(0.0, |h| h.0.to_degrees()),
         holds.last().map_or(0.0, |h| h.0.to_degrees()),
         bench.real("calibrationPendulumMoment")?,
+        config.pendulum_offset,
     );
     if let RunEnd::Tripped { time, reason } = end {
         body.push_str(&format!(

@@ -3,10 +3,22 @@
 //! torque and efficiency, compared with the loss surface (`hd-loss-surface.csv`).
 //!
 //! **Schedule.** For each load torque, each speed `v` of the list is run as `+v` then `-v` (the
-//! angle returns), each point held `settle + measure` seconds; speed and torque move between
-//! points on ramps of `acceleration` (a speed step would ring the SEA spring past its 5 deg
-//! interlock). The velocity loop is a `PidController` on `actuationVelocity` (current out);
-//! the load motor gets the current `T / (i_RED Km2)`.
+//! angle returns), each point held `settle + measure` seconds; the speed moves between points
+//! on ramps of `acceleration` (a speed step would ring the SEA spring past its 5 deg
+//! interlock), and the load torque changes only at rest (the speed ramps to 0, the torque
+//! ramps at `torque_rate`, the speed ramps to the next point). The velocity loop is a
+//! `PidController` on `actuationVelocity` (current out); the load motor gets the current
+//! `T / (i_RED Km2)`.
+//!
+//! **The braking limit.** Where the load motor's torque opposes the motion it brakes, and its
+//! driver absorbs the regenerated power `P = -(R2 i2 + Ke2 i_RED omega) i2` (steady state,
+//! `i2 = T / (i_RED Km2)`), which the armed hardware limits to 5 W (`loadRegenPowerLimit`,
+//! bench-model.md section 7): at 9 N m and 150 deg/s the map would regenerate about 22 W. A
+//! point whose predicted power exceeds `regen_fraction` of the bench's `loadRegenPowerLimit`
+//! (the margin covers the velocity loop's transients) is skipped and listed as such; every
+//! ramp stays within the limit too, since at constant torque the power is linear in the speed
+//! (bounded by the two points it joins) and at rest it is `-R2 i2^2 <= 0`. On the plant the
+//! limit is a parameter like any other: raise it to map the whole braking quadrant.
 //!
 //! **Quantities** (means over the last `measure` seconds of each point):
 //! * loss torque `tau_loss = tau_shaft - tau_test` [N m]: the shaft torque past the drive
@@ -43,9 +55,14 @@ pub const BENCH_SPEEDS: [f64; 12] = [
     0.0, 3.0, 6.0, 10.0, 20.0, 30.0, 50.0, 70.0, 90.0, 110.0, 130.0, 150.0,
 ];
 
-/// The default load torques [N m]: the gait's load range (-9 ... 17.5 N m) in steps of about
-/// 4.5 N m.
-pub const DEFAULT_TORQUES: [f64; 7] = [-9.0, -4.5, 0.0, 4.5, 9.0, 13.5, 17.5];
+/// The default load torques [N m]: the gait's ground reaction (9 N m peak external torque, so
+/// -4.7 ... 9 N m, or its mirror with the opposite sign convention) covered in both signs in
+/// steps of 4.5 N m.
+pub const DEFAULT_TORQUES: [f64; 5] = [-9.0, -4.5, 0.0, 4.5, 9.0];
+
+/// The default largest predicted regenerated power of a point, as a fraction of the bench's
+/// `loadRegenPowerLimit`.
+pub const DEFAULT_REGEN_FRACTION: f64 = 0.8;
 
 /// Settings of the map.
 #[derive(Debug, Clone, PartialEq)]
@@ -66,6 +83,9 @@ pub struct MapConfig {
     pub gains: (f64, f64),
     /// The loss surface (CSV text in the format of `hd-loss-surface.csv`).
     pub surface: String,
+    /// A point is run only if its predicted steady regenerated power is at most this fraction
+    /// of the bench's `loadRegenPowerLimit` (in (0, 1]).
+    pub regen_fraction: f64,
 }
 
 impl Default for MapConfig {
@@ -79,6 +99,7 @@ impl Default for MapConfig {
             torque_rate: 10.0,
             gains: (5.0, 50.0),
             surface: DEFAULT_SURFACE.to_string(),
+            regen_fraction: DEFAULT_REGEN_FRACTION,
         }
     }
 }
@@ -154,11 +175,25 @@ pub struct MapPoint {
     pub relative_difference: f64,
 }
 
+/// A point of the schedule left out because the load driver would regenerate too much.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SkippedPoint {
+    /// Commanded speed [deg/s].
+    pub speed_command: f64,
+    /// Commanded load torque [N m].
+    pub torque_command: f64,
+    /// Predicted steady regenerated power of the load driver \[W\].
+    pub regenerated_power: f64,
+}
+
 /// The map's points and how the run ended.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapResult {
     /// Measured points, in schedule order (only those completed before a trip).
     pub points: Vec<MapPoint>,
+    /// Points of the configured grid not run: their braking would exceed the regenerated-power
+    /// budget (`regen_fraction` of `loadRegenPowerLimit`).
+    pub skipped: Vec<SkippedPoint>,
     /// How the run ended.
     pub end: RunEnd,
     /// What was written.
@@ -184,41 +219,67 @@ pub fn run_map(
         || !(positive(config.settle)
             && positive(config.measure)
             && positive(config.acceleration)
-            && positive(config.torque_rate))
+            && positive(config.torque_rate)
+            && config.regen_fraction > 0.0
+            && config.regen_fraction <= 1.0)
     {
         return Err(ExperimentError::Invalid(
-            "map: give speeds >= 0 and torques, and positive settle, measure, acceleration and torque rate".into(),
+            "map: give speeds >= 0 and torques, positive settle, measure, acceleration and torque rate, and a regen fraction in (0, 1]".into(),
         ));
     }
     let surface = LossSurface::parse(&config.surface)?;
     let per_amp = bench.load_torque_per_ampere()?;
-    // The points: (speed rad/s, torque), and the schedule of ramps and holds.
+    let regen = RegenModel::of(bench)?;
+    let budget = config.regen_fraction * bench.real("loadRegenPowerLimit")?;
+    // The points: (speed rad/s, torque), those within the braking budget, and the schedule of
+    // ramps and holds.
     let mut points = Vec::new();
+    let mut skipped = Vec::new();
     for &torque in &config.torques {
         for &v in &config.speeds {
             let w = v.to_radians();
-            if v == 0.0 {
-                points.push((w, torque));
-            } else {
-                points.push((w, torque));
-                points.push((-w, torque));
+            let signs: &[f64] = if v == 0.0 { &[1.0] } else { &[1.0, -1.0] };
+            for &sign in signs {
+                let power = regen.power(sign * w, torque);
+                if power > budget {
+                    skipped.push(SkippedPoint {
+                        speed_command: sign * v,
+                        torque_command: torque,
+                        regenerated_power: power,
+                    });
+                } else {
+                    points.push((sign * w, torque));
+                }
             }
         }
     }
+    if points.is_empty() {
+        return Err(ExperimentError::Invalid(format!(
+            "map: every point would regenerate more than {budget} W in the load driver"
+        )));
+    }
     let hold = config.settle + config.measure;
-    let (mut t, mut w_prev, mut tq_prev) = (0.0, 0.0, 0.0);
+    let (mut t, mut w_prev, mut tq_prev): (f64, f64, f64) = (0.0, 0.0, 0.0);
     let (mut speed_schedule, mut current_schedule) = (vec![(0.0, 0.0)], vec![(0.0, 0.0)]);
     let mut windows = Vec::new();
     for &(w, torque) in &points {
-        let ramp = ((w - w_prev).abs() / config.acceleration)
-            .max((torque - tq_prev).abs() / config.torque_rate);
-        t += ramp;
-        speed_schedule.push((t, w));
-        current_schedule.push((t, torque / per_amp));
+        let mut knot = |t: f64, w: f64, torque: f64| {
+            speed_schedule.push((t, w));
+            current_schedule.push((t, torque / per_amp));
+        };
+        if torque != tq_prev {
+            // The torque changes at rest: no braking on the way.
+            t += w_prev.abs() / config.acceleration;
+            knot(t, 0.0, tq_prev);
+            t += (torque - tq_prev).abs() / config.torque_rate;
+            knot(t, 0.0, torque);
+            w_prev = 0.0;
+        }
+        t += (w - w_prev).abs() / config.acceleration;
+        knot(t, w, torque);
         windows.push((t + config.settle, t + hold));
         t += hold;
-        speed_schedule.push((t, w));
-        current_schedule.push((t, torque / per_amp));
+        knot(t, w, torque);
         (w_prev, tq_prev) = (w, torque);
     }
     let stop = (t / super::STEP).ceil() * super::STEP;
@@ -297,12 +358,37 @@ pub fn run_map(
             "map: no point completed ({end:?})"
         )));
     }
-    let written = write_map(bench, config, &measured, &end, r, out)?;
+    let written = write_map(bench, config, &measured, &skipped, budget, &end, r, out)?;
     Ok(MapResult {
         points: measured,
+        skipped,
         end,
         written,
     })
+}
+
+/// The load driver's steady regenerated power at a map point.
+struct RegenModel {
+    resistance: f64,
+    back_emf_per_ampere: f64,
+    torque_per_ampere: f64,
+}
+
+impl RegenModel {
+    fn of(bench: &Bench) -> Result<RegenModel, ExperimentError> {
+        Ok(RegenModel {
+            resistance: bench.real("loadMotorResistance")?,
+            back_emf_per_ampere: bench.real("loadMotorBackEmfConstant")?
+                * bench.real("reductionRatio")?,
+            torque_per_ampere: bench.load_torque_per_ampere()?,
+        })
+    }
+
+    /// `-(R2 i2 + Ke2 i_RED omega) i2` with `i2 = T / (i_RED Km2)`, at least 0 \[W\].
+    fn power(&self, omega: f64, torque: f64) -> f64 {
+        let current = torque / self.torque_per_ampere;
+        (-(self.resistance * current + self.back_emf_per_ampere * omega) * current).max(0.0)
+    }
 }
 
 /// The box the plant clamps the surface's arguments to (none on an FMU without it).
@@ -329,10 +415,13 @@ impl MapClamp {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn write_map(
     bench: &Bench,
     config: &MapConfig,
     points: &[MapPoint],
+    skipped: &[SkippedPoint],
+    budget: f64,
     end: &RunEnd,
     run: &crate::Results,
     out: &Path,
@@ -409,6 +498,24 @@ fn write_map(
         body.push_str(&format!(
             "**The run was ended at {time:.3} s: {reason}.** Only the points completed before are listed.\n\n"
         ));
+    }
+    if !skipped.is_empty() {
+        body.push_str(&format!(
+            "**{} points not run**: the load motor would brake them, its driver regenerating more than {} W ({} of `loadRegenPowerLimit` = {} W; predicted steady power `-(R2 i2 + Ke2 i_RED omega) i2`). Raise the limit (plant only: the armed hardware refuses more than 5 W) to map them.\n\n| speed [deg/s] | load torque [N m] | predicted regenerated power [W] |\n|---:|---:|---:|\n",
+            skipped.len(),
+            num(budget, 2),
+            config.regen_fraction,
+            num(bench.real("loadRegenPowerLimit")?, 2),
+        ));
+        for s in skipped {
+            body.push_str(&format!(
+                "| {} | {} | {} |\n",
+                num(s.speed_command, 2),
+                num(s.torque_command, 3),
+                num(s.regenerated_power, 2)
+            ));
+        }
+        body.push('\n');
     }
     body.push_str("| speed [deg/s] | load torque [N m] | test torque [N m] | shaft torque [N m] | loss torque [N m] | surface [N m] | difference [%] | efficiency |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for p in points {

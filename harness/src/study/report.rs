@@ -345,9 +345,12 @@ argues each point):
 - The test motor's mechanical energy is short because the load side gives energy back: over a
   gait cycle the knee absorbs energy, so the ground reaction does net positive work on the shaft.
   The bench's balance (64.76 J in, 51.57 J lost in the drive) would need the load side to absorb
-  about 13 J, which the specified ground reaction cannot.
+  about 13 J, which the specified ground reaction cannot. Reversed, the ground reaction would
+  bring the test motor's energy to 0.83-0.92 of Table 14 but make the load driver brake 6-14 W
+  against its 5 W limit on the 60 deg gait the bench ran: the sign is left as the facts' frames
+  give it, with the evidence on the plant's page.
 - The electrical energy is short by more than the mechanical: the twin's test motor converts
   with copper losses only (R1 = 0.608 Ohm) through a loss-free driver.
-- E_k stored with the identified inertias (I1 + I2 = 1.43 kg m^2) is about 7.7 J per cycle; Table
-  13's 40 J would need about 5 times that inertia.
+- E_k stored with the identified inertias (I1 + I2 = 1.43 kg m^2) is 7.3-7.8 J per cycle (the
+  table above); Table 13's 40 J would need about 5 times that inertia.
 ";

@@ -402,9 +402,11 @@ pub struct StudyGains {
     /// reference motion) that the load motor supplies. Its torque is planned as
     /// `-tau_knee + beta_w c2 w + beta_a I2 a` (the torque loop's feed-forward current) and the
     /// shaft torque the loop tracks as `tau_knee + (1 - beta_w) c2 w + (1 - beta_a) I2 a` (its
-    /// setpoint). (0, 0) is the bare ground reaction (shaft torque up to 19.4 N m on the
-    /// default gait); (1, 1) makes the shaft carry exactly the knee torque, and the load
-    /// driver then has to absorb 6.7 W in swing (module docs).
+    /// setpoint). (0, 0) is the bare ground reaction (the shaft carries the load side's
+    /// dynamics too: 11.1-11.5 N m peak on the bench-full gait, `kneebench study --scenario
+    /// bench-full`, row "peak shaft torque"); (1, 1) makes the shaft carry exactly the knee
+    /// torque, and the load driver then has to brake the load side's dynamics in swing, above
+    /// its 5 W (module docs, "The budget").
     pub load_dynamics_share: (f64, f64),
     /// Which controller drives the test motor.
     pub test_controller: TestController,

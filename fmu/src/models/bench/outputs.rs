@@ -103,7 +103,8 @@ pub struct BenchOutputs {
     pub clutch_power: f64,
     /// Hardware offset power \[W\].
     pub offset_power: f64,
-    /// Total electrical power incl. offset and clutch \[W\].
+    /// Both drivers' electrical power `V1 i1 + V2 i2` (signed) plus the hardware offset and the
+    /// clutch \[W\] (the bench's eq. 70 counts the test driver only).
     pub total_electrical_power: f64,
     /// E_k = (I1 w1^2 + I2 w2^2)/2 \[J\].
     pub kinetic_energy: f64,
@@ -139,7 +140,8 @@ pub struct BenchOutputs {
     pub clutch_energy: f64,
     /// Hardware offset energy \[J\].
     pub offset_energy: f64,
-    /// Total electrical energy incl. offset and clutch \[J\].
+    /// Integral of [`Self::total_electrical_power`]: both drivers (signed), the hardware offset
+    /// and the clutch \[J\] (the bench's eq. 70 counts the test driver only).
     pub total_electrical_energy: f64,
     /// Integral of the positive part of the total electrical power \[J\].
     pub total_electrical_energy_consumed: f64,

@@ -946,3 +946,74 @@ fn friction_appearing_at_rest_settles_the_mode_before_the_next_step() {
     let o = plant.outputs();
     assert!(!o.load_stuck && o.load_velocity > 0.0);
 }
+
+/// The first row of a plant started with a load (issue 13: "the t = 0 row equals the state
+/// the plant holds", the test with an initial load). Two ways a run starts loaded:
+/// * the commands ask for torques from t = 0 (the study's gait starts with a knee torque):
+///   the drivers' current loops start from zero current, so at t = 0 the state holds no load
+///   yet and the first row shows rest (stuck, no friction torque, no acceleration); the
+///   commanded torques act from the first step on;
+/// * the plant starts from a state that already carries a load (an FMU state saved from a
+///   loaded plant, set into a fresh instance): its first row shows that state exactly, the
+///   loads acting, stuck, no acceleration and no sliding friction, as the saved plant does.
+#[test]
+fn the_first_row_with_an_initial_load_shows_the_state_the_plant_holds() {
+    // Output-side torques (test, load) [N m]: inside both sides' static capacity (5 and 0.35
+    // N m), and beyond the load side's.
+    for (t1, t2) in [(2.0, 0.3), (2.0, 3.0)] {
+        let mut plant = plant_with(|_| {});
+        let inputs = torque_inputs(&plant, t1, t2);
+        let first = plant.outputs();
+        assert!(first.actuation_stuck && first.load_stuck);
+        assert_eq!(first.test_motor_current, 0.0);
+        assert_eq!(first.load_motor_current, 0.0);
+        assert_eq!(
+            [
+                first.actuation_friction_torque,
+                first.load_friction_torque,
+                first.actuation_acceleration,
+                first.load_acceleration,
+            ],
+            [0.0; 4]
+        );
+        run(&mut plant, &inputs, 1e-3, 1);
+        let o = plant.outputs();
+        // From the first step on the loads act: the current reached its set value (0.25 ms
+        // loop), and the load side broke away where the load exceeds its capacity.
+        assert!((o.load_output_torque - t2).abs() < 0.03 * t2, "{o:?}");
+        assert_eq!(o.load_stuck, t2 < 0.35, "{t2} N m: {o:?}");
+    }
+
+    // A plant holding a load within both capacities: after the current loops settled, both
+    // bodies stuck, each friction torque balancing its side's load.
+    let mut loaded = plant_with(|_| {});
+    let inputs = torque_inputs(&loaded, 2.0, 0.3);
+    run(&mut loaded, &inputs, 1e-3, 20);
+    let held = loaded.outputs();
+    assert!(held.actuation_stuck && held.load_stuck, "{held:?}");
+    // Held, not sliding: the friction outputs are the sliding friction ("while sliding",
+    // `BenchOutputs`), zero; the loads act (the currents settled), nothing accelerates.
+    assert_eq!(
+        [held.actuation_friction_torque, held.load_friction_torque],
+        [0.0; 2]
+    );
+    assert!((held.test_output_torque - 2.0).abs() < 1e-6, "{held:?}");
+    assert!((held.load_output_torque - 0.3).abs() < 1e-6, "{held:?}");
+    assert_eq!(
+        [held.actuation_acceleration, held.load_acceleration],
+        [0.0; 2]
+    );
+    // Started from that state: the first row is the state it holds, field for field.
+    let mut bytes = Vec::new();
+    loaded.encode_state(&mut bytes);
+    let mut started = plant_with(|_| {});
+    started.decode_state(&mut bytes.as_slice()).unwrap();
+    assert_eq!(format!("{:?}", started.outputs()), format!("{held:?}"));
+    // And both go on alike.
+    run(&mut loaded, &inputs, 1e-3, 1);
+    run(&mut started, &inputs, 1e-3, 1);
+    assert_eq!(
+        format!("{:?}", started.outputs()),
+        format!("{:?}", loaded.outputs())
+    );
+}
