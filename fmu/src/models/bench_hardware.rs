@@ -1132,6 +1132,7 @@ fn reason_name(r: u8) -> &'static str {
         reason::EMERGENCY_STOP => "the emergency stop",
         reason::SESSION_END => "a session end",
         reason::BENCH_PROTECTION => "the bench's own protection",
+        reason::SERVER_RESTART => "a server restart under a live session",
         _ => "unknown reason",
     }
 }
