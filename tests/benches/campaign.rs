@@ -109,7 +109,8 @@ fn main() {
         let (mut ok, mut disturbed) = (0, 0);
         for _ in 0..runs {
             let obs = campaign::run_case(&bench, &case, &child);
-            if obs.disturbed.is_some() {
+            if let Some(why) = &obs.disturbed {
+                eprintln!("{}: a disturbed run, not judged: {why}", case.name);
                 disturbed += 1;
                 continue;
             }
@@ -124,11 +125,11 @@ fn main() {
                 (Some(l), Err(_)) => format!("{l} (NO)"),
                 (None, _) => "none".into(),
             });
-            rows.push(match obs.rows_run {
-                Some(n) if obs.file.is_ok() => format!("{}/{n}", obs.rows_on_disk),
-                _ if obs.file.is_ok() => obs.rows_on_disk.to_string(),
-                _ => "BAD".into(),
-            });
+            rows.push((
+                obs.file.is_ok(),
+                obs.rows_on_disk,
+                obs.rows_run.unwrap_or(0),
+            ));
             match obs.check(&case) {
                 Ok(()) => ok += 1,
                 Err(e) => failures.push(e),
@@ -138,15 +139,25 @@ fn main() {
             Some(mid) => format!("{} / {mid} / {}", periods[0], periods[periods.len() - 1]),
             None => "-".into(),
         };
-        // Rows: the range over the runs (each run's on-disk / made).
-        let rows_text = if rows.iter().all(|r| r == &rows[0]) && !rows.is_empty() {
-            rows[0].clone()
+        // Rows on disk over the runs: all that the master made, or how many of how many.
+        let span = |v: Vec<u64>| {
+            let (lo, hi) = (v.iter().min().copied(), v.iter().max().copied());
+            match (lo, hi) {
+                (Some(lo), Some(hi)) if lo == hi => lo.to_string(),
+                (Some(lo), Some(hi)) => format!("{lo}-{hi}"),
+                _ => "-".into(),
+            }
+        };
+        let bad = rows.iter().filter(|r| !r.0).count();
+        let disk = span(rows.iter().map(|r| r.1).collect());
+        let rows_text = if rows.iter().all(|r| r.1 == r.2) {
+            format!("all ({disk})")
         } else {
-            format!(
-                "{} .. {}",
-                rows.first().cloned().unwrap_or_default(),
-                rows.last().cloned().unwrap_or_default()
-            )
+            format!("{disk} of {}", span(rows.iter().map(|r| r.2).collect()))
+        } + &if bad > 0 {
+            format!(", {bad} BAD")
+        } else {
+            String::new()
         };
         println!(
             "| {} | {} | {} | {latency} | {} | {rows_text} | {ok} / {disturbed} |",

@@ -320,6 +320,15 @@ pub fn cases() -> Vec<Case> {
             "inside its window; the motor current disagrees: 10 samples",
         ),
         case(
+            "test current sensor offset 0.1 V (1 A)",
+            F::Offset {
+                channel: 2,
+                volts: 0.1,
+            },
+            trip(13, client, persistence),
+            "inside its window; the load cell disagrees with the torque it implies: 10 samples",
+        ),
+        case(
             "test driver fault",
             F::DriverFault { driver: 0 },
             trip(11, reason::BENCH_PROTECTION, one),
@@ -364,8 +373,12 @@ pub struct Observation {
     /// acknowledgement of another reason is refused and the right one clears it. `Err` says
     /// what failed.
     pub acknowledgement: Result<(), String>,
-    /// Drive commands the bench received after it or its master entered the safe state.
+    /// Drive commands the master sent after its own safe-state request (a correct master
+    /// sends none; those that crossed the bench's own entry into the safe state, sent before
+    /// the master could know, are not counted here: the bench ignored them).
     pub drive_after_safe: u64,
+    /// The bench's outputs after the case drive nothing (both drivers off, the clutch out).
+    pub outputs_safe: bool,
     /// Rows in the file read back.
     pub rows_on_disk: u64,
     /// Rows the master handed to the sink (`None`: killed, unknown).
@@ -393,6 +406,7 @@ impl Default for Observation {
             latch: None,
             acknowledgement: Err("not checked".into()),
             drive_after_safe: 0,
+            outputs_safe: false,
             rows_on_disk: 0,
             rows_run: None,
             file: Err("not read".into()),
@@ -463,9 +477,12 @@ impl Observation {
         }
         if self.drive_after_safe != 0 {
             wrong.push(format!(
-                "{} drive commands after the safe state",
+                "{} drive commands after the master's safe-state request",
                 self.drive_after_safe
             ));
+        }
+        if !matches!(case.expected, Expected::Completes) && !self.outputs_safe {
+            wrong.push("the bench's outputs still drive after the case".into());
         }
         if let Err(e) = &self.file {
             wrong.push(format!("file: {e}"));
@@ -975,7 +992,8 @@ pub fn run_case(bench: &Bench, case: &Case, child: ChildCommand) -> Observation 
         wait_for_latch(&emu, Duration::from_secs(1))
     };
     obs.latch = s.safe_reason;
-    obs.drive_after_safe = s.drive_commands_in_safe_state + s.drive_commands_after_safe_request;
+    obs.drive_after_safe = s.drive_commands_after_safe_request;
+    obs.outputs_safe = !s.outputs.is_some_and(|c| c.drives());
     obs.refused = s.rejected.rejected() + s.foreign_frames;
     obs.watchdog_periods = match (s.safe_reason, s.latched_at) {
         (Some(reason::HEARTBEAT_TIMEOUT), Some(at)) => {
@@ -995,10 +1013,22 @@ pub fn run_case(bench: &Bench, case: &Case, child: ChildCommand) -> Observation 
             .heartbeats_at_safe_request
             .map(|h| h.saturating_sub(s.heartbeats_at_fault)),
     };
-    if obs.disturbed.is_none() && obs.code == Some(trip::LINK) {
+    if obs.disturbed.is_none() {
         let link_case = matches!(case.expected, Expected::Trip { code: 8, .. });
-        if !link_case {
+        let watchdog_case = matches!(
+            case.expected,
+            Expected::Watchdog { .. }
+                | Expected::Trip {
+                    latch: reason::HEARTBEAT_TIMEOUT,
+                    ..
+                }
+        );
+        if obs.code == Some(trip::LINK) && !link_case {
             obs.disturbed = Some("a link trip the fault does not cause (host stall)".into());
+        } else if s.safe_reason == Some(reason::HEARTBEAT_TIMEOUT) && !watchdog_case {
+            // The master stalled for the whole heartbeat timeout (50 ms): the server stopped
+            // the bench by itself, which the fault does not cause.
+            obs.disturbed = Some("the server's watchdog stopped the bench (host stall)".into());
         }
     }
     obs.acknowledgement = match s.safe_reason {
