@@ -60,6 +60,12 @@ use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, St
 #[allow(dead_code)]
 mod realtime;
 
+mod faults;
+mod state;
+
+use faults::{LinkFault, direction_index, gaussian, noise_state};
+use state::{read_state, write_state};
+
 /// Value references of the bench signal interface used by the emulator.
 mod vr {
     pub const TEST_VOLTAGE: u32 = 200;
@@ -373,134 +379,6 @@ struct Session {
     ended: bool,
     /// Its heartbeat watchdog expired.
     expired: bool,
-}
-
-/// What the emulated link does to the next frames of one direction.
-#[derive(Debug, Default)]
-struct LinkFault {
-    duplicate: u32,
-    corrupt: u32,
-    reorder: bool,
-    held: Option<(Vec<u8>, SocketAddr)>,
-}
-
-impl LinkFault {
-    /// The datagrams the link delivers for `bytes` (none, one or two, the held one after);
-    /// counts the frames it changed in `applied`.
-    fn pass(
-        &mut self,
-        mut bytes: Vec<u8>,
-        to: SocketAddr,
-        applied: &mut u64,
-    ) -> Vec<(Vec<u8>, SocketAddr)> {
-        if self.corrupt > 0 && !bytes.is_empty() {
-            self.corrupt -= 1;
-            *applied += 1;
-            let middle = bytes.len() / 2;
-            bytes[middle] ^= 0xFF;
-        }
-        let mut out = Vec::with_capacity(2);
-        if self.reorder {
-            *applied += 1;
-            match self.held.take() {
-                None => {
-                    self.held = Some((bytes, to));
-                    return out;
-                }
-                Some(first) => {
-                    self.reorder = false;
-                    out.push((bytes, to));
-                    out.push(first);
-                }
-            }
-        } else {
-            out.push((bytes, to));
-        }
-        if self.duplicate > 0 {
-            self.duplicate -= 1;
-            *applied += 1;
-            out.insert(1, out[0].clone());
-        }
-        out
-    }
-}
-
-fn direction_index(d: LinkDirection) -> usize {
-    match d {
-        LinkDirection::ToClient => 0,
-        LinkDirection::ToServer => 1,
-    }
-}
-
-/// A standard normal deviate from a xorshift64* generator (Box-Muller): repeatable noise.
-fn gaussian(state: &mut u64) -> f64 {
-    let mut uniform = || {
-        *state ^= *state >> 12;
-        *state ^= *state << 25;
-        *state ^= *state >> 27;
-        let x = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
-        // 53 random bits in (0, 1].
-        ((x >> 11) as f64 + 1.0) / (1u64 << 53) as f64
-    };
-    let (u1, u2) = (uniform(), uniform());
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
-
-/// The persisted state: (latch, a session live). Format: `latch R` and `live 0|1` lines.
-fn read_state(path: &std::path::Path) -> Result<(Option<u8>, bool), EmulatorError> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((None, false)),
-        Err(e) => {
-            return Err(EmulatorError::Config(format!(
-                "state file {}: {e}",
-                path.display()
-            )));
-        }
-    };
-    let bad = |line: &str| {
-        EmulatorError::Config(format!(
-            "state file {}: unreadable line `{line}` (expected `latch R` and `live 0|1`)",
-            path.display()
-        ))
-    };
-    let (mut latch, mut live) = (None, false);
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        match line.split_once(' ') {
-            Some(("latch", r)) => {
-                let r: u8 = r.trim().parse().map_err(|_| bad(line))?;
-                if r > reason::MAX || r == reason::SESSION_END {
-                    return Err(bad(line));
-                }
-                latch = (r != reason::NONE).then_some(r);
-            }
-            Some(("live", l)) => {
-                live = match l.trim() {
-                    "0" => false,
-                    "1" => true,
-                    _ => return Err(bad(line)),
-                }
-            }
-            _ => return Err(bad(line)),
-        }
-    }
-    Ok((latch, live))
-}
-
-/// Writes the state atomically (a temporary file renamed over it, synced).
-fn write_state(path: &std::path::Path, latch: Option<u8>, live: bool) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let mut f = std::fs::File::create(&tmp)?;
-    writeln!(f, "latch {}", latch.unwrap_or(reason::NONE))?;
-    writeln!(f, "live {}", u8::from(live))?;
-    // Not synced: the rename makes the file whole for a process that dies (the page cache
-    // outlives it), and a sync would stall the serving loop by milliseconds on a busy disk.
-    // A bench controller that must survive a power cut syncs (protocol §10).
-    drop(f);
-    std::fs::rename(&tmp, path)
 }
 
 /// A handshake answered with a WELCOME, waiting for its first session frame.
@@ -1115,13 +993,8 @@ impl Server {
                 volts,
                 seed,
             } => {
-                // SplitMix64 of the seed: a nonzero, well-mixed generator state.
-                let mut z = u64::from(seed).wrapping_add(0x9E37_79B9_7F4A_7C15);
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                let state = (z ^ (z >> 31)) | 1;
                 if let Some(n) = self.noise.get_mut(channel as usize) {
-                    *n = (volts > 0.0).then_some((volts, state));
+                    *n = (volts > 0.0).then_some((volts, noise_state(seed)));
                 }
             }
             FaultInjection::Offset { channel, volts } => {

@@ -361,5 +361,12 @@ mod tests {
             Cli::try_parse_from(["emulate", "--no-faults", "--fault", "estop"]).is_err(),
             "--no-faults with --fault"
         );
+        let args = Cli::try_parse_from(["emulate", "--no-faults", "--state", "bench.state"])
+            .unwrap()
+            .args;
+        assert!(args.no_faults);
+        assert_eq!(args.state, Some(PathBuf::from("bench.state")));
+        let args = Cli::try_parse_from(["emulate"]).unwrap().args;
+        assert!(!args.no_faults && args.state.is_none());
     }
 }
