@@ -335,6 +335,21 @@ pub fn cases() -> Vec<Case> {
             "the driver's fault line: the server stops the bench by itself",
         ),
         case(
+            "load driver fault",
+            F::DriverFault { driver: 1 },
+            trip(11, reason::BENCH_PROTECTION, one),
+            "the driver's fault line: the server stops the bench by itself",
+        ),
+        case(
+            "load supply drops to 30 V",
+            F::SupplyDrop {
+                supply: 1,
+                volts: 30.0,
+            },
+            trip(10, client, one),
+            "the divider leaves its window (40-56 V)",
+        ),
+        case(
             "test supply drops to 12 V",
             F::SupplyDrop {
                 supply: 0,
