@@ -1233,6 +1233,36 @@ mod tests {
     }
 
     #[test]
+    fn fault_kinds_refuse_fields_out_of_range() {
+        let refused = |kind, channel, value: f64, count| {
+            FaultInjection::decode(kind, channel, value, count).is_err()
+        };
+        // Link faults: direction 0 or 1; reorder takes no count.
+        assert!(refused(7, 2, 0.0, 1));
+        assert!(refused(8, 0, 0.0, 1));
+        assert!(refused(9, 0, 1.0, 1));
+        // Noise: an analog channel, a finite sigma not negative.
+        assert!(refused(10, 6, 0.1, 0));
+        assert!(refused(10, 0, -0.1, 0));
+        assert!(refused(10, 0, f64::NAN, 0));
+        // Offset: finite, no count.
+        assert!(refused(11, 0, f64::INFINITY, 0));
+        assert!(refused(11, 0, 0.1, 3));
+        // Driver and supply: 0 or 1; a supply of 0 to 100 V.
+        assert!(refused(12, 2, 0.0, 0));
+        assert!(refused(13, 0, 101.0, 0));
+        assert!(refused(13, 0, -1.0, 0));
+        assert!(refused(14, 0, 0.0, 0));
+        assert_eq!(
+            FaultInjection::decode(13, 1, 30.0, 0).unwrap(),
+            FaultInjection::SupplyDrop {
+                supply: 1,
+                volts: 30.0
+            }
+        );
+    }
+
+    #[test]
     fn every_frame_type_round_trips() {
         for (k, payload) in all_payloads().into_iter().enumerate() {
             let f = Frame {
