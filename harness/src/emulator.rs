@@ -21,9 +21,17 @@
 //! second.
 //!
 //! Faults are injected in process ([`EmulatorHandle::inject`], the CLI's `--fault`) or by
-//! FAULT_INJECT frames of the live, authenticated session (a bench server refuses the type):
-//! dropped or delayed replies, a stuck or forced channel, the emergency-stop button, silence
-//! (the link lost).
+//! FAULT_INJECT frames of the live, authenticated session (refused and counted with
+//! [`EmulatorConfig::refuse_fault_frames`], as a bench server does): the link's faults
+//! (replies dropped or delayed; frames of either direction duplicated, reordered or
+//! corrupted; silence, the link lost), the sensors' (a channel stuck, forced, noisy or
+//! offset), the bench's (the emergency-stop button, a driver fault, a supply drop).
+//!
+//! **A restart keeps the latch** when the emulator has a state file
+//! ([`EmulatorConfig::state_file`], the CLI's `--state`): it records the latch and whether a
+//! session is live, and a server that starts while it says a session was live (it went down
+//! under a master) starts latched with reason [`reason::SERVER_RESTART`], as protocol §10
+//! asks of a bench controller.
 //!
 //! Timing: the serving loop waits in `ppoll` until the next event it owes (a delayed reply,
 //! the session's watchdog deadline) or a datagram, so the watchdog and delayed replies keep
@@ -41,8 +49,8 @@ use std::time::{Duration, Instant};
 use crate::bench_protocol::auth::{NONCE_LEN, nonce};
 use crate::bench_protocol::{
     ANALOG_CHANNELS, BenchSetup, Command, Counters, DecodeError, FaultInjection, Frame, FrameType,
-    Header, Key, Payload, Receiver, Refusal, Sample, Sender, SessionKeys, SetValueKind, TAG_LEN,
-    TagKey, VERSION, Welcome, reason, refusal, status,
+    Header, Key, LinkDirection, Payload, Receiver, Refusal, Sample, Sender, SessionKeys,
+    SetValueKind, TAG_LEN, TagKey, VERSION, Welcome, reason, refusal, status,
 };
 use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, Status};
 
@@ -51,6 +59,12 @@ use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, St
 #[path = "../../fmu/src/hardware/realtime.rs"]
 #[allow(dead_code)]
 mod realtime;
+
+mod faults;
+mod state;
+
+use faults::{LinkFault, direction_index, gaussian, noise_state};
+use state::{read_state, write_state};
 
 /// Value references of the bench signal interface used by the emulator.
 mod vr {
@@ -68,6 +82,8 @@ mod vr {
     /// sense, test supply sense, load supply sense.
     pub const ANALOG: [u32; 6] = [322, 324, 328, 329, 326, 327];
     pub const TRIP_CODE: u32 = 373;
+    /// Supply voltages (test, load): tunable parameters of the plant.
+    pub const SUPPLY: [u32; 2] = [43, 44];
     pub const CONFIGURATION: u32 = 1;
     pub const TEST_DRIVER_MODE: u32 = 3;
     pub const LOAD_DRIVER_MODE: u32 = 4;
@@ -109,6 +125,14 @@ pub struct EmulatorConfig {
     pub key: Option<Key>,
     /// Log refused frames on stderr (at most one line a second).
     pub log_rejections: bool,
+    /// Behave as a bench server towards the network: FAULT_INJECT frames are refused and
+    /// counted ([`EmulatorStats::fault_frames_refused`]) even from the live session. Faults
+    /// injected by the emulator's owner ([`EmulatorConfig::faults`], [`EmulatorHandle::inject`])
+    /// still act: they stand for what happens to the bench itself.
+    pub refuse_fault_frames: bool,
+    /// A file that keeps the latch and whether a session is live across restarts (module
+    /// docs); `None`: a restart forgets them.
+    pub state_file: Option<PathBuf>,
 }
 
 impl EmulatorConfig {
@@ -124,6 +148,8 @@ impl EmulatorConfig {
             realtime_priority: None,
             key: None,
             log_rejections: true,
+            refuse_fault_frames: false,
+            state_file: None,
         }
     }
 }
@@ -205,6 +231,25 @@ pub struct EmulatorStats {
     pub log_lines: u64,
     /// The `SCHED_FIFO` priority the serving thread runs at (0: normal scheduling).
     pub realtime_priority: i32,
+    /// FAULT_INJECT frames refused ([`EmulatorConfig::refuse_fault_frames`]).
+    pub fault_frames_refused: u64,
+    /// The latch the server started with, restored from its state file (a restart).
+    pub restored_latch: Option<u8>,
+    /// HEARTBEAT datagrams received (by their header, as they arrive: valid or not, any
+    /// session), the campaign's clock of control periods.
+    pub heartbeats_seen: u64,
+    /// [`Self::heartbeats_seen`] when the last fault was applied.
+    pub heartbeats_at_fault: u64,
+    /// [`Self::heartbeats_seen`] when the first SAFE_STATE datagram (any session) after the
+    /// last fault (or the start) arrived: a client's trip is `this - heartbeats_at_fault`
+    /// control periods after the fault.
+    pub heartbeats_at_safe_request: Option<u64>,
+    /// Session time \[s\] (wall clock since the session began) of the last valid frame.
+    pub last_valid_time: f64,
+    /// Session time \[s\] at which the safe state latched (in the session that latched it).
+    pub latched_at: Option<f64>,
+    /// Frames the emulated link duplicated, reordered or corrupted (both directions).
+    pub link_faults_applied: u64,
 }
 
 /// A running emulator thread.
@@ -373,6 +418,19 @@ struct Server {
     forced: [Option<f64>; ANALOG_CHANNELS],
     emergency_stop: bool,
     silent: bool,
+    /// Link faults per direction (index: [`direction_index`]).
+    link: [LinkFault; 2],
+    /// Noise per analog channel: (standard deviation \[V\], generator state).
+    noise: [Option<(f64, u64)>; ANALOG_CHANNELS],
+    /// Offset per analog channel \[V\].
+    offset: [f64; ANALOG_CHANNELS],
+    /// Drivers (test, load) whose fault line is raised.
+    driver_fault: [bool; 2],
+    /// Supplies (test, load) dropped to a voltage; the nominal ones.
+    supply: [Option<f64>; 2],
+    supply_nominal: [f64; 2],
+    /// (latch, session live) as last written to the state file.
+    persisted: (Option<u8>, bool),
     /// (second of the last log line, refusals not logged since)
     log: (Option<Instant>, u64),
     /// (start of the current second, version refusals sent in it)
@@ -429,6 +487,13 @@ impl Server {
             forced: [None; ANALOG_CHANNELS],
             emergency_stop: false,
             silent: false,
+            link: Default::default(),
+            noise: [None; ANALOG_CHANNELS],
+            offset: [0.0; ANALOG_CHANNELS],
+            driver_fault: [false; 2],
+            supply: [None; 2],
+            supply_nominal: [0.0; 2],
+            persisted: (None, false),
             log: (None, 0),
             version_budget: (Instant::now(), 0),
             outbox: Vec::new(),
@@ -457,7 +522,19 @@ impl Server {
             test_kind: server.kinds[0],
             load_kind: server.kinds[1],
         };
+        plant.get_real(&vr::SUPPLY, &mut server.supply_nominal)?;
         server.ready = Some(plant);
+        if let Some(path) = server.config.state_file.clone() {
+            let (latch, live) = read_state(&path)?;
+            server.latch = match (latch, live) {
+                (Some(r), _) => Some(r),
+                // It went down under a master: the master's control was lost with it.
+                (None, true) => Some(reason::SERVER_RESTART),
+                (None, false) => None,
+            };
+            server.stats.restored_latch = server.latch;
+            server.persist();
+        }
         for fault in server.config.faults.clone() {
             server.apply_fault(fault);
         }
@@ -499,6 +576,12 @@ impl Server {
         plant.enter_initialization_mode()?;
         plant.set_boolean(&[vr::TEST_ENABLE, vr::LOAD_ENABLE], &[false, false])?;
         plant.exit_initialization_mode()?;
+        // A supply that dropped stays dropped for the next session's bench.
+        for (k, volts) in self.supply.iter().enumerate() {
+            if let Some(v) = volts {
+                plant.set_real(&[vr::SUPPLY[k]], &[*v])?;
+            }
+        }
         Ok(plant)
     }
 
@@ -552,13 +635,23 @@ impl Server {
             for _ in 0..256 {
                 match self.socket.recv_from(&mut buf) {
                     Ok((n, from)) => {
-                        if self.handle(&buf[..n.min(buf.len())], from)? {
-                            // Published before the replies go out: whoever gets a reply
-                            // sees the frame's effect in the statistics.
-                            self.publish(stats);
-                        }
-                        for (bytes, to) in self.outbox.drain(..) {
-                            let _ = self.socket.send_to(&bytes, to);
+                        let bytes = &buf[..n.min(buf.len())];
+                        self.count_arrival(bytes);
+                        // What the (emulated) link delivers of it.
+                        let delivered = self.link[direction_index(LinkDirection::ToServer)].pass(
+                            bytes.to_vec(),
+                            from,
+                            &mut self.stats.link_faults_applied,
+                        );
+                        for (bytes, from) in delivered {
+                            if self.handle(&bytes, from)? {
+                                // Published before the replies go out: whoever gets a reply
+                                // sees the frame's effect in the statistics.
+                                self.publish(stats);
+                            }
+                            for (bytes, to) in self.outbox.drain(..) {
+                                let _ = self.socket.send_to(&bytes, to);
+                            }
                         }
                     }
                     Err(e)
@@ -580,6 +673,7 @@ impl Server {
                 }
             }
             self.publish(stats);
+            self.persist();
             let mut wake = Instant::now() + IDLE_WAIT;
             if let Some((due, _, _)) = self.delayed.front() {
                 wake = wake.min(*due);
@@ -598,6 +692,40 @@ impl Server {
         }
         self.publish(stats);
         Ok(())
+    }
+
+    /// Counts a datagram's arrival by its header's type (the campaign's clock: HEARTBEATs are
+    /// control periods, the first SAFE_STATE after a fault is a client's reaction).
+    fn count_arrival(&mut self, bytes: &[u8]) {
+        match Frame::peek(bytes).map(|h| h.frame_type) {
+            Ok(FrameType::Heartbeat) => self.stats.heartbeats_seen += 1,
+            Ok(FrameType::SafeState) if self.stats.heartbeats_at_safe_request.is_none() => {
+                self.stats.heartbeats_at_safe_request = Some(self.stats.heartbeats_seen);
+            }
+            _ => {}
+        }
+    }
+
+    /// Writes the state file when the latch or the session's liveness changed.
+    fn persist(&mut self) {
+        let Some(path) = &self.config.state_file else {
+            return;
+        };
+        let live = self
+            .session
+            .as_ref()
+            .is_some_and(|s| !s.ended && !s.expired);
+        let now = (self.latch, live);
+        if now == self.persisted {
+            return;
+        }
+        if let Err(e) = write_state(path, now.0, now.1) {
+            eprintln!(
+                "kneebench emulate: state file {}: {e}; a restart may forget the latch",
+                path.display()
+            );
+        }
+        self.persisted = now;
     }
 
     fn publish(&self, stats: &Mutex<EmulatorStats>) {
@@ -708,6 +836,7 @@ impl Server {
         if why != reason::SESSION_END && self.latch.is_none() {
             self.latch = Some(why);
             self.stats.safe_since = Some(s.plant_time);
+            self.stats.latched_at = Some(s.origin.elapsed().as_secs_f64());
         }
         if self.stats.plant_trip.is_none() {
             s.plant.set_real(
@@ -737,6 +866,10 @@ impl Server {
         for (k, a) in analog.iter_mut().enumerate() {
             if self.stuck[k] {
                 *a = *self.stuck_values[k].get_or_insert(*a);
+            }
+            *a += self.offset[k];
+            if let Some((sigma, state)) = self.noise[k].as_mut() {
+                *a += *sigma * gaussian(state);
             }
             if let Some(v) = self.forced[k] {
                 *a = v;
@@ -799,11 +932,36 @@ impl Server {
                 .push_back((Instant::now() + delay, peer, bytes));
             return;
         }
-        self.outbox.push((bytes, peer));
+        let delivered = self.link[direction_index(LinkDirection::ToClient)].pass(
+            bytes,
+            peer,
+            &mut self.stats.link_faults_applied,
+        );
+        self.outbox.extend(delivered);
+    }
+
+    /// Sets a plant's supply voltages to the faulted (or the nominal) ones.
+    fn set_supplies(&mut self) {
+        let volts: Vec<f64> = (0..2)
+            .map(|k| self.supply[k].unwrap_or(self.supply_nominal[k]))
+            .collect();
+        let plants = self
+            .session
+            .as_mut()
+            .map(|s| &mut s.plant)
+            .into_iter()
+            .chain(self.ready.as_mut());
+        for plant in plants {
+            if let Err(e) = plant.set_real(&vr::SUPPLY, &volts) {
+                eprintln!("kneebench emulate: supply voltages {volts:?} not set: {e}");
+            }
+        }
     }
 
     fn apply_fault(&mut self, fault: FaultInjection) {
         self.stats.faults_injected += 1;
+        self.stats.heartbeats_at_fault = self.stats.heartbeats_seen;
+        self.stats.heartbeats_at_safe_request = None;
         match fault {
             FaultInjection::Clear => {
                 self.drop_replies = 0;
@@ -812,6 +970,52 @@ impl Server {
                 self.stuck_values = [None; 8];
                 self.forced = [None; ANALOG_CHANNELS];
                 self.silent = false;
+                self.link = Default::default();
+                self.noise = [None; ANALOG_CHANNELS];
+                self.offset = [0.0; ANALOG_CHANNELS];
+                self.driver_fault = [false; 2];
+                if self.supply.iter().any(Option::is_some) {
+                    self.supply = [None; 2];
+                    self.set_supplies();
+                }
+            }
+            FaultInjection::Duplicate { direction, count } => {
+                self.link[direction_index(direction)].duplicate = count;
+            }
+            FaultInjection::Reorder { direction } => {
+                self.link[direction_index(direction)].reorder = true;
+            }
+            FaultInjection::Corrupt { direction, count } => {
+                self.link[direction_index(direction)].corrupt = count;
+            }
+            FaultInjection::Noise {
+                channel,
+                volts,
+                seed,
+            } => {
+                if let Some(n) = self.noise.get_mut(channel as usize) {
+                    *n = (volts > 0.0).then_some((volts, noise_state(seed)));
+                }
+            }
+            FaultInjection::Offset { channel, volts } => {
+                if let Some(o) = self.offset.get_mut(channel as usize) {
+                    *o = volts;
+                }
+            }
+            FaultInjection::DriverFault { driver } => {
+                if let Some(f) = self.driver_fault.get_mut(driver as usize) {
+                    *f = true;
+                }
+                if let Some(s) = self.session.as_mut() {
+                    s.server_trip = true;
+                }
+                let _ = self.enter_safe(reason::BENCH_PROTECTION);
+            }
+            FaultInjection::SupplyDrop { supply, volts } => {
+                if let Some(v) = self.supply.get_mut(supply as usize) {
+                    *v = Some(volts);
+                }
+                self.set_supplies();
             }
             FaultInjection::DropReplies { count } => self.drop_replies = count,
             FaultInjection::DelayReplies { count, delay_s } => {
@@ -876,11 +1080,18 @@ impl Server {
         self.stats.drive_commands_after_safe_request = 0;
         self.stats.plant_trip = None;
         self.stats.plant_time = 0.0;
-        if self.emergency_stop {
+        let bench_fault = if self.emergency_stop {
+            Some(reason::EMERGENCY_STOP)
+        } else if self.driver_fault.contains(&true) {
+            Some(reason::BENCH_PROTECTION)
+        } else {
+            None
+        };
+        if let Some(why) = bench_fault {
             if let Some(s) = self.session.as_mut() {
                 s.server_trip = true;
             }
-            self.enter_safe(reason::EMERGENCY_STOP)?;
+            self.enter_safe(why)?;
         }
         Ok(())
     }
@@ -1106,6 +1317,7 @@ impl Server {
         };
         if let Some(s) = self.session.as_mut() {
             s.last_valid = Instant::now();
+            self.stats.last_valid_time = s.last_valid.duration_since(s.origin).as_secs_f64();
         }
         self.act(frame)
     }
@@ -1157,6 +1369,7 @@ impl Server {
                 let plant_tripped = self.stats.plant_trip.is_some();
                 if self.latch == Some(a.reason)
                     && !self.emergency_stop
+                    && !self.driver_fault.contains(&true)
                     && !plant_tripped
                     && !s.ended
                     && !s.expired
@@ -1166,12 +1379,18 @@ impl Server {
                     s.safe_requested = false;
                     self.stats.acknowledgements += 1;
                     self.stats.safe_since = None;
+                    self.stats.latched_at = None;
                 } else {
                     self.stats.acknowledgements_refused += 1;
                 }
                 let sample = self.sample(frame.sequence)?;
                 self.stats.samples_sent += 1;
                 self.reply(Payload::Sample(sample));
+            }
+            Payload::FaultInject(_) if self.config.refuse_fault_frames => {
+                self.stats.fault_frames_refused += 1;
+                let peer = s.peer;
+                self.log_refusal(&"a fault-injection frame (this server refuses them)", peer);
             }
             Payload::FaultInject(f) => self.apply_fault(f),
             Payload::Sample(_)

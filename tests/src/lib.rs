@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
+pub mod campaign;
+
 pub use kneebench_fmu::fmi2::types::*;
 
 /// The repository root.

@@ -79,8 +79,8 @@
 //! `loadDriverMode` (a server set up differently refuses, naming the setting, and the
 //! initialization fails with that text), and tags every frame with the session's keys. A
 //! server held by another master is asked again until the handshake's 0.2 s end. A bench
-//! whose safe state is latched from an earlier session (a trip, its watchdog, the button)
-//! fails the initialization with the latch's reason unless `acknowledgeSafeState` is true:
+//! whose safe state is latched from an earlier session (a trip, its watchdog, the button, the
+//! bench's own protection, a server restarted under a live session) fails the initialization with the latch's reason unless `acknowledgeSafeState` is true:
 //! then the FMU acknowledges it (logged as a warning) and goes on if the bench leaves the safe
 //! state (not while the emergency stop is pressed).
 //!
@@ -1132,6 +1132,7 @@ fn reason_name(r: u8) -> &'static str {
         reason::EMERGENCY_STOP => "the emergency stop",
         reason::SESSION_END => "a session end",
         reason::BENCH_PROTECTION => "the bench's own protection",
+        reason::SERVER_RESTART => "a server restart under a live session",
         _ => "unknown reason",
     }
 }

@@ -5,7 +5,7 @@ use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, bail};
-use kneebench_harness::bench_protocol::{FaultInjection, Key};
+use kneebench_harness::bench_protocol::{FaultInjection, Key, LinkDirection};
 use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
 
 /// Arguments of `kneebench emulate`.
@@ -25,7 +25,18 @@ authenticated session):
                   4/5 test/load supply divider, 6/7 test/load encoder) at its present value
   force:CH:VOLTS  force analog channel CH to VOLTS
   estop           press the emergency-stop button
-  silence         answer nothing (the link is lost)")]
+  silence         answer nothing (the link is lost)
+  duplicate:DIR:N the link duplicates the next N frames of direction DIR (to-client: the
+                  replies, to-server: the master's frames)
+  reorder:DIR     the link swaps the next two frames of direction DIR
+  corrupt:DIR:N   the link corrupts (one byte) the next N frames of direction DIR
+  noise:CH:SIGMA[:SEED]  Gaussian noise of SIGMA volts on analog channel CH (repeatable
+                  with the same SEED, default 1)
+  offset:CH:VOLTS add VOLTS to analog channel CH
+  driver:D        driver D (0 test, 1 load) faults: the bench stops itself
+  supply:S:VOLTS  supply S (0 test, 1 load) drops to VOLTS
+--no-faults makes the emulator refuse fault-injection frames (counted), as a bench server
+does; --state FILE keeps the latch across restarts (a restart under a live session latches).")]
 pub struct Args {
     /// Address to serve on (port 0: an ephemeral port, printed at start).
     #[arg(long, default_value = "127.0.0.1:47000")]
@@ -46,8 +57,15 @@ pub struct Args {
     #[arg(long, default_value_t = 0.05)]
     pub heartbeat_timeout: f64,
     /// A fault in force from the start (see below; repeatable).
-    #[arg(long = "fault", value_name = "FAULT")]
+    #[arg(long = "fault", value_name = "FAULT", conflicts_with = "no_faults")]
     pub faults: Vec<String>,
+    /// Refuse fault-injection frames (counted and logged), as a bench server does.
+    #[arg(long)]
+    pub no_faults: bool,
+    /// Keep the latch and whether a session is live in FILE: a restart keeps the latch, and
+    /// one under a live session latches (reason: server restart).
+    #[arg(long, value_name = "FILE")]
+    pub state: Option<PathBuf>,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long)]
     pub duration: Option<f64>,
@@ -84,8 +102,74 @@ pub fn parse_fault(text: &str) -> anyhow::Result<FaultInjection> {
         },
         "estop" => FaultInjection::EmergencyStop,
         "silence" => FaultInjection::Silence,
+        "duplicate" => FaultInjection::Duplicate {
+            direction: direction(text, parts.get(1))?,
+            count: num(2)? as u32,
+        },
+        "reorder" => FaultInjection::Reorder {
+            direction: direction(text, parts.get(1))?,
+        },
+        "corrupt" => FaultInjection::Corrupt {
+            direction: direction(text, parts.get(1))?,
+            count: num(2)? as u32,
+        },
+        "noise" => FaultInjection::Noise {
+            channel: analog(text, num(1)?)?,
+            volts: match num(2)? {
+                v if v.is_finite() && v >= 0.0 => v,
+                _ => bail!(
+                    "fault `{text}`: the noise's SIGMA must be a finite, non-negative number of volts"
+                ),
+            },
+            seed: if parts.len() > 3 { num(3)? as u32 } else { 1 },
+        },
+        "offset" => FaultInjection::Offset {
+            channel: analog(text, num(1)?)?,
+            volts: match num(2)? {
+                v if v.is_finite() => v,
+                _ => bail!("fault `{text}`: the offset must be a finite number of volts"),
+            },
+        },
+        "driver" => FaultInjection::DriverFault {
+            driver: side(text, num(1)?)?,
+        },
+        "supply" => FaultInjection::SupplyDrop {
+            supply: side(text, num(1)?)?,
+            volts: match num(2)? {
+                v if (0.0..=100.0).contains(&v) => v,
+                _ => bail!("fault `{text}`: the supply must be 0 to 100 V"),
+            },
+        },
         other => bail!("unknown fault `{other}`"),
     })
+}
+
+/// A link direction of a fault argument.
+fn direction(text: &str, field: Option<&&str>) -> anyhow::Result<LinkDirection> {
+    match field.copied() {
+        Some("to-client") => Ok(LinkDirection::ToClient),
+        Some("to-server") => Ok(LinkDirection::ToServer),
+        _ => bail!("fault `{text}`: the direction must be `to-client` or `to-server`"),
+    }
+}
+
+/// An analog channel (0-5) of a fault argument.
+fn analog(text: &str, channel: f64) -> anyhow::Result<u8> {
+    match channel {
+        c if c.fract() == 0.0 && (0.0..6.0).contains(&c) => Ok(c as u8),
+        _ => bail!("fault `{text}`: the analog channel must be 0 to 5"),
+    }
+}
+
+/// A driver or supply (0 test, 1 load) of a fault argument.
+fn side(text: &str, which: f64) -> anyhow::Result<u8> {
+    if which == 0.0 {
+        Ok(0)
+    } else if which == 1.0 {
+        Ok(1)
+    } else {
+        bail!("fault `{text}`: 0 (test) or 1 (load)")
+    }
 }
 
 /// The longest `--duration` \[s\]: a year.
@@ -121,6 +205,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         config.faults.push(parse_fault(f)?);
     }
     config.realtime_priority = args.realtime_priority;
+    config.refuse_fault_frames = args.no_faults;
+    config.state_file = args.state.clone();
     let stop = std::sync::Arc::new(AtomicBool::new(false));
     let stats = Mutex::new(EmulatorStats::default());
     if let Some(d) = args.duration {
@@ -238,5 +324,49 @@ mod tests {
         ));
         let e = parse_fault("sideways").unwrap_err().to_string();
         assert!(e.contains("unknown fault `sideways`"), "{e}");
+        assert_eq!(
+            parse_fault("corrupt:to-server:3").unwrap(),
+            FaultInjection::Corrupt {
+                direction: LinkDirection::ToServer,
+                count: 3
+            }
+        );
+        assert_eq!(
+            parse_fault("noise:0:0.002").unwrap(),
+            FaultInjection::Noise {
+                channel: 0,
+                volts: 0.002,
+                seed: 1
+            }
+        );
+        assert_eq!(
+            parse_fault("supply:1:20").unwrap(),
+            FaultInjection::SupplyDrop {
+                supply: 1,
+                volts: 20.0
+            }
+        );
+        for (bad, says) in [
+            ("reorder:sideways", "to-client"),
+            ("noise:6:0.1", "0 to 5"),
+            ("noise:1:-1", "non-negative"),
+            ("offset:1:inf", "finite"),
+            ("driver:2", "0 (test) or 1 (load)"),
+            ("supply:0:500", "0 to 100 V"),
+        ] {
+            let e = parse_fault(bad).unwrap_err().to_string();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+        assert!(
+            Cli::try_parse_from(["emulate", "--no-faults", "--fault", "estop"]).is_err(),
+            "--no-faults with --fault"
+        );
+        let args = Cli::try_parse_from(["emulate", "--no-faults", "--state", "bench.state"])
+            .unwrap()
+            .args;
+        assert!(args.no_faults);
+        assert_eq!(args.state, Some(PathBuf::from("bench.state")));
+        let args = Cli::try_parse_from(["emulate"]).unwrap().args;
+        assert!(!args.no_faults && args.state.is_none());
     }
 }

@@ -276,8 +276,11 @@ pub mod reason {
     pub const SESSION_END: u8 = 4;
     /// The bench's own protection stopped it (a driver fault, a server-side interlock).
     pub const BENCH_PROTECTION: u8 = 5;
+    /// The server started while its persisted state says a session was live: it went down
+    /// (a crash, a restart) under a master, whose control was lost with it.
+    pub const SERVER_RESTART: u8 = 6;
     /// The highest defined reason.
-    pub const MAX: u8 = 5;
+    pub const MAX: u8 = 6;
 }
 
 /// Inputs sampled by the server.
@@ -348,6 +351,83 @@ pub enum FaultInjection {
     EmergencyStop,
     /// Stop answering anything (the link is lost) until a `Clear`.
     Silence,
+    /// The link duplicates the next `count` frames of one direction (each arrives twice).
+    Duplicate {
+        /// Which frames.
+        direction: LinkDirection,
+        /// How many.
+        count: u32,
+    },
+    /// The link swaps the next two frames of one direction (the first arrives after the
+    /// second).
+    Reorder {
+        /// Which frames.
+        direction: LinkDirection,
+    },
+    /// The link corrupts the next `count` frames of one direction (one byte inverted).
+    Corrupt {
+        /// Which frames.
+        direction: LinkDirection,
+        /// How many.
+        count: u32,
+    },
+    /// Add Gaussian noise of standard deviation `volts` to an analog channel (0-5), drawn
+    /// from a generator seeded with `seed` (repeatable).
+    Noise {
+        /// The channel.
+        channel: u8,
+        /// Standard deviation \[V\], finite, not negative.
+        volts: f64,
+        /// The generator's seed.
+        seed: u32,
+    },
+    /// Add a constant `volts` to an analog channel (0-5).
+    Offset {
+        /// The channel.
+        channel: u8,
+        /// The offset \[V\], finite.
+        volts: f64,
+    },
+    /// A driver faults (0 test, 1 load): it switches its output off and raises its fault
+    /// line, on which the server enters its safe state by itself (the bench's protection).
+    DriverFault {
+        /// The driver.
+        driver: u8,
+    },
+    /// A driver's supply (0 test, 1 load) falls to `volts`: the driver saturates there and
+    /// the supply divider reads it.
+    SupplyDrop {
+        /// The supply.
+        supply: u8,
+        /// The supply voltage now \[V\], 0 to 100.
+        volts: f64,
+    },
+}
+
+/// The direction of the link a link fault acts on (the fault frame's channel byte).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkDirection {
+    /// The server's replies (channel 0).
+    ToClient,
+    /// The client's frames as the server receives them (channel 1).
+    ToServer,
+}
+
+impl LinkDirection {
+    fn byte(self) -> u8 {
+        match self {
+            Self::ToClient => 0,
+            Self::ToServer => 1,
+        }
+    }
+
+    fn of(byte: u8) -> Option<Self> {
+        match byte {
+            0 => Some(Self::ToClient),
+            1 => Some(Self::ToServer),
+            _ => None,
+        }
+    }
 }
 
 impl FaultInjection {
@@ -360,6 +440,17 @@ impl FaultInjection {
             Self::Force { channel, volts } => (4, channel, volts, 0),
             Self::EmergencyStop => (5, 0, 0.0, 0),
             Self::Silence => (6, 0, 0.0, 0),
+            Self::Duplicate { direction, count } => (7, direction.byte(), 0.0, count),
+            Self::Reorder { direction } => (8, direction.byte(), 0.0, 0),
+            Self::Corrupt { direction, count } => (9, direction.byte(), 0.0, count),
+            Self::Noise {
+                channel,
+                volts,
+                seed,
+            } => (10, channel, volts, seed),
+            Self::Offset { channel, volts } => (11, channel, volts, 0),
+            Self::DriverFault { driver } => (12, driver, 0.0, 0),
+            Self::SupplyDrop { supply, volts } => (13, supply, volts, 0),
         }
     }
 
@@ -367,9 +458,9 @@ impl FaultInjection {
         // A field the kind does not use must be zero: nothing is silently dropped (found by
         // fuzzing: a Force with a count re-encoded without it).
         let (uses_value, uses_count) = match kind {
-            1 => (false, true),
-            2 => (true, true),
-            4 => (true, false),
+            1 | 7 | 9 => (false, true),
+            2 | 10 => (true, true),
+            4 | 11 | 13 => (true, false),
             _ => (false, false),
         };
         if (!uses_value && value.to_bits() != 0) || (!uses_count && count != 0) {
@@ -402,6 +493,40 @@ impl FaultInjection {
             )),
             5 => no_channel(Self::EmergencyStop),
             6 => no_channel(Self::Silence),
+            7..=9 => {
+                let direction = LinkDirection::of(channel).ok_or(DecodeError::BadPayload(
+                    "link fault direction must be 0 or 1",
+                ))?;
+                Ok(match kind {
+                    7 => Self::Duplicate { direction, count },
+                    8 => Self::Reorder { direction },
+                    _ => Self::Corrupt { direction, count },
+                })
+            }
+            10 if (channel as usize) < ANALOG_CHANNELS && value.is_finite() && value >= 0.0 => {
+                Ok(Self::Noise {
+                    channel,
+                    volts: value,
+                    seed: count,
+                })
+            }
+            11 if (channel as usize) < ANALOG_CHANNELS && value.is_finite() => Ok(Self::Offset {
+                channel,
+                volts: value,
+            }),
+            10 | 11 => Err(DecodeError::BadPayload(
+                "fault channel or value out of range",
+            )),
+            12 if channel < 2 => Ok(Self::DriverFault { driver: channel }),
+            13 if channel < 2 && value.is_finite() && (0.0..=100.0).contains(&value) => {
+                Ok(Self::SupplyDrop {
+                    supply: channel,
+                    volts: value,
+                })
+            }
+            12 | 13 => Err(DecodeError::BadPayload(
+                "driver or supply 0 or 1, supply 0 to 100 V",
+            )),
             _ => Err(DecodeError::BadPayload("unknown fault kind")),
         }
     }
@@ -1058,6 +1183,31 @@ mod tests {
                 volts: 9.5,
             }),
             Payload::FaultInject(FaultInjection::Stuck { channel: 7 }),
+            Payload::FaultInject(FaultInjection::Duplicate {
+                direction: LinkDirection::ToServer,
+                count: 2,
+            }),
+            Payload::FaultInject(FaultInjection::Reorder {
+                direction: LinkDirection::ToClient,
+            }),
+            Payload::FaultInject(FaultInjection::Corrupt {
+                direction: LinkDirection::ToServer,
+                count: 1,
+            }),
+            Payload::FaultInject(FaultInjection::Noise {
+                channel: 0,
+                volts: 0.002,
+                seed: 7,
+            }),
+            Payload::FaultInject(FaultInjection::Offset {
+                channel: 1,
+                volts: -0.02,
+            }),
+            Payload::FaultInject(FaultInjection::DriverFault { driver: 1 }),
+            Payload::FaultInject(FaultInjection::SupplyDrop {
+                supply: 0,
+                volts: 12.0,
+            }),
             Payload::Hello(Hello {
                 nonce: [3; 16],
                 setup: BenchSetup {
@@ -1080,6 +1230,36 @@ mod tests {
                 reason: reason::HEARTBEAT_TIMEOUT,
             }),
         ]
+    }
+
+    #[test]
+    fn fault_kinds_refuse_fields_out_of_range() {
+        let refused = |kind, channel, value: f64, count| {
+            FaultInjection::decode(kind, channel, value, count).is_err()
+        };
+        // Link faults: direction 0 or 1; reorder takes no count.
+        assert!(refused(7, 2, 0.0, 1));
+        assert!(refused(8, 0, 0.0, 1));
+        assert!(refused(9, 0, 1.0, 1));
+        // Noise: an analog channel, a finite sigma not negative.
+        assert!(refused(10, 6, 0.1, 0));
+        assert!(refused(10, 0, -0.1, 0));
+        assert!(refused(10, 0, f64::NAN, 0));
+        // Offset: finite, no count.
+        assert!(refused(11, 0, f64::INFINITY, 0));
+        assert!(refused(11, 0, 0.1, 3));
+        // Driver and supply: 0 or 1; a supply of 0 to 100 V.
+        assert!(refused(12, 2, 0.0, 0));
+        assert!(refused(13, 0, 101.0, 0));
+        assert!(refused(13, 0, -1.0, 0));
+        assert!(refused(14, 0, 0.0, 0));
+        assert_eq!(
+            FaultInjection::decode(13, 1, 30.0, 0).unwrap(),
+            FaultInjection::SupplyDrop {
+                supply: 1,
+                volts: 30.0
+            }
+        );
     }
 
     #[test]
