@@ -160,56 +160,76 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
         "{:?}",
         plant.outcome
     );
-    let emu = emulator(&[("configuration", "1")]);
-    let mut params = hardware_params(emu.addr());
-    params.push(("configuration", "1".into()));
-    // The reply timeout is kept to the microsecond (not rounded up to the kernel's tick): on
-    // a loaded test machine in normal scheduling, replies of a few milliseconds happen. This
-    // test compares trajectories (its tolerance uses the measured lateness); the watchdog is
-    // tested in bench_link.rs.
-    params.push(("replyTimeout", "0.02".into()));
-    let (hw, stats) = run_bench("BenchHardware", &params, inputs(), stop);
-    assert!(
-        matches!(hw.outcome, Outcome::Completed { .. }),
-        "{:?}",
-        hw.outcome
-    );
-    let (overruns, max_lateness) = stats.unwrap();
-    let offset = max_lateness + 3e-4;
-    eprintln!(
-        "hardware run: {overruns} overruns, max lateness {:.0} us",
-        max_lateness * 1e6
-    );
-    assert_eq!(plant.results.len(), hw.results.len());
     let res1 = std::f64::consts::TAU / (2000.0 * 160.0);
     let res2 = std::f64::consts::TAU / (2000.0 * 66.0);
     // The calibrated transducer of the plant carries the untared bias m g Lg sin(c).
     let bias = 1.94 * 9.81 * 0.25 * (-0.01f64).sin();
-    for (name, quantum, shift) in [
-        ("actuationAngle", res1, 0.0),
-        ("loadAngle", res2, 0.0),
-        ("springDeflection", res1 + res2, 0.0),
-        ("testMotorCurrent", 1e-9, 0.0),
-        ("loadMotorCurrent", 1e-9, 0.0),
-        ("transducerTorque", 340.54 * (res1 + res2), bias),
-    ] {
-        let a = col(&plant.results, name).unwrap();
-        let b = col(&hw.results, name).unwrap();
-        let tol = tolerance(&a, quantum, offset);
-        let worst = a
-            .iter()
-            .zip(&b)
-            .map(|(x, y)| (x - shift - y).abs())
-            .fold(0.0, f64::max);
-        let range = a.iter().cloned().fold(0.0, |m: f64, x| m.max(x.abs()));
-        eprintln!("{name}: worst difference {worst:.3e}, tolerance {tol:.3e}, range {range:.3e}");
-        assert!(worst <= tol, "{name}: {worst} > {tol}");
-        // The comparison means something: the signal moves far more than its tolerance.
+    // Every hardware run must agree with the plant run within the tolerance its own measured
+    // lateness gives (asserted on every attempt). The comparison means something only if each
+    // signal moves by more than 5 of those tolerances: a run the host stalled badly (seen once
+    // under a load average of 10: 269 overruns, 12 ms of lateness) widens the tolerance past
+    // that, so it is run again on a fresh emulator, at most three attempts; a run that stays
+    // that disturbed fails the test.
+    let mut attempt = 0;
+    let (emu, hw) = loop {
+        attempt += 1;
+        let emu = emulator(&[("configuration", "1")]);
+        let mut params = hardware_params(emu.addr());
+        params.push(("configuration", "1".into()));
+        // The reply timeout is kept to the microsecond (not rounded up to the kernel's tick):
+        // on a loaded test machine in normal scheduling, replies of a few milliseconds happen.
+        // This test compares trajectories (its tolerance uses the measured lateness); the
+        // watchdog is tested in bench_link.rs.
+        params.push(("replyTimeout", "0.02".into()));
+        let (hw, stats) = run_bench("BenchHardware", &params, inputs(), stop);
         assert!(
-            range > 5.0 * tol,
-            "{name}: range {range} vs tolerance {tol}"
+            matches!(hw.outcome, Outcome::Completed { .. }),
+            "{:?}",
+            hw.outcome
         );
-    }
+        let (overruns, max_lateness) = stats.unwrap();
+        let offset = max_lateness + 3e-4;
+        eprintln!(
+            "hardware run, attempt {attempt}: {overruns} overruns, max lateness {:.0} us",
+            max_lateness * 1e6
+        );
+        assert_eq!(plant.results.len(), hw.results.len());
+        let mut too_coarse = Vec::new();
+        for (name, quantum, shift) in [
+            ("actuationAngle", res1, 0.0),
+            ("loadAngle", res2, 0.0),
+            ("springDeflection", res1 + res2, 0.0),
+            ("testMotorCurrent", 1e-9, 0.0),
+            ("loadMotorCurrent", 1e-9, 0.0),
+            ("transducerTorque", 340.54 * (res1 + res2), bias),
+        ] {
+            let a = col(&plant.results, name).unwrap();
+            let b = col(&hw.results, name).unwrap();
+            let tol = tolerance(&a, quantum, offset);
+            let worst = a
+                .iter()
+                .zip(&b)
+                .map(|(x, y)| (x - shift - y).abs())
+                .fold(0.0, f64::max);
+            let range = a.iter().cloned().fold(0.0, |m: f64, x| m.max(x.abs()));
+            eprintln!(
+                "{name}: worst difference {worst:.3e}, tolerance {tol:.3e}, range {range:.3e}"
+            );
+            assert!(worst <= tol, "{name}: {worst} > {tol}");
+            if range <= 5.0 * tol {
+                too_coarse.push(format!("{name}: range {range} vs tolerance {tol}"));
+            }
+        }
+        if too_coarse.is_empty() {
+            break (emu, hw);
+        }
+        assert!(
+            attempt < 3,
+            "three hardware runs too disturbed by the host for the comparison to mean anything (the last: {overruns} overruns, max lateness {:.0} us): {too_coarse:?}",
+            max_lateness * 1e6
+        );
+        emu.stop().unwrap();
+    };
     let s = emu.stop().unwrap();
     assert_eq!(s.sessions, 1);
     assert_eq!(s.rejected.rejected(), 0);
