@@ -154,7 +154,8 @@ fn driver_fault_and_supply_drop_stop_the_bench() {
 
 /// The master process killed with SIGKILL mid-run: the emulator's watchdog latches the safe
 /// state (reason 2) within its timeout, the latch survives into a new session that must
-/// acknowledge it, and the rows the master had flushed are on disk, complete.
+/// acknowledge it, and every row the master made is on disk, complete (it writes through, as
+/// `kneebench run --flush-every-row` does; the row of its last exchange may be missing).
 #[test]
 fn a_master_killed_with_sigkill_leaves_the_bench_latched_and_its_rows_on_disk() {
     let _rt = one_real_time_test_at_a_time();
@@ -162,10 +163,9 @@ fn a_master_killed_with_sigkill_leaves_the_bench_latched_and_its_rows_on_disk() 
     let bench = bench(dir.path());
     for case in cases_named(|c| c.fault == Fault::KillMaster) {
         let obs = assert_case(&bench, &case);
-        // Killed 1.5 s into the run: the sink's periodic flush (once a second of wall time)
-        // has put the first second's rows on disk; what came after it is lost with the
-        // process.
-        assert!(obs.rows_on_disk >= 100, "{obs:?}");
+        // Killed 1.5 s into the run: about 1500 rows made (the case's check compares them
+        // with what the server saw, row for row but the last).
+        assert!(obs.rows_on_disk >= 1000, "{obs:?}");
     }
 }
 

@@ -120,6 +120,12 @@ pub struct Args {
     /// Run FMUs that `kneebench validate` rejects (model description or binary problems).
     #[arg(long)]
     pub force: bool,
+    /// Hand every row to the kernel as it is recorded (CSV output only) instead of at least
+    /// once a second: a kneebench killed at any instant (even SIGKILL) leaves every row it
+    /// recorded in OUTPUT.partial. For runs on the bench (one write per row; 1 kHz costs
+    /// little against the period).
+    #[arg(long)]
+    pub flush_every_row: bool,
     /// Shared libraries to load globally before the FMUs (host runtimes such as libpython).
     #[arg(long)]
     pub preload: Vec<PathBuf>,
@@ -196,7 +202,19 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         return usage("--inputs is for a single FMU; connect inputs in the system instead");
     }
     // The output is checked (and its partial file created) before anything is loaded.
-    let mut file = super::output::OutputFile::create(&a.output)?;
+    if a.flush_every_row
+        && a.output
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"))
+    {
+        return usage("--flush-every-row needs a CSV output (Parquet writes row groups)");
+    }
+    let mut file = match super::output::OutputFile::create(&a.output)? {
+        super::output::OutputFile::Csv(f) => {
+            super::output::OutputFile::Csv(f.write_through(a.flush_every_row))
+        }
+        parquet => parquet,
+    };
     let mut guard = PartialGuard(Some(file.partial_path().to_path_buf()));
     let (mut system, mut config) = match ext.as_str() {
         "fmu" => {
