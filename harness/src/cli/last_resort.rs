@@ -26,6 +26,15 @@ use std::time::Duration;
 
 use kneebench_harness::inflight;
 
+// Declared here rather than through the libc crate: these sources are also compiled into the
+// tests crate (tests/tests/foreign_fmu.rs), which does not depend on it.
+unsafe extern "C" {
+    /// `int atexit(void (*)(void))`.
+    fn atexit(hook: extern "C" fn()) -> std::ffi::c_int;
+    /// `void _exit(int)`: ends the process without running exit handlers.
+    fn _exit(code: std::ffi::c_int) -> !;
+}
+
 /// How long past `--timeout` the watchdog waits for the run to stop by itself.
 pub const GRACE: Duration = Duration::from_secs(5);
 
@@ -56,7 +65,7 @@ extern "C" fn on_exit() {
         where_rows_are()
     );
     // SAFETY: _exit ends the process at once (calling exit() again from a hook is undefined).
-    unsafe { libc::_exit(super::EXIT_ERROR) };
+    unsafe { _exit(super::EXIT_ERROR) };
 }
 
 /// The run in progress: the hook reports while it lives, the watchdog (if started) watches
@@ -73,7 +82,7 @@ pub fn arm(partial: &Path) -> Armed {
     // SAFETY: `on_exit` is an `extern "C" fn()` that lives for the whole program; atexit
     // only records it. It fails only when out of memory, and then the run goes on unguarded.
     HOOK.call_once(|| unsafe {
-        libc::atexit(on_exit);
+        atexit(on_exit);
     });
     IN_PROGRESS.store(true, Ordering::SeqCst);
     Armed { watchdog: None }
@@ -102,7 +111,7 @@ impl Armed {
                     where_rows_are()
                 );
                 // SAFETY: _exit ends the process at once; the stuck call holds the sink.
-                unsafe { libc::_exit(super::EXIT_TIMEOUT) };
+                unsafe { _exit(super::EXIT_TIMEOUT) };
             })?;
         self.watchdog = Some((tx, thread));
         Ok(())
