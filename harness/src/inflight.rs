@@ -1,16 +1,16 @@
 //! Which in-process FMU call is running, for the last-resort reports of a process that an FMU
-//! takes down: an FMU that calls `exit()` (reported by an `atexit` hook, which runs on the
-//! thread that called `exit()`, so [`on_this_thread`] names the call exactly) and a call that
-//! never returns (reported by a watchdog thread, which reads [`latest`]: the last call that
-//! started and has not returned; with `--parallel`, another thread's call may have replaced it,
-//! and then it names none).
+//! takes down: an FMU that calls `exit()` (reported by an `atexit` hook) and a call that never
+//! returns (reported by a watchdog thread). Both read [`latest`]: the last call that started,
+//! unless a call has returned since. In a sequential run that is exactly the call in progress;
+//! with `--parallel`, a call on another thread may have replaced or cleared the mark, and then
+//! the report names another call or none.
 //!
 //! Every in-process call of [`Instance`](crate::instance::Instance) brackets the FMU's function
-//! with a call mark: a few relaxed stores, no lock and no allocation on the hot path. Instances
-//! register their label ("FMU 'X', instance 'y'") once, under a lock, when instantiated.
-//! Isolated instances are not tracked here: their host process is theirs to lose.
+//! with a call mark: three relaxed stores (two before, one after), no lock, no thread-local and
+//! no allocation on the hot path. Instances register their label ("FMU 'X', instance 'y'")
+//! once, under a lock, when instantiated. Isolated instances are not tracked here: their host
+//! process is theirs to lose.
 
-use std::cell::Cell;
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
@@ -23,13 +23,6 @@ static NEXT_ID: AtomicU32 = AtomicU32::new(1);
 static LATEST_ID: AtomicU32 = AtomicU32::new(0);
 /// The function of the latest call in progress (points to a `'static` name).
 static LATEST_FUNCTION: AtomicPtr<&'static str> = AtomicPtr::new(std::ptr::null_mut());
-
-thread_local! {
-    // Copy data with a const initializer: no destructor, so it is readable in an atexit hook
-    // (glibc runs thread-local destructors before atexit handlers).
-    static ON_THIS_THREAD: Cell<(u32, *const &'static str)> =
-        const { Cell::new((0, std::ptr::null())) };
-}
 
 /// Registers an instance's label; returns its id (unregister it with [`unregister`]).
 pub(crate) fn register(label: String) -> u32 {
@@ -48,28 +41,26 @@ pub(crate) fn unregister(id: u32) {
 }
 
 /// One FMU call in progress; it is over when dropped.
-pub(crate) struct Call {
-    id: u32,
-}
+pub(crate) struct Call;
 
 impl Call {
-    /// Marks `function` of instance `id` as running on this thread.
+    /// Marks `function` of instance `id` as running.
     #[inline(always)]
     pub(crate) fn enter(id: u32, function: &'static &'static str) -> Call {
         let f = function as *const &'static str;
-        ON_THIS_THREAD.set((id, f));
         LATEST_FUNCTION.store(f.cast_mut(), Ordering::Relaxed);
         LATEST_ID.store(id, Ordering::Relaxed);
-        Call { id }
+        Call
     }
 }
 
 impl Drop for Call {
     #[inline(always)]
     fn drop(&mut self) {
-        ON_THIS_THREAD.set((0, std::ptr::null()));
-        // Only our own mark: a call another thread started since stays named.
-        let _ = LATEST_ID.compare_exchange(self.id, 0, Ordering::Relaxed, Ordering::Relaxed);
+        // A plain store, not a compare-exchange (a locked instruction on every call): with
+        // `--parallel`, a call ending on one thread may clear the mark of one still running on
+        // another, which [`latest`] then does not name (documented there).
+        LATEST_ID.store(0, Ordering::Relaxed);
     }
 }
 
@@ -92,13 +83,8 @@ fn describe(id: u32, function: *const &'static str) -> Option<String> {
     })
 }
 
-/// The FMU call running on the calling thread, if any.
-pub fn on_this_thread() -> Option<String> {
-    let (id, f) = ON_THIS_THREAD.get();
-    describe(id, f)
-}
-
-/// The latest FMU call that started (on any thread) and has not returned, if any.
+/// The latest FMU call that started (on any thread), if no call has returned since (see the
+/// module documentation for `--parallel`).
 pub fn latest() -> Option<String> {
     let id = LATEST_ID.load(Ordering::Relaxed);
     let f = LATEST_FUNCTION.load(Ordering::Relaxed);
@@ -112,21 +98,16 @@ mod tests {
     #[test]
     fn a_call_is_named_while_it_runs_and_forgotten_after() {
         let id = register("FMU 'M', instance 'm'".into());
-        assert_eq!(on_this_thread(), None);
         {
             let _c = Call::enter(id, &"fmi2DoStep");
             assert_eq!(
-                on_this_thread().as_deref(),
+                latest().as_deref(),
                 Some("fmi2DoStep of FMU 'M', instance 'm'")
             );
-            // Another thread has no call of its own.
-            std::thread::spawn(|| assert_eq!(on_this_thread(), None))
-                .join()
-                .unwrap();
         }
-        assert_eq!(on_this_thread(), None);
+        assert_eq!(latest(), None);
         unregister(id);
         let _c = Call::enter(id, &"fmi2GetReal");
-        assert_eq!(on_this_thread().as_deref(), Some("fmi2GetReal"));
+        assert_eq!(latest().as_deref(), Some("fmi2GetReal"));
     }
 }

@@ -3,7 +3,7 @@
 //! `--isolate never` and kneebench's own FMUs):
 //!
 //! - **exit()**: an `atexit` hook, armed while a run is in progress, reports "an FMU called
-//!   exit() during CALL" (naming the call running on the thread that called `exit()`) and
+//!   exit() during CALL" (naming the call in progress, `inflight::latest`) and
 //!   ends the process with exit code 1 instead of the code the FMU chose (often 0, which would
 //!   pass for success with no results). The rows flushed so far stay in `OUTPUT.partial`; the
 //!   rows buffered since the last flush (at most about one second's) are lost: the sink is
@@ -58,7 +58,7 @@ extern "C" fn on_exit() {
     if !IN_PROGRESS.load(Ordering::SeqCst) {
         return;
     }
-    let call = inflight::on_this_thread()
+    let call = inflight::latest()
         .unwrap_or_else(|| "no FMU call (from a thread of its own, or while loading)".into());
     eprintln!(
         "error: an FMU called exit() during {call}; the run did not finish; {}",
