@@ -392,6 +392,8 @@ enum Backend {
 struct Local {
     c: fmi2Component,
     f: Functions,
+    /// Its id in [`crate::inflight`], which names the call in progress.
+    id: u32,
     // Boxed so that its address stays fixed: the FMU may keep the pointer.
     _callbacks: Box<fmi2CallbackFunctions>,
     _name_c: CString,
@@ -427,6 +429,11 @@ impl Fmu {
             Exec::Local(b) => {
                 let callbacks = callbacks_for(&ctx);
                 let f = b.functions;
+                let id = crate::inflight::register(format!(
+                    "FMU '{}', instance '{name}'",
+                    self.shared.md.model_name
+                ));
+                let call = crate::inflight::Call::enter(id, &"fmi2Instantiate");
                 // SAFETY: all pointers are valid NUL-terminated strings / a callbacks struct
                 // that live as long as the instance.
                 let c = unsafe {
@@ -440,7 +447,9 @@ impl Fmu {
                         options.logging_on as fmi2Boolean,
                     )
                 };
+                drop(call);
                 if c.is_null() {
+                    crate::inflight::unregister(id);
                     return Err(FmuError::Instantiate {
                         instance: name.to_string(),
                         messages: ctx.take_recent(),
@@ -449,6 +458,7 @@ impl Fmu {
                 Backend::Local(Local {
                     c,
                     f,
+                    id,
                     _callbacks: callbacks,
                     _name_c: name_c,
                 })
@@ -514,13 +524,17 @@ unsafe extern "C" {
     fn libc_free(obj: *mut c_void);
 }
 
-/// Runs `$local` (an expression over the in-process `Local` `$l`) or `$remote` (over the
+/// Runs `$local` (an expression over the in-process `Local` `$l`, marked as the call
+/// `$function` in progress for [`crate::inflight`]) or `$remote` (over the
 /// `RemoteInstance` `$r` and the `LogContext` `$ctx`, giving `Result<T, RemoteFail>`), mapping
 /// a remote failure to an `FmuError` (the enclosing function returns it).
 macro_rules! dispatch {
-    ($self:ident, $l:ident => $local:expr, ($r:ident, $ctx:ident) => $remote:expr) => {
+    ($self:ident, $function:expr, $l:ident => $local:expr, ($r:ident, $ctx:ident) => $remote:expr) => {
         match &mut $self.backend {
-            Backend::Local($l) => $local,
+            Backend::Local($l) => {
+                let _call = crate::inflight::Call::enter($l.id, $function);
+                $local
+            }
             Backend::Remote($r) => {
                 let $ctx = &*$self.ctx;
                 match $remote {
@@ -657,7 +671,7 @@ impl Instance {
             .map(|c| CString::new(*c).map_err(|_| FmuError::NulInString))
             .collect::<Result<_, _>>()?;
         let ptrs: Vec<fmi2String> = owned.iter().map(|c| c.as_ptr()).collect();
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2SetDebugLogging",
             l => {
                 // SAFETY: valid component and an array of valid strings.
                 unsafe { (l.f.set_debug_logging)(l.c, on as fmi2Boolean, ptrs.len(), ptrs.as_ptr()) }
@@ -681,7 +695,7 @@ impl Instance {
         stop_time: Option<f64>,
     ) -> Result<Status, FmuError> {
         self.alive()?;
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2SetupExperiment",
             l => {
                 // SAFETY: valid component.
                 unsafe {
@@ -710,11 +724,11 @@ impl Instance {
     fn component_only(
         &mut self,
         op: u8,
-        function: &'static str,
+        function: &'static &'static str,
         local: impl FnOnce(&Functions) -> fmi2ComponentOnlyTYPE,
     ) -> Result<Status, FmuError> {
         self.alive()?;
-        let s = dispatch!(self,
+        let s = dispatch!(self, function,
             l => {
                 // SAFETY: valid component.
                 unsafe { local(&l.f)(l.c) }
@@ -728,7 +742,7 @@ impl Instance {
     pub fn enter_initialization_mode(&mut self) -> Result<Status, FmuError> {
         let r = self.component_only(
             CALL_ENTER_INITIALIZATION,
-            "fmi2EnterInitializationMode",
+            &"fmi2EnterInitializationMode",
             |f| f.enter_initialization_mode,
         )?;
         self.phase = Phase::Initialization;
@@ -739,7 +753,7 @@ impl Instance {
     pub fn exit_initialization_mode(&mut self) -> Result<Status, FmuError> {
         let r = self.component_only(
             CALL_EXIT_INITIALIZATION,
-            "fmi2ExitInitializationMode",
+            &"fmi2ExitInitializationMode",
             |f| f.exit_initialization_mode,
         )?;
         self.phase = Phase::StepComplete;
@@ -752,7 +766,7 @@ impl Instance {
     /// [`terminated`](Self::terminated) and [`last_successful_time`](Self::last_successful_time).
     #[inline]
     pub fn do_step(&mut self, current_time: f64, step_size: f64) -> Result<Status, FmuError> {
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2DoStep",
             l => {
                 // SAFETY: valid component (a Fatal instance is refused by the caller's phase
                 // check in `alive`, kept out of this hot path: after fmi2Fatal the master stops).
@@ -776,19 +790,19 @@ impl Instance {
 
     /// `fmi2CancelStep`.
     pub fn cancel_step(&mut self) -> Result<Status, FmuError> {
-        self.component_only(CALL_CANCEL_STEP, "fmi2CancelStep", |f| f.cancel_step)
+        self.component_only(CALL_CANCEL_STEP, &"fmi2CancelStep", |f| f.cancel_step)
     }
 
     /// `fmi2Terminate`.
     pub fn terminate(&mut self) -> Result<Status, FmuError> {
-        let r = self.component_only(CALL_TERMINATE, "fmi2Terminate", |f| f.terminate)?;
+        let r = self.component_only(CALL_TERMINATE, &"fmi2Terminate", |f| f.terminate)?;
         self.phase = Phase::Terminated;
         Ok(r)
     }
 
     /// `fmi2Reset`: back to the state after instantiation.
     pub fn reset(&mut self) -> Result<Status, FmuError> {
-        let r = self.component_only(CALL_RESET, "fmi2Reset", |f| f.reset)?;
+        let r = self.component_only(CALL_RESET, &"fmi2Reset", |f| f.reset)?;
         self.phase = Phase::Instantiated;
         self.ctx.clear();
         Ok(r)
@@ -803,7 +817,7 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2GetReal",
             l => {
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.get_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
@@ -822,7 +836,7 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2GetInteger",
             l => {
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.get_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
@@ -845,7 +859,7 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Status::Ok);
         }
-        let s = dispatch!(self,
+        let s = dispatch!(self, &"fmi2GetBoolean",
             l => {
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.get_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_mut_ptr()) }
@@ -873,7 +887,7 @@ impl Instance {
         if vrs.is_empty() {
             return Ok(Vec::new());
         }
-        let (s, strings) = dispatch!(self,
+        let (s, strings) = dispatch!(self, &"fmi2GetString",
             l => {
                 let mut ptrs: Vec<fmi2String> = vec![std::ptr::null(); vrs.len()];
                 // SAFETY: arrays of the given length.
@@ -904,10 +918,11 @@ impl Instance {
             return Ok(Status::Ok);
         }
         let s = match &mut self.backend {
-            // SAFETY: arrays of the given length.
-            Backend::Local(l) => unsafe {
-                (l.f.set_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
-            },
+            Backend::Local(l) => {
+                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetReal");
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.set_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
+            }
             Backend::Remote(r) => {
                 r.queue(CALL_SET_REAL, |e| {
                     e.u32s(vrs);
@@ -929,10 +944,11 @@ impl Instance {
             return Ok(Status::Ok);
         }
         let s = match &mut self.backend {
-            // SAFETY: arrays of the given length.
-            Backend::Local(l) => unsafe {
-                (l.f.set_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
-            },
+            Backend::Local(l) => {
+                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetInteger");
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.set_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
+            }
             Backend::Remote(r) => {
                 r.queue(CALL_SET_INTEGER, |e| {
                     e.u32s(vrs);
@@ -958,10 +974,11 @@ impl Instance {
             return Ok(Status::Ok);
         }
         let s = match &mut self.backend {
-            // SAFETY: arrays of the given length.
-            Backend::Local(l) => unsafe {
-                (l.f.set_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr())
-            },
+            Backend::Local(l) => {
+                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetBoolean");
+                // SAFETY: arrays of the given length.
+                unsafe { (l.f.set_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
+            }
             Backend::Remote(r) => {
                 r.queue(CALL_SET_BOOLEAN, |e| {
                     e.u32s(vrs);
@@ -993,10 +1010,11 @@ impl Instance {
             return Ok(Status::Ok);
         }
         let s = match &mut self.backend {
-            // SAFETY: arrays of the given length of valid strings.
-            Backend::Local(l) => unsafe {
-                (l.f.set_string)(l.c, vrs.as_ptr(), vrs.len(), ptrs.as_ptr())
-            },
+            Backend::Local(l) => {
+                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetString");
+                // SAFETY: arrays of the given length of valid strings.
+                unsafe { (l.f.set_string)(l.c, vrs.as_ptr(), vrs.len(), ptrs.as_ptr()) }
+            }
             Backend::Remote(r) => {
                 r.queue(CALL_SET_STRING, |e| {
                     e.u32s(vrs);
@@ -1023,7 +1041,7 @@ impl Instance {
         if vrs.len() != values.len() || vrs.len() != orders.len() {
             return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
         }
-        let s = dispatch!(self,
+        let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.get_real_output_derivatives.ok_or(FmuError::Unsupported(NAME))?;
                 // SAFETY: arrays of the given length.
@@ -1057,7 +1075,7 @@ impl Instance {
         if vrs.len() != values.len() || vrs.len() != orders.len() {
             return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
         }
-        let s = dispatch!(self,
+        let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.set_real_input_derivatives.ok_or(FmuError::Unsupported(NAME))?;
                 // SAFETY: arrays of the given length.
@@ -1077,7 +1095,7 @@ impl Instance {
         const NAME: &str = "fmi2GetFMUstate";
         self.alive()?;
         self.has(NAME)?;
-        let s = dispatch!(self,
+        let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.get_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
                 // SAFETY: valid component; the state is NULL or one made by this instance.
@@ -1110,7 +1128,7 @@ impl Instance {
         const NAME: &str = "fmi2SetFMUstate";
         self.alive()?;
         self.has(NAME)?;
-        let s = dispatch!(self,
+        let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.set_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
                 // SAFETY: valid component and a state made by this instance.
@@ -1127,7 +1145,7 @@ impl Instance {
         self.alive()?;
         self.has(NAME)?;
         let mut ptr = state.ptr;
-        let s = dispatch!(self,
+        let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.free_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
                 // SAFETY: valid component and a state made by this instance.
@@ -1143,7 +1161,7 @@ impl Instance {
         self.alive()?;
         self.has("fmi2SerializedFMUstateSize")?;
         self.has("fmi2SerializeFMUstate")?;
-        let (s, buf, name) = dispatch!(self,
+        let (s, buf, name) = dispatch!(self, &"fmi2SerializeFMUstate",
             l => {
                 let size_f = l
                     .f
@@ -1187,7 +1205,7 @@ impl Instance {
         const NAME: &str = "fmi2DeSerializeFMUstate";
         self.alive()?;
         self.has(NAME)?;
-        let (s, ptr) = dispatch!(self,
+        let (s, ptr) = dispatch!(self, &NAME,
             l => {
                 let f = l.f.deserialize_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
                 let mut ptr: fmi2FMUstate = std::ptr::null_mut();
@@ -1208,13 +1226,14 @@ impl Instance {
     /// A status query: `op` remotely, `local` in this process; the value decoded by `decode`.
     fn status_query<T>(
         &mut self,
+        function: &'static &'static str,
         op: u8,
         kind: fmi2StatusKind,
         local: impl FnOnce(&Local) -> (fmi2StatusCode, T),
         decode: impl FnOnce(&mut Dec<'_>) -> Result<T, ProtocolError>,
     ) -> Result<(fmi2StatusCode, T), FmuError> {
         self.alive()?;
-        Ok(dispatch!(self,
+        Ok(dispatch!(self, function,
             l => local(l),
             (r, ctx) => r.call(ctx, op, |e| e.i32(kind as i32), false, decode)
         ))
@@ -1223,6 +1242,7 @@ impl Instance {
     /// `fmi2GetStatus(fmi2DoStepStatus)`.
     pub fn get_status(&mut self, kind: fmi2StatusKind) -> Result<fmi2Status, FmuError> {
         let (s, v) = self.status_query(
+            &"fmi2GetStatus",
             CALL_GET_STATUS,
             kind,
             |l| {
@@ -1245,6 +1265,7 @@ impl Instance {
     /// `fmi2GetRealStatus` (e.g. `fmi2LastSuccessfulTime`).
     pub fn get_real_status(&mut self, kind: fmi2StatusKind) -> Result<f64, FmuError> {
         let (s, v) = self.status_query(
+            &"fmi2GetRealStatus",
             CALL_GET_REAL_STATUS,
             kind,
             |l| {
@@ -1264,6 +1285,7 @@ impl Instance {
     /// `fmi2GetIntegerStatus`.
     pub fn get_integer_status(&mut self, kind: fmi2StatusKind) -> Result<i32, FmuError> {
         let (s, v) = self.status_query(
+            &"fmi2GetIntegerStatus",
             CALL_GET_INTEGER_STATUS,
             kind,
             |l| {
@@ -1283,6 +1305,7 @@ impl Instance {
     /// `fmi2GetBooleanStatus` (e.g. `fmi2Terminated`).
     pub fn get_boolean_status(&mut self, kind: fmi2StatusKind) -> Result<bool, FmuError> {
         let (s, v) = self.status_query(
+            &"fmi2GetBooleanStatus",
             CALL_GET_BOOLEAN_STATUS,
             kind,
             |l| {
@@ -1302,6 +1325,7 @@ impl Instance {
     /// `fmi2GetStringStatus`.
     pub fn get_string_status(&mut self, kind: fmi2StatusKind) -> Result<String, FmuError> {
         let (s, v) = self.status_query(
+            &"fmi2GetStringStatus",
             CALL_GET_STRING_STATUS,
             kind,
             |l| {
@@ -1353,14 +1377,19 @@ impl Drop for Instance {
                 // call.
                 unsafe {
                     match self.phase {
-                        Phase::Fatal => return, // no call allowed: leak
+                        Phase::Fatal => {} // no call allowed: leak
                         Phase::Initialization | Phase::StepComplete => {
+                            let _call = crate::inflight::Call::enter(l.id, &"fmi2Terminate");
                             let _ = (f.terminate)(l.c);
                         }
                         _ => {}
                     }
-                    (f.free_instance)(l.c);
+                    if self.phase != Phase::Fatal {
+                        let _call = crate::inflight::Call::enter(l.id, &"fmi2FreeInstance");
+                        (f.free_instance)(l.c);
+                    }
                 }
+                crate::inflight::unregister(l.id);
             }
             // The host terminates (when initialized) and frees its instance when its pipe
             // closes (dropping the process), and leaves it alone after fmi2Fatal.

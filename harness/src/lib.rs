@@ -57,6 +57,7 @@ pub mod control;
 pub mod emulator;
 pub mod experiment;
 pub mod identify;
+pub mod inflight;
 pub mod instance;
 pub mod isolate;
 pub mod load;

@@ -148,3 +148,60 @@ fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
     assert!(e.contains("one actuator"), "{e}");
     assert!(!out.path().join("study").exists());
 }
+
+/// `kneebench emulate` refuses a heartbeat timeout outside the protocol's range (above 0.1 s,
+/// docs/bench-protocol.md section 7; zero, negative, NaN) and a duration that is not a finite
+/// number of seconds up to a year, before it opens a socket or loads the plant (the FMU path
+/// named here does not exist, so a refusal that came later would name it instead).
+#[test]
+fn emulate_refuses_arguments_outside_the_protocols_limits() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = d.path().join("missing/BenchPlant.fmu");
+    for (args, needle) in [
+        (
+            &["--heartbeat-timeout", "0.2"][..],
+            "--heartbeat-timeout must not exceed 0.1 s (docs/bench-protocol.md, §7)",
+        ),
+        (
+            &["--heartbeat-timeout", "0.10001"][..],
+            "--heartbeat-timeout must not exceed 0.1 s",
+        ),
+        (
+            &["--heartbeat-timeout", "0"][..],
+            "--heartbeat-timeout must be a positive number of seconds",
+        ),
+        (
+            &["--heartbeat-timeout", "NaN"][..],
+            "--heartbeat-timeout must be a positive number of seconds",
+        ),
+        (&["--duration", "NaN"][..], "--duration"),
+        (&["--duration", "1e300"][..], "--duration"),
+    ] {
+        let o = kneebench()
+            .args(["emulate", "--bind", "127.0.0.1:0", "--fmu"])
+            .arg(&fmu)
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("missing"), "{args:?}: {err}");
+    }
+    // At the limit it is accepted: the run gets as far as the missing FMU.
+    let o = kneebench()
+        .args([
+            "emulate",
+            "--bind",
+            "127.0.0.1:0",
+            "--heartbeat-timeout",
+            "0.1",
+        ])
+        .args(["--duration", "1", "--fmu"])
+        .arg(&fmu)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("missing"), "{err}");
+}

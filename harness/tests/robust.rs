@@ -488,7 +488,8 @@ fn a_non_finite_output_fails_the_run_unless_allowed() {
 #[test]
 fn run_refuses_what_validate_rejects_unless_forced() {
     let d = tempfile::tempdir().unwrap();
-    // The capability flags promise directional derivatives the binary does not export.
+    // The capability flags promise directional derivatives the binary (built without them)
+    // does not export.
     let md = common::model_description(common::GUID).replace(
         "canNotUseMemoryManagementFunctions=\"true\"",
         "canNotUseMemoryManagementFunctions=\"true\" providesDirectionalDerivative=\"true\"",
@@ -498,6 +499,9 @@ fn run_refuses_what_validate_rejects_unless_forced() {
         &bad,
         &common::FmuSpec {
             model_description: Some(md),
+            binary_path: Some(common::compile_kbtest(&[
+                "KBTEST_WITHOUT_DIRECTIONAL_DERIVATIVE",
+            ])),
             ..common::FmuSpec::default()
         },
     );

@@ -31,10 +31,10 @@ pub fn append_set_line(markdown: &Path, set: &ParameterSet) -> anyhow::Result<()
 #[command(after_help = "\
 Examples:
   K=kneebench F=out/fmus
-  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/test --stages 6 --dwell 10 ...
-  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/load --input load ...
+  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/test --stages 4 --dwell 6 --ratio 2 --start-frequency 0.4
+  $K experiment bode --fmu $F/BenchHardware.fmu --out logs/load --input load --amplitude 5 --stages 4 --dwell 6 --ratio 2 --start-frequency 0.4
   $K identify logs/test/bode.csv logs/load/bode.csv --fmu $F/BenchPlant.fmu --out out/identify
-  $K study --fmus $F --params out/identify/identified.ssv
+  $K study --fmus $F --params out/identify/identified.ssv --out out/study-identified
   $K identify --defaults --fmu $F/BenchPlant.fmu --out out/params   # the bench facts as .ssv
 
 Fits the plant's parameters to logs of the bench's experiments (the CSV or Parquet files

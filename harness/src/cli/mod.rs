@@ -9,6 +9,7 @@ pub mod export;
 pub mod identify;
 pub mod info;
 pub mod key;
+pub mod last_resort;
 pub mod metrics;
 pub mod output;
 pub mod plot;

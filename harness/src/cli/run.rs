@@ -58,16 +58,21 @@ takes `var=value` for a single FMU, `component.var=value` for a system.
 Results are streamed to OUTPUT.partial (flushed at least every second) and renamed to OUTPUT
 when the run completes or an FMU ends it; a run that fails or is stopped keeps its rows in
 OUTPUT.partial and leaves an earlier OUTPUT untouched. SIGINT, SIGTERM and SIGHUP stop the run
-at the next communication point (a second SIGINT/SIGTERM ends the process at once).
+at the next communication point (a second SIGINT/SIGTERM ends the process at once). An FMU in
+kneebench's process (--isolate never, or one of ours) that calls exit() ends the run with exit
+code 1; one whose call never returns is ended 5 s after --timeout with exit code 4 (both keep
+the rows flushed so far, up to about the last second's, in OUTPUT.partial).
 
 Exit codes:
   0    completed; OUTPUT written
-  1    error (an FMU failed, a non-finite output, an I/O error); rows so far in OUTPUT.partial
+  1    error (an FMU failed or, in process, called exit(); a non-finite output, an I/O
+       error); rows so far in OUTPUT.partial
   2    usage error (bad arguments, stop time off the step grid, unusable --inputs file, an
        FMU that `kneebench validate` rejects, without --force)
   3    an FMU ended the run (fmi2Discard + fmi2Terminated); OUTPUT written up to and
        including its last successful time
-  4    --timeout passed; rows so far in OUTPUT.partial
+  4    --timeout passed (or an in-process call still running 5 s after it); rows so far in
+       OUTPUT.partial
   129  stopped by SIGHUP, 130 by SIGINT, 143 by SIGTERM; rows so far in OUTPUT.partial")]
 pub struct Args {
     /// An SSP archive (.ssp), a bare SSD (.ssd) or a single FMU (.fmu).
@@ -216,6 +221,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         parquet => parquet,
     };
     let mut guard = PartialGuard(Some(file.partial_path().to_path_buf()));
+    // From here on an FMU in this process that calls exit() (even while its binary is loaded)
+    // or, with --timeout, never returns is reported (exit code 1 or 4) instead of ending
+    // kneebench silently; disarmed when this function returns.
+    let mut armed = super::last_resort::arm(file.partial_path());
     let (mut system, mut config) = match ext.as_str() {
         "fmu" => {
             let fmu = Fmu::load(&a.system, &load)?;
@@ -358,8 +367,15 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     }
     file.set_metadata(meta);
     let started = std::time::Instant::now();
+    if let Some(timeout) = a.timeout {
+        armed
+            .watch(timeout)
+            .context("starting the --timeout watchdog")?;
+    }
     let mut sink = Tee(file, RunningSummary::new());
-    let summary = system.run_into(&config, &mut sink)?;
+    let summary = system.run_into(&config, &mut sink);
+    drop(armed);
+    let summary = summary?;
     if let Some(pb) = bar {
         pb.finish_and_clear();
     }

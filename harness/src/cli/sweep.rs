@@ -10,8 +10,8 @@ use kneebench_harness::sweep::{Prepared, SweepError, SweepOptions, SweepSpec, ru
 #[command(after_help = "\
 Examples:
   kneebench sweep examples/stiffness-sweep/sweep.toml --output out/sweep.parquet
-  kneebench sweep sweep.toml --output sweep.csv --workers 1
-  kneebench sweep sweep.toml --output out/sweep.parquet --resume
+  kneebench sweep examples/stiffness-sweep/sweep.toml --output sweep.csv --workers 1
+  kneebench sweep examples/stiffness-sweep/sweep.toml --output out/sweep.parquet --resume
 
 The spec (TOML) names the system (DA, SEA, CSEA or an .ssp/.ssd), the parameters, the design
 (grid, latin-hypercube, sobol, random, csv) and the metrics; see the README. It is checked

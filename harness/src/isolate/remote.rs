@@ -20,7 +20,7 @@
 use std::io::{self, Read};
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::os::unix::net::UnixStream;
-use std::os::unix::process::ExitStatusExt;
+use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
@@ -84,11 +84,31 @@ impl Process {
         let start = |e: io::Error| HostFailure::Start(e.to_string());
         let (sock, theirs) = UnixStream::pair().map_err(start)?;
         let theirs_out = theirs.try_clone().map_err(start)?;
-        let child = Command::new(helper)
+        let mut command = Command::new(helper);
+        command
             .arg(HOST_ARG)
             .stdin(Stdio::from(OwnedFd::from(theirs)))
             .stdout(Stdio::from(OwnedFd::from(theirs_out)))
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::inherit());
+        // The host stays in the master's process group (a terminal's Ctrl-Z stops both) but
+        // ignores SIGINT, SIGTERM and SIGHUP, which a terminal or `kill -INT -PGID` sends to
+        // the whole group: the master handles them (it stops at the next communication point
+        // and keeps the rows) and its hosts must live until then; they die with the master
+        // (PR_SET_PDEATHSIG) or when it closes their socket. Set before exec, so there is no
+        // window in which the host still has the default action.
+        // SAFETY: the closure runs between fork and exec and calls only signal(2), which is
+        // async-signal-safe; SIG_IGN is a valid disposition for these signals.
+        unsafe {
+            command.pre_exec(|| {
+                for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                    if libc::signal(signal, libc::SIG_IGN) == libc::SIG_ERR {
+                        return Err(io::Error::last_os_error());
+                    }
+                }
+                Ok(())
+            });
+        }
+        let child = command
             .spawn()
             .map_err(|e| HostFailure::Start(format!("cannot start '{}': {e}", helper.display())))?;
         sock.set_nonblocking(true).map_err(start)?;

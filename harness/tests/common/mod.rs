@@ -1,5 +1,5 @@
-//! Test support: a tiny C FMU (`kbtest.c`) compiled with the system C compiler and packed into
-//! `.fmu` archives with a hand-written model description.
+//! Test support: a tiny C FMU (`kbtest.c`, against the official FMI 2.0 headers) compiled with
+//! the system C compiler and packed into `.fmu` archives with a hand-written model description.
 
 #![allow(dead_code)]
 
@@ -64,28 +64,50 @@ fn build_dir() -> &'static Path {
     })
 }
 
-/// Compiles kbtest.c into a shared library (once per test binary) and returns its path.
+/// The harness crate's directory, from this crate or from the tests crate, which includes this
+/// module by path (`tests/tests/end_of_run.rs`): `<crate>/../harness` is the harness in both.
+fn harness_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../harness")
+}
+
+/// Compiles kbtest.c against the official FMI 2.0 headers (vendored in
+/// `tests/hostile_fmu/fmi2/`) into a shared library, once per test binary, with every warning
+/// an error; returns its path.
 pub fn kbtest_so() -> &'static Path {
     static SO: OnceLock<PathBuf> = OnceLock::new();
-    SO.get_or_init(|| {
-        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/common/kbtest.c");
-        let out = build_dir().join("kbtest.so");
-        let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
-        let status = Command::new(cc)
-            .args(["-shared", "-fPIC", "-O2", "-fvisibility=hidden", "-o"])
-            .arg(&out)
-            .arg(&src)
-            .status()
-            .expect("run the C compiler");
-        assert!(status.success(), "compiling kbtest.c failed");
-        out
-    })
+    SO.get_or_init(|| compile_kbtest(&[]))
+}
+
+/// kbtest compiled with the given preprocessor symbols defined (e.g.
+/// `KBTEST_WITHOUT_DIRECTIONAL_DERIVATIVE`), into a library of its own.
+pub fn compile_kbtest(defines: &[&str]) -> PathBuf {
+    let tests = harness_dir().join("tests");
+    let out = build_dir().join(format!("kbtest{}.so", defines.join("-")));
+    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
+    let o = Command::new(cc)
+        .args(["-std=c99", "-shared", "-fPIC", "-O2", "-fvisibility=hidden"])
+        .args(["-Wall", "-Wextra", "-Werror"])
+        .args(defines.iter().map(|d| format!("-D{d}")))
+        .arg(format!("-I{}", tests.join("hostile_fmu/fmi2").display()))
+        .arg("-o")
+        .arg(&out)
+        .arg(tests.join("common/kbtest.c"))
+        .output()
+        .expect("run the C compiler");
+    assert!(
+        o.status.success(),
+        "compiling kbtest.c failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    out
 }
 
 /// What to put into a test archive.
 pub struct FmuSpec {
     pub model_description: Option<String>,
     pub binary: bool,
+    /// The binary to pack instead of [`kbtest_so`].
+    pub binary_path: Option<PathBuf>,
     pub extra: Vec<(String, Vec<u8>)>,
 }
 
@@ -94,6 +116,7 @@ impl Default for FmuSpec {
         FmuSpec {
             model_description: Some(model_description(GUID)),
             binary: true,
+            binary_path: None,
             extra: vec![("resources/readme.txt".into(), b"test resource".to_vec())],
         }
     }
@@ -111,7 +134,8 @@ pub fn write_fmu(path: &Path, spec: &FmuSpec) {
     if spec.binary {
         z.add_directory("binaries/linux64/", o).unwrap();
         z.start_file("binaries/linux64/kbtest.so", o).unwrap();
-        z.write_all(&std::fs::read(kbtest_so()).unwrap()).unwrap();
+        let so = spec.binary_path.as_deref().unwrap_or(kbtest_so());
+        z.write_all(&std::fs::read(so).unwrap()).unwrap();
     }
     for (name, bytes) in &spec.extra {
         z.start_file(name.as_str(), o).unwrap();

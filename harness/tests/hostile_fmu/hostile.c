@@ -11,6 +11,8 @@
  *                                   whose end passes it (t + h > at)
  *   Integer mode   (parameter, 0)   the behaviour, see MODE_* below
  *   Integer steps  (output, 1)      doStep calls done
+ *   Real    pace   (parameter, 4)   wall-clock seconds every doStep sleeps first (default 0), so
+ *                                   that a test can let time pass before the behaviour fires
  *
  * Every behaviour first logs "hostile: <what> at t=<t>" with the status it is about to cause.
  */
@@ -52,7 +54,7 @@ static void *exit_later(void *arg) {
 }
 
 typedef struct {
-    fmi2Real u, t, at;
+    fmi2Real u, t, at, pace;
     fmi2Integer mode, steps;
     int fired;      /* the behaviour fired (NaN / Inf outputs stay) */
     int terminated; /* after MODE_DISCARD */
@@ -122,6 +124,7 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
         case 1: v[k] = y_of(&i->s); break;
         case 2: v[k] = i->s.t; break;
         case 3: v[k] = i->s.at; break;
+        case 4: v[k] = i->s.pace; break;
         default: LOG(i, fmi2Error, "no Real with value reference %u", vr[k]); return fmi2Error;
         }
     }
@@ -155,6 +158,13 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
         switch (vr[k]) {
         case 0: i->s.u = v[k]; break;
         case 3: i->s.at = v[k]; break;
+        case 4:
+            if (!(v[k] >= 0.0 && v[k] <= 10.0)) {
+                LOG(i, fmi2Error, "pace %g is outside [0, 10] s", v[k]);
+                return fmi2Error;
+            }
+            i->s.pace = v[k];
+            break;
         default: LOG(i, fmi2Error, "cannot set Real %u", vr[k]); return fmi2Error;
         }
     }
@@ -184,6 +194,12 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     Inst *i = c;
     State *s = &i->s;
     (void)noSet;
+    if (s->pace > 0.0) {
+        struct timespec d;
+        d.tv_sec = (time_t)s->pace;
+        d.tv_nsec = (long)((s->pace - (double)d.tv_sec) * 1e9);
+        nanosleep(&d, NULL);
+    }
     if (s->terminated) {
         LOG(i, fmi2Error, "hostile: doStep after the FMU terminated");
         return fmi2Error;

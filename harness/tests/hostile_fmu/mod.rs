@@ -55,6 +55,7 @@ pub fn model_description(generation_tool: &str) -> String {
     <ScalarVariable name="at" valueReference="3" causality="parameter" variability="fixed" initial="exact"><Real start="0"/></ScalarVariable>
     <ScalarVariable name="mode" valueReference="0" causality="parameter" variability="fixed" initial="exact"><Integer start="0"/></ScalarVariable>
     <ScalarVariable name="steps" valueReference="1" causality="output" variability="discrete" initial="exact"><Integer start="0"/></ScalarVariable>
+    <ScalarVariable name="pace" valueReference="4" causality="parameter" variability="fixed" initial="exact"><Real start="0"/></ScalarVariable>
   </ModelVariables>
   <ModelStructure>
     <Outputs>
