@@ -22,3 +22,13 @@ def sweep(
 ) -> dict[str, Any]: ...
 def sweep_info(spec: str) -> dict[str, Any]: ...
 def sweep_points(spec: str, ids: list[int], workers: int = 1) -> dict[str, Any]: ...
+def write_sweep_table(
+    spec: str,
+    output: str,
+    point: list[int],
+    columns: list[bytes],
+    status: list[str],
+    message: list[str],
+) -> None: ...
+
+STUDY_METRIC_UNITS: dict[str, str]
