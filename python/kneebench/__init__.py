@@ -8,6 +8,7 @@ message.
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -30,6 +31,9 @@ __all__ = [
     "__version__",
 ]
 __version__: str = _native.__version__
+# The sweep a Dask worker keeps prepared between batches holds a scenario and extracted FMUs
+# in temporary directories: removed when the interpreter exits.
+atexit.register(_native.clear_cache)
 
 
 def _text(value: Any) -> str:
@@ -122,7 +126,7 @@ def _run_batch(spec: str, ids: list[int]) -> dict[str, Any]:
     and the FMUs at the same absolute paths as on the client: a shared path or :func:`ship`)."""
     from kneebench import _native as native
 
-    return dict(native.sweep_points(spec, ids, 1))
+    return dict(native.sweep_points(spec, ids))
 
 
 def ship(client: Any, spec: str | os.PathLike[str]) -> list[str]:

@@ -437,29 +437,116 @@ fn write_sweep_table(
     })
 }
 
-/// Runs the points `ids` of a sweep (a batch of a distributed sweep); returns their rows
-/// sorted by point id, with the sweep's fingerprint (a worker whose spec or FMUs differ gives
-/// another one).
+/// What identifies a prepared sweep in [`CACHE`]: the spec's path and text, and the size and
+/// modification time of every file it reads. Another text, or a rewritten FMU, prepares anew.
+#[derive(Debug, Clone, PartialEq)]
+struct CacheKey {
+    spec: PathBuf,
+    text: Vec<u8>,
+    files: Vec<(PathBuf, Option<(u64, std::time::SystemTime)>)>,
+}
+
+fn file_stamp(path: &Path) -> Option<(u64, std::time::SystemTime)> {
+    let m = std::fs::metadata(path).ok()?;
+    Some((m.len(), m.modified().ok()?))
+}
+
+impl CacheKey {
+    fn of(spec: &Path, files: &[PathBuf]) -> Option<CacheKey> {
+        Some(CacheKey {
+            spec: spec.to_path_buf(),
+            text: std::fs::read(spec).ok()?,
+            files: files.iter().map(|f| (f.clone(), file_stamp(f))).collect(),
+        })
+    }
+}
+
+/// The last sweep prepared by `sweep_points` in this process, with its loaded systems not in
+/// use: the batches of a Dask sweep that land on one worker prepare the sweep (parse the spec,
+/// write the scenario, load the FMUs) once, not once per batch.
+struct Cached {
+    key: CacheKey,
+    prepared: std::sync::Arc<Prepared>,
+    idle: Vec<ssp::LoadedSystem>,
+}
+
+static CACHE: std::sync::Mutex<Option<Cached>> = std::sync::Mutex::new(None);
+
+/// The prepared sweep of `spec` and a loaded system for one batch (from [`CACHE`] when the
+/// spec and its files are unchanged).
+fn prepared_for_batch(
+    spec: &Path,
+) -> Result<(std::sync::Arc<Prepared>, ssp::LoadedSystem), SweepError> {
+    {
+        let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = cache.as_mut()
+            && CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key)
+        {
+            let prepared = c.prepared.clone();
+            let loaded = match c.idle.pop() {
+                Some(l) => l,
+                None => prepared.worker_system()?,
+            };
+            return Ok((prepared, loaded));
+        }
+    }
+    let prepared = std::sync::Arc::new(prepare(spec)?);
+    let loaded = prepared.worker_system()?;
+    if let Some(key) = CacheKey::of(spec, &prepared.input_files) {
+        *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
+            key,
+            prepared: prepared.clone(),
+            idle: Vec::new(),
+        });
+    }
+    Ok((prepared, loaded))
+}
+
+/// Gives a batch's loaded system back to [`CACHE`] (if the sweep is still the cached one).
+fn batch_done(prepared: &std::sync::Arc<Prepared>, loaded: ssp::LoadedSystem) {
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(c) = cache.as_mut()
+        && std::sync::Arc::ptr_eq(&c.prepared, prepared)
+    {
+        c.idle.push(loaded);
+    }
+}
+
+/// Drops the cached sweep of `sweep_points` (its scenario and extracted FMUs are removed);
+/// registered with `atexit` by the package, so a worker that exits leaves no directories.
 #[pyfunction]
-#[pyo3(signature = (spec, ids, workers=1))]
+fn clear_cache(py: Python<'_>) {
+    py.detach(|| {
+        let cached = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take();
+        drop(cached);
+    });
+}
+
+/// Runs the points `ids` of a sweep (a batch of a distributed sweep) one after the other;
+/// returns their rows sorted by point id, with the sweep's fingerprint (a worker whose spec
+/// or FMUs differ gives another one). The prepared sweep and its loaded system are kept for
+/// the next batch of the same sweep in this process.
+#[pyfunction]
 fn sweep_points<'py>(
     py: Python<'py>,
     spec: PathBuf,
     ids: Vec<u64>,
-    workers: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (p, mut rows) = py
+    let (p, rows) = py
         .detach(|| {
-            let p = prepare(&spec)?;
-            let mut rows: Vec<Row> = Vec::with_capacity(ids.len());
-            p.run_points(&ids, workers, &mut |r| {
-                rows.push(r);
-                Ok(())
-            })?;
+            let (p, loaded) = prepared_for_batch(&spec)?;
+            let n = p.design.points.len();
+            if let Some(bad) = ids.iter().find(|&&i| i as usize >= n) {
+                return Err(SweepError::System(format!(
+                    "point {bad} is not in the design ({n} points)"
+                )));
+            }
+            let mut rows: Vec<Row> = ids.iter().map(|&id| p.run_point(&loaded, id)).collect();
+            batch_done(&p, loaded);
+            rows.sort_by_key(|r| r.point);
             Ok::<_, SweepError>((p, rows))
         })
         .map_err(sweep_err)?;
-    rows.sort_by_key(|r| r.point);
     rows_dict(py, &p, &rows)
 }
 
@@ -475,6 +562,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep_info, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_points, m)?)?;
     m.add_function(wrap_pyfunction!(write_sweep_table, m)?)?;
+    m.add_function(wrap_pyfunction!(clear_cache, m)?)?;
     let units = PyDict::new(m.py());
     for (k, u) in STUDY_METRICS.iter().zip(STUDY_METRIC_UNITS) {
         units.set_item(k, u)?;

@@ -180,6 +180,9 @@ pub struct Prepared {
     pub guids: Vec<(String, String)>,
     /// The sweep's fingerprint (spec text and points).
     pub fingerprint: String,
+    /// The system loaded to check the spec, handed to the first worker that starts (one
+    /// loading of every FMU less per sweep).
+    preloaded: std::sync::Mutex<Option<LoadedSystem>>,
     _dir: Option<tempfile::TempDir>,
 }
 
@@ -480,6 +483,7 @@ impl Prepared {
             input_files,
             guids,
             fingerprint,
+            preloaded: std::sync::Mutex::new(Some(loaded)),
             _dir: dir,
         })
     }
@@ -565,11 +569,10 @@ impl Prepared {
                 let tx = tx.clone();
                 let next = &next;
                 scope.spawn(move || {
-                    let loaded = match ssp::load_system(&self.system_file, &LoadOptions::default())
-                    {
+                    let loaded = match self.worker_system() {
                         Ok(l) => l,
                         Err(e) => {
-                            let _ = tx.send(Err(system_error(e)));
+                            let _ = tx.send(Err(e));
                             return;
                         }
                     };
@@ -613,6 +616,18 @@ impl Prepared {
             return Err(SweepError::Missing(missing));
         }
         Ok(())
+    }
+
+    /// A loaded system for a worker: the one loaded to check the spec if no worker has
+    /// taken it yet, else a fresh loading of [`system_file`](Self::system_file).
+    pub fn worker_system(&self) -> Result<LoadedSystem, SweepError> {
+        let preloaded = self.preloaded.lock().ok().and_then(|mut p| p.take());
+        match preloaded {
+            Some(l) => Ok(l),
+            None => {
+                ssp::load_system(&self.system_file, &LoadOptions::default()).map_err(system_error)
+            }
+        }
     }
 
     /// Runs one point on a loaded system: its row, whatever happens.
