@@ -4,13 +4,14 @@ the README's estimate for large machines and clusters).
     .venv/bin/python python/benches/dask_overhead.py [FMU_DIR]
 
 A LocalCluster of two worker processes (one thread each) runs the same sweep (SEA, one gait
-cycle per run, Latin hypercube) with one point per task and with one task per worker, and the
-same sweep runs on two local threads (`kneebench.sweep(spec, workers=2)`), interleaved,
-medians of REPEATS. Per-task overhead = (T[batch 1] - T[batch N/2]) x 2 workers / (extra
-tasks): what each task adds to a worker's time and the scheduler's (the scheduler runs in this
-process, on the same two cores). Each task also prepares the sweep on its worker (spec,
-scenario, loading the FMUs), which is part of that overhead. FMU_DIR defaults to a fresh
-`kneebench export` (target/release/kneebench).
+cycle per run, Latin hypercube) with one point per task and with one task per worker,
+interleaved with the runs alone (`_native.sweep_points` of every point in this process, the
+sweep prepared: the per-run cost), medians of REPEATS. Per-task overhead = (T[batch 1] -
+T[batch N/2]) x 2 workers / (extra tasks): what each task adds to a worker's time and the
+scheduler's (the scheduler runs in this process, on the same two cores). A worker prepares
+the sweep (spec, scenario, FMUs loaded) for its first batch and keeps it for the next ones;
+the warm-up sweep pays that. FMU_DIR defaults to a fresh `kneebench export`
+(target/release/kneebench).
 """
 
 from __future__ import annotations
@@ -61,16 +62,17 @@ def main() -> None:
         spec = Path(tmp) / "sweep.toml"
         spec.write_text(SPEC.format(fmus=fmus, points=POINTS))
         print(f"load average before: {os.getloadavg()}")
-        times: dict[str, list[float]] = {"local": [], "batch1": [], "batchN": []}
+        times: dict[str, list[float]] = {"runs": [], "batch1": [], "batchN": []}
         with distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
         ) as cluster, distributed.Client(cluster) as client:
             reference = kneebench.sweep(spec, workers=2)
             kneebench.sweep(spec, client=client, batch_size=POINTS // 2)  # warm the workers
+            kneebench._native.sweep_points(str(spec), [0])  # prepare the sweep here
             for _ in range(REPEATS):
                 t = time.perf_counter()
-                kneebench.sweep(spec, workers=2)
-                times["local"].append(time.perf_counter() - t)
+                kneebench._native.sweep_points(str(spec), list(range(POINTS)))
+                times["runs"].append(time.perf_counter() - t)
                 for key, batch in [("batch1", 1), ("batchN", POINTS // 2)]:
                     t = time.perf_counter()
                     table = kneebench.sweep(spec, client=client, batch_size=batch)
@@ -79,10 +81,10 @@ def main() -> None:
         m = {k: statistics.median(v) for k, v in times.items()}
         tasks1, tasksN = POINTS, 2
         per_task = (m["batch1"] - m["batchN"]) * 2 / (tasks1 - tasksN)
-        per_run = m["local"] * 2 / POINTS
+        per_run = m["runs"] / POINTS
         print(
-            f"{POINTS} runs of one gait cycle, 2 workers: local threads {m['local'] * 1e3:.0f} ms "
-            f"({per_run * 1e3:.2f} ms per run and worker); Dask, 1 point per task "
+            f"{POINTS} runs of one gait cycle: alone, one thread {m['runs'] * 1e3:.0f} ms "
+            f"({per_run * 1e3:.2f} ms per run); 2 Dask workers, 1 point per task "
             f"{m['batch1'] * 1e3:.0f} ms; Dask, {POINTS // 2} points per task "
             f"{m['batchN'] * 1e3:.0f} ms; per-task overhead {per_task * 1e3:.1f} ms "
             f"(= {per_task / per_run:.1f} runs)"
