@@ -1,4 +1,5 @@
-//! The private directories FMU and SSP archives are extracted into.
+//! The private directories FMU and SSP archives are extracted into, and those a sweep writes
+//! its scenario system into.
 //!
 //! Each is named `kneebench-<kind>-<pid>-<random>` in the system's temporary directory and
 //! removed when its owner is dropped: at the end of a run, after an error, and after a run
@@ -12,8 +13,9 @@ use std::path::{Path, PathBuf};
 /// The name prefix of every extraction directory.
 const PREFIX: &str = "kneebench-";
 
-/// The kinds of directory, as named.
-const KINDS: [&str; 2] = ["fmu", "ssp"];
+/// The kinds of directory, as named: extracted FMUs and SSPs, and a sweep's scenario `.ssp`
+/// (`sweep::Prepared`).
+const KINDS: [&str; 3] = ["fmu", "ssp", "sweep"];
 
 /// A fresh private directory `kneebench-<kind>-<pid>-<random>` in the temporary directory.
 pub fn create(kind: &str) -> std::io::Result<tempfile::TempDir> {
@@ -78,22 +80,32 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         assert_eq!(owner("kneebench-fmu-123-abc"), Some(123));
         assert_eq!(owner("kneebench-ssp-9-x"), Some(9));
+        assert_eq!(owner("kneebench-sweep-31-x"), Some(31));
         assert_eq!(owner("kneebench-fmu-abc"), None);
         assert_eq!(owner("kneebench-other-1-x"), None);
         assert_eq!(owner("kneebench-fmu-12-"), None);
         // A pid above the kernel's maximum (4194304) belongs to no process.
         let dead = d.path().join("kneebench-fmu-99999999-aaaa");
+        let dead_sweep = d.path().join("kneebench-sweep-99999998-dddd");
         let mine = d
             .path()
             .join(format!("kneebench-ssp-{}-bbbb", std::process::id()));
         let init = d.path().join("kneebench-fmu-1-cccc");
         let other = d.path().join("unrelated-99999999-x");
-        for p in [&dead, &mine, &init, &other] {
+        for p in [&dead, &dead_sweep, &mine, &init, &other] {
             std::fs::create_dir(p).unwrap();
             std::fs::write(p.join("f"), b"x").unwrap();
         }
-        assert_eq!(remove_stale_in(d.path()), vec![dead.clone()]);
-        assert!(!dead.exists() && mine.exists() && init.exists() && other.exists());
+        let mut removed = remove_stale_in(d.path());
+        removed.sort();
+        assert_eq!(removed, vec![dead.clone(), dead_sweep.clone()]);
+        assert!(
+            !dead.exists()
+                && !dead_sweep.exists()
+                && mine.exists()
+                && init.exists()
+                && other.exists()
+        );
         let made = create("fmu").unwrap();
         let name = made
             .path()

@@ -8,6 +8,7 @@ message.
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -19,8 +20,20 @@ import pandas as pd
 from . import _native
 from ._native import KneebenchError, SpecError
 
-__all__ = ["KneebenchError", "SpecError", "run", "study", "sweep", "sweep_info", "__version__"]
+__all__ = [
+    "KneebenchError",
+    "SpecError",
+    "run",
+    "ship",
+    "study",
+    "sweep",
+    "sweep_info",
+    "__version__",
+]
 __version__: str = _native.__version__
+# The sweep a Dask worker keeps prepared between batches holds a scenario and extracted FMUs
+# in temporary directories: removed when the interpreter exits.
+atexit.register(_native.clear_cache)
 
 
 def _text(value: Any) -> str:
@@ -73,11 +86,14 @@ def study(
     [rad], peak torques [N m], energy terms per gait cycle [J] (the columns of a sweep's study
     metrics), and the interlock trip if any (``trip``, ``trip_time`` [s]). ``scenario`` is
     ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg, SEA/CSEA under
-    impedance control)."""
+    impedance control). ``df.attrs["units"]`` maps each column to its unit (``1`` for a count
+    or a fraction)."""
     reports = _native.study(
         os.fspath(fmus), os.fspath(out), list(actuators), cycles, scale, scenario
     )
-    return pd.DataFrame(reports).set_index("actuator")
+    df = pd.DataFrame(reports).set_index("actuator")
+    df.attrs["units"] = {**_native.STUDY_METRIC_UNITS, "trip": ""}
+    return df
 
 
 def _frame(d: Mapping[str, Any]) -> pd.DataFrame:
@@ -85,21 +101,45 @@ def _frame(d: Mapping[str, Any]) -> pd.DataFrame:
     data.update(_columns(d["names"], d["columns"]))
     data["status"] = list(d["status"])
     data["message"] = list(d["message"])
-    return pd.DataFrame(data)
+    df = pd.DataFrame(data)
+    _set_units(df, d)
+    return df
+
+
+def _set_units(df: pd.DataFrame, d: Mapping[str, Any]) -> None:
+    units = {"point": ""}
+    units.update(zip(list(d["parameters"]) + list(d["metrics"]), d["units"]))
+    units.update(status="", message="")
+    df.attrs["units"] = units
 
 
 def sweep_info(spec: str | os.PathLike[str]) -> dict[str, Any]:
     """Check a sweep spec against its system (raises SpecError naming each bad line) and
-    return ``{"points", "parameters", "metrics", "fingerprint"}``."""
+    return ``{"points", "parameters", "metrics", "units", "fingerprint", "files"}``
+    (``files``: the absolute paths the sweep reads: the spec, its design CSV, the system file
+    or the scenario's FMUs)."""
     return dict(_native.sweep_info(os.path.abspath(os.fspath(spec))))
 
 
 def _run_batch(spec: str, ids: list[int]) -> dict[str, Any]:
-    """One batch of a distributed sweep, run on a Dask worker (needs the wheel and the FMUs
-    at the spec's paths)."""
+    """One batch of a distributed sweep, run on a Dask worker (needs the wheel, and the spec
+    and the FMUs at the same absolute paths as on the client: a shared path or :func:`ship`)."""
     from kneebench import _native as native
 
-    return dict(native.sweep_points(spec, ids, 1))
+    return dict(native.sweep_points(spec, ids))
+
+
+def ship(client: Any, spec: str | os.PathLike[str]) -> list[str]:
+    """Send a sweep's input files to the workers of ``client`` (a ``dask.distributed.Client``)
+    for clusters without a shared file system: every worker, present and future, writes them
+    at the same absolute paths as on this machine (:class:`kneebench.shipping.ShipFiles`).
+    Returns the paths.
+    Call it before :func:`sweep`; the paths must be writable on the workers."""
+    from .shipping import ShipFiles
+
+    plugin = ShipFiles.from_spec(spec)
+    client.register_plugin(plugin, name=ShipFiles.name)
+    return sorted(plugin.files)
 
 
 def sweep(
@@ -113,22 +153,27 @@ def sweep(
     retries: int = 2,
 ) -> pd.DataFrame:
     """Run a sweep and return its table: ``point``, one column per parameter, one per metric,
-    ``status`` (``ok``/``tripped``/``failed``) and ``message``, sorted by point.
+    ``status`` (``ok``/``tripped``/``failed``) and ``message``, sorted by point;
+    ``df.attrs["units"]`` maps each column to its unit (the FMUs' unit names, ``""`` for
+    none). ``output`` (``.parquet`` or CSV) writes the same table as ``kneebench sweep``.
 
-    Without ``client`` the points run on ``workers`` local threads (default: every core),
-    ``output`` (``.parquet`` or CSV) is written with a journal for ``resume``. With a
-    ``dask.distributed.Client`` the points are sent in batches (``batch_size``, default:
-    about four batches per worker) to the cluster's workers, each batch retried up to
-    ``retries`` times if its worker dies; the spec path must be readable by the workers, as
-    must the FMUs it names (a shared path). Points still missing raise KneebenchError naming
-    them. The table equals the local one bit for bit.
+    Without ``client`` the points run on ``workers`` local threads (default: every core), with
+    a journal next to ``output`` for ``resume``. With a ``dask.distributed.Client`` the points
+    are sent in batches (``batch_size``, default: about four batches per worker) to the
+    cluster's workers; the spec and the FMUs must be at the same absolute paths there (a
+    shared file system, or :func:`ship` first). ``retries`` is how many times Dask reruns a
+    batch whose task raised an exception (a worker that cannot load an FMU, say); a batch whose
+    worker died is rescheduled by the scheduler, up to its
+    ``distributed.scheduler.allowed-failures`` setting (default 3), whatever ``retries`` says.
+    Points still without a row raise KneebenchError naming them. The table equals the local
+    one bit for bit.
     """
     path = os.path.abspath(os.fspath(spec))
     if client is None:
         out = None if output is None else os.fspath(output)
         return _frame(_native.sweep(path, workers, out, resume))
-    if output is not None or resume:
-        raise KneebenchError("output and resume are for local sweeps; write df.to_parquet(...)")
+    if resume:
+        raise KneebenchError("resume is for local sweeps (a Dask sweep keeps no journal)")
     info = _native.sweep_info(path)
     n = int(info["points"])
     if batch_size is None:
@@ -141,7 +186,7 @@ def sweep(
     from distributed import wait
 
     wait(futures)
-    frames = []
+    parts = []
     missing: list[int] = []
     errors: list[str] = []
     for fut, ids in zip(futures, batches):
@@ -155,14 +200,26 @@ def sweep(
         d = fut.result()
         if d["fingerprint"] != info["fingerprint"]:
             raise KneebenchError(
-                "a worker sees another sweep (spec or design differ): fingerprint "
-                f"{d['fingerprint']} != {info['fingerprint']}"
+                "a worker sees another sweep (the spec, its points or the FMUs' GUIDs differ): "
+                f"fingerprint {d['fingerprint']} != {info['fingerprint']}"
             )
-        frames.append(_frame(d))
+        parts.append(d)
     if missing:
         raise KneebenchError(
-            f"{len(missing)} points without a row after {retries} retries: {missing}; "
-            f"first error: {errors[0] if errors else 'unknown'}"
+            f"{len(missing)} points without a row: {missing}; first error: "
+            f"{errors[0] if errors else 'unknown'}"
         )
-    table = pd.concat(frames, ignore_index=True).sort_values("point", kind="stable")
-    return table.reset_index(drop=True)
+    table = pd.concat([_frame(d) for d in parts], ignore_index=True)
+    table = table.sort_values("point", kind="stable").reset_index(drop=True)
+    _set_units(table, {**info, "units": info["units"]})
+    if output is not None:
+        names = list(info["parameters"]) + list(info["metrics"])
+        _native.write_sweep_table(
+            path,
+            os.fspath(output),
+            [int(p) for p in table["point"]],
+            [np.ascontiguousarray(table[c].to_numpy(dtype="<f8")).tobytes() for c in names],
+            [str(s) for s in table["status"]],
+            [str(m) for m in table["message"]],
+        )
+    return table

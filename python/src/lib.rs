@@ -11,22 +11,27 @@ use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::{Outcome, RunConfig, System};
 use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study};
-use kneebench_harness::sweep::runner::{STUDY_METRICS, study_metric_values};
-use kneebench_harness::sweep::{Prepared, Row, SweepError, SweepOptions, SweepSpec, run_sweep};
+use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
+use kneebench_harness::sweep::{
+    Prepared, Row, RunStatus, SweepError, SweepOptions, SweepSpec, run_sweep,
+};
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
+// Created in the `kneebench` module (re-exported there by `__init__.py`): an exception raised
+// on a Dask worker is pickled by its module and name, and unpickled on the client as
+// `kneebench.KneebenchError`, not as an unimportable `_native.KneebenchError`.
 pyo3::create_exception!(
-    _native,
+    kneebench,
     KneebenchError,
     PyRuntimeError,
     "An error of the kneebench harness (the message is the Rust error's)."
 );
 pyo3::create_exception!(
-    _native,
+    kneebench,
     SpecError,
     KneebenchError,
     "A sweep spec refused before anything ran (one line per problem, each naming its line)."
@@ -280,12 +285,8 @@ fn prepare(spec: &Path) -> Result<Prepared, SweepError> {
     SweepSpec::from_file(spec).and_then(Prepared::new)
 }
 
-fn rows_dict<'py>(
-    py: Python<'py>,
-    parameter_names: &[String],
-    metric_names: &[String],
-    rows: &[Row],
-) -> PyResult<Bound<'py, PyDict>> {
+fn rows_dict<'py>(py: Python<'py>, p: &Prepared, rows: &[Row]) -> PyResult<Bound<'py, PyDict>> {
+    let (parameter_names, metric_names) = (&p.design.names, &p.metric_names);
     let d = PyDict::new(py);
     d.set_item("point", rows.iter().map(|r| r.point).collect::<Vec<_>>())?;
     let column = |k: usize, params: bool| -> Vec<f64> {
@@ -321,6 +322,8 @@ fn rows_dict<'py>(
     )?;
     d.set_item("parameters", parameter_names.to_vec())?;
     d.set_item("metrics", metric_names.to_vec())?;
+    d.set_item("units", p.column_units())?;
+    d.set_item("fingerprint", p.fingerprint.clone())?;
     Ok(d)
 }
 
@@ -335,7 +338,7 @@ fn sweep<'py>(
     output: Option<PathBuf>,
     resume: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let table = py
+    let (prepared, table) = py
         .detach(|| {
             let prepared = prepare(&spec)?;
             let mut options = SweepOptions {
@@ -345,10 +348,11 @@ fn sweep<'py>(
             if let Some(w) = workers {
                 options.workers = w.max(1);
             }
-            run_sweep(&prepared, output.as_deref(), &options)
+            let table = run_sweep(&prepared, output.as_deref(), &options)?;
+            Ok((prepared, table))
         })
         .map_err(sweep_err)?;
-    rows_dict(py, &table.parameter_names, &table.metric_names, &table.rows)
+    rows_dict(py, &prepared, &table.rows)
 }
 
 /// The sweep's size and columns: `{"points", "parameters", "metrics", "fingerprint"}` (the
@@ -361,35 +365,189 @@ fn sweep_info<'py>(py: Python<'py>, spec: PathBuf) -> PyResult<Bound<'py, PyDict
     d.set_item("parameters", p.design.names.clone())?;
     d.set_item("metrics", p.metric_names.clone())?;
     d.set_item("fingerprint", p.fingerprint.clone())?;
+    d.set_item("units", p.column_units())?;
+    d.set_item(
+        "files",
+        p.input_files
+            .iter()
+            .map(|f| std::path::absolute(f).unwrap_or_else(|_| f.clone()))
+            .collect::<Vec<_>>(),
+    )?;
     Ok(d)
 }
 
-/// Runs the points `ids` of a sweep (a batch of a distributed sweep); returns their rows
-/// sorted by point id, with the sweep's fingerprint (a worker whose spec or FMUs differ gives
-/// another one).
+/// Writes a sweep's table (rows from `kneebench.sweep`, e.g. gathered from a Dask cluster) to
+/// `output` as the local sweep does: Parquet for `.parquet`, CSV otherwise, with the sweep's
+/// metadata. `columns` holds one float64 column (bytes) per parameter, then per metric, in the
+/// spec's order; `point`, `status` and `message` one entry per row.
 #[pyfunction]
-#[pyo3(signature = (spec, ids, workers=1))]
+#[pyo3(signature = (spec, output, point, columns, status, message))]
+fn write_sweep_table(
+    py: Python<'_>,
+    spec: PathBuf,
+    output: PathBuf,
+    point: Vec<u64>,
+    columns: Vec<Vec<u8>>,
+    status: Vec<String>,
+    message: Vec<String>,
+) -> PyResult<()> {
+    py.detach(|| {
+        let p = prepare(&spec).map_err(sweep_err)?;
+        let (np, nm) = (p.design.names.len(), p.metric_names.len());
+        let n = point.len();
+        if columns.len() != np + nm || status.len() != n || message.len() != n {
+            return Err(err(format!(
+                "write_sweep_table: {} columns, {} statuses and {} messages for {} parameters + \
+                 {} metrics and {n} rows",
+                columns.len(),
+                status.len(),
+                message.len(),
+                np,
+                nm
+            )));
+        }
+        let mut values: Vec<Vec<f64>> = Vec::with_capacity(columns.len());
+        for c in &columns {
+            if c.len() != 8 * n {
+                return Err(err(format!(
+                    "write_sweep_table: a column of {} bytes for {n} rows",
+                    c.len()
+                )));
+            }
+            values.push(
+                c.chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+                    .collect(),
+            );
+        }
+        let mut table = p.empty_table();
+        for k in 0..n {
+            let status = RunStatus::from_name(&status[k])
+                .ok_or_else(|| err(format!("write_sweep_table: status '{}'", status[k])))?;
+            table.rows.push(Row {
+                point: point[k],
+                parameters: values[..np].iter().map(|c| c[k]).collect(),
+                metrics: values[np..].iter().map(|c| c[k]).collect(),
+                status,
+                message: message[k].clone(),
+            });
+        }
+        table.rows.sort_by_key(|r| r.point);
+        table.write(&output).map_err(sweep_err)
+    })
+}
+
+/// What identifies a prepared sweep in [`CACHE`]: the spec's path and text, and the size and
+/// modification time of every file it reads. Another text, or a rewritten FMU, prepares anew.
+#[derive(Debug, Clone, PartialEq)]
+struct CacheKey {
+    spec: PathBuf,
+    text: Vec<u8>,
+    files: Vec<(PathBuf, Option<(u64, std::time::SystemTime)>)>,
+}
+
+fn file_stamp(path: &Path) -> Option<(u64, std::time::SystemTime)> {
+    let m = std::fs::metadata(path).ok()?;
+    Some((m.len(), m.modified().ok()?))
+}
+
+impl CacheKey {
+    fn of(spec: &Path, files: &[PathBuf]) -> Option<CacheKey> {
+        Some(CacheKey {
+            spec: spec.to_path_buf(),
+            text: std::fs::read(spec).ok()?,
+            files: files.iter().map(|f| (f.clone(), file_stamp(f))).collect(),
+        })
+    }
+}
+
+/// The last sweep prepared by `sweep_points` in this process, with its loaded systems not in
+/// use: the batches of a Dask sweep that land on one worker prepare the sweep (parse the spec,
+/// write the scenario, load the FMUs) once, not once per batch.
+struct Cached {
+    key: CacheKey,
+    prepared: std::sync::Arc<Prepared>,
+    idle: Vec<ssp::LoadedSystem>,
+}
+
+static CACHE: std::sync::Mutex<Option<Cached>> = std::sync::Mutex::new(None);
+
+/// The prepared sweep of `spec` and a loaded system for one batch (from [`CACHE`] when the
+/// spec and its files are unchanged).
+fn prepared_for_batch(
+    spec: &Path,
+) -> Result<(std::sync::Arc<Prepared>, ssp::LoadedSystem), SweepError> {
+    {
+        let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = cache.as_mut()
+            && CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key)
+        {
+            let prepared = c.prepared.clone();
+            let loaded = match c.idle.pop() {
+                Some(l) => l,
+                None => prepared.worker_system()?,
+            };
+            return Ok((prepared, loaded));
+        }
+    }
+    let prepared = std::sync::Arc::new(prepare(spec)?);
+    let loaded = prepared.worker_system()?;
+    if let Some(key) = CacheKey::of(spec, &prepared.input_files) {
+        *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
+            key,
+            prepared: prepared.clone(),
+            idle: Vec::new(),
+        });
+    }
+    Ok((prepared, loaded))
+}
+
+/// Gives a batch's loaded system back to [`CACHE`] (if the sweep is still the cached one).
+fn batch_done(prepared: &std::sync::Arc<Prepared>, loaded: ssp::LoadedSystem) {
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(c) = cache.as_mut()
+        && std::sync::Arc::ptr_eq(&c.prepared, prepared)
+    {
+        c.idle.push(loaded);
+    }
+}
+
+/// Drops the cached sweep of `sweep_points` (its scenario and extracted FMUs are removed);
+/// registered with `atexit` by the package, so a worker that exits leaves no directories.
+#[pyfunction]
+fn clear_cache(py: Python<'_>) {
+    py.detach(|| {
+        let cached = CACHE.lock().unwrap_or_else(|e| e.into_inner()).take();
+        drop(cached);
+    });
+}
+
+/// Runs the points `ids` of a sweep (a batch of a distributed sweep) one after the other;
+/// returns their rows sorted by point id, with the sweep's fingerprint (a worker whose spec
+/// or FMUs differ gives another one). The prepared sweep and its loaded system are kept for
+/// the next batch of the same sweep in this process.
+#[pyfunction]
 fn sweep_points<'py>(
     py: Python<'py>,
     spec: PathBuf,
     ids: Vec<u64>,
-    workers: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (p, mut rows) = py
+    let (p, rows) = py
         .detach(|| {
-            let p = prepare(&spec)?;
-            let mut rows: Vec<Row> = Vec::with_capacity(ids.len());
-            p.run_points(&ids, workers, &mut |r| {
-                rows.push(r);
-                Ok(())
-            })?;
+            let (p, loaded) = prepared_for_batch(&spec)?;
+            let n = p.design.points.len();
+            if let Some(bad) = ids.iter().find(|&&i| i as usize >= n) {
+                return Err(SweepError::System(format!(
+                    "point {bad} is not in the design ({n} points)"
+                )));
+            }
+            let mut rows: Vec<Row> = ids.iter().map(|&id| p.run_point(&loaded, id)).collect();
+            batch_done(&p, loaded);
+            rows.sort_by_key(|r| r.point);
             Ok::<_, SweepError>((p, rows))
         })
         .map_err(sweep_err)?;
-    rows.sort_by_key(|r| r.point);
-    let d = rows_dict(py, &p.design.names, &p.metric_names, &rows)?;
-    d.set_item("fingerprint", p.fingerprint.clone())?;
-    Ok(d)
+    rows_dict(py, &p, &rows)
 }
 
 /// The module.
@@ -403,5 +561,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_info, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_points, m)?)?;
+    m.add_function(wrap_pyfunction!(write_sweep_table, m)?)?;
+    m.add_function(wrap_pyfunction!(clear_cache, m)?)?;
+    let units = PyDict::new(m.py());
+    for (k, u) in STUDY_METRICS.iter().zip(STUDY_METRIC_UNITS) {
+        units.set_item(k, u)?;
+    }
+    m.add("STUDY_METRIC_UNITS", units)?;
     Ok(())
 }

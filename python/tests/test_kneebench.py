@@ -160,3 +160,123 @@ def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
         assert killed.is_set(), "the worker was not killed during the sweep"
         assert victim not in client.scheduler_info()["workers"]
     assert_bit_identical(local, table)
+
+
+def test_sweep_and_study_frames_carry_units(sweep_spec, fmus: Path, tmp_path: Path):
+    table = kneebench.sweep(sweep_spec(2), workers=1)
+    units = table.attrs["units"]
+    assert list(units) == list(table.columns)
+    assert units["plant.springStiffness"] == "N.m/rad"
+    assert units["plant.harmonicDriveRatio"] == ""  # a ratio: the FMU declares no unit
+    assert units["rms_error_knee"] == "rad"
+    assert units["bench_electrical_energy"] == "J"
+    assert units["peak_test_torque"] == "N.m"
+    assert units["max(plant.loadOutputTorque)"] == "N.m"
+    assert units["trip_time"] == "s"
+    study = kneebench.study(fmus, tmp_path / "study", actuators=["SEA"], cycles=2)
+    assert study.attrs["units"]["test_mechanical_energy"] == "J"
+    assert study.attrs["units"]["rms_error_knee"] == "rad"
+    assert set(study.columns) <= set(study.attrs["units"])
+
+
+def test_exceptions_pickle_as_the_package_classes():
+    import pickle
+
+    assert kneebench.KneebenchError.__module__ == "kneebench"
+    assert kneebench.SpecError.__module__ == "kneebench"
+    assert issubclass(kneebench.SpecError, kneebench.KneebenchError)
+    for cls in (kneebench.KneebenchError, kneebench.SpecError):
+        e = pickle.loads(pickle.dumps(cls("the message")))
+        assert type(e) is cls and str(e) == "the message"
+
+
+def test_errors_raised_on_a_dask_worker_reach_the_client_as_their_class(sweep_spec):
+    distributed = pytest.importorskip("distributed")
+    spec = str(sweep_spec(3))
+    bad = Path(spec).with_name("bad.toml")
+    bad.write_text(Path(spec).read_text().replace("plant.harmonicDriveRatio", "plant.nope"))
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        worker_pid = list(client.run(__import__("os").getpid).values())[0]
+        assert worker_pid != __import__("os").getpid()
+        fut = client.submit(kneebench._native.sweep_points, spec, [7], pure=False)
+        with pytest.raises(kneebench.KneebenchError, match="point 7 is not in the design"):
+            fut.result()
+        assert type(fut.exception()) is kneebench.KneebenchError
+        fut = client.submit(kneebench._native.sweep_points, str(bad), [0], pure=False)
+        with pytest.raises(kneebench.SpecError, match="unknown variable 'plant.nope'"):
+            fut.result()
+
+
+def test_points_that_never_come_back_are_named(sweep_spec):
+    """A worker killed while it runs a batch, with the scheduler allowed no failure: the
+    batch never comes back, and the error names its points."""
+    distributed = pytest.importorskip("distributed")
+    import dask
+    import os
+    import re
+    import signal
+    import threading
+    import time
+
+    spec = sweep_spec(12, cycles=40)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        victim = sorted(client.scheduler_info()["workers"])[0]
+        pid = client.run(os.getpid)[victim]
+        killed = threading.Event()
+
+        def kill_when_busy() -> None:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                if client.processing().get(victim):
+                    os.kill(pid, signal.SIGKILL)
+                    killed.set()
+                    return
+                time.sleep(0.005)
+
+        killer = threading.Thread(target=kill_when_busy)
+        killer.start()
+        with pytest.raises(kneebench.KneebenchError, match=r"points without a row: \[") as e:
+            kneebench.sweep(spec, client=client, batch_size=3, retries=0)
+        killer.join()
+        assert killed.is_set(), "the worker was not killed during the sweep"
+    named = [int(x) for x in re.search(r"\[([0-9, ]+)\]", str(e.value)).group(1).split(",")]
+    # Whole batches of three, each named once, and not all of them (the other worker's rows
+    # came back).
+    batches = {p // 3 for p in named}
+    assert sorted(named) == [p for b in sorted(batches) for p in range(3 * b, 3 * b + 3)], named
+    assert 0 < len(named) < 12, named
+    assert "KilledWorker" in str(e.value)
+
+
+def test_ship_sends_the_sweeps_files_to_the_workers(sweep_spec, fmus: Path, tmp_path: Path):
+    """The spec and the FMUs reach the workers inside the plugin: they are deleted on this
+    machine after being read, and the workers write them back before running the sweep."""
+    distributed = pytest.importorskip("distributed")
+    import shutil
+
+    from kneebench.shipping import ShipFiles
+
+    own = tmp_path / "shipped"
+    shutil.copytree(fmus, own / "fmus")
+    spec = own / "sweep.toml"
+    spec.write_text(sweep_spec(4).read_text().replace(str(fmus), str(own / "fmus")))
+    local = kneebench.sweep(spec, workers=1)
+    plugin = ShipFiles.from_spec(spec)
+    assert sorted(plugin.files) == sorted(
+        [str(spec)]
+        + [str(own / "fmus" / f) for f in
+           ["BenchPlant.fmu", "GaitReference.fmu", "PidController.fmu"]]
+    ), sorted(plugin.files)
+    shutil.rmtree(own)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        client.register_plugin(plugin, name=ShipFiles.name)
+        assert spec.is_file() and (own / "fmus" / "BenchPlant.fmu").is_file()
+        table = kneebench.sweep(spec, client=client, batch_size=1)
+        assert sorted(kneebench.ship(client, spec)) == sorted(plugin.files)
+    assert_bit_identical(local, table)

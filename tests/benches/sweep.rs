@@ -1,52 +1,136 @@
 //! Sweep machinery and results writers: `cargo bench -p kneebench-tests --bench sweep`.
 //!
-//! - **throughput**: 200 points of a Latin hypercube over the SEA scenario (spring stiffness x
-//!   harmonic-drive ratio, two gait cycles at 1 kHz per run, the study metrics), run by
-//!   `Prepared::run_points` with 1 and with 2 worker threads, interleaved, [`REPEATS`] times;
-//!   runs per second and their ratio (medians). Each call includes every worker's loading of
-//!   the system (once per call, as `kneebench sweep` does).
-//! - **per-point overhead**: `Prepared::run_point` (a fresh system from the loaded SSP, the
-//!   point's values, the run, the metrics) against `System::run` of the same loaded system
-//!   with the same recorded columns (the bare closed-loop run), one point, interleaved.
-//! - **writers**: the SEA scenario recording every output (100 signals) for 10 s at 1 kHz,
-//!   run once into memory; then the same rows written by the streamed CSV writer and by the
-//!   Parquet writer, interleaved; seconds each and their ratio.
+//! Every figure is a ratio of two measurements taken in the same run, interleaved, medians of
+//! [`REPEATS`] repeats; the load average of the machine is printed before and after (the
+//! figures of a shared machine mean little without it).
+//!
+//! - **throughput**: [`THROUGHPUT_POINTS`] points of a Latin hypercube over the SEA scenario
+//!   (spring stiffness x harmonic-drive ratio, one gait cycle of 2.5 s at 1 kHz per run, the
+//!   study metrics), run by `Prepared::run_points` with 1 and with 2 worker threads; runs per
+//!   second and their ratio. Each call includes every worker's loading of the system (once
+//!   per call, as `kneebench sweep` does).
+//! - **per-point overhead of the sweep machinery**: a whole sweep as `kneebench sweep` runs it
+//!   on one worker (the spec parsed and checked against the FMUs, the design, the scenario
+//!   written and loaded, the points scheduled, each run's study metrics, its journal line,
+//!   the Parquet table written through its partial file) against the bare closed loop: the
+//!   same scenario `.ssp` loaded once, then per point its two values set and one gait cycle of
+//!   `System::run` recording the same signals. Both are timed at [`SMALL`] and [`LARGE`]
+//!   points: the slope (seconds per added point) is each one's per-point cost, the sweep's
+//!   overhead is the ratio of the slopes less one; the intercepts are the fixed costs (for the
+//!   sweep: spec, scenario, loading), reported with what they add per point at [`LARGE`].
+//! - **writers**: the SEA scenario recording every output (about 100 signals) for 10 s at
+//!   1 kHz, run once into memory; then the same rows written by the streamed CSV writer and by
+//!   the Parquet writer, each to its partial file and renamed into place; seconds each and
+//!   their ratio.
+//!
+//! `KNEEBENCH_SWEEP_BENCH_ONLY=throughput|overhead|writers` runs one part alone.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use kneebench_harness::master::Value;
 use kneebench_harness::package::export_all;
 use kneebench_harness::results::ResultSink;
 use kneebench_harness::results::csv::CsvFile;
 use kneebench_harness::results::parquet::ParquetFile;
-use kneebench_harness::sweep::{Prepared, SweepSpec};
+use kneebench_harness::sweep::{Prepared, SweepOptions, SweepSpec, run_sweep};
 use kneebench_harness::{LoadOptions, Results, ssp};
 use kneebench_tests::fmu_library;
 
 const REPEATS: usize = 7;
+/// Points of the throughput measurement.
+const THROUGHPUT_POINTS: usize = 400;
+/// The smaller sweep of the per-point measurement.
+const SMALL: usize = 40;
+/// The larger sweep of the per-point measurement.
+const LARGE: usize = 240;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }
 
-fn spec(fmus: &Path, points: usize) -> Prepared {
-    let text = format!(
-        "system = \"SEA\"\nfmus = \"{}\"\ncycles = 2\n[design]\nkind = \"latin-hypercube\"\npoints = {points}\nseed = 1\n\
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// The spec text: SEA, one gait cycle, `points` Latin-hypercube points.
+fn spec_text(fmus: &Path, points: usize) -> String {
+    format!(
+        "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n[design]\nkind = \"latin-hypercube\"\npoints = {points}\nseed = 1\n\
          [[parameters]]\nname = \"plant.springStiffness\"\nmin = 250.0\nmax = 450.0\n\
          [[parameters]]\nname = \"plant.harmonicDriveRatio\"\nmin = 140.0\nmax = 180.0\n",
         fmus.display()
-    );
-    Prepared::new(SweepSpec::parse(&text, Path::new("bench.toml"), fmus).unwrap()).unwrap()
+    )
+}
+
+fn prepare(dir: &Path, fmus: &Path, points: usize) -> Prepared {
+    let path = dir.join(format!("sweep{points}.toml"));
+    std::fs::write(&path, spec_text(fmus, points)).unwrap();
+    Prepared::new(SweepSpec::from_file(&path).unwrap()).unwrap()
+}
+
+/// `kneebench sweep SPEC --output OUT.parquet --workers 1`, in process: seconds.
+fn timed_sweep(dir: &Path, fmus: &Path, points: usize) -> f64 {
+    let out = dir.join(format!("table{points}.parquet"));
+    let t = Instant::now();
+    let p = prepare(dir, fmus, points);
+    let options = SweepOptions {
+        workers: 1,
+        progress: false,
+        resume: false,
+    };
+    let table = run_sweep(&p, Some(&out), &options).unwrap();
+    let s = t.elapsed().as_secs_f64();
+    assert_eq!(table.rows.len(), points);
+    assert!(table.rows.iter().all(|r| r.status.name() == "ok"));
+    s
+}
+
+/// The bare closed loop over the same points: the scenario loaded once, then per point its
+/// values set and `System::run`: seconds.
+fn timed_bare(p: &Prepared, points: usize) -> f64 {
+    let t = Instant::now();
+    let mut loaded = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
+    let refs: Vec<&str> = p.recorded.iter().map(String::as_str).collect();
+    loaded.system.record(&refs).unwrap();
+    for point in &p.design.points[..points] {
+        for (name, v) in p.design.names.iter().zip(point) {
+            loaded.system.set_value(name, Value::Real(*v)).unwrap();
+        }
+        let out = loaded.system.run(&p.config).unwrap();
+        assert!(out.results.len() > 2000);
+    }
+    t.elapsed().as_secs_f64()
 }
 
 fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus: PathBuf = dir.path().join("fmus");
     export_all(&fmu_library(), &fmus).unwrap();
+    println!("load average before: {}", load_average());
+    let only = std::env::var("KNEEBENCH_SWEEP_BENCH_ONLY")
+        .ok()
+        .filter(|o| !o.is_empty());
+    let part = |name: &str| only.as_deref().is_none_or(|o| o == name);
 
-    let p = spec(&fmus, 200);
-    let ids: Vec<u64> = (0..200).collect();
+    let p = prepare(dir.path(), &fmus, THROUGHPUT_POINTS);
+    if part("throughput") {
+        throughput(&p);
+    }
+    if part("overhead") {
+        overhead(dir.path(), &fmus);
+    }
+    if part("writers") {
+        writers(dir.path(), &p);
+    }
+    println!("load average after: {}", load_average());
+}
+
+fn throughput(p: &Prepared) {
+    let ids: Vec<u64> = (0..THROUGHPUT_POINTS as u64).collect();
     let mut rate = [Vec::new(), Vec::new()];
     for _ in 0..REPEATS {
         for (k, workers) in [1usize, 2].into_iter().enumerate() {
@@ -57,65 +141,102 @@ fn main() {
     }
     let (r1, r2) = (median(rate[0].clone()), median(rate[1].clone()));
     println!(
-        "throughput: 1 worker {r1:.1} runs/s, 2 workers {r2:.1} runs/s, ratio {:.2} (runs of 5 s simulated)",
+        "throughput ({THROUGHPUT_POINTS} runs of one 2.5 s gait cycle): 1 worker {r1:.1} runs/s \
+         ({:.2} ms per run), 2 workers {r2:.1} runs/s, ratio {:.2}",
+        1e3 / r1,
         r2 / r1
     );
+}
 
-    let loaded = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
-    let mut bare_system = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
-    let refs: Vec<&str> = p.recorded.iter().map(String::as_str).collect();
-    bare_system.system.record(&refs).unwrap();
-    let (mut point, mut bare) = (Vec::new(), Vec::new());
-    for _ in 0..REPEATS * 4 {
-        let t = Instant::now();
-        let row = p.run_point(&loaded, 0);
-        point.push(t.elapsed().as_secs_f64());
-        assert_eq!(row.status.name(), "ok");
-        let t = Instant::now();
-        bare_system.system.run(&p.config).unwrap();
-        bare.push(t.elapsed().as_secs_f64());
+fn overhead(dir: &Path, fmus: &Path) {
+    let (mut sweep, mut bare) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+    let p_large = prepare(dir, fmus, LARGE);
+    for _ in 0..REPEATS {
+        for (k, n) in [SMALL, LARGE].into_iter().enumerate() {
+            sweep[k].push(timed_sweep(dir, fmus, n));
+            // The bare runs take the first n points of the larger design (the smaller design's
+            // points differ, but every point runs the same cycle).
+            bare[k].push(timed_bare(&p_large, n));
+        }
     }
-    // Minima as well as medians: on a loaded machine single runs are descheduled for
-    // milliseconds, and the minimum is each side's undisturbed cost.
-    let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
-    let (mp, mb) = (min(&point), min(&bare));
-    let (tp, tb) = (median(point), median(bare));
-    println!(
-        "per point: run_point {:.3} ms (min {:.3}), bare System::run {:.3} ms (min {:.3}), overhead {:+.1} % (of the minima {:+.1} %)",
-        tp * 1e3,
-        mp * 1e3,
-        tb * 1e3,
-        mb * 1e3,
-        (tp - tb) / tb * 100.0,
-        (mp - mb) / mb * 100.0
+    let [s_small, s_large] = sweep.map(median);
+    let [b_small, b_large] = bare.map(median);
+    let span = (LARGE - SMALL) as f64;
+    let (s_slope, b_slope) = ((s_large - s_small) / span, (b_large - b_small) / span);
+    let (s_fixed, b_fixed) = (
+        s_small - s_slope * SMALL as f64,
+        b_small - b_slope * SMALL as f64,
     );
+    println!(
+        "per point: sweep machinery {:.3} ms, bare System::run {:.3} ms (one gait cycle), \
+         overhead {:+.1} %; fixed costs: sweep {:.1} ms (spec, scenario, loading), bare {:.1} ms \
+         (loading), i.e. {:+.1} % per point at {LARGE} points; sweeps of {SMALL}/{LARGE} points \
+         {:.1}/{:.1} ms, bare {:.1}/{:.1} ms",
+        s_slope * 1e3,
+        b_slope * 1e3,
+        (s_slope / b_slope - 1.0) * 100.0,
+        s_fixed * 1e3,
+        b_fixed * 1e3,
+        (s_large / b_large - 1.0) * 100.0,
+        s_small * 1e3,
+        s_large * 1e3,
+        b_small * 1e3,
+        b_large * 1e3,
+    );
+}
 
+fn writers(dir: &Path, p: &Prepared) {
     let mut full = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
     full.config.stop_time = 10.0;
     let results: Results = full.system.run(&full.config).unwrap().results;
     let (mut csv, mut parquet) = (Vec::new(), Vec::new());
     for _ in 0..REPEATS {
-        let path = dir.path().join("w.csv");
+        let path = dir.join("w.csv");
         let t = Instant::now();
         let mut f = CsvFile::create(&path).unwrap();
         write(&results, &mut f);
         f.commit().unwrap();
         csv.push(t.elapsed().as_secs_f64());
-        let path = dir.path().join("w.parquet");
+        let path = dir.join("w.parquet");
         let t = Instant::now();
         let mut f = ParquetFile::create(&path).unwrap();
         write(&results, &mut f);
         f.commit().unwrap();
         parquet.push(t.elapsed().as_secs_f64());
     }
+    // The file system's share: the same bytes written at once and synced (both writers sync
+    // their file before renaming it into place).
+    let bytes = [
+        std::fs::read(dir.join("w.csv")).unwrap(),
+        std::fs::read(dir.join("w.parquet")).unwrap(),
+    ];
+    let mut io = [Vec::new(), Vec::new()];
+    for _ in 0..REPEATS {
+        for (k, b) in bytes.iter().enumerate() {
+            let path = dir.join(format!("io{k}"));
+            let t = Instant::now();
+            let mut f = std::fs::File::create(&path).unwrap();
+            std::io::Write::write_all(&mut f, b).unwrap();
+            f.sync_all().unwrap();
+            io[k].push(t.elapsed().as_secs_f64());
+        }
+    }
+    let [ic, iq] = io.map(median);
     let (tc, tq) = (median(csv), median(parquet));
     println!(
-        "writers ({} signals x {} rows): CSV {:.1} ms, Parquet {:.1} ms, Parquet {:.1}x faster",
+        "writers ({} signals x {} rows): CSV {:.1} ms ({:.1} MB), Parquet {:.1} ms ({:.1} MB), \
+         Parquet {:.1}x faster; of which writing and syncing the bytes alone: CSV {:.1} ms, \
+         Parquet {:.1} ms; without it, Parquet {:.1}x faster",
         results.names().len(),
         results.len(),
         tc * 1e3,
+        bytes[0].len() as f64 / 1e6,
         tq * 1e3,
-        tc / tq
+        bytes[1].len() as f64 / 1e6,
+        tc / tq,
+        ic * 1e3,
+        iq * 1e3,
+        (tc - ic) / (tq - iq)
     );
 }
 

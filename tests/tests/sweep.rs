@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use kneebench_harness::sweep::runner::journal_path;
+use kneebench_harness::sweep::runner::{fingerprint, journal_path};
 use kneebench_harness::sweep::{
     Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, SweepTable, run_sweep,
 };
@@ -150,21 +150,92 @@ fn bad_specs_are_refused_naming_the_line() {
         m[0].starts_with("spec.toml, line 9: signal 'plant.nothing': "),
         "{m:?}"
     );
+    // Sobol: at most 2^16 points (the sequence's length in sobol_burley), refused at `points`.
+    let m = refusal(&format!(
+        "{HEAD}[design]\nkind = \"sobol\"\npoints = 65537\n[[parameters]]\nname = \"plant.springStiffness\"\nmin = 1.0\nmax = 2.0\n"
+    ));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with(
+            "spec.toml, line 6: the Sobol design has at most 65536 points (2^16, the sequence's length in sobol_burley), not 65537"
+        ),
+        "{m:?}"
+    );
+    // The CSV design without a range in the spec: its points are checked against the
+    // variable's declared [min, max] ([0, 1e5]), by CSV line.
+    let m = refusal(&format!(
+        "{HEAD}[design]\nkind = \"csv\"\nfile = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n"
+    ));
+    assert_eq!(m.len(), 2, "{m:?}");
+    assert!(
+        m[0].ends_with(
+            "points.csv, line 3: plant.springStiffness = -5 is outside the variable's [min, max] = [0, 100000]"
+        ),
+        "{m:?}"
+    );
     // The CSV design: a value outside the variable's range and a non-number, by CSV line.
     let m = refusal(&format!(
         "{HEAD}[design]\nkind = \"csv\"\nfile = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\nmin = 0.0\nmax = 1000.0\n"
     ));
-    assert_eq!(m.len(), 2, "{m:?}");
+    assert_eq!(m.len(), 3, "{m:?}");
     assert!(
         m[0].ends_with("points.csv, line 3: plant.springStiffness = -5 is outside [0, 1000]"),
         "{m:?}"
     );
     assert!(
         m[1].ends_with(
+            "points.csv, line 3: plant.springStiffness = -5 is outside the variable's [min, max] = [0, 100000]"
+        ),
+        "{m:?}"
+    );
+    assert!(
+        m[2].ends_with(
             "points.csv, line 4: 'abc' for plant.springStiffness is not a finite number"
         ),
         "{m:?}"
     );
+}
+
+#[test]
+fn the_fingerprint_covers_spec_points_and_the_fmus_guids() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(DETERMINISM, dir.path()).unwrap();
+    assert_eq!(p.guids.len(), 4, "{:?}", p.guids);
+    assert_eq!(
+        p.fingerprint,
+        fingerprint(&p.spec.text, &p.design, &p.guids),
+        "the sweep's fingerprint is the documented function of its inputs"
+    );
+    // Another GUID of one FMU (a rebuilt plant, say) is another sweep.
+    let mut guids = p.guids.clone();
+    guids[1].1.push('x');
+    assert_ne!(fingerprint(&p.spec.text, &p.design, &guids), p.fingerprint);
+    let mut design = p.design.clone();
+    design.points[5][0] = f64::from_bits(design.points[5][0].to_bits() + 1);
+    assert_ne!(fingerprint(&p.spec.text, &design, &p.guids), p.fingerprint);
+    assert_ne!(
+        fingerprint(&format!("{} ", p.spec.text), &p.design, &p.guids),
+        p.fingerprint
+    );
+    // The units of the columns: the variables' and the signals'.
+    let units = p.column_units();
+    assert_eq!(&units[..2], ["N.m/rad", ""], "{units:?}");
+    let k = 2 + p
+        .metric_names
+        .iter()
+        .position(|n| n == "rms_error_knee")
+        .unwrap();
+    assert_eq!(units[k], "rad");
+    let k = 2 + p
+        .metric_names
+        .iter()
+        .position(|n| n == "rms(plant.loadOutputTorque)")
+        .unwrap();
+    assert_eq!(units[k], "N.m");
+    // The files a worker without a shared file system needs: the spec and the three FMUs
+    // (both loops are PidController instances).
+    assert_eq!(p.input_files.len(), 4, "{:?}", p.input_files);
+    assert!(p.input_files[1..].iter().all(|f| f.is_file()));
 }
 
 const DETERMINISM: &str = "system = \"SEA\"\nfmus = \"FMUS\"\ncycles = 2\n\

@@ -208,7 +208,11 @@ impl ResultSink for ParquetFile {
         )
         .map_err(|e| self.err(e))?;
         self.writer = Some(writer);
-        self.columns = vec![Vec::with_capacity(ROW_GROUP_ROWS); names.len() + 1];
+        // One buffer each, at its full size now (`vec![v; n]` clones, and a clone of an empty
+        // Vec drops its capacity: the buffers would grow by reallocation, row by row).
+        self.columns = (0..=names.len())
+            .map(|_| Vec::with_capacity(ROW_GROUP_ROWS))
+            .collect();
         Ok(())
     }
 

@@ -10,7 +10,7 @@
 use std::path::Path;
 
 use super::SweepError;
-use super::spec::{DesignKind, ParameterType, SpecProblem, SweepSpec};
+use super::spec::{DesignKind, ParameterType, SOBOL_MAX_POINTS, SpecProblem, SweepSpec};
 
 /// The points of a sweep, one value per parameter each, in spec order.
 #[derive(Debug, Clone, PartialEq)]
@@ -162,6 +162,12 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
         }
         DesignKind::Sobol { points, seed } => {
             check_count(spec, *points)?;
+            if *points > SOBOL_MAX_POINTS {
+                return Err(SweepError::Invalid(vec![spec.problem(
+                    0,
+                    format!("the Sobol design has at most {SOBOL_MAX_POINTS} points, not {points}"),
+                )]));
+            }
             if dims > sobol_burley::NUM_DIMENSIONS as usize {
                 return Err(SweepError::Invalid(vec![spec.problem(
                     0,
@@ -276,6 +282,19 @@ fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> 
                                 par.name,
                                 par.min.unwrap_or(f64::NEG_INFINITY),
                                 par.max.unwrap_or(f64::INFINITY)
+                            ),
+                        ));
+                    }
+                    if par.declared_min.is_some_and(|lo| v < lo)
+                        || par.declared_max.is_some_and(|hi| v > hi)
+                    {
+                        problems.push(problem(
+                            line,
+                            format!(
+                                "{} = {v} is outside the variable's [min, max] = [{}, {}]",
+                                par.name,
+                                par.declared_min.unwrap_or(f64::NEG_INFINITY),
+                                par.declared_max.unwrap_or(f64::INFINITY)
                             ),
                         ));
                     }

@@ -7,7 +7,7 @@
 //! on the point alone.
 //!
 //! **Journal and `--resume`.** Every finished row is appended to `<output>.journal` (first line:
-//! the sweep's fingerprint, a SHA-256 of the spec text and of every point's bits; then one line
+//! the sweep's [`fingerprint`]: the spec text, every point's bits, the FMUs' GUIDs; then one line
 //! per row, floats as their 64-bit patterns in hex) and flushed. A resumed sweep reads the
 //! journal, refuses it if the fingerprint differs, skips the points it holds and runs the rest;
 //! a torn last line (the process was killed while writing it) is ignored. The journal is
@@ -24,7 +24,7 @@ use sha2::{Digest, Sha256};
 
 use super::SweepError;
 use super::design::{self, Design};
-use super::spec::{ParameterType, SpecProblem, Stat, SweepSpec, SystemSource};
+use super::spec::{DesignKind, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource};
 use super::table::{Row, RunStatus, SweepTable};
 use crate::master::{MasterError, Outcome, RunConfig, System, Value};
 use crate::results::Results;
@@ -62,6 +62,38 @@ pub const STUDY_METRICS: [&str; 25] = [
     "balance_residual",
     "trip_time",
 ];
+
+/// The units of [`STUDY_METRICS`], in that order (the FMUs' unit names; `1` for a count or a
+/// fraction).
+pub const STUDY_METRIC_UNITS: [&str; STUDY_METRICS.len()] = [
+    "1", "rad", "rad", "rad", "rad", "N.m", "N.m", "N.m", "J", "J", "J", "J", "J", "1", "J", "J",
+    "J", "J", "J", "J", "J", "J", "J", "J", "s",
+];
+
+/// The sweep's fingerprint: a SHA-256 (hex) of the spec text, the parameter names, every
+/// point's bits and every component's FMU GUID (`component`, GUID). A journal, or a Dask
+/// worker's batch, with another fingerprint belongs to another sweep: the spec, its points or
+/// the FMUs differ.
+pub fn fingerprint(text: &str, design: &Design, guids: &[(String, String)]) -> String {
+    let mut h = Sha256::new();
+    h.update(text.as_bytes());
+    for n in &design.names {
+        h.update(n.as_bytes());
+        h.update([0]);
+    }
+    for p in &design.points {
+        for v in p {
+            h.update(v.to_bits().to_le_bytes());
+        }
+    }
+    for (component, guid) in guids {
+        h.update(component.as_bytes());
+        h.update([0]);
+        h.update(guid.as_bytes());
+        h.update([0]);
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
 
 /// The values of [`STUDY_METRICS`] for one analysed run, in that order.
 pub fn study_metric_values(r: &study::ActuatorReport) -> [f64; STUDY_METRICS.len()] {
@@ -138,10 +170,19 @@ pub struct Prepared {
     pub metric_names: Vec<String>,
     /// The recorded columns.
     pub recorded: Vec<String>,
+    /// The unit of every metric column (the FMUs' unit names, empty where a signal has none).
+    pub metric_units: Vec<String>,
+    /// The files the sweep reads, as the spec names them: the spec, its design CSV, and the
+    /// system file or the scenario's FMUs (what a Dask worker without a shared file system
+    /// needs, see the Python package's `ship`). An `.ssd`'s own resources are not listed.
+    pub input_files: Vec<PathBuf>,
     /// The GUID of every component's FMU (`component` -> GUID).
     pub guids: Vec<(String, String)>,
     /// The sweep's fingerprint (spec text and points).
     pub fingerprint: String,
+    /// The system loaded to check the spec, handed to the first worker that starts (one
+    /// loading of every FMU less per sweep).
+    preloaded: std::sync::Mutex<Option<LoadedSystem>>,
     _dir: Option<tempfile::TempDir>,
 }
 
@@ -190,6 +231,7 @@ fn variable_problems(
         }
         let (ty, lo, hi) = match &v.kind {
             VariableKind::Real { attributes, .. } => {
+                p.unit = attributes.unit.clone().unwrap_or_default();
                 (ParameterType::Real, attributes.min, attributes.max)
             }
             VariableKind::Integer { attributes, .. } => (
@@ -211,6 +253,8 @@ fn variable_problems(
             }
         };
         p.ty = ty;
+        p.declared_min = lo;
+        p.declared_max = hi;
         let mut values: Vec<f64> = [p.min, p.max].into_iter().flatten().collect();
         values.extend(p.values.iter().flatten());
         for x in values {
@@ -272,6 +316,21 @@ fn fresh_system(loaded: &LoadedSystem) -> Result<System, MasterError> {
     Ok(system)
 }
 
+/// The unit of `component.variable` in the FMUs' descriptions (empty when it has none).
+fn signal_unit(descriptions: &HashMap<String, ModelDescription>, reference: &str) -> String {
+    reference
+        .split_once('.')
+        .and_then(|(c, v)| {
+            let md = descriptions.get(c)?;
+            let var = md.model_variables.iter().find(|x| x.name == v)?;
+            match &var.kind {
+                VariableKind::Real { attributes, .. } => attributes.unit.clone(),
+                _ => None,
+            }
+        })
+        .unwrap_or_default()
+}
+
 fn ssd_parameter(loaded: &LoadedSystem, reference: &str) -> Option<f64> {
     let (comp, var) = reference.split_once('.')?;
     let c = loaded
@@ -295,8 +354,13 @@ impl Prepared {
     /// values outside a variable's `[min, max]`, wrong types, unknown signals, a missing gait
     /// period) and computes its points. Nothing runs.
     pub fn new(mut spec: SweepSpec) -> Result<Prepared, SweepError> {
+        let mut input_files = vec![spec.file.clone()];
+        if let DesignKind::Csv(csv) = &spec.design {
+            input_files.push(csv.clone());
+        }
         let (system_file, dir) = match &spec.system {
             SystemSource::File(p) => {
+                input_files.push(p.clone());
                 if !p.is_file() {
                     return Err(SweepError::Invalid(vec![spec.problem(
                         1,
@@ -320,6 +384,12 @@ impl Prepared {
                     study::gait_scenario(*actuator, bench.gait(), bench.gains(*actuator), *cycles);
                 let path = dir.path().join(format!("{}.ssp", actuator.name()));
                 study::write_ssp(&scenario, fmu_dir, &path).map_err(system_error)?;
+                for c in &scenario.components {
+                    let fmu = fmu_dir.join(&c.fmu);
+                    if !input_files.contains(&fmu) {
+                        input_files.push(fmu);
+                    }
+                }
                 (path, Some(dir))
             }
         };
@@ -387,23 +457,20 @@ impl Prepared {
             return Err(SweepError::Invalid(problems));
         }
         let design = design::generate(&spec)?;
-        let mut h = Sha256::new();
-        h.update(spec.text.as_bytes());
-        for n in &design.names {
-            h.update(n.as_bytes());
-            h.update([0]);
-        }
-        for p in &design.points {
-            for v in p {
-                h.update(v.to_bits().to_le_bytes());
-            }
-        }
-        let fingerprint: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
-        let guids = loaded
+        let guids: Vec<(String, String)> = loaded
             .system
             .components()
             .map(|(n, f)| (n.to_string(), f.model_description().guid.clone()))
             .collect();
+        let fingerprint = fingerprint(&spec.text, &design, &guids);
+        let mut metric_units: Vec<String> = Vec::new();
+        if spec.study_metrics {
+            metric_units.extend(STUDY_METRIC_UNITS.iter().map(|u| u.to_string()));
+        }
+        for s in &spec.signals {
+            let unit = signal_unit(&descriptions, &s.signal);
+            metric_units.extend(s.stats.iter().map(|_| unit.clone()));
+        }
         Ok(Prepared {
             spec,
             design,
@@ -412,8 +479,11 @@ impl Prepared {
             period,
             metric_names,
             recorded,
+            metric_units,
+            input_files,
             guids,
             fingerprint,
+            preloaded: std::sync::Mutex::new(Some(loaded)),
             _dir: dir,
         })
     }
@@ -441,6 +511,19 @@ impl Prepared {
         for (c, g) in &self.guids {
             out.push((format!("kneebench.guid.{c}"), g.clone()));
         }
+        out
+    }
+
+    /// The unit of every column after `point`: the parameters' (their variables'), then the
+    /// metrics' ([`metric_units`](Self::metric_units)); empty where there is none.
+    pub fn column_units(&self) -> Vec<String> {
+        let mut out: Vec<String> = self
+            .spec
+            .parameters
+            .iter()
+            .map(|p| p.unit.clone())
+            .collect();
+        out.extend(self.metric_units.iter().cloned());
         out
     }
 
@@ -486,11 +569,10 @@ impl Prepared {
                 let tx = tx.clone();
                 let next = &next;
                 scope.spawn(move || {
-                    let loaded = match ssp::load_system(&self.system_file, &LoadOptions::default())
-                    {
+                    let loaded = match self.worker_system() {
                         Ok(l) => l,
                         Err(e) => {
-                            let _ = tx.send(Err(system_error(e)));
+                            let _ = tx.send(Err(e));
                             return;
                         }
                     };
@@ -534,6 +616,18 @@ impl Prepared {
             return Err(SweepError::Missing(missing));
         }
         Ok(())
+    }
+
+    /// A loaded system for a worker: the one loaded to check the spec if no worker has
+    /// taken it yet, else a fresh loading of [`system_file`](Self::system_file).
+    pub fn worker_system(&self) -> Result<LoadedSystem, SweepError> {
+        let preloaded = self.preloaded.lock().ok().and_then(|mut p| p.take());
+        match preloaded {
+            Some(l) => Ok(l),
+            None => {
+                ssp::load_system(&self.system_file, &LoadOptions::default()).map_err(system_error)
+            }
+        }
     }
 
     /// Runs one point on a loaded system: its row, whatever happens.

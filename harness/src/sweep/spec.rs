@@ -118,6 +118,10 @@ struct RawSignalMetric {
     to: Option<Spanned<f64>>,
 }
 
+/// The most points of a Sobol design: `sobol_burley` gives 2^16 points per sequence (beyond
+/// that its samples are unspecified).
+pub const SOBOL_MAX_POINTS: usize = 1 << 16;
+
 /// What system a sweep runs.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SystemSource {
@@ -188,6 +192,14 @@ pub struct Parameter {
     pub values: Option<Vec<f64>>,
     /// The variable's type (known after [`Prepared::new`](super::Prepared::new)).
     pub ty: ParameterType,
+    /// The variable's declared `min` (known after [`Prepared::new`](super::Prepared::new)):
+    /// every point's value must respect it, whatever the design.
+    pub declared_min: Option<f64>,
+    /// The variable's declared `max` (known after [`Prepared::new`](super::Prepared::new)).
+    pub declared_max: Option<f64>,
+    /// The variable's unit (empty when it declares none; known after
+    /// [`Prepared::new`](super::Prepared::new)).
+    pub unit: String,
     /// 1-based line of the parameter in the spec.
     pub line: usize,
 }
@@ -405,10 +417,25 @@ impl SweepSpec {
                 points: points(&mut p),
                 seed: seed(&mut p, d),
             },
-            "sobol" => DesignKind::Sobol {
-                points: points(&mut p),
-                seed: seed(&mut p, d),
-            },
+            "sobol" => {
+                let n = points(&mut p);
+                if n > SOBOL_MAX_POINTS
+                    && let Some(at) = &d.points
+                {
+                    p.at(
+                        at.span(),
+                        format!(
+                            "the Sobol design has at most {SOBOL_MAX_POINTS} points (2^16, the \
+                             sequence's length in sobol_burley), not {n}; use latin-hypercube \
+                             or random for more"
+                        ),
+                    );
+                }
+                DesignKind::Sobol {
+                    points: n,
+                    seed: seed(&mut p, d),
+                }
+            }
             "random" => DesignKind::Random {
                 points: points(&mut p),
                 seed: seed(&mut p, d),
@@ -579,6 +606,9 @@ impl SweepSpec {
                 levels,
                 values,
                 ty: ParameterType::Real,
+                declared_min: None,
+                declared_max: None,
+                unit: String::new(),
                 line,
             });
         }

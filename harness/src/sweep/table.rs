@@ -1,6 +1,11 @@
 //! The sweep table: one row per point (its id, parameter values, metrics, status and
 //! message), written as Parquet (`point` INT64, parameters and metrics DOUBLE, `status` and
 //! `message` UTF-8 strings, key-value metadata) or as CSV (round-trip floats).
+//!
+//! Like every results writer ([`crate::results::csv::CsvFile`],
+//! [`crate::results::parquet::ParquetFile`]), the table is written to `<output>.partial` next
+//! to the output, synced, and renamed into place: an earlier table at the output stays whole
+//! until the new one is complete, and a failed write leaves no half table under its name.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -15,6 +20,7 @@ use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
 use super::SweepError;
+use crate::results::csv::partial_path;
 
 /// How a run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,11 +121,16 @@ impl SweepTable {
     /// shortest form that reads back to the same bits, NaN as `NaN`; strings quoted when
     /// needed).
     pub fn write_csv(&self, path: &Path) -> Result<(), SweepError> {
+        write_then_rename(path, |partial| self.write_csv_to(partial))
+    }
+
+    fn write_csv_to(&self, path: &Path) -> Result<File, SweepError> {
         let io = |source| SweepError::Io {
             path: path.to_path_buf(),
             source,
         };
         let mut w = BufWriter::new(File::create(path).map_err(io)?);
+        self.check_rows(path)?;
         let header: Vec<String> = self.column_names().iter().map(|n| quote(n)).collect();
         writeln!(w, "{}", header.join(",")).map_err(io)?;
         let mut buf = ryu::Buffer::new();
@@ -139,11 +150,15 @@ impl SweepTable {
             line.push_str(&quote(&r.message));
             writeln!(w, "{line}").map_err(io)?;
         }
-        w.flush().map_err(io)
+        w.into_inner().map_err(|e| io(e.into_error()))
     }
 
     /// Writes the table as one Parquet file (one row group, uncompressed).
     pub fn write_parquet(&self, path: &Path) -> Result<(), SweepError> {
+        write_then_rename(path, |partial| self.write_parquet_to(partial))
+    }
+
+    fn write_parquet_to(&self, path: &Path) -> Result<File, SweepError> {
         let err = |e: parquet::errors::ParquetError| SweepError::Table {
             path: path.to_path_buf(),
             message: e.to_string(),
@@ -181,6 +196,7 @@ impl SweepTable {
             path: path.to_path_buf(),
             source,
         })?;
+        self.check_rows(path)?;
         let mut writer = SerializedFileWriter::new(BufWriter::new(file), schema, Arc::new(props))
             .map_err(err)?;
         let mut group = writer.next_row_group().map_err(err)?;
@@ -240,8 +256,32 @@ impl SweepTable {
             col.close().map_err(err)?;
         }
         group.close().map_err(err)?;
-        writer.close().map_err(err)?;
-        Ok(())
+        let inner = writer.into_inner().map_err(err)?;
+        inner.into_inner().map_err(|e| SweepError::Io {
+            path: path.to_path_buf(),
+            source: e.into_error(),
+        })
+    }
+
+    /// Refuses a row whose values do not fit the columns.
+    fn check_rows(&self, path: &Path) -> Result<(), SweepError> {
+        let (np, nm) = (self.parameter_names.len(), self.metric_names.len());
+        match self
+            .rows
+            .iter()
+            .find(|r| r.parameters.len() != np || r.metrics.len() != nm)
+        {
+            Some(r) => Err(SweepError::Table {
+                path: path.to_path_buf(),
+                message: format!(
+                    "point {}: {} parameters and {} metrics for {np} and {nm} columns",
+                    r.point,
+                    r.parameters.len(),
+                    r.metrics.len()
+                ),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Writes Parquet for a `.parquet` path, CSV otherwise.
@@ -255,6 +295,36 @@ impl SweepTable {
             self.write_csv(path)
         }
     }
+}
+
+/// Writes a table through `<path>.partial` (`write` creates and fills it, returning the file),
+/// syncs it and renames it to `path`; the partial file is removed if anything fails.
+fn write_then_rename(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<File, SweepError>,
+) -> Result<(), SweepError> {
+    if path.is_dir() || path.file_name().is_none() {
+        return Err(SweepError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a file name"),
+        });
+    }
+    let partial = partial_path(path);
+    let done = write(&partial).and_then(|file| {
+        file.sync_all().map_err(|source| SweepError::Io {
+            path: partial.clone(),
+            source,
+        })?;
+        drop(file);
+        std::fs::rename(&partial, path).map_err(|source| SweepError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    });
+    if done.is_err() && partial.is_file() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    done
 }
 
 fn quote(s: &str) -> String {
@@ -322,6 +392,32 @@ mod tests {
         assert!(rows[1].get_double(2).unwrap().is_nan());
         assert_eq!(rows[1].get_string(3).unwrap(), "failed");
         assert_eq!(rows[1].get_string(4).unwrap(), "plant: \"bad\", value");
+    }
+
+    #[test]
+    fn a_failed_write_keeps_the_earlier_table_and_leaves_no_partial_file() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["t.parquet", "t.csv"] {
+            let path = dir.path().join(name);
+            let t = table();
+            t.write(&path).unwrap();
+            let before = std::fs::read(&path).unwrap();
+            assert!(!partial_path(&path).exists());
+            // A row whose metrics do not fit the columns: the Parquet writer refuses it; the
+            // CSV one is made to fail by a directory where its partial file would go.
+            let mut bad = t.clone();
+            if name.ends_with(".parquet") {
+                bad.rows[1].metrics.clear();
+                bad.metric_names.push("extra".into());
+            } else {
+                std::fs::create_dir(partial_path(&path)).unwrap();
+            }
+            assert!(bad.write(&path).is_err(), "{name}");
+            assert_eq!(std::fs::read(&path).unwrap(), before, "{name}");
+            if name.ends_with(".parquet") {
+                assert!(!partial_path(&path).exists(), "{name}");
+            }
+        }
     }
 
     #[test]
