@@ -697,6 +697,16 @@ pub fn read_ssd_with(
             _ => continue,
         };
         let local = e.local_name().as_ref().as_bytes().to_vec();
+        // One root element, SystemStructureDescription: the components of another element
+        // before or after it would be silently added.
+        if stack.is_empty() && (saw_root || local != b"SystemStructureDescription") {
+            let name = String::from_utf8_lossy(&local);
+            return Err(invalid(if saw_root {
+                format!("an element <{name}> after the root element")
+            } else {
+                format!("the root element is <{name}>, not SystemStructureDescription")
+            }));
+        }
         let a = attrs(&e, file)?;
         let parent = stack.last().cloned().unwrap_or_default();
         let in_annotation = parent.as_slice() == b"Annotation";

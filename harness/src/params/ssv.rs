@@ -190,6 +190,10 @@ pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> 
         let a = attributes(&e, file, line)?;
         let local = e.local_name();
         match local.as_ref() {
+            // One root element: a second set after it would silently replace the first.
+            _ if depth == 0 && set.is_some() => {
+                return Err(bad(line, "an element after the root element".to_string()));
+            }
             "ParameterSet" if depth == 0 => {
                 let version = get(&a, "version").unwrap_or_default();
                 if !version.starts_with("1.") {
