@@ -651,6 +651,15 @@ pub fn read_ssd_with(
     read_file: &mut dyn FnMut(&str) -> Result<String, SspError>,
 ) -> Result<Ssd, SspError> {
     let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
+    // The XML parser would skip a second mark too and count its positions from after it, so
+    // that inline parameter sets were cut three bytes off.
+    if xml.starts_with('\u{feff}') {
+        return Err(SspError::Xml {
+            file: file.to_string(),
+            position: 0,
+            message: "a second byte order mark".into(),
+        });
+    }
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
     let mut ssd = Ssd::default();
@@ -823,7 +832,13 @@ pub fn read_ssd_with(
                 })?;
                 let _ = end_tag;
                 let end = r.buffer_position() as usize;
-                let fragment = &xml[start..end];
+                // Checked, not sliced: the reader's positions need not be character
+                // boundaries (a second byte order mark).
+                let fragment = xml.get(start..end).ok_or_else(|| {
+                    invalid(format!(
+                        "a ParameterSet at byte {start} the reader cannot cut out"
+                    ))
+                })?;
                 let params = read_parameter_set(fragment, file)?;
                 push_params(comp.as_mut(), params, &binding_prefix, file)?;
                 continue; // the end tag was consumed
