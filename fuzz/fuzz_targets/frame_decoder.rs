@@ -9,7 +9,7 @@
 use libfuzzer_sys::fuzz_target;
 
 #[path = "../../fmu/src/hardware/protocol/mod.rs"]
-#[allow(dead_code, missing_docs)]
+#[allow(dead_code, missing_docs, unused_imports)] // the targets use part of the module
 mod protocol;
 
 fuzz_target!(|data: &[u8]| {

@@ -653,6 +653,15 @@ pub fn read_ssd_with(
     read_file: &mut dyn FnMut(&str) -> Result<String, SspError>,
 ) -> Result<Ssd, SspError> {
     let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
+    // The XML parser would skip a second mark too and count its positions from after it, so
+    // that inline parameter sets were cut three bytes off.
+    if xml.starts_with('\u{feff}') {
+        return Err(SspError::Xml {
+            file: file.to_string(),
+            position: 0,
+            message: "a second byte order mark".into(),
+        });
+    }
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
     let mut ssd = Ssd::default();
@@ -699,6 +708,16 @@ pub fn read_ssd_with(
             _ => continue,
         };
         let local = e.local_name().as_ref().as_bytes().to_vec();
+        // One root element, SystemStructureDescription: the components of another element
+        // before or after it would be silently added.
+        if stack.is_empty() && (saw_root || local != b"SystemStructureDescription") {
+            let name = String::from_utf8_lossy(&local);
+            return Err(invalid(if saw_root {
+                format!("an element <{name}> after the root element")
+            } else {
+                format!("the root element is <{name}>, not SystemStructureDescription")
+            }));
+        }
         let a = attrs(&e, file)?;
         let parent = stack.last().cloned().unwrap_or_default();
         let in_annotation = parent.as_slice() == b"Annotation";
@@ -815,7 +834,13 @@ pub fn read_ssd_with(
                 })?;
                 let _ = end_tag;
                 let end = r.buffer_position() as usize;
-                let fragment = &xml[start..end];
+                // Checked, not sliced: the reader's positions need not be character
+                // boundaries (a second byte order mark).
+                let fragment = xml.get(start..end).ok_or_else(|| {
+                    invalid(format!(
+                        "a ParameterSet at byte {start} the reader cannot cut out"
+                    ))
+                })?;
                 let params = read_parameter_set(fragment, file)?;
                 push_params(comp.as_mut(), params, &binding_prefix, file)?;
                 continue; // the end tag was consumed

@@ -158,6 +158,15 @@ impl ModelDescription {
     /// Reads a model description from XML text. A leading byte order mark is skipped.
     pub fn from_xml(xml: &str) -> Result<ModelDescription, ParseError> {
         let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
+        // The XML parser would skip a second mark too and count its positions from after it,
+        // so that the verbatim annotations were cut three bytes off.
+        if xml.starts_with('\u{feff}') {
+            return Err(ParseError::Xml {
+                message: "a second byte order mark".into(),
+                position: 0,
+                line: 1,
+            });
+        }
         if xml.len() > MAX_DOCUMENT_BYTES {
             return Err(ParseError::TooLarge {
                 what: "the document".into(),
@@ -172,7 +181,7 @@ impl ModelDescription {
     /// Reads a model description from the bytes of `modelDescription.xml` (UTF-8, with or
     /// without a byte order mark).
     pub fn from_bytes(bytes: &[u8]) -> Result<ModelDescription, ParseError> {
-        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+        // The mark is left to `from_xml` (stripping it here too took two).
         match std::str::from_utf8(bytes) {
             Ok(s) => ModelDescription::from_xml(s),
             Err(e) => {

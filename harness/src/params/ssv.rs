@@ -143,6 +143,14 @@ fn get<'a>(a: &'a [(String, String)], key: &str) -> Option<&'a str> {
 /// Reads an `.ssv` document; `file` names it in errors.
 pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    // The XML parser would skip a second mark too and count its positions from after it.
+    if text.starts_with('\u{feff}') {
+        return Err(ParamsError::Syntax {
+            file: file.to_string(),
+            line: 1,
+            message: "a second byte order mark".into(),
+        });
+    }
     let mut r = quick_xml::Reader::from_str(text);
     r.config_mut().trim_text(true);
     let mut set: Option<ParameterSet> = None;
@@ -161,8 +169,13 @@ pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> 
             line: line_of(text, r.buffer_position() as usize),
             message: e.to_string(),
         })?;
-        // The event starts after any whitespace skipped before it.
-        let start = pos + text[pos..].len() - text[pos..].trim_start().len();
+        // The event starts after any (XML, so ASCII) whitespace skipped before it. Counted in
+        // bytes: the reader's position need not be a character boundary (after a second byte
+        // order mark it is inside it; slicing the text there panicked).
+        let skipped = text.as_bytes().get(pos..).map_or(0, |rest| {
+            rest.iter().take_while(|b| b.is_ascii_whitespace()).count()
+        });
+        let start = pos + skipped;
         let line = line_of(text, start);
         let (e, empty) = match ev {
             Event::Start(e) => (e, false),
@@ -190,6 +203,10 @@ pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> 
         let a = attributes(&e, file, line)?;
         let local = e.local_name();
         match local.as_ref() {
+            // One root element: a second set after it would silently replace the first.
+            _ if depth == 0 && set.is_some() => {
+                return Err(bad(line, "an element after the root element".to_string()));
+            }
             "ParameterSet" if depth == 0 => {
                 let version = get(&a, "version").unwrap_or_default();
                 if !version.starts_with("1.") {

@@ -1,0 +1,16 @@
+//! Fuzzes the model-description reader (`ModelDescription::from_bytes`): no input panics it;
+//! what it reads is checked, written, and reads back equal. The properties live in
+//! `fuzz/properties/readers.rs`, shared with the test suite's bounded run
+//! (`tests/tests/readers_fuzz.rs`).
+
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+#[path = "../properties/readers.rs"]
+#[allow(dead_code)]
+mod readers;
+
+fuzz_target!(|data: &[u8]| {
+    readers::model_description(data);
+});
