@@ -7,16 +7,22 @@
 //!
 //! Every in-process call of [`Instance`](crate::instance::Instance) brackets the FMU's function
 //! with a call mark: three relaxed stores (two before, one after), no lock, no thread-local and
-//! no allocation on the hot path. Instances register their label ("FMU 'X', instance 'y'")
+//! no allocation on the hot path — while tracking is on ([`track`]; `kneebench run` turns it on
+//! for its run). Off, a call reads one flag and stores nothing: the marks are words shared by
+//! every thread, and stores to them from threads running FMUs in parallel (a sweep's workers,
+//! the Python package's threads) would bounce their cache line between the cores on every
+//! call. Instances register their label ("FMU 'X', instance 'y'")
 //! once, under a lock, when instantiated. Isolated instances are not tracked here: their host
 //! process is theirs to lose.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU32, Ordering};
 
 /// The labels of live in-process instances, by id.
 static LABELS: Mutex<BTreeMap<u32, String>> = Mutex::new(BTreeMap::new());
+/// Whether calls are marked ([`track`]).
+static TRACKING: AtomicBool = AtomicBool::new(false);
 /// The next instance id (0 means "none").
 static NEXT_ID: AtomicU32 = AtomicU32::new(1);
 /// The instance of the latest call in progress (0: none).
@@ -47,9 +53,11 @@ impl Call {
     /// Marks `function` of instance `id` as running.
     #[inline(always)]
     pub(crate) fn enter(id: u32, function: &'static &'static str) -> Call {
-        let f = function as *const &'static str;
-        LATEST_FUNCTION.store(f.cast_mut(), Ordering::Relaxed);
-        LATEST_ID.store(id, Ordering::Relaxed);
+        if TRACKING.load(Ordering::Relaxed) {
+            let f = function as *const &'static str;
+            LATEST_FUNCTION.store(f.cast_mut(), Ordering::Relaxed);
+            LATEST_ID.store(id, Ordering::Relaxed);
+        }
         Call
     }
 }
@@ -60,6 +68,17 @@ impl Drop for Call {
         // A plain store, not a compare-exchange (a locked instruction on every call): with
         // `--parallel`, a call ending on one thread may clear the mark of one still running on
         // another, which [`latest`] then does not name (documented there).
+        if TRACKING.load(Ordering::Relaxed) {
+            LATEST_ID.store(0, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Turns the call marks on or off for the whole process (on: [`latest`] names the call in
+/// progress; off, the default: nothing is stored per call).
+pub fn track(on: bool) {
+    TRACKING.store(on, Ordering::Relaxed);
+    if !on {
         LATEST_ID.store(0, Ordering::Relaxed);
     }
 }
@@ -97,6 +116,11 @@ mod tests {
 
     #[test]
     fn a_call_is_named_while_it_runs_and_forgotten_after() {
+        {
+            let _untracked = Call::enter(7, &"fmi2DoStep");
+            assert_eq!(latest(), None, "tracking is off by default");
+        }
+        track(true);
         let id = register("FMU 'M', instance 'm'".into());
         {
             let _c = Call::enter(id, &"fmi2DoStep");

@@ -85,6 +85,7 @@ pub fn arm(partial: &Path) -> Armed {
         atexit(on_exit);
     });
     IN_PROGRESS.store(true, Ordering::SeqCst);
+    inflight::track(true);
     Armed { watchdog: None }
 }
 
@@ -121,6 +122,7 @@ impl Armed {
 impl Drop for Armed {
     fn drop(&mut self) {
         IN_PROGRESS.store(false, Ordering::SeqCst);
+        inflight::track(false);
         if let Some((tx, thread)) = self.watchdog.take() {
             drop(tx);
             let _ = thread.join();
