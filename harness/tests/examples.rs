@@ -133,9 +133,11 @@ impl Emulator {
             .spawn()
             .unwrap();
         let mut first = String::new();
-        std::io::BufReader::new(child.stderr.take().unwrap())
-            .read_line(&mut first)
-            .unwrap();
+        let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+        stderr.read_line(&mut first).unwrap();
+        // Keep reading what it logs: with the pipe closed, its next line (a refused frame, say)
+        // would end it by SIGPIPE in the middle of the example.
+        std::thread::spawn(move || std::io::copy(&mut stderr, &mut std::io::sink()));
         let address = first
             .trim()
             .strip_prefix("kneebench emulate: serving the bench protocol on ")

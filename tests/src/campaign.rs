@@ -742,6 +742,30 @@ const DRIVE: Command = Command {
     load_kind: SetValueKind::Current,
 };
 
+/// A session opened by hand with the bench's key (the SEA setup, both drivers in current
+/// mode) on a fresh socket connected to `server`, whose receives wait up to 200 ms: for tests
+/// that speak the protocol frame by frame.
+pub fn hand_session(server: std::net::SocketAddr, key: &Key) -> (UdpSocket, Session) {
+    let socket = UdpSocket::bind("127.0.0.1:0").expect("bind");
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("read timeout");
+    socket.connect(server).expect("connect");
+    let setup = BenchSetup {
+        configuration: 1,
+        test_kind: SetValueKind::Current,
+        load_kind: SetValueKind::Current,
+    };
+    let mut hs = ClientHandshake::new(key, setup).expect("handshake");
+    socket.send(hs.hello()).expect("hello");
+    let mut buf = [0u8; 256];
+    let n = socket.recv(&mut buf).expect("the server's answer to hello");
+    let HandshakeReply::Welcome(session) = hs.receive(&buf[..n]).expect("a valid answer") else {
+        panic!("the session was refused");
+    };
+    (socket, *session)
+}
+
 /// A master speaking the protocol by hand.
 struct RawMaster {
     socket: UdpSocket,

@@ -12,9 +12,7 @@
 use std::net::UdpSocket;
 use std::time::{Duration, Instant};
 
-use kneebench_harness::bench_protocol::{
-    BenchSetup, ClientHandshake, Command, HandshakeReply, Payload, Sender, SetValueKind, reason,
-};
+use kneebench_harness::bench_protocol::{Command, Payload, Sender, SetValueKind, reason};
 use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_tests::campaign::{self, Bench, Case, Expected, Fault, Observation};
 use kneebench_tests::*;
@@ -197,24 +195,8 @@ fn forged_and_replayed_frames_do_not_keep_the_watchdog_alive() {
     config.heartbeat_timeout = timeout;
     config.log_rejections = false;
     let emu = spawn(config).unwrap();
-    let master = UdpSocket::bind("127.0.0.1:0").unwrap();
-    master
-        .set_read_timeout(Some(Duration::from_millis(200)))
-        .unwrap();
-    master.connect(emu.addr()).unwrap();
-    let setup = BenchSetup {
-        configuration: 1,
-        test_kind: SetValueKind::Current,
-        load_kind: SetValueKind::Current,
-    };
-    let mut hs = ClientHandshake::new(&bench_key_file().2, setup).unwrap();
-    master.send(hs.hello()).unwrap();
+    let (master, mut session) = campaign::hand_session(emu.addr(), &bench_key_file().2);
     let mut buf = [0u8; 256];
-    let n = master.recv(&mut buf).unwrap();
-    let HandshakeReply::Welcome(session) = hs.receive(&buf[..n]).unwrap() else {
-        panic!("refused");
-    };
-    let mut session = *session;
     let drive = Command {
         test_set_value: 1.0,
         load_set_value: 0.0,
@@ -302,24 +284,8 @@ fn a_server_that_refuses_fault_frames_counts_them_and_changes_nothing() {
         config.refuse_fault_frames = refuse;
         config.log_rejections = false;
         let emu = spawn(config).unwrap();
-        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-        socket
-            .set_read_timeout(Some(Duration::from_millis(200)))
-            .unwrap();
-        socket.connect(emu.addr()).unwrap();
-        let setup = BenchSetup {
-            configuration: 1,
-            test_kind: SetValueKind::Current,
-            load_kind: SetValueKind::Current,
-        };
-        let mut hs = ClientHandshake::new(&bench_key_file().2, setup).unwrap();
-        socket.send(hs.hello()).unwrap();
+        let (socket, mut session) = campaign::hand_session(emu.addr(), &bench_key_file().2);
         let mut buf = [0u8; 256];
-        let n = socket.recv(&mut buf).unwrap();
-        let HandshakeReply::Welcome(session) = hs.receive(&buf[..n]).unwrap() else {
-            panic!("refused");
-        };
-        let mut session = *session;
         let (_, fault) = session.tx.frame(Payload::FaultInject(
             kneebench_harness::bench_protocol::FaultInjection::DriverFault { driver: 0 },
         ));

@@ -17,6 +17,7 @@
 //! Both end with `_exit`, so nothing else runs: the extraction directories left behind are
 //! removed when `kneebench` next starts (`tempdirs::remove_stale`).
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{RecvTimeoutError, Sender};
@@ -60,7 +61,9 @@ extern "C" fn on_exit() {
     }
     let call = inflight::latest()
         .unwrap_or_else(|| "no FMU call (from a thread of its own, or while loading)".into());
-    eprintln!(
+    // Not eprintln!: it panics if stderr is gone, and a panic here (an extern "C" fn) aborts.
+    let _ = writeln!(
+        std::io::stderr(),
         "error: an FMU called exit() during {call}; the run did not finish; {}",
         where_rows_are()
     );
@@ -103,7 +106,10 @@ impl Armed {
                 }
                 let call =
                     inflight::latest().unwrap_or_else(|| "an FMU call (on another thread)".into());
-                eprintln!(
+                // Not eprintln!: a panic on a closed stderr would end this thread, not the
+                // stuck process.
+                let _ = writeln!(
+                    std::io::stderr(),
                     "error: --timeout ({} s) passed {} s ago and {call} has not returned \
                      (a call in kneebench's process cannot be interrupted; --isolate always \
                      can); ending the process; {}",

@@ -367,13 +367,19 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     }
     file.set_metadata(meta);
     let started = std::time::Instant::now();
-    if let Some(timeout) = a.timeout {
+    // The last-resort watchdog is for calls in this process: an isolated FMU's hung call is
+    // ended by its host's own call timeout, with the right message.
+    if let Some(timeout) = a.timeout
+        && system.components().any(|(_, fmu)| !fmu.is_isolated())
+    {
         armed
             .watch(timeout)
             .context("starting the --timeout watchdog")?;
     }
     let mut sink = Tee(file, RunningSummary::new());
     let summary = system.run_into(&config, &mut sink);
+    // Unloaded while still armed: an FMU whose unloading calls exit() is reported too.
+    drop(system);
     drop(armed);
     let summary = summary?;
     if let Some(pb) = bar {
