@@ -105,9 +105,11 @@ fn link_faults_trip_within_one_period_or_are_absorbed() {
             assert!(refused >= 1, "{}: no copy refused: {obs:?}", case.name);
         }
         if case.name == "link cut" {
-            // The server's own watchdog made the bench safe, in time.
+            // The server's own watchdog made the bench safe: not before its 50 periods, and
+            // soon after (up to 250 periods: a descheduled emulator on a loaded machine; the
+            // benchmark's table gives the latencies measured).
             let w = obs.watchdog_periods.expect("the watchdog latched");
-            assert!((50..=100).contains(&w), "watchdog after {w} periods");
+            assert!((50..=250).contains(&w), "watchdog after {w} periods");
         }
     }
 }
@@ -232,7 +234,7 @@ fn forged_and_replayed_frames_do_not_keep_the_watchdog_alive() {
     under_wrong.sequence = session.tx.sequence;
     let start = Instant::now();
     let mut sent = 0u64;
-    while start.elapsed() < timeout * 4 {
+    while start.elapsed() < timeout * 8 {
         let mut forged = vec![captured[sent as usize % captured.len()].clone()];
         forged.push(under_handshake.frame(Payload::Heartbeat).1);
         forged.push(under_wrong.frame(Payload::Command(drive)).1);
@@ -254,12 +256,13 @@ fn forged_and_replayed_frames_do_not_keep_the_watchdog_alive() {
     assert!(sent > 100, "{sent}");
     assert_eq!(s.safe_reason, Some(reason::HEARTBEAT_TIMEOUT), "{s:?}");
     assert!(!s.outputs.is_some_and(|c| c.drives()), "{s:?}");
-    // Fired at the timeout after the master's last valid frame, not later: the forged frames
-    // did not feed it (generous slack for a loaded machine; the timing itself is tested in
-    // bench_link.rs).
+    // Fired at the timeout after the master's last valid frame, while the forger was still
+    // sending: had the forged frames fed it, it would have fired no earlier than 9 timeouts
+    // after that frame (8 of forging, then its own). Below 6 leaves a descheduled emulator on
+    // a loaded machine 150 ms of slack; the timing itself is tested in bench_link.rs.
     let delay = s.latched_at.unwrap() - s.last_valid_time;
     assert!(
-        delay >= timeout.as_secs_f64() && delay < timeout.as_secs_f64() * 2.5,
+        delay >= timeout.as_secs_f64() && delay < timeout.as_secs_f64() * 6.0,
         "the watchdog fired {delay} s after the last valid frame"
     );
     // Every forged frame was refused and counted; none was applied.
