@@ -4,6 +4,7 @@ processes) against the local one."""
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 from pathlib import Path
 
@@ -26,6 +27,36 @@ def assert_bit_identical(a: pd.DataFrame, b: pd.DataFrame) -> None:
             assert np.array_equal(x.view(np.int64), y.view(np.int64)), c
         else:
             assert list(x) == list(y), c
+
+@contextlib.contextmanager
+def a_worker_killed_while_busy(client):
+    """Kills (SIGKILL) the first of the client's workers as soon as it runs a task, while the
+    body runs (which gets the worker's address); asserts afterwards that it was killed."""
+    import os
+    import signal
+    import threading
+    import time
+
+    victim = sorted(client.scheduler_info()["workers"])[0]
+    pid = client.run(os.getpid)[victim]
+    killed = threading.Event()
+
+    def kill_when_busy() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if client.processing().get(victim):
+                os.kill(pid, signal.SIGKILL)
+                killed.set()
+                return
+            time.sleep(0.005)
+
+    killer = threading.Thread(target=kill_when_busy)
+    killer.start()
+    try:
+        yield victim
+    finally:
+        killer.join()
+    assert killed.is_set(), "the worker was not killed during the sweep"
 
 
 def test_run_returns_float64_columns_with_units_equal_to_the_cli(fmus: Path, tmp_path: Path):
@@ -128,10 +159,6 @@ def test_sweep_on_a_dask_cluster_equals_the_local_table(sweep_spec):
 
 def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
     distributed = pytest.importorskip("distributed")
-    import os
-    import signal
-    import threading
-    import time
 
     # 40 gait cycles per run (100 s simulated, tens of milliseconds each), one point per
     # batch: the sweep lasts long enough to kill a worker while it runs a batch.
@@ -140,24 +167,8 @@ def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster, distributed.Client(cluster) as client:
-        victim = sorted(client.scheduler_info()["workers"])[0]
-        pid = client.run(os.getpid)[victim]
-        killed = threading.Event()
-
-        def kill_when_busy() -> None:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                if client.processing().get(victim):
-                    os.kill(pid, signal.SIGKILL)
-                    killed.set()
-                    return
-                time.sleep(0.005)
-
-        killer = threading.Thread(target=kill_when_busy)
-        killer.start()
-        table = kneebench.sweep(spec, client=client, batch_size=1)
-        killer.join()
-        assert killed.is_set(), "the worker was not killed during the sweep"
+        with a_worker_killed_while_busy(client) as victim:
+            table = kneebench.sweep(spec, client=client, batch_size=1)
         assert victim not in client.scheduler_info()["workers"]
     assert_bit_identical(local, table)
 
@@ -214,35 +225,16 @@ def test_points_that_never_come_back_are_named(sweep_spec):
     batch never comes back, and the error names its points."""
     distributed = pytest.importorskip("distributed")
     import dask
-    import os
     import re
-    import signal
-    import threading
-    import time
 
     spec = sweep_spec(12, cycles=40)
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}), distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster, distributed.Client(cluster) as client:
-        victim = sorted(client.scheduler_info()["workers"])[0]
-        pid = client.run(os.getpid)[victim]
-        killed = threading.Event()
-
-        def kill_when_busy() -> None:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                if client.processing().get(victim):
-                    os.kill(pid, signal.SIGKILL)
-                    killed.set()
-                    return
-                time.sleep(0.005)
-
-        killer = threading.Thread(target=kill_when_busy)
-        killer.start()
-        with pytest.raises(kneebench.KneebenchError, match=r"points without a row: \[") as e:
+        with a_worker_killed_while_busy(client), pytest.raises(
+            kneebench.KneebenchError, match=r"points without a row: \["
+        ) as e:
             kneebench.sweep(spec, client=client, batch_size=3, retries=0)
-        killer.join()
-        assert killed.is_set(), "the worker was not killed during the sweep"
     named = [int(x) for x in re.search(r"\[([0-9, ]+)\]", str(e.value)).group(1).split(",")]
     # Whole batches of three, each named once, and not all of them (the other worker's rows
     # came back).

@@ -526,3 +526,39 @@ pub fn bench_key_file() -> &'static (
         (dir, path, key)
     })
 }
+
+/// `BenchHardware` (backend Udp, soft pacing, no tare, a 20 ms reply timeout generous for a
+/// loaded test machine, real-time priority 50 where permitted) as an experiment bench, talking
+/// to a fresh emulator of `BenchPlant` with `plant_params`; the emulator stops when its handle
+/// is dropped.
+pub fn hardware_bench_over_emulator(
+    plant_params: Vec<(String, String)>,
+) -> (
+    kneebench_harness::emulator::EmulatorHandle,
+    kneebench_harness::experiment::Bench,
+) {
+    use kneebench_harness::emulator::{EmulatorConfig, spawn};
+    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
+    config.parameters = plant_params;
+    config.realtime_priority = Some(50);
+    let emu = spawn(config).expect("emulator");
+    let params = [
+        ("backend", "1".to_string()),
+        ("pacing", "1".to_string()),
+        ("serverAddress", emu.addr().to_string()),
+        ("tareSamples", "0".to_string()),
+        // Generous for a loaded test machine (the watchdog is tested in hardware.rs).
+        ("replyTimeout", "0.02".to_string()),
+        ("realtimePriority", "50".to_string()),
+    ];
+    let bench = kneebench_harness::experiment::Bench::load(
+        &exported_fmu("BenchHardware"),
+        params
+            .iter()
+            .map(|(n, v)| (n.to_string(), v.clone()))
+            .collect(),
+        None,
+    )
+    .expect("BenchHardware as an experiment bench");
+    (emu, bench)
+}

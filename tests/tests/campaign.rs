@@ -12,7 +12,9 @@
 use std::net::UdpSocket;
 use std::time::{Duration, Instant};
 
-use kneebench_harness::bench_protocol::{Command, Payload, Sender, SetValueKind, reason};
+use kneebench_harness::bench_protocol::{
+    Command, FaultInjection, Payload, Sender, SetValueKind, reason,
+};
 use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_tests::campaign::{self, Bench, Case, Expected, Fault, Observation};
 use kneebench_tests::*;
@@ -88,12 +90,12 @@ fn link_faults_trip_within_one_period_or_are_absorbed() {
         matches!(
             c.fault,
             Fault::Inject(
-                kneebench_harness::bench_protocol::FaultInjection::DropReplies { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::DelayReplies { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Duplicate { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Reorder { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Corrupt { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Silence
+                FaultInjection::DropReplies { .. }
+                    | FaultInjection::DelayReplies { .. }
+                    | FaultInjection::Duplicate { .. }
+                    | FaultInjection::Reorder { .. }
+                    | FaultInjection::Corrupt { .. }
+                    | FaultInjection::Silence
             )
         )
     }) {
@@ -123,10 +125,10 @@ fn sensor_faults_trip_with_their_code_or_are_documented_as_undetectable() {
         matches!(
             c.fault,
             Fault::Inject(
-                kneebench_harness::bench_protocol::FaultInjection::Stuck { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Force { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Noise { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::Offset { .. }
+                FaultInjection::Stuck { .. }
+                    | FaultInjection::Force { .. }
+                    | FaultInjection::Noise { .. }
+                    | FaultInjection::Offset { .. }
             )
         )
     }) {
@@ -142,10 +144,7 @@ fn driver_fault_and_supply_drop_stop_the_bench() {
     for case in cases_named(|c| {
         matches!(
             c.fault,
-            Fault::Inject(
-                kneebench_harness::bench_protocol::FaultInjection::DriverFault { .. }
-                    | kneebench_harness::bench_protocol::FaultInjection::SupplyDrop { .. }
-            )
+            Fault::Inject(FaultInjection::DriverFault { .. } | FaultInjection::SupplyDrop { .. })
         )
     }) {
         assert_case(&bench, &case);
@@ -289,9 +288,11 @@ fn a_server_that_refuses_fault_frames_counts_them_and_changes_nothing() {
         let emu = spawn(config).unwrap();
         let (socket, mut session) = campaign::hand_session(emu.addr(), &bench_key_file().2);
         let mut buf = [0u8; 256];
-        let (_, fault) = session.tx.frame(Payload::FaultInject(
-            kneebench_harness::bench_protocol::FaultInjection::DriverFault { driver: 0 },
-        ));
+        let (_, fault) = session
+            .tx
+            .frame(Payload::FaultInject(FaultInjection::DriverFault {
+                driver: 0,
+            }));
         socket.send(&fault).unwrap();
         let (_, hb) = session.tx.frame(Payload::Heartbeat);
         socket.send(&hb).unwrap();

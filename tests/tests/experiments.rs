@@ -9,7 +9,6 @@
 
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
-use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_harness::experiment::{
     Bench, ExperimentError, RunEnd, bode, calibration, map, step, triangle,
 };
@@ -346,28 +345,7 @@ fn step_identifies_damping_and_inertia_and_measures_the_position_step() {
 #[test]
 fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
     let _rt = real_time();
-    let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
-    config.parameters = vec![("frictionModel".into(), "0".into())];
-    config.realtime_priority = Some(50);
-    let emu = spawn(config).expect("emulator");
-    let params = [
-        ("backend", "1".to_string()),
-        ("pacing", "1".to_string()),
-        ("serverAddress", emu.addr().to_string()),
-        ("tareSamples", "0".to_string()),
-        // Generous for a loaded test machine (the watchdog is tested in hardware.rs).
-        ("replyTimeout", "0.02".to_string()),
-        ("realtimePriority", "50".to_string()),
-    ];
-    let bench = Bench::load(
-        &exported_fmu("BenchHardware"),
-        params
-            .iter()
-            .map(|(n, v)| (n.to_string(), v.clone()))
-            .collect(),
-        None,
-    )
-    .unwrap();
+    let (_emu, bench) = hardware_bench_over_emulator(vec![("frictionModel".into(), "0".into())]);
     let out = tempfile::tempdir().unwrap();
     let step_config = step::StepConfig {
         duration: 0.8,
@@ -393,31 +371,12 @@ fn over_emulator<T>(
     mut experiment: impl FnMut(&Bench, &std::path::Path) -> Result<(T, Option<String>), String>,
 ) -> T {
     for attempt in 1..=3 {
-        let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
-        config.parameters = plant_params
-            .iter()
-            .map(|(n, v)| (n.to_string(), v.to_string()))
-            .collect();
-        config.realtime_priority = Some(50);
-        let emu = spawn(config).expect("emulator");
-        let params = [
-            ("backend", "1".to_string()),
-            ("pacing", "1".to_string()),
-            ("serverAddress", emu.addr().to_string()),
-            ("tareSamples", "0".to_string()),
-            // Generous for a loaded test machine (the watchdog is tested in hardware.rs).
-            ("replyTimeout", "0.02".to_string()),
-            ("realtimePriority", "50".to_string()),
-        ];
-        let bench = Bench::load(
-            &exported_fmu("BenchHardware"),
-            params
+        let (emu, bench) = hardware_bench_over_emulator(
+            plant_params
                 .iter()
-                .map(|(n, v)| (n.to_string(), v.clone()))
+                .map(|(n, v)| (n.to_string(), v.to_string()))
                 .collect(),
-            None,
-        )
-        .unwrap();
+        );
         let out = tempfile::tempdir().unwrap();
         let outcome = experiment(&bench, out.path());
         drop(emu);

@@ -28,6 +28,25 @@ fn plant_path() -> PathBuf {
     fmus().join("BenchPlant.fmu")
 }
 
+/// The identification tests' shortened Bode sweep of `input`: from 0.4 Hz, doubling, `stages`
+/// stages of `dwell` seconds.
+fn short_sweep(
+    input: bode::SweepInput,
+    amplitude: f64,
+    dwell: f64,
+    stages: u32,
+) -> bode::BodeConfig {
+    bode::BodeConfig {
+        input,
+        amplitude,
+        start_frequency: 0.4,
+        ratio: 2.0,
+        dwell,
+        stages,
+        ..bode::BodeConfig::default()
+    }
+}
+
 /// The perturbed bench: Coulomb friction +30 % on both sides, spring -10 %, inertias +20 %.
 const TRUTH: [(&str, f64); 7] = [
     ("actuationStaticFriction", 5.0 * 1.3),
@@ -122,20 +141,7 @@ fn perturbed_logs() -> &'static Vec<PathBuf> {
         .enumerate()
         {
             let out = dir.join(format!("run{k}"));
-            let r = bode::run_bode(
-                &bench,
-                &bode::BodeConfig {
-                    input,
-                    amplitude,
-                    start_frequency: 0.4,
-                    ratio: 2.0,
-                    dwell: 6.0,
-                    stages: 4,
-                    ..bode::BodeConfig::default()
-                },
-                &out,
-            )
-            .unwrap();
+            let r = bode::run_bode(&bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
             assert_eq!(r.end, RunEnd::Completed);
             let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
             let path = dir.join(format!("bode-{k}.csv"));
@@ -356,7 +362,7 @@ fn bad_logs_are_refused_with_the_file_and_line() {
 /// jitter is part of what the identification must tolerate here.
 #[test]
 fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() {
-    use kneebench_harness::emulator::{EmulatorConfig, spawn};
+    use kneebench_tests::hardware_bench_over_emulator;
     let _real_time = kneebench_tests::one_real_time_test_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let mut logs = Vec::new();
@@ -367,46 +373,14 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
     .into_iter()
     .enumerate()
     {
-        let mut config = EmulatorConfig::new("127.0.0.1:0", plant_path());
-        config.parameters = TRUTH
-            .iter()
-            .map(|(n, v)| (n.to_string(), format!("{v:?}")))
-            .collect();
-        config.realtime_priority = Some(50);
-        let emu = spawn(config).expect("emulator");
-        let params = [
-            ("backend", "1".to_string()),
-            ("pacing", "1".to_string()),
-            ("serverAddress", emu.addr().to_string()),
-            ("tareSamples", "0".to_string()),
-            // Generous for a loaded test machine (the watchdog is tested in hardware.rs).
-            ("replyTimeout", "0.02".to_string()),
-            ("realtimePriority", "50".to_string()),
-        ];
-        let bench = Bench::load(
-            &fmus().join("BenchHardware.fmu"),
-            params
+        let (emu, bench) = hardware_bench_over_emulator(
+            TRUTH
                 .iter()
-                .map(|(n, v)| (n.to_string(), v.clone()))
+                .map(|(n, v)| (n.to_string(), format!("{v:?}")))
                 .collect(),
-            None,
-        )
-        .unwrap();
+        );
         let out = dir.path().join(format!("run{k}"));
-        let r = bode::run_bode(
-            &bench,
-            &bode::BodeConfig {
-                input,
-                amplitude,
-                start_frequency: 0.4,
-                ratio: 2.0,
-                dwell: 3.0,
-                stages: 3,
-                ..bode::BodeConfig::default()
-            },
-            &out,
-        )
-        .unwrap();
+        let r = bode::run_bode(&bench, &short_sweep(input, amplitude, 3.0, 3), &out).unwrap();
         assert_eq!(r.end, RunEnd::Completed);
         emu.stop().unwrap();
         let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
@@ -561,20 +535,7 @@ fn the_exponential_friction_law_is_identified_from_map_and_bode_logs() {
     .enumerate()
     {
         let out = dir.path().join(format!("run{k}"));
-        bode::run_bode(
-            &bench,
-            &bode::BodeConfig {
-                input,
-                amplitude,
-                start_frequency: 0.4,
-                ratio: 2.0,
-                dwell: 6.0,
-                stages: 4,
-                ..bode::BodeConfig::default()
-            },
-            &out,
-        )
-        .unwrap();
+        bode::run_bode(&bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
         let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
         let path = dir.path().join(format!("bode-{k}.csv"));
         noisy_log(&run, &path, k as u64 + 31, 0.0);
