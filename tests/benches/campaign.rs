@@ -18,10 +18,7 @@
 
 use std::collections::BTreeMap;
 
-use kneebench_harness::bench_protocol::Key;
-use kneebench_harness::package::export_all;
 use kneebench_tests::campaign::{self, Bench, Expected, Fault};
-use kneebench_tests::fmu_library;
 
 fn median(v: &mut [u64]) -> Option<u64> {
     v.sort_unstable();
@@ -70,23 +67,7 @@ fn main() {
         .unwrap_or(10);
     let filter = std::env::var("KNEEBENCH_CAMPAIGN_CASES").unwrap_or_default();
     let dir = tempfile::tempdir().unwrap();
-    let fmus = export_all(&fmu_library(), dir.path()).expect("export");
-    let path = |id: &str| {
-        fmus.iter()
-            .find(|f| f.identifier == id)
-            .unwrap()
-            .path
-            .clone()
-    };
-    let key_file = dir.path().join("bench.key");
-    let key = Key::create_file(&key_file).unwrap();
-    let bench = Bench {
-        plant: path("BenchPlant"),
-        hardware: path("BenchHardware"),
-        key_file,
-        key,
-        dir: dir.path().to_path_buf(),
-    };
+    let bench = Bench::in_dir(dir.path());
     let exe = std::env::current_exe().unwrap();
     let child = move || std::process::Command::new(&exe);
     println!(

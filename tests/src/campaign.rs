@@ -531,6 +531,21 @@ pub struct Bench {
     pub dir: PathBuf,
 }
 
+impl Bench {
+    /// The suite's exported FMUs and bench key ([`crate::exported_fmu`],
+    /// [`crate::bench_key_file`]), with `dir` as the scratch directory.
+    pub fn in_dir(dir: &Path) -> Bench {
+        let (_, key_file, key) = crate::bench_key_file();
+        Bench {
+            plant: crate::exported_fmu("BenchPlant"),
+            hardware: crate::exported_fmu("BenchHardware"),
+            key_file: key_file.clone(),
+            key: key.clone(),
+            dir: dir.to_path_buf(),
+        }
+    }
+}
+
 fn emulator_config(bench: &Bench, case: &Case, bind: &str, state: &Path) -> EmulatorConfig {
     let mut config = EmulatorConfig::new(bind, &bench.plant);
     config.key = Some(bench.key.clone());

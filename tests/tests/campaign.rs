@@ -20,14 +20,7 @@ use kneebench_tests::campaign::{self, Bench, Case, Expected, Fault, Observation}
 use kneebench_tests::*;
 
 fn bench(dir: &std::path::Path) -> Bench {
-    let (_, key_file, key) = bench_key_file();
-    Bench {
-        plant: exported_fmu("BenchPlant"),
-        hardware: exported_fmu("BenchHardware"),
-        key_file: key_file.clone(),
-        key: key.clone(),
-        dir: dir.to_path_buf(),
-    }
+    Bench::in_dir(dir)
 }
 
 /// This test binary as the master process of the SIGKILL case: it runs only
