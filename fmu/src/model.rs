@@ -7,6 +7,24 @@
 //!
 //! A model knows nothing of C: it implements [`Model`] and returns its [`Variable`] table; the
 //! generic glue in [`crate::fmi2`] does the rest.
+//!
+//! # Modes are Integers
+//!
+//! A model declares its modes (the plant's `configuration`, a friction law, a driver mode, a
+//! controller's anti-windup scheme, ...) as enumerations ([`Model::enumerations`],
+//! [`Variable::enumeration`]): named items, with the FMU refusing a value that is no item. The
+//! model description types them as FMI `Integer`, not `Enumeration`, for every model alike:
+//! libcosim (libcosimpy, and the tools built on it) ignores FMI 2.0 `Enumeration` variables
+//! entirely, so an SSP binding to one fails ("No such variable: plant:configuration") and a
+//! study's DA would silently run the plant's default SEA; every importer handles `Integer`.
+//! Each enumeration type becomes an `Integer` `SimpleType` of the same name, bounded by its
+//! smallest and largest item and naming every item in its description
+//! (`0 = DA, 1 = SEA, 2 = CSEA`); each mode variable is an `Integer` of that `declaredType`,
+//! with the same bounds and the item list after its own description; the items themselves
+//! (name, value, description) go into the [`md::items::ITEMS_TOOL`] vendor annotation, from
+//! which kneebench (`--param plant.configuration=DA`, `kneebench info`) and the parameter-set
+//! checks read them, and the documentation page lists them. FMI 2.0 offers no way to keep the
+//! `Enumeration` and add an `Integer` view of it: an alias set may hold at most one parameter.
 
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
@@ -205,6 +223,7 @@ pub trait Model: Default + Clone + Send + 'static {
     fn variables() -> &'static [Variable<Self>];
 
     /// Enumeration types used by the variables (name, items as (name, value, description)).
+    /// The model description types them as `Integer` (module docs, "Modes are Integers").
     fn enumerations() -> &'static [EnumerationType] {
         &[]
     }
@@ -253,7 +272,9 @@ pub trait Model: Default + Clone + Send + 'static {
     fn documentation() -> &'static str;
 }
 
-/// An enumeration type shared by variables (a `SimpleType` with `Enumeration`).
+/// An enumeration type shared by mode variables: in the model description an `Integer`
+/// `SimpleType` with the items in its description and in a vendor annotation (module docs,
+/// "Modes are Integers").
 #[derive(Debug, Clone, Copy)]
 pub struct EnumerationType {
     /// The type's name (`declaredType` of its variables).
@@ -270,7 +291,8 @@ pub enum Access<M> {
     Real(fn(&M) -> f64, fn(&mut M, f64)),
     /// An `Integer`.
     Integer(fn(&M) -> i32, fn(&mut M, i32)),
-    /// An `Enumeration` (stored as an integer; the type is named in [`Variable::declared_type`]).
+    /// A mode of an enumeration type (stored as an integer; the type is named in
+    /// [`Variable::declared_type`]; an `Integer` in the model description).
     Enumeration(fn(&M) -> i32, fn(&mut M, i32)),
     /// A `Boolean`.
     Boolean(fn(&M) -> bool, fn(&mut M, bool)),
@@ -354,7 +376,9 @@ impl<M> Variable<M> {
     pub fn integer(name: &'static str, vr: u32, get: fn(&M) -> i32, set: fn(&mut M, i32)) -> Self {
         Self::new(name, vr, Access::Integer(get, set))
     }
-    /// An `Enumeration` variable of type `declared_type`.
+    /// A mode: a variable of enumeration type `declared_type` (one of [`Model::enumerations`]),
+    /// which the FMU refuses to set to a value that is no item. The model description declares
+    /// it as an `Integer` (module docs, "Modes are Integers").
     pub fn enumeration(
         name: &'static str,
         vr: u32,
@@ -605,6 +629,45 @@ fn start_attr_real(start: &Start) -> Option<f64> {
     }
 }
 
+/// The enumeration type of a mode variable (declared with [`Variable::enumeration`]).
+fn enumeration_of<M: Model>(v: &Variable<M>) -> &'static EnumerationType {
+    let name = v.declared_type.unwrap_or_default();
+    M::enumerations()
+        .iter()
+        .find(|e| e.name == name)
+        .unwrap_or_else(|| {
+            panic!(
+                "{}: {} has no enumeration type {name}",
+                M::IDENTIFIER,
+                v.name
+            )
+        })
+}
+
+/// The Integer bounds of a mode type: its smallest and largest item.
+fn item_bounds(e: &EnumerationType) -> md::IntegerAttributes {
+    md::IntegerAttributes {
+        quantity: None,
+        min: e.items.iter().map(|i| i.1).min(),
+        max: e.items.iter().map(|i| i.1).max(),
+    }
+}
+
+/// `description` followed by the items' values and names: `Friction law (0 = Off, 1 = ...)`.
+fn with_item_list(description: &str, e: &EnumerationType) -> String {
+    let list = e
+        .items
+        .iter()
+        .map(|(n, v, _)| format!("{v} = {n}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    if description.is_empty() {
+        list
+    } else {
+        format!("{description} ({list})")
+    }
+}
+
 fn description_without_guid<M: Model>() -> md::ModelDescription {
     let vars = M::variables();
     let index_of = |name: &str| -> u32 {
@@ -646,16 +709,18 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
                     _ => None,
                 },
             },
-            Access::Enumeration(..) => md::VariableKind::Enumeration {
-                declared_type: v.declared_type.unwrap_or_default().to_string(),
-                quantity: None,
-                min: None,
-                max: None,
-                start: match v.start {
-                    Start::Integer(i) => Some(i),
-                    _ => None,
-                },
-            },
+            // A mode: an Integer of its Integer type (module docs, "Modes are Integers").
+            Access::Enumeration(..) => {
+                let e = enumeration_of::<M>(v);
+                md::VariableKind::Integer {
+                    declared_type: Some(e.name.to_string()),
+                    attributes: item_bounds(e),
+                    start: match v.start {
+                        Start::Integer(i) => Some(i),
+                        _ => None,
+                    },
+                }
+            }
             Access::Boolean(..) => md::VariableKind::Boolean {
                 declared_type: None,
                 start: match v.start {
@@ -671,10 +736,14 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
                 },
             },
         };
+        let description = match &v.access {
+            Access::Enumeration(..) => Some(with_item_list(v.description, enumeration_of::<M>(v))),
+            _ => (!v.description.is_empty()).then(|| v.description.to_string()),
+        };
         model_variables.push(md::ScalarVariable {
             name: v.name.to_string(),
             value_reference: v.value_reference,
-            description: (!v.description.is_empty()).then(|| v.description.to_string()),
+            description,
             causality: Some(v.causality),
             variability: Some(v.variability),
             initial: v.initial,
@@ -771,19 +840,8 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
             .iter()
             .map(|e| md::SimpleType {
                 name: e.name.into(),
-                description: Some(e.description.into()),
-                kind: md::SimpleTypeKind::Enumeration {
-                    quantity: None,
-                    items: e
-                        .items
-                        .iter()
-                        .map(|(n, v, d)| md::EnumerationItem {
-                            name: (*n).into(),
-                            value: *v,
-                            description: Some((*d).into()),
-                        })
-                        .collect(),
-                },
+                description: Some(with_item_list(e.description, e)),
+                kind: md::SimpleTypeKind::Integer(item_bounds(e)),
             })
             .collect(),
         log_categories: LOG_CATEGORIES
@@ -799,7 +857,27 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
             tolerance: None,
             step_size: Some(step),
         }),
-        vendor_annotations: Vec::new(),
+        vendor_annotations: if M::enumerations().is_empty() {
+            Vec::new()
+        } else {
+            vec![md::items::items_annotation(
+                &M::enumerations()
+                    .iter()
+                    .map(|e| md::IntegerItems {
+                        type_name: e.name.into(),
+                        items: e
+                            .items
+                            .iter()
+                            .map(|(n, v, d)| md::EnumerationItem {
+                                name: (*n).into(),
+                                value: *v,
+                                description: Some((*d).into()),
+                            })
+                            .collect(),
+                    })
+                    .collect::<Vec<_>>(),
+            )]
+        },
         model_variables,
         model_structure: md::ModelStructure {
             outputs,
@@ -848,7 +926,10 @@ pub fn documentation_html<M: Model>() -> String {
             v.value_reference,
             v.causality,
             v.variability,
-            v.declared_type.unwrap_or(v.type_name()),
+            match v.declared_type {
+                Some(t) => format!("Integer ({t})"),
+                None => v.type_name().to_string(),
+            },
             start,
             v.unit.unwrap_or(""),
             range,
@@ -856,6 +937,16 @@ pub fn documentation_html<M: Model>() -> String {
         );
     }
     html.push_str("</table>\n");
+    if !M::enumerations().is_empty() {
+        html.push_str(
+            "<h2>Modes</h2>\n<p>Each mode is an FMI <code>Integer</code> parameter of the type \
+             named in the table, which takes the values of its items below (anything else is \
+             refused). They are Integers, not Enumerations, because libcosim and other importers \
+             ignore FMI 2.0 Enumeration variables: a tool without Enumeration support can still \
+             set them, by value. kneebench also takes an item's name \
+             (<code>--param plant.configuration=DA</code>).</p>\n",
+        );
+    }
     for e in M::enumerations() {
         let _ = writeln!(
             html,
@@ -1042,6 +1133,102 @@ mod tests {
                 entry.identifier
             );
         }
+    }
+
+    #[test]
+    fn every_mode_is_an_integer_with_its_items_named() {
+        fn check<M: Model>() -> usize {
+            let d = model_description::<M>();
+            assert!(
+                d.model_variables
+                    .iter()
+                    .all(|v| !matches!(v.kind, md::VariableKind::Enumeration { .. })),
+                "{}: an Enumeration variable",
+                M::IDENTIFIER
+            );
+            assert!(
+                d.type_definitions
+                    .iter()
+                    .all(|t| !matches!(t.kind, md::SimpleTypeKind::Enumeration { .. })),
+                "{}: an Enumeration type",
+                M::IDENTIFIER
+            );
+            let mut modes = 0;
+            for v in M::variables() {
+                let Access::Enumeration(..) = v.access else {
+                    continue;
+                };
+                modes += 1;
+                let e = M::enumerations()
+                    .iter()
+                    .find(|e| Some(e.name) == v.declared_type)
+                    .unwrap();
+                let var = d.variable_by_name(v.name).unwrap();
+                let md::VariableKind::Integer {
+                    declared_type,
+                    attributes,
+                    ..
+                } = &var.kind
+                else {
+                    panic!("{}.{} is not an Integer", M::IDENTIFIER, v.name);
+                };
+                assert_eq!(declared_type.as_deref(), Some(e.name));
+                let mut values: Vec<i32> = e.items.iter().map(|i| i.1).collect();
+                assert_eq!(attributes.min, values.iter().copied().min());
+                assert_eq!(attributes.max, values.iter().copied().max());
+                // The items are contiguous, so [min, max] is exactly the set of items: an
+                // importer that keeps to the bounds sets an item.
+                values.sort_unstable();
+                assert!(
+                    values.windows(2).all(|w| w[1] == w[0] + 1),
+                    "{}: {values:?}",
+                    e.name
+                );
+                let description = var.description.as_deref().unwrap();
+                let ty = d.type_definition(e.name).unwrap();
+                for (n, value, _) in e.items {
+                    let named = format!("{value} = {n}");
+                    assert!(description.contains(&named), "{description}");
+                    assert!(ty.description.as_deref().unwrap().contains(&named));
+                }
+                let (type_name, items) = d.items_of(var).unwrap();
+                assert_eq!(type_name, e.name);
+                let want: Vec<(String, i32, String)> = e
+                    .items
+                    .iter()
+                    .map(|(n, v, d)| (n.to_string(), *v, d.to_string()))
+                    .collect();
+                let got: Vec<(String, i32, String)> = items
+                    .into_iter()
+                    .map(|i| (i.name, i.value, i.description.unwrap()))
+                    .collect();
+                assert_eq!(got, want, "{}.{}", M::IDENTIFIER, v.name);
+            }
+            modes
+        }
+        let modes = check::<GaitReference>()
+            + check::<crate::models::bench_plant::BenchPlantModel>()
+            + check::<crate::models::bench_hardware::BenchHardwareModel>()
+            + check::<crate::models::pid::PidController>()
+            + check::<crate::models::impedance::ImpedanceController>()
+            + check::<crate::models::clutch_scheduler::ClutchScheduler>();
+        assert!(modes >= 15, "{modes} modes");
+        // The plant's configuration, as an importer without Enumeration support reads it.
+        let d = model_description::<crate::models::bench_plant::BenchPlantModel>();
+        let xml = d.to_xml();
+        let at = xml.find("name=\"configuration\"").unwrap();
+        let var = &xml[xml[..at].rfind("<ScalarVariable").unwrap()..];
+        let var = &var[..var.find("</ScalarVariable>").unwrap()];
+        assert!(
+            var.contains("description=\"Actuator configuration: DA, SEA or CSEA (0 = DA, 1 = SEA, 2 = CSEA)\""),
+            "{var}"
+        );
+        assert!(
+            var.contains(
+                "<Integer declaredType=\"Configuration\" min=\"0\" max=\"2\" start=\"1\"/>"
+            ),
+            "{var}"
+        );
     }
 
     #[test]

@@ -11,7 +11,8 @@
 //! namespaces, `version="1.0"`, elements in schema order) and only writes `Real`, `Integer` and
 //! `Boolean` connector types, so fmpy's `read_ssd` (which validates against the 1.0 schema) and
 //! libcosim load it (both tested with the study's systems, `tests/tests/study_tools.rs`;
-//! libcosim skips a binding to an FMI 2.0 Enumeration variable, which it does not support).
+//! libcosim applies every binding: it would skip one to an FMI 2.0 Enumeration variable, which
+//! it does not support, so our FMUs declare their modes as `Integer`).
 //! Parameter values are written inline as an
 //! `ssv:ParameterSet` inside `ssd:ParameterValues`, after one `ParameterBinding source=".."`
 //! per `.ssv` file bound to the component ([`SspComponent::parameter_sources`]; the files

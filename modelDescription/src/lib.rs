@@ -6,16 +6,20 @@
 //! - [`read`]: [`ModelDescription::from_xml`] reads descriptions from any exporter: unknown
 //!   attributes and vendor annotations are tolerated, malformed documents are refused with an
 //!   error that says where and why.
+//! - [`items`]: the named values of `Integer` types (modes declared as `Integer` for importers
+//!   without `Enumeration` support), kept in a vendor annotation.
 //! - [`check`]: semantic checks beyond the schema (unique names and value references, a
 //!   consistent `ModelStructure`, legal causality/variability/initial combinations).
 
 #![warn(missing_docs)]
 
 pub mod check;
+pub mod items;
 pub mod read;
 pub mod types;
 pub mod write;
 
 pub use check::{BaseType, Problem};
+pub use items::{ITEMS_TOOL, IntegerItems};
 pub use read::ParseError;
 pub use types::*;

@@ -106,6 +106,18 @@ fn enumeration_parameters_take_item_names() {
     .unwrap();
     loaded.system.set_value_str("plant.backend", "Udp").unwrap();
     loaded.system.set_value_str("plant.backend", "1").unwrap();
+    // The modes are FMI Integers (for importers without Enumeration support); their items'
+    // names still work here.
+    loaded
+        .system
+        .set_value_str("plant.configuration", "DA")
+        .unwrap();
+    match loaded.system.set_value_str("plant.configuration", "Rigid") {
+        Err(MasterError::BadValue { problem, .. }) => {
+            assert!(problem.contains("DA = 0, SEA = 1, CSEA = 2"), "{problem}")
+        }
+        other => panic!("{other:?}"),
+    }
     match loaded.system.set_value_str("plant.backend", "Serial") {
         Err(MasterError::BadValue { problem, .. }) => {
             assert!(problem.contains("Simulated = 0, Udp = 1"), "{problem}")

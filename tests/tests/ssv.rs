@@ -362,3 +362,36 @@ fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
         "{e}"
     );
 }
+
+/// The plant's `configuration` (a mode: an FMI Integer bounded by its items, so that importers
+/// without Enumeration support can set it) is set by value in a parameter set; a value that is
+/// no item is refused with the line, naming the items.
+#[test]
+fn a_mode_is_set_by_value_and_a_value_that_is_no_item_is_refused() {
+    let md = plant_md();
+    let doc = |value: &str| {
+        format!(
+            "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n\
+             <ssv:ParameterSet xmlns:ssv=\"http://ssp-standard.org/SSP1/SystemStructureParameterValues\" version=\"1.0\" name=\"da\">\n\
+             <ssv:Parameters>\n\
+             <ssv:Parameter name=\"configuration\"><ssv:Integer value=\"{value}\"/></ssv:Parameter>\n\
+             </ssv:Parameters>\n\
+             </ssv:ParameterSet>\n"
+        )
+    };
+    let set = ParameterSet::from_xml(&doc("0"), "da.ssv").unwrap();
+    set.check(&md, "da.ssv").unwrap();
+    assert_eq!(
+        set.assignments(),
+        [("configuration".to_string(), Value::Integer(0))]
+    );
+    let e = ParameterSet::from_xml(&doc("3"), "da.ssv")
+        .unwrap()
+        .check(&md, "da.ssv")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(":4: parameter 'configuration': 3 is outside [0, 2]"),
+        "{e}"
+    );
+}

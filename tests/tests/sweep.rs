@@ -122,6 +122,17 @@ fn bad_specs_are_refused_naming_the_line() {
             "spec.toml, line 6: 'plant.configuration' is an Integer variable; 1.5 is not a whole number"
         ]
     );
+    // A mode (an Integer bounded by its items, 0 = DA ... 2 = CSEA) refuses a value that is no
+    // item before any run.
+    let m = refusal(&format!(
+        "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.configuration\"\nvalues = [0.0, 3.0]\n"
+    ));
+    assert_eq!(
+        m,
+        [
+            "spec.toml, line 6: 'plant.configuration': 3 is outside the variable's [min, max] = [0, 2]"
+        ]
+    );
     // Not a parameter.
     let m = refusal(&format!(
         "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.loadAngle\"\nvalues = [1.0]\n"

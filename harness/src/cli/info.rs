@@ -90,7 +90,18 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             VariableKind::Real {
                 start, attributes, ..
             } => ("Real", opt(start), opt(&attributes.unit)),
-            VariableKind::Integer { start, .. } => ("Integer", opt(start), "-".into()),
+            // A mode's start with its item's name: `1 (SEA)`.
+            VariableKind::Integer { start, .. } => match (start, md.items_of(v)) {
+                (Some(x), Some((_, items))) => (
+                    "Integer",
+                    items
+                        .iter()
+                        .find(|i| i.value == *x)
+                        .map_or_else(|| x.to_string(), |i| format!("{x} ({})", i.name)),
+                    "-".into(),
+                ),
+                _ => ("Integer", opt(start), "-".into()),
+            },
             VariableKind::Boolean { start, .. } => ("Boolean", opt(start), "-".into()),
             VariableKind::String { start, .. } => ("String", opt(start), "-".into()),
             VariableKind::Enumeration { start, .. } => ("Enum", opt(start), "-".into()),

@@ -66,7 +66,7 @@ pub struct Args {
     /// The bench's key file (kneebench key new), with --bench.
     #[arg(long, value_name = "FILE", requires = "bench")]
     pub key: Option<PathBuf>,
-    /// A BenchHardware parameter with --bench, NAME=VALUE (repeatable; an enumeration by its
+    /// A BenchHardware parameter with --bench, NAME=VALUE (repeatable; a mode by its
     /// item name), e.g. --bench-param replyTimeout=0.005.
     #[arg(long = "bench-param", value_name = "NAME=VALUE", requires = "bench")]
     pub bench_params: Vec<String>,

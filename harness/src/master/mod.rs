@@ -688,25 +688,27 @@ impl System {
     /// Parses `text` as a value of the variable's type and sets it (see
     /// [`set_value`](Self::set_value)).
     ///
-    /// An Enumeration variable also takes an item's name (`plant.backend=Udp`).
+    /// A variable with named values also takes an item's name (`plant.backend=Udp`): an
+    /// Enumeration, or an Integer whose items the model description names
+    /// ([`ModelDescription::items_of`](model_description::ModelDescription::items_of): our
+    /// FMUs' modes).
     pub fn set_value_str(&mut self, reference: &str, text: &str) -> Result<(), MasterError> {
         let (r, _) = self.resolve(reference)?;
         let value = match Value::parse(r.ty, text) {
             Some(v) => v,
-            None => {
-                self.enumeration_item(reference, text)?
-                    .ok_or_else(|| MasterError::BadValue {
-                        reference: reference.to_string(),
-                        problem: format!("'{text}' is not a {:?}", r.ty),
-                    })?
-            }
+            None => self
+                .item_value(reference, text)?
+                .ok_or_else(|| MasterError::BadValue {
+                    reference: reference.to_string(),
+                    problem: format!("'{text}' is not a {:?}", r.ty),
+                })?,
         };
         self.set_value(reference, value)
     }
 
-    /// The value of item `name` when `reference` is an Enumeration variable (`None` when it is
-    /// not one); an unknown item is an error listing the items.
-    fn enumeration_item(&self, reference: &str, name: &str) -> Result<Option<Value>, MasterError> {
+    /// The value of item `name` when `reference` has named values (`None` when it has not);
+    /// an unknown item is an error listing the items.
+    fn item_value(&self, reference: &str, name: &str) -> Result<Option<Value>, MasterError> {
         let (c, v) = reference
             .split_once('.')
             .ok_or_else(|| MasterError::BadReference(reference.to_string()))?;
@@ -714,18 +716,7 @@ impl System {
         let Some((_, var)) = find_var(md, v) else {
             return Ok(None);
         };
-        let model_description::VariableKind::Enumeration { declared_type, .. } = &var.kind else {
-            return Ok(None);
-        };
-        let items = md.type_definitions.iter().find_map(|t| match &t.kind {
-            model_description::SimpleTypeKind::Enumeration { items, .. }
-                if t.name == *declared_type =>
-            {
-                Some(items)
-            }
-            _ => None,
-        });
-        let Some(items) = items else {
+        let Some((type_name, items)) = md.items_of(var) else {
             return Ok(None);
         };
         match items.iter().find(|i| i.name == name.trim()) {
@@ -733,7 +724,7 @@ impl System {
             None => Err(MasterError::BadValue {
                 reference: reference.to_string(),
                 problem: format!(
-                    "'{name}' is no item of {declared_type} ({})",
+                    "'{name}' is no item of {type_name} ({})",
                     items
                         .iter()
                         .map(|i| format!("{} = {}", i.name, i.value))

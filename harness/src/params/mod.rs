@@ -21,7 +21,7 @@ pub use apply::{DEFAULT_COMPONENT, apply_spec};
 
 use std::path::{Path, PathBuf};
 
-use model_description::{Causality, ModelDescription, VariableKind};
+use model_description::{Causality, ModelDescription, ScalarVariable, VariableKind};
 
 use crate::master::Value;
 
@@ -378,11 +378,13 @@ impl ParameterSet {
                     if !(min..=max).contains(x) {
                         return Err(bad(format!("{x} is outside [{min}, {max}]")));
                     }
+                    not_an_item(md, v, *x).map_or(Ok(()), |e| Err(bad(e)))?;
                 }
                 (VariableKind::Enumeration { min, max, .. }, ParamValue::Integer(x)) => {
                     if min.is_some_and(|m| *x < m) || max.is_some_and(|m| *x > m) {
                         return Err(bad(format!("{x} is not an item of the enumeration")));
                     }
+                    not_an_item(md, v, *x).map_or(Ok(()), |e| Err(bad(e)))?;
                 }
                 (VariableKind::Boolean { .. }, ParamValue::Boolean(_))
                 | (VariableKind::String { .. }, ParamValue::String(_)) => {}
@@ -416,6 +418,22 @@ impl ParameterSet {
             .map(|p| (p.name.clone(), p.value.to_value()))
             .collect()
     }
+}
+
+/// Why `x` cannot be the value of `v` when `v` has named values (an Enumeration, or one of our
+/// FMUs' modes declared as Integer) and `x` is none of them; `None` otherwise.
+fn not_an_item(md: &ModelDescription, v: &ScalarVariable, x: i32) -> Option<String> {
+    let (type_name, items) = md.items_of(v)?;
+    (!items.iter().any(|i| i.value == x)).then(|| {
+        format!(
+            "{x} is no item of {type_name} ({})",
+            items
+                .iter()
+                .map(|i| format!("{} = {}", i.value, i.name))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })
 }
 
 #[cfg(test)]

@@ -236,7 +236,7 @@ pub struct BenchLink {
     pub address: String,
     /// The bench's key file (`kneebench key new`).
     pub key_file: PathBuf,
-    /// Further parameters of `BenchHardware` by name, values as text (an enumeration by its
+    /// Further parameters of `BenchHardware` by name, values as text (a mode by its
     /// item name): e.g. `tareSamples`, `replyTimeout`. Set after the link's own (`backend` =
     /// Udp, `pacing` = Soft, `serverAddress`, `keyFile`), so they can replace them.
     pub parameters: Vec<(String, String)>,

@@ -3,6 +3,16 @@
 //! Plain-Rust physics of the bench of `shared/bench-model.md` (sections 1-4 and 7-9), without
 //! FMI. One model covers the three configurations DA, SEA and CSEA.
 //!
+//! ## Choosing the configuration
+//! The FMU's `configuration` parameter selects it: `0` = DA, `1` = SEA (the default), `2` =
+//! CSEA. It is an FMI `Integer` (bounded to [0, 2], the items named in its description), not an
+//! `Enumeration`, like every mode of every kneebench FMU (`frictionModel`, the driver modes):
+//! libcosim and the tools built on it ignore FMI 2.0 Enumeration variables, so an SSP binding to
+//! an Enumeration `configuration` failed there and a DA ran as the default SEA, and FMI 2.0
+//! allows no Integer alias of an Enumeration parameter. Any importer sets it by value;
+//! kneebench also takes the item's name (`--param plant.configuration=DA`). A value that is no
+//! item is refused.
+//!
 //! ## Equations
 //! Two rotational bodies reflected to the knee axis (positive = extension):
 //!
