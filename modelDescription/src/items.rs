@@ -184,6 +184,49 @@ mod tests {
         assert_eq!(parse_items_annotation(&tool.content), Some(items()));
     }
 
+    /// A description with an `Enumeration` (as other exporters write modes), a mode declared as
+    /// `Integer` with the items annotation (as ours), and a plain `Integer`.
+    const DESCRIPTION: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="m" guid="{g}">
+  <CoSimulation modelIdentifier="m"/>
+  <TypeDefinitions>
+    <SimpleType name="Law"><Enumeration><Item name="Off" value="0"/><Item name="On" value="1"/></Enumeration></SimpleType>
+    <SimpleType name="Configuration" description="(0 = DA, 1 = SEA)"><Integer min="0" max="1"/></SimpleType>
+  </TypeDefinitions>
+  <VendorAnnotations>
+    <Tool name="other"><Anything/></Tool>
+    <Tool name="org.kneebench.items"><IntegerItems><Type name="Configuration"><Item name="DA" value="0"/><Item name="SEA" value="1" description="Series elastic"/></Type></IntegerItems></Tool>
+  </VendorAnnotations>
+  <ModelVariables>
+    <ScalarVariable name="law" valueReference="1" causality="parameter" variability="fixed"><Enumeration declaredType="Law" start="0"/></ScalarVariable>
+    <ScalarVariable name="configuration" valueReference="2" causality="parameter" variability="fixed"><Integer declaredType="Configuration" start="1"/></ScalarVariable>
+    <ScalarVariable name="count" valueReference="3" causality="parameter" variability="fixed"><Integer start="1"/></ScalarVariable>
+  </ModelVariables>
+  <ModelStructure/>
+</fmiModelDescription>
+"#;
+
+    #[test]
+    fn items_of_answers_enumerations_and_annotated_integers_only() {
+        let md = ModelDescription::from_xml(DESCRIPTION).unwrap();
+        let names = |v: &str| {
+            md.items_of(md.variable_by_name(v).unwrap())
+                .map(|(t, items)| (t, items.into_iter().map(|i| (i.name, i.value)).collect()))
+        };
+        assert_eq!(
+            names("law"),
+            Some(("Law".into(), vec![("Off".into(), 0), ("On".into(), 1)]))
+        );
+        assert_eq!(
+            names("configuration"),
+            Some((
+                "Configuration".into(),
+                vec![("DA".into(), 0), ("SEA".into(), 1)]
+            ))
+        );
+        assert_eq!(names("count"), None);
+    }
+
     #[test]
     fn malformed_annotations_give_no_items() {
         for bad in [
