@@ -36,9 +36,9 @@
 //!
 //! The figure of merit is the **per-step CPU time**: a peer / ours ratio above 1 means ours is
 //! faster. The target is `kneebench run`, whole process, at >= 3x the fastest peer per
-//! step on every FMU of the table; the table says for which FMUs it holds. Where the FMU's own
-//! step dominates (the PythonFMU export runs Python in every `fmi2DoStep`), no master can be 3x
-//! faster than its peers: the bare C-call loop shows that floor.
+//! step on every FMU of the table; the table says for which FMUs it holds. No master is faster
+//! than the bare C-call loop, so against a peer that runs at the FMU's own cost (on our FMUs,
+//! fmi-rs's loop) the target cannot hold: the bare loop's row shows that floor.
 //!
 //! A PythonFMU binary takes the GIL with `PyGILState_Ensure` in every FMI call. In a Python host
 //! (fmpy) the calling thread already has a thread state, so that is cheap; in any other host
