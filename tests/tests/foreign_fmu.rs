@@ -56,46 +56,6 @@ use kneebench_tests::*;
 #[path = "../../harness/src/cli/mod.rs"]
 mod cli;
 
-/// The foreign model: a first-order lag `y' = (k u - y) / tau` (exact discretisation per step)
-/// with a step counter and a Boolean threshold output. (PythonFMU gives every variable
-/// `continuous` variability unless told otherwise, which fmpy rejects for Integer and Boolean.)
-const SLAVE: &str = r#"
-import math
-
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Boolean, Integer, Real
-from pythonfmu.default_experiment import DefaultExperiment
-
-
-class FirstOrder(Fmi2Slave):
-    author = "kneebench tests"
-    description = "First-order lag y' = (k u - y) / tau, exact discretisation per step"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=2.0, step_size=0.001)
-
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.k = 2.0
-        self.tau = 0.125
-        self.limit = 1.5
-        self.u = 0.0
-        self.y = 0.0
-        self.steps = 0
-        self.saturated = False
-        self.register_variable(Real("k", causality=Fmi2Causality.parameter, variability=Fmi2Variability.tunable))
-        self.register_variable(Real("tau", causality=Fmi2Causality.parameter, variability=Fmi2Variability.tunable))
-        self.register_variable(Real("limit", causality=Fmi2Causality.parameter, variability=Fmi2Variability.tunable))
-        self.register_variable(Real("u", causality=Fmi2Causality.input))
-        self.register_variable(Real("y", causality=Fmi2Causality.output))
-        self.register_variable(Integer("steps", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete))
-        self.register_variable(Boolean("saturated", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete))
-
-    def do_step(self, current_time, step_size):
-        a = math.exp(-step_size / self.tau)
-        self.y = a * self.y + (1.0 - a) * self.k * self.u
-        self.steps += 1
-        self.saturated = self.y > self.limit
-        return True
-"#;
-
 /// A piecewise-linear input (no repeated times, so fmpy sees no input events and keeps the
 /// regular grid), interpolated linearly by both importers.
 const INPUTS: &str = "time,u\n0.0,0.0\n0.3,0.5\n0.7,1.0\n1.2,-0.25\n2.0,0.4\n";
@@ -109,46 +69,13 @@ const ENV_LIBPYTHON: &str = "KNEEBENCH_FOREIGN_LIBPYTHON";
 
 /// The venv Python's shared runtime and `sys.base_prefix`.
 fn python_runtime() -> (PathBuf, PathBuf) {
-    let out = run_python(
-        "import os, sys, sysconfig\n\
-         print(os.path.join(sysconfig.get_config_var('LIBDIR'), sysconfig.get_config_var('LDLIBRARY')))\n\
-         print(sys.base_prefix)",
-        &[],
-    );
-    let mut lines = out.lines();
-    let lib = PathBuf::from(lines.next().expect("libpython line"));
-    let home = PathBuf::from(lines.next().expect("base_prefix line"));
-    assert!(
-        lib.is_file(),
-        "{}: not a file; PythonFMU needs a Python built with --enable-shared",
-        lib.display()
-    );
-    (lib, home)
+    let runtime = pythonfmu::runtime(&python()).unwrap();
+    (runtime.libpython, runtime.home)
 }
 
-/// Runs `pythonfmu build -f FirstOrder.py --dest DIR` (as `python -m pythonfmu`, i.e. the
-/// venv's entry point) and returns the FMU.
+/// Builds the FirstOrder export ([`pythonfmu::FIRST_ORDER`]) into `dir`.
 fn build_fmu(dir: &Path) -> PathBuf {
-    let src = dir.join("src");
-    std::fs::create_dir_all(&src).unwrap();
-    let script = src.join("FirstOrder.py");
-    std::fs::write(&script, SLAVE).unwrap();
-    let out = Command::new(python())
-        .args(["-m", "pythonfmu", "build", "-f"])
-        .arg(&script)
-        .arg("--dest")
-        .arg(dir)
-        .output()
-        .expect("run pythonfmu");
-    assert!(
-        out.status.success(),
-        "pythonfmu build failed:\n{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let fmu = dir.join("FirstOrder.fmu");
-    assert!(fmu.is_file(), "pythonfmu wrote no {}", fmu.display());
-    fmu
+    pythonfmu::build_first_order(&python(), dir).unwrap()
 }
 
 /// fmpy's co-simulation of `fmu` on the grid 0, STEP, ..., STOP with the inputs and the given
