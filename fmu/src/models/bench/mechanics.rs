@@ -596,6 +596,10 @@ pub(crate) const MAX_TERMS: usize = 48;
 /// see [`TaylorSegment::new`]; one that needs more is split).
 pub(crate) const PIECE_TERMS: usize = 32;
 
+/// Pieces whose storage a [`TaylorSegment`] keeps between rebuilds (a 1 ms sub-step of the
+/// stiffest mode needs a handful).
+const SPARE_PIECES: usize = 64;
+
 /// One piece of a Taylor-expanded segment: `z(start + s len) = sum_n s^n coefficients[n]`.
 #[derive(Debug, Clone)]
 pub(crate) struct Piece {
@@ -627,27 +631,50 @@ impl Piece {
 }
 
 /// A segment `[0, duration]` of the linear flow from `z0`, as Taylor pieces.
-#[derive(Debug, Clone)]
+///
+/// A segment is rebuilt in place ([`Self::rebuild`]) by every event sub-step: the pieces stay
+/// allocated between builds, and a piece's coefficients past its `terms` are never read, so a
+/// rebuild writes only the terms it computes (no allocation, no zeroing of the 32-term arrays).
+#[derive(Debug, Clone, Default)]
 pub(crate) struct TaylorSegment {
-    pub pieces: Vec<Piece>,
+    /// `pieces[..used]` are this segment's; the rest are storage kept for the next rebuild.
+    pieces: Vec<Piece>,
+    used: usize,
 }
 
 impl TaylorSegment {
+    /// The segment of `duration` from `z0` under `z' = m z` (`rate` its [`rate_scale`]).
+    #[cfg(test)]
     pub(crate) fn new(m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) -> Self {
+        let mut segment = Self::default();
+        segment.rebuild(m, rate, z0, duration);
+        segment
+    }
+
+    /// Makes this the segment of `duration` from `z0` under `z' = m z` (`rate` its
+    /// [`rate_scale`]): pieces of equal length, about `2 / rate` each, doubled in number
+    /// until every piece's series converges within [`PIECE_TERMS`] terms.
+    pub(crate) fn rebuild(&mut self, m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) {
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
             let pieces_wanted = count;
             let len = duration / pieces_wanted as f64;
-            let mut pieces: Vec<Piece> = Vec::with_capacity(pieces_wanted);
+            self.used = 0;
             let mut z = *z0;
             for p in 0..pieces_wanted {
-                pieces.push(Piece {
-                    start: p as f64 * len,
-                    len,
-                    terms: 1,
-                    coefficients: [[0.0; NZ]; PIECE_TERMS],
-                });
-                let piece = pieces.last_mut().expect("just pushed");
+                if self.pieces.len() == p {
+                    self.pieces.push(Piece {
+                        start: 0.0,
+                        len: 0.0,
+                        terms: 1,
+                        coefficients: [[0.0; NZ]; PIECE_TERMS],
+                    });
+                }
+                self.used = p + 1;
+                let piece = &mut self.pieces[p];
+                piece.start = p as f64 * len;
+                piece.len = len;
+                piece.terms = 1;
                 piece.coefficients[0] = z;
                 let scale = z.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
                 let mut small_in_a_row = 0;
@@ -681,14 +708,30 @@ impl TaylorSegment {
                 }
                 z = piece.eval(1.0);
             }
-            return Self { pieces };
+            return;
         }
     }
 
+    /// Drops the storage of pieces beyond [`SPARE_PIECES`] (a rare long segment, e.g. a
+    /// whole 1 s sub-step, needs thousands of pieces: their storage is not kept).
+    pub(crate) fn release_excess(&mut self) {
+        if self.pieces.len() > SPARE_PIECES {
+            self.pieces.truncate(SPARE_PIECES);
+            self.pieces.shrink_to_fit();
+            self.used = self.used.min(SPARE_PIECES);
+        }
+    }
+
+    /// The pieces, in time order.
+    pub(crate) fn pieces(&self) -> &[Piece] {
+        &self.pieces[..self.used]
+    }
+
     fn locate(&self, t: f64) -> (&Piece, f64) {
-        let len = self.pieces[0].len;
-        let index = ((t / len) as usize).min(self.pieces.len() - 1);
-        let piece = &self.pieces[index];
+        let pieces = self.pieces();
+        let len = pieces[0].len;
+        let index = ((t / len) as usize).min(pieces.len() - 1);
+        let piece = &pieces[index];
         (piece, ((t - piece.start) / len).clamp(0.0, 1.0))
     }
 
@@ -700,7 +743,7 @@ impl TaylorSegment {
 
     /// Ends of the pieces (for sign-change scanning), excluding 0.
     pub(crate) fn piece_ends(&self) -> impl Iterator<Item = f64> + '_ {
-        self.pieces.iter().map(|p| p.start + p.len)
+        self.pieces().iter().map(|p| p.start + p.len)
     }
 }
 
@@ -802,7 +845,7 @@ mod tests {
                 let full = d.gramians();
                 for (k, &(a, b)) in PRODUCTS.iter().enumerate() {
                     let mut total = 0.0;
-                    for piece in &segment.pieces {
+                    for piece in segment.pieces() {
                         let prod = poly_mul(&piece.component(a), &piece.component(b));
                         total += piece.len * poly_integral(&prod, 0.0, 1.0);
                     }
@@ -952,7 +995,7 @@ mod reference_tests {
                         for (k, &(a, b)) in pairs.iter().enumerate() {
                             let mut total = 0.0;
                             let mut size = 0.0;
-                            for piece in &segment.pieces {
+                            for piece in segment.pieces() {
                                 let prod = if b == usize::MAX {
                                     piece.component(a)
                                 } else {

@@ -201,6 +201,8 @@ pub struct BenchPlant {
     /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]). Private: true only
     /// where the CPU has AVX2 (a soundness condition); read through `runs_wide`.
     wide_vectors: bool,
+    /// Storage of the Taylor segments of event sub-steps (not state: rebuilt by each use).
+    segment_scratch: TaylorSegment,
 }
 
 /// Whether this CPU runs the plant's AVX2 build of the step.
@@ -331,6 +333,7 @@ impl BenchPlant {
             cache: Vec::new(),
             last_hit: 0,
             wide_vectors: cpu_has_wide_vectors(),
+            segment_scratch: TaylorSegment::default(),
         };
         plant.settle_sticking();
         Ok(plant)
@@ -941,6 +944,21 @@ impl BenchPlant {
         h: f64,
         start_time: f64,
     ) -> Result<(), (Interlock, f64)> {
+        let mut segment = std::mem::take(&mut self.segment_scratch);
+        let result = self.event_segments(&mut segment, first_held, h, start_time);
+        segment.release_excess();
+        self.segment_scratch = segment;
+        result
+    }
+
+    /// [`Self::event_substep`] with `segment` as the storage of its segments.
+    fn event_segments(
+        &mut self,
+        segment: &mut TaylorSegment,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
         let mut remaining = h;
         let mut budget = EVENT_BUDGET;
         let mut elapsed = 0.0;
@@ -957,20 +975,20 @@ impl BenchPlant {
             let events = &list[..count];
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
-            let mut segment = TaylorSegment::new(&m, rate, &z0, remaining);
+            segment.rebuild(&m, rate, &z0, remaining);
             if speed_dependent {
                 let z1 = segment.state_at(remaining);
                 self.set_friction(&mut held, Some(&z1));
                 z0 = self.input_state(&held);
-                segment = TaylorSegment::new(&m, rate, &z0, remaining);
+                segment.rebuild(&m, rate, &z0, remaining);
             }
             let earliest = if budget > 0 {
-                self.earliest_event(&held, events, &segment)
+                self.earliest_event(&held, events, segment)
             } else {
                 None
             };
             let stop = earliest.map_or(remaining, |(t, _)| t);
-            self.accumulate_segment(&held, &segment, stop);
+            self.accumulate_segment(&held, segment, stop);
             let z1 = segment.state_at(stop);
             self.commit(z1);
             elapsed += stop;
@@ -1216,7 +1234,7 @@ impl BenchPlant {
         let mut emf = [0.0; 2];
         let constant = self.constant_power(held);
         let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
-        for piece in &segment.pieces {
+        for piece in segment.pieces() {
             if piece.start >= stop {
                 break;
             }
