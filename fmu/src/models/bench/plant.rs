@@ -171,6 +171,45 @@ pub(crate) enum Event {
     Trip(Interlock),
 }
 
+/// The switching event functions (every event function but the trips, which are always
+/// active) in the order of the event list: bit `k` of an active set stands for entry `k`. At
+/// most one of a body's reversal and break-aways, and of a motor's saturation exit and entries,
+/// is active at a time.
+const SWITCHING_EVENTS: [Event; 12] = [
+    Event::Reversal(0),
+    Event::BreakAway(0, 1.0),
+    Event::BreakAway(0, -1.0),
+    Event::Reversal(1),
+    Event::BreakAway(1, 1.0),
+    Event::BreakAway(1, -1.0),
+    Event::SaturationExit(0),
+    Event::SaturationEnter(0, 1.0),
+    Event::SaturationEnter(0, -1.0),
+    Event::SaturationExit(1),
+    Event::SaturationEnter(1, 1.0),
+    Event::SaturationEnter(1, -1.0),
+];
+
+/// The active switching event functions of a mode: bit `k` set for `SWITCHING_EVENTS[k]`. A
+/// bit set, not a list, on the regular path: it costs no list to build and copy per sub-step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ActiveEvents(u16);
+
+impl ActiveEvents {
+    /// The active switching events, in list order.
+    #[inline(always)]
+    fn iter(self) -> impl Iterator<Item = Event> {
+        let mut bits = self.0;
+        std::iter::from_fn(move || {
+            (bits != 0).then(|| {
+                let k = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                SWITCHING_EVENTS[k]
+            })
+        })
+    }
+}
+
 /// Everything that evolves.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct DynamicState {
@@ -736,24 +775,17 @@ impl BenchPlant {
         ]
     }
 
-    /// Whether any of `events` (a list made by [`Self::events`], the trips first) is positive at
-    /// `z`. The trips are checked with constant arguments, so their dispatch folds away.
+    /// Whether any trip or any of the `active` switching events is positive at `z`. The trips
+    /// are checked with constant arguments, so their dispatch folds away.
     #[inline(always)]
-    fn any_positive(&self, held: &Held, events: &[Event], z: &AugVector) -> bool {
+    fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
         let demand = self.demands(held, z);
-        let trips = Interlock::CHECKED.len();
-        debug_assert!(
-            events[..trips]
-                .iter()
-                .zip(Interlock::CHECKED)
-                .all(|(e, i)| *e == Event::Trip(i))
-        );
         Interlock::CHECKED
             .into_iter()
             .any(|i| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0)
-            || events[trips..]
+            || active
                 .iter()
-                .any(|&e| self.event_value_with(held, e, z, &demand) > 0.0)
+                .any(|e| self.event_value_with(held, e, z, &demand) > 0.0)
     }
 
     /// The event function `event` at `z`, given the voltage demands there.
@@ -795,37 +827,37 @@ impl BenchPlant {
         }
     }
 
-    /// Active event functions for the held mode (inlined: the list is built in place).
+    /// The switching event functions active in the held mode.
     #[inline(always)]
-    fn events(&self, held: &Held) -> ([Event; 16], usize) {
-        let mut list = [Event::Trip(Interlock::EmergencyStop); 16];
-        let mut count = 0;
-        let mut push = |e: Event| {
-            list[count] = e;
-            count += 1;
-        };
-        for interlock in Interlock::CHECKED {
-            push(Event::Trip(interlock));
-        }
+    fn active_events(&self, held: &Held) -> ActiveEvents {
+        let mut bits = 0u16;
         for j in 0..2 {
+            // Bits 3 j (reversal), 3 j + 1 and 3 j + 2 (break-away up and down).
             if self.state.stuck[j] {
-                push(Event::BreakAway(j, 1.0));
-                push(Event::BreakAway(j, -1.0));
+                bits |= 0b110 << (3 * j);
             } else if Self::has_friction(held, j) || held.friction[j] != 0.0 {
-                push(Event::Reversal(j));
+                bits |= 0b001 << (3 * j);
             }
         }
         for n in 0..2 {
+            // Bits 6 + 3 n (saturation exit), 7 + 3 n and 8 + 3 n (entry up and down).
             if held.current_loop[n] {
                 if self.state.saturation[n] != 0.0 {
-                    push(Event::SaturationExit(n));
+                    bits |= 0b001 << (6 + 3 * n);
                 } else {
-                    push(Event::SaturationEnter(n, 1.0));
-                    push(Event::SaturationEnter(n, -1.0));
+                    bits |= 0b110 << (6 + 3 * n);
                 }
             }
         }
-        (list, count)
+        ActiveEvents(bits)
+    }
+
+    /// Every active event function, the trips first, then the switching events in list order.
+    fn event_list(active: ActiveEvents) -> Vec<Event> {
+        let mut list = Vec::with_capacity(Interlock::CHECKED.len() + SWITCHING_EVENTS.len());
+        list.extend(Interlock::CHECKED.into_iter().map(Event::Trip));
+        list.extend(active.iter());
+        list
     }
 
     /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
@@ -900,8 +932,7 @@ impl BenchPlant {
         let start_time = self.state.time;
         let mut held = self.resolve()?;
         let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
-        let (list, count) = self.events(&held);
-        let events = &list[..count];
+        let active = self.active_events(&held);
         let index = self.discretization(held.mode, h);
         let mut z0 = self.input_state(&held);
         let (mut z1, mut currents) = self.cache[index].advance_with_currents(&z0);
@@ -910,7 +941,7 @@ impl BenchPlant {
             z0 = self.input_state(&held);
             (z1, currents) = self.cache[index].advance_with_currents(&z0);
         }
-        if self.any_positive(&held, events, &z1) {
+        if self.any_positive(&held, active, &z1) {
             return self.event_substep(held, h, start_time);
         }
         let p0 = self.powers(&held, &z0);
@@ -971,8 +1002,7 @@ impl BenchPlant {
             };
             let speed_dependent =
                 (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
-            let (list, count) = self.events(&held);
-            let events = &list[..count];
+            let events = Self::event_list(self.active_events(&held));
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
             segment.rebuild(&m, rate, &z0, remaining);
@@ -983,7 +1013,7 @@ impl BenchPlant {
                 segment.rebuild(&m, rate, &z0, remaining);
             }
             let earliest = if budget > 0 {
-                self.earliest_event(&held, events, segment)
+                self.earliest_event(&held, &events, segment)
             } else {
                 None
             };
@@ -1493,6 +1523,71 @@ fn positive_integral(p: &[f64], s_end: f64) -> f64 {
 #[cfg(test)]
 mod root_tests {
     use super::*;
+
+    /// The event list as it was built before the active set: the trips, then per body its two
+    /// break-aways (stuck) or its reversal (sliding with friction), then per current loop its
+    /// saturation exit (saturated) or its two entries.
+    fn listed_events(plant: &BenchPlant, held: &Held) -> Vec<Event> {
+        let mut list: Vec<Event> = Interlock::CHECKED.into_iter().map(Event::Trip).collect();
+        for j in 0..2 {
+            if plant.state.stuck[j] {
+                list.push(Event::BreakAway(j, 1.0));
+                list.push(Event::BreakAway(j, -1.0));
+            } else if BenchPlant::has_friction(held, j) || held.friction[j] != 0.0 {
+                list.push(Event::Reversal(j));
+            }
+        }
+        for n in 0..2 {
+            if held.current_loop[n] {
+                if plant.state.saturation[n] != 0.0 {
+                    list.push(Event::SaturationExit(n));
+                } else {
+                    list.push(Event::SaturationEnter(n, 1.0));
+                    list.push(Event::SaturationEnter(n, -1.0));
+                }
+            }
+        }
+        list
+    }
+
+    /// The active set lists the same events in the same order (the order decides which of two
+    /// events at the same instant is applied first) in every combination of stuck bodies,
+    /// friction, current loops and saturation.
+    #[test]
+    fn the_active_set_lists_the_events_in_list_order() {
+        let mut plant = BenchPlant::new(BenchParameters::default()).unwrap();
+        let base = plant.hold();
+        let mut checked = 0;
+        for case in 0..(1u32 << 12) {
+            let bit = |k: u32| case >> k & 1 == 1;
+            let mut held = base;
+            for j in 0..2 {
+                let k = 6 * j as u32;
+                plant.state.stuck[j] = bit(k);
+                held.capacity[j] = if bit(k + 1) { [0.5, 0.7] } else { [0.0, 0.7] };
+                held.friction[j] = if bit(k + 2) { -0.2 } else { 0.0 };
+                held.current_loop[j] = bit(k + 3);
+                plant.state.saturation[j] = match (bit(k + 4), bit(k + 5)) {
+                    (false, _) => 0.0,
+                    (true, up) => {
+                        if up {
+                            1.0
+                        } else {
+                            -1.0
+                        }
+                    }
+                };
+            }
+            let listed = listed_events(&plant, &held);
+            assert_eq!(
+                BenchPlant::event_list(plant.active_events(&held)),
+                listed,
+                "case {case:#b}"
+            );
+            checked += listed.len();
+        }
+        assert!(checked > 7 << 12, "{checked}");
+    }
 
     #[test]
     fn polynomial_square_matches_the_product() {
