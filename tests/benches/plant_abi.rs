@@ -3,10 +3,17 @@
 //! against a reference run with a 100 times finer internal step (maxInternalStep 1e-5 s).
 //! DA, SEA and CSEA (the CSEA run engages the clutch in stance, gait phase 0.05..0.45).
 //!
+//! The baseline, measured in the same run: the same cycle as a plain Rust call loop on the
+//! plant (`BenchPlant::step` and the motion outputs, no FMI), which must give the same angles
+//! bit for bit; "ABI / Rust" is the share the C ABI and the FMU glue add.
+//!
 //! Run: `cargo bench -p kneebench-tests --bench plant_abi`
 
 use std::time::Instant;
 
+use kneebench_fmu::models::bench::{
+    BenchInputs, BenchOutputs, BenchParameters, BenchPlant, Configuration, SignalGroup, StepOutcome,
+};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
@@ -80,6 +87,47 @@ fn run_cycle(
     (t0.elapsed().as_secs_f64(), angles)
 }
 
+/// The same cycle as [`run_cycle`] as a plain Rust call loop: the plant's step and its motion
+/// outputs (the group the angles belong to), as the FMU computes them, without FMI.
+fn run_cycle_in_rust(configuration: Configuration, inputs: &[(f64, f64, bool)]) -> (f64, Vec<f64>) {
+    let params = BenchParameters {
+        configuration,
+        ..BenchParameters::default()
+    };
+    let mut plant = BenchPlant::new(params).unwrap();
+    let clutch = configuration == Configuration::Csea;
+    let mut outputs = BenchOutputs::default();
+    let mut angles = Vec::with_capacity(2 * STEPS as usize);
+    let t0 = Instant::now();
+    for &(test, load, stance) in inputs {
+        let step = BenchInputs {
+            test_command: test,
+            load_command: load,
+            test_enable: true,
+            load_enable: true,
+            clutch_engage: clutch && stance,
+            emergency_stop: false,
+        };
+        assert_eq!(plant.step(&step, H), StepOutcome::Completed);
+        plant.fill_outputs(SignalGroup::Motion, &mut outputs);
+        angles.extend_from_slice(&[outputs.actuation_angle, outputs.load_angle]);
+    }
+    (t0.elapsed().as_secs_f64(), angles)
+}
+
+/// The median of `REPEATS` runs of `run`, and the angles of the last.
+fn median(mut run: impl FnMut() -> (f64, Vec<f64>)) -> (f64, Vec<f64>) {
+    let mut times = Vec::new();
+    let mut angles = Vec::new();
+    for _ in 0..REPEATS {
+        let (t, a) = run();
+        times.push(t);
+        angles = a;
+    }
+    times.sort_by(f64::total_cmp);
+    (times[REPEATS / 2], angles)
+}
+
 fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus = kneebench_harness::package::export_all(&fmu_library(), dir.path()).unwrap();
@@ -91,29 +139,41 @@ fn main() {
         "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS})"
     );
     println!(
-        "{:<6} {:>12} {:>16} {:>22}",
-        "config", "wall [ms]", "x real time", "max angle error [rad]"
+        "{:<6} {:>12} {:>16} {:>16} {:>12} {:>22}",
+        "config",
+        "wall [ms]",
+        "x real time",
+        "Rust x real time",
+        "ABI / Rust",
+        "max angle error [rad]"
     );
-    for (name, configuration) in [("DA", 0), ("SEA", 1), ("CSEA", 2)] {
-        let (_, reference) = run_cycle(&raw, configuration, 1e-5, &inputs);
-        let mut times = Vec::new();
-        let mut angles = Vec::new();
-        for _ in 0..REPEATS {
-            let (t, a) = run_cycle(&raw, configuration, 1e-3, &inputs);
-            times.push(t);
-            angles = a;
-        }
-        times.sort_by(f64::total_cmp);
-        let wall = times[REPEATS / 2];
+    for (name, configuration) in [
+        ("DA", Configuration::Da),
+        ("SEA", Configuration::Sea),
+        ("CSEA", Configuration::Csea),
+    ] {
+        let code = configuration.as_i32();
+        let (_, reference) = run_cycle(&raw, code, 1e-5, &inputs);
+        let (wall, angles) = median(|| run_cycle(&raw, code, 1e-3, &inputs));
+        let (rust_wall, rust_angles) = median(|| run_cycle_in_rust(configuration, &inputs));
+        assert!(
+            angles
+                .iter()
+                .zip(&rust_angles)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{name}: the C ABI and the Rust call loop differ"
+        );
         let error = angles
             .iter()
             .zip(&reference)
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
         println!(
-            "{name:<6} {:>12.3} {:>16.0} {:>22.2e}",
+            "{name:<6} {:>12.3} {:>16.0} {:>16.0} {:>12.2} {:>22.2e}",
             wall * 1e3,
             2.5 / wall,
+            2.5 / rust_wall,
+            wall / rust_wall,
             error
         );
     }
