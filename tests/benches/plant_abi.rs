@@ -5,10 +5,14 @@
 //!
 //! The baseline, measured in the same run: the same cycle as a plain Rust call loop on the
 //! plant (`BenchPlant::step` and the motion outputs, no FMI), which must give the same angles
-//! bit for bit; "ABI / Rust" is the share the C ABI and the FMU glue add.
+//! bit for bit; "ABI/Rust" is the share the C ABI and the FMU glue add. With
+//! `KNEEBENCH_PLANT_ABI_BASELINE` naming another build's `libkneebench_fmu.so` (e.g. the
+//! previous commit's), that build runs too, interleaved, and must give the same angles bit for
+//! bit; "speed-up" is its wall time over this build's.
 //!
 //! Run: `cargo bench -p kneebench-tests --bench plant_abi`
 
+use std::path::Path;
 use std::time::Instant;
 
 use kneebench_fmu::models::bench::{
@@ -115,17 +119,20 @@ fn run_cycle_in_rust(configuration: Configuration, inputs: &[(f64, f64, bool)]) 
     (t0.elapsed().as_secs_f64(), angles)
 }
 
-/// The median of `REPEATS` runs of `run`, and the angles of the last.
-fn median(mut run: impl FnMut() -> (f64, Vec<f64>)) -> (f64, Vec<f64>) {
-    let mut times = Vec::new();
-    let mut angles = Vec::new();
-    for _ in 0..REPEATS {
-        let (t, a) = run();
-        times.push(t);
-        angles = a;
-    }
+/// A previous build of the FMU binary to measure in the same run, interleaved with this one:
+/// `KNEEBENCH_PLANT_ABI_BASELINE=/path/to/libkneebench_fmu.so` (its angles must be this
+/// build's bit for bit).
+const BASELINE_VAR: &str = "KNEEBENCH_PLANT_ABI_BASELINE";
+
+/// The median of `times`.
+fn median(mut times: Vec<f64>) -> f64 {
     times.sort_by(f64::total_cmp);
-    (times[REPEATS / 2], angles)
+    times[times.len() / 2]
+}
+
+/// Whether two runs gave the same angles bit for bit.
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 fn main() {
@@ -134,19 +141,19 @@ fn main() {
     let plant = fmus.iter().find(|f| f.identifier == "BenchPlant").unwrap();
     let fmu = kneebench_harness::Fmu::load(&plant.path, &Default::default()).unwrap();
     let raw = Raw::load(fmu.binary_path());
+    let baseline = std::env::var_os(BASELINE_VAR).map(|path| Raw::load(Path::new(&path)));
     let inputs = recorded_inputs();
     println!(
-        "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS})"
+        "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS}, interleaved)"
     );
-    println!(
-        "{:<6} {:>12} {:>16} {:>16} {:>12} {:>22}",
-        "config",
-        "wall [ms]",
-        "x real time",
-        "Rust x real time",
-        "ABI / Rust",
-        "max angle error [rad]"
+    print!(
+        "{:<6} {:>10} {:>12} {:>12} {:>10}",
+        "config", "wall [ms]", "x real time", "Rust x r.t.", "ABI/Rust"
     );
+    if baseline.is_some() {
+        print!(" {:>15} {:>9}", "baseline x r.t.", "speed-up");
+    }
+    println!(" {:>22}", "max angle error [rad]");
     for (name, configuration) in [
         ("DA", Configuration::Da),
         ("SEA", Configuration::Sea),
@@ -154,27 +161,48 @@ fn main() {
     ] {
         let code = configuration.as_i32();
         let (_, reference) = run_cycle(&raw, code, 1e-5, &inputs);
-        let (wall, angles) = median(|| run_cycle(&raw, code, 1e-3, &inputs));
-        let (rust_wall, rust_angles) = median(|| run_cycle_in_rust(configuration, &inputs));
-        assert!(
-            angles
-                .iter()
-                .zip(&rust_angles)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{name}: the C ABI and the Rust call loop differ"
-        );
+        let (mut abi, mut rust, mut previous) = (Vec::new(), Vec::new(), Vec::new());
+        let mut angles = Vec::new();
+        for _ in 0..REPEATS {
+            let (t, a) = run_cycle(&raw, code, 1e-3, &inputs);
+            abi.push(t);
+            angles = a;
+            let (t, a) = run_cycle_in_rust(configuration, &inputs);
+            rust.push(t);
+            assert!(
+                same_bits(&angles, &a),
+                "{name}: the C ABI and the Rust call loop differ"
+            );
+            if let Some(baseline) = &baseline {
+                let (t, a) = run_cycle(baseline, code, 1e-3, &inputs);
+                previous.push(t);
+                assert!(
+                    same_bits(&angles, &a),
+                    "{name}: this build and the baseline differ"
+                );
+            }
+        }
         let error = angles
             .iter()
             .zip(&reference)
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
-        println!(
-            "{name:<6} {:>12.3} {:>16.0} {:>16.0} {:>12.2} {:>22.2e}",
+        let (wall, rust_wall) = (median(abi), median(rust));
+        print!(
+            "{name:<6} {:>10.3} {:>12.0} {:>12.0} {:>10.2}",
             wall * 1e3,
             2.5 / wall,
             2.5 / rust_wall,
             wall / rust_wall,
-            error
         );
+        if baseline.is_some() {
+            let previous_wall = median(previous);
+            print!(
+                " {:>15.0} {:>9.2}",
+                2.5 / previous_wall,
+                previous_wall / wall
+            );
+        }
+        println!(" {error:>22.2e}");
     }
 }
