@@ -610,6 +610,7 @@ pub(crate) struct Piece {
 }
 
 impl Piece {
+    #[inline(always)]
     pub(crate) fn eval(&self, s: f64) -> AugVector {
         let mut out = self.coefficients[self.terms - 1];
         for n in (0..self.terms - 1).rev() {
@@ -654,6 +655,7 @@ impl TaylorSegment {
     /// Makes this the segment of `duration` from `z0` under `z' = m z` (`rate` its
     /// [`rate_scale`]): pieces of equal length, about `2 / rate` each, doubled in number
     /// until every piece's series converges within [`PIECE_TERMS`] terms.
+    #[inline(always)]
     pub(crate) fn rebuild(&mut self, m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) {
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
@@ -723,10 +725,12 @@ impl TaylorSegment {
     }
 
     /// The pieces, in time order.
+    #[inline(always)]
     pub(crate) fn pieces(&self) -> &[Piece] {
         &self.pieces[..self.used]
     }
 
+    #[inline(always)]
     fn locate(&self, t: f64) -> (&Piece, f64) {
         let pieces = self.pieces();
         let len = pieces[0].len;
@@ -736,12 +740,14 @@ impl TaylorSegment {
     }
 
     /// State at time `t` in `[0, duration]`.
+    #[inline(always)]
     pub(crate) fn state_at(&self, t: f64) -> AugVector {
         let (piece, s) = self.locate(t);
         piece.eval(s)
     }
 
     /// Ends of the pieces (for sign-change scanning), excluding 0.
+    #[inline(always)]
     pub(crate) fn piece_ends(&self) -> impl Iterator<Item = f64> + '_ {
         self.pieces().iter().map(|p| p.start + p.len)
     }
@@ -779,8 +785,9 @@ pub(crate) fn poly_integral(p: &[f64], s0: f64, s1: f64) -> f64 {
 /// The antiderivative of a polynomial of at most `2 PIECE_TERMS` coefficients, for many
 /// definite integrals of it: the coefficients `p_n / (n + 1)` divided once (the integrals of
 /// a sign split take up to 34 per polynomial, and the divisions dominated them).
-/// [`Self::between`] equals the per-integral Horner form `poly_integral` of the tests bit for
-/// bit (the same quotients, then the same operations; tested).
+/// Differences of [`Self::at`] equal the per-integral Horner form `poly_integral` of the tests
+/// bit for bit (the same quotients, then the same operations; tested), which lets the
+/// integrals between consecutive points share each point's value.
 pub(crate) struct Antiderivative {
     coefficients: [f64; 2 * PIECE_TERMS],
     len: usize,
@@ -788,6 +795,7 @@ pub(crate) struct Antiderivative {
 
 impl Antiderivative {
     /// The antiderivative of `p` (at most `2 PIECE_TERMS` coefficients).
+    #[inline(always)]
     pub(crate) fn of(p: &[f64]) -> Self {
         let mut coefficients = [0.0; 2 * PIECE_TERMS];
         for (n, (q, c)) in coefficients.iter_mut().zip(p).enumerate() {
@@ -799,21 +807,47 @@ impl Antiderivative {
         }
     }
 
-    /// `integral_{s0}^{s1} p(s) ds`.
+    /// `integral_{s0}^{s1} p(s) ds`, as `at(s1) - at(s0)` (what the plant computes).
+    #[cfg(test)]
     pub(crate) fn between(&self, s0: f64, s1: f64) -> f64 {
-        let mut hi = 0.0;
-        let mut lo = 0.0;
-        for q in self.coefficients[..self.len].iter().rev() {
-            hi = hi * s1 + q;
-            lo = lo * s0 + q;
+        self.at(s1) - self.at(s0)
+    }
+
+    /// `integral_0^s p`: the Horner form of the coefficients at `s`, times `s`.
+    #[inline(always)]
+    pub(crate) fn at(&self, s: f64) -> f64 {
+        poly_eval(&self.coefficients[..self.len], s) * s
+    }
+
+    /// [`Self::at`] at every point of `points`, bit for bit (see [`poly_eval_many`]).
+    #[inline(always)]
+    pub(crate) fn at_many<const N: usize>(&self, points: &[f64; N]) -> [f64; N] {
+        let mut values = poly_eval_many(&self.coefficients[..self.len], points);
+        for (v, s) in values.iter_mut().zip(points) {
+            *v *= s;
         }
-        hi * s1 - lo * s0
+        values
     }
 }
 
 /// Value of a polynomial at `s`.
+#[inline(always)]
 pub(crate) fn poly_eval(p: &[f64], s: f64) -> f64 {
     p.iter().rev().fold(0.0, |acc, c| acc * s + c)
+}
+
+/// [`poly_eval`] at every point of `points`, bit for bit: each point's Horner chain is the
+/// same sequence of operations, the chains side by side (one chain waits on its previous
+/// multiply-add at every coefficient; side by side they fill the vector lanes instead).
+#[inline(always)]
+pub(crate) fn poly_eval_many<const N: usize>(p: &[f64], points: &[f64; N]) -> [f64; N] {
+    let mut values = [0.0; N];
+    for c in p.iter().rev() {
+        for (v, s) in values.iter_mut().zip(points) {
+            *v = *v * s + c;
+        }
+    }
+    values
 }
 
 /// Converts a state slice to the fixed array type.
@@ -848,6 +882,22 @@ mod tests {
                     anti.between(s0, s1).to_bits(),
                     poly_integral(&p, s0, s1).to_bits(),
                     "len {len} [{s0}, {s1}]"
+                );
+            }
+            // Many points side by side: each one's own Horner chain, bit for bit.
+            let points: [f64; 17] = std::array::from_fn(|k| 0.83 * k as f64 / 16.0 - 0.01);
+            let values = poly_eval_many(&p, &points);
+            let primitives = anti.at_many(&points);
+            for (k, s) in points.iter().enumerate() {
+                assert_eq!(
+                    values[k].to_bits(),
+                    poly_eval(&p, *s).to_bits(),
+                    "len {len} {s}"
+                );
+                assert_eq!(
+                    primitives[k].to_bits(),
+                    anti.at(*s).to_bits(),
+                    "len {len} {s}"
                 );
             }
         }

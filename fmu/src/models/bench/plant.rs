@@ -6,7 +6,7 @@ use super::friction::{Side, SideLaw};
 use super::mechanics::{
     Antiderivative, AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization,
     FRICTION1, FRICTION2, LinearMode, NZ, OMEGA1, OMEGA2, PIECE_TERMS, SegmentIntegrals, THETA1,
-    THETA2, TaylorSegment, poly_eval, rate_scale, system_matrix,
+    THETA2, TaylorSegment, poly_eval, poly_eval_many, rate_scale, system_matrix,
 };
 use super::{
     BenchInputs, BenchParameters, DriverMode, InputError, Interlock, ParameterError, StepOutcome,
@@ -762,6 +762,7 @@ impl BenchPlant {
         z
     }
 
+    #[inline(always)]
     fn event_value(&self, held: &Held, event: Event, z: &AugVector) -> f64 {
         self.event_value_with(held, event, z, &self.demands(held, z))
     }
@@ -903,6 +904,7 @@ impl BenchPlant {
         ]
     }
 
+    #[inline(always)]
     fn constant_power(&self, held: &Held) -> f64 {
         self.params.hardware_offset_power
             + if held.clutch {
@@ -967,9 +969,51 @@ impl BenchPlant {
     }
 
     /// A sub-step with events: Taylor segments from event to event, each event located on the
-    /// exact flow and applied, until the sub-step's end (or a trip).
-    #[inline(never)]
+    /// exact flow and applied, until the sub-step's end (or a trip). Kept out of line, in the
+    /// build the step runs (see [`Self::step`]), so the common path stays small.
+    #[inline(always)]
     fn event_substep(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        #[cfg(target_arch = "x86_64")]
+        if self.runs_wide() {
+            // SAFETY: `wide_vectors` is set only where the CPU reports AVX2
+            // (`cpu_has_wide_vectors`), the one feature `event_substep_wide` is compiled for.
+            return unsafe { self.event_substep_wide(first_held, h, start_time) };
+        }
+        self.event_substep_baseline(first_held, h, start_time)
+    }
+
+    /// [`Self::event_substep`] compiled for AVX2, as [`Self::step_wide`] is: the same
+    /// operations in the same order, the segments' polynomial loops on wider registers.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    fn event_substep_wide(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        self.event_substep_inline(first_held, h, start_time)
+    }
+
+    /// [`Self::event_substep`] in the baseline build.
+    #[inline(never)]
+    fn event_substep_baseline(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        self.event_substep_inline(first_held, h, start_time)
+    }
+
+    #[inline(always)]
+    fn event_substep_inline(
         &mut self,
         first_held: Held,
         h: f64,
@@ -983,6 +1027,7 @@ impl BenchPlant {
     }
 
     /// [`Self::event_substep`] with `segment` as the storage of its segments.
+    #[inline(always)]
     fn event_segments(
         &mut self,
         segment: &mut TaylorSegment,
@@ -1040,6 +1085,7 @@ impl BenchPlant {
         Ok(())
     }
 
+    #[inline(always)]
     fn apply_event(&mut self, held: &Held, event: Event) {
         match event {
             Event::Reversal(j) => {
@@ -1066,6 +1112,7 @@ impl BenchPlant {
 
     /// Earliest event in the segment: scan the piece ends for a function turning positive, then
     /// locate its root with the Illinois method on the exact flow.
+    #[inline(always)]
     fn earliest_event(
         &self,
         held: &Held,
@@ -1104,6 +1151,7 @@ impl BenchPlant {
 
     /// Root of an event function bracketed by `g(a) <= 0 < g(b)`; returns the first time at
     /// which it is positive or zero to within rounding (the right end of the final bracket).
+    #[inline(always)]
     fn locate_root(
         &self,
         held: &Held,
@@ -1255,6 +1303,7 @@ impl BenchPlant {
     /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes.
     /// Per piece the six products (`w^2`, `i^2`, `i w` per side) are formed once; the powers are
     /// linear in them (`V i = a i^2 + b w i + c i` with the driver's affine voltage law).
+    #[inline(always)]
     fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
         let tpa = self.torque_per_ampere();
         let mut signed = [0.0; 5];
@@ -1330,6 +1379,7 @@ impl BenchPlant {
     }
 
     /// Armature voltage of motor `n` as `a i + b w + c` for the held mode.
+    #[inline(always)]
     fn voltage_law(&self, held: &Held, n: usize) -> (f64, f64, f64) {
         if held.mode.voltage_row[n] {
             (0.0, 0.0, held.drive[n])
@@ -1412,6 +1462,7 @@ fn hermite_positive_part(p0: f64, p1: f64, m0: f64, m1: f64, signed: f64, h: f64
 /// `integral_0^{s_end} max(p(s), 0) ds` given the signed integral `signed`: when
 /// `|p(0)|` exceeds the bound `sum_k>0 |p_k| s_end^k` on the change over the piece the sign is
 /// fixed, else [`positive_integral`].
+#[inline(always)]
 fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
     let mut bound = 0.0;
     let mut power = 1.0;
@@ -1428,6 +1479,7 @@ fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
 }
 
 /// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled).
+#[inline(always)]
 fn square_into(a: &[f64], out: &mut [f64]) {
     let n = a.len();
     out[..2 * n - 1].fill(0.0);
@@ -1444,6 +1496,7 @@ fn square_into(a: &[f64], out: &mut [f64]) {
 }
 
 /// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
+#[inline(always)]
 fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
     out[..a.len() + b.len() - 1].fill(0.0);
     for (k, x) in a.iter().enumerate() {
@@ -1459,6 +1512,7 @@ fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
 /// Root of `p` bracketed by values of opposite signs at `a` and `b`, by the Illinois method to
 /// a bracket of `1e-10` of the interval: misplacing the split point by `d` misattributes only
 /// about `|p'| d^2 / 2` of area, far below rounding here.
+#[inline(always)]
 fn polynomial_root(p: &[f64], (mut a, mut pa): (f64, f64), (mut b, mut pb): (f64, f64)) -> f64 {
     let tolerance = 1e-10 * (b - a);
     let mut side = 0;
@@ -1495,29 +1549,37 @@ fn polynomial_root(p: &[f64], (mut a, mut pa): (f64, f64), (mut b, mut pb): (f64
 
 /// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan
 /// (each root by [`polynomial_root`]).
+#[inline(always)]
 fn positive_integral(p: &[f64], s_end: f64) -> f64 {
     const SCAN: usize = 16;
-    let mut total = 0.0;
-    let mut a = 0.0;
-    let mut pa = poly_eval(p, 0.0);
-    // Up to 34 integrals of `p` below: its antiderivative's coefficients divided once.
+    let points: [f64; SCAN + 1] = std::array::from_fn(|k| {
+        if k == 0 {
+            0.0
+        } else {
+            s_end * k as f64 / SCAN as f64
+        }
+    });
+    // `p` and its antiderivative at every scan point, evaluated side by side (bit for bit each
+    // point's own Horner chain); an integral between two points is the difference of theirs.
+    let values = poly_eval_many(p, &points);
     let anti = Antiderivative::of(p);
+    let primitives = anti.at_many(&points);
+    let mut total = 0.0;
     for k in 1..=SCAN {
-        let b = s_end * k as f64 / SCAN as f64;
-        let pb = poly_eval(p, b);
+        let (a, pa, fa) = (points[k - 1], values[k - 1], primitives[k - 1]);
+        let (b, pb, fb) = (points[k], values[k], primitives[k]);
         if pa * pb < 0.0 {
             let root = polynomial_root(p, (a, pa), (b, pb));
-            let first = anti.between(a, root);
-            let second = anti.between(root, b);
+            let at_root = anti.at(root);
+            let first = at_root - fa;
+            let second = fb - at_root;
             total += first.max(0.0) + second.max(0.0);
         } else {
-            let part = anti.between(a, b);
+            let part = fb - fa;
             if pa > 0.0 || pb > 0.0 {
                 total += part.max(0.0);
             }
         }
-        a = b;
-        pa = pb;
     }
     total
 }
