@@ -3,10 +3,21 @@
 //! against a reference run with a 100 times finer internal step (maxInternalStep 1e-5 s).
 //! DA, SEA and CSEA (the CSEA run engages the clutch in stance, gait phase 0.05..0.45).
 //!
+//! The baseline, measured in the same run: the same cycle as a plain Rust call loop on the
+//! plant (`BenchPlant::step` and the motion outputs, no FMI), which must give the same angles
+//! bit for bit; "ABI/Rust" is the share the C ABI and the FMU glue add. With
+//! `KNEEBENCH_PLANT_ABI_BASELINE` naming another build's `libkneebench_fmu.so` (e.g. the
+//! previous commit's), that build runs too, interleaved, and must give the same angles bit for
+//! bit; "speed-up" is its wall time over this build's.
+//!
 //! Run: `cargo bench -p kneebench-tests --bench plant_abi`
 
+use std::path::Path;
 use std::time::Instant;
 
+use kneebench_fmu::models::bench::{
+    BenchInputs, BenchOutputs, BenchParameters, BenchPlant, Configuration, SignalGroup, StepOutcome,
+};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
@@ -80,41 +91,118 @@ fn run_cycle(
     (t0.elapsed().as_secs_f64(), angles)
 }
 
+/// The same cycle as [`run_cycle`] as a plain Rust call loop: the plant's step and its motion
+/// outputs (the group the angles belong to), as the FMU computes them, without FMI.
+fn run_cycle_in_rust(configuration: Configuration, inputs: &[(f64, f64, bool)]) -> (f64, Vec<f64>) {
+    let params = BenchParameters {
+        configuration,
+        ..BenchParameters::default()
+    };
+    let mut plant = BenchPlant::new(params).unwrap();
+    let clutch = configuration == Configuration::Csea;
+    let mut outputs = BenchOutputs::default();
+    let mut angles = Vec::with_capacity(2 * STEPS as usize);
+    let t0 = Instant::now();
+    for &(test, load, stance) in inputs {
+        let step = BenchInputs {
+            test_command: test,
+            load_command: load,
+            test_enable: true,
+            load_enable: true,
+            clutch_engage: clutch && stance,
+            emergency_stop: false,
+        };
+        assert_eq!(plant.step(&step, H), StepOutcome::Completed);
+        plant.fill_outputs(SignalGroup::Motion, &mut outputs);
+        angles.extend_from_slice(&[outputs.actuation_angle, outputs.load_angle]);
+    }
+    (t0.elapsed().as_secs_f64(), angles)
+}
+
+/// A previous build of the FMU binary to measure in the same run, interleaved with this one:
+/// `KNEEBENCH_PLANT_ABI_BASELINE=/path/to/libkneebench_fmu.so` (its angles must be this
+/// build's bit for bit).
+const BASELINE_VAR: &str = "KNEEBENCH_PLANT_ABI_BASELINE";
+
+/// The median of `times`.
+fn median(mut times: Vec<f64>) -> f64 {
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+/// Whether two runs gave the same angles bit for bit.
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
 fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus = kneebench_harness::package::export_all(&fmu_library(), dir.path()).unwrap();
     let plant = fmus.iter().find(|f| f.identifier == "BenchPlant").unwrap();
     let fmu = kneebench_harness::Fmu::load(&plant.path, &Default::default()).unwrap();
     let raw = Raw::load(fmu.binary_path());
+    let baseline = std::env::var_os(BASELINE_VAR).map(|path| Raw::load(Path::new(&path)));
     let inputs = recorded_inputs();
     println!(
-        "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS})"
+        "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS}, interleaved)"
     );
-    println!(
-        "{:<6} {:>12} {:>16} {:>22}",
-        "config", "wall [ms]", "x real time", "max angle error [rad]"
+    print!(
+        "{:<6} {:>10} {:>12} {:>12} {:>10}",
+        "config", "wall [ms]", "x real time", "Rust x r.t.", "ABI/Rust"
     );
-    for (name, configuration) in [("DA", 0), ("SEA", 1), ("CSEA", 2)] {
-        let (_, reference) = run_cycle(&raw, configuration, 1e-5, &inputs);
-        let mut times = Vec::new();
+    if baseline.is_some() {
+        print!(" {:>15} {:>9}", "baseline x r.t.", "speed-up");
+    }
+    println!(" {:>22}", "max angle error [rad]");
+    for (name, configuration) in [
+        ("DA", Configuration::Da),
+        ("SEA", Configuration::Sea),
+        ("CSEA", Configuration::Csea),
+    ] {
+        let code = configuration.as_i32();
+        let (_, reference) = run_cycle(&raw, code, 1e-5, &inputs);
+        let (mut abi, mut rust, mut previous) = (Vec::new(), Vec::new(), Vec::new());
         let mut angles = Vec::new();
         for _ in 0..REPEATS {
-            let (t, a) = run_cycle(&raw, configuration, 1e-3, &inputs);
-            times.push(t);
+            let (t, a) = run_cycle(&raw, code, 1e-3, &inputs);
+            abi.push(t);
             angles = a;
+            let (t, a) = run_cycle_in_rust(configuration, &inputs);
+            rust.push(t);
+            assert!(
+                same_bits(&angles, &a),
+                "{name}: the C ABI and the Rust call loop differ"
+            );
+            if let Some(baseline) = &baseline {
+                let (t, a) = run_cycle(baseline, code, 1e-3, &inputs);
+                previous.push(t);
+                assert!(
+                    same_bits(&angles, &a),
+                    "{name}: this build and the baseline differ"
+                );
+            }
         }
-        times.sort_by(f64::total_cmp);
-        let wall = times[REPEATS / 2];
         let error = angles
             .iter()
             .zip(&reference)
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
-        println!(
-            "{name:<6} {:>12.3} {:>16.0} {:>22.2e}",
+        let (wall, rust_wall) = (median(abi), median(rust));
+        print!(
+            "{name:<6} {:>10.3} {:>12.0} {:>12.0} {:>10.2}",
             wall * 1e3,
             2.5 / wall,
-            error
+            2.5 / rust_wall,
+            wall / rust_wall,
         );
+        if baseline.is_some() {
+            let previous_wall = median(previous);
+            print!(
+                " {:>15.0} {:>9.2}",
+                2.5 / previous_wall,
+                previous_wall / wall
+            );
+        }
+        println!(" {error:>22.2e}");
     }
 }

@@ -259,6 +259,8 @@ pub struct Instance<M: Model> {
     boolean_getters: Vec<Option<BooleanGetter<M>>>,
     /// Real setters by value reference, with what a set must satisfy.
     real_setters: Vec<Option<RealSetter<M>>>,
+    /// Boolean setters by value reference, with the phases they may be set in.
+    boolean_setters: Vec<Option<BooleanSetter<M>>>,
 }
 
 /// The base-type number of a variable: 0 Real, 1 Integer/Enumeration, 2 Boolean, 3 String.
@@ -292,6 +294,7 @@ impl<M: Model> Instance<M> {
             integer_getters: integer_getter_table::<M>(),
             boolean_getters: boolean_getter_table::<M>(),
             real_setters: real_setter_table::<M>(),
+            boolean_setters: boolean_setter_table::<M>(),
         }
     }
 
@@ -597,16 +600,55 @@ struct RealSetter<M> {
     max: f64,
 }
 
+/// Index of `phase` in the `phases` of a setter table entry.
+#[inline]
+fn phase_index(phase: Phase) -> usize {
+    match phase {
+        Phase::Instantiated => 0,
+        Phase::Initialization => 1,
+        Phase::Stepping => 2,
+    }
+}
+
+/// Whether `v` may be set in [instantiated, initialization, stepping].
+fn settable_phases<M>(v: &Variable<M>) -> [bool; 3] {
+    [
+        v.settable(Phase::Instantiated),
+        v.settable(Phase::Initialization),
+        v.settable(Phase::Stepping),
+    ]
+}
+
 impl<M> RealSetter<M> {
     #[inline]
     fn accepts(&self, phase: Phase, x: f64) -> bool {
-        let p = match phase {
-            Phase::Instantiated => 0,
-            Phase::Initialization => 1,
-            Phase::Stepping => 2,
-        };
-        self.phases[p] && x.is_finite() && x >= self.min && x <= self.max
+        self.phases[phase_index(phase)] && x.is_finite() && x >= self.min && x <= self.max
     }
+}
+
+/// A Boolean variable's setter and the phases it may be set in (any value is valid).
+struct BooleanSetter<M> {
+    set: fn(&mut M, bool),
+    /// Settable in [instantiated, initialization, stepping].
+    phases: [bool; 3],
+}
+
+/// The Boolean setters of `M` indexed by value reference.
+fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> {
+    let mut table: Vec<Option<BooleanSetter<M>>> = Vec::new();
+    for v in M::variables() {
+        if let Access::Boolean(_, set) = v.access {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize_with(vr + 1, || None);
+            }
+            table[vr] = Some(BooleanSetter {
+                set,
+                phases: settable_phases(v),
+            });
+        }
+    }
+    table
 }
 
 /// The Real setters of `M` indexed by value reference.
@@ -620,11 +662,7 @@ fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
             }
             table[vr] = Some(RealSetter {
                 set,
-                phases: [
-                    v.settable(Phase::Instantiated),
-                    v.settable(Phase::Initialization),
-                    v.settable(Phase::Stepping),
-                ],
+                phases: settable_phases(v),
                 min: v.min.unwrap_or(f64::NEG_INFINITY),
                 max: v.max.unwrap_or(f64::INFINITY),
             });
@@ -913,6 +951,21 @@ impl<M: Model> FmiInstance for Instance<M> {
         if !self.allow(Func::Set, f) {
             return fmi2Error;
         }
+        // Fast path: every reference known and settable now. Anything else takes the checking
+        // path below, which names the problem.
+        let phase = phase_index(self.phase());
+        let ok = vrs.iter().all(
+            |vr| matches!(self.boolean_setters.get(*vr as usize), Some(Some(e)) if e.phases[phase]),
+        );
+        if ok {
+            for (vr, x) in vrs.iter().zip(values) {
+                if let Some(Some(e)) = self.boolean_setters.get(*vr as usize) {
+                    (e.set)(&mut self.model, *x != 0);
+                }
+            }
+            self.after_set();
+            return fmi2OK;
+        }
         if let Err(s) = self.check_known(f, 2, vrs) {
             return s;
         }
@@ -1109,5 +1162,53 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn poison(&mut self) {
         self.state = State::Error;
+    }
+}
+
+#[cfg(test)]
+mod boolean_set_tests {
+    use super::*;
+
+    fn bench_plant() -> Box<dyn FmiInstance> {
+        crate::registry::find_by_identifier("BenchPlant")
+            .expect("BenchPlant is exported")
+            .instantiate(Logger::new(None, std::ptr::null_mut(), c"test", false))
+    }
+
+    /// The values of `vrs`; `None` before initialization, where no get is allowed.
+    fn read(i: &mut Box<dyn FmiInstance>, vrs: &[u32]) -> Option<Vec<fmi2Boolean>> {
+        let mut out = vec![7; vrs.len()];
+        (i.get_boolean(vrs, &mut out) == fmi2OK).then_some(out)
+    }
+
+    /// The table path of `fmi2SetBoolean` sets inputs in every phase (any non-zero value is
+    /// true) and leaves a call with an output or an unknown reference to the checking path,
+    /// which refuses it whole: nothing of the call is set.
+    #[test]
+    fn a_boolean_set_takes_all_or_nothing_in_every_phase() {
+        // 206 clutchEngage and 204 testDriverEnable (inputs), 330 clutchEngaged (output).
+        let mut i = bench_plant();
+        for phase in 0..3 {
+            match phase {
+                1 => assert_eq!(i.enter_initialization_mode(), fmi2OK),
+                2 => assert_eq!(i.exit_initialization_mode(), fmi2OK),
+                _ => {}
+            }
+            let readable = phase > 0;
+            assert_eq!(i.set_boolean(&[206, 204], &[2, 0]), fmi2OK, "phase {phase}");
+            assert_eq!(read(&mut i, &[206, 204]).is_some(), readable);
+            if readable {
+                assert_eq!(read(&mut i, &[206, 204]), Some(vec![1, 0]), "phase {phase}");
+            }
+            assert_eq!(i.set_boolean(&[206, 204], &[0, 1]), fmi2OK, "phase {phase}");
+            for refused in [[206, 330], [206, 999], [204, 206 + 1000]] {
+                assert_eq!(i.set_boolean(&refused, &[1, 0]), fmi2Error, "{refused:?}");
+                if readable {
+                    assert_eq!(read(&mut i, &[206, 204]), Some(vec![0, 1]), "{refused:?}");
+                }
+            }
+            // A Real reference is no Boolean one.
+            assert_eq!(i.set_boolean(&[201], &[1]), fmi2Error);
+        }
     }
 }

@@ -596,6 +596,10 @@ pub(crate) const MAX_TERMS: usize = 48;
 /// see [`TaylorSegment::new`]; one that needs more is split).
 pub(crate) const PIECE_TERMS: usize = 32;
 
+/// Pieces whose storage a [`TaylorSegment`] keeps between rebuilds (a 1 ms sub-step of the
+/// stiffest mode needs a handful).
+const SPARE_PIECES: usize = 64;
+
 /// One piece of a Taylor-expanded segment: `z(start + s len) = sum_n s^n coefficients[n]`.
 #[derive(Debug, Clone)]
 pub(crate) struct Piece {
@@ -606,6 +610,7 @@ pub(crate) struct Piece {
 }
 
 impl Piece {
+    #[inline(always)]
     pub(crate) fn eval(&self, s: f64) -> AugVector {
         let mut out = self.coefficients[self.terms - 1];
         for n in (0..self.terms - 1).rev() {
@@ -627,27 +632,51 @@ impl Piece {
 }
 
 /// A segment `[0, duration]` of the linear flow from `z0`, as Taylor pieces.
-#[derive(Debug, Clone)]
+///
+/// A segment is rebuilt in place ([`Self::rebuild`]) by every event sub-step: the pieces stay
+/// allocated between builds, and a piece's coefficients past its `terms` are never read, so a
+/// rebuild writes only the terms it computes (no allocation, no zeroing of the 32-term arrays).
+#[derive(Debug, Clone, Default)]
 pub(crate) struct TaylorSegment {
-    pub pieces: Vec<Piece>,
+    /// `pieces[..used]` are this segment's; the rest are storage kept for the next rebuild.
+    pieces: Vec<Piece>,
+    used: usize,
 }
 
 impl TaylorSegment {
+    /// The segment of `duration` from `z0` under `z' = m z` (`rate` its [`rate_scale`]).
+    #[cfg(test)]
     pub(crate) fn new(m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) -> Self {
+        let mut segment = Self::default();
+        segment.rebuild(m, rate, z0, duration);
+        segment
+    }
+
+    /// Makes this the segment of `duration` from `z0` under `z' = m z` (`rate` its
+    /// [`rate_scale`]): pieces of equal length, about `2 / rate` each, doubled in number
+    /// until every piece's series converges within [`PIECE_TERMS`] terms.
+    #[inline(always)]
+    pub(crate) fn rebuild(&mut self, m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) {
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
             let pieces_wanted = count;
             let len = duration / pieces_wanted as f64;
-            let mut pieces: Vec<Piece> = Vec::with_capacity(pieces_wanted);
+            self.used = 0;
             let mut z = *z0;
             for p in 0..pieces_wanted {
-                pieces.push(Piece {
-                    start: p as f64 * len,
-                    len,
-                    terms: 1,
-                    coefficients: [[0.0; NZ]; PIECE_TERMS],
-                });
-                let piece = pieces.last_mut().expect("just pushed");
+                if self.pieces.len() == p {
+                    self.pieces.push(Piece {
+                        start: 0.0,
+                        len: 0.0,
+                        terms: 1,
+                        coefficients: [[0.0; NZ]; PIECE_TERMS],
+                    });
+                }
+                self.used = p + 1;
+                let piece = &mut self.pieces[p];
+                piece.start = p as f64 * len;
+                piece.len = len;
+                piece.terms = 1;
                 piece.coefficients[0] = z;
                 let scale = z.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
                 let mut small_in_a_row = 0;
@@ -681,26 +710,46 @@ impl TaylorSegment {
                 }
                 z = piece.eval(1.0);
             }
-            return Self { pieces };
+            return;
         }
     }
 
+    /// Drops the storage of pieces beyond [`SPARE_PIECES`] (a rare long segment, e.g. a
+    /// whole 1 s sub-step, needs thousands of pieces: their storage is not kept).
+    pub(crate) fn release_excess(&mut self) {
+        if self.pieces.len() > SPARE_PIECES {
+            self.pieces.truncate(SPARE_PIECES);
+            self.pieces.shrink_to_fit();
+            self.used = self.used.min(SPARE_PIECES);
+        }
+    }
+
+    /// The pieces, in time order.
+    #[inline(always)]
+    pub(crate) fn pieces(&self) -> &[Piece] {
+        &self.pieces[..self.used]
+    }
+
+    #[inline(always)]
     fn locate(&self, t: f64) -> (&Piece, f64) {
-        let len = self.pieces[0].len;
-        let index = ((t / len) as usize).min(self.pieces.len() - 1);
-        let piece = &self.pieces[index];
+        let pieces = self.pieces();
+        let len = pieces[0].len;
+        let index = ((t / len) as usize).min(pieces.len() - 1);
+        let piece = &pieces[index];
         (piece, ((t - piece.start) / len).clamp(0.0, 1.0))
     }
 
     /// State at time `t` in `[0, duration]`.
+    #[inline(always)]
     pub(crate) fn state_at(&self, t: f64) -> AugVector {
         let (piece, s) = self.locate(t);
         piece.eval(s)
     }
 
     /// Ends of the pieces (for sign-change scanning), excluding 0.
+    #[inline(always)]
     pub(crate) fn piece_ends(&self) -> impl Iterator<Item = f64> + '_ {
-        self.pieces.iter().map(|p| p.start + p.len)
+        self.pieces().iter().map(|p| p.start + p.len)
     }
 }
 
@@ -719,7 +768,9 @@ pub(crate) fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
     out
 }
 
-/// `integral_{s0}^{s1} p(s) ds`.
+/// `integral_{s0}^{s1} p(s) ds` (the tests' reference; the plant integrates by
+/// [`Antiderivative`]).
+#[cfg(test)]
 pub(crate) fn poly_integral(p: &[f64], s0: f64, s1: f64) -> f64 {
     let mut hi = 0.0;
     let mut lo = 0.0;
@@ -731,9 +782,72 @@ pub(crate) fn poly_integral(p: &[f64], s0: f64, s1: f64) -> f64 {
     hi * s1 - lo * s0
 }
 
+/// The antiderivative of a polynomial of at most `2 PIECE_TERMS` coefficients, for many
+/// definite integrals of it: the coefficients `p_n / (n + 1)` divided once (the integrals of
+/// a sign split take up to 34 per polynomial, and the divisions dominated them).
+/// Differences of [`Self::at`] equal the per-integral Horner form `poly_integral` of the tests
+/// bit for bit (the same quotients, then the same operations; tested), which lets the
+/// integrals between consecutive points share each point's value.
+pub(crate) struct Antiderivative {
+    coefficients: [f64; 2 * PIECE_TERMS],
+    len: usize,
+}
+
+impl Antiderivative {
+    /// The antiderivative of `p` (at most `2 PIECE_TERMS` coefficients).
+    #[inline(always)]
+    pub(crate) fn of(p: &[f64]) -> Self {
+        let mut coefficients = [0.0; 2 * PIECE_TERMS];
+        for (n, (q, c)) in coefficients.iter_mut().zip(p).enumerate() {
+            *q = c / (n + 1) as f64;
+        }
+        Self {
+            coefficients,
+            len: p.len().min(2 * PIECE_TERMS),
+        }
+    }
+
+    /// `integral_{s0}^{s1} p(s) ds`, as `at(s1) - at(s0)` (what the plant computes).
+    #[cfg(test)]
+    pub(crate) fn between(&self, s0: f64, s1: f64) -> f64 {
+        self.at(s1) - self.at(s0)
+    }
+
+    /// `integral_0^s p`: the Horner form of the coefficients at `s`, times `s`.
+    #[inline(always)]
+    pub(crate) fn at(&self, s: f64) -> f64 {
+        poly_eval(&self.coefficients[..self.len], s) * s
+    }
+
+    /// [`Self::at`] at every point of `points`, bit for bit (see [`poly_eval_many`]).
+    #[inline(always)]
+    pub(crate) fn at_many<const N: usize>(&self, points: &[f64; N]) -> [f64; N] {
+        let mut values = poly_eval_many(&self.coefficients[..self.len], points);
+        for (v, s) in values.iter_mut().zip(points) {
+            *v *= s;
+        }
+        values
+    }
+}
+
 /// Value of a polynomial at `s`.
+#[inline(always)]
 pub(crate) fn poly_eval(p: &[f64], s: f64) -> f64 {
     p.iter().rev().fold(0.0, |acc, c| acc * s + c)
+}
+
+/// [`poly_eval`] at every point of `points`, bit for bit: each point's Horner chain is the
+/// same sequence of operations, the chains side by side (one chain waits on its previous
+/// multiply-add at every coefficient; side by side they fill the vector lanes instead).
+#[inline(always)]
+pub(crate) fn poly_eval_many<const N: usize>(p: &[f64], points: &[f64; N]) -> [f64; N] {
+    let mut values = [0.0; N];
+    for c in p.iter().rev() {
+        for (v, s) in values.iter_mut().zip(points) {
+            *v = *v * s + c;
+        }
+    }
+    values
 }
 
 /// Converts a state slice to the fixed array type.
@@ -750,6 +864,42 @@ mod tests {
         LinearMode {
             stuck: [false, false],
             voltage_row: [true, false],
+        }
+    }
+
+    /// The antiderivative's integrals are `poly_integral`'s bit for bit, for polynomials of
+    /// every length up to the longest (`2 PIECE_TERMS - 1`, a product of two pieces'
+    /// components) with coefficients of mixed signs and magnitudes.
+    #[test]
+    fn antiderivative_integrals_are_poly_integral_bit_for_bit() {
+        for len in 1..2 * PIECE_TERMS {
+            let p: Vec<f64> = (0..len)
+                .map(|n| (n as f64 * 0.37 + 0.1).sin() * 10f64.powi(n as i32 % 7 - 3))
+                .collect();
+            let anti = Antiderivative::of(&p);
+            for (s0, s1) in [(0.0, 1.0), (0.0, 0.3125), (0.17, 0.83), (0.5, 0.5000001)] {
+                assert_eq!(
+                    anti.between(s0, s1).to_bits(),
+                    poly_integral(&p, s0, s1).to_bits(),
+                    "len {len} [{s0}, {s1}]"
+                );
+            }
+            // Many points side by side: each one's own Horner chain, bit for bit.
+            let points: [f64; 17] = std::array::from_fn(|k| 0.83 * k as f64 / 16.0 - 0.01);
+            let values = poly_eval_many(&p, &points);
+            let primitives = anti.at_many(&points);
+            for (k, s) in points.iter().enumerate() {
+                assert_eq!(
+                    values[k].to_bits(),
+                    poly_eval(&p, *s).to_bits(),
+                    "len {len} {s}"
+                );
+                assert_eq!(
+                    primitives[k].to_bits(),
+                    anti.at(*s).to_bits(),
+                    "len {len} {s}"
+                );
+            }
         }
     }
 
@@ -802,7 +952,7 @@ mod tests {
                 let full = d.gramians();
                 for (k, &(a, b)) in PRODUCTS.iter().enumerate() {
                     let mut total = 0.0;
-                    for piece in &segment.pieces {
+                    for piece in segment.pieces() {
                         let prod = poly_mul(&piece.component(a), &piece.component(b));
                         total += piece.len * poly_integral(&prod, 0.0, 1.0);
                     }
@@ -952,7 +1102,7 @@ mod reference_tests {
                         for (k, &(a, b)) in pairs.iter().enumerate() {
                             let mut total = 0.0;
                             let mut size = 0.0;
-                            for piece in &segment.pieces {
+                            for piece in segment.pieces() {
                                 let prod = if b == usize::MAX {
                                     piece.component(a)
                                 } else {

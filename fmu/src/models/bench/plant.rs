@@ -4,9 +4,9 @@ use std::sync::Arc;
 
 use super::friction::{Side, SideLaw};
 use super::mechanics::{
-    AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization, FRICTION1, FRICTION2,
-    LinearMode, NZ, OMEGA1, OMEGA2, PIECE_TERMS, SegmentIntegrals, THETA1, THETA2, TaylorSegment,
-    poly_eval, poly_integral, rate_scale, system_matrix,
+    Antiderivative, AugMatrix, AugVector, CURRENT1, CURRENT2, DRIVE1, DRIVE2, Discretization,
+    FRICTION1, FRICTION2, LinearMode, NZ, OMEGA1, OMEGA2, PIECE_TERMS, SegmentIntegrals, THETA1,
+    THETA2, TaylorSegment, poly_eval, poly_eval_many, rate_scale, system_matrix,
 };
 use super::{
     BenchInputs, BenchParameters, DriverMode, InputError, Interlock, ParameterError, StepOutcome,
@@ -171,6 +171,45 @@ pub(crate) enum Event {
     Trip(Interlock),
 }
 
+/// The switching event functions (every event function but the trips, which are always
+/// active) in the order of the event list: bit `k` of an active set stands for entry `k`. At
+/// most one of a body's reversal and break-aways, and of a motor's saturation exit and entries,
+/// is active at a time.
+const SWITCHING_EVENTS: [Event; 12] = [
+    Event::Reversal(0),
+    Event::BreakAway(0, 1.0),
+    Event::BreakAway(0, -1.0),
+    Event::Reversal(1),
+    Event::BreakAway(1, 1.0),
+    Event::BreakAway(1, -1.0),
+    Event::SaturationExit(0),
+    Event::SaturationEnter(0, 1.0),
+    Event::SaturationEnter(0, -1.0),
+    Event::SaturationExit(1),
+    Event::SaturationEnter(1, 1.0),
+    Event::SaturationEnter(1, -1.0),
+];
+
+/// The active switching event functions of a mode: bit `k` set for `SWITCHING_EVENTS[k]`. A
+/// bit set, not a list, on the regular path: it costs no list to build and copy per sub-step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ActiveEvents(u16);
+
+impl ActiveEvents {
+    /// The active switching events, in list order.
+    #[inline(always)]
+    fn iter(self) -> impl Iterator<Item = Event> {
+        let mut bits = self.0;
+        std::iter::from_fn(move || {
+            (bits != 0).then(|| {
+                let k = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                SWITCHING_EVENTS[k]
+            })
+        })
+    }
+}
+
 /// Everything that evolves.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct DynamicState {
@@ -201,6 +240,8 @@ pub struct BenchPlant {
     /// Whether the step runs its AVX2 build (see [`BenchPlant::step`]). Private: true only
     /// where the CPU has AVX2 (a soundness condition); read through `runs_wide`.
     wide_vectors: bool,
+    /// Storage of the Taylor segments of event sub-steps (not state: rebuilt by each use).
+    segment_scratch: TaylorSegment,
 }
 
 /// Whether this CPU runs the plant's AVX2 build of the step.
@@ -331,6 +372,7 @@ impl BenchPlant {
             cache: Vec::new(),
             last_hit: 0,
             wide_vectors: cpu_has_wide_vectors(),
+            segment_scratch: TaylorSegment::default(),
         };
         plant.settle_sticking();
         Ok(plant)
@@ -720,6 +762,7 @@ impl BenchPlant {
         z
     }
 
+    #[inline(always)]
     fn event_value(&self, held: &Held, event: Event, z: &AugVector) -> f64 {
         self.event_value_with(held, event, z, &self.demands(held, z))
     }
@@ -733,24 +776,17 @@ impl BenchPlant {
         ]
     }
 
-    /// Whether any of `events` (a list made by [`Self::events`], the trips first) is positive at
-    /// `z`. The trips are checked with constant arguments, so their dispatch folds away.
+    /// Whether any trip or any of the `active` switching events is positive at `z`. The trips
+    /// are checked with constant arguments, so their dispatch folds away.
     #[inline(always)]
-    fn any_positive(&self, held: &Held, events: &[Event], z: &AugVector) -> bool {
+    fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
         let demand = self.demands(held, z);
-        let trips = Interlock::CHECKED.len();
-        debug_assert!(
-            events[..trips]
-                .iter()
-                .zip(Interlock::CHECKED)
-                .all(|(e, i)| *e == Event::Trip(i))
-        );
         Interlock::CHECKED
             .into_iter()
             .any(|i| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0)
-            || events[trips..]
+            || active
                 .iter()
-                .any(|&e| self.event_value_with(held, e, z, &demand) > 0.0)
+                .any(|e| self.event_value_with(held, e, z, &demand) > 0.0)
     }
 
     /// The event function `event` at `z`, given the voltage demands there.
@@ -792,37 +828,37 @@ impl BenchPlant {
         }
     }
 
-    /// Active event functions for the held mode (inlined: the list is built in place).
+    /// The switching event functions active in the held mode.
     #[inline(always)]
-    fn events(&self, held: &Held) -> ([Event; 16], usize) {
-        let mut list = [Event::Trip(Interlock::EmergencyStop); 16];
-        let mut count = 0;
-        let mut push = |e: Event| {
-            list[count] = e;
-            count += 1;
-        };
-        for interlock in Interlock::CHECKED {
-            push(Event::Trip(interlock));
-        }
+    fn active_events(&self, held: &Held) -> ActiveEvents {
+        let mut bits = 0u16;
         for j in 0..2 {
+            // Bits 3 j (reversal), 3 j + 1 and 3 j + 2 (break-away up and down).
             if self.state.stuck[j] {
-                push(Event::BreakAway(j, 1.0));
-                push(Event::BreakAway(j, -1.0));
+                bits |= 0b110 << (3 * j);
             } else if Self::has_friction(held, j) || held.friction[j] != 0.0 {
-                push(Event::Reversal(j));
+                bits |= 0b001 << (3 * j);
             }
         }
         for n in 0..2 {
+            // Bits 6 + 3 n (saturation exit), 7 + 3 n and 8 + 3 n (entry up and down).
             if held.current_loop[n] {
                 if self.state.saturation[n] != 0.0 {
-                    push(Event::SaturationExit(n));
+                    bits |= 0b001 << (6 + 3 * n);
                 } else {
-                    push(Event::SaturationEnter(n, 1.0));
-                    push(Event::SaturationEnter(n, -1.0));
+                    bits |= 0b110 << (6 + 3 * n);
                 }
             }
         }
-        (list, count)
+        ActiveEvents(bits)
+    }
+
+    /// Every active event function, the trips first, then the switching events in list order.
+    fn event_list(active: ActiveEvents) -> Vec<Event> {
+        let mut list = Vec::with_capacity(Interlock::CHECKED.len() + SWITCHING_EVENTS.len());
+        list.extend(Interlock::CHECKED.into_iter().map(Event::Trip));
+        list.extend(active.iter());
+        list
     }
 
     /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
@@ -868,6 +904,7 @@ impl BenchPlant {
         ]
     }
 
+    #[inline(always)]
     fn constant_power(&self, held: &Held) -> f64 {
         self.params.hardware_offset_power
             + if held.clutch {
@@ -897,8 +934,7 @@ impl BenchPlant {
         let start_time = self.state.time;
         let mut held = self.resolve()?;
         let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
-        let (list, count) = self.events(&held);
-        let events = &list[..count];
+        let active = self.active_events(&held);
         let index = self.discretization(held.mode, h);
         let mut z0 = self.input_state(&held);
         let (mut z1, mut currents) = self.cache[index].advance_with_currents(&z0);
@@ -907,7 +943,7 @@ impl BenchPlant {
             z0 = self.input_state(&held);
             (z1, currents) = self.cache[index].advance_with_currents(&z0);
         }
-        if self.any_positive(&held, events, &z1) {
+        if self.any_positive(&held, active, &z1) {
             return self.event_substep(held, h, start_time);
         }
         let p0 = self.powers(&held, &z0);
@@ -933,10 +969,68 @@ impl BenchPlant {
     }
 
     /// A sub-step with events: Taylor segments from event to event, each event located on the
-    /// exact flow and applied, until the sub-step's end (or a trip).
-    #[inline(never)]
+    /// exact flow and applied, until the sub-step's end (or a trip). Kept out of line, in the
+    /// build the step runs (see [`Self::step`]), so the common path stays small.
+    #[inline(always)]
     fn event_substep(
         &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        #[cfg(target_arch = "x86_64")]
+        if self.runs_wide() {
+            // SAFETY: `wide_vectors` is set only where the CPU reports AVX2
+            // (`cpu_has_wide_vectors`), the one feature `event_substep_wide` is compiled for.
+            return unsafe { self.event_substep_wide(first_held, h, start_time) };
+        }
+        self.event_substep_baseline(first_held, h, start_time)
+    }
+
+    /// [`Self::event_substep`] compiled for AVX2, as [`Self::step_wide`] is: the same
+    /// operations in the same order, the segments' polynomial loops on wider registers.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    fn event_substep_wide(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        self.event_substep_inline(first_held, h, start_time)
+    }
+
+    /// [`Self::event_substep`] in the baseline build.
+    #[inline(never)]
+    fn event_substep_baseline(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        self.event_substep_inline(first_held, h, start_time)
+    }
+
+    #[inline(always)]
+    fn event_substep_inline(
+        &mut self,
+        first_held: Held,
+        h: f64,
+        start_time: f64,
+    ) -> Result<(), (Interlock, f64)> {
+        let mut segment = std::mem::take(&mut self.segment_scratch);
+        let result = self.event_segments(&mut segment, first_held, h, start_time);
+        segment.release_excess();
+        self.segment_scratch = segment;
+        result
+    }
+
+    /// [`Self::event_substep`] with `segment` as the storage of its segments.
+    #[inline(always)]
+    fn event_segments(
+        &mut self,
+        segment: &mut TaylorSegment,
         first_held: Held,
         h: f64,
         start_time: f64,
@@ -953,24 +1047,23 @@ impl BenchPlant {
             };
             let speed_dependent =
                 (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
-            let (list, count) = self.events(&held);
-            let events = &list[..count];
+            let events = Self::event_list(self.active_events(&held));
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
-            let mut segment = TaylorSegment::new(&m, rate, &z0, remaining);
+            segment.rebuild(&m, rate, &z0, remaining);
             if speed_dependent {
                 let z1 = segment.state_at(remaining);
                 self.set_friction(&mut held, Some(&z1));
                 z0 = self.input_state(&held);
-                segment = TaylorSegment::new(&m, rate, &z0, remaining);
+                segment.rebuild(&m, rate, &z0, remaining);
             }
             let earliest = if budget > 0 {
-                self.earliest_event(&held, events, &segment)
+                self.earliest_event(&held, &events, segment)
             } else {
                 None
             };
             let stop = earliest.map_or(remaining, |(t, _)| t);
-            self.accumulate_segment(&held, &segment, stop);
+            self.accumulate_segment(&held, segment, stop);
             let z1 = segment.state_at(stop);
             self.commit(z1);
             elapsed += stop;
@@ -992,6 +1085,7 @@ impl BenchPlant {
         Ok(())
     }
 
+    #[inline(always)]
     fn apply_event(&mut self, held: &Held, event: Event) {
         match event {
             Event::Reversal(j) => {
@@ -1018,6 +1112,7 @@ impl BenchPlant {
 
     /// Earliest event in the segment: scan the piece ends for a function turning positive, then
     /// locate its root with the Illinois method on the exact flow.
+    #[inline(always)]
     fn earliest_event(
         &self,
         held: &Held,
@@ -1056,6 +1151,7 @@ impl BenchPlant {
 
     /// Root of an event function bracketed by `g(a) <= 0 < g(b)`; returns the first time at
     /// which it is positive or zero to within rounding (the right end of the final bracket).
+    #[inline(always)]
     fn locate_root(
         &self,
         held: &Held,
@@ -1207,6 +1303,7 @@ impl BenchPlant {
     /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes.
     /// Per piece the six products (`w^2`, `i^2`, `i w` per side) are formed once; the powers are
     /// linear in them (`V i = a i^2 + b w i + c i` with the driver's affine voltage law).
+    #[inline(always)]
     fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
         let tpa = self.torque_per_ampere();
         let mut signed = [0.0; 5];
@@ -1216,7 +1313,7 @@ impl BenchPlant {
         let mut emf = [0.0; 2];
         let constant = self.constant_power(held);
         let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
-        for piece in &segment.pieces {
+        for piece in segment.pieces() {
             if piece.start >= stop {
                 break;
             }
@@ -1282,6 +1379,7 @@ impl BenchPlant {
     }
 
     /// Armature voltage of motor `n` as `a i + b w + c` for the held mode.
+    #[inline(always)]
     fn voltage_law(&self, held: &Held, n: usize) -> (f64, f64, f64) {
         if held.mode.voltage_row[n] {
             (0.0, 0.0, held.drive[n])
@@ -1364,6 +1462,7 @@ fn hermite_positive_part(p0: f64, p1: f64, m0: f64, m1: f64, signed: f64, h: f64
 /// `integral_0^{s_end} max(p(s), 0) ds` given the signed integral `signed`: when
 /// `|p(0)|` exceeds the bound `sum_k>0 |p_k| s_end^k` on the change over the piece the sign is
 /// fixed, else [`positive_integral`].
+#[inline(always)]
 fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
     let mut bound = 0.0;
     let mut power = 1.0;
@@ -1380,6 +1479,7 @@ fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
 }
 
 /// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled).
+#[inline(always)]
 fn square_into(a: &[f64], out: &mut [f64]) {
     let n = a.len();
     out[..2 * n - 1].fill(0.0);
@@ -1396,6 +1496,7 @@ fn square_into(a: &[f64], out: &mut [f64]) {
 }
 
 /// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
+#[inline(always)]
 fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
     out[..a.len() + b.len() - 1].fill(0.0);
     for (k, x) in a.iter().enumerate() {
@@ -1411,6 +1512,7 @@ fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
 /// Root of `p` bracketed by values of opposite signs at `a` and `b`, by the Illinois method to
 /// a bracket of `1e-10` of the interval: misplacing the split point by `d` misattributes only
 /// about `|p'| d^2 / 2` of area, far below rounding here.
+#[inline(always)]
 fn polynomial_root(p: &[f64], (mut a, mut pa): (f64, f64), (mut b, mut pb): (f64, f64)) -> f64 {
     let tolerance = 1e-10 * (b - a);
     let mut side = 0;
@@ -1447,27 +1549,37 @@ fn polynomial_root(p: &[f64], (mut a, mut pa): (f64, f64), (mut b, mut pb): (f64
 
 /// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan
 /// (each root by [`polynomial_root`]).
+#[inline(always)]
 fn positive_integral(p: &[f64], s_end: f64) -> f64 {
     const SCAN: usize = 16;
+    let points: [f64; SCAN + 1] = std::array::from_fn(|k| {
+        if k == 0 {
+            0.0
+        } else {
+            s_end * k as f64 / SCAN as f64
+        }
+    });
+    // `p` and its antiderivative at every scan point, evaluated side by side (bit for bit each
+    // point's own Horner chain); an integral between two points is the difference of theirs.
+    let values = poly_eval_many(p, &points);
+    let anti = Antiderivative::of(p);
+    let primitives = anti.at_many(&points);
     let mut total = 0.0;
-    let mut a = 0.0;
-    let mut pa = poly_eval(p, 0.0);
     for k in 1..=SCAN {
-        let b = s_end * k as f64 / SCAN as f64;
-        let pb = poly_eval(p, b);
+        let (a, pa, fa) = (points[k - 1], values[k - 1], primitives[k - 1]);
+        let (b, pb, fb) = (points[k], values[k], primitives[k]);
         if pa * pb < 0.0 {
             let root = polynomial_root(p, (a, pa), (b, pb));
-            let first = poly_integral(p, a, root);
-            let second = poly_integral(p, root, b);
+            let at_root = anti.at(root);
+            let first = at_root - fa;
+            let second = fb - at_root;
             total += first.max(0.0) + second.max(0.0);
         } else {
-            let part = poly_integral(p, a, b);
+            let part = fb - fa;
             if pa > 0.0 || pb > 0.0 {
                 total += part.max(0.0);
             }
         }
-        a = b;
-        pa = pb;
     }
     total
 }
@@ -1475,6 +1587,71 @@ fn positive_integral(p: &[f64], s_end: f64) -> f64 {
 #[cfg(test)]
 mod root_tests {
     use super::*;
+
+    /// The event list as it was built before the active set: the trips, then per body its two
+    /// break-aways (stuck) or its reversal (sliding with friction), then per current loop its
+    /// saturation exit (saturated) or its two entries.
+    fn listed_events(plant: &BenchPlant, held: &Held) -> Vec<Event> {
+        let mut list: Vec<Event> = Interlock::CHECKED.into_iter().map(Event::Trip).collect();
+        for j in 0..2 {
+            if plant.state.stuck[j] {
+                list.push(Event::BreakAway(j, 1.0));
+                list.push(Event::BreakAway(j, -1.0));
+            } else if BenchPlant::has_friction(held, j) || held.friction[j] != 0.0 {
+                list.push(Event::Reversal(j));
+            }
+        }
+        for n in 0..2 {
+            if held.current_loop[n] {
+                if plant.state.saturation[n] != 0.0 {
+                    list.push(Event::SaturationExit(n));
+                } else {
+                    list.push(Event::SaturationEnter(n, 1.0));
+                    list.push(Event::SaturationEnter(n, -1.0));
+                }
+            }
+        }
+        list
+    }
+
+    /// The active set lists the same events in the same order (the order decides which of two
+    /// events at the same instant is applied first) in every combination of stuck bodies,
+    /// friction, current loops and saturation.
+    #[test]
+    fn the_active_set_lists_the_events_in_list_order() {
+        let mut plant = BenchPlant::new(BenchParameters::default()).unwrap();
+        let base = plant.hold();
+        let mut checked = 0;
+        for case in 0..(1u32 << 12) {
+            let bit = |k: u32| case >> k & 1 == 1;
+            let mut held = base;
+            for j in 0..2 {
+                let k = 6 * j as u32;
+                plant.state.stuck[j] = bit(k);
+                held.capacity[j] = if bit(k + 1) { [0.5, 0.7] } else { [0.0, 0.7] };
+                held.friction[j] = if bit(k + 2) { -0.2 } else { 0.0 };
+                held.current_loop[j] = bit(k + 3);
+                plant.state.saturation[j] = match (bit(k + 4), bit(k + 5)) {
+                    (false, _) => 0.0,
+                    (true, up) => {
+                        if up {
+                            1.0
+                        } else {
+                            -1.0
+                        }
+                    }
+                };
+            }
+            let listed = listed_events(&plant, &held);
+            assert_eq!(
+                BenchPlant::event_list(plant.active_events(&held)),
+                listed,
+                "case {case:#b}"
+            );
+            checked += listed.len();
+        }
+        assert!(checked > 7 << 12, "{checked}");
+    }
 
     #[test]
     fn polynomial_square_matches_the_product() {
