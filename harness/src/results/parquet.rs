@@ -5,7 +5,7 @@
 //! Rows are buffered per column as they come (one `Vec<f64>` each, filled in the row's pass)
 //! and written in row groups of [`ROW_GROUP_ROWS`] rows by the `parquet` crate's column
 //! writer: plain encoding, uncompressed (the values of a recording are mostly full-precision
-//! doubles: Snappy saves a fifth of the bytes for more time than the bytes take to write), no
+//! doubles: Snappy saved a fifth of the bytes and no time in the writers bench), no
 //! dictionary. Statistics (min and max per row group) are kept for `time` only, so that
 //! readers skip row groups by time; the signals' statistics cost a sixth of the writer's own
 //! time and no reader needs them. A Parquet file is readable
