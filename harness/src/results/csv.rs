@@ -276,14 +276,23 @@ impl CsvFile {
             path: self.path.clone(),
             source,
         })?;
-        Ok(self.path)
+        Ok(self.path.clone())
     }
 
     /// Flushes and leaves the rows in the partial file (a failed or stopped run); returns its
     /// path.
     pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
         self.writer.flush().map_err(|e| self.io(e))?;
-        Ok(self.partial)
+        Ok(self.partial.clone())
+    }
+}
+
+/// A file dropped without [`CsvFile::commit`] or [`CsvFile::keep_partial`] (a run that ended
+/// with an error) still hands its buffered rows to the partial file, as a `BufWriter` would;
+/// an error then has nowhere to go.
+impl Drop for CsvFile {
+    fn drop(&mut self) {
+        let _ = self.writer.flush();
     }
 }
 
@@ -465,6 +474,20 @@ mod tests {
         assert_eq!(
             String::from_utf8(w.into_inner().unwrap()).unwrap(),
             expected
+        );
+    }
+
+    #[test]
+    fn a_dropped_file_keeps_its_rows_in_the_partial_file() {
+        let d = tempfile::tempdir().unwrap();
+        let mut f = CsvFile::create(&d.path().join("r.csv")).unwrap();
+        let partial = f.partial_path().to_path_buf();
+        f.begin(&["x".to_string()], &[ColumnKind::Real]).unwrap();
+        f.push_row(0.0, &[1.5]).unwrap();
+        drop(f);
+        assert_eq!(
+            std::fs::read_to_string(partial).unwrap(),
+            "time,x\n0.0,1.5\n"
         );
     }
 
