@@ -20,13 +20,21 @@
 //!   sweep: spec, scenario, loading), reported with what they add per point at [`LARGE`].
 //! - **writers**: the SEA scenario recording every output (about 100 signals) for 10 s at
 //!   1 kHz, run once into memory; then the same rows written by the streamed CSV writer and by
-//!   the Parquet writer, each to its partial file and renamed into place; seconds each and
-//!   their ratio.
+//!   the Parquet writer, and by both writers as they were before their speed work (kept in
+//!   `sweep/baseline_writers.rs`), each to its partial file, synced and renamed into place;
+//!   wall time (the durable write a user waits for) and the writer's CPU time (without the wait
+//!   for the disk), each writer's I/O alone (its file's bytes written at once and synced), and
+//!   the ratios. `KNEEBENCH_WRITERS_PROFILE=<writer>|none` writes one file and stops, for
+//!   instruction counts under callgrind (`valgrind --tool=callgrind <bench binary>`, the
+//!   writer's count is the difference with `none`).
 //!
 //! `KNEEBENCH_SWEEP_BENCH_ONLY=throughput|overhead|writers` runs one part alone.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+#[path = "sweep/baseline_writers.rs"]
+mod baseline_writers;
 
 use kneebench_harness::master::Value;
 use kneebench_harness::package::export_all;
@@ -185,32 +193,83 @@ fn overhead(dir: &Path, fmus: &Path) {
     );
 }
 
+/// The writers compared by [`writers`], in the order they are run in each repeat.
+const WRITERS: [&str; 4] = ["CSV before", "CSV", "Parquet before", "Parquet"];
+
+/// Writes `results` through writer `k` of [`WRITERS`] into `dir` (partial file, sync, rename):
+/// the file's path.
+fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
+    let names = results.names();
+    let rows = || results.rows().map(|r| (r[0], &r[1..]));
+    match k {
+        0 => {
+            let mut f = baseline_writers::CsvFile::create(&dir.join("before.csv")).unwrap();
+            f.begin(names, results.kinds()).unwrap();
+            for (t, v) in rows() {
+                f.push_row(t, v).unwrap();
+            }
+            f.commit().unwrap()
+        }
+        1 => {
+            let mut f = CsvFile::create(&dir.join("w.csv")).unwrap();
+            write(results, &mut f);
+            f.commit().unwrap()
+        }
+        2 => {
+            let mut f = baseline_writers::ParquetFile::create(&dir.join("before.parquet")).unwrap();
+            f.begin(names).unwrap();
+            for (t, v) in rows() {
+                f.push_row(t, v).unwrap();
+            }
+            f.commit().unwrap()
+        }
+        _ => {
+            let mut f = ParquetFile::create(&dir.join("w.parquet")).unwrap();
+            write(results, &mut f);
+            f.commit().unwrap()
+        }
+    }
+}
+
+/// CPU time of this thread so far (user + system), seconds: what a writer costs, without the
+/// wait for the disk (the sync) that the wall time holds.
+fn thread_cpu() -> f64 {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes the timespec it is given.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+}
+
 fn writers(dir: &Path, p: &Prepared) {
     let mut full = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
     full.config.stop_time = 10.0;
     let results: Results = full.system.run(&full.config).unwrap().results;
-    let (mut csv, mut parquet) = (Vec::new(), Vec::new());
-    for _ in 0..REPEATS {
-        let path = dir.join("w.csv");
-        let t = Instant::now();
-        let mut f = CsvFile::create(&path).unwrap();
-        write(&results, &mut f);
-        f.commit().unwrap();
-        csv.push(t.elapsed().as_secs_f64());
-        let path = dir.join("w.parquet");
-        let t = Instant::now();
-        let mut f = ParquetFile::create(&path).unwrap();
-        write(&results, &mut f);
-        f.commit().unwrap();
-        parquet.push(t.elapsed().as_secs_f64());
+    if let Ok(k) = std::env::var("KNEEBENCH_WRITERS_PROFILE") {
+        // One file by one writer (or none: "none"), for instruction counts under callgrind:
+        // the writer's count is this run's less the run with "none".
+        if let Some(k) = WRITERS.iter().position(|w| w.eq_ignore_ascii_case(&k)) {
+            write_with(k, &results, dir);
+        }
+        return;
     }
-    // The file system's share: the same bytes written at once and synced (both writers sync
-    // their file before renaming it into place).
-    let bytes = [
-        std::fs::read(dir.join("w.csv")).unwrap(),
-        std::fs::read(dir.join("w.parquet")).unwrap(),
-    ];
-    let mut io = [Vec::new(), Vec::new()];
+    let (mut wall, mut cpu) = ([(); 4].map(|_| Vec::new()), [(); 4].map(|_| Vec::new()));
+    let mut files = Vec::new();
+    for _ in 0..REPEATS {
+        files.clear();
+        for k in 0..WRITERS.len() {
+            let (t, c) = (Instant::now(), thread_cpu());
+            files.push(write_with(k, &results, dir));
+            cpu[k].push(thread_cpu() - c);
+            wall[k].push(t.elapsed().as_secs_f64());
+        }
+    }
+    // The file system's share: each file's bytes written at once and synced (every writer
+    // syncs its file before renaming it into place).
+    let bytes: Vec<Vec<u8>> = files.iter().map(|f| std::fs::read(f).unwrap()).collect();
+    let mut io = [(); 4].map(|_| Vec::new());
     for _ in 0..REPEATS {
         for (k, b) in bytes.iter().enumerate() {
             let path = dir.join(format!("io{k}"));
@@ -221,23 +280,35 @@ fn writers(dir: &Path, p: &Prepared) {
             io[k].push(t.elapsed().as_secs_f64());
         }
     }
-    let [ic, iq] = io.map(median);
-    let (tc, tq) = (median(csv), median(parquet));
+    let wall = wall.map(median);
+    let cpu = cpu.map(median);
+    let io = io.map(median);
     println!(
-        "writers ({} signals x {} rows): CSV {:.1} ms ({:.1} MB), Parquet {:.1} ms ({:.1} MB), \
-         Parquet {:.1}x faster; of which writing and syncing the bytes alone: CSV {:.1} ms, \
-         Parquet {:.1} ms; without it, Parquet {:.1}x faster",
+        "writers ({} signals x {} rows; wall time, of which the bytes' write and sync alone; \
+         the writer's CPU time):",
         results.names().len(),
-        results.len(),
-        tc * 1e3,
-        bytes[0].len() as f64 / 1e6,
-        tq * 1e3,
-        bytes[1].len() as f64 / 1e6,
-        tc / tq,
-        ic * 1e3,
-        iq * 1e3,
-        (tc - ic) / (tq - iq)
+        results.len()
     );
+    for k in 0..WRITERS.len() {
+        println!(
+            "  {:<15} {:6.1} ms ({:5.1} MB; I/O alone {:5.1} ms), CPU {:5.1} ms",
+            WRITERS[k],
+            wall[k] * 1e3,
+            bytes[k].len() as f64 / 1e6,
+            io[k] * 1e3,
+            cpu[k] * 1e3
+        );
+    }
+    let ratio = |a: usize, b: usize| (wall[a] / wall[b], cpu[a] / cpu[b]);
+    for (what, a, b) in [
+        ("Parquet vs CSV", 1, 3),
+        ("Parquet vs CSV before", 0, 3),
+        ("CSV vs CSV before", 0, 1),
+        ("Parquet vs Parquet before", 2, 3),
+    ] {
+        let (w, c) = ratio(a, b);
+        println!("  {what:<26} {w:4.2}x faster (CPU time: {c:4.2}x)");
+    }
 }
 
 fn write(results: &Results, sink: &mut dyn ResultSink) {

@@ -10,8 +10,8 @@
 //! the rows, [`ResultSink::flush`] the points where buffered rows must reach the file.
 //!
 //! The CSV has the header `time,<names>`; `Real` values are written in the shortest form that
-//! parses back to the same bits (the `ryu` algorithm), `Integer` and `Boolean` columns as
-//! integers (`0`/`1` for booleans).
+//! parses back to the same bits (the Żmij algorithm: ryu's output, faster), `Integer` and
+//! `Boolean` columns as integers (`0`/`1` for booleans).
 
 use std::fmt::Write as _;
 use std::io::{self, BufRead, Write};
