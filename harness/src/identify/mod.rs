@@ -120,6 +120,10 @@ pub struct IdentifyConfig {
     /// Half width (samples) of the smoothing of the logged currents the refinement feeds to
     /// the plant.
     pub drive_window: usize,
+    /// Half width of the smoothing window of the loss surface's regression (samples; see
+    /// [`surface`]: narrower than [`Self::window`], whose attenuation of the acceleration at a
+    /// Bode sweep's top frequency would bias Km1 and, four times larger, the surface).
+    pub surface_window: usize,
     /// Friction rows use samples moving faster than this \[rad/s\].
     pub min_speed: f64,
     /// Run the output-error refinement.
@@ -143,6 +147,7 @@ impl Default for IdentifyConfig {
         IdentifyConfig {
             window: 25,
             drive_window: 75,
+            surface_window: 12,
             min_speed: 0.05,
             refine: true,
             refine_seconds: 6.0,
@@ -673,7 +678,7 @@ pub fn identify(
                 &surface_box,
                 i_hd,
                 tau0,
-                config.window,
+                config.surface_window,
                 &prior_of,
                 config.max_relative_ci,
             ) {
