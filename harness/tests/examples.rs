@@ -265,6 +265,18 @@ fn every_example_of_the_readme_and_the_help_texts_works_in_order() {
         "{identify:?}"
     );
     assert!(d.path().join("out/identify/identified.ssv").is_file());
+    // The loss surface's identification from a map and two sweeps recorded with it.
+    let surface = sh_block(&text, "On the plant, as a user would run it");
+    assert_eq!(
+        run_block(d.path(), &release, &mut prelude, &surface),
+        4,
+        "{surface:?}"
+    );
+    let report = std::fs::read_to_string(d.path().join("out/hdidentify/identify.md")).unwrap();
+    assert!(
+        report.contains("| p00+ | hdLossPositiveSpeed[1] |"),
+        "{report}"
+    );
 
     let subcommands = [
         "export",

@@ -958,6 +958,73 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
             .describe("Load-motor driver: voltage or current command"),
         ]);
         for_each_bench_parameter!(param);
+        // The loss surface's 2 x 21 coefficients (friction model HdLossSurface), at value
+        // references 500 + k and 530 + k. Names in the FMI 2.0 structured form of an array
+        // element, `hdLossPositiveSpeed[n]`, n = k + 1 = 1..21 (1-based, as Modelica tools write
+        // them), in the row order of shared/data/hd-loss-surface.csv; the description names the
+        // term. No unit attribute: each term has its own unit N.m/(N.m)^i/(rad/s)^j, which an
+        // importer could only convert by 21 unit definitions of fractional meaning; the surface
+        // is an empirical fit in fixed units (x in N.m, y in rad/s, value in N.m), stated in
+        // each description.
+        macro_rules! hd_loss_coefficient {
+            ($k:literal, $n:literal, $i:literal, $j:literal) => {{
+                v.push(
+                    V::real(
+                        concat!("hdLossPositiveSpeed[", $n, "]"),
+                        500 + $k,
+                        |m| m.params.hd_loss_positive_speed[$k],
+                        |m, x| {
+                            m.params.hd_loss_positive_speed[$k] = x;
+                            m.parameters_changed = true;
+                        },
+                    )
+                    .tunable(Start::Real(d.hd_loss_positive_speed[$k]))
+                    .describe(concat!(
+                        "Loss surface for omega1 >= 0: p", $i, $j, ", the coefficient of x^", $i,
+                        " y^", $j, " (x load torque at the output in N.m, y = omega1 in rad/s, surface in N.m: unit N.m/(N.m)^",
+                        $i, "/(rad/s)^", $j, ")"
+                    )),
+                );
+                v.push(
+                    V::real(
+                        concat!("hdLossNegativeSpeed[", $n, "]"),
+                        530 + $k,
+                        |m| m.params.hd_loss_negative_speed[$k],
+                        |m, x| {
+                            m.params.hd_loss_negative_speed[$k] = x;
+                            m.parameters_changed = true;
+                        },
+                    )
+                    .tunable(Start::Real(d.hd_loss_negative_speed[$k]))
+                    .describe(concat!(
+                        "Loss surface for omega1 < 0: p", $i, $j, ", the coefficient of x^", $i,
+                        " y^", $j, " (x load torque at the output in N.m, y = omega1 in rad/s, surface in N.m: unit N.m/(N.m)^",
+                        $i, "/(rad/s)^", $j, ")"
+                    )),
+                );
+            }};
+        }
+        hd_loss_coefficient!(0, 1, 0, 0);
+        hd_loss_coefficient!(1, 2, 1, 0);
+        hd_loss_coefficient!(2, 3, 0, 1);
+        hd_loss_coefficient!(3, 4, 2, 0);
+        hd_loss_coefficient!(4, 5, 1, 1);
+        hd_loss_coefficient!(5, 6, 0, 2);
+        hd_loss_coefficient!(6, 7, 3, 0);
+        hd_loss_coefficient!(7, 8, 2, 1);
+        hd_loss_coefficient!(8, 9, 1, 2);
+        hd_loss_coefficient!(9, 10, 0, 3);
+        hd_loss_coefficient!(10, 11, 4, 0);
+        hd_loss_coefficient!(11, 12, 3, 1);
+        hd_loss_coefficient!(12, 13, 2, 2);
+        hd_loss_coefficient!(13, 14, 1, 3);
+        hd_loss_coefficient!(14, 15, 0, 4);
+        hd_loss_coefficient!(15, 16, 5, 0);
+        hd_loss_coefficient!(16, 17, 4, 1);
+        hd_loss_coefficient!(17, 18, 3, 2);
+        hd_loss_coefficient!(18, 19, 2, 3);
+        hd_loss_coefficient!(19, 20, 1, 4);
+        hd_loss_coefficient!(20, 21, 0, 5);
         v.extend(io_variables::<BenchPlantModel>());
         v
     })

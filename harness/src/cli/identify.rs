@@ -80,6 +80,10 @@ pub struct Args {
     /// simulation.
     #[arg(long, default_value_t = 75)]
     pub drive_window: usize,
+    /// Half width of the smoothing window of the loss surface's regression (samples; logs
+    /// recorded with frictionModel = HdLossSurface).
+    #[arg(long, default_value_t = 12)]
+    pub surface_window: usize,
     /// Write the FMU's default parameter set (the bench facts) as OUT/NAME.ssv and stop.
     #[arg(long)]
     pub defaults: bool,
@@ -108,6 +112,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         "no log given (kneebench identify LOG.csv ... --fmu BenchPlant.fmu)"
     );
     anyhow::ensure!(a.window >= 2, "--window must be at least 2");
+    anyhow::ensure!(a.surface_window >= 2, "--surface-window must be at least 2");
     anyhow::ensure!(
         a.refine_seconds.is_finite() && a.refine_seconds > 0.0,
         "--refine-seconds must be positive"
@@ -121,6 +126,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let config = IdentifyConfig {
         window: a.window,
         drive_window: a.drive_window.max(2),
+        surface_window: a.surface_window,
         refine: !a.no_refine,
         refine_seconds: a.refine_seconds,
         plant_parameters,

@@ -17,13 +17,17 @@ pub const REQUIRED: [&str; 5] = [
 ];
 
 /// Channels used when present: the drivers' voltages (the motors' electrical parameters),
-/// and the flags that exclude rows.
-pub const OPTIONAL: [&str; 5] = [
+/// the flags that exclude rows, and the sensors whose offsets are estimated (the load cell's
+/// torque, the current sensors' raw volts).
+pub const OPTIONAL: [&str; 8] = [
     "testMotorVoltage",
     "loadMotorVoltage",
     "testDriverSaturated",
     "loadDriverSaturated",
     "tripCode",
+    "loadCellTorque",
+    "testCurrentSenseVoltage",
+    "loadCurrentSenseVoltage",
 ];
 
 /// The current set value of the motor an experiment drives (`kneebench experiment`'s driving
@@ -57,6 +61,10 @@ pub struct Log {
     pub voltage: [Option<Vec<f64>>; 2],
     /// Transducer (shaft) torque [N m].
     pub torque: Vec<f64>,
+    /// The load cell's torque reading [N m], when logged.
+    pub load_cell: Option<Vec<f64>>,
+    /// The current sensors' raw output, test and load motor \[V\], when logged.
+    pub current_sense: [Option<Vec<f64>>; 2],
     /// The logged current set value ([`COMMAND`]), when present.
     pub command: Option<Vec<f64>>,
     /// Rows the regressions may use (not excluded, inside the smoothing window).
@@ -259,6 +267,8 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let current = [req(REQUIRED[2])?, req(REQUIRED[3])?];
     let torque = req(REQUIRED[4])?;
     let voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
+    let load_cell = get(OPTIONAL[5])?;
+    let current_sense = [get(OPTIONAL[6])?, get(OPTIONAL[7])?];
     let command = match table.columns[wanted.len() - 1].clone() {
         Some(v) => {
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
@@ -332,6 +342,8 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
         current_rate: [di1, di2],
         voltage,
         torque,
+        load_cell,
+        current_sense,
         command,
         usable: near,
         notes,

@@ -31,6 +31,11 @@
 //! parameter). The gear ratios are not identified (they are the bench's construction) and
 //! are read from the FMU's parameters.
 //!
+//! **Sensor offsets** (`offsets`): besides `tau0`, the load cell's torque offset and the
+//! current sensors' offset and sensitivity (against the drivers' current readings) when those
+//! channels are logged; the encoders' zeros are reported as not identifiable (incremental
+//! encoders, no absolute reference in the logs).
+//!
 //! **Stage 2, output-error refinement** (`refine`): the plant FMU (loaded once) is re-run
 //! in-process over the first [`IdentifyConfig::refine_seconds`] of each log with the logged
 //! currents as its current set values, and the mechanical parameters (Km, I, c, Tfr on both
@@ -52,18 +57,23 @@
 //! fitted by variable projection over its two rates ([`stribeck`]); the Coulomb level
 //! `Tfr,static` is then reported as not used.
 //!
-//! Not identified: the harmonic drive's loss-surface coefficients. They are not parameters of
-//! the FMU (the 2 x 21 polynomial coefficients of `shared/data/hd-loss-surface.csv` are
-//! compiled in, with only the clamping box as parameters), so a fitted surface could not be
-//! written to the set or used by the twin.
+//! **Loss surface.** When the logs were recorded with the harmonic drive's loss surface
+//! (`frictionModel` = HdLossSurface), the actuation side's Coulomb and viscous columns are
+//! replaced by the surface's 2 x 21 polynomial terms (the FMU parameters
+//! `hdLossPositiveSpeed[k]`, `hdLossNegativeSpeed[k]`), fitted with Km1 and I1 by linear least
+//! squares over the logs' moving rows ([`surface`]: the steady-state map `kneebench experiment
+//! map` excites them, a Bode sweep of the test motor fixes Km1 and I1); the coefficients the
+//! map's box does not excite are reported as such and held at their prior.
 
 pub mod lm;
 pub mod log;
 pub mod lsq;
+mod offsets;
 mod refine;
 mod report;
 pub mod smooth;
 pub mod stribeck;
+pub mod surface;
 
 use std::path::{Path, PathBuf};
 
@@ -110,6 +120,10 @@ pub struct IdentifyConfig {
     /// Half width (samples) of the smoothing of the logged currents the refinement feeds to
     /// the plant.
     pub drive_window: usize,
+    /// Half width of the smoothing window of the loss surface's regression (samples; see
+    /// [`surface`]: narrower than [`Self::window`], whose attenuation of the acceleration at a
+    /// Bode sweep's top frequency would bias Km1 and, four times larger, the surface).
+    pub surface_window: usize,
     /// Friction rows use samples moving faster than this \[rad/s\].
     pub min_speed: f64,
     /// Run the output-error refinement.
@@ -133,6 +147,7 @@ impl Default for IdentifyConfig {
         IdentifyConfig {
             window: 25,
             drive_window: 75,
+            surface_window: 12,
             min_speed: 0.05,
             refine: true,
             refine_seconds: 6.0,
@@ -259,6 +274,23 @@ const fn law(side: usize) -> [Quantity; 5] {
             q(Some("loadStribeckB2"), "b2,2", "s/rad", growth),
         ]
     }
+}
+
+/// Whether the logs were recorded with the harmonic drive's loss surface: `frictionModel` =
+/// HdLossSurface (3) among the simulation's parameters or in the prior set.
+fn surface_friction(config: &IdentifyConfig, prior: Option<&ParameterSet>) -> bool {
+    let is_surface = |v: &str| v.trim() == "3" || v.trim().eq_ignore_ascii_case("HdLossSurface");
+    if let Some((_, v)) = config
+        .plant_parameters
+        .iter()
+        .rev()
+        .find(|(n, _)| n == "frictionModel")
+    {
+        return is_surface(v);
+    }
+    prior
+        .and_then(|p| p.parameters.iter().find(|q| q.name == "frictionModel"))
+        .is_some_and(|q| matches!(q.value, crate::params::ParamValue::Integer(3)))
 }
 
 /// Whether the logs were recorded with the exponential friction law: `frictionModel` =
@@ -562,6 +594,7 @@ pub fn identify(
     let i_red = real("reductionRatio")?;
     let prior_of = |q: &Quantity| q.parameter.and_then(|p| set.real(p)).unwrap_or(f64::NAN);
     let exponential = exponential_friction(config, prior);
+    let loss_surface = surface_friction(config, prior);
 
     let logs_read: Vec<log::Log> = logs
         .iter()
@@ -599,7 +632,7 @@ pub fn identify(
 
     // Both sides.
     let min_speed = config.min_speed;
-    let sides: [(usize, &'static str, &[Quantity; 4], f64, f64); 2] = [
+    let mut sides: [(usize, &'static str, &[Quantity; 4], f64, f64); 2] = [
         (
             0,
             "actuation side (inverse dynamics)",
@@ -620,7 +653,59 @@ pub fn identify(
             .expect("a log of the list");
         masks[k][side][i]
     };
+    if loss_surface {
+        // The surface's load torque x needs Km2: the load side first.
+        sides.reverse();
+    }
     for (side, name, qs, ratio, sign) in sides {
+        if loss_surface && side == 0 {
+            let km2 = estimates
+                .iter()
+                .find(|e| e.quantity.parameter == Some("loadMotorTorqueConstant"))
+                .filter(|e| e.status == Status::Identified)
+                .map_or(prior_of(&LOAD[0]), |e| e.linear);
+            let surface_box = surface::SurfaceBox {
+                max_speed: real("hdSurfaceMaxSpeed")?,
+                min_load_torque: real("hdSurfaceMinLoadTorque")?,
+                max_load_torque: real("hdSurfaceMaxLoadTorque")?,
+                load_torque_per_ampere: i_red * km2,
+            };
+            let rows = |k: usize, i: usize| masks[k][0][i];
+            match surface::fit_actuation(
+                &logs_read,
+                &rows,
+                qs,
+                &surface_box,
+                i_hd,
+                tau0,
+                config.surface_window,
+                &prior_of,
+                config.max_relative_ci,
+            ) {
+                Some((e, r)) => {
+                    estimates.extend(e);
+                    regressions.push(r);
+                }
+                None => {
+                    notes.push(format!(
+                        "{name}: too few samples move faster than {min_speed} rad/s throughout their smoothing window; the loss surface is not fitted"
+                    ));
+                    for qn in qs.iter().chain(&surface::COEFFICIENTS) {
+                        estimates.push(Estimate {
+                            quantity: *qn,
+                            prior: prior_of(qn),
+                            linear: f64::NAN,
+                            linear_ci: f64::NAN,
+                            refined: None,
+                            status: Status::NotIdentifiable(
+                                "the logs hardly move this side".into(),
+                            ),
+                        });
+                    }
+                }
+            }
+            continue;
+        }
         let (x, y) = stack(
             &logs_read,
             &|l, i| mask_of(l, side, i),
@@ -776,6 +861,13 @@ pub fn identify(
         estimates.extend(e);
         regressions.push(regression(name, "V", &fitted, &f));
     }
+
+    // Sensor offsets beyond tau0.
+    let (offset_estimates, offset_regressions, offset_notes) =
+        offsets::sensor_offsets(&logs_read, i_hd, &prior_of, config.max_relative_ci);
+    estimates.extend(offset_estimates);
+    regressions.extend(offset_regressions);
+    notes.extend(offset_notes);
 
     // Stage 2.
     let refinement = if config.refine {

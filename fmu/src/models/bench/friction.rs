@@ -103,6 +103,7 @@ impl SideLaw {
                     params.hd_surface_min_load_torque,
                     params.hd_surface_max_load_torque,
                 ),
+                params.hd_loss_coefficients(direction),
             ),
         }
     }

@@ -1,8 +1,11 @@
 //! Steady-state harmonic-drive loss surface (bench-model.md §2, friction model 3).
 //!
 //! `tau_HD,ss(x, y) = sum p_ij x^i y^j` (i + j <= 5), separate coefficients for positive and
-//! negative speed. Coefficients copied from `shared/data/hd-loss-surface.csv` (a unit test checks
-//! they equal the file).
+//! negative speed. The coefficients are plant parameters (`hd_loss_positive_speed`,
+//! `hd_loss_negative_speed` of [`BenchParameters`](super::BenchParameters); FMU parameters
+//! `hdLossPositiveSpeed[k]`, `hdLossNegativeSpeed[k]`, k = 1..21 in the row order of
+//! [`TERM_EXPONENTS`]) whose defaults are copied from `shared/data/hd-loss-surface.csv` (a unit
+//! test checks they equal the file), so that `kneebench identify` can fit them to a bench.
 //!
 //! * `x` is the load torque **at the output (knee) axis**, `i_RED * Km2 * i2` [Nm]. The header
 //!   check of the data file is at `x = 0` and so cannot decide the side; the coefficient scaling
@@ -42,27 +45,22 @@ pub(crate) const TERM_EXPONENTS: [(u8, u8); 21] = [
     (0, 5),
 ];
 
-/// Coefficients for `y >= 0` (column `positive_speed` of shared/data/hd-loss-surface.csv).
-pub(crate) const POSITIVE_SPEED: [f64; 21] = [
+/// Default coefficients for `y >= 0` (column `positive_speed` of shared/data/hd-loss-surface.csv).
+pub(crate) const DEFAULT_POSITIVE_SPEED: [f64; 21] = [
     -3.218, 0.01472, -12.64, -0.00751, -0.1193, 14.97, -0.0003623, -0.0444, 0.02536, -9.145,
     3.208e-05, 0.0001224, 0.01372, 0.05384, 2.726, 2.842e-06, 0.0001339, -0.0006464, -0.0004289,
     -0.01816, -0.3143,
 ];
 
-/// Coefficients for `y < 0` (column `negative_speed` of shared/data/hd-loss-surface.csv).
-pub(crate) const NEGATIVE_SPEED: [f64; 21] = [
+/// Default coefficients for `y < 0` (column `negative_speed` of shared/data/hd-loss-surface.csv).
+pub(crate) const DEFAULT_NEGATIVE_SPEED: [f64; 21] = [
     3.307, 0.02794, -9.783, 0.00712, 0.08683, -13.52, -0.0002042, -0.02946, -0.002438, -11.03,
     -3.222e-05, -0.0009243, -0.00336, -0.05656, -4.223, -1.666e-06, 4.649e-05, -0.0001567,
     -0.0006695, -0.0147, -0.595,
 ];
 
-/// Raw polynomial value (no clamping) with the coefficient set of `direction` (+1 or -1).
-pub(crate) fn polynomial(x: f64, y: f64, direction: f64) -> f64 {
-    let coefficients = if direction >= 0.0 {
-        &POSITIVE_SPEED
-    } else {
-        &NEGATIVE_SPEED
-    };
+/// Raw polynomial value (no clamping) with `coefficients` (in the order of [`TERM_EXPONENTS`]).
+pub(crate) fn polynomial(x: f64, y: f64, coefficients: &[f64; 21]) -> f64 {
     let mut x_powers = [1.0; 6];
     let mut y_powers = [1.0; 6];
     for n in 1..6 {
@@ -77,19 +75,20 @@ pub(crate) fn polynomial(x: f64, y: f64, direction: f64) -> f64 {
 }
 
 /// Loss-surface torque for motion in `direction` (+1/-1) at speed magnitude `speed` >= 0 and
-/// load torque `load_torque`, clamped to the tested box. Returns the torque and whether clamping
-/// was needed.
+/// load torque `load_torque`, clamped to the tested box, with the coefficients of that direction
+/// (`coefficients`). Returns the torque and whether clamping was needed.
 pub(crate) fn clamped_torque(
     load_torque: f64,
     speed: f64,
     direction: f64,
     max_speed: f64,
     load_torque_range: (f64, f64),
+    coefficients: &[f64; 21],
 ) -> (f64, bool) {
     let x = load_torque.clamp(load_torque_range.0, load_torque_range.1);
     let magnitude = speed.min(max_speed);
     let clamped = x != load_torque || magnitude != speed;
-    (polynomial(x, direction * magnitude, direction), clamped)
+    (polynomial(x, direction * magnitude, coefficients), clamped)
 }
 
 #[cfg(test)]
@@ -116,8 +115,14 @@ mod tests {
                 .position(|&e| e == (i, j))
                 .expect("term in table");
             assert_eq!(index, rows, "row order");
-            assert_eq!(POSITIVE_SPEED[index], fields[1].parse::<f64>().unwrap());
-            assert_eq!(NEGATIVE_SPEED[index], fields[2].parse::<f64>().unwrap());
+            assert_eq!(
+                DEFAULT_POSITIVE_SPEED[index],
+                fields[1].parse::<f64>().unwrap()
+            );
+            assert_eq!(
+                DEFAULT_NEGATIVE_SPEED[index],
+                fields[2].parse::<f64>().unwrap()
+            );
             rows += 1;
         }
         assert_eq!(rows, 21);
@@ -134,7 +139,13 @@ mod tests {
             (-2.29, 0.054),
         ] {
             let direction: f64 = if y >= 0.0 { 1.0 } else { -1.0 };
-            let (torque, clamped) = clamped_torque(0.0, y.abs(), direction, 2.618, (-20.0, 20.0));
+            let coefficients = if y >= 0.0 {
+                &DEFAULT_POSITIVE_SPEED
+            } else {
+                &DEFAULT_NEGATIVE_SPEED
+            };
+            let (torque, clamped) =
+                clamped_torque(0.0, y.abs(), direction, 2.618, (-20.0, 20.0), coefficients);
             assert!(!clamped);
             let motor_side = torque / i_hd;
             assert!(
@@ -146,13 +157,14 @@ mod tests {
 
     #[test]
     fn clamping_is_reported() {
-        let (inside, c1) = clamped_torque(5.0, 1.0, 1.0, 2.618, (-20.0, 20.0));
+        let (p, n) = (&DEFAULT_POSITIVE_SPEED, &DEFAULT_NEGATIVE_SPEED);
+        let (inside, c1) = clamped_torque(5.0, 1.0, 1.0, 2.618, (-20.0, 20.0), p);
         assert!(!c1);
-        let (outside, c2) = clamped_torque(5.0, 10.0, 1.0, 2.618, (-20.0, 20.0));
+        let (outside, c2) = clamped_torque(5.0, 10.0, 1.0, 2.618, (-20.0, 20.0), p);
         assert!(c2);
-        assert_eq!(outside, polynomial(5.0, 2.618, 1.0));
+        assert_eq!(outside, polynomial(5.0, 2.618, p));
         assert_ne!(inside, outside);
-        let (_, c3) = clamped_torque(-25.0, 1.0, -1.0, 2.618, (-20.0, 20.0));
+        let (_, c3) = clamped_torque(-25.0, 1.0, -1.0, 2.618, (-20.0, 20.0), n);
         assert!(c3);
     }
 }

@@ -72,6 +72,17 @@
 //!   `(I_test + I_load) alpha` is not added: the inertias are already in the mechanics. The
 //!   surface's own speed growth overlaps c1; set c1 lower if the surface alone should carry the
 //!   losses.
+//!   The surface's coefficients are parameters, `hdLossPositiveSpeed[n]` (omega1 >= 0) and
+//!   `hdLossNegativeSpeed[n]` (omega1 < 0), n = 1..21 the term `p_ij x^i y^j` of row n of the
+//!   csv (p00, p10, p01, p20, p11, p02, ..., p05; each description names its term), with the
+//!   csv's values as defaults, so that `kneebench identify` can fit them to a bench (from
+//!   `kneebench experiment map` logs recorded with this law) and a parameter set can carry them.
+//!   The names are FMI 2.0 structured array elements, 1-based as Modelica tools write them (the
+//!   FMU declares the flat convention, for which they are plain names). They carry no unit
+//!   attribute: each term has its own unit, N.m (N.m)^-i (rad/s)^-j, which an importer could
+//!   only convert through 21 unit definitions of no physical meaning; the polynomial is an
+//!   empirical fit in fixed units (x in N.m, y in rad/s, value in N.m), stated in every
+//!   description. Changing one takes effect at the next step, like every tunable parameter.
 //!
 //! ## Stick-slip
 //! A switched model per body: **sliding** with friction of sign `-direction`, or **stuck**

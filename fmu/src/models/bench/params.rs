@@ -1,6 +1,6 @@
 //! Parameters of the bench plant with the identified values of bench-model.md as defaults.
 
-use super::{Configuration, DriverMode, FrictionModel};
+use super::{Configuration, DriverMode, FrictionModel, hd_loss};
 use thiserror::Error;
 
 /// A parameter set was rejected by [`BenchParameters::validate`].
@@ -93,6 +93,13 @@ pub struct BenchParameters {
     pub hd_surface_min_load_torque: f64,
     /// Loss surface: largest load torque of the clamping box [N m, output side].
     pub hd_surface_max_load_torque: f64,
+    /// Loss surface (friction model `HdLossSurface`), `omega1 >= 0`: the coefficients `p_ij` of
+    /// `x^i y^j` (x load torque [N m, output side], y = omega1 \[rad/s\], value [N m, output
+    /// side]) in the row order of `shared/data/hd-loss-surface.csv` (p00, p10, p01, p20, p11,
+    /// p02, ..., p05), which gives the defaults.
+    pub hd_loss_positive_speed: [f64; 21],
+    /// Loss surface, `omega1 < 0`: coefficients as [`Self::hd_loss_positive_speed`].
+    pub hd_loss_negative_speed: [f64; 21],
     /// Test motor (EC45 flat) armature resistance \[Ohm\].
     pub test_motor_resistance: f64,
     /// Test motor armature inductance \[H\].
@@ -201,6 +208,8 @@ impl Default for BenchParameters {
             hd_surface_max_speed: 150f64.to_radians(),
             hd_surface_min_load_torque: -10.0,
             hd_surface_max_load_torque: 15.0,
+            hd_loss_positive_speed: hd_loss::DEFAULT_POSITIVE_SPEED,
+            hd_loss_negative_speed: hd_loss::DEFAULT_NEGATIVE_SPEED,
             test_motor_resistance: 0.608,
             test_motor_inductance: 4.63e-4,
             test_motor_torque_constant: 0.037,
@@ -424,6 +433,14 @@ impl BenchParameters {
                 });
             }
         }
+        for (name, coefficients) in [
+            ("hd_loss_positive_speed", &self.hd_loss_positive_speed),
+            ("hd_loss_negative_speed", &self.hd_loss_negative_speed),
+        ] {
+            if let Some(&value) = coefficients.iter().find(|c| !c.is_finite()) {
+                return Err(ParameterError::NotFinite { name, value });
+            }
+        }
         if self.transducer_gain == 0.0 || self.load_cell_gain == 0.0 {
             return Err(ParameterError::Inconsistent(
                 "sensor calibration gains must be nonzero",
@@ -440,6 +457,15 @@ impl BenchParameters {
             ));
         }
         Ok(())
+    }
+
+    /// The loss surface's coefficients for motion in `direction` (+1: `omega1 >= 0`, -1).
+    pub fn hd_loss_coefficients(&self, direction: f64) -> &[f64; 21] {
+        if direction >= 0.0 {
+            &self.hd_loss_positive_speed
+        } else {
+            &self.hd_loss_negative_speed
+        }
     }
 
     /// Coupling stiffness between the halves for the configured actuator [N m/rad].
@@ -494,5 +520,14 @@ mod tests {
             ..BenchParameters::default()
         };
         assert!(matches!(q.validate(), Err(ParameterError::Inconsistent(_))));
+        let mut r = BenchParameters::default();
+        r.hd_loss_negative_speed[20] = f64::INFINITY;
+        assert_eq!(
+            r.validate(),
+            Err(ParameterError::NotFinite {
+                name: "hd_loss_negative_speed",
+                value: f64::INFINITY
+            })
+        );
     }
 }
