@@ -1,7 +1,11 @@
 //! Loading for runs ([`Binaries::Shared`], the default: only what a run needs extracted, each
 //! distinct binary loaded once per process, FMUs read in place from the SSP) against the plain
 //! path ([`Binaries::Private`]: every entry extracted, a copy of the binary per FMU): the same
-//! systems give the same results bit for bit, and the fast path really shares and skips.
+//! systems give the same results bit for bit, and the fast path really shares and skips; the
+//! per-user binary cache is used, and a damaged cache file is replaced.
+//!
+//! One test in this binary: it points the cache (read once per process) at a directory of its
+//! own before anything is loaded.
 
 use std::path::Path;
 
@@ -43,9 +47,21 @@ fn run(
     (bits, out.results.names().to_vec(), usage, loaded)
 }
 
+/// The `.so` files in `dir`.
+fn cached(dir: &Path) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "so"))
+        .collect()
+}
+
 #[test]
 fn the_shared_load_runs_the_study_systems_bit_for_bit_like_the_plain_one() {
     let d = tempfile::tempdir().unwrap();
+    let cache = d.path().join("cache");
+    // SAFETY: the only test of this binary, before any thread of its own or any load.
+    unsafe { std::env::set_var("KNEEBENCH_CACHE_DIR", &cache) };
     let fmus = d.path().join("fmus");
     export_all(&fmu_library(), &fmus).unwrap();
     for actuator in [Actuator::Sea, Actuator::Csea] {
@@ -86,6 +102,7 @@ fn the_shared_load_runs_the_study_systems_bit_for_bit_like_the_plain_one() {
         let components: Vec<_> = shared.system.components().collect();
         let first = components[0].1.binary_path().to_path_buf();
         assert!(first.is_file());
+        assert_eq!(cached(&cache), vec![first.clone()], "{actuator:?}");
         for (name, f) in &components {
             assert_eq!(f.binary_path(), first, "{actuator:?} {name}");
             assert!(f.directory().join("modelDescription.xml").is_file());
@@ -98,5 +115,24 @@ fn the_shared_load_runs_the_study_systems_bit_for_bit_like_the_plain_one() {
                 f.source_path().display()
             );
         }
+        drop(shared);
+
+        // A damaged cache file (same size, other bytes) is found out by its CRC and replaced;
+        // the results do not change.
+        let mut bytes = std::fs::read(&first).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 0xff;
+        std::fs::write(&first, &bytes).unwrap();
+        let (again, _, again_usage, reloaded) = run(&path, Binaries::Shared);
+        assert!(
+            again == plain,
+            "{actuator:?}: the results differ after repairing"
+        );
+        assert_eq!(again_usage, plain_usage);
+        assert_eq!(
+            reloaded.system.components().next().unwrap().1.binary_path(),
+            first
+        );
+        assert_ne!(std::fs::read(&first).unwrap(), bytes, "not replaced");
     }
 }

@@ -15,6 +15,14 @@
 //!   Sharing a handle between FMUs is what instantiating one FMU twice already does; FMUs that
 //!   declare `canBeInstantiatedOnlyOncePerProcess`, those with preloaded libraries and isolated
 //!   ones take the plain path ([`Binaries::Private`](super::Binaries::Private)).
+//! - **Once per user.** A binary extracted by one process is kept in a per-user cache
+//!   ([`cache_dir`]: `$KNEEBENCH_CACHE_DIR`, else `$XDG_CACHE_HOME/kneebench/binaries` or
+//!   `~/.cache/kneebench/binaries`; mode 0700, used only if owned by the user and writable by
+//!   no one else), named by the SHA-256 of its entry's compressed bytes; later processes load
+//!   it from there after checking its size and CRC, instead of decompressing it. Files are
+//!   written whole (renamed into place); the least recently used beyond 32 are removed.
+//!   `KNEEBENCH_CACHE_DIR=` (empty) turns the cache off: each process then extracts each
+//!   distinct binary once into a private directory.
 //! - **In place.** An FMU stored uncompressed in an SSP is read where it is ([`Window`]), not
 //!   copied out of the SSP first.
 //!
@@ -133,7 +141,8 @@ pub(crate) struct SharedBinary {
     pub(crate) path: PathBuf,
     /// The loaded library (dropped before the directory holding its file).
     pub(crate) local: LocalBinary,
-    _dir: tempfile::TempDir,
+    /// The private directory of the file (`None`: the file is in the per-user cache).
+    _dir: Option<tempfile::TempDir>,
 }
 
 /// The binaries loaded in this process, alive while an FMU uses them.
@@ -141,8 +150,9 @@ static LOADED: Mutex<Vec<Weak<SharedBinary>>> = Mutex::new(Vec::new());
 
 /// The binary of entry `index` of `zip` (the FMU's `binaries/linux64/<identifier>.so`, left in
 /// the archive and counted at its declared size by [`super::extract_entries`]): the one
-/// already loaded in this process if its compressed bytes are equal, else extracted into a
-/// private directory as `<identifier>.so` and loaded.
+/// already loaded in this process if its compressed bytes are equal, else the per-user
+/// cache's copy (extracted there if missing), else extracted into a private directory as
+/// `<identifier>.so`; then loaded.
 pub(crate) fn binary<R: Read + Seek>(
     zip: &mut zip::ZipArchive<R>,
     archive: &Path,
@@ -179,6 +189,31 @@ pub(crate) fn binary<R: Read + Seek>(
     {
         return Ok(found);
     }
+    // The per-user cache first: a binary extracted by an earlier process is not decompressed
+    // again.
+    if let Some(cache) = cache_dir() {
+        let name = format!("{}.so", cache_key(&key, &compressed));
+        let path = cache.join(name);
+        let found = verified(&path, &key);
+        // Not loadable from there (a cache on a `noexec` file system, say): the private copy
+        // below, whose error, if any, is the binary's own.
+        if (found || store(zip, archive, index, cache, &path).is_ok())
+            && let Ok(local) = LocalBinary::open(&path, &[])
+        {
+            if !found {
+                prune(cache);
+            }
+            let shared = Arc::new(SharedBinary {
+                key,
+                compressed,
+                path,
+                local,
+                _dir: None,
+            });
+            loaded.push(Arc::downgrade(&shared));
+            return Ok(shared);
+        }
+    }
     let bytes = super::read_declared(zip, archive, index)?;
     let dir = crate::tempdirs::create("fmu").map_err(super::io_err(
         "cannot create a temporary directory for",
@@ -202,10 +237,151 @@ pub(crate) fn binary<R: Read + Seek>(
         compressed,
         path,
         local,
-        _dir: dir,
+        _dir: Some(dir),
     });
     loaded.push(Arc::downgrade(&shared));
     Ok(shared)
+}
+
+/// The environment variable naming the per-user binary cache (empty: no cache).
+pub const CACHE_VARIABLE: &str = "KNEEBENCH_CACHE_DIR";
+
+/// How many binaries the cache keeps: past that, the least recently used ones not used in the
+/// last hour are removed.
+const CACHE_KEEPS: usize = 32;
+
+/// The per-user cache of extracted binaries, once per process: `$KNEEBENCH_CACHE_DIR` if set
+/// (empty: no cache), else `$XDG_CACHE_HOME/kneebench/binaries`, else
+/// `$HOME/.cache/kneebench/binaries`; created with mode 0700 and used only if it is a directory
+/// of this user that no other user may write to.
+pub(crate) fn cache_dir() -> Option<&'static Path> {
+    static DIR: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = match std::env::var_os(CACHE_VARIABLE) {
+            Some(d) if d.is_empty() => return None,
+            Some(d) => PathBuf::from(d),
+            None => {
+                let xdg = std::env::var_os("XDG_CACHE_HOME")
+                    .map(PathBuf::from)
+                    .filter(|p| p.is_absolute());
+                let home = || {
+                    std::env::var_os("HOME")
+                        .map(PathBuf::from)
+                        .filter(|p| p.is_absolute())
+                        .map(|h| h.join(".cache"))
+                };
+                xdg.or_else(home)?.join("kneebench").join("binaries")
+            }
+        };
+        usable_cache(&dir).then_some(dir)
+    })
+    .as_deref()
+}
+
+/// Creates `dir` (mode 0700) if needed; whether it is a directory (not a link) owned by this
+/// user and writable by no one else.
+fn usable_cache(dir: &Path) -> bool {
+    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+    let _ = fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir);
+    match fs::symlink_metadata(dir) {
+        // SAFETY: geteuid has no preconditions.
+        Ok(m) => m.is_dir() && m.uid() == unsafe { libc::geteuid() } && m.mode() & 0o022 == 0,
+        Err(_) => false,
+    }
+}
+
+/// The cache file name of a binary: SHA-256 of its entry's method, CRC, size and compressed
+/// bytes, in hex.
+fn cache_key(key: &Key, compressed: &[u8]) -> String {
+    use sha2::Digest;
+    let mut h = sha2::Sha256::new();
+    h.update(key.method.to_le_bytes());
+    h.update(key.crc32.to_le_bytes());
+    h.update(key.size.to_le_bytes());
+    h.update(compressed);
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Whether the cache file `path` holds the binary of `key`: a regular file of this user with
+/// the declared size and CRC (a file cut short or damaged is replaced). A verified file's time
+/// is set to now: the cache removes the least recently used.
+fn verified(path: &Path, key: &Key) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(mut file) = fs::File::open(path) else {
+        return false;
+    };
+    let Ok(meta) = file.metadata() else {
+        return false;
+    };
+    // SAFETY: geteuid has no preconditions.
+    if !meta.is_file() || meta.uid() != unsafe { libc::geteuid() } || meta.len() != key.size {
+        return false;
+    }
+    let mut bytes = Vec::with_capacity(key.size as usize);
+    if file.read_to_end(&mut bytes).is_err() || crc32fast::hash(&bytes) != key.crc32 {
+        return false;
+    }
+    let _ = file.set_modified(std::time::SystemTime::now());
+    true
+}
+
+/// Decompresses entry `index` into the cache as `path` (a private temporary file renamed into
+/// place: readers see a whole file or none).
+fn store<R: Read + Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    archive: &Path,
+    index: usize,
+    cache: &Path,
+    path: &Path,
+) -> Result<(), LoadError> {
+    use std::io::Write;
+    let bytes = super::read_declared(zip, archive, index)?;
+    let io = |e| super::io_err("cannot write the binary cache", cache)(e);
+    let mut tmp = tempfile::NamedTempFile::new_in(cache).map_err(io)?;
+    tmp.write_all(&bytes).map_err(io)?;
+    tmp.as_file().sync_all().map_err(io)?;
+    tmp.persist(path).map_err(|e| io(e.error))?;
+    Ok(())
+}
+
+/// Keeps the cache at [`CACHE_KEEPS`] binaries: removes the least recently used beyond that,
+/// sparing those used in the last hour (another process may be about to load them), and
+/// temporary files left by a process that died while writing.
+fn prune(cache: &Path) {
+    let Ok(entries) = fs::read_dir(cache) else {
+        return;
+    };
+    let now = std::time::SystemTime::now();
+    let hour = std::time::Duration::from_secs(3600);
+    let mut binaries = Vec::new();
+    for e in entries.flatten() {
+        let (Ok(meta), name) = (e.metadata(), e.file_name()) else {
+            continue;
+        };
+        let Ok(modified) = meta.modified() else {
+            continue;
+        };
+        let age = now.duration_since(modified).unwrap_or_default();
+        let name = name.to_string_lossy();
+        if name.starts_with(".tmp") && age > hour {
+            let _ = fs::remove_file(e.path());
+        } else if name.ends_with(".so") && meta.is_file() {
+            binaries.push((modified, age, e.path()));
+        }
+    }
+    if binaries.len() <= CACHE_KEEPS {
+        return;
+    }
+    binaries.sort_by_key(|(modified, _, _)| *modified);
+    let excess = binaries.len() - CACHE_KEEPS;
+    for (_, age, path) in binaries.into_iter().take(excess) {
+        if age > hour {
+            let _ = fs::remove_file(path);
+        }
+    }
 }
 
 /// The zip compression method's number (the key compares methods).
