@@ -3,6 +3,7 @@
 //! One cdylib serves every model; the packager copies it into each FMU under the model's
 //! identifier. [`export_models!`](crate::export_models) lists the models once.
 
+use std::borrow::Cow;
 use std::sync::OnceLock;
 
 use model_description::ModelDescription;
@@ -145,16 +146,43 @@ pub fn find_by_guid_hinted(guid: &str, likely: Option<&str>) -> Option<&'static 
     find_in(&crate::MODELS, guid, likely)
 }
 
+/// The model whose GUID is `guid`: first among the models already built (no building), then
+/// the models `hints` name, in turn (a hint is computed only when the ones before it missed),
+/// then every model.
+pub fn find_by_guid_with_hints<'a>(
+    guid: &str,
+    hints: impl Iterator<Item = Option<Cow<'a, str>>>,
+) -> Option<&'static ModelEntry> {
+    find_with(&crate::MODELS, guid, hints)
+}
+
 /// [`find_by_guid_hinted`] among `models`.
 fn find_in(
     models: &'static [ModelEntry],
     guid: &str,
     likely: Option<&str>,
 ) -> Option<&'static ModelEntry> {
-    if let Some(entry) = likely.and_then(|id| models.iter().find(|m| m.identifier == id))
-        && entry.info().guid == guid
+    find_with(models, guid, std::iter::once(likely.map(Cow::Borrowed)))
+}
+
+/// [`find_by_guid_with_hints`] among `models`.
+fn find_with<'a>(
+    models: &'static [ModelEntry],
+    guid: &str,
+    hints: impl Iterator<Item = Option<Cow<'a, str>>>,
+) -> Option<&'static ModelEntry> {
+    if let Some(built) = models
+        .iter()
+        .find(|m| m.info.get().is_some_and(|i| i.guid == guid))
     {
-        return Some(entry);
+        return Some(built);
+    }
+    for hint in hints.flatten() {
+        if let Some(entry) = models.iter().find(|m| m.identifier == hint)
+            && entry.info().guid == guid
+        {
+            return Some(entry);
+        }
     }
     models.iter().find(|m| m.info().guid == guid)
 }

@@ -58,7 +58,6 @@ impl<T> Once<T> {
     }
 
     /// The value, if it was built.
-    #[cfg(test)]
     pub(crate) fn get(&self) -> Option<&T> {
         // SAFETY: completed means written (see get_or_init).
         self.once

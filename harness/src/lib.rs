@@ -77,7 +77,7 @@ pub use instance::{
     FmuError, HostError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
 pub use isolate::{HostFailure, HostOptions, Isolation};
-pub use load::{ArchiveBudget, ArchiveLimits, Fmu, LoadError, LoadOptions};
+pub use load::{ArchiveBudget, ArchiveLimits, Binaries, Fmu, LoadError, LoadOptions};
 pub use master::{
     Algorithm, MasterError, Outcome, RunConfig, RunControl, RunOutput, RunSummary, StopReason,
     System, Value,

@@ -33,6 +33,8 @@ use model_description::ModelDescription;
 
 use crate::fmi2::*;
 use crate::isolate::remote::RemoteFmu;
+
+mod shared;
 use crate::isolate::{HostFailure, HostOptions, Isolation};
 
 /// Bounds on what an archive may contain.
@@ -109,6 +111,24 @@ pub struct LoadOptions {
     pub isolation: Isolation,
     /// How host processes are found, started and watched (with isolation).
     pub host: HostOptions,
+    /// What is extracted and how binaries are loaded: only what a run needs and each distinct
+    /// binary once per process (the default), or everything and a copy per FMU.
+    pub binaries: Binaries,
+}
+
+/// How [`Fmu::load`] extracts an FMU and loads its binary.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Binaries {
+    /// The model description and `resources/` are extracted into the FMU's directory; the
+    /// binary is extracted and loaded once per process for every FMU that carries the same
+    /// one (compared byte for byte), and an FMU stored uncompressed in an SSP is read in place
+    /// (module `load::shared`). FMUs that declare `canBeInstantiatedOnlyOncePerProcess`, run
+    /// isolated or need preloaded libraries get their own copy of the binary.
+    #[default]
+    Shared,
+    /// Every entry extracted into the FMU's directory and its own copy of the binary loaded
+    /// (what loading did before [`Shared`](Self::Shared); the baseline it is tested against).
+    Private,
 }
 
 /// Why an FMU could not be loaded.
@@ -326,8 +346,83 @@ pub fn extract_archive_within(
     dest: &Path,
     budget: &ArchiveBudget,
 ) -> Result<Vec<PathBuf>, LoadError> {
+    let mut zip = open_archive(&ArchiveSource::File(archive.to_path_buf()), budget)?;
+    Ok(extract_entries(&mut zip, archive, dest, budget, &|_| true)?.extracted)
+}
+
+/// An archive opened for reading: a file, or a window of one (an FMU stored uncompressed in an
+/// SSP, read in place).
+pub(crate) type OpenArchive = zip::ZipArchive<io::BufReader<shared::Window>>;
+
+/// Where an archive's bytes are.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum ArchiveSource {
+    /// A file of its own.
+    File(PathBuf),
+    /// The bytes `start..start + len` of `container` (an entry stored uncompressed there),
+    /// known as `name` (the container's path followed by the entry's name).
+    Nested {
+        container: PathBuf,
+        start: u64,
+        len: u64,
+        name: PathBuf,
+    },
+}
+
+impl ArchiveSource {
+    /// The path errors and [`Fmu::source_path`] name.
+    pub(crate) fn name(&self) -> &Path {
+        match self {
+            ArchiveSource::File(p) => p,
+            ArchiveSource::Nested { name, .. } => name,
+        }
+    }
+}
+
+/// Opens the archive at `source` and counts its entries against `budget`.
+pub(crate) fn open_archive(
+    source: &ArchiveSource,
+    budget: &ArchiveBudget,
+) -> Result<OpenArchive, LoadError> {
+    let archive = source.name();
+    let window = shared::Window::open(source).map_err(io_err("cannot open", archive))?;
+    let zip =
+        zip::ZipArchive::new(io::BufReader::new(window)).map_err(|source| LoadError::Zip {
+            archive: archive.to_path_buf(),
+            entry: None,
+            source,
+        })?;
+    let before = budget.entries.fetch_add(zip.len(), Ordering::Relaxed);
+    if before + zip.len() > budget.limits.max_entries {
+        return Err(LoadError::TooManyEntries {
+            count: before + zip.len(),
+            limit: budget.limits.max_entries,
+        });
+    }
+    Ok(zip)
+}
+
+/// What [`extract_entries`] did.
+pub(crate) struct Extracted {
+    /// The relative paths of the files written.
+    pub(crate) extracted: Vec<PathBuf>,
+    /// The files checked and left in the archive: (relative path, entry index).
+    pub(crate) left: Vec<(PathBuf, usize)>,
+}
+
+/// Checks every entry of `zip` (names, links, duplicates, sizes) and extracts the files whose
+/// relative path `wanted` accepts into `dest` (an existing, empty, private directory). An
+/// extracted file counts the bytes it decompresses to against `budget` (a zip bomb is stopped
+/// after `limit + 1` bytes); a file left in the archive counts the size its entry declares
+/// (whoever reads it later must find exactly that size: [`read_declared`]).
+pub(crate) fn extract_entries<R: Read + io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    archive: &Path,
+    dest: &Path,
+    budget: &ArchiveBudget,
+    wanted: &dyn Fn(&Path) -> bool,
+) -> Result<Extracted, LoadError> {
     let limits = &budget.limits;
-    let file = fs::File::open(archive).map_err(io_err("cannot open", archive))?;
     let zip_err = |entry: Option<String>| {
         move |source| LoadError::Zip {
             archive: archive.to_path_buf(),
@@ -335,15 +430,9 @@ pub fn extract_archive_within(
             source,
         }
     };
-    let mut zip = zip::ZipArchive::new(io::BufReader::new(file)).map_err(zip_err(None))?;
-    let before = budget.entries.fetch_add(zip.len(), Ordering::Relaxed);
-    if before + zip.len() > limits.max_entries {
-        return Err(LoadError::TooManyEntries {
-            count: before + zip.len(),
-            limit: limits.max_entries,
-        });
-    }
-    let mut files = Vec::new();
+    let mut extracted = Vec::new();
+    let mut left: Vec<(PathBuf, usize)> = Vec::new();
+    let mut left_names = std::collections::HashSet::new();
     for i in 0..zip.len() {
         let mut entry = zip.by_index(i).map_err(zip_err(None))?;
         let name = String::from_utf8_lossy(entry.name_raw()).into_owned();
@@ -356,7 +445,11 @@ pub fn extract_archive_within(
             return Err(LoadError::Symlink { entry: name });
         }
         let target = dest.join(&rel);
-        if entry.is_dir() || name.ends_with('/') {
+        let is_dir = entry.is_dir() || name.ends_with('/');
+        if is_dir && !wanted(&rel) {
+            continue;
+        }
+        if is_dir {
             fs::create_dir_all(&target).map_err(io_err("cannot create directory", &target))?;
             continue;
         }
@@ -365,6 +458,21 @@ pub fn extract_archive_within(
                 entry: name,
                 limit: limits.max_entry_bytes,
             });
+        }
+        if !wanted(&rel) {
+            // Left in the archive: checked like the others, counted at its declared size.
+            if !left_names.insert(rel.clone()) {
+                return Err(LoadError::DuplicateEntry { entry: name });
+            }
+            let total = budget.bytes.fetch_add(entry.size(), Ordering::Relaxed) + entry.size();
+            if total > limits.max_total_bytes {
+                return Err(LoadError::TotalTooLarge {
+                    entry: name,
+                    limit: limits.max_total_bytes,
+                });
+            }
+            left.push((rel, i));
+            continue;
         }
         if let Some(parent) = target.parent() {
             fs::create_dir_all(parent).map_err(io_err("cannot create directory", parent))?;
@@ -422,9 +530,47 @@ pub fn extract_archive_within(
         }
         out.flush().map_err(io_err("cannot write", &target))?;
         budget.bytes.fetch_add(copied, Ordering::Relaxed);
-        files.push(rel);
+        extracted.push(rel);
     }
-    Ok(files)
+    // A file left in the archive under the path of an extracted one is a duplicate too.
+    if let Some((rel, _)) = left.iter().find(|(rel, _)| extracted.contains(rel)) {
+        return Err(LoadError::DuplicateEntry {
+            entry: rel.to_string_lossy().into_owned(),
+        });
+    }
+    Ok(Extracted { extracted, left })
+}
+
+/// The bytes of entry `index` of `zip` (left in the archive by [`extract_entries`], which
+/// counted its declared size): decompressed, checked against its CRC, and refused unless it
+/// decompresses to exactly the size it declares.
+pub(crate) fn read_declared<R: Read + io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    archive: &Path,
+    index: usize,
+) -> Result<Vec<u8>, LoadError> {
+    let mut entry = zip.by_index(index).map_err(|source| LoadError::Zip {
+        archive: archive.to_path_buf(),
+        entry: None,
+        source,
+    })?;
+    let name = String::from_utf8_lossy(entry.name_raw()).into_owned();
+    let declared = entry.size();
+    let mut bytes = Vec::with_capacity(declared as usize);
+    let read = copy_bounded(&mut entry, &mut bytes, declared + 1);
+    let zip_err = |e: io::Error| LoadError::Zip {
+        archive: archive.to_path_buf(),
+        entry: Some(name.clone()),
+        source: zip::result::ZipError::Io(e),
+    };
+    let n = read.map_err(zip_err)?;
+    if n != declared {
+        return Err(zip_err(io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!("the entry decompresses to a size other than the {declared} bytes it declares"),
+        )));
+    }
+    Ok(bytes)
 }
 
 fn copy_bounded(r: &mut impl Read, w: &mut impl Write, max: u64) -> io::Result<u64> {
@@ -693,9 +839,26 @@ impl LocalBinary {
 /// Where an FMU's binary runs.
 pub(crate) enum Exec {
     /// Loaded into this process.
-    Local(LocalBinary),
+    Local(LocalExec),
     /// Loaded by host processes, one per instance.
-    Remote(RemoteFmu),
+    Remote(Box<RemoteFmu>),
+}
+
+/// A binary loaded into this process: the FMU's own copy, or one shared with the other FMUs
+/// that carry the same binary ([`Binaries::Shared`]).
+pub(crate) enum LocalExec {
+    Own(Box<LocalBinary>),
+    Shared(Arc<shared::SharedBinary>),
+}
+
+impl std::ops::Deref for LocalExec {
+    type Target = LocalBinary;
+    fn deref(&self) -> &LocalBinary {
+        match self {
+            LocalExec::Own(b) => b,
+            LocalExec::Shared(s) => &s.local,
+        }
+    }
 }
 
 /// What an instance keeps alive: the binary (or its host's description) and the extraction
@@ -753,6 +916,20 @@ pub fn extract_and_parse_within(
     path: &Path,
     budget: &ArchiveBudget,
 ) -> Result<(tempfile::TempDir, ModelDescription), LoadError> {
+    let source = ArchiveSource::File(path.to_path_buf());
+    let mut zip = open_archive(&source, budget)?;
+    let (dir, md, _) = extract_and_parse_selected(&mut zip, path, budget, &|_| true)?;
+    Ok((dir, md))
+}
+
+/// Extracts the entries `wanted` accepts into a fresh private directory and parses the model
+/// description (which `wanted` must accept); also returns what was left in the archive.
+pub(crate) fn extract_and_parse_selected<R: Read + io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    path: &Path,
+    budget: &ArchiveBudget,
+    wanted: &dyn Fn(&Path) -> bool,
+) -> Result<(tempfile::TempDir, ModelDescription, Extracted), LoadError> {
     let dir = crate::tempdirs::create("fmu")
         .map_err(io_err("cannot create a temporary directory for", path))?;
     {
@@ -760,7 +937,7 @@ pub fn extract_and_parse_within(
         fs::set_permissions(dir.path(), fs::Permissions::from_mode(0o700))
             .map_err(io_err("cannot restrict permissions of", dir.path()))?;
     }
-    extract_archive_within(path, dir.path(), budget)?;
+    let extracted = extract_entries(zip, path, dir.path(), budget, wanted)?;
     let md_path = dir.path().join("modelDescription.xml");
     // Refused unread past the reader's bound (the archive may hold up to the entry limit).
     if let Ok(meta) = fs::metadata(&md_path) {
@@ -780,7 +957,7 @@ pub fn extract_and_parse_within(
         Err(e) => return Err(io_err("cannot read", &md_path)(e)),
     };
     let md = parse_model_description(&bytes)?;
-    Ok((dir, md))
+    Ok((dir, md, extracted))
 }
 
 /// Parses `modelDescription.xml` bytes (UTF-8, a leading byte-order mark is skipped).
@@ -796,18 +973,65 @@ impl Fmu {
     /// [`LoadOptions::isolation`]) into a host process that reports the binary's functions and
     /// version and then serves the first instance.
     pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Fmu, LoadError> {
-        let path = path.as_ref();
-        let (dir, md) = match &options.budget {
-            Some(b) => extract_and_parse_within(path, b)?,
-            None => extract_and_parse(path, &options.limits)?,
-        };
+        Fmu::load_from(&ArchiveSource::File(path.as_ref().to_path_buf()), options)
+    }
+
+    /// [`load`](Self::load) of the archive at `source`.
+    pub(crate) fn load_from(
+        source: &ArchiveSource,
+        options: &LoadOptions,
+    ) -> Result<Fmu, LoadError> {
+        let budget = options
+            .budget
+            .clone()
+            .unwrap_or_else(|| ArchiveBudget::new(options.limits));
+        let path = source.name();
+        let mut zip = open_archive(source, &budget)?;
+        let sharing = options.binaries == Binaries::Shared && options.preload.is_empty();
+        let wanted = |rel: &Path| !sharing || shared::needed_at_run_time(rel);
+        let (dir, md, extracted) = extract_and_parse_selected(&mut zip, path, &budget, &wanted)?;
         let cs = md.co_simulation.as_ref().ok_or(LoadError::NoCoSimulation)?;
         let rel = format!("binaries/linux64/{}.so", cs.model_identifier);
-        let binary = dir.path().join(&rel);
-        if sanitize_entry_name(&rel).is_err() || !binary.is_file() {
-            return Err(LoadError::MissingBinary { expected: rel });
-        }
-        let exec = if options.isolation.isolates(md.generation_tool.as_deref()) {
+        let missing = || LoadError::MissingBinary {
+            expected: rel.clone(),
+        };
+        let rel_path = sanitize_entry_name(&rel)
+            .ok()
+            .flatten()
+            .ok_or_else(missing)?;
+        let isolated = options.isolation.isolates(md.generation_tool.as_deref());
+        let mut shared_binary = None;
+        let binary = if sharing {
+            let index = extracted
+                .left
+                .iter()
+                .find(|(p, _)| *p == rel_path)
+                .map(|(_, i)| *i)
+                .ok_or_else(missing)?;
+            if !isolated && cs.can_be_instantiated_only_once_per_process != Some(true) {
+                let b = shared::binary(&mut zip, path, index, &cs.model_identifier)?;
+                let p = b.path.clone();
+                shared_binary = Some(b);
+                p
+            } else {
+                // Its own copy, in the FMU's directory as the plain path puts it.
+                let bytes = read_declared(&mut zip, path, index)?;
+                let binary = dir.path().join(&rel_path);
+                if let Some(parent) = binary.parent() {
+                    fs::create_dir_all(parent)
+                        .map_err(io_err("cannot create directory", parent))?;
+                }
+                fs::write(&binary, bytes).map_err(io_err("cannot extract to", &binary))?;
+                binary
+            }
+        } else {
+            let binary = dir.path().join(&rel_path);
+            if !binary.is_file() {
+                return Err(missing());
+            }
+            binary
+        };
+        let exec = if isolated {
             let helper = crate::isolate::find_helper(options.host.helper.as_deref())?;
             let timeout = options.host.call_timeout;
             let (process, probe) =
@@ -815,20 +1039,25 @@ impl Fmu {
             if probe.version != "2.0" {
                 return Err(LoadError::WrongVersion(probe.version));
             }
-            Exec::Remote(RemoteFmu {
+            Exec::Remote(Box::new(RemoteFmu {
                 helper,
                 timeout,
                 binary: binary.clone(),
                 preload: options.preload.clone(),
                 probe,
                 spare: std::sync::Mutex::new(Some(process)),
-            })
+            }))
+        } else if let Some(b) = shared_binary {
+            if b.local.version != "2.0" {
+                return Err(LoadError::WrongVersion(b.local.version.clone()));
+            }
+            Exec::Local(LocalExec::Shared(b))
         } else {
             let local = LocalBinary::open(&binary, &options.preload)?;
             if local.version != "2.0" {
                 return Err(LoadError::WrongVersion(local.version));
             }
-            Exec::Local(local)
+            Exec::Local(LocalExec::Own(Box::new(local)))
         };
         let resource_uri =
             CString::new(file_uri(&dir.path().join("resources"))).expect("a path has no NUL byte");
@@ -857,12 +1086,14 @@ impl Fmu {
         &self.shared.md
     }
 
-    /// The directory the archive was extracted to (removed when the FMU is dropped).
+    /// The directory the archive was extracted to (removed when the FMU is dropped): with
+    /// [`Binaries::Shared`] only the model description and `resources/`.
     pub fn directory(&self) -> &Path {
         self.shared.dir.path()
     }
 
-    /// The path of the loaded binary inside [`directory`](Self::directory).
+    /// The path of the loaded binary: inside [`directory`](Self::directory), or (a binary
+    /// shared with other FMUs, [`Binaries::Shared`]) in a private directory of its own.
     pub fn binary_path(&self) -> &Path {
         &self.shared.binary
     }
@@ -876,7 +1107,8 @@ impl Fmu {
             .expect("built from a String")
     }
 
-    /// The archive this FMU was loaded from.
+    /// The archive this FMU was loaded from (an FMU read in place from inside an SSP: the
+    /// SSP's path followed by the entry's name).
     pub fn source_path(&self) -> &Path {
         &self.shared.source
     }

@@ -1021,6 +1021,103 @@ pub fn read_file_within(
     Ok((ssd, base, dir))
 }
 
+/// What [`read_file_for_run`] returns: the description, the directory its references are
+/// relative to, the extraction directory, and the FMUs read in place.
+type ForRun = (
+    Ssd,
+    PathBuf,
+    Option<tempfile::TempDir>,
+    HashMap<PathBuf, crate::load::ArchiveSource>,
+);
+
+/// [`read_file_within`] for a run ([`Binaries::Shared`](crate::load::Binaries::Shared)): the
+/// FMUs the archive stores uncompressed are left in it, to be read in place (their paths as
+/// if extracted, mapped to where their bytes are); everything else is extracted.
+fn read_file_for_run(path: &Path, budget: &ArchiveBudget) -> Result<ForRun, SspError> {
+    use crate::load::ArchiveSource;
+    let is_ssd = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ssd"));
+    if is_ssd {
+        let (ssd, base, dir) = read_file_within(path, budget)?;
+        return Ok((ssd, base, dir, HashMap::new()));
+    }
+    let dir = crate::tempdirs::create("ssp").map_err(|source| SspError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let base = dir.path().to_path_buf();
+    let extracting = |source| SspError::Load {
+        context: format!("extracting {}", path.display()),
+        source,
+    };
+    let mut zip = crate::load::open_archive(&ArchiveSource::File(path.to_path_buf()), budget)
+        .map_err(extracting)?;
+    let is_fmu = |rel: &Path| {
+        rel.extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("fmu"))
+    };
+    let done = crate::load::extract_entries(&mut zip, path, &base, budget, &|rel| !is_fmu(rel))
+        .map_err(extracting)?;
+    let mut in_place = HashMap::new();
+    for (rel, index) in done.left {
+        let stored = {
+            let raw = zip.by_index_raw(index).map_err(|source| {
+                extracting(crate::load::LoadError::Zip {
+                    archive: path.to_path_buf(),
+                    entry: None,
+                    source,
+                })
+            })?;
+            match raw.data_start() {
+                Some(start)
+                    if raw.compression() == zip::CompressionMethod::Stored
+                        && raw.compressed_size() == raw.size() =>
+                {
+                    Some((start, raw.size()))
+                }
+                _ => None,
+            }
+        };
+        let target = base.join(&rel);
+        match stored {
+            Some((start, len)) => {
+                in_place.insert(
+                    target,
+                    ArchiveSource::Nested {
+                        container: path.to_path_buf(),
+                        start,
+                        len,
+                        name: path.join(&rel),
+                    },
+                );
+            }
+            None => {
+                // Compressed: extracted like the rest (its declared size already counted).
+                let bytes =
+                    crate::load::read_declared(&mut zip, path, index).map_err(extracting)?;
+                if let Some(parent) = target.parent() {
+                    std::fs::create_dir_all(parent).map_err(|source| SspError::Io {
+                        path: parent.to_path_buf(),
+                        source,
+                    })?;
+                }
+                std::fs::write(&target, bytes).map_err(|source| SspError::Io {
+                    path: target.clone(),
+                    source,
+                })?;
+            }
+        }
+    }
+    let ssd_path = base.join("SystemStructure.ssd");
+    let xml = read_text(&ssd_path)?;
+    let file = ssd_path.display().to_string();
+    let ssd = read_ssd_with(&xml, &file, &mut |src| {
+        read_text(&relative_ref(&base, src, &file)?)
+    })?;
+    Ok((ssd, base, Some(dir), in_place))
+}
+
 /// Reads an SSP (`.ssp` or `.ssd`) and builds the [`System`]: loads each distinct FMU once,
 /// adds the components, connections (component to component only) and parameter values.
 ///
@@ -1104,7 +1201,12 @@ pub fn load_system_replacing(
         budget: Some(budget.clone()),
         ..options.clone()
     };
-    let (ssd, base, dir) = read_file_within(path, &budget)?;
+    let (ssd, base, dir, in_place) = if options.binaries == crate::load::Binaries::Shared {
+        read_file_for_run(path, &budget)?
+    } else {
+        let (ssd, base, dir) = read_file_within(path, &budget)?;
+        (ssd, base, dir, HashMap::new())
+    };
     let file = path.display().to_string();
     let mut system = System::new();
     let mut fmus: HashMap<String, Fmu> = HashMap::new();
@@ -1153,7 +1255,11 @@ pub fn load_system_replacing(
             Some(f) => f.clone(),
             None => {
                 let p = relative_ref(&base, &c.source, &file)?;
-                let f = Fmu::load(&p, options).map_err(|source| SspError::Load {
+                let loaded = match in_place.get(&p) {
+                    Some(source) => Fmu::load_from(source, options),
+                    None => Fmu::load(&p, options),
+                };
+                let f = loaded.map_err(|source| SspError::Load {
                     context: format!("component '{}' ({})", c.name, c.source),
                     source,
                 })?;

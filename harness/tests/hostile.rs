@@ -260,3 +260,54 @@ fn extraction_directory_is_private_and_removed() {
     drop(fmu);
     assert!(!dir.exists());
 }
+
+#[test]
+fn entries_left_in_the_archive_are_checked_like_extracted_ones() {
+    // Loading for runs (the default) leaves `documentation/` in the archive: its entries are
+    // refused for whatever extraction would refuse.
+    let d = tempfile::tempdir().unwrap();
+    let dup = d.path().join("dup.fmu");
+    archive(&dup, |z| {
+        for name in ["documentation/a.txt", "./documentation/a.txt"] {
+            z.start_file(name, opts()).unwrap();
+            z.write_all(b"x").unwrap();
+        }
+    });
+    let e = load_err(&dup);
+    assert!(matches!(e, LoadError::DuplicateEntry { .. }), "{e}");
+
+    let dotdot = d.path().join("dotdot-doc.fmu");
+    archive(&dotdot, |z| {
+        z.start_file("documentation/../../evil.txt", opts())
+            .unwrap();
+        z.write_all(b"x").unwrap();
+    });
+    let e = load_err(&dotdot);
+    assert!(matches!(e, LoadError::UnsafeEntryName { .. }), "{e}");
+
+    // Too large by the size it declares (it is never decompressed).
+    let large = d.path().join("large-doc.fmu");
+    archive(&large, |z| {
+        z.start_file("documentation/large.bin", opts()).unwrap();
+        z.write_all(&vec![0u8; 2 << 20]).unwrap();
+    });
+    let limits = ArchiveLimits {
+        max_entry_bytes: 1 << 20,
+        ..ArchiveLimits::default()
+    };
+    let e = Fmu::load(
+        &large,
+        &LoadOptions {
+            limits,
+            ..LoadOptions::default()
+        },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, LoadError::EntryTooLarge { entry, .. } if entry == "documentation/large.bin"),
+        "{e}"
+    );
+    // Within the limits it loads, and nothing of it is extracted.
+    let fmu = Fmu::load(&large, &LoadOptions::default()).unwrap();
+    assert!(!fmu.directory().join("documentation").exists());
+}

@@ -1,4 +1,4 @@
-//! The SEA closed loop of the study, one gait cycle at 1 kHz: `cargo bench -p kneebench-tests
+//! The SEA (and CSEA) closed loop of the study, one gait cycle at 1 kHz: `cargo bench -p kneebench-tests
 //! --bench closed_loop`.
 //!
 //! The system is the study's SEA scenario (`gait_scenario(Sea, ...)` with the tuned gains): the
@@ -391,6 +391,37 @@ fn main() {
         &path,
         &fmus,
         None,
+    );
+    csea(&dir.path().join("CSEA.ssp"), &fmu_dir);
+}
+
+/// The study's CSEA loop (gait, impedance controller, clutch scheduler, torque loop, plant: 5
+/// FMU instances, Boolean connections too, so no plain loop), recording the analysed signals:
+/// the harness's steady real-time factor.
+fn csea(path: &Path, fmu_dir: &Path) {
+    let scenario = gait_scenario(
+        Actuator::Csea,
+        Gait::bench_full(),
+        StudyGains::for_actuator(Actuator::Csea),
+        1,
+    );
+    write_ssp(&scenario, fmu_dir, path).unwrap();
+    let analysed = Columns::default().names();
+    let loaded = load(path, Some(&analysed));
+    let first = harness(&loaded);
+    let runs: Vec<f64> = (0..REPEATS).map(|_| harness(&loaded)).collect();
+    let h = median(runs);
+    let sim = scenario.stop_time;
+    println!(
+        "the study's CSEA loop, recording the signals the study analyses: {} FMU instances, {} steps; medians of {REPEATS}",
+        scenario.components.len(),
+        (sim / scenario.step_size).round()
+    );
+    println!(
+        "  harness System::run      {:7.2} ms   real-time factor {:6.0}x  (first run after loading {:.2} ms)",
+        h * 1e3,
+        sim / h,
+        first * 1e3
     );
 }
 

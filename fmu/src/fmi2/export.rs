@@ -9,6 +9,7 @@
 
 #![allow(non_snake_case, clippy::missing_safety_doc)]
 
+use std::borrow::Cow;
 use std::ffi::{CStr, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
@@ -76,6 +77,59 @@ fn library_stem() -> Option<&'static str> {
         Some(stem.to_string())
     })
     .as_deref()
+}
+
+/// The `modelIdentifier` of the co-simulation FMU whose resources are at `location` (a `file:`
+/// URI, as fmi2Instantiate receives it): read from the head of the `modelDescription.xml`
+/// beside them. Only a hint (the GUID decides), so anything unexpected is `None`.
+fn identifier_beside(location: fmi2String) -> Option<String> {
+    use std::io::Read;
+    if location.is_null() {
+        return None;
+    }
+    // SAFETY: non-NULL, NUL-terminated by the FMI contract.
+    let uri = unsafe { CStr::from_ptr(location) }.to_str().ok()?;
+    let resources = file_uri_path(uri)?;
+    let description = resources.parent()?.join("modelDescription.xml");
+    let mut head = Vec::new();
+    std::fs::File::open(description)
+        .ok()?
+        .take(16 * 1024)
+        .read_to_end(&mut head)
+        .ok()?;
+    let text = String::from_utf8_lossy(&head);
+    let element = &text[text.find("<CoSimulation")?..];
+    let element = &element[..element.find('>')?];
+    const ATTRIBUTE: &str = "modelIdentifier=\"";
+    let value = &element[element.find(ATTRIBUTE)? + ATTRIBUTE.len()..];
+    Some(value[..value.find('"')?].to_string())
+}
+
+/// The absolute path of a `file:` URI (`file:///p`, `file://localhost/p`, `file:/p`;
+/// percent-encoded bytes decoded).
+fn file_uri_path(uri: &str) -> Option<std::path::PathBuf> {
+    use std::os::unix::ffi::OsStringExt;
+    let rest = match uri.strip_prefix("file://") {
+        Some(r) => r.strip_prefix("localhost").unwrap_or(r),
+        None => uri.strip_prefix("file:")?,
+    };
+    if !rest.starts_with('/') {
+        return None;
+    }
+    let bytes = rest.as_bytes();
+    let mut path = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%' {
+            let hex = std::str::from_utf8(bytes.get(i + 1..i + 3)?).ok()?;
+            path.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            path.push(bytes[i]);
+            i += 1;
+        }
+    }
+    Some(std::ffi::OsString::from_vec(path).into())
 }
 
 /// The path of the object that holds this function, from the dynamic loader.
@@ -201,7 +255,7 @@ pub unsafe extern "C" fn fmi2Instantiate(
     instanceName: fmi2String,
     fmuType: c_int,
     fmuGUID: fmi2String,
-    _fmuResourceLocation: fmi2String,
+    fmuResourceLocation: fmi2String,
     functions: *const fmi2CallbackFunctions,
     _visible: fmi2Boolean,
     loggingOn: fmi2Boolean,
@@ -247,8 +301,14 @@ pub unsafe extern "C" fn fmi2Instantiate(
         // SAFETY: non-NULL, NUL-terminated by the FMI contract.
         let guid = unsafe { CStr::from_ptr(fmuGUID) }.to_string_lossy();
         // The packager names each FMU's copy of this binary after its model: that model is
-        // tried first, so an instantiation builds only its own description and GUID.
-        let Some(entry) = registry::find_by_guid_hinted(&guid, library_stem()) else {
+        // tried first, so an instantiation builds only its own description and GUID. An
+        // importer that loads one copy for several FMUs (kneebench does) passes each FMU's
+        // resources, next to its model description: the model named there is tried next.
+        let hints =
+            std::iter::once(library_stem().map(Cow::Borrowed)).chain(std::iter::once_with(|| {
+                identifier_beside(fmuResourceLocation).map(Cow::Owned)
+            }));
+        let Some(entry) = registry::find_by_guid_with_hints(&guid, hints) else {
             return refuse(&format!(
                 "no model with GUID {guid} in this binary (models: {})",
                 crate::MODELS
@@ -817,6 +877,46 @@ fn catalog_file(index: usize, kind: c_int) -> *const c_char {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_model_beside_the_resources_is_read_from_any_form_of_their_uri() {
+        let d = tempfile::tempdir().unwrap();
+        let fmu = d.path().join("an fmu");
+        std::fs::create_dir_all(fmu.join("resources")).unwrap();
+        std::fs::write(
+            fmu.join("modelDescription.xml"),
+            "<?xml version=\"1.0\"?>\n<fmiModelDescription fmiVersion=\"2.0\" modelName=\"M\" \
+             guid=\"{g}\">\n  <CoSimulation modelIdentifier=\"PidController\" \
+             canHandleVariableCommunicationStepSize=\"true\"/>\n</fmiModelDescription>",
+        )
+        .unwrap();
+        let path = fmu.join("resources").display().to_string();
+        let encoded = path.replace(' ', "%20");
+        for uri in [
+            format!("file://{encoded}"),
+            format!("file://localhost{encoded}/"),
+            format!("file:{encoded}"),
+        ] {
+            let c = std::ffi::CString::new(uri.clone()).unwrap();
+            assert_eq!(
+                identifier_beside(c.as_ptr()).as_deref(),
+                Some("PidController"),
+                "{uri}"
+            );
+        }
+        for bad in [
+            "relative/resources",
+            "http://x/resources",
+            "file://%zz/resources",
+        ] {
+            let c = std::ffi::CString::new(bad).unwrap();
+            assert_eq!(identifier_beside(c.as_ptr()), None, "{bad}");
+        }
+        assert_eq!(identifier_beside(std::ptr::null()), None);
+        // No model description there: no hint.
+        let c = std::ffi::CString::new(format!("file://{}", d.path().display())).unwrap();
+        assert_eq!(identifier_beside(c.as_ptr()), None);
+    }
 
     #[cfg(target_os = "linux")]
     #[test]

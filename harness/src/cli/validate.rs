@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
-use kneebench_harness::{Fmu, InstanceOptions, LoadOptions};
+use kneebench_harness::{Binaries, Fmu, InstanceOptions, LoadOptions};
 use model_description::ModelDescription;
 
 /// Arguments of `kneebench validate`.
@@ -49,6 +49,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         &LoadOptions {
             limits,
             preload: a.preload.clone(),
+            // The FMU as it is: its own copy of its binary, named inside its directory.
+            binaries: Binaries::Private,
             ..LoadOptions::default()
         },
     ) {
