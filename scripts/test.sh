@@ -14,7 +14,10 @@ echo "== cargo doc"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --locked --quiet
 echo "== cargo test"
 log=$(mktemp)
-trap 'rm -f "$log"' EXIT
+# The suite's own cache of extracted FMU binaries (README "Loading"), so that the tests neither
+# read nor fill the user's cache; removed with the log at the end.
+export KNEEBENCH_CACHE_DIR=$(mktemp -d)
+trap 'rm -f "$log"; rm -rf "$KNEEBENCH_CACHE_DIR"' EXIT
 cargo test --workspace --locked --release 2>&1 | tee "$log"
 echo "== python package (maturin wheel into the venv, pytest)"
 # The kneebench binaries and the FMU library next to them (the Python tests compare with the
