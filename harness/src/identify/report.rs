@@ -96,6 +96,7 @@ fn markdown(id: &Identification, ssv: &Path, figure: Option<&str>) -> String {
         let status = match &e.status {
             Status::Identified => "identified".to_string(),
             Status::NotIdentifiable(why) => format!("**not identifiable**: {why}"),
+            Status::Conditional(why) => format!("**conditional** (written): {why}"),
         };
         let _ = writeln!(
             s,
