@@ -646,7 +646,7 @@ fn coefficient_name(side: usize, k: usize) -> String {
 /// be within 3 %), every other one be held at its prior (the default) for the map's box. Returns
 /// the number of coefficients held and the largest relative error of the fitted surface at the
 /// map's moving points.
-fn surface_round_trip(torques: Option<Vec<f64>>) -> (usize, usize, f64) {
+fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64) {
     use kneebench_harness::experiment::map;
     let dir = tempfile::tempdir().unwrap();
     let defaults = default_surface();
@@ -749,7 +749,7 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (usize, usize, f64) {
     // coefficients held at their prior, so they hold whatever the map's box leaves
     // undetermined). Every other one: reported as not excited by the map and held at its prior
     // (the default, not the truth) in the written set.
-    let (mut held, mut conditional) = (0, 0);
+    let (mut held, mut conditional) = (Vec::new(), 0);
     for side in 0..2 {
         for (k, truth) in truth_surface[side].iter().enumerate() {
             let name = coefficient_name(side, k);
@@ -777,7 +777,7 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (usize, usize, f64) {
                 Status::NotIdentifiable(why) => {
                     assert!(why.contains("does not excite"), "{name}: {why}");
                     assert_eq!(id.set.real(&name), Some(defaults[side][k]), "{name}");
-                    held += 1;
+                    held.push(kneebench_harness::identify::surface::TERMS[k]);
                 }
             }
         }
@@ -853,7 +853,7 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (usize, usize, f64) {
     let out = dir.path().join("identify");
     write_outputs(&id, &out).unwrap();
     let md = std::fs::read_to_string(out.join("identify.md")).unwrap();
-    if held > 0 {
+    if !held.is_empty() {
         assert!(md.contains("more `--torques` levels"), "{md}");
     }
     (held, conditional, worst)
@@ -864,8 +864,12 @@ fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
     // The map's five default load torques cannot fix a polynomial of degree 5 in the load
     // torque: some coefficients are held, and are reported as such.
     let (held, conditional, _) = surface_round_trip(None);
-    eprintln!("{held} coefficients held, {conditional} conditional with five load torques");
-    assert!(held > 0 && held < 21, "{held} held");
+    eprintln!(
+        "{} coefficients held ({held:?}), {conditional} conditional with five load torques",
+        held.len()
+    );
+    assert!(!held.is_empty() && held.len() < 21, "{held:?} held");
+    assert!(held.iter().any(|&(i, j)| j == 0 && i >= 4), "{held:?} held");
 }
 
 #[test]
@@ -874,5 +878,13 @@ fn a_map_at_seven_load_torques_identifies_the_loss_surface_coefficients() {
     // the degree-5 polynomial in the load torque.
     let (held, conditional, _) =
         surface_round_trip(Some(vec![-9.0, -6.0, -3.0, 0.0, 3.0, 6.0, 9.0]));
-    eprintln!("{held} coefficients held, {conditional} conditional with seven load torques");
+    eprintln!(
+        "{} coefficients held ({held:?}), {conditional} conditional with seven load torques",
+        held.len()
+    );
+    // No term of order 4 or 5 in the load torque alone is held for want of torque levels.
+    assert!(
+        !held.iter().any(|&(i, j)| j == 0 && i >= 4),
+        "{held:?} held"
+    );
 }
