@@ -63,7 +63,11 @@
 //! `hdLossPositiveSpeed[k]`, `hdLossNegativeSpeed[k]`), fitted with Km1 and I1 by linear least
 //! squares over the logs' moving rows ([`surface`]: the steady-state map `kneebench experiment
 //! map` excites them, a Bode sweep of the test motor fixes Km1 and I1); the coefficients the
-//! map's box does not excite are reported as such and held at their prior.
+//! map's box does not excite are reported as such and held at their prior. The others'
+//! intervals count the held priors' uncertainty (a held prior's error moves the coefficients
+//! correlated with it); one that leans on the held values beyond
+//! [`IdentifyConfig::surface_max_relative_ci`] (10 %) is [`Status::Conditional`]: written to the
+//! set as part of the fitted surface, not claimed on its own, not refined.
 
 pub mod lm;
 pub mod log;
