@@ -856,6 +856,10 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64
     if !held.is_empty() {
         assert!(md.contains("more `--torques` levels"), "{md}");
     }
+    if conditional > 0 {
+        assert!(md.contains("### Conditional on held values"), "{md}");
+        assert!(md.contains("**conditional** (written)"), "{md}");
+    }
     (held, conditional, worst)
 }
 

@@ -125,6 +125,24 @@ fn markdown(id: &Identification, ssv: &Path, figure: Option<&str>) -> String {
             );
         }
     }
+    let conditional: Vec<_> = id
+        .estimates
+        .iter()
+        .filter(|e| matches!(e.status, Status::Conditional(_)))
+        .collect();
+    if !conditional.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n### Conditional on held values\n\nFitted and written to the set as part of one fitted function, but not determined on their own (their intervals count the held values' uncertainty); to identify them, add:\n"
+        );
+        for e in conditional {
+            let _ = writeln!(
+                s,
+                "- {} ({}): {}",
+                e.quantity.label, e.quantity.unit, e.quantity.experiment
+            );
+        }
+    }
     let _ = writeln!(
         s,
         "\n### Fit quality\n\n| regression | rows | residual RMS | autocorrelation (samples) | correlated pairs (> 0.9) |\n|---|---|---|---|---|"
