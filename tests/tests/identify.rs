@@ -639,8 +639,14 @@ fn coefficient_name(side: usize, k: usize) -> String {
     format!("{set}[{}]", k + 1)
 }
 
-#[test]
-fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
+/// The loss-surface round trip: the map at `torques` (the map's default load torques when
+/// `None`) and a Bode sweep on each motor, recorded on the bench of [`BROADER_TRUTH`] and
+/// [`SURFACE_SCALE`], identified; the motor constants and sensor offsets are checked, and every
+/// surface coefficient reported as identified must contain the truth in its 95 % interval (or
+/// be within 3 %), every other one be held at its prior (the default) for the map's box. Returns
+/// the number of coefficients held and the largest relative error of the fitted surface at the
+/// map's moving points.
+fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64) {
     use kneebench_harness::experiment::map;
     let dir = tempfile::tempdir().unwrap();
     let defaults = default_surface();
@@ -661,13 +667,15 @@ fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
     // than the bench's schedule) and a Bode sweep on each motor.
     let mut logs = Vec::new();
     let out = dir.path().join("map");
+    let defaults_config = map::MapConfig::default();
     let r = map::run_map(
         &bench,
         &map::MapConfig {
             speeds: vec![3.0, 10.0, 30.0, 60.0, 100.0, 150.0],
             settle: 1.0,
             measure: 0.5,
-            ..map::MapConfig::default()
+            torques: torques.unwrap_or(defaults_config.torques.clone()),
+            ..defaults_config
         },
         &out,
     )
@@ -736,11 +744,12 @@ fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
         assert!(err.abs() <= 0.03 || within_ci, "{name}\n{report}");
         assert_eq!(id.set.real(name), Some(v), "{name} in the written set");
     }
-    // The surface: its speed polynomial at zero load (the terms x^0 y^j), which carries most of
-    // it, within 3 % each where identified; every other coefficient identified with its
-    // interval, or reported as not excited by the map and held at its prior (the default) in
-    // the written set.
-    let mut held = 0;
+    // Every coefficient reported as identified: within 3 %, or the truth inside its 95 %
+    // interval, which is narrower than 10 % (the intervals count the uncertainty of the
+    // coefficients held at their prior, so they hold whatever the map's box leaves
+    // undetermined). Every other one: reported as not excited by the map and held at its prior
+    // (the default, not the truth) in the written set.
+    let (mut held, mut conditional) = (Vec::new(), 0);
     for side in 0..2 {
         for (k, truth) in truth_surface[side].iter().enumerate() {
             let name = coefficient_name(side, k);
@@ -750,20 +759,29 @@ fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
                     let (v, ci) = e.value();
                     assert!(ci.is_finite() && ci > 0.0, "{name}\n{report}");
                     assert_eq!(id.set.real(&name), Some(v), "{name} in the written set");
-                    if kneebench_harness::identify::surface::TERMS[k].0 == 0 {
-                        assert!((v - truth).abs() <= 0.03 * truth.abs(), "{name}\n{report}");
-                    }
+                    let within_ci = (v - truth).abs() <= ci && ci < 0.1 * truth.abs();
+                    assert!(
+                        (v - truth).abs() <= 0.03 * truth.abs() || within_ci,
+                        "{name}\n{report}"
+                    );
+                }
+                Status::Conditional(why) => {
+                    // Written (the surface is one fit), not claimed on its own: its interval,
+                    // which counts the held values' uncertainty, holds the truth.
+                    let (v, ci) = e.value();
+                    assert!(why.contains("fitted with the"), "{name}: {why}");
+                    assert_eq!(id.set.real(&name), Some(v), "{name} in the written set");
+                    assert!((v - truth).abs() <= ci, "{name}\n{report}");
+                    conditional += 1;
                 }
                 Status::NotIdentifiable(why) => {
                     assert!(why.contains("does not excite"), "{name}: {why}");
                     assert_eq!(id.set.real(&name), Some(defaults[side][k]), "{name}");
-                    held += 1;
+                    held.push(kneebench_harness::identify::surface::TERMS[k]);
                 }
             }
         }
     }
-    // Five load torques do not determine every term of order 3 to 5 in x.
-    assert!(held > 0 && held < 21, "{held} held\n{report}");
     // The fitted surface reproduces the true one within 3 % at every moving point of the map
     // (clamped to the plant's box, as the plant evaluates it).
     let fitted: [Vec<f64>; 2] = [0, 1].map(|side| {
@@ -835,5 +853,42 @@ fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
     let out = dir.path().join("identify");
     write_outputs(&id, &out).unwrap();
     let md = std::fs::read_to_string(out.join("identify.md")).unwrap();
-    assert!(md.contains("more `--torques` levels"), "{md}");
+    if !held.is_empty() {
+        assert!(md.contains("more `--torques` levels"), "{md}");
+    }
+    if conditional > 0 {
+        assert!(md.contains("### Conditional on held values"), "{md}");
+        assert!(md.contains("**conditional** (written)"), "{md}");
+    }
+    (held, conditional, worst)
+}
+
+#[test]
+fn the_loss_surface_and_motor_constants_are_recovered_from_map_and_bode_logs() {
+    // The map's five default load torques cannot fix a polynomial of degree 5 in the load
+    // torque: some coefficients are held, and are reported as such.
+    let (held, conditional, _) = surface_round_trip(None);
+    eprintln!(
+        "{} coefficients held ({held:?}), {conditional} conditional with five load torques",
+        held.len()
+    );
+    assert!(!held.is_empty() && held.len() < 21, "{held:?} held");
+    assert!(held.iter().any(|&(i, j)| j == 0 && i >= 4), "{held:?} held");
+}
+
+#[test]
+fn a_map_at_seven_load_torques_identifies_the_loss_surface_coefficients() {
+    // Seven load torques over the gait's range (-9 ... 9 N m, the default's span) determine
+    // the degree-5 polynomial in the load torque.
+    let (held, conditional, _) =
+        surface_round_trip(Some(vec![-9.0, -6.0, -3.0, 0.0, 3.0, 6.0, 9.0]));
+    eprintln!(
+        "{} coefficients held ({held:?}), {conditional} conditional with seven load torques",
+        held.len()
+    );
+    // No term of order 4 or 5 in the load torque alone is held for want of torque levels.
+    assert!(
+        !held.iter().any(|&(i, j)| j == 0 && i >= 4),
+        "{held:?} held"
+    );
 }

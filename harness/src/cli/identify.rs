@@ -144,6 +144,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 (v, ci) = (e.prior, f64::NAN);
                 format!("  NOT IDENTIFIABLE (prior kept): {why}")
             }
+            Status::Conditional(why) => format!("  CONDITIONAL (written): {why}"),
         };
         println!(
             "{:32} {:>12.6} +- {:<10.4} {}{status}",

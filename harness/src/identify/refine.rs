@@ -173,11 +173,14 @@ pub(super) fn refine(
     };
     let mut free: Vec<(usize, &'static str)> = Vec::new();
     for (k, e) in estimates.iter().enumerate() {
-        let (Some(p), Status::Identified) = (e.quantity.parameter, &e.status) else {
+        // Conditional estimates (the loss surface's coefficients fitted with others held)
+        // enter the simulated plant as they enter the written set, but are not refined.
+        let (Some(p), true) = (e.quantity.parameter, e.status.is_written()) else {
             continue;
         };
         set_fixed(p, e.linear);
         if let Some(&name) = REFINED.iter().find(|n| **n == p)
+            && e.status == Status::Identified
             && e.linear > 0.0
         {
             free.push((k, name));

@@ -96,6 +96,7 @@ fn markdown(id: &Identification, ssv: &Path, figure: Option<&str>) -> String {
         let status = match &e.status {
             Status::Identified => "identified".to_string(),
             Status::NotIdentifiable(why) => format!("**not identifiable**: {why}"),
+            Status::Conditional(why) => format!("**conditional** (written): {why}"),
         };
         let _ = writeln!(
             s,
@@ -117,6 +118,24 @@ fn markdown(id: &Identification, ssv: &Path, figure: Option<&str>) -> String {
             "\n### Not identifiable from these logs\n\nThe written set keeps the prior value of each; to identify it, add:\n"
         );
         for e in missing {
+            let _ = writeln!(
+                s,
+                "- {} ({}): {}",
+                e.quantity.label, e.quantity.unit, e.quantity.experiment
+            );
+        }
+    }
+    let conditional: Vec<_> = id
+        .estimates
+        .iter()
+        .filter(|e| matches!(e.status, Status::Conditional(_)))
+        .collect();
+    if !conditional.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n### Conditional on held values\n\nFitted and written to the set as part of one fitted function, but not determined on their own (their intervals count the held values' uncertainty); to identify them, add:\n"
+        );
+        for e in conditional {
             let _ = writeln!(
                 s,
                 "- {} ({}): {}",

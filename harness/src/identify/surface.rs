@@ -32,12 +32,28 @@
 //! by the accelerating rows (a Bode sweep of the test motor).
 //!
 //! **Coefficients the experiment does not excite.** The map holds a few load torques (5 by
-//! default) at speeds up to 150 deg/s: the terms of high order in `x` are then combinations of
-//! the others, or so weakly determined that their 95 % interval exceeds
-//! [`IdentifyConfig::max_relative_ci`](super::IdentifyConfig::max_relative_ci) of the value.
-//! Such a coefficient is reported as not identifiable and held at its prior, and the others are
-//! fitted again with it held (backward elimination, one coefficient at a time, the least determined
-//! first), so that the written surface is one consistent fit.
+//! default) at speeds up to 150 deg/s: with `n` distinct load torques a polynomial in `x` of
+//! degree `n` or more is not fixed by them (`x^5` through 5 levels is a combination of
+//! `1 ... x^4`), and the noise on the measured `x` only makes such a column nearly, not exactly,
+//! a combination of the others. Such a coefficient is reported as not identifiable and held at
+//! its prior, and the others are fitted again with it held (backward elimination, one
+//! coefficient at a time, the least determined first), so that the written surface is one
+//! consistent fit.
+//!
+//! **Intervals that account for the held coefficients.** A coefficient held at its prior biases
+//! the free ones it is correlated with by `S (p_true - p_prior)`, `S = (X_F^T X_F)^-1 X_F^T X_H`
+//! the sensitivities of the free estimates to the held ones. An interval conditional on the held
+//! values would claim a precision the fit does not have (the truth outside it). The experiment
+//! says nothing about a held coefficient, so its prior is taken as uncertain by its own
+//! magnitude ([`HELD_PRIOR_RELATIVE_STD`]), and every free estimate's reported interval counts
+//! the noise's variance plus `sum_h (S_nh p_h)^2`. A free estimate whose interval so widened
+//! stays within [`IdentifyConfig::max_relative_ci`](super::IdentifyConfig::max_relative_ci) of
+//! its value is identified; one that leans on the held values beyond it is reported as
+//! [`Status::Conditional`]: written to the set (the fitted surface is one function, and its
+//! values at the map's points are what the logs determine) but not claimed individually, nor
+//! refined. The held set is what the design does not determine (the elimination above, on the
+//! noise's intervals); more distinct load torques (`kneebench experiment map --torques`, 7 over
+//! the gait's range) determine the whole surface.
 
 use super::log::Log;
 use super::{Estimate, Quantity, Regression, Status, lsq, q, regression};
@@ -262,6 +278,7 @@ pub(super) fn fit_actuation(
     window: usize,
     prior: &dyn Fn(&Quantity) -> f64,
     max_relative_ci: f64,
+    identified_relative_ci: f64,
 ) -> Option<(Vec<Estimate>, Regression)> {
     let c1 = prior(&actuation[2]);
     // Columns: Km1, I1, then the coefficients.
@@ -303,6 +320,7 @@ pub(super) fn fit_actuation(
         return None;
     }
     let priors: Vec<f64> = COEFFICIENTS.iter().map(prior).collect();
+    let gram = Gram::new(&columns);
     // Backward elimination: `held[k]` holds coefficient k at its prior.
     let mut held = [false; 42];
     let fit = loop {
@@ -319,7 +337,7 @@ pub(super) fn fit_actuation(
         let cols: Vec<Vec<f64>> = free.iter().map(|&c| columns[c].clone()).collect();
         let f = lsq::fit(&cols, &y);
         // The least determined coefficient: not determined, or the widest relative interval
-        // beyond the limit.
+        // beyond the limit (the noise's: what the design leaves undetermined).
         let worst = free
             .iter()
             .enumerate()
@@ -341,22 +359,40 @@ pub(super) fn fit_actuation(
         }
     };
     let (free, f) = fit;
+    let half_width = half_widths(&gram, &free, &held, &priors, &f);
     let at = |c: usize| free.iter().position(|&x| x == c);
     let estimate = |quantity: Quantity, c: usize| {
         let prior_value = prior(&quantity);
         match at(c) {
             Some(n) => {
-                let (value, ci) = (f.values[n], 1.96 * f.stats.std[n]);
+                let (value, ci) = (f.values[n], half_width[n]);
+                let noise_ci = 1.96 * f.stats.std[n];
                 let status = if !f.stats.determined[n] {
                     Status::NotIdentifiable(
                         "its regressor is not excited by these logs, or is a combination of the others"
                             .into(),
                     )
-                } else if c < 2 && (ci.is_nan() || ci > max_relative_ci * value.abs()) {
+                } else if c < 2 && (noise_ci.is_nan() || noise_ci > max_relative_ci * value.abs()) {
                     Status::NotIdentifiable(format!(
                         "its 95 % interval (+-{}) is wider than {} % of the estimate",
-                        super::fmt(ci),
+                        super::fmt(noise_ci),
                         100.0 * max_relative_ci
+                    ))
+                } else if c < 2 && (ci.is_nan() || ci > max_relative_ci * value.abs()) {
+                    Status::Conditional(format!(
+                        "fitted with the coefficients the map does not excite held at their priors: its 95 % interval is +-{} given them, +-{} counting their uncertainty ({} % of each), wider than {} % of the estimate",
+                        super::fmt(noise_ci),
+                        super::fmt(ci),
+                        100.0 * HELD_PRIOR_RELATIVE_STD,
+                        100.0 * max_relative_ci
+                    ))
+                } else if c >= 2 && (ci.is_nan() || ci > identified_relative_ci * value.abs()) {
+                    Status::Conditional(format!(
+                        "fitted with the others (those the map does not excite held at their priors), but not within {} % on its own: its 95 % interval is +-{} from the noise, +-{} counting the held coefficients' uncertainty ({} % of each)",
+                        100.0 * identified_relative_ci,
+                        super::fmt(noise_ci),
+                        super::fmt(ci),
+                        100.0 * HELD_PRIOR_RELATIVE_STD
                     ))
                 } else {
                     Status::Identified
@@ -377,7 +413,7 @@ pub(super) fn fit_actuation(
                 linear_ci: f64::NAN,
                 refined: None,
                 status: Status::NotIdentifiable(
-                    "the map's box does not excite it (not determined, or its 95 % interval is wider than the limit); held at its prior while the other coefficients were fitted"
+                    "the map's box does not excite it apart from the others (not determined, or its 95 % interval is wider than the limit); held at its prior while the other coefficients were fitted"
                         .into(),
                 ),
             },
@@ -427,10 +463,163 @@ pub(super) fn fit_actuation(
     Some((estimates, r))
 }
 
+/// Relative standard uncertainty of a held coefficient's prior: the experiment says nothing
+/// about it, so it is taken as uncertain by its own magnitude (one standard deviation = 100 %
+/// of the prior). A truth within a few tens of percent of the prior is then well inside the
+/// widened intervals; a prior of zero adds nothing (no scale to go by).
+pub const HELD_PRIOR_RELATIVE_STD: f64 = 1.0;
+
+/// The Gram matrix `X^T X` of all 44 columns (Km1, I1, the coefficients), computed once: the
+/// sensitivities of the free estimates to the held coefficients are solved from its blocks.
+struct Gram {
+    g: Vec<Vec<f64>>,
+}
+
+impl Gram {
+    fn new(columns: &[Vec<f64>]) -> Self {
+        let p = columns.len();
+        let mut g = vec![vec![0.0; p]; p];
+        for a in 0..p {
+            for b in a..p {
+                let v: f64 = columns[a].iter().zip(&columns[b]).map(|(x, y)| x * y).sum();
+                g[a][b] = v;
+                g[b][a] = v;
+            }
+        }
+        Gram { g }
+    }
+
+    /// `S = (X_F^T X_F)^-1 X_F^T X_H`: how far each free estimate moves per unit of each held
+    /// coefficient (`free.len() x held.len()`); `None` when the free columns' block is singular.
+    fn sensitivities(&self, free: &[usize], held: &[usize]) -> Option<nalgebra::DMatrix<f64>> {
+        use nalgebra::DMatrix;
+        let scale = |c: usize| self.g[c][c].sqrt();
+        if free.iter().chain(held).any(|&c| scale(c) == 0.0) {
+            return None;
+        }
+        // Column-scaled blocks (the columns differ by orders of magnitude: x^5 against 1).
+        let gff = DMatrix::from_fn(free.len(), free.len(), |a, b| {
+            self.g[free[a]][free[b]] / (scale(free[a]) * scale(free[b]))
+        });
+        let gfh = DMatrix::from_fn(free.len(), held.len(), |a, h| {
+            self.g[free[a]][held[h]] / (scale(free[a]) * scale(held[h]))
+        });
+        let s = gff.cholesky()?.solve(&gfh);
+        Some(DMatrix::from_fn(free.len(), held.len(), |a, h| {
+            s[(a, h)] * scale(held[h]) / scale(free[a])
+        }))
+    }
+}
+
+/// The 95 % half widths of the free estimates (`free` indexes the 44 columns, `held` the 42
+/// coefficients): the noise's `1.96 std` widened by the held coefficients' prior uncertainty
+/// ([`HELD_PRIOR_RELATIVE_STD`]) propagated through the sensitivities, so that an interval is
+/// not conditional on held values that may be wrong. NaN where the fit does not determine the
+/// estimate.
+fn half_widths(
+    gram: &Gram,
+    free: &[usize],
+    held: &[bool; 42],
+    priors: &[f64],
+    f: &lsq::LinearFit,
+) -> Vec<f64> {
+    let noise: Vec<f64> = f.stats.std.iter().map(|s| 1.96 * s).collect();
+    let held_columns: Vec<usize> = (0..42).filter(|&k| held[k]).map(|k| k + 2).collect();
+    if held_columns.is_empty() || f.stats.determined.iter().any(|d| !d) {
+        // Nothing held, or a free coefficient not determined (it is held next: the widths
+        // of this fit are not reported).
+        return noise;
+    }
+    let Some(s) = gram.sensitivities(free, &held_columns) else {
+        return vec![f64::NAN; free.len()];
+    };
+    (0..free.len())
+        .map(|n| {
+            let held_variance: f64 = held_columns
+                .iter()
+                .enumerate()
+                .map(|(h, &c)| (s[(n, h)] * HELD_PRIOR_RELATIVE_STD * priors[c - 2]).powi(2))
+                .sum();
+            let std = noise[n] / 1.96;
+            1.96 * (std * std + held_variance).sqrt()
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::experiment::map::{DEFAULT_SURFACE, LossSurface};
+
+    /// A held coefficient whose column nearly equals a free one's: the free estimate absorbs
+    /// the held prior's error (here 20 % of it), far outside its noise-only interval; the
+    /// widened interval holds it, and equals `1.96 sqrt(std^2 + (S p_h)^2)` with `S` the
+    /// regression of the held column on the free ones.
+    #[test]
+    fn intervals_count_the_uncertainty_of_the_held_coefficients() {
+        let rows = 4000;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut columns: Vec<Vec<f64>> = (0..44)
+            .map(|_| (0..rows).map(|_| uniform()).collect())
+            .collect();
+        // Coefficient 1 (column 3) is coefficient 0's column (column 2) plus a little.
+        columns[3] = (0..rows)
+            .map(|r| columns[2][r] + 0.05 * uniform())
+            .collect();
+        let truth: Vec<f64> = (0..44).map(|c| 1.0 + 0.1 * c as f64).collect();
+        let y_true: Vec<f64> = (0..rows)
+            .map(|r| (0..44).map(|c| truth[c] * columns[c][r]).sum::<f64>() + 1e-3 * uniform())
+            .collect();
+        let mut held = [false; 42];
+        held[1] = true;
+        // The held coefficient's prior: the truth is 1.2 times it.
+        let mut priors: Vec<f64> = truth[2..].to_vec();
+        priors[1] = truth[3] / 1.2;
+        let free: Vec<usize> = (0..44).filter(|&c| c != 3).collect();
+        let y: Vec<f64> = (0..rows)
+            .map(|r| y_true[r] - priors[1] * columns[3][r])
+            .collect();
+        let cols: Vec<Vec<f64>> = free.iter().map(|&c| columns[c].clone()).collect();
+        let f = lsq::fit(&cols, &y);
+        let gram = Gram::new(&columns);
+        let widened = half_widths(&gram, &free, &held, &priors, &f);
+        // Coefficient 0 is free column 2.
+        let n = 2;
+        let error = (f.values[n] - truth[2]).abs();
+        let noise = 1.96 * f.stats.std[n];
+        assert!(error > 10.0 * noise, "{error} {noise}");
+        assert!(error < widened[n], "{error} {}", widened[n]);
+        // S from an independent regression of the held column on the free ones.
+        let s = lsq::fit(&cols, &columns[3]).values[n];
+        let expected = 1.96 * (f.stats.std[n].powi(2) + (s * priors[1]).powi(2)).sqrt();
+        assert!(
+            (widened[n] - expected).abs() <= 1e-9 * expected,
+            "{} {expected}",
+            widened[n]
+        );
+        // A column independent of the held one (up to the sample's chance correlation, about
+        // 1/sqrt(rows)) is widened far less.
+        let m = 10;
+        assert!(
+            widened[m] < 0.1 * widened[n],
+            "{} {}",
+            widened[m],
+            widened[n]
+        );
+        // Nothing held: the noise's intervals.
+        let all: Vec<usize> = (0..44).collect();
+        let f = lsq::fit(&columns, &y_true);
+        let plain = half_widths(&gram, &all, &[false; 42], &priors, &f);
+        for (w, s) in plain.iter().zip(&f.stats.std) {
+            assert_eq!(*w, 1.96 * s);
+        }
+    }
 
     #[test]
     fn terms_and_names_follow_the_data_file() {
