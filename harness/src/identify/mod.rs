@@ -288,38 +288,28 @@ const fn law(side: usize) -> [Quantity; 5] {
     }
 }
 
-/// Whether the logs were recorded with the harmonic drive's loss surface: `frictionModel` =
-/// HdLossSurface (3) among the simulation's parameters or in the prior set.
-fn surface_friction(config: &IdentifyConfig, prior: Option<&ParameterSet>) -> bool {
-    let is_surface = |v: &str| v.trim() == "3" || v.trim().eq_ignore_ascii_case("HdLossSurface");
+/// Whether the logs were recorded with the friction law `(value, name)` (the plant's
+/// `frictionModel` mode, given by value or by name) among the simulation's parameters or,
+/// failing that, in the prior set: the law decides which friction terms the regressions carry.
+fn friction_model_is(
+    config: &IdentifyConfig,
+    prior: Option<&ParameterSet>,
+    (value, name): (i64, &str),
+) -> bool {
+    let is = |v: &str| v.trim() == value.to_string() || v.trim().eq_ignore_ascii_case(name);
     if let Some((_, v)) = config
         .plant_parameters
         .iter()
         .rev()
         .find(|(n, _)| n == "frictionModel")
     {
-        return is_surface(v);
+        return is(v);
     }
     prior
         .and_then(|p| p.parameters.iter().find(|q| q.name == "frictionModel"))
-        .is_some_and(|q| matches!(q.value, crate::params::ParamValue::Integer(3)))
-}
-
-/// Whether the logs were recorded with the exponential friction law: `frictionModel` =
-/// Exponential (2) among the simulation's parameters or in the prior set.
-fn exponential_friction(config: &IdentifyConfig, prior: Option<&ParameterSet>) -> bool {
-    let is_exponential = |v: &str| v.trim() == "2" || v.trim().eq_ignore_ascii_case("Exponential");
-    if let Some((_, v)) = config
-        .plant_parameters
-        .iter()
-        .rev()
-        .find(|(n, _)| n == "frictionModel")
-    {
-        return is_exponential(v);
-    }
-    prior
-        .and_then(|p| p.parameters.iter().find(|q| q.name == "frictionModel"))
-        .is_some_and(|q| matches!(q.value, crate::params::ParamValue::Integer(2)))
+        .is_some_and(
+            |q| matches!(q.value, crate::params::ParamValue::Integer(v) if i64::from(v) == value),
+        )
 }
 
 const TEST_MOTOR: [Quantity; 3] = [
@@ -618,8 +608,8 @@ pub fn identify(
     let i_hd = real("harmonicDriveRatio")?;
     let i_red = real("reductionRatio")?;
     let prior_of = |q: &Quantity| q.parameter.and_then(|p| set.real(p)).unwrap_or(f64::NAN);
-    let exponential = exponential_friction(config, prior);
-    let loss_surface = surface_friction(config, prior);
+    let exponential = friction_model_is(config, prior, (2, "Exponential"));
+    let loss_surface = friction_model_is(config, prior, (3, "HdLossSurface"));
 
     let logs_read: Vec<log::Log> = logs
         .iter()
