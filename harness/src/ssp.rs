@@ -960,6 +960,9 @@ pub struct LoadedSystem {
     /// A run configuration from the default experiment (fields not given keep the defaults of
     /// [`RunConfig::default`]).
     pub config: RunConfig,
+    /// `component.parameter` values of the system that a replacement FMU has no variable for
+    /// and so were not applied ([`load_system_replacing`]; empty without replacements).
+    pub unapplied: Vec<String>,
     // The extracted archive (kept while the system may still refer to files in it).
     _dir: Option<tempfile::TempDir>,
 }
@@ -969,6 +972,7 @@ impl std::fmt::Debug for LoadedSystem {
         f.debug_struct("LoadedSystem")
             .field("ssd", &self.ssd)
             .field("config", &self.config)
+            .field("unapplied", &self.unapplied)
             .finish()
     }
 }
@@ -1128,26 +1132,31 @@ pub fn load_system(path: &Path, options: &LoadOptions) -> Result<LoadedSystem, S
 }
 
 /// Where an FMU's interface differs from what a component of a system needs: each input and
-/// output connector of `component`, and each parameter it binds a value to, must be a variable
-/// of `md` with the same causality and type (parameters it leaves at their defaults need not
-/// exist: the plant's and the hardware's parameters differ, their signals do not).
+/// output connector of `component` must be a variable of `md` with the same causality and type,
+/// and so must each parameter it binds a value to that `md` has. A bound parameter `md` lacks is
+/// no mismatch but [`unapplied_parameters`]: the plant's and the hardware's parameters differ
+/// (the twin's friction, inertias and loss surface are the real bench's own physics), their
+/// signals do not.
 pub fn interface_mismatches(
     component: &SspComponent,
     md: &model_description::ModelDescription,
 ) -> Vec<String> {
     use model_description::Causality;
     let mut problems = Vec::new();
-    let needed = component.connectors.iter().filter(|k| {
-        !matches!(
+    for k in &component.connectors {
+        let parameter = matches!(
             k.kind,
             ConnectorKind::Parameter | ConnectorKind::CalculatedParameter
-        ) || component.parameters.iter().any(|p| p.name == k.name)
-    });
-    for k in needed {
+        );
         let Some(v) = md.model_variables.iter().find(|v| v.name == k.name) else {
-            problems.push(format!("no variable '{}' ({})", k.name, k.kind.as_str()));
+            if !parameter {
+                problems.push(format!("no variable '{}' ({})", k.name, k.kind.as_str()));
+            }
             continue;
         };
+        if parameter && !component.parameters.iter().any(|p| p.name == k.name) {
+            continue;
+        }
         // FMI 2.0: a missing causality is `local`.
         let causality = v.causality.unwrap_or(Causality::Local);
         let causality_matches = match k.kind {
@@ -1175,19 +1184,30 @@ pub fn interface_mismatches(
             }
         }
     }
-    for p in &component.parameters {
-        if !md.model_variables.iter().any(|v| v.name == p.name) {
-            problems.push(format!("no variable '{}' for its parameter value", p.name));
-        }
-    }
     problems.dedup();
     problems
 }
 
+/// The parameters `component` binds a value to that `md` has no variable for (in binding
+/// order): what a replacement FMU does not take from the replaced one's set.
+pub fn unapplied_parameters(
+    component: &SspComponent,
+    md: &model_description::ModelDescription,
+) -> Vec<String> {
+    component
+        .parameters
+        .iter()
+        .filter(|p| !md.model_variables.iter().any(|v| v.name == p.name))
+        .map(|p| p.name.clone())
+        .collect()
+}
+
 /// [`load_system`] with some components' FMUs replaced: `(component, FMU file)` (e.g. the plant
 /// by `BenchHardware.fmu`, to run the same schedule on the bench). A replacement must offer
-/// every connector of its component with the same causality and type
-/// ([`interface_mismatches`]); the component keeps its parameter values and connections.
+/// every input and output of its component with the same causality and type
+/// ([`interface_mismatches`]); the component keeps its connections and the parameter values the
+/// replacement has variables for. Those it has none for (a twin's parameter set on the bench)
+/// are not applied and are listed in [`LoadedSystem::unapplied`], for the caller to report.
 pub fn load_system_replacing(
     path: &Path,
     options: &LoadOptions,
@@ -1226,6 +1246,7 @@ pub fn load_system_replacing(
             });
         }
     }
+    let mut unapplied = Vec::new();
     for c in &ssd.system.components {
         if let Some((_, replacement)) = replacements.iter().find(|(n, _)| *n == c.name) {
             let fmu = Fmu::load(replacement, options).map_err(|source| SspError::Load {
@@ -1247,8 +1268,12 @@ pub fn load_system_replacing(
                     ),
                 });
             }
+            let skipped = unapplied_parameters(c, fmu.model_description());
             system.add_component(&c.name, fmu)?;
-            set_component_values(&mut system, c)?;
+            let mut kept = c.clone();
+            kept.parameters.retain(|p| !skipped.contains(&p.name));
+            set_component_values(&mut system, &kept)?;
+            unapplied.extend(skipped.into_iter().map(|p| format!("{}.{p}", c.name)));
             continue;
         }
         let fmu = match fmus.get(&c.source) {
@@ -1307,6 +1332,7 @@ pub fn load_system_replacing(
         ssd,
         system,
         config,
+        unapplied,
         _dir: dir,
     })
 }

@@ -94,6 +94,78 @@ fn a_replacement_that_does_not_fit_or_names_no_component_is_refused() {
     );
 }
 
+/// A study SSP carrying the twin's whole parameter set (what `kneebench study --params` writes,
+/// e.g. an identified set) runs on the hardware FMU: the parameters BenchHardware has are applied,
+/// the twin's own (friction, loss surface, winding inductances, ...) are listed as not applied,
+/// and the interface check still refuses a replacement that lacks a signal.
+#[test]
+fn a_twin_parameter_set_runs_on_the_hardware_with_its_own_parameters_listed_as_not_applied() {
+    use kneebench_harness::params::ParameterSet;
+    let d = tempfile::tempdir().unwrap();
+    let (_x, plant_md) = kneebench_harness::load::extract_and_parse(
+        &fmus().join("BenchPlant.fmu"),
+        &kneebench_harness::ArchiveLimits::default(),
+    )
+    .unwrap();
+    let mut set = ParameterSet::defaults_of(&plant_md, "twin", "1");
+    set.set_real("springStiffness", 300.0, Some("N.m/rad"));
+    set.set_real("actuationStaticFriction", 6.5, Some("N.m"));
+    let study = StudyScenario::BenchFull;
+    let scenario = gait_scenario(Actuator::Sea, study.gait(), study.gains(Actuator::Sea), 1);
+    let path = d.path().join("SEA.ssp");
+    kneebench_harness::study::write_ssp_with_set(&scenario, fmus(), &path, "plant", &set).unwrap();
+    let hardware = fmus().join("BenchHardware.fmu");
+    let loaded = ssp::load_system_replacing(
+        &path,
+        &LoadOptions::default(),
+        &[("plant".into(), hardware.clone())],
+    )
+    .unwrap();
+    let (_y, hardware_md) = kneebench_harness::load::extract_and_parse(
+        &hardware,
+        &kneebench_harness::ArchiveLimits::default(),
+    )
+    .unwrap();
+    let has = |name: &str| hardware_md.model_variables.iter().any(|v| v.name == name);
+    // Exactly the set's parameters the hardware lacks, none it has.
+    let expected: Vec<String> = set
+        .parameters
+        .iter()
+        .filter(|p| !has(&p.name))
+        .map(|p| format!("plant.{}", p.name))
+        .collect();
+    assert!(
+        expected.contains(&"plant.actuationStaticFriction".to_string())
+            && expected.contains(&"plant.hdLossPositiveSpeed[1]".to_string()),
+        "{expected:?}"
+    );
+    let mut unapplied = loaded.unapplied.clone();
+    unapplied.sort();
+    let mut want = expected.clone();
+    want.sort();
+    assert_eq!(unapplied, want);
+    // A parameter both have takes the set's value on the hardware (read back from a short run
+    // on its simulated backend).
+    assert!(has("springStiffness"));
+    let mut system = loaded.system;
+    system.set_value_str("plant.backend", "Simulated").unwrap();
+    system.set_value_str("plant.pacing", "None").unwrap();
+    system.record(&["plant.springStiffness"]).unwrap();
+    let mut config = loaded.config.clone();
+    config.stop_time = 0.01;
+    let out = system.run(&config).unwrap();
+    assert!(
+        matches!(out.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        out.outcome
+    );
+    let stiffness = out.results.column("plant.springStiffness").unwrap();
+    assert!(stiffness.iter().all(|k| *k == 300.0), "{stiffness:?}");
+    // Without a replacement nothing is left out.
+    let plain = ssp::load_system(&path, &LoadOptions::default()).unwrap();
+    assert!(plain.unapplied.is_empty());
+}
+
 #[test]
 fn enumeration_parameters_take_item_names() {
     let d = tempfile::tempdir().unwrap();

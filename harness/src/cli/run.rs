@@ -244,6 +244,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 }
             }
             let loaded = ssp::load_system_replacing(&a.system, &load, &replacements)?;
+            if !loaded.unapplied.is_empty() {
+                eprintln!(
+                    "note: {} parameter value(s) of the system not applied: the replacement has no such variables ({})",
+                    loaded.unapplied.len(),
+                    loaded.unapplied.join(", ")
+                );
+            }
             (loaded.system, loaded.config)
         }
     };

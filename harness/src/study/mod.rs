@@ -194,6 +194,9 @@ pub struct StudyRun {
     /// The plant's parameter set the run used ([`crate::params::ParameterSet::label`]: name,
     /// version, content hash), when one was given.
     pub plant_set: Option<String>,
+    /// `component.parameter` values of the scenario not applied because the component ran on a
+    /// replacement without them (the twin's own parameters on the bench: `--bench`).
+    pub unapplied: Vec<String>,
 }
 
 /// Settings of a study.
@@ -461,6 +464,7 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             parameters,
             parameters_hash,
             plant_set: config.parameter_set.as_ref().map(|s| s.label()),
+            unapplied: loaded.unapplied.clone(),
         });
     }
     Ok(runs)

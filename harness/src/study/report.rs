@@ -278,6 +278,13 @@ pub fn write_report(
             if let Some(set) = &r.plant_set {
                 let _ = writeln!(s, "  - plant parameter set: {set}");
             }
+            if !r.unapplied.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "  - not applied on the bench (the twin's own parameters, no variables of BenchHardware): {}",
+                    r.unapplied.join(", ")
+                );
+            }
         }
         s.push('\n');
         let _ = writeln!(
