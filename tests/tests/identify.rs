@@ -128,6 +128,50 @@ fn noisy_log(run: &Results, path: &Path, seed: u64, from: f64) {
     out.write_csv_file(path).unwrap();
 }
 
+/// The two shortened Bode sweeps of the experiment set (test motor at 10 A, load motor at 5 A)
+/// run on `bench` in `dir`, each written as a noisy log `bode-<k>.csv` (noise seeds `seed`,
+/// `seed + 1`).
+fn noisy_bode_logs(bench: &Bench, dir: &Path, seed: u64) -> Vec<PathBuf> {
+    let mut logs = Vec::new();
+    for (k, (input, amplitude)) in [
+        (bode::SweepInput::Test, 10.0),
+        (bode::SweepInput::Load, 5.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = dir.join(format!("run{k}"));
+        let r = bode::run_bode(bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
+        assert_eq!(r.end, RunEnd::Completed);
+        let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+        let path = dir.join(format!("bode-{k}.csv"));
+        noisy_log(&run, &path, seed + k as u64, 0.0);
+        logs.push(path);
+    }
+    logs
+}
+
+/// The map experiment run on `bench` with `config` in `dir`, completed, and written as the noisy
+/// log `map.csv` (noise seed `seed`).
+fn noisy_map_log(
+    bench: &Bench,
+    config: &kneebench_harness::experiment::map::MapConfig,
+    dir: &Path,
+    seed: u64,
+) -> (kneebench_harness::experiment::map::MapResult, PathBuf) {
+    let out = dir.join("map");
+    let r = kneebench_harness::experiment::map::run_map(bench, config, &out).unwrap();
+    assert!(
+        matches!(r.end, RunEnd::Completed),
+        "the map run ended early: {:?}",
+        r.end
+    );
+    let run = Results::read_csv_file(out.join("map.csv")).unwrap();
+    let path = dir.join("map.csv");
+    noisy_log(&run, &path, seed, 0.0);
+    (r, path)
+}
+
 /// The synthetic experiment set: a Bode sweep on each motor of the perturbed plant.
 fn perturbed_logs() -> &'static Vec<PathBuf> {
     static LOGS: OnceLock<Vec<PathBuf>> = OnceLock::new();
@@ -142,23 +186,7 @@ fn perturbed_logs() -> &'static Vec<PathBuf> {
             .map(|(n, v)| (n.to_string(), format!("{v:?}")))
             .collect();
         let bench = Bench::load(&plant_path(), params, None).unwrap();
-        let mut logs = Vec::new();
-        for (k, (input, amplitude)) in [
-            (bode::SweepInput::Test, 10.0),
-            (bode::SweepInput::Load, 5.0),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            let out = dir.join(format!("run{k}"));
-            let r = bode::run_bode(&bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
-            assert_eq!(r.end, RunEnd::Completed);
-            let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
-            let path = dir.join(format!("bode-{k}.csv"));
-            noisy_log(&run, &path, k as u64 + 1, 0.0);
-            logs.push(path);
-        }
-        logs
+        noisy_bode_logs(&bench, &dir, 1)
     })
 }
 
@@ -516,41 +544,14 @@ fn the_exponential_friction_law_is_identified_from_map_and_bode_logs() {
         .collect();
     params.push(("frictionModel".into(), "2".into()));
     let bench = Bench::load(&plant_path(), params, None).unwrap();
-    let mut logs = Vec::new();
-    let out = dir.path().join("map");
-    let r = map::run_map(
-        &bench,
-        &map::MapConfig {
-            speeds: vec![1.0, 2.0, 3.0, 6.0, 10.0, 20.0, 50.0, 100.0, 150.0],
-            torques: vec![0.0],
-            ..map::MapConfig::default()
-        },
-        &out,
-    )
-    .unwrap();
-    assert!(
-        matches!(r.end, RunEnd::Completed),
-        "the map run ended early: {:?}",
-        r.end
-    );
-    let run = Results::read_csv_file(out.join("map.csv")).unwrap();
-    let path = dir.path().join("map.csv");
-    noisy_log(&run, &path, 21, 0.0);
-    logs.push(path);
-    for (k, (input, amplitude)) in [
-        (bode::SweepInput::Test, 10.0),
-        (bode::SweepInput::Load, 5.0),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let out = dir.path().join(format!("run{k}"));
-        bode::run_bode(&bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
-        let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
-        let path = dir.path().join(format!("bode-{k}.csv"));
-        noisy_log(&run, &path, k as u64 + 31, 0.0);
-        logs.push(path);
-    }
+    let map_config = map::MapConfig {
+        speeds: vec![1.0, 2.0, 3.0, 6.0, 10.0, 20.0, 50.0, 100.0, 150.0],
+        torques: vec![0.0],
+        ..map::MapConfig::default()
+    };
+    let (_, map_log) = noisy_map_log(&bench, &map_config, dir.path(), 21);
+    let mut logs = vec![map_log];
+    logs.extend(noisy_bode_logs(&bench, dir.path(), 31));
     let config = IdentifyConfig {
         plant_parameters: vec![("frictionModel".into(), "2".into())],
         ..IdentifyConfig::default()
@@ -665,45 +666,17 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64
     let bench = Bench::load(&plant_path(), params, None).unwrap();
     // The experiment set: the map (the bench's load torques, fewer speeds and shorter holds
     // than the bench's schedule) and a Bode sweep on each motor.
-    let mut logs = Vec::new();
-    let out = dir.path().join("map");
     let defaults_config = map::MapConfig::default();
-    let r = map::run_map(
-        &bench,
-        &map::MapConfig {
-            speeds: vec![3.0, 10.0, 30.0, 60.0, 100.0, 150.0],
-            settle: 1.0,
-            measure: 0.5,
-            torques: torques.unwrap_or(defaults_config.torques.clone()),
-            ..defaults_config
-        },
-        &out,
-    )
-    .unwrap();
-    assert!(
-        matches!(r.end, RunEnd::Completed),
-        "the map run ended early: {:?}",
-        r.end
-    );
-    let run = Results::read_csv_file(out.join("map.csv")).unwrap();
-    let path = dir.path().join("map.csv");
-    noisy_log(&run, &path, 41, 0.0);
-    logs.push(path);
-    for (k, (input, amplitude)) in [
-        (bode::SweepInput::Test, 10.0),
-        (bode::SweepInput::Load, 5.0),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let out = dir.path().join(format!("run{k}"));
-        let r = bode::run_bode(&bench, &short_sweep(input, amplitude, 6.0, 4), &out).unwrap();
-        assert_eq!(r.end, RunEnd::Completed);
-        let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
-        let path = dir.path().join(format!("bode-{k}.csv"));
-        noisy_log(&run, &path, k as u64 + 51, 0.0);
-        logs.push(path);
-    }
+    let map_config = map::MapConfig {
+        speeds: vec![3.0, 10.0, 30.0, 60.0, 100.0, 150.0],
+        settle: 1.0,
+        measure: 0.5,
+        torques: torques.unwrap_or(defaults_config.torques.clone()),
+        ..defaults_config
+    };
+    let (r, map_log) = noisy_map_log(&bench, &map_config, dir.path(), 41);
+    let mut logs = vec![map_log];
+    logs.extend(noisy_bode_logs(&bench, dir.path(), 51));
     let config = IdentifyConfig {
         plant_parameters: vec![("frictionModel".into(), "3".into())],
         ..IdentifyConfig::default()
