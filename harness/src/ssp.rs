@@ -1148,15 +1148,15 @@ pub fn interface_mismatches(
             k.kind,
             ConnectorKind::Parameter | ConnectorKind::CalculatedParameter
         );
+        if parameter && !component.parameters.iter().any(|p| p.name == k.name) {
+            continue;
+        }
         let Some(v) = md.model_variables.iter().find(|v| v.name == k.name) else {
             if !parameter {
                 problems.push(format!("no variable '{}' ({})", k.name, k.kind.as_str()));
             }
             continue;
         };
-        if parameter && !component.parameters.iter().any(|p| p.name == k.name) {
-            continue;
-        }
         // FMI 2.0: a missing causality is `local`.
         let causality = v.causality.unwrap_or(Causality::Local);
         let causality_matches = match k.kind {
@@ -1270,9 +1270,7 @@ pub fn load_system_replacing(
             }
             let skipped = unapplied_parameters(c, fmu.model_description());
             system.add_component(&c.name, fmu)?;
-            let mut kept = c.clone();
-            kept.parameters.retain(|p| !skipped.contains(&p.name));
-            set_component_values(&mut system, &kept)?;
+            set_component_values(&mut system, c, &skipped)?;
             unapplied.extend(skipped.into_iter().map(|p| format!("{}.{p}", c.name)));
             continue;
         }
@@ -1293,7 +1291,7 @@ pub fn load_system_replacing(
             }
         };
         system.add_component(&c.name, fmu)?;
-        set_component_values(&mut system, c)?;
+        set_component_values(&mut system, c, &[])?;
     }
     for c in &ssd.system.connections {
         let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) else {
@@ -1338,11 +1336,15 @@ pub fn load_system_replacing(
 }
 
 /// A component's step multiple and parameter values.
-fn set_component_values(system: &mut System, c: &SspComponent) -> Result<(), SspError> {
+fn set_component_values(
+    system: &mut System,
+    c: &SspComponent,
+    skipped: &[String],
+) -> Result<(), SspError> {
     if let Some(m) = c.step_multiple {
         system.set_step_multiple(&c.name, m)?;
     }
-    for p in &c.parameters {
+    for p in c.parameters.iter().filter(|p| !skipped.contains(&p.name)) {
         let reference = format!("{}.{}", c.name, p.name);
         // Integer parameters may be written for Real variables (and vice versa) by other
         // tools: convert through text.

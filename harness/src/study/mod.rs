@@ -464,7 +464,7 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             parameters,
             parameters_hash,
             plant_set: config.parameter_set.as_ref().map(|s| s.label()),
-            unapplied: loaded.unapplied.clone(),
+            unapplied: loaded.unapplied,
         });
     }
     Ok(runs)
