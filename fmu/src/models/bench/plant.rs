@@ -853,12 +853,13 @@ impl BenchPlant {
         ActiveEvents(bits)
     }
 
-    /// Every active event function, the trips first, then the switching events in list order.
-    fn event_list(active: ActiveEvents) -> Vec<Event> {
-        let mut list = Vec::with_capacity(Interlock::CHECKED.len() + SWITCHING_EVENTS.len());
-        list.extend(Interlock::CHECKED.into_iter().map(Event::Trip));
-        list.extend(active.iter());
-        list
+    /// Every active event function, the trips first, then the switching events in list order
+    /// (an iterator: the event sub-step walks it once per segment without allocating).
+    fn event_list(active: ActiveEvents) -> impl Iterator<Item = Event> {
+        Interlock::CHECKED
+            .into_iter()
+            .map(Event::Trip)
+            .chain(active.iter())
     }
 
     /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
@@ -1047,7 +1048,7 @@ impl BenchPlant {
             };
             let speed_dependent =
                 (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
-            let events = Self::event_list(self.active_events(&held));
+            let active = self.active_events(&held);
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
             segment.rebuild(&m, rate, &z0, remaining);
@@ -1058,7 +1059,7 @@ impl BenchPlant {
                 segment.rebuild(&m, rate, &z0, remaining);
             }
             let earliest = if budget > 0 {
-                self.earliest_event(&held, &events, segment)
+                self.earliest_event(&held, Self::event_list(active), segment)
             } else {
                 None
             };
@@ -1116,7 +1117,7 @@ impl BenchPlant {
     fn earliest_event(
         &self,
         held: &Held,
-        events: &[Event],
+        events: impl Iterator<Item = Event>,
         segment: &TaylorSegment,
     ) -> Option<(f64, Event)> {
         let mut best: Option<(f64, Event)> = None;
@@ -1125,7 +1126,7 @@ impl BenchPlant {
             .piece_ends()
             .map(|b| (b, segment.state_at(b)))
             .collect();
-        for &event in events {
+        for event in events {
             let mut a = 0.0;
             let mut ga = self.event_value(held, event, &z0).min(0.0);
             for (b, zb) in &ends {
@@ -1644,7 +1645,7 @@ mod root_tests {
             }
             let listed = listed_events(&plant, &held);
             assert_eq!(
-                BenchPlant::event_list(plant.active_events(&held)),
+                BenchPlant::event_list(plant.active_events(&held)).collect::<Vec<_>>(),
                 listed,
                 "case {case:#b}"
             );
