@@ -551,17 +551,18 @@ type IntegerGetter<M> = fn(&M) -> i32;
 /// Reads one Boolean variable of a model.
 type BooleanGetter<M> = fn(&M) -> bool;
 
-/// The getters `pick` finds among the variables of `M`, indexed by value reference (value
-/// references are per base type, so each type has its own table).
-fn getter_table<M: Model, G: Copy>(pick: impl Fn(&Access<M>) -> Option<G>) -> Vec<Option<G>> {
+/// The entries `pick` makes of the variables of `M` (getters, setters with their conditions),
+/// indexed by value reference (value references are per base type, so each type has its own
+/// table).
+fn vr_table<M: Model, E>(pick: impl Fn(&Variable<M>) -> Option<E>) -> Vec<Option<E>> {
     let mut table = Vec::new();
     for v in M::variables() {
-        if let Some(get) = pick(&v.access) {
+        if let Some(entry) = pick(v) {
             let vr = v.value_reference as usize;
             if table.len() <= vr {
-                table.resize(vr + 1, None);
+                table.resize_with(vr + 1, || None);
             }
-            table[vr] = Some(get);
+            table[vr] = Some(entry);
         }
     }
     table
@@ -569,24 +570,24 @@ fn getter_table<M: Model, G: Copy>(pick: impl Fn(&Access<M>) -> Option<G>) -> Ve
 
 /// The Real getters of `M` indexed by value reference.
 fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
-    getter_table::<M, _>(|a| match a {
-        Access::Real(get, _) => Some(*get),
+    vr_table::<M, _>(|v| match v.access {
+        Access::Real(get, _) => Some(get),
         _ => None,
     })
 }
 
 /// The Integer and Enumeration getters of `M` indexed by value reference.
 fn integer_getter_table<M: Model>() -> Vec<Option<IntegerGetter<M>>> {
-    getter_table::<M, _>(|a| match a {
-        Access::Integer(get, _) | Access::Enumeration(get, _) => Some(*get),
+    vr_table::<M, _>(|v| match v.access {
+        Access::Integer(get, _) | Access::Enumeration(get, _) => Some(get),
         _ => None,
     })
 }
 
 /// The Boolean getters of `M` indexed by value reference.
 fn boolean_getter_table<M: Model>() -> Vec<Option<BooleanGetter<M>>> {
-    getter_table::<M, _>(|a| match a {
-        Access::Boolean(get, _) => Some(*get),
+    vr_table::<M, _>(|v| match v.access {
+        Access::Boolean(get, _) => Some(get),
         _ => None,
     })
 }
@@ -635,40 +636,26 @@ struct BooleanSetter<M> {
 
 /// The Boolean setters of `M` indexed by value reference.
 fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> {
-    let mut table: Vec<Option<BooleanSetter<M>>> = Vec::new();
-    for v in M::variables() {
-        if let Access::Boolean(_, set) = v.access {
-            let vr = v.value_reference as usize;
-            if table.len() <= vr {
-                table.resize_with(vr + 1, || None);
-            }
-            table[vr] = Some(BooleanSetter {
-                set,
-                phases: settable_phases(v),
-            });
-        }
-    }
-    table
+    vr_table::<M, _>(|v| match v.access {
+        Access::Boolean(_, set) => Some(BooleanSetter {
+            set,
+            phases: settable_phases(v),
+        }),
+        _ => None,
+    })
 }
 
 /// The Real setters of `M` indexed by value reference.
 fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
-    let mut table: Vec<Option<RealSetter<M>>> = Vec::new();
-    for v in M::variables() {
-        if let Access::Real(_, set) = v.access {
-            let vr = v.value_reference as usize;
-            if table.len() <= vr {
-                table.resize_with(vr + 1, || None);
-            }
-            table[vr] = Some(RealSetter {
-                set,
-                phases: settable_phases(v),
-                min: v.min.unwrap_or(f64::NEG_INFINITY),
-                max: v.max.unwrap_or(f64::INFINITY),
-            });
-        }
-    }
-    table
+    vr_table::<M, _>(|v| match v.access {
+        Access::Real(_, set) => Some(RealSetter {
+            set,
+            phases: settable_phases(v),
+            min: v.min.unwrap_or(f64::NEG_INFINITY),
+            max: v.max.unwrap_or(f64::INFINITY),
+        }),
+        _ => None,
+    })
 }
 
 /// First bytes of every serialized FMU state.
