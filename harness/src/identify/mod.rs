@@ -393,6 +393,18 @@ pub struct Estimate {
 }
 
 impl Estimate {
+    /// A quantity the logs do not identify, with the reason; its value stays `prior`.
+    pub(crate) fn not_identifiable(quantity: Quantity, prior: f64, why: &str) -> Estimate {
+        Estimate {
+            quantity,
+            prior,
+            linear: f64::NAN,
+            linear_ci: f64::NAN,
+            refined: None,
+            status: Status::NotIdentifiable(why.into()),
+        }
+    }
+
     /// The final value and its 95 % half width (refined if refined, else linear).
     pub fn value(&self) -> (f64, f64) {
         self.refined.unwrap_or((self.linear, self.linear_ci))
@@ -707,16 +719,11 @@ pub fn identify(
                         "{name}: too few samples move faster than {min_speed} rad/s throughout their smoothing window; the loss surface is not fitted"
                     ));
                     for qn in qs.iter().chain(&surface::COEFFICIENTS) {
-                        estimates.push(Estimate {
-                            quantity: *qn,
-                            prior: prior_of(qn),
-                            linear: f64::NAN,
-                            linear_ci: f64::NAN,
-                            refined: None,
-                            status: Status::NotIdentifiable(
-                                "the logs hardly move this side".into(),
-                            ),
-                        });
+                        estimates.push(Estimate::not_identifiable(
+                            *qn,
+                            prior_of(qn),
+                            "the logs hardly move this side",
+                        ));
                     }
                 }
             }
@@ -739,14 +746,11 @@ pub fn identify(
                 y.len()
             ));
             for qn in qs.iter() {
-                estimates.push(Estimate {
-                    quantity: *qn,
-                    prior: prior_of(qn),
-                    linear: f64::NAN,
-                    linear_ci: f64::NAN,
-                    refined: None,
-                    status: Status::NotIdentifiable("the logs hardly move this side".into()),
-                });
+                estimates.push(Estimate::not_identifiable(
+                    *qn,
+                    prior_of(qn),
+                    "the logs hardly move this side",
+                ));
             }
             continue;
         }
@@ -791,17 +795,7 @@ pub fn identify(
                     }
                 }
                 estimates.extend(side_estimates);
-                estimates.push(Estimate {
-                    quantity: qs[3],
-                    prior: prior_of(&qs[3]),
-                    linear: f64::NAN,
-                    linear_ci: f64::NAN,
-                    refined: None,
-                    status: Status::NotIdentifiable(
-                        "not used by the exponential friction law the logs were recorded with (its a0 + a1 is the stiction)"
-                            .into(),
-                    ),
-                });
+                estimates.push(Estimate::not_identifiable(qs[3], prior_of(&qs[3]), "not used by the exponential friction law the logs were recorded with (its a0 + a1 is the stiction)"));
                 let label = if side == 0 {
                     "actuation side (inverse dynamics, exponential friction law)"
                 } else {
@@ -835,14 +829,11 @@ pub fn identify(
                 "{name}: no log has the driver's voltage; not fitted"
             ));
             for qn in qs.iter() {
-                estimates.push(Estimate {
-                    quantity: *qn,
-                    prior: prior_of(qn),
-                    linear: f64::NAN,
-                    linear_ci: f64::NAN,
-                    refined: None,
-                    status: Status::NotIdentifiable("the driver's voltage is not logged".into()),
-                });
+                estimates.push(Estimate::not_identifiable(
+                    *qn,
+                    prior_of(qn),
+                    "the driver's voltage is not logged",
+                ));
             }
             continue;
         }
@@ -862,17 +853,11 @@ pub fn identify(
         // returns a tight but meaningless value).
         e.insert(
             1,
-            Estimate {
-                quantity: qs[1],
-                prior: prior_of(&qs[1]),
-                linear: f64::NAN,
-                linear_ci: f64::NAN,
-                refined: None,
-                status: Status::NotIdentifiable(
-                    "the armature time constant L/R is below what logs at the control rate resolve"
-                        .into(),
-                ),
-            },
+            Estimate::not_identifiable(
+                qs[1],
+                prior_of(&qs[1]),
+                "the armature time constant L/R is below what logs at the control rate resolve",
+            ),
         );
         estimates.extend(e);
         regressions.push(regression(name, "V", &fitted, &f));

@@ -21,7 +21,7 @@
 //! Both regressions use the smoothed currents (the readings' noise would bias the slopes).
 
 use super::log::Log;
-use super::{Estimate, Quantity, Regression, Status, estimates_of, lsq, q, regression};
+use super::{Estimate, Quantity, Regression, estimates_of, lsq, q, regression};
 
 const LOAD_CELL: [Quantity; 2] = [
     q(
@@ -73,14 +73,7 @@ const RAIL_MARGIN: f64 = 0.05;
 
 fn not_logged(qs: &[Quantity], prior: &dyn Fn(&Quantity) -> f64, why: &str) -> Vec<Estimate> {
     qs.iter()
-        .map(|qn| Estimate {
-            quantity: *qn,
-            prior: prior(qn),
-            linear: f64::NAN,
-            linear_ci: f64::NAN,
-            refined: None,
-            status: Status::NotIdentifiable(why.into()),
-        })
+        .map(|qn| Estimate::not_identifiable(*qn, prior(qn), why))
         .collect()
 }
 

@@ -406,41 +406,20 @@ pub(super) fn fit_actuation(
                     status,
                 }
             }
-            None => Estimate {
+            None => Estimate::not_identifiable(
                 quantity,
-                prior: prior_value,
-                linear: f64::NAN,
-                linear_ci: f64::NAN,
-                refined: None,
-                status: Status::NotIdentifiable(
-                    "the map's box does not excite it apart from the others (not determined, or its 95 % interval is wider than the limit); held at its prior while the other coefficients were fitted"
-                        .into(),
-                ),
-            },
+                prior_value,
+                "the map's box does not excite it apart from the others (not determined, or its 95 % interval is wider than the limit); held at its prior while the other coefficients were fitted",
+            ),
         }
     };
     let mut estimates = vec![estimate(actuation[0], 0), estimate(actuation[1], 1)];
-    estimates.push(Estimate {
-        quantity: actuation[2],
-        prior: c1,
-        linear: f64::NAN,
-        linear_ci: f64::NAN,
-        refined: None,
-        status: Status::NotIdentifiable(
-            "under the loss-surface law c1 w1 is the sum of the surface's p01 columns: held at its prior, the surface's p01 carries the rest of the viscous loss"
-                .into(),
-        ),
-    });
-    estimates.push(Estimate {
-        quantity: actuation[3],
-        prior: prior(&actuation[3]),
-        linear: f64::NAN,
-        linear_ci: f64::NAN,
-        refined: None,
-        status: Status::NotIdentifiable(
-            "not used by the loss-surface law the logs were recorded with".into(),
-        ),
-    });
+    estimates.push(Estimate::not_identifiable(actuation[2], c1, "under the loss-surface law c1 w1 is the sum of the surface's p01 columns: held at its prior, the surface's p01 carries the rest of the viscous loss"));
+    estimates.push(Estimate::not_identifiable(
+        actuation[3],
+        prior(&actuation[3]),
+        "not used by the loss-surface law the logs were recorded with",
+    ));
     for (k, quantity) in COEFFICIENTS.iter().enumerate() {
         estimates.push(estimate(*quantity, k + 2));
     }
