@@ -1047,17 +1047,15 @@ impl Fmu {
                 probe,
                 spare: std::sync::Mutex::new(Some(process)),
             }))
-        } else if let Some(b) = shared_binary {
-            if b.local.version != "2.0" {
-                return Err(LoadError::WrongVersion(b.local.version.clone()));
-            }
-            Exec::Local(LocalExec::Shared(b))
         } else {
-            let local = LocalBinary::open(&binary, &options.preload)?;
+            let local = match shared_binary {
+                Some(b) => LocalExec::Shared(b),
+                None => LocalExec::Own(Box::new(LocalBinary::open(&binary, &options.preload)?)),
+            };
             if local.version != "2.0" {
-                return Err(LoadError::WrongVersion(local.version));
+                return Err(LoadError::WrongVersion(local.version.clone()));
             }
-            Exec::Local(LocalExec::Own(Box::new(local)))
+            Exec::Local(local)
         };
         let resource_uri =
             CString::new(file_uri(&dir.path().join("resources"))).expect("a path has no NUL byte");

@@ -1017,12 +1017,17 @@ pub fn read_file_within(
     } else {
         base.join("SystemStructure.ssd")
     };
-    let xml = read_text(&ssd_path)?;
+    Ok((read_ssd_file(&ssd_path, &base)?, base, dir))
+}
+
+/// Reads and parses the description `ssd_path`, its references (parameter values) relative to
+/// `base`.
+fn read_ssd_file(ssd_path: &Path, base: &Path) -> Result<Ssd, SspError> {
+    let xml = read_text(ssd_path)?;
     let file = ssd_path.display().to_string();
-    let ssd = read_ssd_with(&xml, &file, &mut |src| {
-        read_text(&relative_ref(&base, src, &file)?)
-    })?;
-    Ok((ssd, base, dir))
+    read_ssd_with(&xml, &file, &mut |src| {
+        read_text(&relative_ref(base, src, &file)?)
+    })
 }
 
 /// What [`read_file_for_run`] returns: the description, the directory its references are
@@ -1113,12 +1118,7 @@ fn read_file_for_run(path: &Path, budget: &ArchiveBudget) -> Result<ForRun, SspE
             }
         }
     }
-    let ssd_path = base.join("SystemStructure.ssd");
-    let xml = read_text(&ssd_path)?;
-    let file = ssd_path.display().to_string();
-    let ssd = read_ssd_with(&xml, &file, &mut |src| {
-        read_text(&relative_ref(&base, src, &file)?)
-    })?;
+    let ssd = read_ssd_file(&base.join("SystemStructure.ssd"), &base)?;
     Ok((ssd, base, Some(dir), in_place))
 }
 
