@@ -1,0 +1,521 @@
+//! The plant's energy accounting (bench-model §9): the exact integrals of the powers, losses
+//! and their positive parts over a regular sub-step (from the cached Gramians) and over a Taylor
+//! segment (by polynomial products), with the polynomial helpers they use.
+
+use super::{BenchPlant, Held, multiply};
+use crate::models::bench::mechanics::{
+    Antiderivative, AugMatrix, AugVector, CURRENT1, CURRENT2, OMEGA1, OMEGA2, PIECE_TERMS,
+    SegmentIntegrals, THETA1, TaylorSegment, poly_eval, poly_eval_many,
+};
+
+/// Energy integrals since the start [J], signed and positive part ("consumed").
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct EnergyAccount {
+    pub test_mechanical: f64,
+    pub test_mechanical_consumed: f64,
+    pub load_mechanical: f64,
+    pub load_mechanical_consumed: f64,
+    pub actuation_loss: f64,
+    pub load_loss: f64,
+    pub test_electrical: f64,
+    pub test_electrical_consumed: f64,
+    pub load_electrical: f64,
+    pub load_electrical_consumed: f64,
+    pub clutch: f64,
+    pub offset: f64,
+    pub total_electrical: f64,
+    pub total_electrical_consumed: f64,
+    pub test_copper_loss: f64,
+    pub load_copper_loss: f64,
+    pub test_back_emf: f64,
+    pub load_back_emf: f64,
+}
+
+impl EnergyAccount {
+    pub(crate) const COUNT: usize = 18;
+
+    pub(crate) fn to_array(self) -> [f64; Self::COUNT] {
+        [
+            self.test_mechanical,
+            self.test_mechanical_consumed,
+            self.load_mechanical,
+            self.load_mechanical_consumed,
+            self.actuation_loss,
+            self.load_loss,
+            self.test_electrical,
+            self.test_electrical_consumed,
+            self.load_electrical,
+            self.load_electrical_consumed,
+            self.clutch,
+            self.offset,
+            self.total_electrical,
+            self.total_electrical_consumed,
+            self.test_copper_loss,
+            self.load_copper_loss,
+            self.test_back_emf,
+            self.load_back_emf,
+        ]
+    }
+
+    pub(crate) fn from_array(a: [f64; Self::COUNT]) -> Self {
+        Self {
+            test_mechanical: a[0],
+            test_mechanical_consumed: a[1],
+            load_mechanical: a[2],
+            load_mechanical_consumed: a[3],
+            actuation_loss: a[4],
+            load_loss: a[5],
+            test_electrical: a[6],
+            test_electrical_consumed: a[7],
+            load_electrical: a[8],
+            load_electrical_consumed: a[9],
+            clutch: a[10],
+            offset: a[11],
+            total_electrical: a[12],
+            total_electrical_consumed: a[13],
+            test_copper_loss: a[14],
+            load_copper_loss: a[15],
+            test_back_emf: a[16],
+            load_back_emf: a[17],
+        }
+    }
+}
+
+impl BenchPlant {
+    /// The five reported powers at `z`: test and load mechanical, test and load electrical, total
+    /// electrical.
+    #[inline(always)]
+    pub(super) fn powers(&self, held: &Held, z: &AugVector) -> [f64; 5] {
+        let tpa = self.torque_per_ampere();
+        let el1 = self.armature_voltage(held, 0, z) * z[CURRENT1];
+        let el2 = self.armature_voltage(held, 1, z) * z[CURRENT2];
+        [
+            tpa[0] * z[CURRENT1] * z[OMEGA1],
+            tpa[1] * z[CURRENT2] * z[OMEGA2],
+            el1,
+            el2,
+            el1 + el2 + self.constant_power(held),
+        ]
+    }
+
+    /// Time derivatives of the five reported powers at `z` (constant inputs).
+    #[inline(always)]
+    pub(super) fn power_rates(&self, held: &Held, m: &AugMatrix, z: &AugVector) -> [f64; 5] {
+        let dz = multiply(m, z);
+        let tpa = self.torque_per_ampere();
+        let mut electrical = [0.0; 2];
+        for (n, e) in electrical.iter_mut().enumerate() {
+            let (current, omega) = (CURRENT1 + n, OMEGA1 + n);
+            let voltage = self.armature_voltage(held, n, z);
+            let voltage_rate = if held.mode.voltage_row[n] {
+                0.0
+            } else {
+                let (r, _, ke, _, _) = self.motor(n);
+                let gain = self.derived.loop_gain[n];
+                (r - gain) * dz[current] + ke * dz[omega]
+            };
+            *e = voltage_rate * z[current] + voltage * dz[current];
+        }
+        [
+            tpa[0] * (dz[CURRENT1] * z[OMEGA1] + z[CURRENT1] * dz[OMEGA1]),
+            tpa[1] * (dz[CURRENT2] * z[OMEGA2] + z[CURRENT2] * dz[OMEGA2]),
+            electrical[0],
+            electrical[1],
+            electrical[0] + electrical[1],
+        ]
+    }
+
+    #[inline(always)]
+    pub(super) fn constant_power(&self, held: &Held) -> f64 {
+        self.params.hardware_offset_power
+            + if held.clutch {
+                self.params.clutch_power
+            } else {
+                0.0
+            }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(super) fn accumulate_regular(
+        &mut self,
+        held: &Held,
+        z0: &AugVector,
+        z1: &AugVector,
+        integrals: &SegmentIntegrals,
+        (p0, p1): (&[f64; 5], &[f64; 5]),
+        rates: Option<([f64; 5], [f64; 5])>,
+        h: f64,
+    ) {
+        let mut electrical = [0.0; 2];
+        for (n, e) in electrical.iter_mut().enumerate() {
+            let current_integral = if n == 0 {
+                integrals.current1
+            } else {
+                integrals.current2
+            };
+            *e = if held.mode.voltage_row[n] {
+                held.drive[n] * current_integral
+            } else {
+                let (r, _, ke, _, _) = self.motor(n);
+                let gain = self.derived.loop_gain[n];
+                (r - gain) * integrals.products[2 + n]
+                    + ke * integrals.products[4 + n]
+                    + gain * held.reference[n] * current_integral
+            };
+        }
+        let tpa = self.torque_per_ampere();
+        let signed = [
+            tpa[0] * integrals.products[4],
+            tpa[1] * integrals.products[5],
+            electrical[0],
+            electrical[1],
+            electrical[0] + electrical[1] + self.constant_power(held) * h,
+        ];
+        let mut positive = [0.0; 5];
+        for k in 0..5 {
+            positive[k] = match rates {
+                Some((d0, d1)) if p0[k] * p1[k] < 0.0 => {
+                    hermite_positive_part(p0[k], p1[k], d0[k] * h, d1[k] * h, signed[k], h)
+                }
+                _ if p0[k] > 0.0 || (p0[k] == 0.0 && p1[k] > 0.0) => signed[k],
+                _ => 0.0,
+            };
+        }
+        let squares = [integrals.products[0], integrals.products[1]];
+        let copper = [integrals.products[2], integrals.products[3]];
+        let emf = [integrals.products[4], integrals.products[5]];
+        self.add_energy(held, z0, z1, signed, positive, squares, copper, emf, h);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(super) fn add_energy(
+        &mut self,
+        held: &Held,
+        z0: &AugVector,
+        z1: &AugVector,
+        signed: [f64; 5],
+        positive: [f64; 5],
+        squares: [f64; 2],
+        copper: [f64; 2],
+        emf: [f64; 2],
+        duration: f64,
+    ) {
+        let p = &self.params;
+        let (r1, _, ke1, _, _) = self.motor(0);
+        let (r2, _, ke2, _, _) = self.motor(1);
+        let damping = [p.actuation_damping, p.load_damping];
+        let mut loss = [0.0; 2];
+        for j in 0..2 {
+            let travel = z1[THETA1 + j] - z0[THETA1 + j];
+            loss[j] = if held.mode.stuck[j] {
+                0.0
+            } else {
+                -damping[j] * squares[j] + held.friction[j] * travel
+            };
+        }
+        let clutch = if held.clutch {
+            p.clutch_power * duration
+        } else {
+            0.0
+        };
+        let offset = p.hardware_offset_power * duration;
+        let e = &mut self.state.energy;
+        e.test_mechanical += signed[0];
+        e.test_mechanical_consumed += positive[0];
+        e.load_mechanical += signed[1];
+        e.load_mechanical_consumed += positive[1];
+        e.actuation_loss += loss[0];
+        e.load_loss += loss[1];
+        e.test_electrical += signed[2];
+        e.test_electrical_consumed += positive[2];
+        e.load_electrical += signed[3];
+        e.load_electrical_consumed += positive[3];
+        e.clutch += clutch;
+        e.offset += offset;
+        e.total_electrical += signed[4];
+        e.total_electrical_consumed += positive[4];
+        e.test_copper_loss += r1 * copper[0];
+        e.load_copper_loss += r2 * copper[1];
+        e.test_back_emf += ke1 * emf[0];
+        e.load_back_emf += ke2 * emf[1];
+    }
+
+    /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes.
+    /// Per piece the six products (`w^2`, `i^2`, `i w` per side) are formed once; the powers are
+    /// linear in them (`V i = a i^2 + b w i + c i` with the driver's affine voltage law).
+    #[inline(always)]
+    pub(super) fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
+        let tpa = self.torque_per_ampere();
+        let mut signed = [0.0; 5];
+        let mut positive = [0.0; 5];
+        let mut squares = [0.0; 2];
+        let mut copper = [0.0; 2];
+        let mut emf = [0.0; 2];
+        let constant = self.constant_power(held);
+        let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
+        for piece in segment.pieces() {
+            if piece.start >= stop {
+                break;
+            }
+            let s_end = ((stop - piece.start) / piece.len).min(1.0);
+            let n = piece.terms;
+            let degree = 2 * n - 1;
+            // weights[k] = integral_0^s_end s^k ds
+            let mut weights = [0.0; 2 * PIECE_TERMS];
+            let mut power = s_end;
+            for (k, weight) in weights[..degree].iter_mut().enumerate() {
+                *weight = power / (k + 1) as f64;
+                power *= s_end;
+            }
+            let integral = |p: &[f64]| -> f64 {
+                p.iter()
+                    .zip(weights.iter())
+                    .map(|(c, w)| c * w)
+                    .sum::<f64>()
+            };
+            let mut w = [[0.0; PIECE_TERMS]; 2];
+            let mut i = [[0.0; PIECE_TERMS]; 2];
+            for (k, c) in piece.coefficients[..n].iter().enumerate() {
+                w[0][k] = c[OMEGA1];
+                w[1][k] = c[OMEGA2];
+                i[0][k] = c[CURRENT1];
+                i[1][k] = c[CURRENT2];
+            }
+            let mut ww = [[0.0; 2 * PIECE_TERMS]; 2];
+            let mut ii = [[0.0; 2 * PIECE_TERMS]; 2];
+            let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
+            for j in 0..2 {
+                square_into(&w[j][..n], &mut ww[j]);
+                square_into(&i[j][..n], &mut ii[j]);
+                product_into(&i[j][..n], &w[j][..n], &mut wi[j]);
+            }
+            let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
+            for k in 0..degree {
+                let linear = |j: usize| if k < n { i[j][k] } else { 0.0 };
+                let el0 = law[0].0 * ii[0][k] + law[0].1 * wi[0][k] + law[0].2 * linear(0);
+                let el1 = law[1].0 * ii[1][k] + law[1].1 * wi[1][k] + law[1].2 * linear(1);
+                powers[0][k] = tpa[0] * wi[0][k];
+                powers[1][k] = tpa[1] * wi[1][k];
+                powers[2][k] = el0;
+                powers[3][k] = el1;
+                powers[4][k] = el0 + el1;
+            }
+            powers[4][0] += constant;
+            for k in 0..5 {
+                let p = &powers[k][..degree];
+                let part = integral(p);
+                signed[k] += piece.len * part;
+                positive[k] += piece.len * positive_part(p, s_end, part);
+            }
+            for j in 0..2 {
+                squares[j] += piece.len * integral(&ww[j][..degree]);
+                copper[j] += piece.len * integral(&ii[j][..degree]);
+                emf[j] += piece.len * integral(&wi[j][..degree]);
+            }
+        }
+        let z0 = segment.state_at(0.0);
+        let z1 = segment.state_at(stop);
+        self.add_energy(held, &z0, &z1, signed, positive, squares, copper, emf, stop);
+    }
+
+    /// Armature voltage of motor `n` as `a i + b w + c` for the held mode.
+    #[inline(always)]
+    pub(super) fn voltage_law(&self, held: &Held, n: usize) -> (f64, f64, f64) {
+        if held.mode.voltage_row[n] {
+            (0.0, 0.0, held.drive[n])
+        } else {
+            let (r, _, ke, _, _) = self.motor(n);
+            let gain = self.derived.loop_gain[n];
+            (r - gain, ke, gain * held.reference[n])
+        }
+    }
+}
+
+/// Positive part of a power that changes sign inside a regular sub-step of length `h`, from a
+/// cubic Hermite model of the power (end values `p0`, `p1`, end slopes times h `m0`, `m1`): the
+/// model's positive part, plus the model's error against the exact signed integral `signed`
+/// shared in proportion to the time the power is positive.
+fn hermite_positive_part(p0: f64, p1: f64, m0: f64, m1: f64, signed: f64, h: f64) -> f64 {
+    const SAMPLES: usize = 32;
+    let mut positive = 0.0;
+    let mut positive_samples = 0;
+    for k in 0..SAMPLES {
+        let s = (k as f64 + 0.5) / SAMPLES as f64;
+        let (s2, s3) = (s * s, s * s * s);
+        let value = (2.0 * s3 - 3.0 * s2 + 1.0) * p0
+            + (s3 - 2.0 * s2 + s) * m0
+            + (-2.0 * s3 + 3.0 * s2) * p1
+            + (s3 - s2) * m1;
+        if value > 0.0 {
+            positive += value;
+            positive_samples += 1;
+        }
+    }
+    let model_total = h * (0.5 * (p0 + p1) + (m0 - m1) / 12.0);
+    let fraction = positive_samples as f64 / SAMPLES as f64;
+    (h * positive / SAMPLES as f64 + (signed - model_total) * fraction).max(0.0)
+}
+
+/// `integral_0^{s_end} max(p(s), 0) ds` given the signed integral `signed`: when
+/// `|p(0)|` exceeds the bound `sum_k>0 |p_k| s_end^k` on the change over the piece the sign is
+/// fixed, else [`positive_integral`].
+#[inline(always)]
+fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
+    let mut bound = 0.0;
+    let mut power = 1.0;
+    for c in &p[1..] {
+        power *= s_end;
+        bound += c.abs() * power;
+    }
+    let start = p[0];
+    if start.abs() > bound * (1.0 + 1e-12) || bound == 0.0 {
+        if start > 0.0 { signed } else { 0.0 }
+    } else {
+        positive_integral(p, s_end)
+    }
+}
+
+/// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled).
+#[inline(always)]
+fn square_into(a: &[f64], out: &mut [f64]) {
+    let n = a.len();
+    out[..2 * n - 1].fill(0.0);
+    for (k, x) in a.iter().enumerate() {
+        if *x == 0.0 {
+            continue;
+        }
+        out[2 * k] += x * x;
+        let twice = 2.0 * x;
+        for (o, y) in out[2 * k + 1..k + n].iter_mut().zip(&a[k + 1..]) {
+            *o += twice * y;
+        }
+    }
+}
+
+/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
+#[inline(always)]
+fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
+    out[..a.len() + b.len() - 1].fill(0.0);
+    for (k, x) in a.iter().enumerate() {
+        if *x == 0.0 {
+            continue;
+        }
+        for (o, y) in out[k..k + b.len()].iter_mut().zip(b) {
+            *o += x * y;
+        }
+    }
+}
+
+/// Root of `p` bracketed by values of opposite signs at `a` and `b`, by the Illinois method to
+/// a bracket of `1e-10` of the interval: misplacing the split point by `d` misattributes only
+/// about `|p'| d^2 / 2` of area, far below rounding here.
+#[inline(always)]
+fn polynomial_root(p: &[f64], (mut a, mut pa): (f64, f64), (mut b, mut pb): (f64, f64)) -> f64 {
+    let tolerance = 1e-10 * (b - a);
+    let mut side = 0;
+    for _ in 0..100 {
+        if b - a <= tolerance {
+            break;
+        }
+        let mut t = b - pb * (b - a) / (pb - pa);
+        if !(t > a && t < b) {
+            t = 0.5 * (a + b);
+        }
+        let pt = poly_eval(p, t);
+        if pt == 0.0 {
+            return t;
+        }
+        if (pt > 0.0) == (pa > 0.0) {
+            a = t;
+            pa = pt;
+            if side == -1 {
+                pb *= 0.5;
+            }
+            side = -1;
+        } else {
+            b = t;
+            pb = pt;
+            if side == 1 {
+                pa *= 0.5;
+            }
+            side = 1;
+        }
+    }
+    0.5 * (a + b)
+}
+
+/// `integral_0^{s_end} max(p(s), 0) ds`, splitting at sign changes found on a 16-point scan
+/// (each root by [`polynomial_root`]).
+#[inline(always)]
+fn positive_integral(p: &[f64], s_end: f64) -> f64 {
+    const SCAN: usize = 16;
+    let points: [f64; SCAN + 1] = std::array::from_fn(|k| {
+        if k == 0 {
+            0.0
+        } else {
+            s_end * k as f64 / SCAN as f64
+        }
+    });
+    // `p` and its antiderivative at every scan point, evaluated side by side (bit for bit each
+    // point's own Horner chain); an integral between two points is the difference of theirs.
+    let values = poly_eval_many(p, &points);
+    let anti = Antiderivative::of(p);
+    let primitives = anti.at_many(&points);
+    let mut total = 0.0;
+    for k in 1..=SCAN {
+        let (a, pa, fa) = (points[k - 1], values[k - 1], primitives[k - 1]);
+        let (b, pb, fb) = (points[k], values[k], primitives[k]);
+        if pa * pb < 0.0 {
+            let root = polynomial_root(p, (a, pa), (b, pb));
+            let at_root = anti.at(root);
+            let first = at_root - fa;
+            let second = fb - at_root;
+            total += first.max(0.0) + second.max(0.0);
+        } else {
+            let part = fb - fa;
+            if pa > 0.0 || pb > 0.0 {
+                total += part.max(0.0);
+            }
+        }
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polynomial_square_matches_the_product() {
+        let a = [0.3, -1.5, 0.0, 2.25, 1e-9];
+        let (mut square, mut product) = ([0.0; 9], [0.0; 9]);
+        square_into(&a, &mut square);
+        product_into(&a, &a, &mut product);
+        for (s, p) in square.iter().zip(&product) {
+            assert!((s - p).abs() <= 1e-15 * p.abs().max(1.0), "{s} vs {p}");
+        }
+        assert_eq!(square[0], 0.09);
+        assert_eq!(square[8], 1e-18);
+    }
+
+    #[test]
+    fn positive_integral_splits_at_the_roots() {
+        // p(s) = (s - 0.3)(s - 0.7) = s^2 - s + 0.21 (positive outside the roots);
+        // antiderivative P(s) = s^3/3 - s^2/2 + 0.21 s.
+        let anti = |s: f64| s * s * s / 3.0 - s * s / 2.0 + 0.21 * s;
+        let p = [0.21, -1.0, 1.0];
+        let exact = (anti(0.3) - anti(0.0)) + (anti(1.0) - anti(0.7));
+        assert!((positive_integral(&p, 1.0) - exact).abs() < 1e-15);
+        // Negated: positive only between the roots.
+        let q = [-0.21, 1.0, -1.0];
+        let exact = -(anti(0.7) - anti(0.3));
+        assert!((positive_integral(&q, 1.0) - exact).abs() < 1e-15);
+        // A root very close to a scan point and a tangent-like steep polynomial.
+        let r = [-0.0625, 0.0, 0.0, 0.0, 1.0]; // s^4 - 0.5^4, root at 0.5
+        let exact = (0.2 - 0.0625) - (0.5f64.powi(5) / 5.0 - 0.0625 * 0.5);
+        assert!((positive_integral(&r, 1.0) - exact).abs() < 1e-15);
+        assert!((polynomial_root(&r, (0.4, -0.0369), (0.6, 0.0671)) - 0.5).abs() < 1e-10);
+    }
+}
