@@ -477,18 +477,21 @@ static CACHE: std::sync::Mutex<Option<Cached>> = std::sync::Mutex::new(None);
 fn prepared_for_batch(
     spec: &Path,
 ) -> Result<(std::sync::Arc<Prepared>, ssp::LoadedSystem), SweepError> {
-    {
+    let hit = {
         let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = cache.as_mut()
-            && CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key)
-        {
-            let prepared = c.prepared.clone();
-            let loaded = match c.idle.pop() {
-                Some(l) => l,
-                None => prepared.worker_system()?,
-            };
-            return Ok((prepared, loaded));
-        }
+        cache.as_mut().and_then(|c| {
+            (CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key))
+                .then(|| (c.prepared.clone(), c.idle.pop()))
+        })
+    };
+    if let Some((prepared, idle)) = hit {
+        // A new system is loaded outside the lock: the worker's other threads keep taking and
+        // giving back theirs meanwhile.
+        let loaded = match idle {
+            Some(l) => l,
+            None => prepared.worker_system()?,
+        };
+        return Ok((prepared, loaded));
     }
     let prepared = std::sync::Arc::new(prepare(spec)?);
     let loaded = prepared.worker_system()?;
