@@ -647,7 +647,7 @@ fn coefficient_name(side: usize, k: usize) -> String {
 /// be within 3 %), every other one be held at its prior (the default) for the map's box. Returns
 /// the number of coefficients held and the largest relative error of the fitted surface at the
 /// map's moving points.
-fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64) {
+fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(u8, u8)>, usize, f64) {
     use kneebench_harness::experiment::map;
     let dir = tempfile::tempdir().unwrap();
     let defaults = default_surface();
@@ -769,7 +769,7 @@ fn surface_round_trip(torques: Option<Vec<f64>>) -> (Vec<(i32, i32)>, usize, f64
         TERMS
             .iter()
             .zip(set)
-            .map(|(&(i, j), p)| p * x.powi(i) * y.powi(j))
+            .map(|(&(i, j), p)| p * x.powi(i32::from(i)) * y.powi(i32::from(j)))
             .sum::<f64>()
     };
     let mut worst = 0.0f64;

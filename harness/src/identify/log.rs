@@ -99,8 +99,22 @@ fn read_parquet_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
     })
 }
 
+/// Reads the next line of `r` into `buf` (cleared first) and counts it in `line`; false at the
+/// end of the file.
+fn next_line(
+    r: &mut impl std::io::BufRead,
+    buf: &mut String,
+    line: &mut usize,
+) -> Result<bool, String> {
+    buf.clear();
+    *line += 1;
+    let read = r
+        .read_line(buf)
+        .map_err(|e| format!("line {}: {e}", *line))?;
+    Ok(read != 0)
+}
+
 fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
-    use std::io::BufRead;
     if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("parquet"))
@@ -112,12 +126,7 @@ fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
     let mut buf = String::new();
     let mut line = 0usize;
     let header = loop {
-        buf.clear();
-        line += 1;
-        if r.read_line(&mut buf)
-            .map_err(|e| format!("line {line}: {e}"))?
-            == 0
-        {
+        if !next_line(&mut r, &mut buf, &mut line)? {
             return Err("empty file".into());
         }
         let l = buf.trim();
@@ -154,15 +163,7 @@ fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
                 .map_err(|_| format!("line {line}: {name} '{t}' is not a number")),
         }
     };
-    loop {
-        buf.clear();
-        line += 1;
-        if r.read_line(&mut buf)
-            .map_err(|e| format!("line {line}: {e}"))?
-            == 0
-        {
-            break;
-        }
+    while next_line(&mut r, &mut buf, &mut line)? {
         let l = buf.trim_end();
         if l.trim().is_empty() || l.starts_with('#') {
             continue;
@@ -251,15 +252,17 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
             time[i] - time[i - 1]
         )));
     }
-    let get = |name: &str| -> Result<Option<Vec<f64>>, IdentifyError> {
-        let Some(v) = find(name) else {
-            return Ok(None);
+    // A channel's column (if the log has it), refused at the first NaN or infinity.
+    let checked =
+        |name: &str, column: Option<Vec<f64>>| -> Result<Option<Vec<f64>>, IdentifyError> {
+            if let Some(v) = &column
+                && let Some(i) = v.iter().position(|x| !x.is_finite())
+            {
+                return Err(bad(format!("{place} {}: {name} is {}", line(i), v[i])));
+            }
+            Ok(column)
         };
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(bad(format!("{place} {}: {name} is {}", line(i), v[i])));
-        }
-        Ok(Some(v))
-    };
+    let get = |name: &str| checked(name, find(name));
     let req = |name: &str| -> Result<Vec<f64>, IdentifyError> {
         get(name).map(|v| v.expect("required channels were checked"))
     };
@@ -269,15 +272,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
     let load_cell = get(OPTIONAL[5])?;
     let current_sense = [get(OPTIONAL[6])?, get(OPTIONAL[7])?];
-    let command = match table.columns[wanted.len() - 1].clone() {
-        Some(v) => {
-            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-                return Err(bad(format!("{place} {}: {COMMAND} is {}", line(i), v[i])));
-            }
-            Some(v)
-        }
-        None => None,
-    };
+    let command = checked(COMMAND, table.columns[wanted.len() - 1].clone())?;
     let n = time.len();
     let mut usable = vec![true; n];
     let mut notes = Vec::new();

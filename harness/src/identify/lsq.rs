@@ -157,11 +157,12 @@ fn statistics_with(n: &Normal, p: usize, r: &[f64]) -> FitStatistics {
     }
 }
 
-/// Fits `y ~ X p` (`columns` are the columns of X, all of `y`'s length).
-pub fn fit(columns: &[Vec<f64>], y: &[f64]) -> LinearFit {
+/// Fits `y ~ X p` (`columns` are the columns of X, all of `y`'s length: owned, or borrowed
+/// from a larger set without copying).
+pub fn fit<C: AsRef<[f64]>>(columns: &[C], y: &[f64]) -> LinearFit {
     let p = columns.len();
     let rows = y.len();
-    let x = DMatrix::from_fn(rows, p, |i, j| columns[j][i]);
+    let x = DMatrix::from_fn(rows, p, |i, j| columns[j].as_ref()[i]);
     let n = normal(&x);
     let b = DVector::from_fn(p, |j, _| {
         if n.scale[j] > 0.0 {

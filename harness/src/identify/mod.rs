@@ -153,6 +153,18 @@ pub struct IdentifyConfig {
     pub version: String,
 }
 
+impl IdentifyConfig {
+    /// The value given last for the plant parameter `name` in [`Self::plant_parameters`] (a
+    /// later `--param` overrides an earlier one), if any.
+    fn plant_parameter(&self, name: &str) -> Option<&str> {
+        self.plant_parameters
+            .iter()
+            .rev()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
 impl Default for IdentifyConfig {
     fn default() -> Self {
         IdentifyConfig {
@@ -297,12 +309,7 @@ fn friction_model_is(
     (value, name): (i64, &str),
 ) -> bool {
     let is = |v: &str| v.trim() == value.to_string() || v.trim().eq_ignore_ascii_case(name);
-    if let Some((_, v)) = config
-        .plant_parameters
-        .iter()
-        .rev()
-        .find(|(n, _)| n == "frictionModel")
-    {
+    if let Some(v) = config.plant_parameter("frictionModel") {
         return is(v);
     }
     prior
@@ -403,6 +410,19 @@ impl Estimate {
             refined: None,
             status: Status::NotIdentifiable(why.into()),
         }
+    }
+
+    /// Every quantity of `quantities` as not identifiable for the same reason, each keeping
+    /// its `prior` value.
+    pub(crate) fn none_identifiable<'a>(
+        quantities: impl IntoIterator<Item = &'a Quantity>,
+        prior: &dyn Fn(&Quantity) -> f64,
+        why: &str,
+    ) -> Vec<Estimate> {
+        quantities
+            .into_iter()
+            .map(|qn| Estimate::not_identifiable(*qn, prior(qn), why))
+            .collect()
     }
 
     /// The final value and its 95 % half width (refined if refined, else linear).
@@ -604,12 +624,7 @@ pub fn identify(
     ));
     let real = |name: &str| -> Result<f64, IdentifyError> {
         // A --param given for the simulation also fixes the regressions' constants.
-        if let Some((_, v)) = config
-            .plant_parameters
-            .iter()
-            .rev()
-            .find(|(n, _)| n == name)
-        {
+        if let Some(v) = config.plant_parameter(name) {
             return v.trim().parse().map_err(|_| {
                 IdentifyError::Fmu(format!("parameter {name} = '{v}' is not a number"))
             });
@@ -718,13 +733,11 @@ pub fn identify(
                     notes.push(format!(
                         "{name}: too few samples move faster than {min_speed} rad/s throughout their smoothing window; the loss surface is not fitted"
                     ));
-                    for qn in qs.iter().chain(&surface::COEFFICIENTS) {
-                        estimates.push(Estimate::not_identifiable(
-                            *qn,
-                            prior_of(qn),
-                            "the logs hardly move this side",
-                        ));
-                    }
+                    estimates.extend(Estimate::none_identifiable(
+                        qs.iter().chain(&surface::COEFFICIENTS),
+                        &prior_of,
+                        "the logs hardly move this side",
+                    ));
                 }
             }
             continue;
@@ -745,13 +758,11 @@ pub fn identify(
                 "{name}: only {} samples move faster than {min_speed} rad/s throughout their smoothing window; not fitted",
                 y.len()
             ));
-            for qn in qs.iter() {
-                estimates.push(Estimate::not_identifiable(
-                    *qn,
-                    prior_of(qn),
-                    "the logs hardly move this side",
-                ));
-            }
+            estimates.extend(Estimate::none_identifiable(
+                qs,
+                &prior_of,
+                "the logs hardly move this side",
+            ));
             continue;
         }
         if exponential {
@@ -828,13 +839,11 @@ pub fn identify(
             notes.push(format!(
                 "{name}: no log has the driver's voltage; not fitted"
             ));
-            for qn in qs.iter() {
-                estimates.push(Estimate::not_identifiable(
-                    *qn,
-                    prior_of(qn),
-                    "the driver's voltage is not logged",
-                ));
-            }
+            estimates.extend(Estimate::none_identifiable(
+                qs,
+                &prior_of,
+                "the driver's voltage is not logged",
+            ));
             continue;
         }
         let (x, y) = stack(

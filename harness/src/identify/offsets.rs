@@ -71,12 +71,6 @@ const ENCODER_ZEROS: [Quantity; 2] = [
 /// Distance from the current sensor's 0 V and 5 V rails within which a reading is clipped \[V\].
 const RAIL_MARGIN: f64 = 0.05;
 
-fn not_logged(qs: &[Quantity], prior: &dyn Fn(&Quantity) -> f64, why: &str) -> Vec<Estimate> {
-    qs.iter()
-        .map(|qn| Estimate::not_identifiable(*qn, prior(qn), why))
-        .collect()
-}
-
 /// The sensor offsets' estimates (load cell, current sensors, encoder zeros) and regressions,
 /// and notes for the sensors not logged. `i_hd` is the harmonic drive's ratio.
 pub(super) fn sensor_offsets(
@@ -113,7 +107,7 @@ pub(super) fn sensor_offsets(
         ));
     } else {
         notes.push("load cell: no log has `loadCellTorque`; its offset is not estimated".into());
-        estimates.extend(not_logged(
+        estimates.extend(Estimate::none_identifiable(
             &LOAD_CELL[1..],
             prior,
             "the load cell's torque is not logged",
@@ -155,14 +149,14 @@ pub(super) fn sensor_offsets(
             "current sensors: no log has their volts (`testCurrentSenseVoltage`, `loadCurrentSenseVoltage`); not estimated"
                 .into(),
         );
-        estimates.extend(not_logged(
+        estimates.extend(Estimate::none_identifiable(
             &CURRENT_SENSORS,
             prior,
             "the current sensors' volts are not logged",
         ));
     }
 
-    estimates.extend(not_logged(
+    estimates.extend(Estimate::none_identifiable(
         &ENCODER_ZEROS,
         prior,
         "the encoders are incremental (they count from their position at power-up) and the logs hold no absolute angle",

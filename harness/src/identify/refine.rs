@@ -165,7 +165,7 @@ pub(super) fn refine(
     let mut fixed: Vec<(String, Value)> = prior
         .assignments()
         .into_iter()
-        .filter(|(n, _)| !config.plant_parameters.iter().any(|(m, _)| m == n))
+        .filter(|(n, _)| config.plant_parameter(n).is_none())
         .collect();
     let mut set_fixed = |name: &str, v: f64| match fixed.iter_mut().find(|(n, _)| n == name) {
         Some(slot) => slot.1 = Value::Real(v),

@@ -61,31 +61,16 @@ use super::{Estimate, Quantity, Regression, Status, lsq, q, regression};
 /// One row in this many enters the surface's regression.
 pub const STRIDE: usize = 5;
 
+/// The loss surface's term table and polynomial, shared with the `fmu` crate by including its
+/// file: the exponents the plant evaluates are the ones the regression's columns use. (The
+/// harness reads only the term table.)
+#[path = "../../../fmu/src/models/bench/hd_loss.rs"]
+#[allow(dead_code)]
+mod hd_loss;
+
 /// Exponents (i, j) of the terms `x^i y^j`, in the row order of `hd-loss-surface.csv` (the
-/// FMU's `hdLossPositiveSpeed[k]` is the term `k - 1`).
-pub const TERMS: [(i32, i32); 21] = [
-    (0, 0),
-    (1, 0),
-    (0, 1),
-    (2, 0),
-    (1, 1),
-    (0, 2),
-    (3, 0),
-    (2, 1),
-    (1, 2),
-    (0, 3),
-    (4, 0),
-    (3, 1),
-    (2, 2),
-    (1, 3),
-    (0, 4),
-    (5, 0),
-    (4, 1),
-    (3, 2),
-    (2, 3),
-    (1, 4),
-    (0, 5),
-];
+/// FMU's `hdLossPositiveSpeed[k]` is the term `k - 1`): the plant's own table.
+pub const TERMS: [(u8, u8); 21] = hd_loss::TERM_EXPONENTS;
 
 const EXCITE: &str = "steady motion over the load torques and speeds of the gait's range, both ways, with the loss-surface law active: `kneebench experiment map` (more `--torques` levels for the terms of high order in x)";
 
@@ -258,7 +243,7 @@ impl SurfaceBox {
         let mut out = [0.0; 42];
         let offset = if w1 >= 0.0 { 0 } else { 21 };
         for (k, &(i, j)) in TERMS.iter().enumerate() {
-            out[offset + k] = x.powi(i) * y.powi(j);
+            out[offset + k] = x.powi(i32::from(i)) * y.powi(i32::from(j));
         }
         out
     }
@@ -334,7 +319,7 @@ pub(super) fn fit_actuation(
                         .sum::<f64>()
             })
             .collect();
-        let cols: Vec<Vec<f64>> = free.iter().map(|&c| columns[c].clone()).collect();
+        let cols: Vec<&[f64]> = free.iter().map(|&c| columns[c].as_slice()).collect();
         let f = lsq::fit(&cols, &y);
         // The least determined coefficient: not determined, or the widest relative interval
         // beyond the limit (the noise's: what the design leaves undetermined).
@@ -564,7 +549,7 @@ mod tests {
         let y: Vec<f64> = (0..rows)
             .map(|r| y_true[r] - priors[1] * columns[3][r])
             .collect();
-        let cols: Vec<Vec<f64>> = free.iter().map(|&c| columns[c].clone()).collect();
+        let cols: Vec<&[f64]> = free.iter().map(|&c| columns[c].as_slice()).collect();
         let f = lsq::fit(&cols, &y);
         let gram = Gram::new(&columns);
         let widened = half_widths(&gram, &free, &held, &priors, &f);
@@ -605,7 +590,7 @@ mod tests {
         let surface = LossSurface::parse(DEFAULT_SURFACE).unwrap();
         assert_eq!(surface.terms.len(), 21);
         for (k, &((i, j), _, _)) in surface.terms.iter().enumerate() {
-            assert_eq!(TERMS[k], (i as i32, j as i32));
+            assert_eq!(TERMS[k], (i as u8, j as u8));
             assert_eq!(COEFFICIENTS[k].label, format!("p{i}{j}+"));
             assert_eq!(COEFFICIENTS[21 + k].label, format!("p{i}{j}-"));
             assert_eq!(
