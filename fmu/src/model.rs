@@ -268,8 +268,99 @@ pub trait Model: Default + Clone + Send + 'static {
         Ok(())
     }
 
+    /// Reads the Real variables `vrs` into `out` (as long as `vrs`), in order, after
+    /// [`Model::calculate`]: the body of `fmi2GetReal`, once per call. `getters` is the model's
+    /// table of Real getters ([`RealGetters`], from [`Model::variables`]).
+    ///
+    /// The default is the plain path, [`RealGetters::read_each`]: each variable's getter. A model
+    /// whose getters each repeat work that one call could do once (the plant checks and borrows
+    /// its lazily computed outputs per read) overrides it; an override must give the plain
+    /// path's values bit for bit and refuse the same first unknown reference (asserted for
+    /// every model by the glue's tests, `batch_reads_equal_the_plain_getters`).
+    fn get_reals(
+        &self,
+        getters: &RealGetters<Self>,
+        vrs: &[u32],
+        out: &mut [f64],
+    ) -> Result<(), UnknownReference> {
+        getters.read_each(self, vrs, out)
+    }
+
     /// Body of `documentation/index.html` (HTML), beyond the generated variable table.
     fn documentation() -> &'static str;
+}
+
+/// A value reference that names no variable of the base type asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownReference(pub u32);
+
+/// A model's Real getters indexed by value reference, built once from [`Model::variables`]:
+/// the plain path of a Real read, one table load and one call per value.
+pub struct RealGetters<M> {
+    by_vr: Vec<Option<RealGetter<M>>>,
+}
+
+/// Reads one Real variable of a model.
+pub type RealGetter<M> = fn(&M) -> f64;
+
+impl<M: Model> RealGetters<M> {
+    /// The getters of every Real variable of `M`.
+    pub fn new() -> Self {
+        Self {
+            by_vr: by_value_reference::<M, _>(|v| match v.access {
+                Access::Real(get, _) => Some(get),
+                _ => None,
+            }),
+        }
+    }
+
+    /// The getter of the Real variable with value reference `vr`.
+    #[inline]
+    pub fn get(&self, vr: u32) -> Option<RealGetter<M>> {
+        self.by_vr.get(vr as usize).copied().flatten()
+    }
+
+    /// Reads `vrs` into `out` by calling each variable's getter: the plain path of
+    /// [`Model::get_reals`]. The first unknown reference ends the read (`out` is then partly
+    /// written, as `fmi2GetReal` allows).
+    #[inline]
+    pub fn read_each(
+        &self,
+        model: &M,
+        vrs: &[u32],
+        out: &mut [f64],
+    ) -> Result<(), UnknownReference> {
+        for (o, &vr) in out.iter_mut().zip(vrs) {
+            match self.get(vr) {
+                Some(get) => *o = get(model),
+                None => return Err(UnknownReference(vr)),
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<M: Model> Default for RealGetters<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The entries `pick` makes of the variables of `M` (getters, setters with their conditions),
+/// indexed by value reference (value references are per base type, so each type has its own
+/// table).
+pub fn by_value_reference<M: Model, E>(pick: impl Fn(&Variable<M>) -> Option<E>) -> Vec<Option<E>> {
+    let mut table = Vec::new();
+    for v in M::variables() {
+        if let Some(entry) = pick(v) {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize_with(vr + 1, || None);
+            }
+            table[vr] = Some(entry);
+        }
+    }
+    table
 }
 
 /// An enumeration type shared by mode variables: in the model description an `Integer`

@@ -18,8 +18,8 @@ use super::bench::{
     SignalGroup, StepOutcome as PlantOutcome, signal_group,
 };
 use crate::model::{
-    EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
-    Variable,
+    EnumerationType, Model, ModelError, RealGetters, Start, StateError, StateReader, StateWriter,
+    StepOutcome, UnknownReference, Variable,
 };
 use crate::registry::ReferenceInputs;
 
@@ -58,9 +58,27 @@ pub trait BenchSignals {
     fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T;
 }
 
+/// Where a Real output of the bench is computed and read: its group and its field of
+/// [`BenchOutputs`] (what its getter reads, from the same line of [`io_variables`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RealOutputField {
+    /// The group that computes the field.
+    pub group: SignalGroup,
+    /// Reads the field.
+    pub read: fn(&BenchOutputs) -> f64,
+}
+
 /// The bench's signal interface (inputs at VR 200.., outputs at VR 300..): one table for every
 /// model implementing [`BenchSignals`].
 pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
+    io_declaration(&mut Vec::new())
+}
+
+/// [`io_variables`], and in `real_outputs` each Real output's value reference with its field,
+/// from the same declaration (for reads of many outputs in one pass).
+fn io_declaration<M: BenchSignals>(
+    real_outputs: &mut Vec<(u32, RealOutputField)>,
+) -> Vec<Variable<M>> {
     type V<M> = Variable<M>;
     macro_rules! input_real {
         ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
@@ -89,16 +107,21 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
     }
     macro_rules! out_real {
         ($name:literal, $vr:expr, $field:ident, None, $desc:literal) => {
-            V::<M>::real(
-                $name,
-                $vr,
-                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
-                |m, v| m.signals_mut().$field = v,
-            )
-            .output(&[])
-            .describe($desc)
+            real_output!($name, $vr, $field).describe($desc)
         };
         ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
+            real_output!($name, $vr, $field).unit($unit).describe($desc)
+        };
+    }
+    macro_rules! real_output {
+        ($name:literal, $vr:expr, $field:ident) => {{
+            real_outputs.push((
+                $vr,
+                RealOutputField {
+                    group: const { signal_group(stringify!($field)) },
+                    read: |o| o.$field,
+                },
+            ));
             V::<M>::real(
                 $name,
                 $vr,
@@ -106,9 +129,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
-            .unit($unit)
-            .describe($desc)
-        };
+        }};
     }
     macro_rules! out_bool {
         ($name:literal, $vr:expr, $field:ident, $desc:literal) => {
@@ -887,8 +908,15 @@ macro_rules! unit_of {
 }
 pub(crate) use unit_of;
 
+/// The plant's one declaration: its variables and, from the same lines, where each Real
+/// output is computed and read (by value reference, for [`Model::get_reals`]).
+struct Declaration {
+    variables: Vec<Variable<BenchPlantModel>>,
+    real_outputs: Vec<Option<RealOutputField>>,
+}
+
 // SAFETY: a static (Lazy registers its address for the release at unload).
-static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
+static DECLARATION: Lazy<Declaration> = unsafe {
     Lazy::new(|| {
         type V = Variable<BenchPlantModel>;
         let d = BenchParameters::default();
@@ -1025,8 +1053,20 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
         hd_loss_coefficient!(18, 19, 2, 3);
         hd_loss_coefficient!(19, 20, 1, 4);
         hd_loss_coefficient!(20, 21, 0, 5);
-        v.extend(io_variables::<BenchPlantModel>());
-        v
+        let mut fields = Vec::new();
+        v.extend(io_declaration::<BenchPlantModel>(&mut fields));
+        let mut real_outputs = Vec::new();
+        for (vr, field) in fields {
+            let vr = vr as usize;
+            if real_outputs.len() <= vr {
+                real_outputs.resize(vr + 1, None);
+            }
+            real_outputs[vr] = Some(field);
+        }
+        Declaration {
+            variables: v,
+            real_outputs,
+        }
     })
 };
 
@@ -1101,7 +1141,7 @@ impl Model for BenchPlantModel {
     const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 5.0, 1e-3);
 
     fn variables() -> &'static [Variable<Self>] {
-        &VARIABLES
+        &DECLARATION.variables
     }
 
     fn enumerations() -> &'static [EnumerationType] {
@@ -1121,6 +1161,49 @@ impl Model for BenchPlantModel {
             self.build()?;
         }
         // The outputs themselves are computed by group when read (`read_signal`).
+        Ok(())
+    }
+
+    /// The outputs' groups a call needs are computed once and their fields read under one
+    /// borrow, where each getter checks its group's freshness and borrows the outputs itself
+    /// (same values: the same group computations, on the same state). Parameters and inputs
+    /// are read by their getters.
+    fn get_reals(
+        &self,
+        getters: &RealGetters<Self>,
+        vrs: &[u32],
+        out: &mut [f64],
+    ) -> Result<(), UnknownReference> {
+        let fields = &DECLARATION.real_outputs;
+        let field = |vr: u32| fields.get(vr as usize).copied().flatten();
+        let mut needed = 0u8;
+        for &vr in vrs {
+            match field(vr) {
+                Some(f) => needed |= f.group.bit(),
+                None if getters.get(vr).is_some() => {}
+                None => return Err(UnknownReference(vr)),
+            }
+        }
+        let stale = needed & !self.fresh.get();
+        if stale != 0 {
+            for group in SignalGroup::ALL {
+                if stale & group.bit() != 0 {
+                    self.read_signal(group, |_| ());
+                }
+            }
+        }
+        // Every group read below is fresh: the getters of parameters and inputs, called under
+        // this shared borrow, do not touch the outputs.
+        let outputs = self.outputs.borrow();
+        for (o, &vr) in out.iter_mut().zip(vrs) {
+            *o = match field(vr) {
+                Some(f) => (f.read)(&outputs),
+                None => match getters.get(vr) {
+                    Some(get) => get(self),
+                    None => return Err(UnknownReference(vr)),
+                },
+            };
+        }
         Ok(())
     }
 
