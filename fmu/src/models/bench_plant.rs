@@ -750,10 +750,8 @@ impl BenchSignals for BenchPlantModel {
     fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
         let fresh = self.fresh.get();
         if fresh & group.bit() == 0 {
-            if let Some(plant) = &self.plant {
-                plant.fill_outputs(group, &mut self.outputs.borrow_mut());
-            }
-            self.fresh.set(fresh | group.bit());
+            let fresh = self.compute_stale(group, fresh, &mut self.outputs.borrow_mut());
+            self.fresh.set(fresh);
         }
         read(&self.outputs.borrow())
     }
@@ -1094,6 +1092,19 @@ impl BenchPlantModel {
         Ok(())
     }
 
+    /// Computes `group` into `outputs` unless the freshness bits `fresh` have it (before the
+    /// plant is built the outputs keep their values); the new freshness bits.
+    #[inline(always)]
+    fn compute_stale(&self, group: SignalGroup, fresh: u8, outputs: &mut BenchOutputs) -> u8 {
+        if fresh & group.bit() != 0 {
+            return fresh;
+        }
+        if let Some(plant) = &self.plant {
+            plant.fill_outputs(group, outputs);
+        }
+        fresh | group.bit()
+    }
+
     /// The plant's state changed: every output is recomputed on its next read.
     fn outputs_changed(&mut self) {
         self.fresh.set(0);
@@ -1164,10 +1175,10 @@ impl Model for BenchPlantModel {
         Ok(())
     }
 
-    /// The outputs' groups a call needs are computed once and their fields read under one
-    /// borrow, where each getter checks its group's freshness and borrows the outputs itself
-    /// (same values: the same group computations, on the same state). Parameters and inputs
-    /// are read by their getters.
+    /// The outputs are read under one borrow with one freshness word, where each getter
+    /// checks its group's freshness and borrows the outputs itself (same values: the same
+    /// group computations, on the same state, each once). Parameters and inputs are read by
+    /// their getters.
     fn get_reals(
         &self,
         getters: &RealGetters<Self>,
@@ -1175,36 +1186,29 @@ impl Model for BenchPlantModel {
         out: &mut [f64],
     ) -> Result<(), UnknownReference> {
         let fields = &DECLARATION.real_outputs;
-        let field = |vr: u32| fields.get(vr as usize).copied().flatten();
-        let mut needed = 0u8;
-        for &vr in vrs {
-            match field(vr) {
-                Some(f) => needed |= f.group.bit(),
-                None if getters.get(vr).is_some() => {}
-                None => return Err(UnknownReference(vr)),
-            }
-        }
-        let stale = needed & !self.fresh.get();
-        if stale != 0 {
-            for group in SignalGroup::ALL {
-                if stale & group.bit() != 0 {
-                    self.read_signal(group, |_| ());
-                }
-            }
-        }
-        // Every group read below is fresh: the getters of parameters and inputs, called under
-        // this shared borrow, do not touch the outputs.
-        let outputs = self.outputs.borrow();
+        // One borrow and one freshness word for the whole call. A group is computed at the
+        // first read that needs it, as `read_signal` does; the getters of parameters and
+        // inputs called meanwhile do not touch the outputs (every Real output is in `fields`).
+        let mut outputs = self.outputs.borrow_mut();
+        let mut fresh = self.fresh.get();
+        let mut result = Ok(());
         for (o, &vr) in out.iter_mut().zip(vrs) {
-            *o = match field(vr) {
-                Some(f) => (f.read)(&outputs),
-                None => match getters.get(vr) {
-                    Some(get) => get(self),
-                    None => return Err(UnknownReference(vr)),
+            match fields.get(vr as usize) {
+                Some(Some(f)) => {
+                    fresh = self.compute_stale(f.group, fresh, &mut outputs);
+                    *o = (f.read)(&outputs);
+                }
+                _ => match getters.get(vr) {
+                    Some(get) => *o = get(self),
+                    None => {
+                        result = Err(UnknownReference(vr));
+                        break;
+                    }
                 },
-            };
+            }
         }
-        Ok(())
+        self.fresh.set(fresh);
+        result
     }
 
     /// [`MAX_INTERNAL_STEPS_PER_CALL`](crate::model::MAX_INTERNAL_STEPS_PER_CALL) internal
