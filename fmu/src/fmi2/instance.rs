@@ -12,8 +12,7 @@ use std::ffi::CString;
 use super::logging::{Category, Logger};
 use super::types::{fmi2Boolean, fmi2Status, fmi2String};
 use crate::model::{
-    Access, Model, Phase, RealGetters, StateError, StateReader, StateWriter, StepOutcome,
-    UnknownReference, Variable, by_value_reference,
+    Access, Model, Phase, StateError, StateReader, StateWriter, StepOutcome, Variable,
 };
 use crate::registry::ModelInfo;
 
@@ -253,7 +252,7 @@ pub struct Instance<M: Model> {
     strings: Vec<CString>,
     /// Real getters by value reference: the hot path of every communication step, resolved
     /// once so a get is one table load and one call per value.
-    real_getters: RealGetters<M>,
+    real_getters: Vec<Option<RealGetter<M>>>,
     /// Integer (and Enumeration) getters by value reference.
     integer_getters: Vec<Option<IntegerGetter<M>>>,
     /// Boolean getters by value reference.
@@ -291,7 +290,7 @@ impl<M: Model> Instance<M> {
             terminated: false,
             dirty: true,
             strings: Vec::new(),
-            real_getters: RealGetters::new(),
+            real_getters: real_getter_table::<M>(),
             integer_getters: integer_getter_table::<M>(),
             boolean_getters: boolean_getter_table::<M>(),
             real_setters: real_setter_table::<M>(),
@@ -352,22 +351,15 @@ impl<M: Model> Instance<M> {
     fn check_known(&self, function: &str, tag: u8, vrs: &[u32]) -> Result<(), fmi2Status> {
         match vrs.iter().find(|vr| self.info.find(tag, **vr).is_none()) {
             None => Ok(()),
-            Some(vr) => Err(self.refuse_unknown(function, tag, *vr)),
+            Some(vr) => Err(self.refuse(
+                function,
+                &format!(
+                    "unknown value reference {vr} for type {} in model {}",
+                    TYPE_NAMES[tag as usize],
+                    M::IDENTIFIER
+                ),
+            )),
         }
-    }
-
-    /// Refuses a call naming `vr`, which is no variable of type `tag`.
-    #[cold]
-    #[inline(never)]
-    fn refuse_unknown(&self, function: &str, tag: u8, vr: u32) -> fmi2Status {
-        self.refuse(
-            function,
-            &format!(
-                "unknown value reference {vr} for type {} in model {}",
-                TYPE_NAMES[tag as usize],
-                M::IDENTIFIER
-            ),
-        )
     }
 
     /// Checks that every variable may be set now, before anything is changed.
@@ -552,14 +544,41 @@ struct Decoded<M> {
     terminated: bool,
 }
 
+/// Reads one Real variable of a model.
+type RealGetter<M> = fn(&M) -> f64;
 /// Reads one Integer or Enumeration variable of a model.
 type IntegerGetter<M> = fn(&M) -> i32;
 /// Reads one Boolean variable of a model.
 type BooleanGetter<M> = fn(&M) -> bool;
 
+/// The entries `pick` makes of the variables of `M` (getters, setters with their conditions),
+/// indexed by value reference (value references are per base type, so each type has its own
+/// table).
+fn vr_table<M: Model, E>(pick: impl Fn(&Variable<M>) -> Option<E>) -> Vec<Option<E>> {
+    let mut table = Vec::new();
+    for v in M::variables() {
+        if let Some(entry) = pick(v) {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize_with(vr + 1, || None);
+            }
+            table[vr] = Some(entry);
+        }
+    }
+    table
+}
+
+/// The Real getters of `M` indexed by value reference.
+fn real_getter_table<M: Model>() -> Vec<Option<RealGetter<M>>> {
+    vr_table::<M, _>(|v| match v.access {
+        Access::Real(get, _) => Some(get),
+        _ => None,
+    })
+}
+
 /// The Integer and Enumeration getters of `M` indexed by value reference.
 fn integer_getter_table<M: Model>() -> Vec<Option<IntegerGetter<M>>> {
-    by_value_reference::<M, _>(|v| match v.access {
+    vr_table::<M, _>(|v| match v.access {
         Access::Integer(get, _) | Access::Enumeration(get, _) => Some(get),
         _ => None,
     })
@@ -567,7 +586,7 @@ fn integer_getter_table<M: Model>() -> Vec<Option<IntegerGetter<M>>> {
 
 /// The Boolean getters of `M` indexed by value reference.
 fn boolean_getter_table<M: Model>() -> Vec<Option<BooleanGetter<M>>> {
-    by_value_reference::<M, _>(|v| match v.access {
+    vr_table::<M, _>(|v| match v.access {
         Access::Boolean(get, _) => Some(get),
         _ => None,
     })
@@ -617,7 +636,7 @@ struct BooleanSetter<M> {
 
 /// The Boolean setters of `M` indexed by value reference.
 fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> {
-    by_value_reference::<M, _>(|v| match v.access {
+    vr_table::<M, _>(|v| match v.access {
         Access::Boolean(_, set) => Some(BooleanSetter {
             set,
             phases: settable_phases(v),
@@ -628,7 +647,7 @@ fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> {
 
 /// The Real setters of `M` indexed by value reference.
 fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
-    by_value_reference::<M, _>(|v| match v.access {
+    vr_table::<M, _>(|v| match v.access {
         Access::Real(_, set) => Some(RealSetter {
             set,
             phases: settable_phases(v),
@@ -760,13 +779,15 @@ impl<M: Model> FmiInstance for Instance<M> {
         if let Err(s) = self.refresh(f) {
             return s;
         }
-        // The model reads the whole list (`Model::get_reals`): an unknown reference fails the
-        // call (the output array is then unspecified, as the standard allows); the model's
-        // values are not changed by a get.
-        match self.model.get_reals(&self.real_getters, vrs, out) {
-            Ok(()) => fmi2OK,
-            Err(UnknownReference(vr)) => self.refuse_unknown(f, 0, vr),
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.real_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = get(&self.model),
+                _ => return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error),
+            }
         }
+        fmi2OK
     }
 
     fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
@@ -1175,231 +1196,6 @@ mod boolean_set_tests {
             }
             // A Real reference is no Boolean one.
             assert_eq!(i.set_boolean(&[201], &[1]), fmi2Error);
-        }
-    }
-}
-
-#[cfg(test)]
-mod batch_read_tests {
-    use super::*;
-    use crate::model::{Causality, UnknownReference};
-    use crate::models::{
-        bench_hardware::BenchHardwareModel, bench_plant::BenchPlantModel,
-        clutch_scheduler::ClutchScheduler, gait::GaitReference, impedance::ImpedanceController,
-        pid::PidController,
-    };
-
-    fn instance<M: Model>() -> Instance<M> {
-        let entry = crate::registry::find_by_identifier(M::IDENTIFIER).expect("exported");
-        Instance::new(
-            entry.info(),
-            Logger::new(None, std::ptr::null_mut(), c"test", false),
-        )
-    }
-
-    /// Reads `vrs` from two copies of the model, by `Model::get_reals` and by the plain getters,
-    /// and asserts the same answer bit for bit; returns the copies for further reads.
-    fn same_reads<M: Model>(
-        fast: &M,
-        plain: &M,
-        getters: &RealGetters<M>,
-        vrs: &[u32],
-        when: &str,
-    ) {
-        let mut a = vec![-1.25; vrs.len()];
-        let mut b = vec![-1.25; vrs.len()];
-        let ra = fast.get_reals(getters, vrs, &mut a);
-        let rb = getters.read_each(plain, vrs, &mut b);
-        assert_eq!(ra, rb, "{} {when}: {vrs:?}", M::IDENTIFIER);
-        if ra.is_ok() {
-            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(&a), bits(&b), "{} {when}: {vrs:?}", M::IDENTIFIER);
-        }
-    }
-
-    /// Every Real of the model read in several lists (all, reversed, outputs only, each one
-    /// alone, with repeats, with an unknown reference), each from a copy whose lazily computed
-    /// outputs are as the instance left them, and the lists one after another on one copy.
-    fn compare<M: Model>(inst: &mut Instance<M>, when: &str) -> usize {
-        assert!(inst.refresh("test").is_ok(), "{} {when}", M::IDENTIFIER);
-        let vars = M::variables();
-        let reals: Vec<&Variable<M>> = vars
-            .iter()
-            .filter(|v| matches!(v.access, Access::Real(..)))
-            .collect();
-        let all: Vec<u32> = reals.iter().map(|v| v.value_reference).collect();
-        let outputs: Vec<u32> = reals
-            .iter()
-            .filter(|v| v.causality == Causality::Output)
-            .map(|v| v.value_reference)
-            .collect();
-        let unknown = all.iter().max().unwrap() + 1;
-        // A reference of another base type only: unknown as a Real.
-        let other_type = vars
-            .iter()
-            .map(|v| v.value_reference)
-            .find(|vr| !all.contains(vr));
-        let mut lists = vec![
-            all.clone(),
-            all.iter().rev().copied().collect(),
-            outputs.clone(),
-            outputs.iter().chain(&outputs).step_by(3).copied().collect(),
-            [&outputs[..outputs.len() / 2], &[unknown], &all[..]].concat(),
-            [&all[..3.min(all.len())], &[unknown]].concat(),
-            vec![],
-        ];
-        if let Some(vr) = other_type {
-            lists.push([&outputs[..], &[vr]].concat());
-        }
-        lists.extend(all.iter().map(|&vr| vec![vr]));
-        let getters = &inst.real_getters;
-        let (seq_fast, seq_plain) = (inst.model.clone(), inst.model.clone());
-        for list in &lists {
-            same_reads(
-                &inst.model.clone(),
-                &inst.model.clone(),
-                getters,
-                list,
-                when,
-            );
-            same_reads(&seq_fast, &seq_plain, getters, list, when);
-        }
-        // The plain path refuses what it should: the test compares against a real reader.
-        let mut out = vec![0.0; 2];
-        assert_eq!(
-            getters.read_each(&inst.model, &[all[0], unknown], &mut out),
-            Err(UnknownReference(unknown))
-        );
-        lists.len()
-    }
-
-    /// Steps `inst` at 1 ms for `steps` steps, `inputs(inst, k)` before each, comparing every
-    /// tenth step and after every step whose Boolean inputs changed; stops after a discarded
-    /// step (a trip), compared there too. Returns the number of comparisons and discards.
-    fn run<M: Model>(
-        inst: &mut Instance<M>,
-        steps: usize,
-        mut inputs: impl FnMut(&mut Instance<M>, usize) -> bool,
-    ) -> (usize, usize) {
-        let (mut compared, mut discards) = (0, 0);
-        for k in 0..steps {
-            let changed = inputs(inst, k);
-            let status = inst.do_step(k as f64 * 1e-3, 1e-3);
-            assert_ne!(status, fmi2Error, "{} step {k}", M::IDENTIFIER);
-            if changed || k % 10 == 0 || status == fmi2Discard {
-                compare(inst, &format!("after step {k}"));
-                compared += 1;
-            }
-            if status == fmi2Discard {
-                discards += 1;
-                break;
-            }
-        }
-        (compared, discards)
-    }
-
-    /// Sets every Real input of `M` to a bounded wave of its own phase at step `k`.
-    fn real_waves<M: Model>(inst: &mut Instance<M>, k: usize, amplitude: f64) {
-        for (i, v) in M::variables().iter().enumerate() {
-            if v.causality == Causality::Input && matches!(v.access, Access::Real(..)) {
-                let x = amplitude * (0.013 * k as f64 * (1.0 + i as f64 / 7.0) + i as f64).sin();
-                let x = x.clamp(v.min.unwrap_or(f64::MIN), v.max.unwrap_or(f64::MAX));
-                assert_eq!(
-                    inst.set_real(&[v.value_reference], &[x]),
-                    fmi2OK,
-                    "{}",
-                    v.name
-                );
-            }
-        }
-    }
-
-    /// Sets the Boolean input `name` of `M`; whether it changed.
-    fn set_flag<M: Model>(inst: &mut Instance<M>, name: &str, on: bool) -> bool {
-        let v = M::variables().iter().find(|v| v.name == name).expect(name);
-        let vr = [v.value_reference];
-        let mut was = [0];
-        assert_eq!(inst.get_boolean(&vr, &mut was), fmi2OK);
-        assert_eq!(inst.set_boolean(&vr, &[fmi2Boolean::from(on)]), fmi2OK);
-        (was[0] != 0) != on
-    }
-
-    /// Every model, in initialization mode, after initialization and through a run of steps
-    /// with moving inputs; the plant in each configuration through clutch, driver and
-    /// stick/slip events and a trip.
-    #[test]
-    fn batch_reads_equal_the_plain_getters() {
-        fn generic<M: Model>(steps: usize) -> (usize, usize) {
-            let mut inst = instance::<M>();
-            assert_eq!(inst.enter_initialization_mode(), fmi2OK);
-            let mut compared = compare(&mut inst, "in initialization mode");
-            assert_eq!(inst.exit_initialization_mode(), fmi2OK);
-            compared += compare(&mut inst, "after initialization");
-            let (n, discards) = run(&mut inst, steps, |inst, k| {
-                real_waves(inst, k, 2.0);
-                let mut changed = false;
-                for (i, v) in M::variables().iter().enumerate() {
-                    if v.causality == Causality::Input && matches!(v.access, Access::Boolean(..)) {
-                        changed |= set_flag(inst, v.name, (k / (40 + 7 * i)) % 2 == 1);
-                    }
-                }
-                changed
-            });
-            (compared + n, discards)
-        }
-        for (identifier, (compared, discards)) in [
-            ("GaitReference", generic::<GaitReference>(300)),
-            ("PidController", generic::<PidController>(300)),
-            ("ImpedanceController", generic::<ImpedanceController>(300)),
-            ("ClutchScheduler", generic::<ClutchScheduler>(300)),
-        ] {
-            assert!(compared >= 30, "{identifier}: {compared}");
-            assert_eq!(discards, 0, "{identifier}");
-        }
-        // BenchHardware talks to a bench (or its emulator) once initialized: its reads are
-        // compared before that. Its reads are the plain ones (no override).
-        let mut hardware = instance::<BenchHardwareModel>();
-        assert_eq!(hardware.enter_initialization_mode(), fmi2OK);
-        compare(&mut hardware, "in initialization mode");
-
-        // The plant in DA, SEA and CSEA: currents that cross zero (stick/slip), the clutch
-        // and the test driver switched, then the emergency stop (a trip).
-        for configuration in 0..3 {
-            let mut inst = instance::<BenchPlantModel>();
-            assert_eq!(inst.set_integer(&[1], &[configuration]), fmi2OK);
-            assert_eq!(inst.enter_initialization_mode(), fmi2OK);
-            compare(&mut inst, "in initialization mode");
-            assert_eq!(inst.exit_initialization_mode(), fmi2OK);
-            compare(&mut inst, "after initialization");
-            let (compared, discards) = run(&mut inst, 400, |inst, k| {
-                let t = k as f64 * 1e-3;
-                let currents = [2.5 * (9.0 * t).sin(), -1.5 * (5.0 * t).cos()];
-                assert_eq!(inst.set_real(&[201, 203], &currents), fmi2OK);
-                set_flag(inst, "clutchEngage", (100..250).contains(&k))
-                    | set_flag(inst, "testDriverEnable", !(300..320).contains(&k))
-                    | set_flag(inst, "emergencyStop", k >= 380)
-            });
-            assert!(compared >= 30, "configuration {configuration}: {compared}");
-            assert_eq!(discards, 1, "configuration {configuration}: the stop trips");
-            let mut trip = [0];
-            assert_eq!(inst.get_integer(&[373], &mut trip), fmi2OK);
-            assert_ne!(trip[0], 0, "configuration {configuration}");
-        }
-    }
-
-    /// The test names every exported model.
-    #[test]
-    fn the_batch_read_test_covers_every_model() {
-        let covered = [
-            GaitReference::IDENTIFIER,
-            PidController::IDENTIFIER,
-            ImpedanceController::IDENTIFIER,
-            ClutchScheduler::IDENTIFIER,
-            BenchHardwareModel::IDENTIFIER,
-            BenchPlantModel::IDENTIFIER,
-        ];
-        for entry in crate::MODELS.iter() {
-            assert!(covered.contains(&entry.identifier), "{}", entry.identifier);
         }
     }
 }

@@ -18,8 +18,8 @@ use super::bench::{
     SignalGroup, StepOutcome as PlantOutcome, signal_group,
 };
 use crate::model::{
-    EnumerationType, Model, ModelError, RealGetters, Start, StateError, StateReader, StateWriter,
-    StepOutcome, UnknownReference, Variable,
+    EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
+    Variable,
 };
 use crate::registry::ReferenceInputs;
 
@@ -58,27 +58,9 @@ pub trait BenchSignals {
     fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T;
 }
 
-/// Where a Real output of the bench is computed and read: its group and its field of
-/// [`BenchOutputs`] (what its getter reads, from the same line of [`io_variables`]).
-#[derive(Debug, Clone, Copy)]
-pub struct RealOutputField {
-    /// The group that computes the field.
-    pub group: SignalGroup,
-    /// Reads the field.
-    pub read: fn(&BenchOutputs) -> f64,
-}
-
 /// The bench's signal interface (inputs at VR 200.., outputs at VR 300..): one table for every
 /// model implementing [`BenchSignals`].
 pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
-    io_declaration(&mut Vec::new())
-}
-
-/// [`io_variables`], and in `real_outputs` each Real output's value reference with its field,
-/// from the same declaration (for reads of many outputs in one pass).
-fn io_declaration<M: BenchSignals>(
-    real_outputs: &mut Vec<(u32, RealOutputField)>,
-) -> Vec<Variable<M>> {
     type V<M> = Variable<M>;
     macro_rules! input_real {
         ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
@@ -107,21 +89,6 @@ fn io_declaration<M: BenchSignals>(
     }
     macro_rules! out_real {
         ($name:literal, $vr:expr, $field:ident, None, $desc:literal) => {
-            real_output!($name, $vr, $field).describe($desc)
-        };
-        ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
-            real_output!($name, $vr, $field).unit($unit).describe($desc)
-        };
-    }
-    macro_rules! real_output {
-        ($name:literal, $vr:expr, $field:ident) => {{
-            real_outputs.push((
-                $vr,
-                RealOutputField {
-                    group: const { signal_group(stringify!($field)) },
-                    read: |o| o.$field,
-                },
-            ));
             V::<M>::real(
                 $name,
                 $vr,
@@ -129,7 +96,19 @@ fn io_declaration<M: BenchSignals>(
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
-        }};
+            .describe($desc)
+        };
+        ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
+            V::<M>::real(
+                $name,
+                $vr,
+                |m| m.read_signal(const { signal_group(stringify!($field)) }, |o| o.$field),
+                |m, v| m.signals_mut().$field = v,
+            )
+            .output(&[])
+            .unit($unit)
+            .describe($desc)
+        };
     }
     macro_rules! out_bool {
         ($name:literal, $vr:expr, $field:ident, $desc:literal) => {
@@ -750,8 +729,10 @@ impl BenchSignals for BenchPlantModel {
     fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
         let fresh = self.fresh.get();
         if fresh & group.bit() == 0 {
-            let fresh = self.compute_stale(group, fresh, &mut self.outputs.borrow_mut());
-            self.fresh.set(fresh);
+            if let Some(plant) = &self.plant {
+                plant.fill_outputs(group, &mut self.outputs.borrow_mut());
+            }
+            self.fresh.set(fresh | group.bit());
         }
         read(&self.outputs.borrow())
     }
@@ -906,15 +887,8 @@ macro_rules! unit_of {
 }
 pub(crate) use unit_of;
 
-/// The plant's one declaration: its variables and, from the same lines, where each Real
-/// output is computed and read (by value reference, for [`Model::get_reals`]).
-struct Declaration {
-    variables: Vec<Variable<BenchPlantModel>>,
-    real_outputs: Vec<Option<RealOutputField>>,
-}
-
 // SAFETY: a static (Lazy registers its address for the release at unload).
-static DECLARATION: Lazy<Declaration> = unsafe {
+static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
     Lazy::new(|| {
         type V = Variable<BenchPlantModel>;
         let d = BenchParameters::default();
@@ -1051,20 +1025,8 @@ static DECLARATION: Lazy<Declaration> = unsafe {
         hd_loss_coefficient!(18, 19, 2, 3);
         hd_loss_coefficient!(19, 20, 1, 4);
         hd_loss_coefficient!(20, 21, 0, 5);
-        let mut fields = Vec::new();
-        v.extend(io_declaration::<BenchPlantModel>(&mut fields));
-        let mut real_outputs = Vec::new();
-        for (vr, field) in fields {
-            let vr = vr as usize;
-            if real_outputs.len() <= vr {
-                real_outputs.resize(vr + 1, None);
-            }
-            real_outputs[vr] = Some(field);
-        }
-        Declaration {
-            variables: v,
-            real_outputs,
-        }
+        v.extend(io_variables::<BenchPlantModel>());
+        v
     })
 };
 
@@ -1090,19 +1052,6 @@ impl BenchPlantModel {
         self.outputs_changed();
         self.parameters_changed = false;
         Ok(())
-    }
-
-    /// Computes `group` into `outputs` unless the freshness bits `fresh` have it (before the
-    /// plant is built the outputs keep their values); the new freshness bits.
-    #[inline(always)]
-    fn compute_stale(&self, group: SignalGroup, fresh: u8, outputs: &mut BenchOutputs) -> u8 {
-        if fresh & group.bit() != 0 {
-            return fresh;
-        }
-        if let Some(plant) = &self.plant {
-            plant.fill_outputs(group, outputs);
-        }
-        fresh | group.bit()
     }
 
     /// The plant's state changed: every output is recomputed on its next read.
@@ -1152,7 +1101,7 @@ impl Model for BenchPlantModel {
     const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 5.0, 1e-3);
 
     fn variables() -> &'static [Variable<Self>] {
-        &DECLARATION.variables
+        &VARIABLES
     }
 
     fn enumerations() -> &'static [EnumerationType] {
@@ -1173,42 +1122,6 @@ impl Model for BenchPlantModel {
         }
         // The outputs themselves are computed by group when read (`read_signal`).
         Ok(())
-    }
-
-    /// The outputs are read under one borrow with one freshness word, where each getter
-    /// checks its group's freshness and borrows the outputs itself (same values: the same
-    /// group computations, on the same state, each once). Parameters and inputs are read by
-    /// their getters.
-    fn get_reals(
-        &self,
-        getters: &RealGetters<Self>,
-        vrs: &[u32],
-        out: &mut [f64],
-    ) -> Result<(), UnknownReference> {
-        let fields = &DECLARATION.real_outputs;
-        // One borrow and one freshness word for the whole call. A group is computed at the
-        // first read that needs it, as `read_signal` does; the getters of parameters and
-        // inputs called meanwhile do not touch the outputs (every Real output is in `fields`).
-        let mut outputs = self.outputs.borrow_mut();
-        let mut fresh = self.fresh.get();
-        let mut result = Ok(());
-        for (o, &vr) in out.iter_mut().zip(vrs) {
-            match fields.get(vr as usize) {
-                Some(Some(f)) => {
-                    fresh = self.compute_stale(f.group, fresh, &mut outputs);
-                    *o = (f.read)(&outputs);
-                }
-                _ => match getters.get(vr) {
-                    Some(get) => *o = get(self),
-                    None => {
-                        result = Err(UnknownReference(vr));
-                        break;
-                    }
-                },
-            }
-        }
-        self.fresh.set(fresh);
-        result
     }
 
     /// [`MAX_INTERNAL_STEPS_PER_CALL`](crate::model::MAX_INTERNAL_STEPS_PER_CALL) internal

@@ -218,7 +218,6 @@ pub struct BenchOutputDerivatives {
 /// The parts in which the plant computes its outputs on demand: an importer that reads a few
 /// signals after a step pays only for their part (see [`BenchPlant::fill_outputs`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
 pub enum SignalGroup {
     /// Read off the state: angles, velocities, currents, torques, flags, energies.
     Motion,
@@ -234,10 +233,13 @@ impl SignalGroup {
     pub const ALL: [SignalGroup; 3] =
         [SignalGroup::Motion, SignalGroup::Sensors, SignalGroup::Mode];
 
-    /// A distinct bit per group (for freshness masks): 1, 2, 4 (a shift, not a branch, on
-    /// the batch read's path).
+    /// A distinct bit per group (for freshness masks).
     pub const fn bit(self) -> u8 {
-        1 << self as u8
+        match self {
+            SignalGroup::Motion => 1,
+            SignalGroup::Sensors => 2,
+            SignalGroup::Mode => 4,
+        }
     }
 }
 
