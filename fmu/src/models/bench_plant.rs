@@ -727,14 +727,23 @@ impl BenchSignals for BenchPlantModel {
     /// Computes the group on its first read after a step: reading the two angles costs a few
     /// loads, not the ~80 outputs.
     fn read_signal<T>(&self, group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
-        let fresh = self.fresh.get();
-        if fresh & group.bit() == 0 {
-            if let Some(plant) = &self.plant {
-                plant.fill_outputs(group, &mut self.outputs.borrow_mut());
-            }
-            self.fresh.set(fresh | group.bit());
+        if self.fresh.get() & group.bit() == 0 {
+            self.compute_group(group);
         }
         read(&self.outputs.borrow())
+    }
+}
+
+impl BenchPlantModel {
+    /// Computes the outputs of `group` (once per group and step: out of line, so that a read
+    /// of a fresh group, every other read, is a bit test and a load without a stack frame).
+    #[cold]
+    #[inline(never)]
+    fn compute_group(&self, group: SignalGroup) {
+        if let Some(plant) = &self.plant {
+            plant.fill_outputs(group, &mut self.outputs.borrow_mut());
+        }
+        self.fresh.set(self.fresh.get() | group.bit());
     }
 }
 
