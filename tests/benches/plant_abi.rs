@@ -6,9 +6,11 @@
 //! The baseline, measured in the same run: the same cycle as a plain Rust call loop on the
 //! plant (`BenchPlant::step` and the motion outputs, no FMI), which must give the same angles
 //! bit for bit; "ABI/Rust" is the share the C ABI and the FMU glue add. With
-//! `KNEEBENCH_PLANT_ABI_BASELINE` naming another build's `libkneebench_fmu.so` (e.g. the
-//! previous commit's), that build runs too, interleaved, and must give the same angles bit for
-//! bit; "speed-up" is its wall time over this build's.
+//! `KNEEBENCH_PLANT_ABI_BASELINE` naming another build's `BenchPlant.fmu` (e.g. the previous
+//! commit's `kneebench export`; its own GUID is used, so a build whose model description
+//! changed still serves), or its `libkneebench_fmu.so` (this build's GUID: only while the
+//! description is unchanged), that build runs too, interleaved, and must give the same angles
+//! bit for bit; "speed-up" is its wall time over this build's.
 //!
 //! Run: `cargo bench -p kneebench-tests --bench plant_abi`
 
@@ -48,11 +50,12 @@ fn recorded_inputs() -> Vec<(f64, f64, bool)> {
 
 fn run_cycle(
     f: &Raw,
+    guid: &str,
     configuration: i32,
     internal_step: f64,
     inputs: &[(f64, f64, bool)],
 ) -> (f64, Vec<f64>) {
-    let mut i = RawInstance::new(f, "bench", &guid_of("BenchPlant"));
+    let mut i = RawInstance::new(f, "bench", guid);
     // SAFETY: valid component and arrays.
     unsafe {
         assert_eq!(
@@ -119,10 +122,41 @@ fn run_cycle_in_rust(configuration: Configuration, inputs: &[(f64, f64, bool)]) 
     (t0.elapsed().as_secs_f64(), angles)
 }
 
-/// A previous build of the FMU binary to measure in the same run, interleaved with this one:
-/// `KNEEBENCH_PLANT_ABI_BASELINE=/path/to/libkneebench_fmu.so` (its angles must be this
-/// build's bit for bit).
+/// A previous build to measure in the same run, interleaved with this one:
+/// `KNEEBENCH_PLANT_ABI_BASELINE=/path/to/BenchPlant.fmu` or `.../libkneebench_fmu.so` (its
+/// angles must be this build's bit for bit).
 const BASELINE_VAR: &str = "KNEEBENCH_PLANT_ABI_BASELINE";
+
+/// The baseline build: its binary and the GUID to instantiate it with (the loaded FMU, when
+/// given as one, keeps the extracted binary alive).
+struct Baseline {
+    raw: Raw,
+    guid: String,
+    _fmu: Option<kneebench_harness::Fmu>,
+}
+
+impl Baseline {
+    fn load(path: &Path) -> Self {
+        let is_fmu = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("fmu"));
+        if is_fmu {
+            let fmu = kneebench_harness::Fmu::load(path, &Default::default())
+                .unwrap_or_else(|e| panic!("{BASELINE_VAR}={}: {e}", path.display()));
+            Self {
+                raw: Raw::load(fmu.binary_path()),
+                guid: fmu.model_description().guid.clone(),
+                _fmu: Some(fmu),
+            }
+        } else {
+            Self {
+                raw: Raw::load(path),
+                guid: guid_of("BenchPlant"),
+                _fmu: None,
+            }
+        }
+    }
+}
 
 /// The median of `times`.
 fn median(mut times: Vec<f64>) -> f64 {
@@ -141,7 +175,8 @@ fn main() {
     let plant = fmus.iter().find(|f| f.identifier == "BenchPlant").unwrap();
     let fmu = kneebench_harness::Fmu::load(&plant.path, &Default::default()).unwrap();
     let raw = Raw::load(fmu.binary_path());
-    let baseline = std::env::var_os(BASELINE_VAR).map(|path| Raw::load(Path::new(&path)));
+    let guid = fmu.model_description().guid.clone();
+    let baseline = std::env::var_os(BASELINE_VAR).map(|path| Baseline::load(Path::new(&path)));
     let inputs = recorded_inputs();
     println!(
         "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS}, interleaved)"
@@ -160,11 +195,11 @@ fn main() {
         ("CSEA", Configuration::Csea),
     ] {
         let code = configuration.as_i32();
-        let (_, reference) = run_cycle(&raw, code, 1e-5, &inputs);
+        let (_, reference) = run_cycle(&raw, &guid, code, 1e-5, &inputs);
         let (mut abi, mut rust, mut previous) = (Vec::new(), Vec::new(), Vec::new());
         let mut angles = Vec::new();
         for _ in 0..REPEATS {
-            let (t, a) = run_cycle(&raw, code, 1e-3, &inputs);
+            let (t, a) = run_cycle(&raw, &guid, code, 1e-3, &inputs);
             abi.push(t);
             angles = a;
             let (t, a) = run_cycle_in_rust(configuration, &inputs);
@@ -174,7 +209,7 @@ fn main() {
                 "{name}: the C ABI and the Rust call loop differ"
             );
             if let Some(baseline) = &baseline {
-                let (t, a) = run_cycle(baseline, code, 1e-3, &inputs);
+                let (t, a) = run_cycle(&baseline.raw, &baseline.guid, code, 1e-3, &inputs);
                 previous.push(t);
                 assert!(
                     same_bits(&angles, &a),
