@@ -346,6 +346,7 @@ pub(crate) fn load(
     timeout: Duration,
     binary: &Path,
     preload: &[PathBuf],
+    keep_python_thread_state: bool,
 ) -> Result<(Process, Probe), LoadError> {
     let host_err = |failure| LoadError::Host {
         binary: binary.to_path_buf(),
@@ -358,6 +359,7 @@ pub(crate) fn load(
     for l in preload {
         e.str(&l.to_string_lossy());
     }
+    e.u8(u8::from(keep_python_thread_state));
     p.round_trip(e.finish(), &mut |m| eprintln!("{m}"))
         .map_err(host_err)?;
     let bad = |e: ProtocolError| LoadError::Host {
@@ -698,6 +700,8 @@ pub(crate) struct RemoteFmu {
     pub(crate) timeout: Duration,
     pub(crate) binary: PathBuf,
     pub(crate) preload: Vec<PathBuf>,
+    /// [`PythonThreadState::Kept`](crate::load::PythonThreadState::Kept), passed to each host.
+    pub(crate) keep_python_thread_state: bool,
     pub(crate) probe: Probe,
     pub(crate) spare: Mutex<Option<Process>>,
 }
@@ -708,6 +712,13 @@ impl RemoteFmu {
         if let Some(p) = self.spare.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Ok(p);
         }
-        load(&self.helper, self.timeout, &self.binary, &self.preload).map(|(p, _)| p)
+        load(
+            &self.helper,
+            self.timeout,
+            &self.binary,
+            &self.preload,
+            self.keep_python_thread_state,
+        )
+        .map(|(p, _)| p)
     }
 }
