@@ -16,9 +16,10 @@
 //!
 //! `PythonApi::detect` recognises such a binary when it is loaded: its dynamic symbol table
 //! names `PyGILState_Ensure` (imported, as PythonFMU does, leaving libpython to the host; or
-//! defined, an interpreter linked in), and the six functions below resolve in the binary's own
-//! scope or in the process's global one (a preloaded libpython, or the Python executable that
-//! hosts us). Anything else (no such symbol, an ELF file it cannot read, a missing function)
+//! defined, an interpreter linked in), and the functions it needs (`Py_IsInitialized`,
+//! `PyGILState_{Ensure,Release,Check,GetThisThreadState}`, `PyEval_{Save,Restore}Thread`)
+//! resolve in the binary's own scope or in the process's global one (a preloaded libpython, or
+//! the Python executable that hosts us). Anything else (no such symbol, an ELF file it cannot read, a missing function)
 //! is "no embedded Python": the binary runs as it always did, each call fending for itself.
 //!
 //! Each in-process [`Instance`](crate::Instance) of such a binary, and the isolated host's one
@@ -53,6 +54,10 @@
 //!   cheap.
 //! - **Hold the GIL between calls**: a hold keeps a thread state, not the lock; other threads
 //!   (other workers, the Python caller) run Python freely between this thread's calls.
+//! - **Wait for a GIL its own thread holds**: a hold is not released while its thread holds
+//!   the GIL (`PyGILState_Check`; code on that thread that entered Python with
+//!   `PyGILState_Ensure` and freed an instance there); it goes at the thread's next count or
+//!   free, or its end.
 //!
 //! [`PythonThreadState::PerCall`](crate::load::PythonThreadState::PerCall) turns the
 //! accommodation off (the baseline it is tested against, bit for bit:
@@ -78,6 +83,7 @@ pub(crate) struct PythonApi {
     is_initialized: unsafe extern "C" fn() -> c_int,
     gil_ensure: unsafe extern "C" fn() -> GilState,
     gil_release: unsafe extern "C" fn(GilState),
+    gil_check: unsafe extern "C" fn() -> c_int,
     this_thread_state: unsafe extern "C" fn() -> ThreadState,
     save_thread: unsafe extern "C" fn() -> ThreadState,
     restore_thread: unsafe extern "C" fn(ThreadState),
@@ -125,6 +131,7 @@ impl PythonApi {
                 is_initialized: find(library, &global, b"Py_IsInitialized\0")?,
                 gil_ensure: find(library, &global, b"PyGILState_Ensure\0")?,
                 gil_release: find(library, &global, b"PyGILState_Release\0")?,
+                gil_check: find(library, &global, b"PyGILState_Check\0")?,
                 this_thread_state: find(library, &global, b"PyGILState_GetThisThreadState\0")?,
                 save_thread: find(library, &global, b"PyEval_SaveThread\0")?,
                 restore_thread: find(library, &global, b"PyEval_RestoreThread\0")?,
@@ -229,6 +236,16 @@ struct Hold {
 }
 
 impl Hold {
+    /// Whether it can be released now: not while this thread holds the GIL (through a
+    /// `PyGILState_Ensure` of its own on the kept thread state, say a Rust callback that
+    /// entered Python and dropped an instance there), which `PyEval_RestoreThread` would wait
+    /// for forever. (`PyGILState_Check` answers "yes" whenever it cannot tell, with
+    /// sub-interpreters: the hold is then kept, never a deadlock.)
+    fn releasable(&self) -> bool {
+        // SAFETY: `PyGILState_Check` may be called from any thread, with or without the GIL.
+        unsafe { (self.api.gil_check)() == 0 }
+    }
+
     /// Takes the GIL back and destroys the thread state.
     ///
     /// Called only on the thread that made the hold (holds live in a thread-local), with the
@@ -238,7 +255,7 @@ impl Hold {
         // detached by `PyEval_SaveThread` on this thread, and the interpreter it belongs to
         // is alive: the binaries that would finalize it at unload are in `keep`. Restoring it
         // takes the GIL (waiting for another thread's call to end: never for this thread,
-        // which holds nothing); releasing with the state `PyGILState_Ensure` gave undoes that
+        // which does not hold it, `releasable`); releasing with the state `PyGILState_Ensure` gave undoes that
         // call, and destroys the thread state it created (no other user of it on this thread:
         // a thread state found on a thread is never held).
         unsafe {
@@ -255,22 +272,30 @@ struct Holds(Vec<Hold>);
 impl Drop for Holds {
     fn drop(&mut self) {
         for hold in self.0.drain(..) {
-            hold.release();
+            if hold.releasable() {
+                hold.release();
+            } else {
+                // The thread ends holding the GIL: its thread state cannot be taken back, and
+                // unloading the binary now would finalize the interpreter under it. Both are
+                // left as they are (a leak at the end of a thread, never a deadlock).
+                std::mem::forget(hold);
+            }
         }
     }
 }
 
 thread_local!(static HOLDS: RefCell<Holds> = const { RefCell::new(Holds(Vec::new())) });
 
-/// Releases this thread's holds that no instance is counted on (none while the thread-local
-/// is being destroyed: its destructor releases them all).
+/// Releases this thread's holds that no instance is counted on and that can be released now
+/// ([`Hold::releasable`]; none while the thread-local is being destroyed: its destructor
+/// releases them all).
 fn release_unused() {
     let unused: Vec<Hold> = HOLDS
         .try_with(|holds| {
             let mut holds = holds.borrow_mut();
             let (unused, used) = std::mem::take(&mut holds.0)
                 .into_iter()
-                .partition(|h| h.users.load(Ordering::Acquire) == 0);
+                .partition(|h| h.users.load(Ordering::Acquire) == 0 && h.releasable());
             holds.0 = used;
             unused
         })

@@ -19,8 +19,9 @@
 
 use std::ffi::{c_int, c_void};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::sync::mpsc;
+use std::time::Duration;
 
 use kneebench_harness::master::{Signal, Value};
 use kneebench_harness::ssp::{self, Ssd, SspComponent, SspExperiment, SspSystem};
@@ -45,7 +46,7 @@ fn python_thread_state_kept_gives_the_same_results_as_per_call() {
     let dir = tempfile::tempdir().unwrap();
     pythonfmu::build_first_order(&python(), dir.path()).unwrap();
     let runtime = pythonfmu::runtime(&python()).unwrap();
-    let out = Command::new(std::env::current_exe().unwrap())
+    let child = Command::new(std::env::current_exe().unwrap())
         .args([
             "--ignored",
             "--exact",
@@ -58,8 +59,22 @@ fn python_thread_state_kept_gives_the_same_results_as_per_call() {
         .env("PYTHONHOME", &runtime.home)
         .env("PYTHONNOUSERSITE", "1")
         .env_remove("PYTHONPATH")
-        .output()
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
         .unwrap();
+    // A deadlock is a failure, not a hung suite: the child gets ten minutes (it takes seconds).
+    let pid = child.id();
+    let (done, finished) = mpsc::channel();
+    let watchdog = std::thread::spawn(move || {
+        if finished.recv_timeout(Duration::from_secs(600)).is_err() {
+            // SAFETY: kill(2) of our own child, still unreaped (the main thread is waiting).
+            unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+        }
+    });
+    let out = child.wait_with_output().unwrap();
+    let _ = done.send(());
+    watchdog.join().unwrap();
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
@@ -75,6 +90,8 @@ fn python_thread_state_kept_gives_the_same_results_as_per_call() {
 /// The functions of the child's libpython that tell whether this thread has a thread state.
 struct Probe {
     this_thread_state: unsafe extern "C" fn() -> *mut c_void,
+    gil_ensure: unsafe extern "C" fn() -> c_int,
+    gil_release: unsafe extern "C" fn(c_int),
     is_initialized: unsafe extern "C" fn() -> c_int,
     _lib: libloading::os::unix::Library,
 }
@@ -91,6 +108,8 @@ impl Probe {
             .expect("load libpython globally");
             Probe {
                 this_thread_state: *lib.get(b"PyGILState_GetThisThreadState\0").unwrap(),
+                gil_ensure: *lib.get(b"PyGILState_Ensure\0").unwrap(),
+                gil_release: *lib.get(b"PyGILState_Release\0").unwrap(),
                 is_initialized: *lib.get(b"Py_IsInitialized\0").unwrap(),
                 _lib: lib,
             }
@@ -280,6 +299,19 @@ fn child_keeps_the_python_thread_state() {
     let y_kept = step(&kept, &mut second, 10, 10);
     drop(second);
     assert!(!probe.held(), "not released with the last instance");
+    // An instance freed while its thread holds the GIL (entered Python on the kept thread
+    // state): the thread state cannot be released then (that would wait for the GIL forever);
+    // it is released at the thread's next free once the GIL is let go.
+    let inside = stepped(&kept, "inside", 1);
+    // SAFETY: the interpreter is running; Ensure and Release are paired on this thread.
+    let gil = unsafe { (probe.gil_ensure)() };
+    drop(inside);
+    assert!(probe.held(), "released while this thread held the GIL");
+    unsafe { (probe.gil_release)(gil) };
+    assert!(probe.held(), "the thread state went with the GIL");
+    drop(stepped(&kept, "after", 1));
+    assert!(!probe.held(), "not released at the next free");
+
     let mut plain = stepped(&per_call, "plain", 0);
     let y_plain = step(&per_call, &mut plain, 0, 20);
     assert!(!probe.held(), "a thread state kept per call");
