@@ -17,6 +17,7 @@ use std::fmt;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Arc, Mutex};
 
+use crate::embedded_python::ThreadStateUser;
 use crate::fmi2::*;
 use crate::isolate::remote::{RemoteFail, RemoteInstance};
 use crate::isolate::{HostFailure, *};
@@ -394,6 +395,9 @@ struct Local {
     f: Functions,
     /// Its id in [`crate::inflight`], which names the call in progress.
     id: u32,
+    /// For a binary with an embedded CPython: the calling thread's Python thread state
+    /// ([`crate::embedded_python`]). Dropped after the instance is freed.
+    python: Option<ThreadStateUser>,
     // Boxed so that its address stays fixed: the FMU may keep the pointer.
     _callbacks: Box<fmi2CallbackFunctions>,
     _name_c: CString,
@@ -455,10 +459,17 @@ impl Fmu {
                         messages: ctx.take_recent(),
                     });
                 }
+                let python = self.shared.python.map(|api| {
+                    ThreadStateUser::new(
+                        api,
+                        self.shared.clone() as crate::embedded_python::KeepLoaded,
+                    )
+                });
                 Backend::Local(Local {
                     c,
                     f,
                     id,
+                    python,
                     _callbacks: callbacks,
                     _name_c: name_c,
                 })
@@ -532,7 +543,7 @@ macro_rules! dispatch {
     ($self:ident, $function:expr, $l:ident => $local:expr, ($r:ident, $ctx:ident) => $remote:expr) => {
         match &mut $self.backend {
             Backend::Local($l) => {
-                let _call = crate::inflight::Call::enter($l.id, $function);
+                let _call = $l.enter($function);
                 $local
             }
             Backend::Remote($r) => {
@@ -544,6 +555,18 @@ macro_rules! dispatch {
             }
         }
     };
+}
+
+impl Local {
+    /// Before each FMI call: the calling thread's Python thread state for a binary with an
+    /// embedded CPython, and the call's mark in [`crate::inflight`].
+    #[inline(always)]
+    fn enter(&mut self, function: &'static &'static str) -> crate::inflight::Call {
+        if let Some(p) = &mut self.python {
+            p.enter();
+        }
+        crate::inflight::Call::enter(self.id, function)
+    }
 }
 
 /// A call of the remote instance that sends `op` with `args` and decodes nothing.
@@ -919,7 +942,7 @@ impl Instance {
         }
         let s = match &mut self.backend {
             Backend::Local(l) => {
-                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetReal");
+                let _call = l.enter(&"fmi2SetReal");
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.set_real)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
             }
@@ -945,7 +968,7 @@ impl Instance {
         }
         let s = match &mut self.backend {
             Backend::Local(l) => {
-                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetInteger");
+                let _call = l.enter(&"fmi2SetInteger");
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.set_integer)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
             }
@@ -975,7 +998,7 @@ impl Instance {
         }
         let s = match &mut self.backend {
             Backend::Local(l) => {
-                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetBoolean");
+                let _call = l.enter(&"fmi2SetBoolean");
                 // SAFETY: arrays of the given length.
                 unsafe { (l.f.set_boolean)(l.c, vrs.as_ptr(), vrs.len(), values.as_ptr()) }
             }
@@ -1011,7 +1034,7 @@ impl Instance {
         }
         let s = match &mut self.backend {
             Backend::Local(l) => {
-                let _call = crate::inflight::Call::enter(l.id, &"fmi2SetString");
+                let _call = l.enter(&"fmi2SetString");
                 // SAFETY: arrays of the given length of valid strings.
                 unsafe { (l.f.set_string)(l.c, vrs.as_ptr(), vrs.len(), ptrs.as_ptr()) }
             }
@@ -1372,24 +1395,27 @@ impl Drop for Instance {
     fn drop(&mut self) {
         match &mut self.backend {
             Backend::Local(l) => {
-                let f = &l.f;
+                let f = l.f;
                 // SAFETY: the component is valid; the callbacks and context outlive the free
                 // call.
                 unsafe {
                     match self.phase {
                         Phase::Fatal => {} // no call allowed: leak
                         Phase::Initialization | Phase::StepComplete => {
-                            let _call = crate::inflight::Call::enter(l.id, &"fmi2Terminate");
+                            let _call = l.enter(&"fmi2Terminate");
                             let _ = (f.terminate)(l.c);
                         }
                         _ => {}
                     }
                     if self.phase != Phase::Fatal {
-                        let _call = crate::inflight::Call::enter(l.id, &"fmi2FreeInstance");
+                        let _call = l.enter(&"fmi2FreeInstance");
                         (f.free_instance)(l.c);
                     }
                 }
                 crate::inflight::unregister(l.id);
+                // After fmi2FreeInstance (which still found the thread state): the thread's
+                // Python thread state goes with its last instance.
+                drop(l.python.take());
             }
             // The host terminates (when initialized) and frees its instance when its pipe
             // closes (dropping the process), and leaves it alone after fmi2Fatal.

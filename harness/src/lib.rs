@@ -54,6 +54,7 @@ pub mod fmi2;
 pub mod bench_protocol;
 
 pub mod control;
+pub mod embedded_python;
 pub mod emulator;
 pub mod experiment;
 pub mod identify;
@@ -77,7 +78,9 @@ pub use instance::{
     FmuError, HostError, Instance, InstanceOptions, LogHandler, LogMessage, LogStatus, Status,
 };
 pub use isolate::{HostFailure, HostOptions, Isolation};
-pub use load::{ArchiveBudget, ArchiveLimits, Binaries, Fmu, LoadError, LoadOptions};
+pub use load::{
+    ArchiveBudget, ArchiveLimits, Binaries, Fmu, LoadError, LoadOptions, PythonThreadState,
+};
 pub use master::{
     Algorithm, MasterError, Outcome, RunConfig, RunControl, RunOutput, RunSummary, StopReason,
     System, Value,

@@ -46,7 +46,9 @@
 //! The row "bare C-call loop, Python thread state held" first calls `PyGILState_Ensure` and
 //! `PyEval_SaveThread` on the stepping thread (a thread state kept, the GIL released), which
 //! makes every later `PyGILState_Ensure` of that thread reuse it: the cost a non-Python host
-//! could reach.
+//! can reach. The harness does the same for such a binary (module
+//! `kneebench_harness::embedded_python`, in process and in the isolated host), so its rows are
+//! measured against both bare loops.
 //!
 //! Each engine's last recorded row is compared with the bare C-call loop's (largest relative
 //! difference over the outputs), so that the table compares the same work.

@@ -14,6 +14,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use super::protocol::*;
+use crate::embedded_python::ThreadStateUser;
 use crate::fmi2::*;
 use crate::instance::{LogContext, LogMessage, Phase, callbacks_for};
 use crate::load::{LoadError, LocalBinary};
@@ -22,6 +23,9 @@ use crate::load::{LoadError, LocalBinary};
 struct HostInstance {
     c: fmi2Component,
     phase: Phase,
+    /// For a binary with an embedded CPython: this (the only) thread's Python thread state
+    /// ([`crate::embedded_python`]), released after the instance is freed.
+    python: Option<ThreadStateUser>,
     // Kept alive (and at fixed addresses) for the FMU, which may keep both pointers.
     _callbacks: Box<fmi2CallbackFunctions>,
     _ctx: Box<LogContext>,
@@ -30,8 +34,13 @@ struct HostInstance {
 
 struct Host {
     out: Arc<Mutex<File>>,
-    binary: Option<LocalBinary>,
+    // Dropped before the binary (fields drop in order), even when a bad request ends the host
+    // without `shutdown`: its thread state must go before the interpreter the binary's
+    // unloading finalizes.
     inst: Option<HostInstance>,
+    binary: Option<Arc<LocalBinary>>,
+    /// Whether a binary with an embedded CPython gets a kept Python thread state.
+    keep_python_thread_state: bool,
     reals: Vec<f64>,
     ints: Vec<i32>,
 }
@@ -58,8 +67,9 @@ pub(crate) fn serve() -> io::Result<()> {
     let out = Arc::new(Mutex::new(unsafe { File::from_raw_fd(out_fd) }));
     let mut host = Host {
         out,
-        binary: None,
         inst: None,
+        binary: None,
+        keep_python_thread_state: false,
         reals: Vec::new(),
         ints: Vec::new(),
     };
@@ -126,6 +136,7 @@ impl Host {
             REQ_LOAD => {
                 let binary = PathBuf::from(d.string()?);
                 let preload: Vec<PathBuf> = d.strings()?.into_iter().map(PathBuf::from).collect();
+                self.keep_python_thread_state = d.u8()? != 0;
                 match LocalBinary::open(&binary, &preload) {
                     Ok(b) => {
                         reply.u8(0);
@@ -135,7 +146,7 @@ impl Host {
                         for m in &b.missing_optional {
                             reply.str(m);
                         }
-                        self.binary = Some(b);
+                        self.binary = Some(Arc::new(b));
                     }
                     Err(LoadError::MissingFunction { name }) => {
                         reply.u8(1);
@@ -177,9 +188,17 @@ impl Host {
                 };
                 reply.u8(u8::from(!c.is_null()));
                 if !c.is_null() {
+                    let python = match b.python {
+                        Some(api) if self.keep_python_thread_state => Some(ThreadStateUser::new(
+                            api,
+                            b.clone() as crate::embedded_python::KeepLoaded,
+                        )),
+                        _ => None,
+                    };
                     self.inst = Some(HostInstance {
                         c,
                         phase: Phase::Instantiated,
+                        python,
                         _callbacks: callbacks,
                         _ctx: ctx,
                         _name: name,
@@ -198,6 +217,10 @@ impl Host {
         };
         let f = b.functions;
         let c = inst.c;
+        if let Some(p) = &mut inst.python {
+            // Every call of the batch runs on this thread.
+            p.enter();
+        }
         let n = d.u32()?;
         let count_at = reply.buf.len();
         reply.u32(0);
@@ -438,7 +461,10 @@ impl Host {
     /// Terminates (when initialized) and frees the instance, as dropping an in-process instance
     /// does; after fmi2Fatal the instance is left alone.
     fn shutdown(&mut self) {
-        if let (Some(b), Some(inst)) = (&self.binary, self.inst.take()) {
+        if let (Some(b), Some(mut inst)) = (&self.binary, self.inst.take()) {
+            if let Some(p) = &mut inst.python {
+                p.enter();
+            }
             // SAFETY: the live component of this host; no call after fmi2Fatal.
             unsafe {
                 match inst.phase {
@@ -450,6 +476,7 @@ impl Host {
                 }
                 (b.functions.free_instance)(inst.c);
             }
+            // `inst` (and its Python thread state) goes now, the binary with the host.
         }
     }
 }

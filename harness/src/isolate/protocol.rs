@@ -18,7 +18,8 @@
 
 use std::fmt;
 
-/// Request: load the FMU binary (path, preloaded libraries).
+/// Request: load the FMU binary (path, preloaded libraries, whether a Python thread state is
+/// kept for a binary with an embedded CPython: `u8` 0 or 1).
 pub(crate) const REQ_LOAD: u8 = 1;
 /// Request: `fmi2Instantiate` (name, GUID, resource URI, visible, loggingOn).
 pub(crate) const REQ_INSTANTIATE: u8 = 2;

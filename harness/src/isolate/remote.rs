@@ -32,15 +32,20 @@ use crate::fmi2::fmi2StatusCode;
 use crate::instance::{LogContext, LogMessage, LogStatus};
 use crate::load::{LoadError, OPTIONAL_FUNCTIONS};
 
+/// The reading room of a master's socket buffer (it grows for longer frames).
+const READ_CHUNK: usize = 64 * 1024;
+
 /// A running host process and the socket to it.
 pub(crate) struct Process {
     child: Child,
     /// The master's end of the socket pair (the host has the other end as its standard input
     /// and output); `None` once closed.
     sock: Option<UnixStream>,
-    /// Bytes read and not yet consumed (`rbuf[rpos..]`).
+    /// Bytes read and not yet consumed: `rbuf[rpos..rend]`. The rest of `rbuf` is room for the
+    /// next read, zeroed once when the buffer grows (not per read: a step reads every time).
     rbuf: Vec<u8>,
     rpos: usize,
+    rend: usize,
     /// The payload of the last reply.
     reply: Vec<u8>,
     timeout: Duration,
@@ -115,8 +120,9 @@ impl Process {
         Ok(Process {
             child,
             sock: Some(sock),
-            rbuf: Vec::with_capacity(4096),
+            rbuf: vec![0; READ_CHUNK],
             rpos: 0,
+            rend: 0,
             reply: Vec::new(),
             timeout,
             dead: None,
@@ -212,13 +218,13 @@ impl Process {
         let mut from = self.sock.as_ref().ok_or(Exchange::Closed)?;
         loop {
             // Every complete frame in the buffer.
-            while self.rbuf.len() - self.rpos >= 4 {
+            while self.rend - self.rpos >= 4 {
                 let at = self.rpos;
                 let len = u32::from_le_bytes(self.rbuf[at..at + 4].try_into().expect("4")) as usize;
                 if len == 0 || len > MAX_FRAME {
                     return Err(Exchange::Protocol(format!("a frame of {len} bytes")));
                 }
-                if self.rbuf.len() - at - 4 < len {
+                if self.rend - at - 4 < len {
                     break;
                 }
                 let payload = &self.rbuf[at + 4..at + 4 + len];
@@ -227,9 +233,9 @@ impl Process {
                     FRAME_REPLY => {
                         self.reply.clear();
                         self.reply.extend_from_slice(&payload[1..]);
-                        if self.rpos == self.rbuf.len() {
-                            self.rbuf.clear();
+                        if self.rpos == self.rend {
                             self.rpos = 0;
+                            self.rend = 0;
                         }
                         return Ok(());
                     }
@@ -239,31 +245,28 @@ impl Process {
                     k => return Err(Exchange::Protocol(format!("a frame of kind {k}"))),
                 }
             }
+            // The start of a frame moves to the front; a full buffer grows (a frame is at most
+            // MAX_FRAME bytes, so it grows to at most twice that).
             if self.rpos > 0 {
-                self.rbuf.drain(..self.rpos);
+                self.rbuf.copy_within(self.rpos..self.rend, 0);
+                self.rend -= self.rpos;
                 self.rpos = 0;
             }
-            let old = self.rbuf.len();
-            self.rbuf.resize(old + 64 * 1024, 0);
-            let r = from.read(&mut self.rbuf[old..]);
-            match r {
-                Ok(0) => {
-                    self.rbuf.truncate(old);
-                    return Err(Exchange::Closed);
-                }
-                Ok(n) => self.rbuf.truncate(old + n),
-                Err(e) => {
-                    self.rbuf.truncate(old);
-                    match e.kind() {
-                        io::ErrorKind::WouldBlock => {
-                            if !wait_fd(fd, libc::POLLIN, deadline).map_err(|_| Exchange::Closed)? {
-                                return Err(Exchange::Timeout);
-                            }
-                        }
-                        io::ErrorKind::Interrupted => {}
-                        _ => return Err(Exchange::Closed),
-                    }
-                }
+            if self.rend == self.rbuf.len() {
+                self.rbuf.resize(2 * self.rbuf.len(), 0);
+            }
+            // Wait first: right after a request its answer is not there yet, and a read would
+            // only say so (one system call less per round trip).
+            if !wait_fd(fd, libc::POLLIN, deadline).map_err(|_| Exchange::Closed)? {
+                return Err(Exchange::Timeout);
+            }
+            match from.read(&mut self.rbuf[self.rend..]) {
+                Ok(0) => return Err(Exchange::Closed),
+                Ok(n) => self.rend += n,
+                Err(e) => match e.kind() {
+                    io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted => {}
+                    _ => return Err(Exchange::Closed),
+                },
             }
         }
     }
@@ -346,6 +349,7 @@ pub(crate) fn load(
     timeout: Duration,
     binary: &Path,
     preload: &[PathBuf],
+    keep_python_thread_state: bool,
 ) -> Result<(Process, Probe), LoadError> {
     let host_err = |failure| LoadError::Host {
         binary: binary.to_path_buf(),
@@ -358,6 +362,7 @@ pub(crate) fn load(
     for l in preload {
         e.str(&l.to_string_lossy());
     }
+    e.u8(u8::from(keep_python_thread_state));
     p.round_trip(e.finish(), &mut |m| eprintln!("{m}"))
         .map_err(host_err)?;
     let bad = |e: ProtocolError| LoadError::Host {
@@ -698,6 +703,8 @@ pub(crate) struct RemoteFmu {
     pub(crate) timeout: Duration,
     pub(crate) binary: PathBuf,
     pub(crate) preload: Vec<PathBuf>,
+    /// [`PythonThreadState::Kept`](crate::load::PythonThreadState::Kept), passed to each host.
+    pub(crate) keep_python_thread_state: bool,
     pub(crate) probe: Probe,
     pub(crate) spare: Mutex<Option<Process>>,
 }
@@ -708,6 +715,13 @@ impl RemoteFmu {
         if let Some(p) = self.spare.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Ok(p);
         }
-        load(&self.helper, self.timeout, &self.binary, &self.preload).map(|(p, _)| p)
+        load(
+            &self.helper,
+            self.timeout,
+            &self.binary,
+            &self.preload,
+            self.keep_python_thread_state,
+        )
+        .map(|(p, _)| p)
     }
 }
