@@ -143,12 +143,12 @@ impl Encoder {
         {
             use std::os::fd::AsRawFd;
             let fd = self.writer.inner().get_ref().as_raw_fd();
+            // Its result is not an error of the file: it only starts the write early (a file
+            // system may not support it), and a failed write to the disk is reported by the
+            // `fsync` of `finish` all the same.
             // SAFETY: a plain system call on the file's open descriptor; offset 0 and length
             // 0 mean the whole file.
-            let r = unsafe { libc::sync_file_range(fd, 0, 0, libc::SYNC_FILE_RANGE_WRITE) };
-            if r != 0 {
-                return Err(io_error(&self.partial, io::Error::last_os_error()));
-            }
+            let _ = unsafe { libc::sync_file_range(fd, 0, 0, libc::SYNC_FILE_RANGE_WRITE) };
         }
         Ok(())
     }
