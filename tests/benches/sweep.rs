@@ -20,11 +20,12 @@
 //!   sweep: spec, scenario, loading), reported with what they add per point at [`LARGE`].
 //! - **writers**: the SEA scenario recording every output (about 100 signals) for 10 s at
 //!   1 kHz, run once into memory; then the same rows written by the streamed CSV writer and by
-//!   the Parquet writer, and by both writers as they were before their speed work (kept in
+//!   the Parquet writer (its row groups encoded on its own thread, the default, and in the
+//!   caller's), and by both writers as they were before their speed work (kept in
 //!   `sweep/baseline_writers.rs`), each to its partial file, synced and renamed into place;
-//!   wall time (the durable write a user waits for) and the writer's CPU time (without the wait
-//!   for the disk), each writer's I/O alone (its file's bytes written at once and synced), and
-//!   the ratios. `KNEEBENCH_WRITERS_PROFILE=<writer>|none` writes one file and stops, for
+//!   wall time (the durable write a user waits for) and the process's CPU time, user and
+//!   system (the writer thread's included; without the wait for the disk), each writer's I/O
+//!   alone (its file's bytes written at once and synced), and the ratios. `KNEEBENCH_WRITERS_PROFILE=<writer>|none` writes one file and stops, for
 //!   instruction counts under callgrind (`valgrind --tool=callgrind <bench binary>`, the
 //!   writer's count is the difference with `none`).
 //!
@@ -40,7 +41,7 @@ use kneebench_harness::master::Value;
 use kneebench_harness::package::export_all;
 use kneebench_harness::results::ResultSink;
 use kneebench_harness::results::csv::CsvFile;
-use kneebench_harness::results::parquet::ParquetFile;
+use kneebench_harness::results::parquet::{EncodeOn, ParquetFile};
 use kneebench_harness::sweep::{Prepared, SweepOptions, SweepSpec, run_sweep};
 use kneebench_harness::{LoadOptions, Results, ssp};
 use kneebench_tests::fmu_library;
@@ -194,7 +195,13 @@ fn overhead(dir: &Path, fmus: &Path) {
 }
 
 /// The writers compared by [`writers`], in the order they are run in each repeat.
-const WRITERS: [&str; 4] = ["CSV before", "CSV", "Parquet before", "Parquet"];
+const WRITERS: [&str; 5] = [
+    "CSV before",
+    "CSV",
+    "Parquet before",
+    "Parquet caller",
+    "Parquet",
+];
 
 /// Writes `results` through writer `k` of [`WRITERS`] into `dir` (partial file, sync, rename):
 /// the file's path.
@@ -223,6 +230,13 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
             }
             f.commit().unwrap()
         }
+        3 => {
+            let mut f =
+                ParquetFile::create_encoding_on(&dir.join("caller.parquet"), EncodeOn::Caller)
+                    .unwrap();
+            write(results, &mut f);
+            f.commit().unwrap()
+        }
         _ => {
             let mut f = ParquetFile::create(&dir.join("w.parquet")).unwrap();
             write(results, &mut f);
@@ -231,16 +245,15 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
     }
 }
 
-/// CPU time of this thread so far (user + system), seconds: what a writer costs, without the
-/// wait for the disk (the sync) that the wall time holds.
-fn thread_cpu() -> f64 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes the timespec it is given.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
-    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+/// CPU time of the process so far, (user, system) seconds: what a writer costs, its own
+/// thread's included, without the wait for the disk (the sync) that the wall time holds.
+fn process_cpu() -> (f64, f64) {
+    // SAFETY: getrusage fills the struct it is given; all zeros is a valid value of it.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: as above.
+    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) };
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    (s(u.ru_utime), s(u.ru_stime))
 }
 
 fn writers(dir: &Path, p: &Prepared) {
@@ -255,21 +268,25 @@ fn writers(dir: &Path, p: &Prepared) {
         }
         return;
     }
-    let (mut wall, mut cpu) = ([(); 4].map(|_| Vec::new()), [(); 4].map(|_| Vec::new()));
+    let n = WRITERS.len();
+    let series = || vec![Vec::new(); n];
+    let (mut wall, mut user, mut system) = (series(), series(), series());
     let mut files = Vec::new();
     for _ in 0..REPEATS {
         files.clear();
-        for k in 0..WRITERS.len() {
-            let (t, c) = (Instant::now(), thread_cpu());
+        for k in 0..n {
+            let (t, (u, s)) = (Instant::now(), process_cpu());
             files.push(write_with(k, &results, dir));
-            cpu[k].push(thread_cpu() - c);
+            let (u2, s2) = process_cpu();
             wall[k].push(t.elapsed().as_secs_f64());
+            user[k].push(u2 - u);
+            system[k].push(s2 - s);
         }
     }
     // The file system's share: each file's bytes written at once and synced (every writer
     // syncs its file before renaming it into place).
     let bytes: Vec<Vec<u8>> = files.iter().map(|f| std::fs::read(f).unwrap()).collect();
-    let mut io = [(); 4].map(|_| Vec::new());
+    let mut io = series();
     for _ in 0..REPEATS {
         for (k, b) in bytes.iter().enumerate() {
             let path = dir.join(format!("io{k}"));
@@ -280,35 +297,44 @@ fn writers(dir: &Path, p: &Prepared) {
             io[k].push(t.elapsed().as_secs_f64());
         }
     }
-    let wall = wall.map(median);
-    let cpu = cpu.map(median);
-    let io = io.map(median);
+    let medians = |v: Vec<Vec<f64>>| v.into_iter().map(median).collect::<Vec<f64>>();
+    let (wall, user, system, io) = (medians(wall), medians(user), medians(system), medians(io));
+    let cpu: Vec<f64> = user.iter().zip(&system).map(|(u, s)| u + s).collect();
     println!(
         "writers ({} signals x {} rows; wall time, of which the bytes' write and sync alone; \
-         the writer's CPU time):",
+         the process's CPU time, user + system as the kernel splits it by its tick samples):",
         results.names().len(),
         results.len()
     );
-    for k in 0..WRITERS.len() {
+    for k in 0..n {
         println!(
-            "  {:<15} {:6.1} ms ({:5.1} MB; I/O alone {:5.1} ms), CPU {:5.1} ms",
+            "  {:<15} {:6.1} ms ({:5.1} MB; I/O alone {:5.1} ms), CPU {:5.1} ms ({:4.1} + {:4.1})",
             WRITERS[k],
             wall[k] * 1e3,
             bytes[k].len() as f64 / 1e6,
             io[k] * 1e3,
-            cpu[k] * 1e3
+            cpu[k] * 1e3,
+            user[k] * 1e3,
+            system[k] * 1e3,
         );
     }
     let ratio = |a: usize, b: usize| (wall[a] / wall[b], cpu[a] / cpu[b]);
     for (what, a, b) in [
-        ("Parquet vs CSV", 1, 3),
-        ("Parquet vs CSV before", 0, 3),
+        ("Parquet vs CSV", 1, 4),
+        ("Parquet vs CSV before", 0, 4),
         ("CSV vs CSV before", 0, 1),
-        ("Parquet vs Parquet before", 2, 3),
+        ("Parquet vs Parquet before", 2, 4),
+        ("Parquet vs Parquet caller", 3, 4),
     ] {
         let (w, c) = ratio(a, b);
         println!("  {what:<26} {w:4.2}x faster (CPU time: {c:4.2}x)");
     }
+    // The physical ceiling of "Parquet vs CSV": the CSV writer's wall time over the Parquet
+    // file's bytes alone, written at once and synced (a writer that cost nothing).
+    println!(
+        "  ceiling of Parquet vs CSV (CSV wall / Parquet bytes' I/O alone): {:4.2}x",
+        wall[1] / io[4]
+    );
 }
 
 fn write(results: &Results, sink: &mut dyn ResultSink) {

@@ -6,24 +6,40 @@
 //! and written in row groups of [`ROW_GROUP_ROWS`] rows by the `parquet` crate's column
 //! writer: plain encoding, uncompressed (the values of a recording are mostly full-precision
 //! doubles: Snappy saved a fifth of the bytes and no time in the writers bench), no
-//! dictionary. Statistics (min and max per row group) are kept for `time` only, so that
-//! readers skip row groups by time; the signals' statistics cost a sixth of the writer's own
-//! time and no reader needs them. A Parquet file is readable
-//! once its footer is written: [`ParquetFile::commit`] closes `<output>.partial` and renames it
-//! into place; [`ParquetFile::keep_partial`] closes it where it is, so a failed or stopped
-//! run's partial file is a readable table of the rows so far. A crash of the process leaves a
-//! partial file without a footer (unreadable); the master's periodic flush is not asked for
-//! (one row group per second would fragment the file).
+//! dictionary, one data page per column chunk. Statistics (min and max per row group) are
+//! kept for `time` only, so that readers skip row groups by time; the signals' statistics
+//! cost a sixth of the writer's own time and no reader needs them.
+//!
+//! **Where the encoding runs** ([`EncodeOn`]): by default a full row group is handed to a
+//! thread of the file's own, which encodes and writes it while the run fills the next one
+//! (on two cores the simulation and the writer overlap); [`EncodeOn::Caller`] encodes in the
+//! [`push_row`](ResultSink::push_row) that fills a group. Both write the same bytes (tested).
+//! The handover waits until the thread takes the group (at most one group encoding while one
+//! fills: the memory of two groups), and the emptied buffers come back for the next group. An
+//! error of the thread (a full disk) is returned by the next handover, and by
+//! [`commit`](ParquetFile::commit) or [`keep_partial`](ParquetFile::keep_partial): never
+//! lost; a panic of the thread is an error too.
+//!
+//! A Parquet file is readable once its footer is written: [`ParquetFile::commit`] writes the
+//! last row group and the footer into `<output>.partial`, syncs it and renames it into place;
+//! [`ParquetFile::keep_partial`] closes it where it is, so a failed or stopped run's partial
+//! file is a readable table of the rows so far. A file dropped without either keeps the row
+//! groups written so far without a footer, and a crash of the process leaves a partial file
+//! without a footer (unreadable); the master's periodic flush is not asked for (one row group
+//! per second would fragment the file).
 
 use std::fs::File;
 use std::io::{self, BufWriter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, channel, sync_channel};
+use std::thread::JoinHandle;
 
 use parquet::basic::{Repetition, Type as PhysicalType};
 use parquet::data_type::DoubleType;
+use parquet::errors::ParquetError;
 use parquet::file::metadata::KeyValue;
-use parquet::file::properties::{EnabledStatistics, WriterProperties};
+use parquet::file::properties::{EnabledStatistics, WriterProperties, WriterPropertiesBuilder};
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::ColumnPath;
 use parquet::schema::types::Type;
@@ -39,14 +55,199 @@ use super::{ColumnKind, ResultSink, ResultsError};
 /// buffers instead of 6.6 MB), 36 400 with each column handed over in one batch.
 pub const ROW_GROUP_ROWS: usize = 8192;
 
+/// The file's write buffer: it gathers the small writes (page headers, the footer), and a
+/// page's values, larger, go to the file straight from the encoder's page (a `BufWriter`
+/// copies only what fits in it: with 1 MiB, every page was copied once more on its way).
+const WRITE_BUFFER: usize = 8 << 10;
+
+/// Where a [`ParquetFile`]'s row groups are encoded and written (the same bytes either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum EncodeOn {
+    /// A thread of the file's own, while the caller fills the next row group (the default).
+    #[default]
+    Thread,
+    /// The caller's thread, in the [`push_row`](ResultSink::push_row) that fills a group.
+    Caller,
+}
+
+/// One row group's values: `time`, then one buffer per column.
+type Group = Vec<Vec<f64>>;
+
+/// `columns` empty buffers at their full size (`vec![v; n]` clones, and a clone of an empty
+/// Vec drops its capacity: the buffers would grow by reallocation, row by row).
+fn new_group(columns: usize) -> Group {
+    (0..columns)
+        .map(|_| Vec::with_capacity(ROW_GROUP_ROWS))
+        .collect()
+}
+
+fn io_error(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ResultsError {
+    ResultsError::Io {
+        path: path.to_path_buf(),
+        source: io::Error::other(e),
+    }
+}
+
+/// The error of a write to a file whose writer is closed or failed (`error`: its failure).
+fn done_error(path: &Path, error: Option<String>) -> ResultsError {
+    io_error(
+        path,
+        io::Error::other(match error {
+            Some(e) => format!("an earlier write failed: {e}"),
+            None => "the Parquet file is closed".to_string(),
+        }),
+    )
+}
+
+/// The `parquet` crate's file writer over the partial file: row groups, then the footer.
+struct Encoder {
+    writer: SerializedFileWriter<BufWriter<File>>,
+    partial: PathBuf,
+}
+
+impl Encoder {
+    /// Writes `columns` as one row group (nothing if they are empty) and empties them, their
+    /// capacity kept.
+    fn write_group(&mut self, columns: &mut [Vec<f64>]) -> Result<(), ResultsError> {
+        if columns.first().is_none_or(Vec::is_empty) {
+            return Ok(());
+        }
+        let partial = &self.partial;
+        let err = |e: ParquetError| io_error(partial, e);
+        let mut group = self.writer.next_row_group().map_err(err)?;
+        for values in columns.iter_mut() {
+            let mut col = group.next_column().map_err(err)?.ok_or_else(|| {
+                err(ParquetError::General(
+                    "fewer columns than the schema".into(),
+                ))
+            })?;
+            col.typed::<DoubleType>()
+                .write_batch(values, None, None)
+                .map_err(err)?;
+            col.close().map_err(err)?;
+            values.clear();
+        }
+        group.close().map_err(err)?;
+        self.start_writeback()
+    }
+
+    /// Hands the row groups written so far to the kernel and starts their write to the disk
+    /// without waiting for it, so that the sync of [`finish`](Self::finish) waits only for
+    /// the last ones: the durable write goes on while the run fills the next groups instead
+    /// of all of it after the run (Linux's `sync_file_range`; elsewhere the sync does it all).
+    fn start_writeback(&mut self) -> Result<(), ResultsError> {
+        self.writer
+            .flush()
+            .map_err(|e| io_error(&self.partial, e))?;
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::fd::AsRawFd;
+            let fd = self.writer.inner().get_ref().as_raw_fd();
+            // Its result is not an error of the file: it only starts the write early (a file
+            // system may not support it), and a failed write to the disk is reported by the
+            // `fsync` of `finish` all the same.
+            // SAFETY: a plain system call on the file's open descriptor; offset 0 and length
+            // 0 mean the whole file.
+            let _ = unsafe { libc::sync_file_range(fd, 0, 0, libc::SYNC_FILE_RANGE_WRITE) };
+        }
+        Ok(())
+    }
+
+    /// Writes the footer and syncs the file.
+    fn finish(self) -> Result<(), ResultsError> {
+        let partial = self.partial;
+        let inner = self
+            .writer
+            .into_inner()
+            .map_err(|e| io_error(&partial, e))?;
+        let file = inner
+            .into_inner()
+            .map_err(|e| io_error(&partial, e.into_error()))?;
+        file.sync_all().map_err(|e| io_error(&partial, e))
+    }
+}
+
+/// What the caller hands the writer thread.
+enum Job {
+    /// A full row group to write; its buffers come back emptied.
+    Group(Group),
+    /// The last row group (possibly empty), then the footer and the sync.
+    Finish(Group),
+}
+
+/// The writer thread of [`EncodeOn::Thread`].
+struct Background {
+    jobs: SyncSender<Job>,
+    /// The buffers of written groups, emptied, for the next group to fill.
+    spare: Receiver<Group>,
+    thread: JoinHandle<Result<(), ResultsError>>,
+}
+
+impl Background {
+    fn spawn(mut encoder: Encoder) -> io::Result<Background> {
+        // Rendezvous: a handover waits until the thread takes the group.
+        let (jobs, job_rx) = sync_channel::<Job>(0);
+        let (spare_tx, spare) = channel();
+        let thread = std::thread::Builder::new()
+            .name("parquet-writer".into())
+            .spawn(move || {
+                for job in job_rx {
+                    match job {
+                        Job::Group(mut g) => {
+                            encoder.write_group(&mut g)?;
+                            // The caller may be gone (closing): the buffers are dropped then.
+                            spare_tx.send(g).ok();
+                        }
+                        Job::Finish(mut g) => {
+                            encoder.write_group(&mut g)?;
+                            return encoder.finish();
+                        }
+                    }
+                }
+                // Dropped without being closed: the row groups so far stay written (the
+                // buffered writer flushes as it is dropped), without a footer.
+                Ok(())
+            })?;
+        Ok(Background {
+            jobs,
+            spare,
+            thread,
+        })
+    }
+
+    /// The thread's outcome once it has ended (its error, or a panic as an error).
+    fn join(self, partial: &Path) -> Result<(), ResultsError> {
+        drop(self.jobs);
+        match self.thread.join() {
+            Ok(result) => result,
+            Err(_) => Err(io_error(
+                partial,
+                io::Error::other("the Parquet writer thread panicked"),
+            )),
+        }
+    }
+}
+
+/// Where the row groups go.
+enum Writer {
+    /// [`EncodeOn::Caller`] (boxed: the crate's writer is large, and the file moves).
+    Caller(Box<Encoder>),
+    /// [`EncodeOn::Thread`].
+    Thread(Background),
+    /// Closed, or failed: the error was returned once; later calls get this message.
+    Done(Option<String>),
+}
+
 /// The Parquet file sink (see the [module documentation](self)).
 pub struct ParquetFile {
     path: PathBuf,
     partial: PathBuf,
+    encode_on: EncodeOn,
+    /// The partial file until [`begin`](ResultSink::begin) hands it to the writer.
     file: Option<File>,
-    writer: Option<SerializedFileWriter<BufWriter<File>>>,
-    /// `time`, then one buffer per column.
-    columns: Vec<Vec<f64>>,
+    writer: Option<Writer>,
+    /// The row group being filled: `time`, then one buffer per column.
+    columns: Group,
     metadata: Vec<(String, String)>,
     rows: u64,
 }
@@ -55,6 +256,7 @@ impl std::fmt::Debug for ParquetFile {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ParquetFile")
             .field("path", &self.path)
+            .field("encode_on", &self.encode_on)
             .field("rows", &self.rows)
             .finish()
     }
@@ -62,8 +264,16 @@ impl std::fmt::Debug for ParquetFile {
 
 impl ParquetFile {
     /// Checks the output path and creates `<path>.partial`; nothing is written to `path`
-    /// before [`commit`](Self::commit).
+    /// before [`commit`](Self::commit). Row groups are encoded on a thread of the file's own.
     pub fn create(path: &Path) -> Result<ParquetFile, ResultsError> {
+        ParquetFile::create_encoding_on(path, EncodeOn::default())
+    }
+
+    /// [`create`](Self::create), the row groups encoded where `encode_on` says.
+    pub fn create_encoding_on(
+        path: &Path,
+        encode_on: EncodeOn,
+    ) -> Result<ParquetFile, ResultsError> {
         if path.is_dir() || path.file_name().is_none() {
             return Err(ResultsError::Io {
                 path: path.to_path_buf(),
@@ -78,6 +288,7 @@ impl ParquetFile {
         Ok(ParquetFile {
             path: path.to_path_buf(),
             partial,
+            encode_on,
             file: Some(file),
             writer: None,
             columns: Vec::new(),
@@ -102,87 +313,74 @@ impl ParquetFile {
     }
 
     fn err(&self, e: impl std::error::Error + Send + Sync + 'static) -> ResultsError {
-        ResultsError::Io {
-            path: self.partial.clone(),
-            source: io::Error::other(e),
-        }
+        io_error(&self.partial, e)
     }
 
+    /// Writes the row group filled so far (a full one, in [`push_row`](ResultSink::push_row)).
     fn write_group(&mut self) -> Result<(), ResultsError> {
-        if self.columns.first().is_none_or(Vec::is_empty) {
-            return Ok(());
+        match self.writer.as_mut() {
+            Some(Writer::Caller(encoder)) => {
+                let result = encoder.write_group(&mut self.columns);
+                if let Err(e) = &result {
+                    // The group is lost either way (the file is unusable past a failed
+                    // write): its buffers are emptied as the thread's path leaves them.
+                    self.columns.iter_mut().for_each(Vec::clear);
+                    self.writer = Some(Writer::Done(Some(e.to_string())));
+                }
+                result
+            }
+            Some(Writer::Thread(background)) => {
+                // A written group's buffers, else new ones.
+                let next =
+                    (background.spare.try_recv()).unwrap_or_else(|_| new_group(self.columns.len()));
+                let full = std::mem::replace(&mut self.columns, next);
+                if background.jobs.send(Job::Group(full)).is_ok() {
+                    return Ok(());
+                }
+                // The thread ended: its error.
+                let Some(Writer::Thread(background)) = self.writer.take() else {
+                    unreachable!("matched above")
+                };
+                let result = background.join(&self.partial).and_then(|()| {
+                    Err(self.err(io::Error::other("the Parquet writer thread ended early")))
+                });
+                self.writer = Some(Writer::Done(result.as_ref().err().map(|e| e.to_string())));
+                result
+            }
+            Some(Writer::Done(error)) => Err(done_error(&self.partial, error.clone())),
+            None => Ok(()),
         }
-        let Some(writer) = self.writer.as_mut() else {
-            return Ok(());
-        };
-        let partial = self.partial.clone();
-        let err = |e: parquet::errors::ParquetError| ResultsError::Io {
-            path: partial.clone(),
-            source: io::Error::other(e),
-        };
-        let mut group = writer.next_row_group().map_err(err)?;
-        for values in &mut self.columns {
-            let mut col = group.next_column().map_err(err)?.ok_or_else(|| {
-                err(parquet::errors::ParquetError::General(
-                    "fewer columns than the schema".into(),
-                ))
-            })?;
-            col.typed::<DoubleType>()
-                .write_batch(values, None, None)
-                .map_err(err)?;
-            col.close().map_err(err)?;
-            values.clear();
-        }
-        group.close().map_err(err)?;
-        Ok(())
     }
 
+    /// Writes the last row group and the footer, syncs.
     fn close(&mut self) -> Result<(), ResultsError> {
-        self.write_group()?;
-        if let Some(w) = self.writer.take() {
-            let inner = w.into_inner().map_err(|e| self.err(e))?;
-            let file = inner.into_inner().map_err(|e| self.err(e.into_error()))?;
-            file.sync_all().map_err(|e| self.err(e))?;
-        } else if let Some(f) = self.file.take() {
+        if self.writer.is_none() {
             // No row was ever begun: an empty table of just `time`.
-            self.file = Some(f);
             self.begin(&[], &[])?;
-            return self.close();
         }
-        Ok(())
-    }
-
-    /// Writes the last row group and the footer, syncs, renames into place; returns the path.
-    pub fn commit(mut self) -> Result<PathBuf, ResultsError> {
-        self.close()?;
-        std::fs::rename(&self.partial, &self.path).map_err(|source| ResultsError::Io {
-            path: self.path.clone(),
-            source,
-        })?;
-        Ok(self.path.clone())
-    }
-
-    /// Closes the partial file (readable, with the rows so far) and returns its path.
-    pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
-        self.close()?;
-        Ok(self.partial.clone())
-    }
-}
-
-impl ResultSink for ParquetFile {
-    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
-        if names.len() != kinds.len() {
-            return Err(ResultsError::RowLength {
-                expected: names.len(),
-                got: kinds.len(),
-            });
+        let last = std::mem::take(&mut self.columns);
+        match self.writer.replace(Writer::Done(None)) {
+            Some(Writer::Caller(mut encoder)) => {
+                let mut last = last;
+                encoder.write_group(&mut last)?;
+                encoder.finish()
+            }
+            Some(Writer::Thread(background)) => {
+                // A send fails only if the thread has ended: join reports why.
+                background.jobs.send(Job::Finish(last)).ok();
+                background.join(&self.partial)
+            }
+            Some(Writer::Done(error)) => Err(done_error(&self.partial, error)),
+            None => unreachable!("begun above"),
         }
-        let Some(file) = self.file.take() else {
-            return Err(ResultsError::Io {
-                path: self.partial.clone(),
-                source: io::Error::other("the Parquet file was begun twice"),
-            });
-        };
+    }
+
+    /// The file's schema (`time`, then `names`, float64 each) and properties (the metadata,
+    /// plain encoding, statistics for `time` only), before the settings of speed alone.
+    fn layout(
+        &self,
+        names: &[String],
+    ) -> Result<(Arc<Type>, WriterPropertiesBuilder), ResultsError> {
         let mut fields = Vec::with_capacity(names.len() + 1);
         for n in std::iter::once("time").chain(names.iter().map(String::as_str)) {
             fields.push(Arc::new(
@@ -212,20 +410,73 @@ impl ResultSink for ParquetFile {
             .set_key_value_metadata(Some(kv))
             .set_dictionary_enabled(false)
             .set_statistics_enabled(EnabledStatistics::None)
-            .set_column_statistics_enabled(ColumnPath::from("time"), EnabledStatistics::Chunk)
+            .set_column_statistics_enabled(ColumnPath::from("time"), EnabledStatistics::Chunk);
+        Ok((schema, props))
+    }
+
+    /// Writes the last row group and the footer, syncs, renames into place; returns the path.
+    pub fn commit(mut self) -> Result<PathBuf, ResultsError> {
+        self.close()?;
+        std::fs::rename(&self.partial, &self.path).map_err(|source| ResultsError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        Ok(self.path.clone())
+    }
+
+    /// Closes the partial file (readable, with the rows so far) and returns its path.
+    pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
+        self.close()?;
+        Ok(self.partial.clone())
+    }
+}
+
+impl Drop for ParquetFile {
+    /// Dropped unclosed (a run that failed with an error): the writer thread, if any, writes
+    /// the group it holds and ends, so that nothing writes the file after it is dropped.
+    fn drop(&mut self) {
+        if let Some(Writer::Thread(background)) = self.writer.take() {
+            let _ = background.join(&self.partial);
+        }
+    }
+}
+
+impl ResultSink for ParquetFile {
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        if names.len() != kinds.len() {
+            return Err(ResultsError::RowLength {
+                expected: names.len(),
+                got: kinds.len(),
+            });
+        }
+        let Some(file) = self.file.take() else {
+            return Err(self.err(io::Error::other("the Parquet file was begun twice")));
+        };
+        let (schema, props) = self.layout(names)?;
+        let props = props
+            // A column's values go to its encoder in one piece: in mini-batches (1024 by
+            // default) its buffer grows by doubling, copying the page three more times.
+            .set_write_batch_size(ROW_GROUP_ROWS)
             .build();
         let writer = SerializedFileWriter::new(
-            BufWriter::with_capacity(1 << 20, file),
+            BufWriter::with_capacity(WRITE_BUFFER, file),
             schema,
             Arc::new(props),
         )
         .map_err(|e| self.err(e))?;
-        self.writer = Some(writer);
-        // One buffer each, at its full size now (`vec![v; n]` clones, and a clone of an empty
-        // Vec drops its capacity: the buffers would grow by reallocation, row by row).
-        self.columns = (0..=names.len())
-            .map(|_| Vec::with_capacity(ROW_GROUP_ROWS))
-            .collect();
+        let encoder = Encoder {
+            writer,
+            partial: self.partial.clone(),
+        };
+        self.writer = Some(match self.encode_on {
+            EncodeOn::Caller => Writer::Caller(Box::new(encoder)),
+            EncodeOn::Thread => Writer::Thread(Background::spawn(encoder).map_err(|e| {
+                self.err(io::Error::other(format!(
+                    "starting the Parquet writer thread: {e}"
+                )))
+            })?),
+        });
+        self.columns = new_group(names.len() + 1);
         Ok(())
     }
 
@@ -286,6 +537,223 @@ mod tests {
                 other => panic!("time statistics of row group {i}: {other:?}"),
             }
             assert!(g.column(1).statistics().is_none(), "row group {i}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod thread_tests {
+    use super::*;
+
+    /// Rows whose values cover what a recording holds: NaN, signed zeros, infinities,
+    /// subnormals, whole numbers.
+    fn row(k: usize, columns: usize) -> (f64, Vec<f64>) {
+        let special = [
+            f64::NAN,
+            -0.0,
+            0.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            5e-324,
+        ];
+        let values = (0..columns)
+            .map(|c| match (k + c) % 7 {
+                0 => special[(k / 7 + c) % special.len()],
+                1 => (k * c) as f64,
+                _ => ((k as f64) * 1e-3 + c as f64).sin() * 1e3,
+            })
+            .collect();
+        (k as f64 * 1e-3, values)
+    }
+
+    fn write(path: &Path, encode_on: EncodeOn, rows: usize, columns: usize, commit: bool) {
+        let mut f = ParquetFile::create_encoding_on(path, encode_on).unwrap();
+        f.set_metadata(vec![("kneebench.system".into(), "test".into())]);
+        let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
+        f.begin(&names, &vec![ColumnKind::Real; columns]).unwrap();
+        for k in 0..rows {
+            let (t, v) = row(k, columns);
+            f.push_row(t, &v).unwrap();
+        }
+        if commit {
+            f.commit().unwrap();
+        } else {
+            f.keep_partial().unwrap();
+        }
+    }
+
+    /// The writer thread's file equals the caller's encoding of the same rows byte for byte
+    /// (so every value reads back with the same bits), committed or kept partial, for full row
+    /// groups, a short last one, and no row at all.
+    #[test]
+    fn the_writer_thread_writes_the_callers_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        for (rows, commit) in [
+            (3 * ROW_GROUP_ROWS + 17, true),
+            (2 * ROW_GROUP_ROWS, false),
+            (5, true),
+            (0, true),
+        ] {
+            let thread = dir.path().join("thread.parquet");
+            let caller = dir.path().join("caller.parquet");
+            write(&thread, EncodeOn::Thread, rows, 13, commit);
+            write(&caller, EncodeOn::Caller, rows, 13, commit);
+            let read = |p: &Path| {
+                let p = if commit {
+                    p.to_path_buf()
+                } else {
+                    partial_path(p)
+                };
+                std::fs::read(p).unwrap()
+            };
+            let (a, b) = (read(&thread), read(&caller));
+            assert!(a.len() > 8 && a == b, "{rows} rows, commit {commit}");
+        }
+    }
+
+    /// The plain path: the `parquet` crate's column writer with its default batches, through a
+    /// 1 MiB buffer, in the caller's thread, no early write-back, one sync at the end.
+    fn write_plain(path: &Path, rows: usize, columns: usize) {
+        let mut f = ParquetFile::create(path).unwrap();
+        f.set_metadata(vec![("kneebench.system".into(), "test".into())]);
+        let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
+        let (schema, props) = f.layout(&names).unwrap();
+        let file = File::create(&f.partial).unwrap();
+        let mut w = SerializedFileWriter::new(
+            BufWriter::with_capacity(1 << 20, file),
+            schema,
+            Arc::new(props.build()),
+        )
+        .unwrap();
+        let mut group: Group = vec![Vec::new(); columns + 1];
+        let flush = |group: &mut Group, w: &mut SerializedFileWriter<BufWriter<File>>| {
+            if group[0].is_empty() {
+                return;
+            }
+            let mut g = w.next_row_group().unwrap();
+            for values in group.iter_mut() {
+                let mut col = g.next_column().unwrap().unwrap();
+                col.typed::<DoubleType>()
+                    .write_batch(values, None, None)
+                    .unwrap();
+                col.close().unwrap();
+                values.clear();
+            }
+            g.close().unwrap();
+        };
+        for k in 0..rows {
+            let (t, v) = row(k, columns);
+            group[0].push(t);
+            for (c, x) in group[1..].iter_mut().zip(v) {
+                c.push(x);
+            }
+            if group[0].len() == ROW_GROUP_ROWS {
+                flush(&mut group, &mut w);
+            }
+        }
+        flush(&mut group, &mut w);
+        w.into_inner()
+            .unwrap()
+            .into_inner()
+            .unwrap()
+            .sync_all()
+            .unwrap();
+        std::fs::rename(&f.partial, path).unwrap();
+        // The ParquetFile only lent its path and layout: never begun, nothing to close.
+        f.file = None;
+    }
+
+    /// Both fast paths (one batch per column, the small write buffer, the early write-back,
+    /// the thread) write the plain path's bytes.
+    #[test]
+    fn the_fast_paths_write_the_plain_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        for rows in [2 * ROW_GROUP_ROWS + 1000, 7] {
+            let plain = dir.path().join("plain.parquet");
+            write_plain(&plain, rows, 101);
+            let plain = std::fs::read(&plain).unwrap();
+            for encode_on in [EncodeOn::Thread, EncodeOn::Caller] {
+                let fast = dir.path().join("fast.parquet");
+                write(&fast, encode_on, rows, 101, true);
+                assert!(
+                    std::fs::read(&fast).unwrap() == plain,
+                    "{rows} rows, {encode_on:?}"
+                );
+            }
+        }
+    }
+
+    /// The row groups' values as the `parquet` crate reads them back: every bit of the rows.
+    #[test]
+    fn the_writer_thread_keeps_every_bit() {
+        use parquet::file::reader::{FileReader, SerializedFileReader};
+        use parquet::record::Field;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let rows = ROW_GROUP_ROWS + 3;
+        write(&path, EncodeOn::Thread, rows, 3, true);
+        let reader = SerializedFileReader::new(File::open(&path).unwrap()).unwrap();
+        let mut k = 0;
+        for record in reader.get_row_iter(None).unwrap() {
+            let (t, v) = row(k, 3);
+            let got: Vec<u64> = record
+                .unwrap()
+                .get_column_iter()
+                .map(|(_, f)| match f {
+                    Field::Double(x) => x.to_bits(),
+                    other => panic!("{other:?}"),
+                })
+                .collect();
+            let want: Vec<u64> = std::iter::once(t).chain(v).map(f64::to_bits).collect();
+            assert_eq!(got, want, "row {k}");
+            k += 1;
+        }
+        assert_eq!(k, rows);
+    }
+
+    /// A file whose writes fail (`/dev/full`: no space left) with `columns` columns.
+    fn full_disk(dir: &Path, encode_on: EncodeOn, columns: usize) -> ParquetFile {
+        let mut f = ParquetFile::create_encoding_on(&dir.join("full.parquet"), encode_on).unwrap();
+        f.file = Some(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap(),
+        );
+        let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
+        f.begin(&names, &vec![ColumnKind::Real; columns]).unwrap();
+        f
+    }
+
+    fn assert_no_space(e: &ResultsError) {
+        let text = format!("{e}: {:?}", std::error::Error::source(e));
+        assert!(text.contains("No space left"), "{text}");
+    }
+
+    /// A write that fails on the writer thread is returned by the handover of the next row
+    /// group (the first group's write fails; the caller learns it when it hands over the
+    /// second), in the caller's thread by the push that fills the first; then every later
+    /// call, the commit included, is an error too: never an Ok over lost rows.
+    #[test]
+    fn a_failed_write_is_returned_never_lost() {
+        let dir = tempfile::tempdir().unwrap();
+        for (encode_on, failing_group) in [(EncodeOn::Thread, 2), (EncodeOn::Caller, 1)] {
+            let mut f = full_disk(dir.path(), encode_on, 3);
+            let failing_row = failing_group * ROW_GROUP_ROWS - 1;
+            for k in 0..failing_row {
+                f.push_row(k as f64, &[1.0, 2.0, 3.0]).unwrap();
+            }
+            let e = f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap_err();
+            assert_no_space(&e);
+            f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
+            let later = f.commit().unwrap_err().to_string();
+            assert!(later.contains("an earlier write failed"), "{later}");
+        }
+        // The error of the last group, written by commit, is commit's.
+        for encode_on in [EncodeOn::Thread, EncodeOn::Caller] {
+            let mut f = full_disk(dir.path(), encode_on, 3);
+            f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
+            assert_no_space(&f.keep_partial().unwrap_err());
         }
     }
 }

@@ -1,8 +1,10 @@
 //! The results writers as they were before the writers' speed work (commit 4921f0f), kept
 //! as the bench's baseline so that every speed-up is a ratio measured in the same run: the
 //! CSV writer (ryu, a line buffer copied into a `BufWriter`, integers through `write!`) and
-//! the Parquet writer (per-column `Vec` buffers, the column writer with its defaults:
-//! statistics per page, 1 MiB pages). Both write `<output>.partial`, sync it and rename it
+//! the Parquet writer as it was before its row groups were handed to a thread of their own
+//! and their durable write started as they are written (commit ee9b036: per-column `Vec`
+//! buffers, row groups of 8192 rows, the column writer with statistics for `time` only,
+//! encoding in `push_row`, one sync at the end). Both write `<output>.partial`, sync it and rename it
 //! into place, as the library's writers do.
 
 use std::fs::File;
@@ -14,9 +16,9 @@ use kneebench_harness::results::ColumnKind;
 use kneebench_harness::results::csv::partial_path;
 use parquet::basic::{Repetition, Type as PhysicalType};
 use parquet::data_type::DoubleType;
-use parquet::file::properties::WriterProperties;
+use parquet::file::properties::{EnabledStatistics, WriterProperties};
 use parquet::file::writer::SerializedFileWriter;
-use parquet::schema::types::Type;
+use parquet::schema::types::{ColumnPath, Type};
 
 /// The previous `CsvFile`: `create`, `begin`, `push_row`, `commit`.
 pub struct CsvFile {
@@ -84,9 +86,10 @@ impl CsvFile {
 }
 
 /// Rows per row group of the previous Parquet writer.
-const ROW_GROUP_ROWS: usize = 1 << 16;
+const ROW_GROUP_ROWS: usize = 8192;
 
-/// The previous `ParquetFile`: `create`, `begin`, `push_row`, `commit`.
+/// The previous `ParquetFile` (before its row groups were encoded on a thread of their own and
+/// their durable write started as they are written): `create`, `begin`, `push_row`, `commit`.
 pub struct ParquetFile {
     path: PathBuf,
     partial: PathBuf,
@@ -132,6 +135,8 @@ impl ParquetFile {
         let props = WriterProperties::builder()
             .set_created_by("kneebench baseline".into())
             .set_dictionary_enabled(false)
+            .set_statistics_enabled(EnabledStatistics::None)
+            .set_column_statistics_enabled(ColumnPath::from("time"), EnabledStatistics::Chunk)
             .build();
         self.writer = Some(
             SerializedFileWriter::new(
