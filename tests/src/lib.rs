@@ -102,6 +102,22 @@ pub fn guid_of(identifier: &str) -> String {
         .clone()
 }
 
+/// Asserts that a child process that ran one `#[ignore]`d test of its own test binary succeeded
+/// and that the test really ran (a filter that matches nothing exits 0 as well); the failure
+/// message carries the child's stdout and stderr.
+pub fn assert_child_test_ran(out: &std::process::Output) {
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "the child failed:\n{text}");
+    assert!(
+        text.contains("test result: ok. 1 passed"),
+        "the child test did not run:\n{text}"
+    );
+}
+
 /// Messages collected by the C test logger (layout of `kb_log` in `c/test_logger.c`).
 #[repr(C)]
 pub struct LogBuffer {

@@ -161,16 +161,7 @@ fn pythonfmu_export_runs_in_the_harness_like_in_fmpy() {
         .env_remove("PYTHONPATH")
         .output()
         .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "the child failed:\n{text}");
-    assert!(
-        text.contains("test result: ok. 1 passed"),
-        "the child test did not run:\n{text}"
-    );
+    assert_child_test_ran(&out);
 
     let ours = Results::read_csv_file(dir.path().join("harness.csv")).unwrap();
     assert_same(&ours, &fmpy_default, "library run");

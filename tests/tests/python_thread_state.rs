@@ -75,16 +75,7 @@ fn python_thread_state_kept_gives_the_same_results_as_per_call() {
     let out = child.wait_with_output().unwrap();
     let _ = done.send(());
     watchdog.join().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "the child failed:\n{text}");
-    assert!(
-        text.contains("test result: ok. 1 passed"),
-        "the child test did not run:\n{text}"
-    );
+    assert_child_test_ran(&out);
 }
 
 /// The functions of the child's libpython that tell whether this thread has a thread state.
