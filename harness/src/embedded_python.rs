@@ -328,15 +328,23 @@ impl std::fmt::Debug for ThreadStateUser {
 }
 
 impl ThreadStateUser {
-    /// An instance of a binary with the embedded interpreter `api`, whose binary `keep` keeps
-    /// loaded; not counted anywhere until its first [`enter`](Self::enter).
-    pub(crate) fn new(api: PythonApi, keep: KeepLoaded) -> ThreadStateUser {
-        ThreadStateUser {
+    /// The user for a new instance of a binary with the embedded interpreter `api` (if any),
+    /// whose thread states are kept when `keep_thread_state` (`PythonThreadState::Kept`), and
+    /// which `binary` keeps loaded; `None` when there is nothing to keep. The one rule for
+    /// in-process instances and the host's. Not counted anywhere until its first
+    /// [`enter`](Self::enter).
+    pub(crate) fn for_instance(
+        api: Option<PythonApi>,
+        keep_thread_state: bool,
+        binary: KeepLoaded,
+    ) -> Option<ThreadStateUser> {
+        let api = api.filter(|_| keep_thread_state)?;
+        Some(ThreadStateUser {
             api,
-            keep,
+            keep: binary,
             thread: 0,
             users: None,
-        }
+        })
     }
 
     /// Called before each FMI call of the instance: counts it on the calling thread, with a

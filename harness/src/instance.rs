@@ -459,12 +459,11 @@ impl Fmu {
                         messages: ctx.take_recent(),
                     });
                 }
-                let python = self.shared.python.map(|api| {
-                    ThreadStateUser::new(
-                        api,
-                        self.shared.clone() as crate::embedded_python::KeepLoaded,
-                    )
-                });
+                let python = ThreadStateUser::for_instance(
+                    self.shared.python,
+                    self.shared.keep_python_thread_state,
+                    self.shared.clone() as crate::embedded_python::KeepLoaded,
+                );
                 Backend::Local(Local {
                     c,
                     f,

@@ -893,9 +893,10 @@ pub(crate) struct FmuShared {
     pub(crate) guid: CString,
     pub(crate) source: PathBuf,
     pub(crate) binary: PathBuf,
-    /// The in-process binary's embedded CPython, when its thread states are
-    /// [`PythonThreadState::Kept`].
+    /// The in-process binary's embedded CPython, if it has one.
     pub(crate) python: Option<crate::embedded_python::PythonApi>,
+    /// Whether its thread states are kept ([`PythonThreadState::Kept`]).
+    pub(crate) keep_python_thread_state: bool,
     // Drop order: the binary first, then the directory.
     pub(crate) exec: Exec,
     dir: tempfile::TempDir,
@@ -1058,10 +1059,10 @@ impl Fmu {
             }
             binary
         };
+        let keep = options.python_thread_state == PythonThreadState::Kept;
         let exec = if isolated {
             let helper = crate::isolate::find_helper(options.host.helper.as_deref())?;
             let timeout = options.host.call_timeout;
-            let keep = options.python_thread_state == PythonThreadState::Kept;
             let (process, probe) =
                 crate::isolate::remote::load(&helper, timeout, &binary, &options.preload, keep)?;
             if probe.version != "2.0" {
@@ -1087,8 +1088,8 @@ impl Fmu {
             Exec::Local(local)
         };
         let python = match &exec {
-            Exec::Local(b) if options.python_thread_state == PythonThreadState::Kept => b.python,
-            _ => None,
+            Exec::Local(b) => b.python,
+            Exec::Remote(_) => None,
         };
         let resource_uri =
             CString::new(file_uri(&dir.path().join("resources"))).expect("a path has no NUL byte");
@@ -1102,6 +1103,7 @@ impl Fmu {
                 source: path.to_path_buf(),
                 binary,
                 python,
+                keep_python_thread_state: keep,
                 exec,
                 dir,
             }),

@@ -188,13 +188,11 @@ impl Host {
                 };
                 reply.u8(u8::from(!c.is_null()));
                 if !c.is_null() {
-                    let python = match b.python {
-                        Some(api) if self.keep_python_thread_state => Some(ThreadStateUser::new(
-                            api,
-                            b.clone() as crate::embedded_python::KeepLoaded,
-                        )),
-                        _ => None,
-                    };
+                    let python = ThreadStateUser::for_instance(
+                        b.python,
+                        self.keep_python_thread_state,
+                        b.clone() as crate::embedded_python::KeepLoaded,
+                    );
                     self.inst = Some(HostInstance {
                         c,
                         phase: Phase::Instantiated,
