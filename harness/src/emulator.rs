@@ -250,6 +250,11 @@ pub struct EmulatorStats {
     pub latched_at: Option<f64>,
     /// Frames the emulated link duplicated, reordered or corrupted (both directions).
     pub link_faults_applied: u64,
+    /// The longest wall-clock interval \[s\] between handling two valid frames of the current
+    /// session, measured on the bench's side: how long the master, the link or the serving
+    /// loop itself stalled (the plant is advanced when a frame is handled, so this is also its
+    /// longest step).
+    pub largest_frame_gap: f64,
 }
 
 /// A running emulator thread.
@@ -1080,6 +1085,7 @@ impl Server {
         self.stats.drive_commands_after_safe_request = 0;
         self.stats.plant_trip = None;
         self.stats.plant_time = 0.0;
+        self.stats.largest_frame_gap = 0.0;
         let bench_fault = if self.emergency_stop {
             Some(reason::EMERGENCY_STOP)
         } else if self.driver_fault.contains(&true) {
@@ -1316,7 +1322,10 @@ impl Server {
             return Ok(());
         };
         if let Some(s) = self.session.as_mut() {
-            s.last_valid = Instant::now();
+            let now = Instant::now();
+            let gap = now.duration_since(s.last_valid).as_secs_f64();
+            self.stats.largest_frame_gap = self.stats.largest_frame_gap.max(gap);
+            s.last_valid = now;
             self.stats.last_valid_time = s.last_valid.duration_since(s.origin).as_secs_f64();
         }
         self.act(frame)

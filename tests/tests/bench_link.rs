@@ -146,6 +146,36 @@ fn the_right_key_opens_a_session_and_drives_the_bench() {
     assert_eq!(st.rejected.rejected(), 0);
 }
 
+/// The bench measures a master's stall on its own side: the longest interval between two of
+/// the session's valid frames covers a pause the master made (and no more than the pause
+/// plus the round trips around it), and a new session starts its own measure.
+#[test]
+fn the_bench_measures_the_longest_pause_between_a_masters_frames() {
+    let _rt = one_real_time_test_at_a_time();
+    let emu = emulator_with(|_| {});
+    let mut a = handshake(&emu, &key()).expect("handshake");
+    a.heartbeat();
+    let quick = emu.stats().largest_frame_gap;
+    let pause = Duration::from_millis(40);
+    let before = std::time::Instant::now();
+    std::thread::sleep(pause);
+    a.heartbeat();
+    let bound = before.elapsed().as_secs_f64();
+    let gap = emu.stats().largest_frame_gap;
+    assert!(
+        gap >= pause.as_secs_f64() - 1e-3 && gap <= bound + quick,
+        "gap {gap} s after a pause of {pause:?} (bound {bound} s, before the pause {quick} s)"
+    );
+    a.ask(Payload::SafeState(
+        kneebench_harness::bench_protocol::SafeStateRequest {
+            reason: reason::SESSION_END,
+        },
+    ));
+    let mut b = handshake(&emu, &key()).expect("second session");
+    b.heartbeat();
+    assert!(emu.stats().largest_frame_gap < pause.as_secs_f64() - 1e-3);
+}
+
 #[test]
 fn unauthenticated_wrong_key_replayed_stale_and_second_master_frames_have_no_effect() {
     let _rt = one_real_time_test_at_a_time();

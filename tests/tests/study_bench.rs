@@ -6,6 +6,7 @@
 //! that names no single actuator is refused before anything runs.
 
 use kneebench_harness::Outcome;
+use kneebench_harness::bench_protocol::reason;
 use kneebench_harness::emulator::{EmulatorConfig, spawn};
 use kneebench_harness::master::Value;
 use kneebench_harness::study::{
@@ -70,32 +71,17 @@ fn link(address: std::net::SocketAddr) -> BenchLink {
     }
 }
 
+/// **Disturbed runs.** A host stall of several periods (10 ms ones were seen in CI on a loaded
+/// 2-core machine) can make the emulated bench stop itself (its heartbeat watchdog, or its
+/// protection after the loop lost track) or the knee leave the tolerance for a moment. Such a
+/// run measured its own disturbance (the bench's longest interval between two of the master's
+/// frames above 5 ms, or the watchdog's reason) and is run again on a fresh emulator, at most
+/// three attempts; a run without such a measurement is always asserted on, and so is the
+/// third.
 #[test]
 fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
     let _real_time = one_real_time_test_at_a_time();
-    let mut emulator = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
-    emulator.parameters = plant_parameters(Actuator::Sea);
-    emulator.key = Some(bench_key_file().2.clone());
-    emulator.realtime_priority = Some(50);
-    let emu = spawn(emulator).expect("emulator");
     let out = tempfile::tempdir().unwrap();
-    let on_bench = run_study(&config(
-        out.path(),
-        Some(link(emu.addr())),
-        vec![Actuator::Sea],
-    ))
-    .unwrap();
-    let stats = emu.stop().unwrap();
-    assert_eq!(on_bench.len(), 1);
-    let bench_run = &on_bench[0];
-    assert!(
-        matches!(bench_run.outcome, Outcome::Completed { .. }),
-        "{:?}",
-        bench_run.outcome
-    );
-    assert_eq!(stats.sessions, 1);
-    assert_eq!(stats.rejected.rejected(), 0);
-    assert!(stats.commands_applied as usize >= bench_run.results.len() - 1);
     let simulated = run_study(&config(
         &out.path().join("plant"),
         None,
@@ -103,24 +89,76 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
     ))
     .unwrap();
     let knee = |r: &kneebench_harness::Results| r.column("plant.loadEncoderAngle").unwrap();
-    let (a, b) = (knee(&bench_run.results), knee(&simulated[0].results));
-    assert_eq!(a.len(), b.len());
-    let worst = a
-        .iter()
-        .zip(&b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0f64, f64::max);
+    let planned = knee(&simulated[0].results);
     // The per-row tolerance of a networked loop is derived and asserted in hardware.rs (at
     // most about 0.6 deg with millisecond stalls); here the whole study path must agree within
-    // a degree over two cycles. The energies differ by more than the trajectories: the
-    // hardware computes its powers from encoder-differenced velocities and measured currents,
-    // the plant from its states (printed, not asserted).
-    assert!(worst < 1f64.to_radians(), "{} deg", worst.to_degrees());
+    // a degree over two cycles.
+    let tolerance = 1f64.to_radians();
+    let disturbance = 5e-3;
+    let mut attempt = 0;
+    let (bench_run, stats, worst) = loop {
+        attempt += 1;
+        let mut emulator = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
+        emulator.parameters = plant_parameters(Actuator::Sea);
+        emulator.key = Some(bench_key_file().2.clone());
+        emulator.realtime_priority = Some(50);
+        let emu = spawn(emulator).expect("emulator");
+        let mut on_bench = run_study(&config(
+            &out.path().join(format!("bench-{attempt}")),
+            Some(link(emu.addr())),
+            vec![Actuator::Sea],
+        ))
+        .unwrap();
+        let stats = emu.stop().unwrap();
+        assert_eq!(on_bench.len(), 1);
+        let bench_run = on_bench.remove(0);
+        let completed = matches!(bench_run.outcome, Outcome::Completed { .. });
+        let measured = knee(&bench_run.results);
+        let worst = measured
+            .iter()
+            .zip(&planned)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f64, f64::max);
+        let disturbed = stats.largest_frame_gap > disturbance
+            || matches!(stats.safe_reason, Some(r) if r == reason::HEARTBEAT_TIMEOUT);
+        if (completed && worst < tolerance) || !disturbed || attempt == 3 {
+            assert!(
+                completed,
+                "attempt {attempt}: {:?} (longest frame gap {:.0} us, bench safe reason {:?}, plant trip {:?})",
+                bench_run.outcome,
+                stats.largest_frame_gap * 1e6,
+                stats.safe_reason,
+                stats.plant_trip
+            );
+            assert_eq!(measured.len(), planned.len());
+            break (bench_run, stats, worst);
+        }
+        eprintln!(
+            "attempt {attempt} disturbed by the host (longest frame gap {:.0} us, bench safe reason {:?}, knee off by up to {:.2} deg): {:?}; run again",
+            stats.largest_frame_gap * 1e6,
+            stats.safe_reason,
+            worst.to_degrees(),
+            bench_run.outcome
+        );
+    };
+    assert_eq!(stats.sessions, 1);
+    assert_eq!(stats.rejected.rejected(), 0);
+    assert!(stats.commands_applied as usize >= bench_run.results.len() - 1);
+    assert!(
+        worst < tolerance,
+        "attempt {attempt} (longest frame gap {:.0} us): knee off by up to {} deg",
+        stats.largest_frame_gap * 1e6,
+        worst.to_degrees()
+    );
+    // The energies differ by more than the trajectories: the hardware computes its powers from
+    // encoder-differenced velocities and measured currents, the plant from its states
+    // (printed, not asserted).
     let energy = |r: &kneebench_harness::study::StudyRun| r.report.energy.test_mechanical;
     eprintln!(
-        "knee angle: worst difference {:.3} deg; test-motor mechanical energy per cycle: bench {:.2} J, plant {:.2} J",
+        "attempt {attempt} (longest frame gap {:.0} us): knee angle: worst difference {:.3} deg; test-motor mechanical energy per cycle: bench {:.2} J, plant {:.2} J",
+        stats.largest_frame_gap * 1e6,
         worst.to_degrees(),
-        energy(bench_run),
+        energy(&bench_run),
         energy(&simulated[0])
     );
 }
