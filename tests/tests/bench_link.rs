@@ -147,33 +147,39 @@ fn the_right_key_opens_a_session_and_drives_the_bench() {
 }
 
 /// The bench measures a master's stall on its own side: the longest interval between two of
-/// the session's valid frames covers a pause the master made (and no more than the pause
-/// plus the round trips around it), and a new session starts its own measure.
+/// the session's valid frames covers a pause the master made between two frames, and lies
+/// within the master's own clock around the whole session; a new session starts its own
+/// measure. (Both bounds hold however the host schedules the test.)
 #[test]
 fn the_bench_measures_the_longest_pause_between_a_masters_frames() {
     let _rt = one_real_time_test_at_a_time();
     let emu = emulator_with(|_| {});
-    let mut a = handshake(&emu, &key()).expect("handshake");
-    a.heartbeat();
-    let quick = emu.stats().largest_frame_gap;
     let pause = Duration::from_millis(40);
     let before = std::time::Instant::now();
+    let mut a = handshake(&emu, &key()).expect("handshake");
+    a.heartbeat();
     std::thread::sleep(pause);
     a.heartbeat();
     let bound = before.elapsed().as_secs_f64();
     let gap = emu.stats().largest_frame_gap;
     assert!(
-        gap >= pause.as_secs_f64() - 1e-3 && gap <= bound + quick,
-        "gap {gap} s after a pause of {pause:?} (bound {bound} s, before the pause {quick} s)"
+        gap >= pause.as_secs_f64() - 1e-3 && gap <= bound,
+        "gap {gap} s after a pause of {pause:?} (the session lasted at most {bound} s)"
     );
     a.ask(Payload::SafeState(
         kneebench_harness::bench_protocol::SafeStateRequest {
             reason: reason::SESSION_END,
         },
     ));
+    let before = std::time::Instant::now();
     let mut b = handshake(&emu, &key()).expect("second session");
     b.heartbeat();
-    assert!(emu.stats().largest_frame_gap < pause.as_secs_f64() - 1e-3);
+    let bound = before.elapsed().as_secs_f64();
+    let second = emu.stats().largest_frame_gap;
+    assert!(
+        second <= bound,
+        "the second session's gap {second} s (it lasted at most {bound} s; the first's {gap} s)"
+    );
 }
 
 #[test]
@@ -549,78 +555,112 @@ fn bench_hardware_acknowledges_a_latch_only_when_told_to() {
 /// by 1.1 x and 5 x it trip the link watchdog (code 8) at the step they belong to. With a
 /// receive timeout rounded up to the kernel's tick (the previous implementation: 5 ms is two
 /// ticks of 4 ms at 250 Hz, i.e. 8 ms) the 1.1 x reply was accepted.
+///
+/// **Disturbed runs.** A host stall can only add delay: a trip where none is due (another
+/// step, or the 0.5 x reply) may be the host's and that case is run again on a fresh emulator,
+/// at most three attempts (a timeout that is really too short trips every time); a missing
+/// or misplaced trip where one is due fails at once.
 #[test]
 fn the_reply_timeout_holds_whatever_the_kernel_tick() {
     let _rt = one_real_time_test_at_a_time();
     let timeout = 0.005;
+    let k = 20;
     for (factor, trips) in [(0.5, false), (1.1, true), (5.0, true)] {
-        let emu = emulator_with(|_| {});
-        let (fmu, mut i) = hardware(&emu, |f, i| {
-            let vr = f.variable("replyTimeout").unwrap().value_reference;
-            i.set_real(&[vr], &[timeout]).unwrap();
-        })
-        .expect("init");
-        let code_vr = fmu.variable("tripCode").unwrap().value_reference;
-        let k = 20;
-        let mut outcome = None;
-        for step in 0..40 {
-            if step == k {
-                emu.inject(FaultInjection::DelayReplies {
-                    count: 1,
-                    delay_s: factor * timeout,
-                })
-                .unwrap();
-            }
-            match i.do_step(step as f64 * H, H) {
-                Ok(Status::Ok | Status::Warning) => {}
-                other => {
-                    let mut code = [0];
-                    i.get_integer(&[code_vr], &mut code).unwrap();
-                    outcome = Some((step, code[0], format!("{other:?}")));
-                    break;
+        for attempt in 1..=3 {
+            let emu = emulator_with(|c| c.realtime_priority = Some(50));
+            let (fmu, mut i) = hardware(&emu, |f, i| {
+                let vr = f.variable("replyTimeout").unwrap().value_reference;
+                i.set_real(&[vr], &[timeout]).unwrap();
+            })
+            .expect("init");
+            let code_vr = fmu.variable("tripCode").unwrap().value_reference;
+            let mut outcome = None;
+            for step in 0..40 {
+                if step == k {
+                    emu.inject(FaultInjection::DelayReplies {
+                        count: 1,
+                        delay_s: factor * timeout,
+                    })
+                    .unwrap();
+                }
+                match i.do_step(step as f64 * H, H) {
+                    Ok(Status::Ok | Status::Warning) => {}
+                    other => {
+                        let mut code = [0];
+                        i.get_integer(&[code_vr], &mut code).unwrap();
+                        outcome = Some((step, code[0], format!("{other:?}")));
+                        break;
+                    }
                 }
             }
-        }
-        match (trips, outcome) {
-            (false, None) => {}
-            (true, Some((step, code, _))) => {
-                assert_eq!((step, code), (k, 8), "{factor} x");
+            match (trips, outcome) {
+                (false, None) => {}
+                (true, Some((step, code, _))) if (step, code) == (k, 8) => {}
+                (true, Some((step, code, _))) if step < k && code == 8 && attempt < 3 => {
+                    eprintln!(
+                        "{factor} x, attempt {attempt}: a link trip at step {step}, before the delayed reply (a host stall); run again"
+                    );
+                    continue;
+                }
+                (false, Some((step, 8, _))) if attempt < 3 => {
+                    eprintln!(
+                        "{factor} x, attempt {attempt}: a link trip at step {step} where none is due (a host stall?); run again"
+                    );
+                    continue;
+                }
+                (_, got) => panic!("{factor} x the reply timeout, attempt {attempt}: {got:?}"),
             }
-            (_, got) => panic!("{factor} x the reply timeout: {got:?}"),
+            assert_eq!(emu.stats().replies_dropped, 1, "{factor} x");
+            break;
         }
-        assert_eq!(emu.stats().replies_dropped, 1, "{factor} x");
     }
 }
 
 /// The server's watchdog is kept to its configured value: silences of 0.5 x the heartbeat
 /// timeout do not trip it, 1.1 x and 5 x do.
+///
+/// **Disturbed runs.** A host stall can only lengthen a silence: a trip at 0.5 x may be the
+/// host's and is run again on a fresh emulator, at most three attempts; a missing trip at
+/// 1.1 x or 5 x fails at once.
 #[test]
 fn the_server_watchdog_holds_whatever_the_kernel_tick() {
     let _rt = one_real_time_test_at_a_time();
     let timeout = Duration::from_millis(20);
     for (factor, trips) in [(0.5, false), (1.1, true), (5.0, true)] {
-        let emu = emulator_with(|c| c.heartbeat_timeout = timeout);
-        let mut a = handshake(&emu, &key()).expect("handshake");
-        a.send(Payload::Command(DRIVE));
-        a.heartbeat();
-        let gap = timeout.mul_f64(factor);
-        for _ in 0..5 {
-            let next = Instant::now() + gap;
-            while Instant::now() < next {
-                std::thread::sleep(Duration::from_micros(200));
+        for attempt in 1..=3 {
+            let emu = emulator_with(|c| {
+                c.heartbeat_timeout = timeout;
+                c.realtime_priority = Some(50);
+            });
+            let mut a = handshake(&emu, &key()).expect("handshake");
+            a.send(Payload::Command(DRIVE));
+            a.heartbeat();
+            let gap = timeout.mul_f64(factor);
+            for _ in 0..5 {
+                let next = Instant::now() + gap;
+                while Instant::now() < next {
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                let s = a.heartbeat();
+                if s.has(status::SAFE_STATE) {
+                    break;
+                }
             }
-            let s = a.heartbeat();
-            if s.has(status::SAFE_STATE) {
-                break;
+            let s = emu.stats();
+            if trips {
+                assert_eq!(s.safe_reason, Some(reason::HEARTBEAT_TIMEOUT), "{factor} x");
+                assert!(!outputs_driven(&s), "{factor} x");
+            } else if s.safe_reason == Some(reason::HEARTBEAT_TIMEOUT) && attempt < 3 {
+                eprintln!(
+                    "{factor} x, attempt {attempt}: the watchdog tripped (longest frame gap {:.1} ms: a host stall?); run again",
+                    s.largest_frame_gap * 1e3
+                );
+                continue;
+            } else {
+                assert_eq!(s.safe_reason, None, "{factor} x, attempt {attempt}");
+                assert_eq!(s.outputs, Some(DRIVE), "{factor} x");
             }
-        }
-        let s = emu.stats();
-        if trips {
-            assert_eq!(s.safe_reason, Some(reason::HEARTBEAT_TIMEOUT), "{factor} x");
-            assert!(!outputs_driven(&s), "{factor} x");
-        } else {
-            assert_eq!(s.safe_reason, None, "{factor} x");
-            assert_eq!(s.outputs, Some(DRIVE), "{factor} x");
+            break;
         }
     }
 }
@@ -630,10 +670,29 @@ fn the_server_watchdog_holds_whatever_the_kernel_tick() {
 /// replays of an earlier session's frames. No frame of it reaches the drivers, the run
 /// completes without a trip (the legitimate frames keep their deadlines), and the refusals
 /// are counted and logged at most once a second.
+///
+/// **Disturbed runs.** The emulator serves at real-time priority where permitted, but a loaded
+/// 2-core host can still hold a reply past the 20 ms reply timeout (seen once, with the suite
+/// and two builds running): a run ended by the link interlock (trip code 8) is run again on a
+/// fresh emulator, at most three attempts. Any other end, and a third link trip, fails the
+/// test: a flood that kept the legitimate frames from their deadlines would trip every time.
 #[test]
 fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
     let _rt = one_real_time_test_at_a_time();
-    let emu = emulator_with(|_| {});
+    for attempt in 1..=3 {
+        match flood_run() {
+            Ok(()) => return,
+            Err(e) if attempt < 3 => eprintln!("attempt {attempt}: {e}; run again"),
+            Err(e) => panic!("attempt {attempt}: {e}"),
+        }
+    }
+}
+
+/// One run of [`a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers`]: `Err` for a
+/// link trip (a host stall or a flood that kept a reply from its deadline), a panic for any
+/// other failure.
+fn flood_run() -> Result<(), String> {
+    let emu = emulator_with(|c| c.realtime_priority = Some(50));
     // An earlier session, recorded for replay.
     let mut old = handshake(&emu, &key()).expect("handshake");
     let mut recorded = Vec::new();
@@ -731,7 +790,12 @@ fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
                 let mut code = [0];
                 let _ = i.get_integer(&[code_vr], &mut code);
                 stop.store(true, std::sync::atomic::Ordering::Relaxed);
-                panic!("step {k}: {other:?}, trip code {}", code[0]);
+                let _ = flood.join();
+                let what = format!("step {k}: {other:?}, trip code {}", code[0]);
+                if code[0] == kneebench_fmu::models::bench_hardware::trip::LINK {
+                    return Err(what);
+                }
+                panic!("{what}");
             }
         }
     }
@@ -758,6 +822,7 @@ fn a_flood_of_junk_does_not_trip_the_watchdog_or_reach_the_drivers() {
     assert_eq!(s.safe_reason, None);
     assert!(s.rejected.rejected() + s.foreign_frames > sent / 2, "{s:?}");
     assert!(s.log_lines <= 4, "{s:?}");
+    Ok(())
 }
 
 /// The emulator serves the bench plant only: another model (whose value references the

@@ -67,6 +67,9 @@ fn link(address: std::net::SocketAddr) -> BenchLink {
             ("tareSamples".into(), "0".into()),
             // Generous for a loaded test machine (the watchdog is tested in bench_link.rs).
             ("replyTimeout".into(), "0.02".into()),
+            // The master's stepping thread in SCHED_FIFO where permitted (else a warning), as
+            // the emulated bench: a loaded test machine then holds the loop up far less.
+            ("realtimePriority".into(), "50".into()),
         ],
     }
 }
