@@ -242,7 +242,7 @@ fn child_runs_the_pythonfmu_export() {
     // `kneebench validate` reports: `run` refuses it (usage error) unless `--force`.
     let inputs = dir.join("inputs.csv");
     let cli_out = dir.join("cli.csv");
-    let run = |force: bool| {
+    let run = |force: bool, extra: &[&str]| {
         let mut args: Vec<&std::ffi::OsStr> = vec![
             "kneebench".as_ref(),
             "run".as_ref(),
@@ -260,10 +260,29 @@ fn child_runs_the_pythonfmu_export() {
         if force {
             args.push("--force".as_ref());
         }
+        args.extend(extra.iter().map(std::ffi::OsStr::new));
         cli::dispatch(cli::Cli::try_parse_from(args).unwrap()).unwrap()
     };
-    assert_eq!(run(false), cli::EXIT_USAGE);
+    assert_eq!(run(false, &[]), cli::EXIT_USAGE);
     assert!(!cli_out.exists());
-    assert_eq!(run(true), cli::EXIT_OK);
+    assert_eq!(run(true, &[]), cli::EXIT_OK);
+    // `--python-thread-state per-call` (the binary's own behaviour) gives the same file as the
+    // default (a thread state kept), in the host process and in this one.
+    let kept = std::fs::read(&cli_out).unwrap();
+    for isolate in ["auto", "never"] {
+        let extra = ["--python-thread-state", "per-call", "--isolate", isolate];
+        assert_eq!(run(true, &extra), cli::EXIT_OK, "{extra:?}");
+        assert!(std::fs::read(&cli_out).unwrap() == kept, "{extra:?}");
+    }
+    let e = cli::Cli::try_parse_from([
+        "kneebench",
+        "run",
+        "x.fmu",
+        "--python-thread-state",
+        "sometimes",
+    ])
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("'sometimes'") && e.contains("per-call"), "{e}");
     drop(fmu);
 }

@@ -11,8 +11,8 @@ use kneebench_harness::master::{Signal, VarType};
 use kneebench_harness::num::Num;
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
-    Algorithm, Fmu, InstanceOptions, Isolation, LoadOptions, MasterError, Outcome, Results,
-    RunConfig, RunControl, StopReason, System, ssp,
+    Algorithm, Fmu, InstanceOptions, Isolation, LoadOptions, MasterError, Outcome,
+    PythonThreadState, Results, RunConfig, RunControl, StopReason, System, ssp,
 };
 use model_description::{Causality, Variability};
 
@@ -34,6 +34,16 @@ pub enum IsolateArg {
     Always,
     /// Every FMU in kneebench's own process.
     Never,
+}
+
+/// How FMUs with an embedded Python get their Python thread state, as a command-line value
+/// ([`PythonThreadState`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PythonThreadStateArg {
+    /// One per calling thread, kept while that thread's instances of the binary live.
+    Kept,
+    /// The binary's own behaviour: each FMI call makes one and destroys it again.
+    PerCall,
 }
 
 /// Arguments of `kneebench run`.
@@ -145,6 +155,12 @@ pub struct Args {
     /// or `never`.
     #[arg(long, value_enum, default_value = "auto")]
     pub isolate: IsolateArg,
+    /// FMUs with an embedded Python (PythonFMU exports): `kept` gives each thread that calls
+    /// one a Python thread state kept between calls (about ten times cheaper per call),
+    /// `per-call` leaves the binary to make one in every call, as it does by itself. Other
+    /// FMUs are not affected.
+    #[arg(long, value_enum, default_value = "kept")]
+    pub python_thread_state: PythonThreadStateArg,
     /// Print every FMU log message (default: warnings and errors).
     #[arg(long, short)]
     pub verbose: bool,
@@ -185,6 +201,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             IsolateArg::Auto => Isolation::Auto,
             IsolateArg::Always => Isolation::Process,
             IsolateArg::Never => Isolation::InProcess,
+        },
+        python_thread_state: match a.python_thread_state {
+            PythonThreadStateArg::Kept => PythonThreadState::Kept,
+            PythonThreadStateArg::PerCall => PythonThreadState::PerCall,
         },
         ..LoadOptions::default()
     };
