@@ -452,7 +452,9 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
     };
     let mut extracted = Vec::new();
     let mut left: Vec<(PathBuf, usize)> = Vec::new();
-    let mut left_names = std::collections::HashSet::new();
+    // Every file's path, extracted or left: a second entry of one path is refused (an
+    // extracted file is also opened with `create_new`, so nothing is ever overwritten).
+    let mut files = std::collections::HashSet::new();
     for i in 0..zip.len() {
         let mut entry = zip.by_index(i).map_err(zip_err(None))?;
         let name = String::from_utf8_lossy(entry.name_raw()).into_owned();
@@ -479,11 +481,11 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
                 limit: limits.max_entry_bytes,
             });
         }
+        if !files.insert(rel.clone()) {
+            return Err(LoadError::DuplicateEntry { entry: name });
+        }
         if !wanted(&rel) {
             // Left in the archive: checked like the others, counted at its declared size.
-            if !left_names.insert(rel.clone()) {
-                return Err(LoadError::DuplicateEntry { entry: name });
-            }
             let total = budget.bytes.fetch_add(entry.size(), Ordering::Relaxed) + entry.size();
             if total > limits.max_total_bytes {
                 return Err(LoadError::TotalTooLarge {
@@ -552,12 +554,6 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
         budget.bytes.fetch_add(copied, Ordering::Relaxed);
         extracted.push(rel);
     }
-    // A file left in the archive under the path of an extracted one is a duplicate too.
-    if let Some((rel, _)) = left.iter().find(|(rel, _)| extracted.contains(rel)) {
-        return Err(LoadError::DuplicateEntry {
-            entry: rel.to_string_lossy().into_owned(),
-        });
-    }
     Ok(Extracted { extracted, left })
 }
 
@@ -591,6 +587,21 @@ pub(crate) fn read_declared<R: Read + io::Seek>(
         )));
     }
     Ok(bytes)
+}
+
+/// Extracts entry `index` of `zip` (left in the archive by [`extract_entries`]) to `target`,
+/// checked as [`read_declared`] checks it, creating the directories on the way.
+pub(crate) fn extract_declared<R: Read + io::Seek>(
+    zip: &mut zip::ZipArchive<R>,
+    archive: &Path,
+    index: usize,
+    target: &Path,
+) -> Result<(), LoadError> {
+    let bytes = read_declared(zip, archive, index)?;
+    if let Some(parent) = target.parent() {
+        fs::create_dir_all(parent).map_err(io_err("cannot create directory", parent))?;
+    }
+    fs::write(target, bytes).map_err(io_err("cannot extract to", target))
 }
 
 fn copy_bounded(r: &mut impl Read, w: &mut impl Write, max: u64) -> io::Result<u64> {
@@ -1043,13 +1054,8 @@ impl Fmu {
                 p
             } else {
                 // Its own copy, in the FMU's directory as the plain path puts it.
-                let bytes = read_declared(&mut zip, path, index)?;
                 let binary = dir.path().join(&rel_path);
-                if let Some(parent) = binary.parent() {
-                    fs::create_dir_all(parent)
-                        .map_err(io_err("cannot create directory", parent))?;
-                }
-                fs::write(&binary, bytes).map_err(io_err("cannot extract to", &binary))?;
+                extract_declared(&mut zip, path, index, &binary)?;
                 binary
             }
         } else {

@@ -1103,18 +1103,8 @@ fn read_file_for_run(path: &Path, budget: &ArchiveBudget) -> Result<ForRun, SspE
             }
             None => {
                 // Compressed: extracted like the rest (its declared size already counted).
-                let bytes =
-                    crate::load::read_declared(&mut zip, path, index).map_err(extracting)?;
-                if let Some(parent) = target.parent() {
-                    std::fs::create_dir_all(parent).map_err(|source| SspError::Io {
-                        path: parent.to_path_buf(),
-                        source,
-                    })?;
-                }
-                std::fs::write(&target, bytes).map_err(|source| SspError::Io {
-                    path: target.clone(),
-                    source,
-                })?;
+                crate::load::extract_declared(&mut zip, path, index, &target)
+                    .map_err(extracting)?;
             }
         }
     }

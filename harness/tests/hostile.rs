@@ -275,6 +275,23 @@ fn entries_left_in_the_archive_are_checked_like_extracted_ones() {
     });
     let e = load_err(&dup);
     assert!(matches!(e, LoadError::DuplicateEntry { .. }), "{e}");
+    // The same for extracted entries: a second `resources/` file of one path is refused, not
+    // written over the first.
+    let dup_extracted = d.path().join("dup-resources.fmu");
+    archive(&dup_extracted, |z| {
+        for (name, text) in [
+            ("resources/a.txt", b"first"),
+            ("resources/./a.txt", b"other"),
+        ] {
+            z.start_file(name, opts()).unwrap();
+            z.write_all(text).unwrap();
+        }
+    });
+    let e = load_err(&dup_extracted);
+    assert!(
+        matches!(&e, LoadError::DuplicateEntry { entry } if entry == "resources/./a.txt"),
+        "{e}"
+    );
 
     let dotdot = d.path().join("dotdot-doc.fmu");
     archive(&dotdot, |z| {
