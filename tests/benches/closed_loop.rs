@@ -43,6 +43,15 @@
 //! below): 9640 at 3694a7c, 7185 now (gait 775 fewer, FMI glue 492, the plant's AVX2 build
 //! 465, the master's output bus ~700).
 //!
+//! **Against a previous build**: `KNEEBENCH_CLOSED_LOOP_BASELINE=<dir>` names a directory of
+//! the previous build's FMUs (`kneebench export --out <dir> --library <its
+//! libkneebench_fmu.so>`); the same scenarios are then also run on them (by this build's
+//! master), interleaved with this build's runs, and must record the same rows bit for bit. The
+//! ratio of the two medians is the FMUs' speed-up in the same run. The master's own changes
+//! show against the plain C-call loop (same run), or by running the previous build's bench
+//! binary alternately with this one (copy it and its `libkneebench_fmu.so` into `<d>/deps/`
+//! first: the bench finds the library beside itself).
+//!
 //! Instructions per step (repeatable on a noisy machine), recording the analysed signals:
 //! `KNEEBENCH_PROFILE_RUNS=3 valgrind --tool=callgrind --toggle-collect='*closed_loop*profiled*'
 //! <bench binary>` counts only three steady `System::run`s (divide by 3 x 2500); build the bench
@@ -322,6 +331,54 @@ fn harness(loaded: &ssp::LoadedSystem) -> f64 {
     elapsed
 }
 
+/// The rows one run of `loaded` records (to compare two builds bit for bit).
+fn recorded_rows(loaded: &ssp::LoadedSystem) -> Vec<u64> {
+    let out = loaded.system.run(&loaded.config).unwrap();
+    out.results
+        .rows()
+        .flat_map(|r| r.iter().map(|v| v.to_bits()))
+        .collect()
+}
+
+/// The environment variable naming the previous build's FMUs (see the header).
+const BASELINE_VAR: &str = "KNEEBENCH_CLOSED_LOOP_BASELINE";
+
+/// The `.ssp` of `scenario` on the previous build's FMUs, when [`BASELINE_VAR`] names them.
+fn baseline_ssp(scenario: &Scenario, dir: &Path, name: &str) -> Option<std::path::PathBuf> {
+    let fmus = std::env::var_os(BASELINE_VAR)?;
+    let path = dir.join(name);
+    write_ssp(scenario, Path::new(&fmus), &path)
+        .unwrap_or_else(|e| panic!("{BASELINE_VAR}={}: {e}", Path::new(&fmus).display()));
+    Some(path)
+}
+
+/// Runs the previous build's system (`base`) next to this build's (`loaded`): the same rows
+/// bit for bit, then `repeats` interleaved pairs of runs; the medians (this, previous).
+fn against_baseline(loaded: &ssp::LoadedSystem, base: &ssp::LoadedSystem) -> (f64, f64) {
+    assert!(
+        recorded_rows(loaded) == recorded_rows(base),
+        "the previous build's FMUs record other values than this build's"
+    );
+    let (mut this, mut previous) = (vec![], vec![]);
+    for _ in 0..REPEATS {
+        previous.push(harness(base));
+        this.push(harness(loaded));
+    }
+    (median(this), median(previous))
+}
+
+/// Prints the comparison with the previous build (see [`against_baseline`]).
+fn print_baseline(sim: f64, (this, previous): (f64, f64)) {
+    println!(
+        "  previous build's FMUs    {:7.2} ms   real-time factor {:6.0}x  (this build's in the same run {:.2} ms, {:.0}x: speed-up {:.3}; rows bit-identical)",
+        previous * 1e3,
+        sim / previous,
+        this * 1e3,
+        sim / this,
+        previous / this
+    );
+}
+
 /// `runs` steady harness runs (the instruction-counting mode).
 #[inline(never)]
 fn profiled(loaded: &ssp::LoadedSystem, runs: usize) {
@@ -412,6 +469,8 @@ fn csea(path: &Path, fmu_dir: &Path) {
     let runs: Vec<f64> = (0..REPEATS).map(|_| harness(&loaded)).collect();
     let h = median(runs);
     let sim = scenario.stop_time;
+    let baseline = baseline_ssp(&scenario, path.parent().unwrap(), "CSEA-baseline.ssp")
+        .map(|base| against_baseline(&loaded, &load(&base, Some(&analysed))));
     println!(
         "the study's CSEA loop, recording the signals the study analyses: {} FMU instances, {} steps; medians of {REPEATS}",
         scenario.components.len(),
@@ -423,6 +482,9 @@ fn csea(path: &Path, fmu_dir: &Path) {
         sim / h,
         first * 1e3
     );
+    if let Some(b) = baseline {
+        print_baseline(sim, b);
+    }
 }
 
 /// Measures and prints one scenario.
@@ -462,6 +524,8 @@ fn report(
         p.push(plain(scenario, fmus, record, steps, step, false).elapsed);
         h.push(harness(&loaded));
     }
+    let baseline = baseline_ssp(scenario, path.parent().unwrap(), "SEA-baseline.ssp")
+        .map(|base| against_baseline(&loaded, &load(&base, record)));
     let (h, p, d, g, dp) = (median(h), median(p), median(d), median(g), median(dp));
     let bias = median(timers);
     let sets = median(sets);
@@ -514,6 +578,9 @@ fn report(
         per(h - p),
         (h - d - g - sets) * 1e3
     );
+    if let Some(b) = baseline {
+        print_baseline(sim, b);
+    }
 }
 
 /// The mean length an empty timed interval of the plain loop measures (`Instant::now()`, then

@@ -229,6 +229,16 @@ impl ResultSink for Results {
     fn flush(&mut self) -> Result<(), ResultsError> {
         Ok(())
     }
+
+    /// Reserves room for `rows` more rows (at most [`MAX_RESERVED_ROWS`]; more rows grow the
+    /// buffer): without it a run's rows grew the buffer by doubling, whose reallocations and
+    /// copies cost as much per recorded row as the master's own work on a step.
+    fn expect_rows(&mut self, rows: u64) {
+        let rows = usize::try_from(rows)
+            .unwrap_or(usize::MAX)
+            .min(MAX_RESERVED_ROWS);
+        self.data.reserve(rows.saturating_mul(self.stride()));
+    }
 }
 
 /// Recorded rows: time plus one value per named column.
@@ -617,3 +627,30 @@ fn split_csv(line: &str) -> Vec<String> {
 }
 
 pub mod plot;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rows a run announces are stored without growing the buffer (the buffer is never
+    /// moved), and the reservation is capped.
+    #[test]
+    fn expected_rows_are_stored_without_reallocating() {
+        let names = vec!["a".to_string(), "b".to_string()];
+        let kinds = vec![ColumnKind::Real, ColumnKind::Boolean];
+        let mut r = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        r.begin(&names, &kinds).unwrap();
+        r.expect_rows(1000);
+        assert!(r.data.capacity() >= 1000 * 3, "{}", r.data.capacity());
+        let start = r.data.as_ptr();
+        for i in 0..1000 {
+            ResultSink::push_row(&mut r, i as f64, &[1.0, 0.0]).unwrap();
+        }
+        assert_eq!(r.data.as_ptr(), start, "the buffer was reallocated");
+        assert_eq!(r.len(), 1000);
+        let mut big = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        big.begin(&names, &kinds).unwrap();
+        big.expect_rows(u64::MAX);
+        assert!(big.data.capacity() < 2 * MAX_RESERVED_ROWS * 3);
+    }
+}
