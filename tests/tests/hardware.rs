@@ -170,11 +170,11 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     // The calibrated transducer of the plant carries the untared bias m g Lg sin(c).
     let bias = 1.94 * 9.81 * 0.25 * (-0.01f64).sin();
     // Every hardware run must agree with the plant run within the tolerance its own measured
-    // lateness gives (asserted on every attempt). The comparison means something only if each
-    // signal moves by more than 5 of those tolerances: a run the host stalled badly (seen once
-    // under a load average of 10: 269 overruns, 12 ms of lateness) widens the tolerance past
-    // that, so it is run again on a fresh emulator, at most three attempts; a run that stays
-    // that disturbed fails the test.
+    // lateness gives (a run the host held up by more than 1 ms is run again instead, below).
+    // The comparison means something only if each signal moves by more than 5 of those
+    // tolerances: a run the host stalled badly (seen once under a load average of 10: 269
+    // overruns, 12 ms of lateness) widens the tolerance past that, so it is run again on a
+    // fresh emulator, at most three attempts; a run that stays that disturbed fails the test.
     let mut attempt = 0;
     let (emu, hw) = loop {
         attempt += 1;
@@ -200,6 +200,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
         );
         assert_eq!(plant.results.len(), hw.results.len());
         let mut too_coarse = Vec::new();
+        let mut outside = Vec::new();
         for (name, quantum, shift) in [
             ("actuationAngle", res1, 0.0),
             ("loadAngle", res2, 0.0),
@@ -220,10 +221,29 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
             eprintln!(
                 "{name}: worst difference {worst:.3e}, tolerance {tol:.3e}, range {range:.3e}"
             );
-            assert!(worst <= tol, "{name}: {worst} > {tol}");
+            if worst > tol {
+                outside.push(format!("{name}: {worst} > {tol}"));
+            }
             if range <= 5.0 * tol {
                 too_coarse.push(format!("{name}: range {range} vs tolerance {tol}"));
             }
+        }
+        // The allowance `d` holds for the emulator on an undisturbed host; a run whose own
+        // deadlines the host held up by more than a millisecond may have had the emulator's
+        // replies held up by more than `d` too, unmeasured: such a run is not judged but run
+        // again (at most three attempts). An undisturbed run outside the tolerance fails.
+        if !outside.is_empty() {
+            assert!(
+                max_lateness > 1e-3 && attempt < 3,
+                "attempt {attempt} (max lateness {:.0} us): {outside:?}",
+                max_lateness * 1e6
+            );
+            eprintln!(
+                "attempt {attempt} disturbed by the host (max lateness {:.0} us): {outside:?}; run again",
+                max_lateness * 1e6
+            );
+            emu.stop().unwrap();
+            continue;
         }
         if too_coarse.is_empty() {
             break (emu, hw);
