@@ -14,8 +14,8 @@ use crate::release::Lazy;
 use std::cell::{Cell, RefCell};
 
 use super::bench::{
-    BenchInputs, BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel,
-    SignalGroup, StepOutcome as PlantOutcome, signal_group,
+    BenchInputs, BenchOutputs, BenchParameters, DriverMode, SignalGroup,
+    StepOutcome as PlantOutcome, signal_group,
 };
 use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
@@ -1042,15 +1042,15 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
 impl BenchPlantModel {
     /// The parameters with the enumeration parameters applied.
     fn parameters(&self) -> Result<BenchParameters, ModelError> {
-        let mut p = self.params.clone();
-        p.configuration = Configuration::from_i32(self.configuration)
-            .ok_or_else(|| ModelError::new(format!("configuration {}", self.configuration)))?;
-        p.friction_model = FrictionModel::from_i32(self.friction_model)
-            .ok_or_else(|| ModelError::new(format!("frictionModel {}", self.friction_model)))?;
-        p.test_driver_mode = DriverMode::from_i32(self.test_driver_mode)
-            .ok_or_else(|| ModelError::new(format!("testDriverMode {}", self.test_driver_mode)))?;
-        p.load_driver_mode = DriverMode::from_i32(self.load_driver_mode)
-            .ok_or_else(|| ModelError::new(format!("loadDriverMode {}", self.load_driver_mode)))?;
+        let p = self
+            .params
+            .with_enumerations(
+                self.configuration,
+                self.friction_model,
+                self.test_driver_mode,
+                self.load_driver_mode,
+            )
+            .map_err(ModelError::new)?;
         Ok(p)
     }
 

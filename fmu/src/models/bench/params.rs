@@ -411,6 +411,29 @@ impl BenchParameters {
         ]
     }
 
+    /// These parameters with the four enumeration parameters applied, given as the FMI Integer
+    /// values the models hold (`configuration`, `frictionModel`, `testDriverMode`,
+    /// `loadDriverMode`); the first one that is no item of its enumeration is named with its
+    /// value, e.g. `configuration 7`.
+    pub fn with_enumerations(
+        &self,
+        configuration: i32,
+        friction_model: i32,
+        test_driver_mode: i32,
+        load_driver_mode: i32,
+    ) -> Result<BenchParameters, String> {
+        let mut p = self.clone();
+        p.configuration = Configuration::from_i32(configuration)
+            .ok_or_else(|| format!("configuration {configuration}"))?;
+        p.friction_model = FrictionModel::from_i32(friction_model)
+            .ok_or_else(|| format!("frictionModel {friction_model}"))?;
+        p.test_driver_mode = DriverMode::from_i32(test_driver_mode)
+            .ok_or_else(|| format!("testDriverMode {test_driver_mode}"))?;
+        p.load_driver_mode = DriverMode::from_i32(load_driver_mode)
+            .ok_or_else(|| format!("loadDriverMode {load_driver_mode}"))?;
+        Ok(p)
+    }
+
     /// Checks every value is finite and inside [`Self::PARAMETER_LIMITS`], and that the
     /// parameters are consistent (nonzero sensor gains, integral encoder counts).
     pub fn validate(&self) -> Result<(), ParameterError> {

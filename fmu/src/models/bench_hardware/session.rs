@@ -14,9 +14,7 @@ use crate::hardware::pacing::{Pacer, PacingMode};
 use crate::hardware::protocol::{BenchSetup, Command, Key, reason, status};
 use crate::hardware::realtime::{RealtimeThread, lock_memory, now_ns};
 use crate::model::{ModelError, StepOutcome};
-use crate::models::bench::{
-    BenchOutputs, BenchParameters, Configuration, DriverMode, FrictionModel,
-};
+use crate::models::bench::{BenchOutputs, BenchParameters, Configuration, DriverMode};
 
 /// How long a sample is awaited during initialization [s].
 const INIT_REPLY_TIMEOUT: f64 = 0.2;
@@ -81,15 +79,15 @@ fn saturate(x: u64) -> i32 {
 impl BenchHardwareModel {
     /// The bench parameters with the enumerations applied.
     fn parameters(&self) -> Result<BenchParameters, ModelError> {
-        let mut p = self.params.clone();
-        p.configuration = Configuration::from_i32(self.configuration)
-            .ok_or_else(|| ModelError::new(format!("configuration {}", self.configuration)))?;
-        p.friction_model = FrictionModel::from_i32(self.friction_model)
-            .ok_or_else(|| ModelError::new(format!("frictionModel {}", self.friction_model)))?;
-        p.test_driver_mode = DriverMode::from_i32(self.test_driver_mode)
-            .ok_or_else(|| ModelError::new(format!("testDriverMode {}", self.test_driver_mode)))?;
-        p.load_driver_mode = DriverMode::from_i32(self.load_driver_mode)
-            .ok_or_else(|| ModelError::new(format!("loadDriverMode {}", self.load_driver_mode)))?;
+        let p = self
+            .params
+            .with_enumerations(
+                self.configuration,
+                self.friction_model,
+                self.test_driver_mode,
+                self.load_driver_mode,
+            )
+            .map_err(ModelError::new)?;
         p.validate().map_err(|e| ModelError::new(e.to_string()))?;
         Ok(p)
     }

@@ -266,21 +266,14 @@ impl Model for PidController {
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         self.checked_settings()?;
-        // Disjoint fields: the cached settings are used in place, not copied.
-        let Self {
-            cached_settings: Some(settings),
-            clock,
-            held,
-            state,
-            inputs,
-            signals,
-            ..
-        } = self
-        else {
+        // The cached settings are used in place, not copied (disjoint fields of `self`).
+        let Some(settings) = &self.cached_settings else {
             return Err(ModelError::new("the PID settings are not available"));
         };
-        *signals = clock.outputs_at(t, *held, |_| pid_sample(settings, state, inputs).0);
-        signals.check_finite(t)
+        self.signals = self.clock.outputs_at(t, self.held, |_| {
+            pid_sample(settings, &self.state, &self.inputs).0
+        });
+        self.signals.check_finite(t)
     }
 
     fn max_step_size(&self) -> f64 {
@@ -289,23 +282,16 @@ impl Model for PidController {
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         self.checked_settings()?;
-        let Self {
-            cached_settings: Some(settings),
-            clock,
-            held,
-            state,
-            inputs,
-            signals,
-            ..
-        } = self
-        else {
+        let Some(settings) = &self.cached_settings else {
             return Err(ModelError::new("the PID settings are not available"));
         };
-        clock.run_step(t, h, state, held, |_, state| {
-            pid_sample(settings, state, inputs)
-        })?;
-        *signals = *held;
-        signals.check_finite(t + h)?;
+        let inputs = &self.inputs;
+        self.clock
+            .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
+                pid_sample(settings, state, inputs)
+            })?;
+        self.signals = self.held;
+        self.signals.check_finite(t + h)?;
         Ok(StepOutcome::Completed)
     }
 
