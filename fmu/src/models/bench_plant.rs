@@ -1042,16 +1042,14 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
 impl BenchPlantModel {
     /// The parameters with the enumeration parameters applied.
     fn parameters(&self) -> Result<BenchParameters, ModelError> {
-        let p = self
-            .params
+        self.params
             .with_enumerations(
                 self.configuration,
                 self.friction_model,
                 self.test_driver_mode,
                 self.load_driver_mode,
             )
-            .map_err(ModelError::new)?;
-        Ok(p)
+            .map_err(ModelError::new)
     }
 
     fn build(&mut self) -> Result<(), ModelError> {
