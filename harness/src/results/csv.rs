@@ -24,6 +24,8 @@ use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
+pub use super::background::EncodeOn;
+use super::background::{Background, BlockEncoder};
 use super::{ColumnKind, ResultSink, ResultsError};
 
 /// Bytes gathered before they are handed to the underlying writer (always at the end of a
@@ -184,19 +186,102 @@ pub fn partial_path(path: &Path) -> PathBuf {
 }
 
 /// The crash-safe CSV file sink (see the [module documentation](self)).
-#[derive(Debug)]
 pub struct CsvFile {
     path: PathBuf,
     partial: PathBuf,
-    writer: CsvWriter<File>,
+    out: Out,
     rows: u64,
     /// Flush after every row ([`CsvFile::write_through`]).
     write_through: bool,
+    encode_on: EncodeOn,
+}
+
+impl std::fmt::Debug for CsvFile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CsvFile")
+            .field("path", &self.path)
+            .field("rows", &self.rows)
+            .field("write_through", &self.write_through)
+            .field("encode_on", &self.encode_on)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Where a [`CsvFile`]'s rows are formatted.
+enum Out {
+    /// In [`push_row`](ResultSink::push_row) (before [`begin`](ResultSink::begin) too).
+    Caller(CsvWriter<File>),
+    /// On the file's writer thread, handed over in blocks.
+    Thread(Rows),
+    /// Closed, or failed: the error was returned once; later calls get this message.
+    Done(Option<String>),
+}
+
+/// The rows of [`Out::Thread`]: the block being filled, and the thread.
+struct Rows {
+    background: Background<CsvEncoder>,
+    /// Row after row: `time`, then the values.
+    block: Vec<f64>,
+    /// Values per row, `time` included.
+    width: usize,
+}
+
+/// Values per block handed to the writer thread (about 256 KiB of rows, at least one row):
+/// large enough that a handover is rare, small enough to stay in the cache.
+const BLOCK_VALUES: usize = 32 * 1024;
+
+/// The writer thread's side of a [`CsvFile`]: formats the blocks of rows into the file.
+struct CsvEncoder {
+    writer: CsvWriter<File>,
+    width: usize,
+    partial: PathBuf,
+}
+
+impl CsvEncoder {
+    fn io(&self, source: io::Error) -> ResultsError {
+        ResultsError::Io {
+            path: self.partial.clone(),
+            source,
+        }
+    }
+}
+
+impl BlockEncoder for CsvEncoder {
+    type Block = Vec<f64>;
+
+    fn write_block(&mut self, block: &mut Vec<f64>) -> Result<(), ResultsError> {
+        for row in block.chunks_exact(self.width) {
+            self.writer.row(row[0], &row[1..]).map_err(|e| self.io(e))?;
+        }
+        block.clear();
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        self.writer.flush().map_err(|e| self.io(e))
+    }
+
+    fn finish(mut self) -> Result<(), ResultsError> {
+        self.flush()?;
+        self.writer.get_ref().sync_all().map_err(|e| self.io(e))
+    }
+}
+
+/// The error of a call on a closed or failed file (`error`: the failure).
+fn done_error(partial: &Path, error: &Option<String>) -> ResultsError {
+    ResultsError::Io {
+        path: partial.to_path_buf(),
+        source: io::Error::other(match error {
+            Some(e) => format!("an earlier write failed: {e}"),
+            None => "the CSV file is closed".to_string(),
+        }),
+    }
 }
 
 impl CsvFile {
     /// Checks the output path and creates `<path>.partial`; nothing is written to `path`
-    /// before [`commit`](Self::commit).
+    /// before [`commit`](Self::commit). Rows are formatted on a thread of the file's own
+    /// (see [`encoding_on`](Self::encoding_on)).
     pub fn create(path: &Path) -> Result<CsvFile, ResultsError> {
         let io_err = |path: &Path, source: io::Error| ResultsError::Io {
             path: path.to_path_buf(),
@@ -233,16 +318,26 @@ impl CsvFile {
         Ok(CsvFile {
             path: path.to_path_buf(),
             partial,
-            writer: CsvWriter::new(file),
+            out: Out::Caller(CsvWriter::new(file)),
             rows: 0,
             write_through: false,
+            encode_on: EncodeOn::default(),
         })
     }
 
     /// The same file, every row handed to the kernel as it is recorded (see the module
-    /// documentation): what a kill of the process leaves is every row recorded.
+    /// documentation): what a kill of the process leaves is every row recorded. Rows are
+    /// then formatted in the caller's thread.
     pub fn write_through(mut self, on: bool) -> CsvFile {
         self.write_through = on;
+        self
+    }
+
+    /// The same file, its rows formatted where `encode_on` says (the same bytes either way;
+    /// set before [`begin`](ResultSink::begin)). On a thread of its own (the default), a row
+    /// pushed is a copy of its values, and the formatting overlaps the run on another core.
+    pub fn encoding_on(mut self, encode_on: EncodeOn) -> CsvFile {
+        self.encode_on = encode_on;
         self
     }
 
@@ -268,10 +363,46 @@ impl CsvFile {
         }
     }
 
+    /// The outcome of the writer thread, which has ended early (a failed write).
+    fn thread_ended(&mut self) -> ResultsError {
+        let error = match std::mem::replace(&mut self.out, Out::Done(None)) {
+            Out::Thread(rows) => rows.background.join(&self.partial).err(),
+            _ => None,
+        };
+        let error =
+            error.unwrap_or_else(|| self.io(io::Error::other("the CSV writer thread ended early")));
+        self.out = Out::Done(Some(error.to_string()));
+        error
+    }
+
+    /// Writes every row so far and ends the writer (its thread joined); `sync`: and syncs
+    /// the file.
+    fn close(&mut self, sync: bool) -> Result<(), ResultsError> {
+        match std::mem::replace(&mut self.out, Out::Done(None)) {
+            Out::Caller(mut w) => {
+                w.flush().map_err(|e| self.io(e))?;
+                if sync {
+                    w.get_ref().sync_all().map_err(|e| self.io(e))?;
+                }
+                Ok(())
+            }
+            Out::Thread(rows) if sync => rows.background.finish(rows.block, &self.partial),
+            Out::Thread(rows) => {
+                if rows.background.flush(rows.block) {
+                    rows.background.join(&self.partial)
+                } else {
+                    rows.background.join(&self.partial).and_then(|()| {
+                        Err(self.io(io::Error::other("the CSV writer thread ended early")))
+                    })
+                }
+            }
+            Out::Done(error) => Err(done_error(&self.partial, &error)),
+        }
+    }
+
     /// Flushes, syncs the file to disk and renames it into place; returns the final path.
     pub fn commit(mut self) -> Result<PathBuf, ResultsError> {
-        self.writer.flush().map_err(|e| self.io(e))?;
-        self.writer.get_ref().sync_all().map_err(|e| self.io(e))?;
+        self.close(true)?;
         std::fs::rename(&self.partial, &self.path).map_err(|source| ResultsError::Io {
             path: self.path.clone(),
             source,
@@ -282,7 +413,7 @@ impl CsvFile {
     /// Flushes and leaves the rows in the partial file (a failed or stopped run); returns its
     /// path.
     pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
-        self.writer.flush().map_err(|e| self.io(e))?;
+        self.close(false)?;
         Ok(self.partial.clone())
     }
 }
@@ -292,7 +423,7 @@ impl CsvFile {
 /// an error then has nowhere to go.
 impl Drop for CsvFile {
     fn drop(&mut self) {
-        let _ = self.writer.flush();
+        let _ = self.close(false);
     }
 }
 
@@ -304,27 +435,99 @@ impl ResultSink for CsvFile {
                 got: kinds.len(),
             });
         }
-        self.writer.header(names, kinds).map_err(|e| self.io(e))
+        let Out::Caller(writer) = &mut self.out else {
+            return Err(self.io(io::Error::other("the CSV file was begun twice")));
+        };
+        let begun = writer.header(names, kinds);
+        begun.map_err(|e| self.io(e))?;
+        if self.write_through || self.encode_on == EncodeOn::Caller {
+            return Ok(());
+        }
+        let Out::Caller(writer) = std::mem::replace(&mut self.out, Out::Done(None)) else {
+            unreachable!("matched above")
+        };
+        let width = names.len() + 1;
+        let encoder = CsvEncoder {
+            writer,
+            width,
+            partial: self.partial.clone(),
+        };
+        let background = Background::spawn(encoder, "csv-writer").map_err(|e| {
+            self.io(io::Error::other(format!(
+                "starting the CSV writer thread: {e}"
+            )))
+        })?;
+        self.out = Out::Thread(Rows {
+            background,
+            block: Vec::with_capacity(BLOCK_VALUES.max(width)),
+            width,
+        });
+        Ok(())
     }
 
     #[inline]
     fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
-        if values.len() != self.writer.kinds.len() {
-            return Err(ResultsError::RowLength {
-                expected: self.writer.kinds.len(),
-                got: values.len(),
-            });
+        match &mut self.out {
+            Out::Thread(rows) => {
+                if values.len() + 1 != rows.width {
+                    return Err(ResultsError::RowLength {
+                        expected: rows.width - 1,
+                        got: values.len(),
+                    });
+                }
+                rows.block.push(time);
+                rows.block.extend_from_slice(values);
+                self.rows += 1;
+                if rows.block.len() + rows.width > rows.block.capacity() {
+                    let next = rows
+                        .background
+                        .spare()
+                        .unwrap_or_else(|| Vec::with_capacity(rows.block.capacity()));
+                    let full = std::mem::replace(&mut rows.block, next);
+                    if !rows.background.send(full) {
+                        return Err(self.thread_ended());
+                    }
+                }
+                Ok(())
+            }
+            Out::Caller(writer) => {
+                if values.len() != writer.kinds.len() {
+                    return Err(ResultsError::RowLength {
+                        expected: writer.kinds.len(),
+                        got: values.len(),
+                    });
+                }
+                self.rows += 1;
+                let mut written = writer.row(time, values);
+                if self.write_through && written.is_ok() {
+                    written = writer.flush();
+                }
+                written.map_err(|e| self.io(e))
+            }
+            Out::Done(error) => Err(done_error(&self.partial, error)),
         }
-        self.rows += 1;
-        self.writer.row(time, values).map_err(|e| self.io(e))?;
-        if self.write_through {
-            self.writer.flush().map_err(|e| self.io(e))?;
-        }
-        Ok(())
     }
 
     fn flush(&mut self) -> Result<(), ResultsError> {
-        self.writer.flush().map_err(|e| self.io(e))
+        match &mut self.out {
+            Out::Caller(writer) => {
+                let flushed = writer.flush();
+                flushed.map_err(|e| self.io(e))
+            }
+            Out::Thread(rows) => {
+                let next = rows
+                    .background
+                    .spare()
+                    .unwrap_or_else(|| Vec::with_capacity(rows.block.capacity()));
+                let partly = std::mem::replace(&mut rows.block, next);
+                if rows.background.flush(partly) {
+                    Ok(())
+                } else {
+                    Err(self.thread_ended())
+                }
+            }
+            Out::Done(error) => Err(done_error(&self.partial, error)),
+        }
     }
 
     fn wants_periodic_flush(&self) -> bool {
@@ -531,5 +734,158 @@ mod tests {
                 got: 2
             })
         ));
+    }
+
+    /// Rows with what a recording holds (NaN, signed zeros, infinities, subnormals, whole
+    /// numbers), `columns` values each; the second column an Integer, the third a Boolean.
+    fn kinds_and_row(k: usize, columns: usize) -> (Vec<ColumnKind>, f64, Vec<f64>) {
+        let special = [
+            f64::NAN,
+            -0.0,
+            0.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            5e-324,
+        ];
+        let kinds = (0..columns)
+            .map(|c| match c {
+                1 => ColumnKind::Integer,
+                2 => ColumnKind::Boolean,
+                _ => ColumnKind::Real,
+            })
+            .collect();
+        let values = (0..columns)
+            .map(|c| match (c, (k + c) % 5) {
+                (1, _) => (k as f64) - 7.0,
+                (2, _) => (k % 2) as f64,
+                (_, 0) => special[(k / 5 + c) % special.len()],
+                _ => ((k as f64) * 1e-3 + c as f64).sin() * 1e3,
+            })
+            .collect();
+        (kinds, k as f64 * 1e-3, values)
+    }
+
+    /// Writes `rows` rows of `columns` values formatted where `encode_on` says; committed or
+    /// kept partial. The file's bytes.
+    fn written(
+        dir: &Path,
+        encode_on: EncodeOn,
+        rows: usize,
+        columns: usize,
+        commit: bool,
+    ) -> Vec<u8> {
+        let out = dir.join(format!("{encode_on:?}.csv"));
+        let mut f = CsvFile::create(&out).unwrap().encoding_on(encode_on);
+        let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
+        f.begin(&names, &kinds_and_row(0, columns).0).unwrap();
+        for k in 0..rows {
+            let (_, t, v) = kinds_and_row(k, columns);
+            f.push_row(t, &v).unwrap();
+        }
+        let path = if commit {
+            f.commit().unwrap()
+        } else {
+            f.keep_partial().unwrap()
+        };
+        std::fs::read(path).unwrap()
+    }
+
+    /// The writer thread writes the caller's bytes: no row, one, a block's worth give or
+    /// take one, several blocks; committed and kept partial.
+    #[test]
+    fn the_writer_thread_writes_the_callers_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let columns = 9;
+        let block_rows = BLOCK_VALUES / (columns + 1);
+        for rows in [
+            0,
+            1,
+            block_rows - 1,
+            block_rows,
+            block_rows + 1,
+            5 * block_rows + 17,
+        ] {
+            for commit in [true, false] {
+                let thread = written(dir.path(), EncodeOn::Thread, rows, columns, commit);
+                let caller = written(dir.path(), EncodeOn::Caller, rows, columns, commit);
+                assert!(
+                    thread.len() > 10 && thread == caller,
+                    "{rows} rows, commit {commit}"
+                );
+            }
+        }
+        // A row wider than a block is a block of its own.
+        let wide = BLOCK_VALUES + 3;
+        let thread = written(dir.path(), EncodeOn::Thread, 5, wide, true);
+        assert_eq!(thread, written(dir.path(), EncodeOn::Caller, 5, wide, true));
+    }
+
+    /// A flush puts every row pushed so far in the partial file, from the writer thread as
+    /// from the caller's: what a kill of the process after it leaves.
+    #[test]
+    fn a_flush_puts_every_row_so_far_in_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut f = CsvFile::create(&dir.path().join("f.csv")).unwrap();
+        f.begin(&["x".to_string()], &[ColumnKind::Real]).unwrap();
+        let lines = |f: &CsvFile| {
+            std::fs::read_to_string(f.partial_path())
+                .unwrap()
+                .lines()
+                .count()
+        };
+        for (k, rows) in [3, BLOCK_VALUES, 1].into_iter().scan(0, |n, r| {
+            *n += r;
+            Some((r, *n))
+        }) {
+            for i in 0..k {
+                f.push_row(i as f64, &[0.5]).unwrap();
+            }
+            f.flush().unwrap();
+            assert_eq!(lines(&f), rows + 1, "after {rows} rows");
+        }
+    }
+
+    /// A write that fails on the writer thread (`/dev/full`: no space left) is returned by a
+    /// later handover or by the flush, then every later call, the commit included, is an
+    /// error too: never an Ok over lost rows.
+    #[test]
+    fn a_failed_write_is_returned_never_lost() {
+        let dir = tempfile::tempdir().unwrap();
+        let full_disk = || {
+            let mut f = CsvFile::create(&dir.path().join("full.csv")).unwrap();
+            let dev_full = std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap();
+            f.out = Out::Caller(CsvWriter::new(dev_full));
+            f.begin(
+                &["a".to_string(), "b".to_string(), "c".to_string()],
+                &[ColumnKind::Real; 3],
+            )
+            .unwrap();
+            f
+        };
+        let no_space = |e: &ResultsError| {
+            let text = format!("{e}: {:?}", std::error::Error::source(e));
+            assert!(text.contains("No space left"), "{text}");
+        };
+        // Blocks of 8192 rows: the first block's write fails on the thread; a handover within
+        // the next two blocks finds the thread ended.
+        let mut f = full_disk();
+        let failed = (0..3 * BLOCK_VALUES / 4)
+            .find_map(|k| f.push_row(k as f64, &[1.0, 2.0, 3.0]).err())
+            .expect("a failed write is returned by a push");
+        no_space(&failed);
+        let later = f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap_err().to_string();
+        assert!(later.contains("an earlier write failed"), "{later}");
+        let later = f.commit().unwrap_err().to_string();
+        assert!(later.contains("an earlier write failed"), "{later}");
+        // Rows short of a block: the flush, then keep_partial, return it.
+        let mut f = full_disk();
+        f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
+        no_space(&f.flush().unwrap_err());
+        let mut f = full_disk();
+        f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
+        no_space(&f.keep_partial().unwrap_err());
     }
 }

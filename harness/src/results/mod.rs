@@ -28,6 +28,7 @@ pub enum ColumnKind {
     Boolean,
 }
 
+mod background;
 pub mod csv;
 pub mod parquet;
 pub mod parquet_read;

@@ -32,8 +32,6 @@ use std::fs::File;
 use std::io::{self, BufWriter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::mpsc::{Receiver, SyncSender, channel, sync_channel};
-use std::thread::JoinHandle;
 
 use parquet::basic::{Repetition, Type as PhysicalType};
 use parquet::data_type::DoubleType;
@@ -44,6 +42,8 @@ use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::ColumnPath;
 use parquet::schema::types::Type;
 
+pub use super::background::EncodeOn;
+use super::background::{Background, BlockEncoder};
 use super::csv::partial_path;
 use super::{ColumnKind, ResultSink, ResultsError};
 
@@ -59,16 +59,6 @@ pub const ROW_GROUP_ROWS: usize = 8192;
 /// page's values, larger, go to the file straight from the encoder's page (a `BufWriter`
 /// copies only what fits in it: with 1 MiB, every page was copied once more on its way).
 const WRITE_BUFFER: usize = 8 << 10;
-
-/// Where a [`ParquetFile`]'s row groups are encoded and written (the same bytes either way).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum EncodeOn {
-    /// A thread of the file's own, while the caller fills the next row group (the default).
-    #[default]
-    Thread,
-    /// The caller's thread, in the [`push_row`](ResultSink::push_row) that fills a group.
-    Caller,
-}
 
 /// One row group's values, column by column in one buffer: `time`'s slots, then each
 /// signal's.
@@ -222,64 +212,21 @@ impl Encoder {
     }
 }
 
-/// What the caller hands the writer thread.
-enum Job {
-    /// A full row group to write; its buffers come back emptied.
-    Group(Group),
-    /// The last row group (possibly empty), then the footer and the sync.
-    Finish(Group),
-}
+impl BlockEncoder for Encoder {
+    type Block = Group;
 
-/// The writer thread of [`EncodeOn::Thread`].
-struct Background {
-    jobs: SyncSender<Job>,
-    /// The buffers of written groups, emptied, for the next group to fill.
-    spare: Receiver<Group>,
-    thread: JoinHandle<Result<(), ResultsError>>,
-}
-
-impl Background {
-    fn spawn(mut encoder: Encoder) -> io::Result<Background> {
-        // Rendezvous: a handover waits until the thread takes the group.
-        let (jobs, job_rx) = sync_channel::<Job>(0);
-        let (spare_tx, spare) = channel();
-        let thread = std::thread::Builder::new()
-            .name("parquet-writer".into())
-            .spawn(move || {
-                for job in job_rx {
-                    match job {
-                        Job::Group(mut g) => {
-                            encoder.write_group(&mut g)?;
-                            // The caller may be gone (closing): the buffers are dropped then.
-                            spare_tx.send(g).ok();
-                        }
-                        Job::Finish(mut g) => {
-                            encoder.write_group(&mut g)?;
-                            return encoder.finish();
-                        }
-                    }
-                }
-                // Dropped without being closed: the row groups so far stay written (the
-                // buffered writer flushes as it is dropped), without a footer.
-                Ok(())
-            })?;
-        Ok(Background {
-            jobs,
-            spare,
-            thread,
-        })
+    fn write_block(&mut self, group: &mut Group) -> Result<(), ResultsError> {
+        self.write_group(group)
     }
 
-    /// The thread's outcome once it has ended (its error, or a panic as an error).
-    fn join(self, partial: &Path) -> Result<(), ResultsError> {
-        drop(self.jobs);
-        match self.thread.join() {
-            Ok(result) => result,
-            Err(_) => Err(io_error(
-                partial,
-                io::Error::other("the Parquet writer thread panicked"),
-            )),
-        }
+    /// Nothing to do: a row group is handed to the kernel as it is written, and a file
+    /// without its footer is unreadable anyway (the master's periodic flush is not asked for).
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        Ok(())
+    }
+
+    fn finish(self) -> Result<(), ResultsError> {
+        Encoder::finish(self)
     }
 }
 
@@ -288,7 +235,7 @@ enum Writer {
     /// [`EncodeOn::Caller`] (boxed: the crate's writer is large, and the file moves).
     Caller(Box<Encoder>),
     /// [`EncodeOn::Thread`].
-    Thread(Background),
+    Thread(Background<Encoder>),
     /// Closed, or failed: the error was returned once; later calls get this message.
     Done(Option<String>),
 }
@@ -386,10 +333,11 @@ impl ParquetFile {
             }
             Some(Writer::Thread(background)) => {
                 // A written group's buffers, else new ones.
-                let next = (background.spare.try_recv())
-                    .unwrap_or_else(|_| Group::new(self.columns.width));
+                let next = background
+                    .spare()
+                    .unwrap_or_else(|| Group::new(self.columns.width));
                 let full = std::mem::replace(&mut self.columns, next);
-                if background.jobs.send(Job::Group(full)).is_ok() {
+                if background.send(full) {
                     return Ok(());
                 }
                 // The thread ended: its error.
@@ -420,11 +368,7 @@ impl ParquetFile {
                 encoder.write_group(&mut last)?;
                 encoder.finish()
             }
-            Some(Writer::Thread(background)) => {
-                // A send fails only if the thread has ended: join reports why.
-                background.jobs.send(Job::Finish(last)).ok();
-                background.join(&self.partial)
-            }
+            Some(Writer::Thread(background)) => background.finish(last, &self.partial),
             Some(Writer::Done(error)) => Err(done_error(&self.partial, error)),
             None => unreachable!("begun above"),
         }
@@ -525,11 +469,13 @@ impl ResultSink for ParquetFile {
         };
         self.writer = Some(match self.encode_on {
             EncodeOn::Caller => Writer::Caller(Box::new(encoder)),
-            EncodeOn::Thread => Writer::Thread(Background::spawn(encoder).map_err(|e| {
-                self.err(io::Error::other(format!(
-                    "starting the Parquet writer thread: {e}"
-                )))
-            })?),
+            EncodeOn::Thread => {
+                Writer::Thread(Background::spawn(encoder, "parquet-writer").map_err(|e| {
+                    self.err(io::Error::other(format!(
+                        "starting the Parquet writer thread: {e}"
+                    )))
+                })?)
+            }
         });
         self.columns = Group::new(names.len() + 1);
         Ok(())
