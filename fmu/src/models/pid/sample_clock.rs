@@ -62,6 +62,14 @@ impl SampleClock {
     /// The outputs at communication point `t`: a fresh sample from the inputs now when `t` is
     /// the next sample instant (or before initialization, when the clock has no period),
     /// else `held`, the outputs of the last executed sample. `sample` gets the sample index.
+    ///
+    /// The next [`SampleClock::run_step`] executes the same sample index again, and this
+    /// result is deliberately not kept for it: a master that reads the outputs after each
+    /// step (this project's master, Gauss-Seidel or Jacobi, and fmpy's loop) gets here the
+    /// sample from the inputs of the step just done, and sets new inputs before the step that
+    /// executes it. A memo keyed on the index, the inputs, the state and the settings hit 0
+    /// of 315,000 PID samples in the closed-loop bench and cost instructions (README,
+    /// Performance, issue 16).
     pub fn outputs_at<S>(&self, t: f64, held: S, sample: impl FnOnce(u64) -> S) -> S {
         if self.period == 0.0 || self.is_next_sample_instant(t) {
             sample(self.next)
