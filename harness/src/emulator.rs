@@ -58,7 +58,7 @@ use crate::{Fmu, FmuError, Instance, InstanceOptions, LoadError, LoadOptions, St
 /// including its file as the protocol codec is.
 #[path = "../../fmu/src/hardware/realtime.rs"]
 #[allow(dead_code)]
-mod realtime;
+pub(crate) mod realtime;
 
 mod faults;
 mod state;

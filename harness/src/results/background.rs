@@ -67,15 +67,21 @@ pub(super) struct Background<E: BlockEncoder> {
 }
 
 impl<E: BlockEncoder> Background<E> {
-    /// Starts the thread `name` with `encoder`.
-    pub(super) fn spawn(mut encoder: E, name: &str) -> io::Result<Background<E>> {
+    /// Starts the thread `name` with `encoder`; the encoder comes back if the thread cannot
+    /// start (the caller may then do the work itself).
+    pub(super) fn spawn(encoder: E, name: &str) -> Result<Background<E>, (E, io::Error)> {
         // Rendezvous: a handover waits until the thread takes the block.
         let (jobs, job_rx) = sync_channel::<Job<E::Block>>(0);
         let (spare_tx, spare) = channel();
         let (flushed_tx, flushed) = channel();
-        let thread = std::thread::Builder::new()
+        // The encoder goes to the thread once it runs, so that a failed start keeps it.
+        let (encoder_tx, encoder_rx) = channel::<E>();
+        let spawned = std::thread::Builder::new()
             .name(name.to_string())
             .spawn(move || {
+                let Ok(mut encoder) = encoder_rx.recv() else {
+                    return Ok(());
+                };
                 for job in job_rx {
                     match job {
                         Job::Block(mut b) => {
@@ -98,7 +104,13 @@ impl<E: BlockEncoder> Background<E> {
                 // Dropped without being finished: what was written stays written; the
                 // encoder's own drop decides what it still hands to the file.
                 Ok(())
-            })?;
+            });
+        let thread = match spawned {
+            Ok(thread) => thread,
+            Err(e) => return Err((encoder, e)),
+        };
+        // The thread waits for it: the send cannot fail.
+        encoder_tx.send(encoder).ok();
         Ok(Background {
             jobs: Some(jobs),
             spare,

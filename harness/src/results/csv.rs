@@ -13,9 +13,12 @@
 //! - By default the rows are formatted on a thread of the file's own ([`EncodeOn`]): a row
 //!   pushed is a copy of its values into a block, full blocks are handed to the thread, and
 //!   the formatting overlaps the run on another core (`kneebench run` recording every output
-//!   of the SEA scenario: about 1.3x less wall time). A flush hands the partly filled block
+//!   of the SEA scenario: about 1.5x less wall time). A flush hands the partly filled block
 //!   over and returns once the thread has written it: the promise above is unchanged. The
-//!   bytes are those of the caller's formatting ([`EncodeOn::Caller`]), tested.
+//!   thread starts with the first full block; a caller in a real-time scheduling class then
+//!   (a paced run's stepping thread, which must never wait for a normally scheduled one), or
+//!   a thread that cannot start, leaves the formatting in the caller. The bytes are those of
+//!   the caller's formatting ([`EncodeOn::Caller`]), tested.
 //! - With [`CsvFile::write_through`] every row is handed to the kernel as it is recorded (one
 //!   `write` per row): a process killed at any instant, even with SIGKILL, leaves every row
 //!   it recorded (not a power loss: that needs the sync of the commit). For paced real-time
@@ -200,6 +203,9 @@ pub struct CsvFile {
     /// Flush after every row ([`CsvFile::write_through`]).
     write_through: bool,
     encode_on: EncodeOn,
+    /// Whether the caller runs in a real-time scheduling class (a field so that tests can
+    /// stand in for a paced run).
+    caller_is_realtime: fn() -> bool,
 }
 
 impl std::fmt::Debug for CsvFile {
@@ -215,27 +221,54 @@ impl std::fmt::Debug for CsvFile {
 
 /// Where a [`CsvFile`]'s rows are formatted.
 enum Out {
-    /// In [`push_row`](ResultSink::push_row) (before [`begin`](ResultSink::begin) too).
+    /// In [`push_row`](ResultSink::push_row): before [`begin`](ResultSink::begin), with
+    /// write-through or [`EncodeOn::Caller`], in a real-time caller, or when the writer
+    /// thread could not start.
     Caller(CsvWriter<File>),
-    /// On the file's writer thread, handed over in blocks.
-    Thread(Rows),
+    /// Gathered in blocks for the writer thread.
+    Blocks(Blocks),
     /// Closed, or failed: the error was returned once; later calls get this message.
     Done(Option<String>),
 }
 
-/// The rows of [`Out::Thread`]: the block being filled, and the thread.
-struct Rows {
-    background: Background<CsvEncoder>,
+/// The rows of [`Out::Blocks`]: the block being filled, and who formats the full ones.
+struct Blocks {
     /// Row after row: `time`, then the values.
     block: Vec<f64>,
     /// Values per row, `time` included.
     width: usize,
+    /// Values a block holds (at least one row).
+    capacity: usize,
+    writer: BlockWriter,
+}
+
+/// Who formats [`Blocks`].
+enum BlockWriter {
+    /// Nobody yet: the thread starts with the first full block, unless the caller is then in a
+    /// real-time class (a paced run: its stepping thread must never wait for a normally
+    /// scheduled one), which formats its rows itself from then on.
+    NotStarted(CsvWriter<File>),
+    /// The writer thread.
+    Thread(Background<CsvEncoder>),
 }
 
 /// Values per block handed to the writer thread (64 KiB of rows, at least one row): a
 /// handover per 80 rows of 100 signals, and a flush waits for at most about two blocks'
-/// formatting (~0.5 ms at 100 signals), which a paced run at 1 kHz absorbs once a second.
+/// formatting (~0.5 ms at 100 signals).
 const BLOCK_VALUES: usize = 8 * 1024;
+
+/// Formats the rows of `block` (`width` values each) into `writer` and empties it.
+fn format_block(
+    writer: &mut CsvWriter<File>,
+    block: &mut Vec<f64>,
+    width: usize,
+) -> io::Result<()> {
+    for row in block.chunks_exact(width) {
+        writer.row(row[0], &row[1..])?;
+    }
+    block.clear();
+    Ok(())
+}
 
 /// The writer thread's side of a [`CsvFile`]: formats the blocks of rows into the file.
 struct CsvEncoder {
@@ -246,10 +279,7 @@ struct CsvEncoder {
 
 impl CsvEncoder {
     fn io(&self, source: io::Error) -> ResultsError {
-        ResultsError::Io {
-            path: self.partial.clone(),
-            source,
-        }
+        io_error(&self.partial, source)
     }
 }
 
@@ -257,11 +287,7 @@ impl BlockEncoder for CsvEncoder {
     type Block = Vec<f64>;
 
     fn write_block(&mut self, block: &mut Vec<f64>) -> Result<(), ResultsError> {
-        for row in block.chunks_exact(self.width) {
-            self.writer.row(row[0], &row[1..]).map_err(|e| self.io(e))?;
-        }
-        block.clear();
-        Ok(())
+        format_block(&mut self.writer, block, self.width).map_err(|e| self.io(e))
     }
 
     fn flush(&mut self) -> Result<(), ResultsError> {
@@ -274,15 +300,18 @@ impl BlockEncoder for CsvEncoder {
     }
 }
 
-/// The error of a call on a closed or failed file (`error`: the failure).
-fn done_error(partial: &Path, error: &Option<String>) -> ResultsError {
+fn io_error(partial: &Path, source: io::Error) -> ResultsError {
     ResultsError::Io {
         path: partial.to_path_buf(),
-        source: io::Error::other(match error {
-            Some(e) => format!("an earlier write failed: {e}"),
-            None => "the CSV file is closed".to_string(),
-        }),
+        source,
     }
+}
+
+/// Whether the calling thread runs in a real-time scheduling class (`SCHED_FIFO`, `SCHED_RR`):
+/// a paced run's stepping thread, which the bench hardware FMU raises at its first step.
+fn caller_is_realtime() -> bool {
+    crate::emulator::realtime::current_policy()
+        .is_some_and(|(policy, _)| policy == 1 || policy == 2)
 }
 
 impl CsvFile {
@@ -290,10 +319,7 @@ impl CsvFile {
     /// before [`commit`](Self::commit). Rows are formatted on a thread of the file's own
     /// (see [`encoding_on`](Self::encoding_on)).
     pub fn create(path: &Path) -> Result<CsvFile, ResultsError> {
-        let io_err = |path: &Path, source: io::Error| ResultsError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
+        let io_err = |path: &Path, source: io::Error| io_error(path, source);
         if path.is_dir() {
             return Err(io_err(
                 path,
@@ -329,6 +355,7 @@ impl CsvFile {
             rows: 0,
             write_through: false,
             encode_on: EncodeOn::default(),
+            caller_is_realtime,
         })
     }
 
@@ -342,7 +369,9 @@ impl CsvFile {
 
     /// The same file, its rows formatted where `encode_on` says (the same bytes either way;
     /// set before [`begin`](ResultSink::begin)). On a thread of its own (the default), a row
-    /// pushed is a copy of its values, and the formatting overlaps the run on another core.
+    /// pushed is a copy of its values, and the formatting overlaps the run on another core;
+    /// a caller in a real-time scheduling class at the first full block (a paced run)
+    /// formats its rows itself all the same.
     pub fn encoding_on(mut self, encode_on: EncodeOn) -> CsvFile {
         self.encode_on = encode_on;
         self
@@ -358,32 +387,106 @@ impl CsvFile {
         &self.partial
     }
 
-    /// Rows written so far.
+    /// Rows pushed so far.
     pub fn rows(&self) -> u64 {
         self.rows
     }
 
     fn io(&self, source: io::Error) -> ResultsError {
-        ResultsError::Io {
-            path: self.partial.clone(),
-            source,
-        }
+        io_error(&self.partial, source)
+    }
+
+    /// Ends the file with `error` (returned now; later calls say an earlier write failed).
+    fn fail(&mut self, error: ResultsError) -> ResultsError {
+        self.out = Out::Done(Some(error.to_string()));
+        error
     }
 
     /// The outcome of the writer thread, which has ended early (a failed write).
     fn thread_ended(&mut self) -> ResultsError {
         let error = match std::mem::replace(&mut self.out, Out::Done(None)) {
-            Out::Thread(rows) => rows.background.join(&self.partial).err(),
+            Out::Blocks(Blocks {
+                writer: BlockWriter::Thread(background),
+                ..
+            }) => background.join(&self.partial).err(),
             _ => None,
         };
         let error =
             error.unwrap_or_else(|| self.io(io::Error::other("the CSV writer thread ended early")));
-        self.out = Out::Done(Some(error.to_string()));
-        error
+        self.fail(error)
+    }
+
+    /// Hands the full block over: to the thread, started with the first block unless the
+    /// caller is in a real-time class or the thread cannot start (the caller then formats).
+    fn hand_over(&mut self) -> Result<(), ResultsError> {
+        let Out::Blocks(blocks) = &mut self.out else {
+            unreachable!("called with blocks")
+        };
+        if let BlockWriter::Thread(background) = &blocks.writer {
+            let full = std::mem::take(&mut blocks.block);
+            if !background.send(full) {
+                return Err(self.thread_ended());
+            }
+            // The thread has taken the block: the one before is back (or this is the first).
+            blocks.block = background
+                .spare()
+                .unwrap_or_else(|| Vec::with_capacity(blocks.capacity));
+            return Ok(());
+        }
+        let Out::Blocks(Blocks {
+            mut block,
+            width,
+            capacity,
+            writer: BlockWriter::NotStarted(writer),
+        }) = std::mem::replace(&mut self.out, Out::Done(None))
+        else {
+            unreachable!("matched above")
+        };
+        if (self.caller_is_realtime)() {
+            return self.format_here(writer, block, width);
+        }
+        let encoder = CsvEncoder {
+            writer,
+            width,
+            partial: self.partial.clone(),
+        };
+        // A thread that cannot start hands the writer back: the caller formats.
+        match Background::spawn(encoder, "csv-writer") {
+            Ok(background) => {
+                let sent = background.send(std::mem::take(&mut block));
+                self.out = Out::Blocks(Blocks {
+                    block: Vec::with_capacity(capacity),
+                    width,
+                    capacity,
+                    writer: BlockWriter::Thread(background),
+                });
+                if !sent {
+                    return Err(self.thread_ended());
+                }
+                Ok(())
+            }
+            Err((encoder, _)) => self.format_here(encoder.writer, block, width),
+        }
+    }
+
+    /// Formats `block` with `writer` in the caller, and every later row too.
+    fn format_here(
+        &mut self,
+        mut writer: CsvWriter<File>,
+        mut block: Vec<f64>,
+        width: usize,
+    ) -> Result<(), ResultsError> {
+        let formatted = format_block(&mut writer, &mut block, width);
+        self.out = Out::Caller(writer);
+        formatted.map_err(|e| {
+            let e = self.io(e);
+            self.fail(e)
+        })
     }
 
     /// Writes every row so far and ends the writer (its thread joined); `sync`: and syncs
-    /// the file.
+    /// the file. A file that failed before: its error again, except for `keep_partial`
+    /// (`sync` false), for which the rows written before the failure stay in the file.
     fn close(&mut self, sync: bool) -> Result<(), ResultsError> {
         match std::mem::replace(&mut self.out, Out::Done(None)) {
             Out::Caller(mut w) => {
@@ -393,16 +496,34 @@ impl CsvFile {
                 }
                 Ok(())
             }
-            Out::Thread(rows) if sync => rows.background.finish(rows.block, &self.partial),
-            Out::Thread(rows) => {
-                if rows.background.flush(rows.block) {
-                    rows.background.join(&self.partial)
+            Out::Blocks(Blocks {
+                mut block,
+                width,
+                writer: BlockWriter::NotStarted(mut w),
+                ..
+            }) => {
+                format_block(&mut w, &mut block, width).map_err(|e| self.io(e))?;
+                self.out = Out::Caller(w);
+                let closed = self.close(sync);
+                self.out = Out::Done(None);
+                closed
+            }
+            Out::Blocks(Blocks {
+                block,
+                writer: BlockWriter::Thread(background),
+                ..
+            }) => {
+                if sync {
+                    background.finish(block, &self.partial)
+                } else if background.flush(block) {
+                    background.join(&self.partial)
                 } else {
-                    rows.background.join(&self.partial).and_then(|()| {
+                    background.join(&self.partial).and_then(|()| {
                         Err(self.io(io::Error::other("the CSV writer thread ended early")))
                     })
                 }
             }
+            Out::Done(Some(_)) if !sync => Ok(()),
             Out::Done(error) => Err(done_error(&self.partial, &error)),
         }
     }
@@ -418,11 +539,23 @@ impl CsvFile {
     }
 
     /// Flushes and leaves the rows in the partial file (a failed or stopped run); returns its
-    /// path.
+    /// path. After a write that failed (its error already returned), the rows written before
+    /// it stay there.
     pub fn keep_partial(mut self) -> Result<PathBuf, ResultsError> {
         self.close(false)?;
         Ok(self.partial.clone())
     }
+}
+
+/// The error of a call on a closed or failed file (`error`: the failure).
+fn done_error(partial: &Path, error: &Option<String>) -> ResultsError {
+    io_error(
+        partial,
+        io::Error::other(match error {
+            Some(e) => format!("an earlier write failed: {e}"),
+            None => "the CSV file is closed".to_string(),
+        }),
+    )
 }
 
 /// A file dropped without [`CsvFile::commit`] or [`CsvFile::keep_partial`] (a run that ended
@@ -445,8 +578,10 @@ impl ResultSink for CsvFile {
         let Out::Caller(writer) = &mut self.out else {
             return Err(self.io(io::Error::other("the CSV file was begun twice")));
         };
-        let begun = writer.header(names, kinds);
-        begun.map_err(|e| self.io(e))?;
+        if let Err(e) = writer.header(names, kinds) {
+            let e = self.io(e);
+            return Err(self.fail(e));
+        }
         if self.write_through || self.encode_on == EncodeOn::Caller {
             return Ok(());
         }
@@ -454,20 +589,12 @@ impl ResultSink for CsvFile {
             unreachable!("matched above")
         };
         let width = names.len() + 1;
-        let encoder = CsvEncoder {
-            writer,
+        let capacity = BLOCK_VALUES.max(width);
+        self.out = Out::Blocks(Blocks {
+            block: Vec::with_capacity(capacity),
             width,
-            partial: self.partial.clone(),
-        };
-        let background = Background::spawn(encoder, "csv-writer").map_err(|e| {
-            self.io(io::Error::other(format!(
-                "starting the CSV writer thread: {e}"
-            )))
-        })?;
-        self.out = Out::Thread(Rows {
-            background,
-            block: Vec::with_capacity(BLOCK_VALUES.max(width)),
-            width,
+            capacity,
+            writer: BlockWriter::NotStarted(writer),
         });
         Ok(())
     }
@@ -475,25 +602,18 @@ impl ResultSink for CsvFile {
     #[inline]
     fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
         match &mut self.out {
-            Out::Thread(rows) => {
-                if values.len() + 1 != rows.width {
+            Out::Blocks(blocks) => {
+                if values.len() + 1 != blocks.width {
                     return Err(ResultsError::RowLength {
-                        expected: rows.width - 1,
+                        expected: blocks.width - 1,
                         got: values.len(),
                     });
                 }
-                rows.block.push(time);
-                rows.block.extend_from_slice(values);
+                blocks.block.push(time);
+                blocks.block.extend_from_slice(values);
                 self.rows += 1;
-                if rows.block.len() + rows.width > rows.block.capacity() {
-                    let next = rows
-                        .background
-                        .spare()
-                        .unwrap_or_else(|| Vec::with_capacity(rows.block.capacity()));
-                    let full = std::mem::replace(&mut rows.block, next);
-                    if !rows.background.send(full) {
-                        return Err(self.thread_ended());
-                    }
+                if blocks.block.len() + blocks.width > blocks.capacity {
+                    self.hand_over()?;
                 }
                 Ok(())
             }
@@ -509,32 +629,44 @@ impl ResultSink for CsvFile {
                 if self.write_through && written.is_ok() {
                     written = writer.flush();
                 }
-                written.map_err(|e| self.io(e))
+                written.map_err(|e| {
+                    let e = self.io(e);
+                    self.fail(e)
+                })
             }
             Out::Done(error) => Err(done_error(&self.partial, error)),
         }
     }
 
     fn flush(&mut self) -> Result<(), ResultsError> {
-        match &mut self.out {
-            Out::Caller(writer) => {
-                let flushed = writer.flush();
-                flushed.map_err(|e| self.io(e))
-            }
-            Out::Thread(rows) => {
-                let next = rows
-                    .background
-                    .spare()
-                    .unwrap_or_else(|| Vec::with_capacity(rows.block.capacity()));
-                let partly = std::mem::replace(&mut rows.block, next);
-                if rows.background.flush(partly) {
-                    Ok(())
-                } else {
-                    Err(self.thread_ended())
+        let flushed = match &mut self.out {
+            Out::Caller(writer) => writer.flush(),
+            Out::Blocks(Blocks {
+                block,
+                width,
+                writer: BlockWriter::NotStarted(writer),
+                ..
+            }) => format_block(writer, block, *width).and_then(|()| writer.flush()),
+            Out::Blocks(Blocks {
+                block,
+                capacity,
+                writer: BlockWriter::Thread(background),
+                ..
+            }) => {
+                if !background.flush(std::mem::take(block)) {
+                    return Err(self.thread_ended());
                 }
+                *block = background
+                    .spare()
+                    .unwrap_or_else(|| Vec::with_capacity(*capacity));
+                Ok(())
             }
-            Out::Done(error) => Err(done_error(&self.partial, error)),
-        }
+            Out::Done(error) => return Err(done_error(&self.partial, error)),
+        };
+        flushed.map_err(|e| {
+            let e = self.io(e);
+            self.fail(e)
+        })
     }
 
     fn wants_periodic_flush(&self) -> bool {
@@ -876,10 +1008,10 @@ mod tests {
             let text = format!("{e}: {:?}", std::error::Error::source(e));
             assert!(text.contains("No space left"), "{text}");
         };
-        // Blocks of BLOCK_VALUES / 4 rows, more than 64 KiB of text: the first block's write
-        // fails on the thread; a handover within the next two blocks finds the thread ended.
+        // Blocks of BLOCK_VALUES / 4 rows: the thread's first write (64 KiB of text) fails
+        // within its second block; a later handover finds the thread ended.
         let mut f = full_disk();
-        let failed = (0..3 * BLOCK_VALUES / 4)
+        let failed = (0..8 * BLOCK_VALUES)
             .find_map(|k| f.push_row(k as f64, &[1.0, 2.0, 3.0]).err())
             .expect("a failed write is returned by a push");
         no_space(&failed);
@@ -887,12 +1019,79 @@ mod tests {
         assert!(later.contains("an earlier write failed"), "{later}");
         let later = f.commit().unwrap_err().to_string();
         assert!(later.contains("an earlier write failed"), "{later}");
-        // Rows short of a block: the flush, then keep_partial, return it.
+        // Rows short of a block: the flush returns it; keep_partial then keeps the partial
+        // file (a failed run's rows written before the failure), the error already returned.
         let mut f = full_disk();
         f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
         no_space(&f.flush().unwrap_err());
+        assert_eq!(
+            f.keep_partial().unwrap(),
+            dir.path().join("full.csv.partial")
+        );
+        // A failure that keep_partial's own flush meets is its error.
         let mut f = full_disk();
         f.push_row(0.0, &[1.0, 2.0, 3.0]).unwrap();
         no_space(&f.keep_partial().unwrap_err());
+        // The caller's formatting latches its failure the same way.
+        let mut f = full_disk().encoding_on(EncodeOn::Caller);
+        f.out = Out::Caller(CsvWriter::new(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap(),
+        ));
+        f.begin(&["a".to_string()], &[ColumnKind::Real]).unwrap();
+        no_space(&f.flush().unwrap_err());
+        let later = f.push_row(0.0, &[1.0]).unwrap_err().to_string();
+        assert!(later.contains("an earlier write failed"), "{later}");
+    }
+
+    /// A caller in a real-time class when the first block is full (a paced run) formats its
+    /// rows itself from then on, and starts no thread: the same bytes.
+    #[test]
+    fn a_realtime_caller_formats_its_own_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("rt.csv");
+        let mut f = CsvFile::create(&out).unwrap();
+        f.caller_is_realtime = || true;
+        let columns = 5;
+        let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
+        f.begin(&names, &kinds_and_row(0, columns).0).unwrap();
+        let rows = 3 * BLOCK_VALUES / (columns + 1);
+        for k in 0..rows {
+            let (_, t, v) = kinds_and_row(k, columns);
+            f.push_row(t, &v).unwrap();
+            assert_eq!(
+                matches!(f.out, Out::Caller(_)),
+                6 * (k + 1) > BLOCK_VALUES - 6,
+                "row {k}"
+            );
+        }
+        let rt = std::fs::read(f.commit().unwrap()).unwrap();
+        assert_eq!(
+            rt,
+            written(dir.path(), EncodeOn::Caller, rows, columns, true)
+        );
+    }
+
+    /// The check of the caller's scheduling class: normal here, real-time inside a
+    /// `SCHED_FIFO` thread where the system grants one (CAP_SYS_NICE or RLIMIT_RTPRIO).
+    #[test]
+    fn the_realtime_check_sees_the_callers_class() {
+        std::thread::spawn(|| {
+            assert!(!caller_is_realtime());
+            match crate::emulator::realtime::RealtimeThread::enter(1) {
+                Ok(rt) => {
+                    assert!(caller_is_realtime());
+                    drop(rt);
+                    assert!(!caller_is_realtime());
+                }
+                Err(e) => {
+                    eprintln!("SCHED_FIFO not granted here ({e}): only the normal class checked")
+                }
+            }
+        })
+        .join()
+        .unwrap();
     }
 }

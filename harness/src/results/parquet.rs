@@ -333,13 +333,14 @@ impl ParquetFile {
             }
             Some(Writer::Thread(background)) => {
                 // A written group's buffers, else new ones.
-                let next = background
-                    .spare()
-                    .unwrap_or_else(|| Group::new(self.columns.width));
-                let full = std::mem::replace(&mut self.columns, next);
-                if background.send(full) {
+                let width = self.columns.width;
+                if background.send(std::mem::take(&mut self.columns)) {
+                    // The thread has taken the group: the one before is back (or this is
+                    // the first), so two groups are all the memory there is.
+                    self.columns = background.spare().unwrap_or_else(|| Group::new(width));
                     return Ok(());
                 }
+                self.columns = Group::new(width);
                 // The thread ended: its error.
                 let Some(Writer::Thread(background)) = self.writer.take() else {
                     unreachable!("matched above")
@@ -469,13 +470,13 @@ impl ResultSink for ParquetFile {
         };
         self.writer = Some(match self.encode_on {
             EncodeOn::Caller => Writer::Caller(Box::new(encoder)),
-            EncodeOn::Thread => {
-                Writer::Thread(Background::spawn(encoder, "parquet-writer").map_err(|e| {
+            EncodeOn::Thread => Writer::Thread(
+                Background::spawn(encoder, "parquet-writer").map_err(|(_, e)| {
                     self.err(io::Error::other(format!(
                         "starting the Parquet writer thread: {e}"
                     )))
-                })?)
-            }
+                })?,
+            ),
         });
         self.columns = Group::new(names.len() + 1);
         Ok(())
