@@ -878,30 +878,13 @@ mod tests {
     /// Rows with what a recording holds (NaN, signed zeros, infinities, subnormals, whole
     /// numbers), `columns` values each; the second column an Integer, the third a Boolean.
     fn kinds_and_row(k: usize, columns: usize) -> (Vec<ColumnKind>, f64, Vec<f64>) {
-        let special = [
-            f64::NAN,
-            -0.0,
-            0.0,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            5e-324,
-        ];
-        let kinds = (0..columns)
-            .map(|c| match c {
-                1 => ColumnKind::Integer,
-                2 => ColumnKind::Boolean,
-                _ => ColumnKind::Real,
-            })
-            .collect();
-        let values = (0..columns)
-            .map(|c| match (c, (k + c) % 5) {
-                (1, _) => (k as f64) - 7.0,
-                (2, _) => (k % 2) as f64,
-                (_, 0) => special[(k / 5 + c) % special.len()],
-                _ => ((k as f64) * 1e-3 + c as f64).sin() * 1e3,
-            })
-            .collect();
-        (kinds, k as f64 * 1e-3, values)
+        let (time, mut values) = crate::results::test_rows::row(k, columns);
+        let mut kinds = vec![ColumnKind::Real; columns];
+        if columns > 2 {
+            (kinds[1], values[1]) = (ColumnKind::Integer, k as f64 - 7.0);
+            (kinds[2], values[2]) = (ColumnKind::Boolean, (k % 2) as f64);
+        }
+        (kinds, time, values)
     }
 
     /// Writes `rows` rows of `columns` values formatted where `encode_on` says; committed or

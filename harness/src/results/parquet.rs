@@ -544,26 +544,7 @@ mod tests {
 mod thread_tests {
     use super::*;
 
-    /// Rows whose values cover what a recording holds: NaN, signed zeros, infinities,
-    /// subnormals, whole numbers.
-    fn row(k: usize, columns: usize) -> (f64, Vec<f64>) {
-        let special = [
-            f64::NAN,
-            -0.0,
-            0.0,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            5e-324,
-        ];
-        let values = (0..columns)
-            .map(|c| match (k + c) % 7 {
-                0 => special[(k / 7 + c) % special.len()],
-                1 => (k * c) as f64,
-                _ => ((k as f64) * 1e-3 + c as f64).sin() * 1e3,
-            })
-            .collect();
-        (k as f64 * 1e-3, values)
-    }
+    use crate::results::test_rows::row;
 
     fn write(path: &Path, encode_on: EncodeOn, rows: usize, columns: usize, commit: bool) {
         let mut f = ParquetFile::create_encoding_on(path, encode_on).unwrap();
