@@ -20,8 +20,8 @@
 //!   sweep: spec, scenario, loading), reported with what they add per point at [`LARGE`].
 //! - **writers**: the SEA scenario recording every output (about 100 signals) for 10 s at
 //!   1 kHz, run once into memory; then the same rows written by the streamed CSV writer and by
-//!   the Parquet writer (its row groups encoded on its own thread, the default, and in the
-//!   caller's), and by both writers as they were before their speed work (kept in
+//!   the Parquet writer (each encoding on its own thread, the default, and in the caller's),
+//!   and by both writers as they were before their speed work (kept in
 //!   `sweep/baseline_writers.rs`), each to its partial file, synced and renamed into place;
 //!   wall time (the durable write a user waits for) and the process's CPU time, user and
 //!   system (the writer thread's included; without the wait for the disk), each writer's I/O
@@ -195,8 +195,9 @@ fn overhead(dir: &Path, fmus: &Path) {
 }
 
 /// The writers compared by [`writers`], in the order they are run in each repeat.
-const WRITERS: [&str; 5] = [
+const WRITERS: [&str; 6] = [
     "CSV before",
+    "CSV caller",
     "CSV",
     "Parquet before",
     "Parquet caller",
@@ -218,11 +219,18 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
             f.commit().unwrap()
         }
         1 => {
-            let mut f = CsvFile::create(&dir.join("w.csv")).unwrap();
+            let mut f = CsvFile::create(&dir.join("caller.csv"))
+                .unwrap()
+                .encoding_on(EncodeOn::Caller);
             write(results, &mut f);
             f.commit().unwrap()
         }
         2 => {
+            let mut f = CsvFile::create(&dir.join("w.csv")).unwrap();
+            write(results, &mut f);
+            f.commit().unwrap()
+        }
+        3 => {
             let mut f = baseline_writers::ParquetFile::create(&dir.join("before.parquet")).unwrap();
             f.begin(names).unwrap();
             for (t, v) in rows() {
@@ -230,7 +238,7 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
             }
             f.commit().unwrap()
         }
-        3 => {
+        4 => {
             let mut f =
                 ParquetFile::create_encoding_on(&dir.join("caller.parquet"), EncodeOn::Caller)
                     .unwrap();
@@ -320,11 +328,13 @@ fn writers(dir: &Path, p: &Prepared) {
     }
     let ratio = |a: usize, b: usize| (wall[a] / wall[b], cpu[a] / cpu[b]);
     for (what, a, b) in [
-        ("Parquet vs CSV", 1, 4),
-        ("Parquet vs CSV before", 0, 4),
-        ("CSV vs CSV before", 0, 1),
-        ("Parquet vs Parquet before", 2, 4),
-        ("Parquet vs Parquet caller", 3, 4),
+        ("Parquet vs CSV", 2, 5),
+        ("Parquet vs CSV caller", 1, 5),
+        ("Parquet vs CSV before", 0, 5),
+        ("CSV vs CSV before", 0, 2),
+        ("CSV vs CSV caller", 1, 2),
+        ("Parquet vs Parquet before", 3, 5),
+        ("Parquet vs Parquet caller", 4, 5),
     ] {
         let (w, c) = ratio(a, b);
         println!("  {what:<26} {w:4.2}x faster (CPU time: {c:4.2}x)");
@@ -333,7 +343,7 @@ fn writers(dir: &Path, p: &Prepared) {
     // file's bytes alone, written at once and synced (a writer that cost nothing).
     println!(
         "  ceiling of Parquet vs CSV (CSV wall / Parquet bytes' I/O alone): {:4.2}x",
-        wall[1] / io[4]
+        wall[2] / io[5]
     );
 }
 
