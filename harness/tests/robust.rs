@@ -245,6 +245,47 @@ fn sigint_and_sigterm_stop_the_run_with_every_row_on_disk_and_the_temp_dirs_gone
     }
 }
 
+/// A run whose results cannot be renamed into place (a directory took the output's name
+/// during the run) fails with that error and keeps every row in its partial file.
+#[test]
+fn a_failed_commit_keeps_every_row_in_the_partial_file() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    // 2e8 steps, a row every 1000: seconds of work, so that the directory below is made
+    // while the run goes (its first rows reach the partial file within a tenth of it).
+    let child = kneebench()
+        .current_dir(d.path())
+        .arg("run")
+        .arg(&fmu)
+        .args([
+            "-q",
+            "--output",
+            "r.csv",
+            "--variables",
+            "x",
+            "--isolate",
+            "never",
+        ])
+        .args(["--stop-time", "200000", "--step", "0.001", "--param", "u=1"])
+        .args(["--record-every", "1000"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let partial = d.path().join("r.csv.partial");
+    wait_for_rows(&partial);
+    std::fs::create_dir(d.path().join("r.csv")).unwrap();
+    std::fs::write(d.path().join("r.csv").join("taken"), "").unwrap();
+    let o = child.wait_with_output().unwrap();
+    let (code, err) = code_and_stderr(&o);
+    assert_ne!(code, Some(0), "{err}");
+    assert!(err.contains("r.csv"), "{err}");
+    let r = Results::read_csv_file(&partial).unwrap();
+    assert_eq!(r.len(), 200_001, "{err}");
+    assert_eq!(r.times().last(), Some(&200_000.0));
+    assert_eq!(r.column("x").unwrap().last(), Some(&200_000_000.0));
+}
+
 /// Rows reach the disk every second even when they are far too few to fill the write buffer
 /// (64 KiB; here about 20 bytes a row, one row per 100,000 steps): the flush is timed, not
 /// triggered by a full buffer.

@@ -43,6 +43,14 @@ impl OutputFile {
         }
     }
 
+    /// Rows pushed so far.
+    pub fn rows(&self) -> u64 {
+        match self {
+            OutputFile::Csv(f) => f.rows(),
+            OutputFile::Parquet(f) => f.rows(),
+        }
+    }
+
     /// Renames the file into place.
     pub fn commit(self) -> Result<PathBuf, ResultsError> {
         match self {

@@ -408,6 +408,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     // Unloaded while still armed: an FMU whose unloading calls exit() is reported too.
     drop(system);
     drop(armed);
+    // A run that recorded rows keeps its partial file whatever fails from here on (the run,
+    // the commit's sync or rename, keep_partial): only a run that never started removes it.
+    if sink.0.rows() > 0 {
+        guard.0 = None;
+    }
     let summary = summary?;
     if let Some(pb) = bar {
         pb.finish_and_clear();
