@@ -22,6 +22,10 @@ use kneebench_tests::*;
 
 const H: f64 = 1e-3;
 
+/// The emulator's allowance `d` in the trajectory tolerance: how late its replies may be on an
+/// undisturbed host, which the test cannot measure (seconds).
+const EMULATOR_ALLOWANCE: f64 = 3e-4;
+
 fn key_path() -> String {
     bench_key_file().1.to_str().unwrap().to_owned()
 }
@@ -170,7 +174,8 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
     // The calibrated transducer of the plant carries the untared bias m g Lg sin(c).
     let bias = 1.94 * 9.81 * 0.25 * (-0.01f64).sin();
     // Every hardware run must agree with the plant run within the tolerance its own measured
-    // lateness gives (a run the host held up by more than 1 ms is run again instead, below).
+    // lateness gives (a run the host held up by more than the emulator's allowance is run
+    // again instead, below).
     // The comparison means something only if each signal moves by more than 5 of those
     // tolerances: a run the host stalled badly (seen once under a load average of 10: 269
     // overruns, 12 ms of lateness) widens the tolerance past that, so it is run again on a
@@ -193,7 +198,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
             hw.outcome
         );
         let (overruns, max_lateness) = stats.unwrap();
-        let offset = max_lateness + 3e-4;
+        let offset = max_lateness + EMULATOR_ALLOWANCE;
         eprintln!(
             "hardware run, attempt {attempt}: {overruns} overruns, max lateness {:.0} us",
             max_lateness * 1e6
@@ -229,12 +234,14 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
             }
         }
         // The allowance `d` holds for the emulator on an undisturbed host; a run whose own
-        // deadlines the host held up by more than a millisecond may have had the emulator's
-        // replies held up by more than `d` too, unmeasured: such a run is not judged but run
-        // again (at most three attempts). An undisturbed run outside the tolerance fails.
+        // deadlines the host held up by more than `d` may have had the emulator's replies held
+        // up by more than `d` too, unmeasured: such a run is not judged but run again (at most
+        // three attempts). An undisturbed run (its lateness within `d`; 1-20 us on a quiet
+        // host) outside the tolerance fails. (With 1 ms as the threshold, a run held up by
+        // 0.9 ms failed under a load of 4 busy loops on 2 cores.)
         if !outside.is_empty() {
             assert!(
-                max_lateness > 1e-3 && attempt < 3,
+                max_lateness > EMULATOR_ALLOWANCE && attempt < 3,
                 "attempt {attempt} (max lateness {:.0} us): {outside:?}",
                 max_lateness * 1e6
             );
