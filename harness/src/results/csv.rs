@@ -503,10 +503,9 @@ impl CsvFile {
                 ..
             }) => {
                 format_block(&mut w, &mut block, width).map_err(|e| self.io(e))?;
+                // Closed as a caller-formatted file (which leaves it done).
                 self.out = Out::Caller(w);
-                let closed = self.close(sync);
-                self.out = Out::Done(None);
-                closed
+                self.close(sync)
             }
             Out::Blocks(Blocks {
                 block,
