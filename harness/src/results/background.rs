@@ -149,6 +149,18 @@ impl<E: BlockEncoder> Background<E> {
         self.join(partial)
     }
 
+    /// Why the thread ended before it was told to (a handover or flush found it gone): its
+    /// error, a panic included; `kind` ("CSV", "Parquet") names it should it have none.
+    pub(super) fn failure(self, partial: &Path, kind: &str) -> ResultsError {
+        match self.join(partial) {
+            Err(e) => e,
+            Ok(()) => ResultsError::Io {
+                path: partial.to_path_buf(),
+                source: io::Error::other(format!("the {kind} writer thread ended early")),
+            },
+        }
+    }
+
     /// The thread's outcome once it has ended (the channel closed: it ends after the blocks it
     /// holds); a panic of the thread is an error.
     pub(super) fn join(mut self, partial: &Path) -> Result<(), ResultsError> {
@@ -161,6 +173,18 @@ impl<E: BlockEncoder> Background<E> {
             }),
             None => Ok(()),
         }
+    }
+}
+
+/// The error of a call on a file sink (`kind`: "CSV", "Parquet") that is closed, or whose
+/// writer failed (`failure`: that first error, already returned once).
+pub(super) fn closed_error(partial: &Path, kind: &str, failure: Option<&str>) -> ResultsError {
+    ResultsError::Io {
+        path: partial.to_path_buf(),
+        source: io::Error::other(match failure {
+            Some(e) => format!("an earlier write failed: {e}"),
+            None => format!("the {kind} file is closed"),
+        }),
     }
 }
 

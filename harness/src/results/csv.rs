@@ -34,7 +34,7 @@ use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
 pub use super::background::EncodeOn;
-use super::background::{Background, BlockEncoder};
+use super::background::{Background, BlockEncoder, closed_error};
 use super::{ColumnKind, ResultSink, ResultsError};
 
 /// Bytes gathered before they are handed to the underlying writer (always at the end of a
@@ -408,11 +408,9 @@ impl CsvFile {
             Out::Blocks(Blocks {
                 writer: BlockWriter::Thread(background),
                 ..
-            }) => background.join(&self.partial).err(),
-            _ => None,
+            }) => background.failure(&self.partial, "CSV"),
+            _ => self.io(io::Error::other("the CSV writer thread ended early")),
         };
-        let error =
-            error.unwrap_or_else(|| self.io(io::Error::other("the CSV writer thread ended early")));
         self.fail(error)
     }
 
@@ -517,13 +515,11 @@ impl CsvFile {
                 } else if background.flush(block) {
                     background.join(&self.partial)
                 } else {
-                    background.join(&self.partial).and_then(|()| {
-                        Err(self.io(io::Error::other("the CSV writer thread ended early")))
-                    })
+                    Err(background.failure(&self.partial, "CSV"))
                 }
             }
             Out::Done(Some(_)) if !sync => Ok(()),
-            Out::Done(error) => Err(done_error(&self.partial, &error)),
+            Out::Done(error) => Err(closed_error(&self.partial, "CSV", error.as_deref())),
         }
     }
 
@@ -544,17 +540,6 @@ impl CsvFile {
         self.close(false)?;
         Ok(self.partial.clone())
     }
-}
-
-/// The error of a call on a closed or failed file (`error`: the failure).
-fn done_error(partial: &Path, error: &Option<String>) -> ResultsError {
-    io_error(
-        partial,
-        io::Error::other(match error {
-            Some(e) => format!("an earlier write failed: {e}"),
-            None => "the CSV file is closed".to_string(),
-        }),
-    )
 }
 
 /// A file dropped without [`CsvFile::commit`] or [`CsvFile::keep_partial`] (a run that ended
@@ -633,7 +618,7 @@ impl ResultSink for CsvFile {
                     self.fail(e)
                 })
             }
-            Out::Done(error) => Err(done_error(&self.partial, error)),
+            Out::Done(error) => Err(closed_error(&self.partial, "CSV", error.as_deref())),
         }
     }
 
@@ -660,7 +645,7 @@ impl ResultSink for CsvFile {
                     .unwrap_or_else(|| Vec::with_capacity(*capacity));
                 Ok(())
             }
-            Out::Done(error) => return Err(done_error(&self.partial, error)),
+            Out::Done(error) => return Err(closed_error(&self.partial, "CSV", error.as_deref())),
         };
         flushed.map_err(|e| {
             let e = self.io(e);

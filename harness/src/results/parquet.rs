@@ -43,15 +43,15 @@ use parquet::schema::types::ColumnPath;
 use parquet::schema::types::Type;
 
 pub use super::background::EncodeOn;
-use super::background::{Background, BlockEncoder};
+use super::background::{Background, BlockEncoder, closed_error};
 use super::csv::partial_path;
 use super::{ColumnKind, ResultSink, ResultsError};
 
 /// Rows per row group: a column's page of 8192 doubles is 64 KiB, under glibc's threshold
 /// for mapping an allocation on its own (128 KiB), so the column writer's buffers are taken
 /// from the heap and reused from one row group to the next instead of being mapped and
-/// faulted in afresh (the rows' own buffer, one per group, is reused as a whole): `kneebench run` recording every output of the SEA
-/// scenario for 100 s takes 2 400 page faults instead of 13 900 with 65 536 rows (53 MB of
+/// faulted in afresh (the rows' own buffer, one per group, is reused as a whole):
+/// `kneebench run` recording every output of the SEA scenario for 100 s takes 2 400 page faults instead of 13 900 with 65 536 rows (53 MB of
 /// buffers instead of 6.6 MB), 36 400 with each column handed over in one batch.
 pub const ROW_GROUP_ROWS: usize = 8192;
 
@@ -131,17 +131,6 @@ fn io_error(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> R
         path: path.to_path_buf(),
         source: io::Error::other(e),
     }
-}
-
-/// The error of a write to a file whose writer is closed or failed (`error`: its failure).
-fn done_error(path: &Path, error: Option<String>) -> ResultsError {
-    io_error(
-        path,
-        io::Error::other(match error {
-            Some(e) => format!("an earlier write failed: {e}"),
-            None => "the Parquet file is closed".to_string(),
-        }),
-    )
 }
 
 /// The `parquet` crate's file writer over the partial file: row groups, then the footer.
@@ -345,13 +334,13 @@ impl ParquetFile {
                 let Some(Writer::Thread(background)) = self.writer.take() else {
                     unreachable!("matched above")
                 };
-                let result = background.join(&self.partial).and_then(|()| {
-                    Err(self.err(io::Error::other("the Parquet writer thread ended early")))
-                });
-                self.writer = Some(Writer::Done(result.as_ref().err().map(|e| e.to_string())));
-                result
+                let error = background.failure(&self.partial, "Parquet");
+                self.writer = Some(Writer::Done(Some(error.to_string())));
+                Err(error)
             }
-            Some(Writer::Done(error)) => Err(done_error(&self.partial, error.clone())),
+            Some(Writer::Done(error)) => {
+                Err(closed_error(&self.partial, "Parquet", error.as_deref()))
+            }
             None => Ok(()),
         }
     }
@@ -370,7 +359,9 @@ impl ParquetFile {
                 encoder.finish()
             }
             Some(Writer::Thread(background)) => background.finish(last, &self.partial),
-            Some(Writer::Done(error)) => Err(done_error(&self.partial, error)),
+            Some(Writer::Done(error)) => {
+                Err(closed_error(&self.partial, "Parquet", error.as_deref()))
+            }
             None => unreachable!("begun above"),
         }
     }
