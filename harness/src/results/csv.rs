@@ -237,8 +237,6 @@ struct Blocks {
     block: Vec<f64>,
     /// Values per row, `time` included.
     width: usize,
-    /// Values a block holds (at least one row).
-    capacity: usize,
     writer: BlockWriter,
 }
 
@@ -256,6 +254,11 @@ enum BlockWriter {
 /// handover per 80 rows of 100 signals, and a flush waits for at most about two blocks'
 /// formatting (~0.5 ms at 100 signals).
 const BLOCK_VALUES: usize = 8 * 1024;
+
+/// An empty block for rows of `width` values: room for [`BLOCK_VALUES`], at least one row.
+fn empty_block(width: usize) -> Vec<f64> {
+    Vec::with_capacity(BLOCK_VALUES.max(width))
+}
 
 /// Formats the rows of `block` (`width` values each) into `writer` and empties it.
 fn format_block(
@@ -428,13 +431,12 @@ impl CsvFile {
             // The thread has taken the block: the one before is back (or this is the first).
             blocks.block = background
                 .spare()
-                .unwrap_or_else(|| Vec::with_capacity(blocks.capacity));
+                .unwrap_or_else(|| empty_block(blocks.width));
             return Ok(());
         }
         let Out::Blocks(Blocks {
             mut block,
             width,
-            capacity,
             writer: BlockWriter::NotStarted(writer),
         }) = std::mem::replace(&mut self.out, Out::Done(None))
         else {
@@ -453,9 +455,8 @@ impl CsvFile {
             Ok(background) => {
                 let sent = background.send(std::mem::take(&mut block));
                 self.out = Out::Blocks(Blocks {
-                    block: Vec::with_capacity(capacity),
+                    block: empty_block(width),
                     width,
-                    capacity,
                     writer: BlockWriter::Thread(background),
                 });
                 if !sent {
@@ -573,11 +574,9 @@ impl ResultSink for CsvFile {
             unreachable!("matched above")
         };
         let width = names.len() + 1;
-        let capacity = BLOCK_VALUES.max(width);
         self.out = Out::Blocks(Blocks {
-            block: Vec::with_capacity(capacity),
+            block: empty_block(width),
             width,
-            capacity,
             writer: BlockWriter::NotStarted(writer),
         });
         Ok(())
@@ -596,7 +595,9 @@ impl ResultSink for CsvFile {
                 blocks.block.push(time);
                 blocks.block.extend_from_slice(values);
                 self.rows += 1;
-                if blocks.block.len() + blocks.width > blocks.capacity {
+                // Full when the next row would make the block grow (a block's capacity is
+                // what `empty_block` gave it: the thread hands it back with it).
+                if blocks.block.len() + blocks.width > blocks.block.capacity() {
                     self.hand_over()?;
                 }
                 Ok(())
@@ -633,16 +634,13 @@ impl ResultSink for CsvFile {
             }) => format_block(writer, block, *width).and_then(|()| writer.flush()),
             Out::Blocks(Blocks {
                 block,
-                capacity,
+                width,
                 writer: BlockWriter::Thread(background),
-                ..
             }) => {
                 if !background.flush(std::mem::take(block)) {
                     return Err(self.thread_ended());
                 }
-                *block = background
-                    .spare()
-                    .unwrap_or_else(|| Vec::with_capacity(*capacity));
+                *block = background.spare().unwrap_or_else(|| empty_block(*width));
                 Ok(())
             }
             Out::Done(error) => return Err(closed_error(&self.partial, "CSV", error.as_deref())),
