@@ -286,6 +286,7 @@ fn every_example_of_the_readme_and_the_help_texts_works_in_order() {
         "plot",
         "study",
         "sweep",
+        "optimize",
         "metrics",
         "tune",
         "experiment",
@@ -318,12 +319,12 @@ fn every_example_of_the_readme_and_the_help_texts_works_in_order() {
         let mut prelude = String::new();
         ran += run_block(d.path(), &release, &mut prelude, &examples);
     }
-    assert!(ran >= 26, "{ran} help examples");
+    assert!(ran >= 28, "{ran} help examples");
     // The run examples recorded the variables they name.
     let pid = std::fs::read_to_string(d.path().join("pid.csv")).unwrap();
     assert!(pid.starts_with("time,"), "{pid}");
-    // The sweeps wrote their tables.
-    for file in ["out/sweep.parquet", "sweep.csv"] {
+    // The sweeps and the optimisation wrote their tables.
+    for file in ["out/sweep.parquet", "sweep.csv", "out/optimize.parquet"] {
         assert!(d.path().join(file).is_file(), "{file}");
     }
 }

@@ -11,6 +11,7 @@ pub mod info;
 pub mod key;
 pub mod last_resort;
 pub mod metrics;
+pub mod optimize;
 pub mod output;
 pub mod plot;
 pub mod run;
@@ -69,6 +70,8 @@ pub enum Command {
     Study(study::Args),
     /// Run a parameter sweep (TOML spec) on every local core; one table row per run (Parquet or CSV).
     Sweep(sweep::Args),
+    /// Optimise a metric over a sweep spec's parameters (differential evolution, constraints).
+    Optimize(optimize::Args),
     /// Step-response quality (rise, settling, overshoot, peak) or tracking error of a signal.
     Metrics(metrics::Args),
     /// Ziegler-Nichols starting gains from the ultimate gain or a step response.
@@ -104,6 +107,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Metrics(a) => metrics::run(a),
         Command::Study(a) => study::run(a),
         Command::Sweep(a) => sweep::run(a),
+        Command::Optimize(a) => optimize::run(a),
         Command::Tune(a) => tune::run(a),
         Command::Emulate(a) => emulate::run(a),
         Command::Experiment(a) => experiment::run(a),

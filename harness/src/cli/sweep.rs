@@ -1,9 +1,11 @@
 //! `kneebench sweep`.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use kneebench_harness::sweep::{Prepared, SweepError, SweepOptions, SweepSpec, run_sweep};
+use kneebench_harness::sweep::{
+    Prepared, SpecProblem, SweepError, SweepOptions, SweepSpec, run_sweep,
+};
 
 /// Arguments of `kneebench sweep`.
 #[derive(Debug, clap::Args)]
@@ -141,18 +143,47 @@ fn run_on_dask(
     }
 }
 
+/// Reads and checks a spec against its system: `Ok(Err(exit code))` when it is refused (every
+/// problem printed with its line), and when `optimization` differs from whether it has an
+/// `[optimize]` table (`kneebench sweep` runs designs, `kneebench optimize` optimisations).
+pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<Prepared, i32>> {
+    let refused = |problems: &[SpecProblem]| {
+        for p in problems {
+            eprintln!("error: {p}");
+        }
+        Ok(Err(super::EXIT_USAGE))
+    };
+    let prepared = match SweepSpec::from_file(spec).and_then(Prepared::new) {
+        Ok(p) => p,
+        Err(SweepError::Invalid(problems)) => return refused(&problems),
+        Err(e) => return Err(e.into()),
+    };
+    let mismatch = if optimization {
+        prepared.spec.optimize.is_none().then(|| {
+            prepared.spec.problem(
+                0,
+                "no [optimize] table: `kneebench optimize` needs one (the objective, the \
+                 generations); run a design with `kneebench sweep`",
+            )
+        })
+    } else {
+        prepared.refuse_optimization().err().and_then(|e| match e {
+            SweepError::Invalid(mut problems) => problems.pop(),
+            _ => None,
+        })
+    };
+    match mismatch {
+        Some(problem) => refused(&[problem]),
+        None => Ok(Ok(prepared)),
+    }
+}
+
 /// Runs `kneebench sweep`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     kneebench_harness::tempdirs::remove_stale();
-    let prepared = match SweepSpec::from_file(&a.spec).and_then(Prepared::new) {
+    let prepared = match prepare(&a.spec, false)? {
         Ok(p) => p,
-        Err(SweepError::Invalid(problems)) => {
-            for p in &problems {
-                eprintln!("error: {p}");
-            }
-            return Ok(super::EXIT_USAGE);
-        }
-        Err(e) => return Err(e.into()),
+        Err(code) => return Ok(code),
     };
     if let Some(address) = &a.dask {
         drop(prepared);

@@ -6,6 +6,8 @@
 //! - [`runner`]: checks the spec against the system's FMUs ([`Prepared`]), runs points on
 //!   worker threads (each with its own loaded FMUs and a fresh system per point), computes the
 //!   metrics, journals finished points for `--resume`.
+//! - [`optimize`]: differential evolution over the parameters (a spec with `[optimize]`), each
+//!   generation a batch of points run as a sweep's.
 //! - [`table`]: the rows ([`SweepTable`]) written as Parquet or CSV.
 //!
 //! Every point is run by a fresh system whose values depend on the point alone, and rows are
@@ -13,6 +15,7 @@
 //! the order in which they take points.
 
 pub mod design;
+pub mod optimize;
 pub mod runner;
 pub mod spec;
 pub mod table;
@@ -20,6 +23,7 @@ pub mod table;
 use std::path::PathBuf;
 
 pub use design::Design;
+pub use optimize::{Optimization, Optimizer, run_optimization};
 pub use runner::{Prepared, SweepOptions, run_sweep};
 pub use spec::{SpecProblem, SweepSpec};
 pub use table::{Row, RunStatus, SweepTable};

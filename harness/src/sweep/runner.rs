@@ -457,6 +457,15 @@ impl Prepared {
             return Err(SweepError::Invalid(problems));
         }
         let design = design::generate(&spec)?;
+        if let Some(o) = &spec.optimize {
+            let problems =
+                super::optimize::problems(o, &metric_names, design.points.len(), &|line, m| {
+                    spec.problem(line, m)
+                });
+            if !problems.is_empty() {
+                return Err(SweepError::Invalid(problems));
+            }
+        }
         let guids: Vec<(String, String)> = loaded
             .system
             .components()
@@ -527,6 +536,19 @@ impl Prepared {
         out
     }
 
+    /// An error if the spec is an optimisation (`[optimize]`): its design is only the first
+    /// generation, so running it as a sweep would silently do something else.
+    pub fn refuse_optimization(&self) -> Result<(), SweepError> {
+        match &self.spec.optimize {
+            Some(o) => Err(SweepError::Invalid(vec![self.spec.problem(
+                o.line,
+                "this spec optimises ([optimize]): run it with `kneebench optimize` (or \
+                 kneebench.optimize in Python), or remove [optimize] to sweep its design",
+            )])),
+            None => Ok(()),
+        }
+    }
+
     /// The first line of this sweep's journal (with its newline).
     pub fn journal_header(&self) -> String {
         format!("{JOURNAL_MAGIC} {}\n", self.fingerprint)
@@ -542,27 +564,53 @@ impl Prepared {
         }
     }
 
-    /// Runs the points `ids` on `workers` threads, handing each row to `on_row` as it comes
-    /// (in completion order). Every id gets a row; an id outside the design is an error.
+    /// Runs the points `ids` of the design on `workers` threads, handing each row to `on_row`
+    /// as it comes (in completion order). Every id gets a row; an id outside the design is an
+    /// error.
     pub fn run_points(
         &self,
         ids: &[u64],
         workers: usize,
         on_row: &mut dyn FnMut(Row) -> Result<(), SweepError>,
     ) -> Result<(), SweepError> {
-        if let Some(bad) = ids
+        let points = ids
             .iter()
-            .find(|&&i| i as usize >= self.design.points.len())
+            .map(|&id| match self.design.points.get(id as usize) {
+                Some(values) => Ok((id, values.clone())),
+                None => Err(SweepError::System(format!(
+                    "point {id} is not in the design ({} points)",
+                    self.design.points.len()
+                ))),
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        self.run_batch(&points, workers, on_row)
+    }
+
+    /// Runs `points` (an id and the parameters' values, in spec order, each) on `workers`
+    /// threads, handing each row to `on_row` as it comes (in completion order): the design's
+    /// points ([`run_points`](Self::run_points)) or an optimiser's (see
+    /// [`optimize`](super::optimize)). Every point gets a row; a point whose number of values
+    /// is not the number of parameters is an error.
+    pub fn run_batch(
+        &self,
+        points: &[(u64, Vec<f64>)],
+        workers: usize,
+        on_row: &mut dyn FnMut(Row) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
+        if let Some((id, values)) = points
+            .iter()
+            .find(|(_, v)| v.len() != self.spec.parameters.len())
         {
             return Err(SweepError::System(format!(
-                "point {bad} is not in the design ({} points)",
-                self.design.points.len()
+                "point {id} has {} values for {} parameters",
+                values.len(),
+                self.spec.parameters.len()
             )));
         }
-        let workers = workers.max(1).min(ids.len().max(1));
+        let workers = workers.max(1).min(points.len().max(1));
         let next = AtomicUsize::new(0);
         let (tx, rx) = mpsc::channel::<Result<Row, SweepError>>();
-        let mut done = vec![false; ids.len()];
+        let mut done = vec![false; points.len()];
         let mut outcome = Ok(());
         std::thread::scope(|scope| {
             for _ in 0..workers {
@@ -578,8 +626,10 @@ impl Prepared {
                     };
                     loop {
                         let k = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&id) = ids.get(k) else { break };
-                        let row = self.run_point(&loaded, id);
+                        let Some((id, values)) = points.get(k) else {
+                            break;
+                        };
+                        let row = self.run_values(&loaded, *id, values);
                         if tx.send(Ok(row)).is_err() {
                             break;
                         }
@@ -587,8 +637,11 @@ impl Prepared {
                 });
             }
             drop(tx);
-            let index: HashMap<u64, usize> =
-                ids.iter().enumerate().map(|(k, &id)| (id, k)).collect();
+            let index: HashMap<u64, usize> = points
+                .iter()
+                .enumerate()
+                .map(|(k, (id, _))| (*id, k))
+                .collect();
             for msg in rx {
                 let r = msg.and_then(|row| {
                     if let Some(&k) = index.get(&row.point) {
@@ -606,11 +659,11 @@ impl Prepared {
             }
         });
         outcome?;
-        let missing: Vec<u64> = ids
+        let missing: Vec<u64> = points
             .iter()
             .zip(&done)
             .filter(|(_, d)| !**d)
-            .map(|(&i, _)| i)
+            .map(|((id, _), _)| *id)
             .collect();
         if !missing.is_empty() {
             return Err(SweepError::Missing(missing));
@@ -630,9 +683,28 @@ impl Prepared {
         }
     }
 
-    /// Runs one point on a loaded system: its row, whatever happens.
+    /// Runs point `id` of the design on a loaded system: its row, whatever happens (an id
+    /// outside the design is a failed row).
     pub fn run_point(&self, loaded: &LoadedSystem, id: u64) -> Row {
-        let values = self.design.points[id as usize].clone();
+        match self.design.points.get(id as usize) {
+            Some(values) => self.run_values(loaded, id, values),
+            None => Row {
+                point: id,
+                parameters: Vec::new(),
+                metrics: vec![f64::NAN; self.metric_names.len()],
+                status: RunStatus::Failed,
+                message: format!(
+                    "point {id} is not in the design ({} points)",
+                    self.design.points.len()
+                ),
+            },
+        }
+    }
+
+    /// Runs the parameter values `values` (in spec order) as point `id` on a loaded system:
+    /// its row, whatever happens.
+    pub fn run_values(&self, loaded: &LoadedSystem, id: u64, values: &[f64]) -> Row {
+        let values = values.to_vec();
         let mut row = Row {
             point: id,
             parameters: values.clone(),
@@ -812,13 +884,15 @@ pub fn journal_line(row: &Row) -> String {
     )
 }
 
-fn parse_journal_line(line: &str, prepared: &Prepared) -> Option<Row> {
+/// A journal line's row, its parameters left empty (the caller knows them from the point's
+/// id); `None` if the line is not a row with `metrics` metrics.
+fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
     let mut parts = line.splitn(4, '\t');
     let point: u64 = parts.next()?.parse().ok()?;
     let status = RunStatus::from_name(parts.next()?)?;
     let metrics_text = parts.next()?;
     let message = unescape(parts.next()?);
-    let metrics: Vec<f64> = if metrics_text.is_empty() {
+    let values: Vec<f64> = if metrics_text.is_empty() {
         Vec::new()
     } else {
         metrics_text
@@ -826,49 +900,118 @@ fn parse_journal_line(line: &str, prepared: &Prepared) -> Option<Row> {
             .map(|h| u64::from_str_radix(h, 16).ok().map(f64::from_bits))
             .collect::<Option<_>>()?
     };
-    if metrics.len() != prepared.metric_names.len() {
+    if values.len() != metrics {
         return None;
     }
-    let parameters = prepared.design.points.get(point as usize)?.clone();
     Some(Row {
         point,
-        parameters,
-        metrics,
+        parameters: Vec::new(),
+        metrics: values,
         status,
         message,
     })
 }
 
-/// Reads the rows of a journal; refuses one of another sweep.
-fn read_journal(path: &Path, prepared: &Prepared) -> Result<BTreeMap<u64, Row>, SweepError> {
-    let bad = |message: String| SweepError::Journal {
-        path: path.to_path_buf(),
-        message,
-    };
-    let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let mut lines = text.split_inclusive('\n');
-    let header = lines.next().unwrap_or("").trim_end();
-    let want = format!("{JOURNAL_MAGIC} {}", prepared.fingerprint);
-    if header != want {
-        return Err(bad(
-            "belongs to another sweep (the spec or its points changed); remove it to start afresh"
-                .into(),
-        ));
-    }
-    let mut rows = BTreeMap::new();
-    for (i, line) in lines.enumerate() {
-        // A line without its newline was torn by a kill: that point runs again.
-        let Some(line) = line.strip_suffix('\n') else {
-            break;
+/// The journal of a sweep or an optimisation written to `output`: `<output>.journal`, one line
+/// per finished row after the fingerprint (see the module documentation).
+pub(crate) struct Journal {
+    path: PathBuf,
+    file: std::fs::File,
+}
+
+impl Journal {
+    /// Starts the journal of `prepared` for `output`. An existing journal is refused without
+    /// `resume`; with it, its rows are returned (their parameters empty, each id accepted by
+    /// `known`, else the line is refused) and the journal is rewritten with the complete rows
+    /// only (a torn last line, from a kill while it was written, is dropped: that point runs
+    /// again). A journal of another fingerprint is refused.
+    pub(crate) fn open(
+        output: &Path,
+        resume: bool,
+        prepared: &Prepared,
+        known: &dyn Fn(u64) -> bool,
+    ) -> Result<(Journal, BTreeMap<u64, Row>), SweepError> {
+        let path = journal_path(output);
+        let bad = |message: String| SweepError::Journal {
+            path: path.clone(),
+            message,
         };
-        let row = parse_journal_line(line, prepared)
-            .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
-        rows.insert(row.point, row);
+        let io = |source| SweepError::Io {
+            path: path.clone(),
+            source,
+        };
+        let header = prepared.journal_header();
+        let mut rows = BTreeMap::new();
+        if path.exists() {
+            if !resume {
+                return Err(bad(
+                    "an unfinished sweep's journal exists: pass --resume to \
+                     continue it, or remove it"
+                        .into(),
+                ));
+            }
+            let text = std::fs::read_to_string(&path).map_err(io)?;
+            let mut lines = text.split_inclusive('\n');
+            if lines.next().unwrap_or("").trim_end() != header.trim_end() {
+                return Err(bad(
+                    "belongs to another sweep (the spec or its points changed); \
+                     remove it to start afresh"
+                        .into(),
+                ));
+            }
+            for (i, line) in lines.enumerate() {
+                let Some(line) = line.strip_suffix('\n') else {
+                    break;
+                };
+                let row = parse_journal_line(line, prepared.metric_names.len())
+                    .filter(|r| known(r.point))
+                    .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
+                rows.insert(row.point, row);
+            }
+        }
+        let mut text = header;
+        for r in rows.values() {
+            text.push_str(&journal_line(r));
+        }
+        let mut file = std::fs::File::create(&path).map_err(io)?;
+        file.write_all(text.as_bytes()).map_err(io)?;
+        Ok((Journal { path, file }, rows))
     }
-    Ok(rows)
+
+    /// Appends a finished row.
+    pub(crate) fn record(&mut self, row: &Row) -> Result<(), SweepError> {
+        self.file
+            .write_all(journal_line(row).as_bytes())
+            .map_err(|source| SweepError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Removes the journal (its table is written).
+    pub(crate) fn remove(self) -> Result<(), SweepError> {
+        drop(self.file);
+        std::fs::remove_file(&self.path).map_err(|source| SweepError::Io {
+            path: self.path,
+            source,
+        })
+    }
+}
+
+/// A progress bar of `total` runs on stderr, at `done` already, if `show`.
+pub(crate) fn progress_bar(show: bool, total: u64, done: u64) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let pb = indicatif::ProgressBar::new(total);
+    pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:40}] {pos}/{len} runs ({eta} left)",
+    ) {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_position(done);
+    Some(pb)
 }
 
 /// Runs a whole sweep, writing the table to `output` (`.parquet`, else CSV) when given, with a
@@ -878,61 +1021,27 @@ pub fn run_sweep(
     output: Option<&Path>,
     options: &SweepOptions,
 ) -> Result<SweepTable, SweepError> {
+    prepared.refuse_optimization()?;
+    let points = &prepared.design.points;
     let mut finished: BTreeMap<u64, Row> = BTreeMap::new();
     let mut journal = None;
     if let Some(out) = output {
-        let jpath = journal_path(out);
-        let exists = jpath.exists();
-        if exists && !options.resume {
-            return Err(SweepError::Journal {
-                path: jpath,
-                message: "an unfinished sweep's journal exists: pass --resume to continue it, or remove it".into(),
-            });
+        let (j, mut rows) = Journal::open(out, options.resume, prepared, &|id| {
+            (id as usize) < points.len()
+        })?;
+        for row in rows.values_mut() {
+            row.parameters = points[row.point as usize].clone();
         }
-        let io = |source| SweepError::Io {
-            path: jpath.clone(),
-            source,
-        };
-        let file = if exists {
-            finished = read_journal(&jpath, prepared)?;
-            // Rewrite the journal with the complete rows only (drops a torn last line).
-            let mut f = std::fs::File::create(&jpath).map_err(io)?;
-            let mut text = format!("{JOURNAL_MAGIC} {}\n", prepared.fingerprint);
-            for r in finished.values() {
-                text.push_str(&journal_line(r));
-            }
-            f.write_all(text.as_bytes()).map_err(io)?;
-            f
-        } else {
-            let mut f = std::fs::File::create(&jpath).map_err(io)?;
-            writeln!(f, "{JOURNAL_MAGIC} {}", prepared.fingerprint).map_err(io)?;
-            f
-        };
-        journal = Some((jpath, file));
+        finished = rows;
+        journal = Some(j);
     }
-    let todo: Vec<u64> = (0..prepared.design.points.len() as u64)
+    let todo: Vec<u64> = (0..points.len() as u64)
         .filter(|i| !finished.contains_key(i))
         .collect();
-    let bar = if options.progress {
-        let pb = indicatif::ProgressBar::new(prepared.design.points.len() as u64);
-        pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:40}] {pos}/{len} runs ({eta} left)",
-        ) {
-            pb.set_style(style.progress_chars("=> "));
-        }
-        pb.set_position(finished.len() as u64);
-        Some(pb)
-    } else {
-        None
-    };
+    let bar = progress_bar(options.progress, points.len() as u64, finished.len() as u64);
     prepared.run_points(&todo, options.workers, &mut |row| {
-        if let Some((path, file)) = &mut journal {
-            file.write_all(journal_line(&row).as_bytes())
-                .map_err(|source| SweepError::Io {
-                    path: path.clone(),
-                    source,
-                })?;
+        if let Some(j) = &mut journal {
+            j.record(&row)?;
         }
         if let Some(pb) = &bar {
             pb.inc(1);
@@ -947,9 +1056,8 @@ pub fn run_sweep(
     table.rows = finished.into_values().collect();
     if let Some(out) = output {
         table.write(out)?;
-        if let Some((path, file)) = journal {
-            drop(file);
-            std::fs::remove_file(&path).map_err(|source| SweepError::Io { path, source })?;
+        if let Some(j) = journal {
+            j.remove()?;
         }
     }
     Ok(table)

@@ -79,6 +79,28 @@ struct RawSpec {
     parameters: Vec<Spanned<RawParameter>>,
     #[serde(default)]
     metrics: Option<RawMetrics>,
+    optimize: Option<Spanned<RawOptimize>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawOptimize {
+    objective: Spanned<String>,
+    direction: Option<Spanned<String>>,
+    generations: Spanned<i64>,
+    seed: Option<Spanned<i64>>,
+    differential_weight: Option<Spanned<f64>>,
+    crossover: Option<Spanned<f64>>,
+    #[serde(default)]
+    constraints: Vec<Spanned<RawConstraint>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConstraint {
+    metric: Spanned<String>,
+    min: Option<Spanned<f64>>,
+    max: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -265,6 +287,9 @@ pub struct SweepSpec {
     pub period: Option<f64>,
     /// Statistics of recorded signals.
     pub signals: Vec<SignalMetric>,
+    /// The optimisation, if the spec has an `[optimize]` table (the design is then its first
+    /// generation): see [`optimize`](super::optimize).
+    pub optimize: Option<OptimizeSpec>,
     /// The spec's text (its fingerprint identifies a sweep's journal).
     pub text: String,
 }
@@ -311,6 +336,170 @@ fn seed(p: &mut Problems<'_>, d: &RawDesign) -> u64 {
         }
         Some(s) => *s.get_ref() as u64,
         None => 0,
+    }
+}
+
+/// Whether the objective is minimised or maximised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    /// Smaller is better.
+    Minimize,
+    /// Larger is better.
+    Maximize,
+}
+
+/// A bound on a metric that an optimum must respect.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Constraint {
+    /// The metric's column name.
+    pub metric: String,
+    /// Smallest allowed value.
+    pub min: Option<f64>,
+    /// Largest allowed value.
+    pub max: Option<f64>,
+    /// Line of the constraint in the spec.
+    pub line: usize,
+}
+
+/// The `[optimize]` table: differential evolution over the parameters' `[min, max]`, the
+/// design as its first generation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OptimizeSpec {
+    /// The metric column to optimise.
+    pub objective: String,
+    /// Line of `objective`.
+    pub objective_line: usize,
+    /// Minimise or maximise.
+    pub direction: Direction,
+    /// Generations after the first (the design).
+    pub generations: usize,
+    /// Seed of the mutation and crossover draws.
+    pub seed: u64,
+    /// The differential weight `F` (scale of a mutation), in (0, 2].
+    pub differential_weight: f64,
+    /// The crossover probability `CR`, in [0, 1].
+    pub crossover: f64,
+    /// Bounds on metrics.
+    pub constraints: Vec<Constraint>,
+    /// Line of the `[optimize]` table.
+    pub line: usize,
+}
+
+/// The most generations of an optimisation (a typo guard: each generation is a whole batch of
+/// runs).
+pub const MAX_GENERATIONS: usize = 10_000;
+
+fn optimize_spec(
+    p: &mut Problems<'_>,
+    raw: &Spanned<RawOptimize>,
+    parameters: &[Parameter],
+) -> OptimizeSpec {
+    let o = raw.get_ref();
+    let direction = match o.direction.as_ref().map(|d| d.get_ref().as_str()) {
+        None | Some("minimize") => Direction::Minimize,
+        Some("maximize") => Direction::Maximize,
+        Some(other) => {
+            if let Some(d) = &o.direction {
+                p.at(
+                    d.span(),
+                    format!("unknown direction '{other}' (minimize, maximize)"),
+                );
+            }
+            Direction::Minimize
+        }
+    };
+    let generations = match count(p, &o.generations, "generations") {
+        Some(n) if n > MAX_GENERATIONS => {
+            p.at(
+                o.generations.span(),
+                format!("generations must be at most {MAX_GENERATIONS}, not {n}"),
+            );
+            n
+        }
+        Some(n) => n,
+        None => 1,
+    };
+    let seed = match &o.seed {
+        Some(s) if *s.get_ref() < 0 => {
+            p.at(s.span(), "seed must not be negative");
+            0
+        }
+        Some(s) => *s.get_ref() as u64,
+        None => 0,
+    };
+    let mut in_range = |v: &Option<Spanned<f64>>, what: &str, lo: f64, hi: f64, lo_open: bool| {
+        let Some(v) = v else { return None };
+        let x = *v.get_ref();
+        let above = if lo_open { x > lo } else { x >= lo };
+        if !(x.is_finite() && above && x <= hi) {
+            let open = if lo_open { "(" } else { "[" };
+            p.at(
+                v.span(),
+                format!("{what} must be in {open}{lo}, {hi}], not {x}"),
+            );
+        }
+        Some(x)
+    };
+    let differential_weight = in_range(
+        &o.differential_weight,
+        "differential_weight",
+        0.0,
+        2.0,
+        true,
+    )
+    .unwrap_or(0.7);
+    let crossover = in_range(&o.crossover, "crossover", 0.0, 1.0, false).unwrap_or(0.9);
+    let mut constraints = Vec::new();
+    for c in &o.constraints {
+        let r = c.get_ref();
+        let metric = r.metric.get_ref().trim().to_string();
+        let min = r.min.as_ref().map(|v| *v.get_ref());
+        let max = r.max.as_ref().map(|v| *v.get_ref());
+        for v in [&r.min, &r.max].into_iter().flatten() {
+            if v.get_ref().is_nan() {
+                p.at(v.span(), format!("constraint on '{metric}': bound is NaN"));
+            }
+        }
+        match (min, max) {
+            (None, None) => p.at(
+                c.span(),
+                format!("constraint on '{metric}' needs min, max or both"),
+            ),
+            (Some(lo), Some(hi)) if lo > hi => p.at(
+                c.span(),
+                format!("constraint on '{metric}': min {lo} is greater than max {hi}"),
+            ),
+            _ => {}
+        }
+        constraints.push(Constraint {
+            metric,
+            min,
+            max,
+            line: line_of(p.text, c.span().start),
+        });
+    }
+    for q in parameters {
+        if q.min.is_none() || q.max.is_none() {
+            p.at(
+                raw.span(),
+                format!(
+                    "the optimisation needs min and max for every parameter; '{}' (line {}) \
+                     has not both",
+                    q.name, q.line
+                ),
+            );
+        }
+    }
+    OptimizeSpec {
+        objective: o.objective.get_ref().trim().to_string(),
+        objective_line: line_of(p.text, o.objective.span().start),
+        direction,
+        generations,
+        seed,
+        differential_weight,
+        crossover,
+        constraints,
+        line: line_of(p.text, raw.span().start),
     }
 }
 
@@ -660,6 +849,10 @@ impl SweepSpec {
                 line: line_of(text, s.span().start),
             });
         }
+        let optimize = raw
+            .optimize
+            .as_ref()
+            .map(|o| optimize_spec(&mut p, o, &parameters));
         if !study_metrics && signals.is_empty() {
             p.at(
                 0..0,
@@ -679,12 +872,13 @@ impl SweepSpec {
             study_metrics,
             period,
             signals,
+            optimize,
             text: text.to_string(),
         })
     }
 
     /// A problem at `line` of the spec.
-    pub(crate) fn problem(&self, line: usize, message: impl Into<String>) -> SpecProblem {
+    pub fn problem(&self, line: usize, message: impl Into<String>) -> SpecProblem {
         SpecProblem {
             file: self.file.clone(),
             line,
