@@ -180,9 +180,10 @@ pub struct Prepared {
     pub guids: Vec<(String, String)>,
     /// The sweep's fingerprint (spec text and points).
     pub fingerprint: String,
-    /// The system loaded to check the spec, handed to the first worker that starts (one
-    /// loading of every FMU less per sweep).
-    preloaded: std::sync::Mutex<Option<LoadedSystem>>,
+    /// Loaded systems not in use: the one loaded to check the spec (one loading of every FMU
+    /// less per sweep), then those the workers of a batch give back when it ends, so that the
+    /// next batch (an optimisation's next generation) does not load the FMUs again.
+    idle: std::sync::Mutex<Vec<LoadedSystem>>,
     _dir: Option<tempfile::TempDir>,
 }
 
@@ -492,7 +493,7 @@ impl Prepared {
             input_files,
             guids,
             fingerprint,
-            preloaded: std::sync::Mutex::new(Some(loaded)),
+            idle: std::sync::Mutex::new(vec![loaded]),
             _dir: dir,
         })
     }
@@ -634,6 +635,7 @@ impl Prepared {
                             break;
                         }
                     }
+                    self.give_back(loaded);
                 });
             }
             drop(tx);
@@ -671,15 +673,25 @@ impl Prepared {
         Ok(())
     }
 
-    /// A loaded system for a worker: the one loaded to check the spec if no worker has
-    /// taken it yet, else a fresh loading of [`system_file`](Self::system_file).
+    /// A loaded system for a worker: an idle one (the one loaded to check the spec, or one a
+    /// finished batch gave back) if there is one, else a fresh loading of
+    /// [`system_file`](Self::system_file).
     pub fn worker_system(&self) -> Result<LoadedSystem, SweepError> {
-        let preloaded = self.preloaded.lock().ok().and_then(|mut p| p.take());
-        match preloaded {
+        let idle = self.idle.lock().ok().and_then(|mut p| p.pop());
+        match idle {
             Some(l) => Ok(l),
             None => {
                 ssp::load_system(&self.system_file, &LoadOptions::default()).map_err(system_error)
             }
+        }
+    }
+
+    /// Gives a worker's loaded system back for the next batch (see
+    /// [`worker_system`](Self::worker_system)); every point builds a fresh system from it,
+    /// so nothing of one batch's runs is left in it.
+    pub fn give_back(&self, loaded: LoadedSystem) {
+        if let Ok(mut idle) = self.idle.lock() {
+            idle.push(loaded);
         }
     }
 
