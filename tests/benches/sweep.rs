@@ -29,7 +29,14 @@
 //!   instruction counts under callgrind (`valgrind --tool=callgrind <bench binary>`, the
 //!   writer's count is the difference with `none`).
 //!
-//! `KNEEBENCH_SWEEP_BENCH_ONLY=throughput|overhead|writers` runs one part alone.
+//! - **optimize**: an optimisation (`run_optimization`: a population of [`POPULATION`],
+//!   [`GENERATIONS`] generations after it, each a batch run by the sweep's workers) against a
+//!   sweep of as many points (`run_sweep`, one batch), both on the SEA scenario's gait cycle
+//!   with the study metrics, with 1 and 2 workers: runs per second and the optimiser's cost
+//!   per run over the sweep's (the selection, the batch per generation, and with 2 workers
+//!   the wait at each generation's end for the slower worker).
+//!
+//! `KNEEBENCH_SWEEP_BENCH_ONLY=throughput|overhead|writers|optimize` runs one part alone.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -42,7 +49,7 @@ use kneebench_harness::package::export_all;
 use kneebench_harness::results::ResultSink;
 use kneebench_harness::results::csv::CsvFile;
 use kneebench_harness::results::parquet::{EncodeOn, ParquetFile};
-use kneebench_harness::sweep::{Prepared, SweepOptions, SweepSpec, run_sweep};
+use kneebench_harness::sweep::{Prepared, SweepOptions, SweepSpec, run_optimization, run_sweep};
 use kneebench_harness::{LoadOptions, Results, ssp};
 use kneebench_tests::fmu_library;
 
@@ -53,6 +60,10 @@ const THROUGHPUT_POINTS: usize = 400;
 const SMALL: usize = 40;
 /// The larger sweep of the per-point measurement.
 const LARGE: usize = 240;
+/// The optimisation's population.
+const POPULATION: usize = 8;
+/// The optimisation's generations after the design's.
+const GENERATIONS: usize = 24;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -135,7 +146,59 @@ fn main() {
     if part("writers") {
         writers(dir.path(), &p);
     }
+    if part("optimize") {
+        optimize(dir.path(), &fmus);
+    }
     println!("load average after: {}", load_average());
+}
+
+/// An optimisation and a sweep of as many runs (see the module documentation).
+fn optimize(dir: &Path, fmus: &Path) {
+    let runs = POPULATION * (GENERATIONS + 1);
+    let metrics = "[metrics]\nstudy = true\n";
+    let spec = |name: &str, text: String| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        Prepared::new(SweepSpec::from_file(&path).unwrap()).unwrap()
+    };
+    let optimization = spec(
+        "optimize.toml",
+        format!(
+            "{}{metrics}[optimize]\nobjective = \"rms_error_knee\"\ngenerations = {GENERATIONS}\n\
+             seed = 2\n[[optimize.constraints]]\nmetric = \"all_electrical_energy\"\nmax = 85.0\n",
+            spec_text(fmus, POPULATION)
+        ),
+    );
+    let sweep = spec("same.toml", format!("{}{metrics}", spec_text(fmus, runs)));
+    let mut rate = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
+    for _ in 0..REPEATS {
+        for (k, workers) in [1usize, 2].into_iter().enumerate() {
+            let options = SweepOptions {
+                workers,
+                progress: false,
+                resume: false,
+            };
+            let t = Instant::now();
+            let o = run_optimization(&optimization, None, &options, &mut |_| {}).unwrap();
+            rate[0][k].push(runs as f64 / t.elapsed().as_secs_f64());
+            assert_eq!(o.table.rows.len(), runs);
+            let t = Instant::now();
+            let table = run_sweep(&sweep, None, &options).unwrap();
+            rate[1][k].push(runs as f64 / t.elapsed().as_secs_f64());
+            assert_eq!(table.rows.len(), runs);
+        }
+    }
+    let [[o1, o2], [s1, s2]] = rate.map(|r| r.map(median));
+    println!(
+        "optimisation ({POPULATION} x {} generations = {runs} runs of one gait cycle) vs a sweep \
+         of {runs} points: 1 worker {o1:.1} vs {s1:.1} runs/s (cost per run {:+.1} %), 2 workers \
+         {o2:.1} vs {s2:.1} runs/s ({:+.1} %); 2 workers over 1: optimisation {:.2}x, sweep {:.2}x",
+        GENERATIONS + 1,
+        (s1 / o1 - 1.0) * 100.0,
+        (s2 / o2 - 1.0) * 100.0,
+        o2 / o1,
+        s2 / s1
+    );
 }
 
 fn throughput(p: &Prepared) {
