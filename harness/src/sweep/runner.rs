@@ -716,10 +716,9 @@ impl Prepared {
     /// Runs the parameter values `values` (in spec order) as point `id` on a loaded system:
     /// its row, whatever happens.
     pub fn run_values(&self, loaded: &LoadedSystem, id: u64, values: &[f64]) -> Row {
-        let values = values.to_vec();
         let mut row = Row {
             point: id,
-            parameters: values.clone(),
+            parameters: values.to_vec(),
             metrics: vec![f64::NAN; self.metric_names.len()],
             status: RunStatus::Ok,
             message: String::new(),
@@ -733,7 +732,7 @@ impl Prepared {
             Ok(s) => s,
             Err(e) => return fail(row, e.to_string()),
         };
-        for (p, &v) in self.spec.parameters.iter().zip(&values) {
+        for (p, &v) in self.spec.parameters.iter().zip(values) {
             let value = match p.ty {
                 ParameterType::Real => Value::Real(v),
                 ParameterType::Integer => Value::Integer(v as i32),
@@ -774,7 +773,7 @@ impl Prepared {
             }
         }
         // A run that tripped or failed keeps its own message; metrics it could not give stay NaN.
-        if let Err(message) = self.metrics(&output.results, &values, &mut row)
+        if let Err(message) = self.metrics(&output.results, values, &mut row)
             && row.status == RunStatus::Ok
         {
             row.status = RunStatus::Failed;
