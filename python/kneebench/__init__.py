@@ -1,5 +1,6 @@
-"""kneebench from Python: run the bench's FMUs and SSP systems, the DA/SEA/CSEA study and
-parameter sweeps, locally or on a Dask cluster, with the results as pandas DataFrames.
+"""kneebench from Python: run the bench's FMUs and SSP systems, the DA/SEA/CSEA study,
+parameter sweeps and optimisations, locally or on a Dask cluster, with the results as pandas
+DataFrames.
 
 The simulations run in Rust (the kneebench harness) with the GIL released; errors are raised
 as :class:`KneebenchError` (:class:`SpecError` for a refused sweep spec) carrying the Rust
@@ -11,7 +12,7 @@ from __future__ import annotations
 import atexit
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,7 @@ from ._native import KneebenchError, SpecError
 __all__ = [
     "KneebenchError",
     "SpecError",
+    "optimize",
     "run",
     "ship",
     "study",
@@ -114,10 +116,10 @@ def _set_units(df: pd.DataFrame, d: Mapping[str, Any]) -> None:
 
 
 def sweep_info(spec: str | os.PathLike[str]) -> dict[str, Any]:
-    """Check a sweep spec against its system (raises SpecError naming each bad line) and
-    return ``{"points", "parameters", "metrics", "units", "fingerprint", "files"}``
-    (``files``: the absolute paths the sweep reads: the spec, its design CSV, the system file
-    or the scenario's FMUs)."""
+    """Check a sweep spec against its system (raises SpecError naming each bad line, or for a
+    spec with ``[optimize]``: see :func:`optimize`) and return ``{"points", "parameters",
+    "metrics", "units", "fingerprint", "files"}`` (``files``: the absolute paths the sweep
+    reads: the spec, its design CSV, the system file or the scenario's FMUs)."""
     return dict(_native.sweep_info(os.path.abspath(os.fspath(spec))))
 
 
@@ -129,12 +131,71 @@ def _run_batch(spec: str, ids: list[int]) -> dict[str, Any]:
     return dict(native.sweep_points(spec, ids))
 
 
+def _run_optimize_batch(spec: str, points: list[tuple[int, list[float]]]) -> dict[str, Any]:
+    """One batch of a generation of a distributed optimisation, run on a Dask worker (the
+    points' ids and parameter values; the same needs as :func:`_run_batch`)."""
+    from kneebench import _native as native
+
+    return dict(native.optimize_points(spec, points))
+
+
+def _default_batch_size(client: Any, n: int) -> int:
+    """About four batches of ``n`` points per worker of ``client``."""
+    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+    return max(1, math.ceil(n / (4 * n_workers)))
+
+
+def _run_on_cluster(
+    client: Any,
+    task: Callable[[str, Any], dict[str, Any]],
+    spec: str,
+    batches: Sequence[Any],
+    ids: Sequence[Sequence[int]],
+    fingerprint: str,
+    retries: int,
+) -> list[dict[str, Any]]:
+    """Runs ``task(spec, batch)`` for every batch on the workers of ``client`` and returns
+    their rows dicts (in batch order), each checked against ``fingerprint``. ``ids`` are the
+    batches' point ids: those of batches that never came back (their worker died more often
+    than the scheduler allows, or their task raised ``retries + 1`` times) are named in the
+    KneebenchError raised."""
+    from distributed import wait
+
+    futures = client.map(task, [spec] * len(batches), batches, pure=False, retries=retries)
+    wait(futures)
+    parts = []
+    missing: list[int] = []
+    errors: list[str] = []
+    for fut, batch_ids in zip(futures, ids):
+        if fut.status != "finished":
+            missing.extend(batch_ids)
+            try:
+                errors.append(repr(fut.exception()))
+            except Exception as e:  # noqa: BLE001 - the worker's error, whatever it is
+                errors.append(repr(e))
+            continue
+        d = fut.result()
+        if d["fingerprint"] != fingerprint:
+            raise KneebenchError(
+                "a worker sees another sweep (the spec, its points or the FMUs' GUIDs differ): "
+                f"fingerprint {d['fingerprint']} != {fingerprint}"
+            )
+        parts.append(d)
+    if missing:
+        raise KneebenchError(
+            f"{len(missing)} points without a row: {missing}; first error: "
+            f"{errors[0] if errors else 'unknown'}"
+        )
+    return parts
+
+
 def ship(client: Any, spec: str | os.PathLike[str]) -> list[str]:
-    """Send a sweep's input files to the workers of ``client`` (a ``dask.distributed.Client``)
-    for clusters without a shared file system: every worker, present and future, writes them
-    at the same absolute paths as on this machine (:class:`kneebench.shipping.ShipFiles`).
-    Returns the paths.
-    Call it before :func:`sweep`; the paths must be writable on the workers."""
+    """Send a sweep's (or an optimisation's) input files to the workers of ``client`` (a
+    ``dask.distributed.Client``) for clusters without a shared file system: every worker,
+    present and future, writes them at the same absolute paths as on this machine
+    (:class:`kneebench.shipping.ShipFiles`). Returns the paths.
+    Call it before :func:`sweep` or :func:`optimize`; the paths must be writable on the
+    workers."""
     from .shipping import ShipFiles
 
     plugin = ShipFiles.from_spec(spec)
@@ -166,7 +227,8 @@ def sweep(
     worker died is rescheduled by the scheduler, up to its
     ``distributed.scheduler.allowed-failures`` setting (default 3), whatever ``retries`` says.
     Points still without a row raise KneebenchError naming them. The table equals the local
-    one bit for bit.
+    one bit for bit. A spec with an ``[optimize]`` table raises SpecError: run it with
+    :func:`optimize`.
     """
     path = os.path.abspath(os.fspath(spec))
     if client is None:
@@ -177,38 +239,11 @@ def sweep(
     info = _native.sweep_info(path)
     n = int(info["points"])
     if batch_size is None:
-        n_workers = max(1, len(client.scheduler_info().get("workers", {})))
-        batch_size = max(1, math.ceil(n / (4 * n_workers)))
+        batch_size = _default_batch_size(client, n)
     batches = [list(range(i, min(i + batch_size, n))) for i in range(0, n, batch_size)]
-    futures = client.map(
-        _run_batch, [path] * len(batches), batches, pure=False, retries=retries
+    parts = _run_on_cluster(
+        client, _run_batch, path, batches, batches, info["fingerprint"], retries
     )
-    from distributed import wait
-
-    wait(futures)
-    parts = []
-    missing: list[int] = []
-    errors: list[str] = []
-    for fut, ids in zip(futures, batches):
-        if fut.status != "finished":
-            missing.extend(ids)
-            try:
-                errors.append(repr(fut.exception()))
-            except Exception as e:  # noqa: BLE001 - the worker's error, whatever it is
-                errors.append(repr(e))
-            continue
-        d = fut.result()
-        if d["fingerprint"] != info["fingerprint"]:
-            raise KneebenchError(
-                "a worker sees another sweep (the spec, its points or the FMUs' GUIDs differ): "
-                f"fingerprint {d['fingerprint']} != {info['fingerprint']}"
-            )
-        parts.append(d)
-    if missing:
-        raise KneebenchError(
-            f"{len(missing)} points without a row: {missing}; first error: "
-            f"{errors[0] if errors else 'unknown'}"
-        )
     table = pd.concat([_frame(d) for d in parts], ignore_index=True)
     table = table.sort_values("point", kind="stable").reset_index(drop=True)
     _set_units(table, {**info, "units": info["units"]})
@@ -223,3 +258,114 @@ def sweep(
             [str(m) for m in table["message"]],
         )
     return table
+
+
+def _history_entry(g: Sequence[Any]) -> dict[str, Any]:
+    """A generation's best member, ``(generation, point, objective, violation)``, as a dict."""
+    generation, point, objective, violation = g
+    return {
+        "generation": int(generation),
+        "point": int(point),
+        "objective": float(objective),
+        "violation": float(violation),
+    }
+
+
+def _optimization_frame(d: Mapping[str, Any]) -> pd.DataFrame:
+    """The DataFrame of a finished optimisation (the dict of ``_native.optimize`` or
+    ``_native.Optimizer.finish``)."""
+    df = _frame(d)
+    population = int(d["population"])
+    df.insert(1, "generation", df["point"] // population)
+    units = df.attrs["units"]
+    units["generation"] = ""
+    df.attrs["units"] = {c: units.get(c, "") for c in df.columns}
+    point = int(d["best_point"])
+    (at,) = np.flatnonzero(df["point"].to_numpy() == point)
+    row = df.iloc[int(at)]
+    violation = float(d["violation"])
+    df.attrs["optimize"] = {
+        "objective": d["objective"],
+        "direction": d["direction"],
+        "population": population,
+        "generations": int(d["generations"]),
+    }
+    df.attrs["best"] = {
+        "point": point,
+        "generation": point // population,
+        "parameters": {n: float(row[n]) for n in d["parameters"]},
+        "metrics": {n: float(row[n]) for n in d["metrics"]},
+        "objective": float(row[d["objective"]]),
+        "violation": violation,
+        "feasible": violation == 0.0,
+        "status": str(row["status"]),
+        "message": str(row["message"]),
+    }
+    df.attrs["history"] = [_history_entry(g) for g in d["history"]]
+    return df
+
+
+def optimize(
+    spec: str | os.PathLike[str],
+    client: Any = None,
+    *,
+    workers: int | None = None,
+    output: str | os.PathLike[str] | None = None,
+    resume: bool = False,
+    batch_size: int | None = None,
+    retries: int = 2,
+    on_generation: Callable[[dict[str, Any]], None] | None = None,
+) -> pd.DataFrame:
+    """Run an optimisation (a sweep spec with an ``[optimize]`` table: differential evolution
+    over its parameters, the design as the first generation; see ``kneebench optimize``) and
+    return every run, sorted by point: the columns of :func:`sweep`'s frame with
+    ``generation`` (``point // population``) after ``point``. A spec without ``[optimize]``
+    raises SpecError.
+
+    ``df.attrs`` holds ``units`` (as :func:`sweep`), ``optimize`` (``objective``,
+    ``direction``, ``population``, ``generations``), ``best``: the best run (Deb's rules: a
+    run within every constraint beats one outside, and a tripped or failed run never wins)
+    as ``{"point", "generation", "parameters": {name: value}, "metrics": {name: value},
+    "objective": its objective's value, "violation": how far outside the constraints (0
+    within, infinite for a tripped or failed run), "feasible": violation == 0, "status",
+    "message"}``, and ``history``: the best member after each generation, a list of
+    ``{"generation", "point", "objective", "violation"}``. ``on_generation`` is called with
+    each of these as its generation ends; an exception it raises stops the optimisation and
+    is raised (locally, the journal is kept for ``resume``).
+
+    Without ``client`` the generations run on ``workers`` local threads (default: every
+    core); ``output`` (``.parquet`` or CSV) is written as ``kneebench optimize`` writes it,
+    with a journal next to it for ``resume``. With a ``dask.distributed.Client`` each
+    generation's points are sent in batches (``batch_size``, default: about four batches per
+    worker) to the workers, as :func:`sweep` sends a sweep's (``retries``, the spec and the
+    FMUs at the same absolute paths or :func:`ship`), and its rows gathered before the next
+    generation is made; ``resume`` cannot be combined with ``client``. The frame and the
+    table written are the same, bit for bit, whether run locally or on Dask.
+    """
+    path = os.path.abspath(os.fspath(spec))
+    out = None if output is None else os.fspath(output)
+    if client is None:
+        report = None
+        if on_generation is not None:
+
+            def report(*g: Any) -> None:
+                on_generation(_history_entry(g))
+
+        return _optimization_frame(_native.optimize(path, workers, out, resume, report))
+    if resume:
+        raise ValueError(
+            "resume is for local optimisations (client=None): a Dask optimisation keeps no "
+            "journal"
+        )
+    optimizer = _native.Optimizer(path)
+    fingerprint = optimizer.info["fingerprint"]
+    while points := optimizer.ask():
+        size = batch_size or _default_batch_size(client, len(points))
+        batches = [points[i : i + size] for i in range(0, len(points), size)]
+        ids = [[int(p[0]) for p in b] for b in batches]
+        optimizer.tell(
+            _run_on_cluster(client, _run_optimize_batch, path, batches, ids, fingerprint, retries)
+        )
+        if on_generation is not None:
+            on_generation(_history_entry(optimizer.history[-1]))
+    return _optimization_frame(optimizer.finish(out))

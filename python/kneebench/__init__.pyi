@@ -1,7 +1,7 @@
 """Type stubs of the kneebench package (see __init__.py for the documentation)."""
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import pandas as pd
@@ -41,4 +41,15 @@ def sweep(
     resume: bool = False,
     batch_size: int | None = None,
     retries: int = 2,
+) -> pd.DataFrame: ...
+def optimize(
+    spec: str | os.PathLike[str],
+    client: Any = None,
+    *,
+    workers: int | None = None,
+    output: str | os.PathLike[str] | None = None,
+    resume: bool = False,
+    batch_size: int | None = None,
+    retries: int = 2,
+    on_generation: Callable[[dict[str, Any]], None] | None = None,
 ) -> pd.DataFrame: ...

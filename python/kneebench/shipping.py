@@ -24,12 +24,12 @@ class ShipFiles(WorkerPlugin):
 
     @classmethod
     def from_spec(cls, spec: str | os.PathLike[str]) -> ShipFiles:
-        """The plugin carrying every file the sweep ``spec`` reads (read now, on the client)."""
+        """The plugin carrying every file the sweep (or optimisation) ``spec`` reads (read now,
+        on the client)."""
         from . import _native
 
-        info = _native.sweep_info(os.path.abspath(os.fspath(spec)))
         files = {}
-        for f in info["files"]:
+        for f in _native.input_files(os.path.abspath(os.fspath(spec))):
             with open(f, "rb") as fh:
                 files[os.fspath(f)] = fh.read()
         return cls(files)

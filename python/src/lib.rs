@@ -4,6 +4,10 @@
 //!
 //! Every function runs its simulation with the GIL released (`Python::detach`) and raises
 //! `kneebench.KneebenchError` (`SpecError` for a refused sweep spec) with the Rust message.
+//! Sweeps: `sweep` (local), `sweep_info`, `sweep_points` and `write_sweep_table` (Dask);
+//! optimisations: `optimize` (local), `optimize_info`, the ask/tell `Optimizer` and
+//! `optimize_points` (Dask). A sweep refuses a spec with `[optimize]`, an optimisation one
+//! without.
 //! Columns cross as little-endian float64 bytes (read with `numpy.frombuffer`, no copy per
 //! value).
 
@@ -11,9 +15,11 @@ use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::{Outcome, RunConfig, System};
 use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study};
+use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{
-    Prepared, Row, RunStatus, SweepError, SweepOptions, SweepSpec, run_sweep,
+    Optimization, Optimizer, Prepared, Row, RunStatus, SweepError, SweepOptions, SweepSpec,
+    run_optimization, run_sweep,
 };
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
@@ -327,8 +333,101 @@ fn rows_dict<'py>(py: Python<'py>, p: &Prepared, rows: &[Row]) -> PyResult<Bound
     Ok(d)
 }
 
+/// Rows from columns as `rows_dict` gives them: `columns` holds one float64 column (bytes) per
+/// parameter, then per metric, in the spec's order; `point`, `status` and `message` one entry
+/// per row. `what` names the caller in the errors.
+fn decode_rows(
+    what: &str,
+    p: &Prepared,
+    point: &[u64],
+    columns: &[Vec<u8>],
+    status: &[String],
+    message: &[String],
+) -> Result<Vec<Row>, String> {
+    let (np, nm) = (p.design.names.len(), p.metric_names.len());
+    let n = point.len();
+    if columns.len() != np + nm || status.len() != n || message.len() != n {
+        return Err(format!(
+            "{what}: {} columns, {} statuses and {} messages for {np} parameters + {nm} metrics \
+             and {n} rows",
+            columns.len(),
+            status.len(),
+            message.len(),
+        ));
+    }
+    let mut values: Vec<Vec<f64>> = Vec::with_capacity(columns.len());
+    for c in columns {
+        if c.len() != 8 * n {
+            return Err(format!(
+                "{what}: a column of {} bytes for {n} rows",
+                c.len()
+            ));
+        }
+        values.push(
+            c.chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+                .collect(),
+        );
+    }
+    (0..n)
+        .map(|k| {
+            Ok(Row {
+                point: point[k],
+                parameters: values[..np].iter().map(|c| c[k]).collect(),
+                metrics: values[np..].iter().map(|c| c[k]).collect(),
+                status: RunStatus::from_name(&status[k])
+                    .ok_or_else(|| format!("{what}: status '{}'", status[k]))?,
+                message: message[k].clone(),
+            })
+        })
+        .collect()
+}
+
+/// Rows from a dict of `rows_dict` (a batch's rows gathered from a Dask worker): an error if
+/// its fingerprint is not `p`'s (the worker prepared another spec, points or FMUs).
+fn rows_of_dict(what: &str, p: &Prepared, d: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
+    let item = |key: &str| {
+        d.get_item(key)
+            .map_err(|_| err(format!("{what}: rows without '{key}'")))
+    };
+    if let Ok(f) = d.get_item("fingerprint") {
+        let f: String = f.extract()?;
+        if f != p.fingerprint {
+            return Err(err(format!(
+                "{what}: rows of another sweep (the spec, its points or the FMUs' GUIDs \
+                 differ): fingerprint {f} != {}",
+                p.fingerprint
+            )));
+        }
+    }
+    let point: Vec<u64> = item("point")?.extract()?;
+    let columns: Vec<Vec<u8>> = item("columns")?.extract()?;
+    let status: Vec<String> = item("status")?.extract()?;
+    let message: Vec<String> = item("message")?.extract()?;
+    decode_rows(what, p, &point, &columns, &status, &message).map_err(err)
+}
+
+/// What `sweep_info` and `optimize_info` say of a prepared spec.
+fn info_dict<'py>(py: Python<'py>, p: &Prepared) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("points", p.design.points.len())?;
+    d.set_item("parameters", p.design.names.clone())?;
+    d.set_item("metrics", p.metric_names.clone())?;
+    d.set_item("fingerprint", p.fingerprint.clone())?;
+    d.set_item("units", p.column_units())?;
+    d.set_item("files", absolute_input_files(p))?;
+    Ok(d)
+}
+
+fn absolute_input_files(p: &Prepared) -> Vec<PathBuf> {
+    p.input_files
+        .iter()
+        .map(|f| std::path::absolute(f).unwrap_or_else(|_| f.clone()))
+        .collect()
+}
+
 /// Runs a whole sweep on local threads; returns the table as a dict of columns (see
-/// `rows_dict`), also written to `output` when given.
+/// `rows_dict`), also written to `output` when given. A spec with `[optimize]` is refused.
 #[pyfunction]
 #[pyo3(signature = (spec, workers=None, output=None, resume=false))]
 fn sweep<'py>(
@@ -341,39 +440,49 @@ fn sweep<'py>(
     let (prepared, table) = py
         .detach(|| {
             let prepared = prepare(&spec)?;
-            let mut options = SweepOptions {
-                resume,
-                ..SweepOptions::default()
-            };
-            if let Some(w) = workers {
-                options.workers = w.max(1);
-            }
-            let table = run_sweep(&prepared, output.as_deref(), &options)?;
+            prepared.refuse_optimization()?;
+            let table = run_sweep(
+                &prepared,
+                output.as_deref(),
+                &local_options(workers, resume),
+            )?;
             Ok((prepared, table))
         })
         .map_err(sweep_err)?;
     rows_dict(py, &prepared, &table.rows)
 }
 
-/// The sweep's size and columns: `{"points", "parameters", "metrics", "fingerprint"}` (the
-/// spec is checked in full).
+fn local_options(workers: Option<usize>, resume: bool) -> SweepOptions {
+    let mut options = SweepOptions {
+        resume,
+        ..SweepOptions::default()
+    };
+    if let Some(w) = workers {
+        options.workers = w.max(1);
+    }
+    options
+}
+
+/// The sweep's size and columns: `{"points", "parameters", "metrics", "units",
+/// "fingerprint", "files"}` (the spec is checked in full; one with `[optimize]` is refused).
 #[pyfunction]
 fn sweep_info<'py>(py: Python<'py>, spec: PathBuf) -> PyResult<Bound<'py, PyDict>> {
+    let p = py
+        .detach(|| {
+            let p = prepare(&spec)?;
+            p.refuse_optimization()?;
+            Ok(p)
+        })
+        .map_err(sweep_err)?;
+    info_dict(py, &p)
+}
+
+/// The absolute paths of the files a spec (a sweep's or an optimisation's) reads: the spec,
+/// its design CSV, the system file or the scenario's FMUs (what `kneebench.ship` sends).
+#[pyfunction]
+fn input_files(py: Python<'_>, spec: PathBuf) -> PyResult<Vec<PathBuf>> {
     let p = py.detach(|| prepare(&spec)).map_err(sweep_err)?;
-    let d = PyDict::new(py);
-    d.set_item("points", p.design.points.len())?;
-    d.set_item("parameters", p.design.names.clone())?;
-    d.set_item("metrics", p.metric_names.clone())?;
-    d.set_item("fingerprint", p.fingerprint.clone())?;
-    d.set_item("units", p.column_units())?;
-    d.set_item(
-        "files",
-        p.input_files
-            .iter()
-            .map(|f| std::path::absolute(f).unwrap_or_else(|_| f.clone()))
-            .collect::<Vec<_>>(),
-    )?;
-    Ok(d)
+    Ok(absolute_input_files(&p))
 }
 
 /// Writes a sweep's table (rows from `kneebench.sweep`, e.g. gathered from a Dask cluster) to
@@ -393,48 +502,209 @@ fn write_sweep_table(
 ) -> PyResult<()> {
     py.detach(|| {
         let p = prepare(&spec).map_err(sweep_err)?;
-        let (np, nm) = (p.design.names.len(), p.metric_names.len());
-        let n = point.len();
-        if columns.len() != np + nm || status.len() != n || message.len() != n {
-            return Err(err(format!(
-                "write_sweep_table: {} columns, {} statuses and {} messages for {} parameters + \
-                 {} metrics and {n} rows",
-                columns.len(),
-                status.len(),
-                message.len(),
-                np,
-                nm
-            )));
-        }
-        let mut values: Vec<Vec<f64>> = Vec::with_capacity(columns.len());
-        for c in &columns {
-            if c.len() != 8 * n {
-                return Err(err(format!(
-                    "write_sweep_table: a column of {} bytes for {n} rows",
-                    c.len()
-                )));
-            }
-            values.push(
-                c.chunks_exact(8)
-                    .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
-                    .collect(),
-            );
-        }
+        p.refuse_optimization().map_err(sweep_err)?;
         let mut table = p.empty_table();
-        for k in 0..n {
-            let status = RunStatus::from_name(&status[k])
-                .ok_or_else(|| err(format!("write_sweep_table: status '{}'", status[k])))?;
-            table.rows.push(Row {
-                point: point[k],
-                parameters: values[..np].iter().map(|c| c[k]).collect(),
-                metrics: values[np..].iter().map(|c| c[k]).collect(),
-                status,
-                message: message[k].clone(),
-            });
-        }
+        table.rows = decode_rows("write_sweep_table", &p, &point, &columns, &status, &message)
+            .map_err(err)?;
         table.rows.sort_by_key(|r| r.point);
         table.write(&output).map_err(sweep_err)
     })
+}
+
+/// The optimisation's settings in `d`: `objective`, `direction`, `population`, `generations`
+/// (nothing for a spec without `[optimize]`).
+fn set_settings(d: &Bound<'_, PyDict>, p: &Prepared) -> PyResult<()> {
+    if let Some(o) = &p.spec.optimize {
+        d.set_item("objective", &o.objective)?;
+        d.set_item("direction", o.direction.name())?;
+        d.set_item("population", p.design.points.len())?;
+        d.set_item("generations", o.generations)?;
+    }
+    Ok(())
+}
+
+/// One `(generation, point, objective, violation)` per generation told.
+fn history_tuples(h: &[GenerationBest]) -> Vec<(usize, u64, f64, f64)> {
+    h.iter()
+        .map(|g| (g.generation, g.point, g.objective, g.violation))
+        .collect()
+}
+
+/// A finished optimisation: its rows as `rows_dict` gives them (sorted by point), the
+/// settings (`set_settings`), `best_point`, `violation` (the best run's; 0: it meets every
+/// constraint) and `history` (`history_tuples`).
+fn optimization_dict<'py>(
+    py: Python<'py>,
+    p: &Prepared,
+    o: &Optimization,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = rows_dict(py, p, &o.table.rows)?;
+    set_settings(&d, p)?;
+    d.set_item("best_point", o.best.point)?;
+    d.set_item("violation", o.violation)?;
+    d.set_item("history", history_tuples(&o.history))?;
+    Ok(d)
+}
+
+/// The optimisation's size, columns and settings: `sweep_info`'s keys and `objective`,
+/// `direction`, `population`, `generations` (a spec without `[optimize]` is refused).
+#[pyfunction]
+fn optimize_info<'py>(py: Python<'py>, spec: PathBuf) -> PyResult<Bound<'py, PyDict>> {
+    let p = py
+        .detach(|| {
+            let p = prepare(&spec)?;
+            Optimizer::new(&p)?;
+            Ok(p)
+        })
+        .map_err(sweep_err)?;
+    let d = info_dict(py, &p)?;
+    set_settings(&d, &p)?;
+    Ok(d)
+}
+
+/// Runs a whole optimisation on local threads (`kneebench optimize`), every run's row written
+/// to `output` when given (with a journal for `resume`); returns `optimization_dict`.
+/// `on_generation(generation, point, objective, violation)` is called after each generation
+/// with its best member; an exception it raises stops the optimisation (the journal kept for
+/// `resume`) and is raised.
+#[pyfunction]
+#[pyo3(signature = (spec, workers=None, output=None, resume=false, on_generation=None))]
+fn optimize<'py>(
+    py: Python<'py>,
+    spec: PathBuf,
+    workers: Option<usize>,
+    output: Option<PathBuf>,
+    resume: bool,
+    on_generation: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut raised: Option<PyErr> = None;
+    let outcome = py.detach(|| {
+        let prepared = prepare(&spec)?;
+        let mut report = |g: &GenerationBest| {
+            if let Some(f) = &on_generation {
+                raised = Python::attach(|py| {
+                    f.call1(py, (g.generation, g.point, g.objective, g.violation))
+                        .err()
+                });
+                if raised.is_some() {
+                    // Stops the optimisation; the exception is raised below.
+                    return Err(SweepError::System("on_generation raised".into()));
+                }
+            }
+            Ok(())
+        };
+        let optimization = run_optimization(
+            &prepared,
+            output.as_deref(),
+            &local_options(workers, resume),
+            &mut report,
+        )?;
+        Ok((prepared, optimization))
+    });
+    if let Some(e) = raised {
+        return Err(e);
+    }
+    let (prepared, optimization) = outcome.map_err(sweep_err)?;
+    optimization_dict(py, &prepared, &optimization)
+}
+
+/// Differential evolution as ask and tell, for a driver that runs the points elsewhere (the
+/// package's Dask optimisation): `ask()` gives the next generation's points, `tell(rows)`
+/// takes their rows (dicts of `optimize_points`), `finish(output)` gives the result of the
+/// local `optimize`, and writes the same table.
+#[pyclass(module = "kneebench._native", name = "Optimizer")]
+struct PyOptimizer {
+    prepared: std::sync::Arc<Prepared>,
+    inner: Optimizer,
+}
+
+#[pymethods]
+impl PyOptimizer {
+    /// The optimiser of the spec at `spec` (checked in full; one without `[optimize]` is
+    /// refused).
+    #[new]
+    fn new(py: Python<'_>, spec: PathBuf) -> PyResult<Self> {
+        py.detach(|| {
+            let prepared = prepare(&spec)?;
+            let inner = Optimizer::new(&prepared)?;
+            Ok(PyOptimizer {
+                prepared: std::sync::Arc::new(prepared),
+                inner,
+            })
+        })
+        .map_err(sweep_err)
+    }
+
+    /// The next generation's points, `[(id, [value per parameter])]` (the same until their
+    /// rows are told; empty once every generation is told).
+    fn ask(&mut self) -> PyResult<Vec<(u64, Vec<f64>)>> {
+        Ok(self.inner.ask())
+    }
+
+    /// Takes the rows of the asked points: a dict of `optimize_points` or a list of them (in
+    /// any order; each asked point once, with the asked values; the fingerprint must be the
+    /// spec's).
+    fn tell(&mut self, rows: &Bound<'_, PyAny>) -> PyResult<()> {
+        const WHAT: &str = "Optimizer.tell";
+        let mut all = Vec::new();
+        if rows.is_instance_of::<PyDict>() {
+            all = rows_of_dict(WHAT, &self.prepared, rows)?;
+        } else {
+            for d in rows.try_iter()? {
+                all.extend(rows_of_dict(WHAT, &self.prepared, &d?)?);
+            }
+        }
+        self.inner.tell(all).map_err(sweep_err)
+    }
+
+    /// Whether every generation has been told.
+    #[getter]
+    fn finished(&self) -> bool {
+        self.inner.finished()
+    }
+
+    /// The best member after each generation told: `[(generation, point, objective,
+    /// violation)]`.
+    #[getter]
+    fn history(&self) -> PyResult<Vec<(usize, u64, f64, f64)>> {
+        Ok(history_tuples(self.inner.history()))
+    }
+
+    /// Runs of the whole optimisation (population x (generations + 1)).
+    #[getter]
+    fn total_runs(&self) -> PyResult<u64> {
+        Ok(self.inner.total_runs())
+    }
+
+    /// `optimize_info` of the spec.
+    #[getter]
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = info_dict(py, &self.prepared)?;
+        set_settings(&d, &self.prepared)?;
+        Ok(d)
+    }
+
+    /// The finished optimisation (every generation told): `optimize`'s dict, the table written
+    /// to `output` when given (`.parquet`, else CSV) the same as the local `optimize` writes.
+    #[pyo3(signature = (output=None))]
+    fn finish<'py>(
+        &mut self,
+        py: Python<'py>,
+        output: Option<PathBuf>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let inner = self.inner.clone();
+        let prepared = self.prepared.clone();
+        let optimization = py
+            .detach(|| {
+                let o = inner.finish(&prepared)?;
+                if let Some(out) = &output {
+                    o.table.write(out)?;
+                }
+                Ok(o)
+            })
+            .map_err(sweep_err)?;
+        optimization_dict(py, &self.prepared, &optimization)
+    }
 }
 
 /// What identifies a prepared sweep in [`CACHE`]: the spec's path and text, and the size and
@@ -461,61 +731,50 @@ impl CacheKey {
     }
 }
 
-/// The last sweep prepared by `sweep_points` in this process, with its loaded systems not in
-/// use: the batches of a Dask sweep that land on one worker prepare the sweep (parse the spec,
-/// write the scenario, load the FMUs) once, not once per batch.
+/// The last sweep (or optimisation) prepared by `sweep_points` or `optimize_points` in this
+/// process: the batches of a Dask sweep (or of every generation of an optimisation) that land
+/// on one worker prepare the spec (parse it, write the scenario, load the FMUs) once, not once
+/// per batch; the loaded systems of finished batches wait in the prepared spec for the next
+/// ([`Prepared::give_back`]).
 struct Cached {
     key: CacheKey,
     prepared: std::sync::Arc<Prepared>,
-    idle: Vec<ssp::LoadedSystem>,
 }
 
 static CACHE: std::sync::Mutex<Option<Cached>> = std::sync::Mutex::new(None);
 
-/// The prepared sweep of `spec` and a loaded system for one batch (from [`CACHE`] when the
-/// spec and its files are unchanged).
+/// The prepared spec of `spec` (from [`CACHE`] when the spec and its files are unchanged) and
+/// a loaded system for one batch, to give back to it when the batch ends.
 fn prepared_for_batch(
     spec: &Path,
 ) -> Result<(std::sync::Arc<Prepared>, ssp::LoadedSystem), SweepError> {
     let hit = {
-        let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-        cache.as_mut().and_then(|c| {
+        let cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        cache.as_ref().and_then(|c| {
             (CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key))
-                .then(|| (c.prepared.clone(), c.idle.pop()))
+                .then(|| c.prepared.clone())
         })
     };
-    if let Some((prepared, idle)) = hit {
-        // A new system is loaded outside the lock: the worker's other threads keep taking and
-        // giving back theirs meanwhile.
-        let loaded = match idle {
-            Some(l) => l,
-            None => prepared.worker_system()?,
-        };
-        return Ok((prepared, loaded));
-    }
-    let prepared = std::sync::Arc::new(prepare(spec)?);
+    let prepared = match hit {
+        Some(p) => p,
+        None => {
+            let p = std::sync::Arc::new(prepare(spec)?);
+            if let Some(key) = CacheKey::of(spec, &p.input_files) {
+                *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
+                    key,
+                    prepared: p.clone(),
+                });
+            }
+            p
+        }
+    };
+    // An idle system, or a new one loaded outside the lock: the worker's other threads keep
+    // taking and giving back theirs meanwhile.
     let loaded = prepared.worker_system()?;
-    if let Some(key) = CacheKey::of(spec, &prepared.input_files) {
-        *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
-            key,
-            prepared: prepared.clone(),
-            idle: Vec::new(),
-        });
-    }
     Ok((prepared, loaded))
 }
 
-/// Gives a batch's loaded system back to [`CACHE`] (if the sweep is still the cached one).
-fn batch_done(prepared: &std::sync::Arc<Prepared>, loaded: ssp::LoadedSystem) {
-    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(c) = cache.as_mut()
-        && std::sync::Arc::ptr_eq(&c.prepared, prepared)
-    {
-        c.idle.push(loaded);
-    }
-}
-
-/// Drops the cached sweep of `sweep_points` (its scenario and extracted FMUs are removed);
+/// Drops the cached sweep of `sweep_points` or `optimize_points` (its scenario and extracted FMUs are removed);
 /// registered with `atexit` by the package, so a worker that exits leaves no directories.
 #[pyfunction]
 fn clear_cache(py: Python<'_>) {
@@ -525,32 +784,73 @@ fn clear_cache(py: Python<'_>) {
     });
 }
 
+/// Runs a batch on this worker process: `batch` gives its rows with the prepared spec and a
+/// loaded system ([`prepared_for_batch`], the system given back after); returns them sorted
+/// by point as `rows_dict` does, with the spec's fingerprint.
+fn run_on_worker<'py>(
+    py: Python<'py>,
+    spec: &Path,
+    batch: impl Send + FnOnce(&Prepared, &ssp::LoadedSystem) -> Result<Vec<Row>, SweepError>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (p, rows) = py
+        .detach(|| {
+            let (p, loaded) = prepared_for_batch(spec)?;
+            let rows = batch(&p, &loaded);
+            p.give_back(loaded);
+            let mut rows = rows?;
+            rows.sort_by_key(|r| r.point);
+            Ok::<_, SweepError>((p, rows))
+        })
+        .map_err(sweep_err)?;
+    rows_dict(py, &p, &rows)
+}
+
 /// Runs the points `ids` of a sweep (a batch of a distributed sweep) one after the other;
 /// returns their rows sorted by point id, with the sweep's fingerprint (a worker whose spec
 /// or FMUs differ gives another one). The prepared sweep and its loaded system are kept for
-/// the next batch of the same sweep in this process.
+/// the next batch of the same sweep in this process. A spec with `[optimize]` is refused.
 #[pyfunction]
 fn sweep_points<'py>(
     py: Python<'py>,
     spec: PathBuf,
     ids: Vec<u64>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (p, rows) = py
-        .detach(|| {
-            let (p, loaded) = prepared_for_batch(&spec)?;
-            let n = p.design.points.len();
-            if let Some(bad) = ids.iter().find(|&&i| i as usize >= n) {
-                return Err(SweepError::System(format!(
-                    "point {bad} is not in the design ({n} points)"
-                )));
-            }
-            let mut rows: Vec<Row> = ids.iter().map(|&id| p.run_point(&loaded, id)).collect();
-            batch_done(&p, loaded);
-            rows.sort_by_key(|r| r.point);
-            Ok::<_, SweepError>((p, rows))
-        })
-        .map_err(sweep_err)?;
-    rows_dict(py, &p, &rows)
+    run_on_worker(py, &spec, |p, loaded| {
+        p.refuse_optimization()?;
+        let n = p.design.points.len();
+        if let Some(bad) = ids.iter().find(|&&i| i as usize >= n) {
+            return Err(SweepError::System(format!(
+                "point {bad} is not in the design ({n} points)"
+            )));
+        }
+        Ok(ids.iter().map(|&id| p.run_point(loaded, id)).collect())
+    })
+}
+
+/// Runs the points `(id, values)` of an optimisation (a batch of a generation that
+/// `Optimizer.ask` gave) one after the other; returns their rows as `sweep_points` does (sorted
+/// by point id, with the spec's fingerprint), from the same per-process cache. A spec without
+/// `[optimize]` is refused.
+#[pyfunction]
+fn optimize_points<'py>(
+    py: Python<'py>,
+    spec: PathBuf,
+    points: Vec<(u64, Vec<f64>)>,
+) -> PyResult<Bound<'py, PyDict>> {
+    run_on_worker(py, &spec, |p, loaded| {
+        Optimizer::new(p)?;
+        let n = p.design.names.len();
+        if let Some((id, v)) = points.iter().find(|(_, v)| v.len() != n) {
+            return Err(SweepError::System(format!(
+                "point {id} has {} values for {n} parameters",
+                v.len()
+            )));
+        }
+        Ok(points
+            .iter()
+            .map(|(id, values)| p.run_values(loaded, *id, values))
+            .collect())
+    })
 }
 
 /// The module.
@@ -565,6 +865,11 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep_info, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_points, m)?)?;
     m.add_function(wrap_pyfunction!(write_sweep_table, m)?)?;
+    m.add_function(wrap_pyfunction!(input_files, m)?)?;
+    m.add_function(wrap_pyfunction!(optimize, m)?)?;
+    m.add_function(wrap_pyfunction!(optimize_info, m)?)?;
+    m.add_function(wrap_pyfunction!(optimize_points, m)?)?;
+    m.add_class::<PyOptimizer>()?;
     m.add_function(wrap_pyfunction!(clear_cache, m)?)?;
     let units = PyDict::new(m.py());
     for (k, u) in STUDY_METRICS.iter().zip(STUDY_METRIC_UNITS) {

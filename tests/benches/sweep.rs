@@ -179,7 +179,7 @@ fn optimize(dir: &Path, fmus: &Path) {
                 resume: false,
             };
             let t = Instant::now();
-            let o = run_optimization(&optimization, None, &options, &mut |_| {}).unwrap();
+            let o = run_optimization(&optimization, None, &options, &mut |_| Ok(())).unwrap();
             rate[0][k].push(runs as f64 / t.elapsed().as_secs_f64());
             assert_eq!(o.table.rows.len(), runs);
             let t = Instant::now();

@@ -133,8 +133,12 @@ fn bad_optimize_tables_are_refused_naming_the_line() {
 fn an_optimisation_is_bit_identical_whatever_the_workers_and_finds_the_best_feasible_row() {
     let p = spec(SPEC).and_then(Prepared::new).unwrap();
     let mut seen = Vec::new();
-    let one = run_optimization(&p, None, &options(1), &mut |g| seen.push(g.clone())).unwrap();
-    let two = run_optimization(&p, None, &options(2), &mut |_| {}).unwrap();
+    let one = run_optimization(&p, None, &options(1), &mut |g| {
+        seen.push(g.clone());
+        Ok(())
+    })
+    .unwrap();
+    let two = run_optimization(&p, None, &options(2), &mut |_| Ok(())).unwrap();
     assert_eq!(one.table.rows.len(), 12);
     assert!(one.table.bit_identical(&two.table));
     assert!(one.best.bit_identical(&two.best));
@@ -198,7 +202,7 @@ fn resume_replays_the_journal_and_runs_the_rest() {
     let dir = tempfile::tempdir().unwrap();
     let p = spec(SPEC).and_then(Prepared::new).unwrap();
     let out = dir.path().join("optimize.parquet");
-    let full = run_optimization(&p, Some(&out), &options(2), &mut |_| {}).unwrap();
+    let full = run_optimization(&p, Some(&out), &options(2), &mut |_| Ok(())).unwrap();
     assert!(out.is_file() && !journal_path(&out).exists());
     // Interrupted in the second generation: the design's rows and one trial journaled (marked,
     // so that a rerun would show), a torn line after them.
@@ -211,7 +215,7 @@ fn resume_replays_the_journal_and_runs_the_rest() {
     let torn = journal_line(&full.table.rows[5]);
     journal.push_str(&torn[..torn.len() / 2]);
     std::fs::write(journal_path(&out), &journal).unwrap();
-    let e = run_optimization(&p, Some(&out), &options(2), &mut |_| {}).unwrap_err();
+    let e = run_optimization(&p, Some(&out), &options(2), &mut |_| Ok(())).unwrap_err();
     assert!(e.to_string().contains("pass --resume"), "{e}");
     let resumed = run_optimization(
         &p,
@@ -220,7 +224,7 @@ fn resume_replays_the_journal_and_runs_the_rest() {
             resume: true,
             ..options(2)
         },
-        &mut |_| {},
+        &mut |_| Ok(()),
     )
     .unwrap();
     assert!(
@@ -228,6 +232,33 @@ fn resume_replays_the_journal_and_runs_the_rest() {
         "only points 5.. ran again"
     );
     assert_eq!(resumed.best.point, full.best.point);
+    // Stopped by its caller after generation 1 (`on_generation`'s error): the error comes
+    // back, the journal holds generations 0 and 1, and the resumed run ends as the full one.
+    assert!(!journal_path(&out).exists());
+    std::fs::remove_file(&out).unwrap();
+    let e = run_optimization(&p, Some(&out), &options(2), &mut |g| {
+        if g.generation == 1 {
+            Err(SweepError::System("stopped by the caller".into()))
+        } else {
+            Ok(())
+        }
+    })
+    .unwrap_err();
+    assert_eq!(e.to_string(), "stopped by the caller");
+    assert!(!out.exists());
+    let journal = std::fs::read_to_string(journal_path(&out)).unwrap();
+    assert_eq!(journal.lines().count(), 1 + 8, "{journal}");
+    let resumed = run_optimization(
+        &p,
+        Some(&out),
+        &SweepOptions {
+            resume: true,
+            ..options(1)
+        },
+        &mut |_| Ok(()),
+    )
+    .unwrap();
+    assert!(resumed.table.bit_identical(&full.table));
     // A journaled point beyond the optimisation's runs is not one of its rows.
     let mut bad = p.journal_header();
     let mut beyond = full.table.rows[0].clone();
@@ -241,7 +272,7 @@ fn resume_replays_the_journal_and_runs_the_rest() {
             resume: true,
             ..options(1)
         },
-        &mut |_| {},
+        &mut |_| Ok(()),
     )
     .unwrap_err();
     assert!(

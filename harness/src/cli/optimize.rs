@@ -5,7 +5,10 @@ use std::path::PathBuf;
 
 use kneebench_harness::num::Num;
 use kneebench_harness::sweep::optimize::GenerationBest;
-use kneebench_harness::sweep::{SweepOptions, run_optimization};
+use kneebench_harness::sweep::spec::OptimizeSpec;
+use kneebench_harness::sweep::{Row, RunStatus, SweepOptions, run_optimization};
+
+use super::sweep::{DaskCall, run_on_dask};
 
 /// Arguments of `kneebench optimize`.
 #[derive(Debug, clap::Args)]
@@ -22,10 +25,16 @@ interlock or fails, or breaks a constraint, loses against one that does not. Eve
 row of the table (generation = point / population); the best run is printed and named in the
 table's metadata (kneebench.optimize.best_point). Finished rows are journaled to
 OUTPUT.journal; --resume replays them and runs the rest. The result is identical whatever the
-number of workers. From Python: kneebench.optimize(spec, client=...) runs the generations on a
-Dask cluster.")]
+number of workers.
+
+--dask ADDRESS runs each generation's points in batches on a Dask cluster's workers through
+the kneebench Python package (kneebench.optimize(spec, client=...)), as kneebench sweep
+--dask does (KNEEBENCH_PYTHON, the same absolute paths on the workers; see the README); the
+table and the printed result are the same as the local run's:
+  kneebench optimize examples/stiffness-sweep/optimize.toml --output out/optimize.parquet \\
+      --dask tcp://scheduler:8786")]
 pub struct Args {
-    /// The specification (TOML) with an [optimize] table.
+    /// The specification (TOML) with an `[optimize]` table.
     pub spec: PathBuf,
     /// The table of every run: Parquet for `.parquet`, CSV otherwise.
     #[arg(long, short, default_value = "optimize.parquet")]
@@ -39,78 +48,89 @@ pub struct Args {
     /// Do not print each generation's best (on a terminal: a progress bar instead).
     #[arg(long, short)]
     pub quiet: bool,
+    /// Run the generations on the Dask cluster whose scheduler is at ADDRESS (e.g.
+    /// tcp://scheduler:8786) instead of local threads.
+    #[arg(long, value_name = "ADDRESS", conflicts_with_all = ["workers", "resume"])]
+    pub dask: Option<String>,
+    /// With --dask: points per Dask task (default: about four tasks per worker and generation).
+    #[arg(long, requires = "dask", value_parser = clap::value_parser!(u64).range(1..))]
+    pub batch_size: Option<u64>,
 }
 
-/// Runs `kneebench optimize`.
-pub fn run(a: Args) -> anyhow::Result<i32> {
-    kneebench_harness::tempdirs::remove_stale();
-    let prepared = match super::sweep::prepare(&a.spec, true)? {
-        Ok(p) => p,
-        Err(code) => return Ok(code),
+/// `--dask`'s call of the Python package: it reports each generation's best (`generation G
+/// POINT OBJECTIVE VIOLATION`) and the best run (`best POINT VIOLATION STATUS` and its
+/// parameters' and metrics' values in spec order, then `message TEXT` if it has one); the
+/// reals as Python's `repr`, which parses back to the same value.
+const OPTIMIZE_CALL: DaskCall<'static> = DaskCall {
+    what: "optimisation",
+    source: r#"
+def call(client, spec, output, batch_size):
+    def show(g):
+        emit("generation", g["generation"], g["point"], repr(g["objective"]),
+             repr(g["violation"]))
+    table = kneebench.optimize(spec, client=client, output=output, batch_size=batch_size,
+                               on_generation=show)
+    best = table.attrs["best"]
+    emit("best", best["point"], repr(best["violation"]), best["status"],
+         *(repr(v) for v in best["parameters"].values()),
+         *(repr(v) for v in best["metrics"].values()))
+    if best["message"]:
+        emit("message", *best["message"].split())
+    return table
+"#,
+};
+
+/// `objective = value` and how the run stands against the constraints.
+fn describe(settings: &OptimizeSpec, objective: f64, violation: f64) -> String {
+    let standing = if violation == 0.0 {
+        String::new()
+    } else if violation.is_infinite() {
+        " (tripped or failed)".to_string()
+    } else {
+        format!(" (constraints violated by {})", Num(violation))
     };
-    let Some(settings) = prepared.spec.optimize.clone() else {
-        unreachable!("prepare(.., true) refuses a spec without [optimize]")
-    };
-    let mut options = SweepOptions {
-        progress: std::io::stderr().is_terminal() && a.quiet,
-        resume: a.resume,
-        ..SweepOptions::default()
-    };
-    if let Some(w) = a.workers {
-        options.workers = w as usize;
-    }
-    let describe = |objective: f64, violation: f64| {
-        let standing = if violation == 0.0 {
-            String::new()
-        } else if violation.is_infinite() {
-            " (tripped or failed)".to_string()
-        } else {
-            format!(" (constraints violated by {})", Num(violation))
-        };
-        format!("{} = {}{standing}", settings.objective, Num(objective))
-    };
-    let started = std::time::Instant::now();
-    let quiet = a.quiet;
-    let mut on_generation = |g: &GenerationBest| {
-        if !quiet {
-            eprintln!(
-                "generation {}/{}: best {} at point {}",
-                g.generation,
-                settings.generations,
-                describe(g.objective, g.violation),
-                g.point
-            );
-        }
-    };
-    let result = run_optimization(&prepared, Some(&a.output), &options, &mut on_generation)?;
-    let best = &result.best;
-    let population = result.table.rows.len() as u64 / (settings.generations as u64 + 1);
+    format!("{} = {}{standing}", settings.objective, Num(objective))
+}
+
+/// Prints a generation's best (stderr).
+fn print_generation(settings: &OptimizeSpec, g: &GenerationBest) {
     eprintln!(
-        "wrote {} rows to {} ({} workers, {:.3} s wall time)",
-        result.table.rows.len(),
-        a.output.display(),
-        options.workers,
-        started.elapsed().as_secs_f64()
+        "generation {}/{}: best {} at point {}",
+        g.generation,
+        settings.generations,
+        describe(settings, g.objective, g.violation),
+        g.point
     );
-    if result.violation != 0.0 {
+}
+
+/// Prints the best run (stdout): its point, objective, parameters, constrained metrics and
+/// message.
+fn print_best(
+    settings: &OptimizeSpec,
+    parameter_names: &[String],
+    metric_names: &[String],
+    population: usize,
+    best: &Row,
+    violation: f64,
+) {
+    if violation != 0.0 {
         eprintln!("warning: no run met every constraint without a trip or failure");
     }
-    let objective = prepared
-        .metric_names
+    let objective = metric_names
         .iter()
         .position(|m| *m == settings.objective)
         .map_or(f64::NAN, |k| best.metrics[k]);
     println!(
         "best: point {} (generation {}), {}",
         best.point,
-        best.point / population.max(1),
-        describe(objective, result.violation)
+        best.point / population.max(1) as u64,
+        describe(settings, objective, violation)
     );
-    for (name, v) in prepared.design.names.iter().zip(&best.parameters) {
+    for (name, v) in parameter_names.iter().zip(&best.parameters) {
         println!("  {name} = {}", Num(*v));
     }
     for c in &settings.constraints {
-        if let Some(k) = prepared.metric_names.iter().position(|m| *m == c.metric) {
+        if let Some(k) = metric_names.iter().position(|m| *m == c.metric) {
             let bound = match (c.min, c.max) {
                 (Some(lo), Some(hi)) => format!("in [{}, {}]", Num(lo), Num(hi)),
                 (Some(lo), None) => format!(">= {}", Num(lo)),
@@ -123,5 +143,141 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if !best.message.is_empty() {
         println!("  {}: {}", best.status.name(), best.message);
     }
+}
+
+/// A report of [`OPTIMIZE_CALL`] (its words after the tag).
+enum Report {
+    Generation(GenerationBest),
+    Best(Row, f64),
+    Message(String),
+}
+
+fn parse_report(words: &[&str], parameters: usize, metrics: usize) -> Option<Report> {
+    let real = |w: &str| w.parse::<f64>().ok();
+    match words {
+        ["generation", g, point, objective, violation] => {
+            Some(Report::Generation(GenerationBest {
+                generation: g.parse().ok()?,
+                point: point.parse().ok()?,
+                objective: real(objective)?,
+                violation: real(violation)?,
+            }))
+        }
+        ["best", point, violation, status, values @ ..] if values.len() == parameters + metrics => {
+            let values = values
+                .iter()
+                .map(|w| real(w))
+                .collect::<Option<Vec<f64>>>()?;
+            let row = Row {
+                point: point.parse().ok()?,
+                parameters: values[..parameters].to_vec(),
+                metrics: values[parameters..].to_vec(),
+                status: RunStatus::from_name(status)?,
+                message: String::new(),
+            };
+            Some(Report::Best(row, real(violation)?))
+        }
+        ["message", text @ ..] => Some(Report::Message(text.join(" "))),
+        _ => None,
+    }
+}
+
+/// Runs the optimisation on a Dask cluster (`--dask`) through the Python package.
+fn run_on_cluster(
+    a: &Args,
+    address: &str,
+    prepared: kneebench_harness::sweep::Prepared,
+) -> anyhow::Result<i32> {
+    let Some(settings) = prepared.spec.optimize.clone() else {
+        unreachable!("prepare(.., true) refuses a spec without [optimize]")
+    };
+    let population = prepared.design.points.len();
+    let parameter_names = prepared.design.names.clone();
+    let metric_names = prepared.metric_names.clone();
+    // The Python package prepares the spec itself.
+    drop(prepared);
+    let started = std::time::Instant::now();
+    let mut best: Option<(Row, f64)> = None;
+    let mut message = String::new();
+    let mut on_report =
+        |words: &[&str]| match parse_report(words, parameter_names.len(), metric_names.len()) {
+            Some(Report::Generation(g)) if !a.quiet => print_generation(&settings, &g),
+            Some(Report::Best(row, violation)) => best = Some((row, violation)),
+            Some(Report::Message(m)) => message = m,
+            _ => {}
+        };
+    let [rows, ..] = run_on_dask(
+        &OPTIMIZE_CALL,
+        &a.spec,
+        address,
+        &a.output,
+        a.batch_size,
+        &mut on_report,
+    )?;
+    eprintln!(
+        "wrote {rows} rows to {} (Dask cluster {address}, {:.3} s wall time)",
+        a.output.display(),
+        started.elapsed().as_secs_f64()
+    );
+    let Some((mut best, violation)) = best else {
+        anyhow::bail!("the Dask optimisation ended without its best run");
+    };
+    best.message = message;
+    print_best(
+        &settings,
+        &parameter_names,
+        &metric_names,
+        population,
+        &best,
+        violation,
+    );
+    Ok(super::EXIT_OK)
+}
+
+/// Runs `kneebench optimize`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    kneebench_harness::tempdirs::remove_stale();
+    let prepared = match super::sweep::prepare(&a.spec, true)? {
+        Ok(p) => p,
+        Err(code) => return Ok(code),
+    };
+    if let Some(address) = &a.dask {
+        return run_on_cluster(&a, address, prepared);
+    }
+    let Some(settings) = prepared.spec.optimize.clone() else {
+        unreachable!("prepare(.., true) refuses a spec without [optimize]")
+    };
+    let mut options = SweepOptions {
+        progress: std::io::stderr().is_terminal() && a.quiet,
+        resume: a.resume,
+        ..SweepOptions::default()
+    };
+    if let Some(w) = a.workers {
+        options.workers = w as usize;
+    }
+    let started = std::time::Instant::now();
+    let quiet = a.quiet;
+    let mut on_generation = |g: &GenerationBest| {
+        if !quiet {
+            print_generation(&settings, g);
+        }
+        Ok(())
+    };
+    let result = run_optimization(&prepared, Some(&a.output), &options, &mut on_generation)?;
+    eprintln!(
+        "wrote {} rows to {} ({} workers, {:.3} s wall time)",
+        result.table.rows.len(),
+        a.output.display(),
+        options.workers,
+        started.elapsed().as_secs_f64()
+    );
+    print_best(
+        &settings,
+        &prepared.design.names,
+        &prepared.metric_names,
+        prepared.design.points.len(),
+        &result.best,
+        result.violation,
+    );
     Ok(super::EXIT_OK)
 }

@@ -49,9 +49,12 @@ pub struct Args {
     pub batch_size: Option<u64>,
 }
 
-/// The script `--dask` runs in the Python interpreter: exit status 3 when `kneebench` or
-/// `distributed` cannot be imported (its stderr names which), 1 on a sweep error.
-const DASK_SCRIPT: &str = r#"
+/// The script `--dask` runs in the Python interpreter, around a [`DaskCall`]'s source: exit
+/// status 3 when `kneebench` or `distributed` cannot be imported (its stderr names which), 1
+/// on an error of the call. It reports on stdout, one line per `emit`, each line
+/// [`DASK_TAG`] and words: the call's own, then `rows ROWS OK TRIPPED FAILED`.
+const DASK_SCRIPT: [&str; 2] = [
+    r#"
 import sys
 for module in ("kneebench", "distributed"):
     try:
@@ -61,16 +64,45 @@ for module in ("kneebench", "distributed"):
         sys.exit(3)
 import kneebench
 from distributed import Client
-spec, address, output, batch = sys.argv[1:5]
+spec, address, output, batch, tag = sys.argv[1:6]
+
+def emit(*words):
+    print(tag, *words, flush=True)
+"#,
+    r#"
 try:
     with Client(address, timeout="30s") as client:
-        table = kneebench.sweep(spec, client=client, output=output, batch_size=int(batch) or None)
-except (kneebench.KneebenchError, OSError, TimeoutError) as e:
+        table = call(client, spec, output, int(batch) or None)
+except (kneebench.KneebenchError, OSError, TimeoutError, ValueError) as e:
     sys.stderr.write(f"{type(e).__name__}: {e}\n")
     sys.exit(1)
 counts = table["status"].value_counts()
-print(len(table), *(int(counts.get(s, 0)) for s in ("ok", "tripped", "failed")))
-"#;
+emit("rows", len(table), *(int(counts.get(s, 0)) for s in ("ok", "tripped", "failed")))
+"#,
+];
+
+/// The first word of the lines of [`DASK_SCRIPT`]'s reports (its last argument; other stdout
+/// lines are ignored).
+const DASK_TAG: &str = "@kneebench";
+
+/// What `--dask` runs through the kneebench Python package.
+pub(crate) struct DaskCall<'a> {
+    /// What runs, for the messages: "sweep", "optimisation".
+    pub what: &'a str,
+    /// Python source defining `call(client, spec, output, batch_size)`: runs it on the cluster
+    /// of `client`, writes `output` and returns the table's DataFrame; it may report on
+    /// stdout with `emit(word, ...)` (see [`run_on_dask`]).
+    pub source: &'a str,
+}
+
+/// `kneebench sweep --dask`'s call.
+const SWEEP_CALL: DaskCall<'static> = DaskCall {
+    what: "sweep",
+    source: r#"
+def call(client, spec, output, batch_size):
+    return kneebench.sweep(spec, client=client, output=output, batch_size=batch_size)
+"#,
+};
 
 /// The Python interpreter of `--dask`: `KNEEBENCH_PYTHON`, else `python3`.
 fn python() -> PathBuf {
@@ -79,68 +111,96 @@ fn python() -> PathBuf {
         .map_or_else(|| PathBuf::from("python3"), PathBuf::from)
 }
 
-/// Runs the sweep on a Dask cluster through the Python package; the table is written by the
-/// package (the same writer as the local sweep). Returns (rows, ok, tripped, failed).
-fn run_on_dask(
-    spec: &std::path::Path,
+/// Runs `call` on the Dask cluster at `address` through the Python package; the table is
+/// written by the package (the same writer as the local run). Every report of the call
+/// (`emit(...)`: its words) is handed to `on_report` as it comes; returns (rows, ok, tripped,
+/// failed).
+pub(crate) fn run_on_dask(
+    call: &DaskCall<'_>,
+    spec: &Path,
     address: &str,
-    output: &std::path::Path,
+    output: &Path,
     batch_size: Option<u64>,
+    on_report: &mut dyn FnMut(&[&str]),
 ) -> anyhow::Result<[u64; 4]> {
+    use std::io::{BufRead, Read};
+
     let python = python();
-    let abs = |p: &std::path::Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    let out = std::process::Command::new(&python)
+    let what = call.what;
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut child = std::process::Command::new(&python)
         .arg("-c")
-        .arg(DASK_SCRIPT)
+        .arg([DASK_SCRIPT[0], call.source, DASK_SCRIPT[1]].concat())
         .arg(abs(spec))
         .arg(address)
         .arg(abs(output))
         .arg(batch_size.unwrap_or(0).to_string())
+        .arg(DASK_TAG)
         .stdin(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
-        .output()
+        .spawn()
         .map_err(|e| {
             anyhow::anyhow!(
-                "--dask runs the sweep through the kneebench Python package, but '{}' could not \
+                "--dask runs the {what} through the kneebench Python package, but '{}' could not \
                  be started ({e}); set KNEEBENCH_PYTHON to a Python that has the kneebench \
                  wheel and distributed installed (e.g. the .venv of scripts/setup-python.sh)",
                 python.display()
             )
         })?;
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    match out.status.code() {
+    // stderr on a thread of its own, so that neither pipe fills while the other is read.
+    let mut stderr_pipe = child.stderr.take();
+    let stderr_reader = std::thread::spawn(move || {
+        let mut text = Vec::new();
+        if let Some(e) = stderr_pipe.as_mut() {
+            let _ = e.read_to_end(&mut text);
+        }
+        String::from_utf8_lossy(&text).into_owned()
+    });
+    let mut counts = None;
+    let mut other = Vec::new();
+    if let Some(stdout) = child.stdout.take() {
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            match words[..] {
+                [DASK_TAG, "rows", ..] => {
+                    let n: Vec<u64> = words[2..].iter().filter_map(|w| w.parse().ok()).collect();
+                    if let [rows, ok, tripped, failed] = n[..] {
+                        counts = Some([rows, ok, tripped, failed]);
+                    }
+                }
+                [DASK_TAG, ..] => on_report(&words[1..]),
+                _ => other.push(line),
+            }
+        }
+    }
+    let status = child.wait()?;
+    let stderr = stderr_reader.join().unwrap_or_default();
+    match status.code() {
         Some(0) => {}
         Some(3) => anyhow::bail!(
-            "--dask runs the sweep through the kneebench Python package, but '{}' {}; install \
+            "--dask runs the {what} through the kneebench Python package, but '{}' {}; install \
              the kneebench wheel and distributed there (README: the Python package) or set \
              KNEEBENCH_PYTHON to a Python that has them",
             python.display(),
             stderr.trim().replace("missing module", "cannot import")
         ),
         _ => anyhow::bail!(
-            "the Dask sweep through '{}' failed ({}): {}",
+            "the Dask {what} through '{}' failed ({status}): {}",
             python.display(),
-            out.status,
             stderr.trim()
         ),
     }
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let counts: Vec<u64> = stdout
-        .lines()
-        .last()
-        .unwrap_or("")
-        .split_whitespace()
-        .filter_map(|w| w.parse().ok())
-        .collect();
-    match counts[..] {
-        [rows, ok, tripped, failed] => Ok([rows, ok, tripped, failed]),
-        _ => anyhow::bail!(
-            "the Dask sweep through '{}' ended without its row counts: {}",
+    counts.ok_or_else(|| {
+        anyhow::anyhow!(
+            "the Dask {what} through '{}' ended without its row counts: {}",
             python.display(),
-            stdout.trim()
-        ),
-    }
+            other.join("\n").trim()
+        )
+    })
 }
 
 /// Reads and checks a spec against its system: `Ok(Err(exit code))` when it is refused (every
@@ -188,7 +248,14 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if let Some(address) = &a.dask {
         drop(prepared);
         let started = std::time::Instant::now();
-        let [rows, ok, tripped, failed] = run_on_dask(&a.spec, address, &a.output, a.batch_size)?;
+        let [rows, ok, tripped, failed] = run_on_dask(
+            &SWEEP_CALL,
+            &a.spec,
+            address,
+            &a.output,
+            a.batch_size,
+            &mut |_| {},
+        )?;
         eprintln!(
             "wrote {rows} rows to {} ({ok} ok, {tripped} tripped, {failed} failed; Dask cluster \
              {address}, {:.3} s wall time)",

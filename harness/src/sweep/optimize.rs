@@ -427,12 +427,13 @@ pub struct Optimization {
 /// Runs the optimisation of `prepared` (a spec with `[optimize]`) on local threads, each
 /// generation one batch, writing every run's row to `output` (`.parquet`, else CSV) when given,
 /// with the sweep's journal for `--resume`; `on_generation` sees each generation's best as it
-/// is selected.
+/// is selected, and an error it returns ends the optimisation with that error (the journal
+/// kept for `--resume`).
 pub fn run_optimization(
     prepared: &Prepared,
     output: Option<&Path>,
     options: &SweepOptions,
-    on_generation: &mut dyn FnMut(&GenerationBest),
+    on_generation: &mut dyn FnMut(&GenerationBest) -> Result<(), SweepError>,
 ) -> Result<Optimization, SweepError> {
     let mut optimizer = Optimizer::new(prepared)?;
     let total = optimizer.total_runs();
@@ -478,7 +479,7 @@ pub fn run_optimization(
             .collect::<Result<Vec<Row>, SweepError>>()?;
         optimizer.tell(rows)?;
         if let Some(best) = optimizer.history().last() {
-            on_generation(best);
+            on_generation(best)?;
         }
     }
     if let Some(pb) = bar {
@@ -496,12 +497,13 @@ pub fn run_optimization(
 
 impl Optimizer {
     /// The finished optimisation's table, best run and history (an error before every
-    /// generation is told).
-    pub fn finish(self, prepared: &Prepared) -> Result<Optimization, SweepError> {
+    /// generation is told: the optimiser can go on).
+    pub fn finish(&self, prepared: &Prepared) -> Result<Optimization, SweepError> {
         if !self.finished() {
             return Err(SweepError::System(format!(
-                "optimisation: generation {} of {} not told",
-                self.generation, self.settings.generations
+                "optimisation: {} of {} generations told",
+                self.history.len(),
+                self.settings.generations + 1
             )));
         }
         let (best, violation) = self
@@ -517,11 +519,7 @@ impl Optimizer {
             ),
             (
                 "kneebench.optimize.direction".to_string(),
-                match s.direction {
-                    Direction::Minimize => "minimize",
-                    Direction::Maximize => "maximize",
-                }
-                .to_string(),
+                s.direction.name().to_string(),
             ),
             (
                 "kneebench.optimize.population".to_string(),
@@ -540,14 +538,14 @@ impl Optimizer {
                 (violation == 0.0).to_string(),
             ),
         ]);
-        let mut rows = self.evaluated;
+        let mut rows = self.evaluated.clone();
         rows.sort_by_key(|r| r.point);
         table.rows = rows;
         Ok(Optimization {
             table,
             best,
             violation,
-            history: self.history,
+            history: self.history.clone(),
         })
     }
 }

@@ -348,6 +348,16 @@ pub enum Direction {
     Maximize,
 }
 
+impl Direction {
+    /// The spec's name of the direction: `minimize` or `maximize`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Direction::Minimize => "minimize",
+            Direction::Maximize => "maximize",
+        }
+    }
+}
+
 /// A bound on a metric that an optimum must respect.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Constraint {
@@ -395,9 +405,14 @@ fn optimize_spec(
     parameters: &[Parameter],
 ) -> OptimizeSpec {
     let o = raw.get_ref();
+    let named = |n: &str| {
+        [Direction::Minimize, Direction::Maximize]
+            .into_iter()
+            .find(|d| d.name() == n)
+    };
     let direction = match o.direction.as_ref().map(|d| d.get_ref().as_str()) {
-        None | Some("minimize") => Direction::Minimize,
-        Some("maximize") => Direction::Maximize,
+        None => Direction::Minimize,
+        Some(n) if named(n).is_some() => named(n).unwrap_or(Direction::Minimize),
         Some(other) => {
             if let Some(d) = &o.direction {
                 p.at(
