@@ -32,7 +32,7 @@ use std::path::Path;
 
 use super::SweepError;
 use super::design::SplitMix64;
-use super::runner::{Journal, Prepared, SweepOptions, progress_bar};
+use super::runner::{Finished, Prepared, SweepOptions};
 use super::spec::{Direction, OptimizeSpec, ParameterType, SpecProblem, SweepSpec};
 use super::table::{Row, RunStatus, SweepTable};
 
@@ -437,14 +437,7 @@ pub fn run_optimization(
 ) -> Result<Optimization, SweepError> {
     let mut optimizer = Optimizer::new(prepared)?;
     let total = optimizer.total_runs();
-    let mut finished: BTreeMap<u64, Row> = BTreeMap::new();
-    let mut journal = None;
-    if let Some(out) = output {
-        let (j, rows) = Journal::open(out, options.resume, prepared, &|id| id < total)?;
-        finished = rows;
-        journal = Some(j);
-    }
-    let bar = progress_bar(options.progress, total, finished.len() as u64);
+    let mut finished = Finished::start(prepared, output, options, total, &|id| id < total)?;
     loop {
         let asked = optimizer.ask();
         if asked.is_empty() {
@@ -452,23 +445,15 @@ pub fn run_optimization(
         }
         let todo: Vec<(u64, Vec<f64>)> = asked
             .iter()
-            .filter(|(id, _)| !finished.contains_key(id))
+            .filter(|(id, _)| !finished.rows.contains_key(id))
             .cloned()
             .collect();
-        prepared.run_batch(&todo, options.workers, &mut |row| {
-            if let Some(j) = &mut journal {
-                j.record(&row)?;
-            }
-            if let Some(pb) = &bar {
-                pb.inc(1);
-            }
-            finished.insert(row.point, row);
-            Ok(())
-        })?;
+        prepared.run_batch(&todo, options.workers, &mut |row| finished.record(row))?;
         let rows = asked
             .into_iter()
             .map(|(id, values)| {
                 let mut row = finished
+                    .rows
                     .get(&id)
                     .cloned()
                     .ok_or(SweepError::Missing(vec![id]))?;
@@ -482,16 +467,8 @@ pub fn run_optimization(
             on_generation(best)?;
         }
     }
-    if let Some(pb) = bar {
-        pb.finish_and_clear();
-    }
     let optimization = optimizer.finish(prepared)?;
-    if let Some(out) = output {
-        optimization.table.write(out)?;
-        if let Some(j) = journal {
-            j.remove()?;
-        }
-    }
+    finished.end(&optimization.table, output)?;
     Ok(optimization)
 }
 

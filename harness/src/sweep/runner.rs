@@ -1025,6 +1025,63 @@ pub(crate) fn progress_bar(show: bool, total: u64, done: u64) -> Option<indicati
     Some(pb)
 }
 
+/// The finished rows of a sweep or an optimisation, kept as they come: journaled (when the
+/// table goes to a file) and counted on the progress bar.
+pub(crate) struct Finished {
+    /// The rows so far, by point id (a resumed journal's first, their parameters empty).
+    pub(crate) rows: BTreeMap<u64, Row>,
+    journal: Option<Journal>,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Finished {
+    /// Starts the rows of `total` runs of `prepared`: with `output`, its journal (see
+    /// [`Journal::open`]: ids accepted by `known`), and a progress bar if the options ask.
+    pub(crate) fn start(
+        prepared: &Prepared,
+        output: Option<&Path>,
+        options: &SweepOptions,
+        total: u64,
+        known: &dyn Fn(u64) -> bool,
+    ) -> Result<Finished, SweepError> {
+        let (journal, rows) = match output {
+            Some(out) => {
+                let (j, rows) = Journal::open(out, options.resume, prepared, known)?;
+                (Some(j), rows)
+            }
+            None => (None, BTreeMap::new()),
+        };
+        let bar = progress_bar(options.progress, total, rows.len() as u64);
+        Ok(Finished { rows, journal, bar })
+    }
+
+    /// Keeps a finished row: journaled first, so that a kill after this loses nothing.
+    pub(crate) fn record(&mut self, row: Row) -> Result<(), SweepError> {
+        if let Some(j) = &mut self.journal {
+            j.record(&row)?;
+        }
+        if let Some(pb) = &self.bar {
+            pb.inc(1);
+        }
+        self.rows.insert(row.point, row);
+        Ok(())
+    }
+
+    /// Ends the run: `table` written to `output` (if given) and then the journal removed.
+    pub(crate) fn end(self, table: &SweepTable, output: Option<&Path>) -> Result<(), SweepError> {
+        if let Some(pb) = self.bar {
+            pb.finish_and_clear();
+        }
+        if let Some(out) = output {
+            table.write(out)?;
+        }
+        match self.journal {
+            Some(j) => j.remove(),
+            None => Ok(()),
+        }
+    }
+}
+
 /// Runs a whole sweep, writing the table to `output` (`.parquet`, else CSV) when given, with a
 /// journal next to it for `--resume`. Returns the table (rows sorted by point id).
 pub fn run_sweep(
@@ -1034,43 +1091,19 @@ pub fn run_sweep(
 ) -> Result<SweepTable, SweepError> {
     prepared.refuse_optimization()?;
     let points = &prepared.design.points;
-    let mut finished: BTreeMap<u64, Row> = BTreeMap::new();
-    let mut journal = None;
-    if let Some(out) = output {
-        let (j, mut rows) = Journal::open(out, options.resume, prepared, &|id| {
-            (id as usize) < points.len()
-        })?;
-        for row in rows.values_mut() {
-            row.parameters = points[row.point as usize].clone();
-        }
-        finished = rows;
-        journal = Some(j);
+    let mut finished = Finished::start(prepared, output, options, points.len() as u64, &|id| {
+        (id as usize) < points.len()
+    })?;
+    for row in finished.rows.values_mut() {
+        row.parameters = points[row.point as usize].clone();
     }
     let todo: Vec<u64> = (0..points.len() as u64)
-        .filter(|i| !finished.contains_key(i))
+        .filter(|i| !finished.rows.contains_key(i))
         .collect();
-    let bar = progress_bar(options.progress, points.len() as u64, finished.len() as u64);
-    prepared.run_points(&todo, options.workers, &mut |row| {
-        if let Some(j) = &mut journal {
-            j.record(&row)?;
-        }
-        if let Some(pb) = &bar {
-            pb.inc(1);
-        }
-        finished.insert(row.point, row);
-        Ok(())
-    })?;
-    if let Some(pb) = bar {
-        pb.finish_and_clear();
-    }
+    prepared.run_points(&todo, options.workers, &mut |row| finished.record(row))?;
     let mut table = prepared.empty_table();
-    table.rows = finished.into_values().collect();
-    if let Some(out) = output {
-        table.write(out)?;
-        if let Some(j) = journal {
-            j.remove()?;
-        }
-    }
+    table.rows = std::mem::take(&mut finished.rows).into_values().collect();
+    finished.end(&table, output)?;
     Ok(table)
 }
 
