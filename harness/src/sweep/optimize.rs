@@ -31,7 +31,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::SweepError;
-use super::design::SplitMix64;
+use super::design::{MAX_POINTS, SplitMix64};
 use super::runner::{Finished, Prepared, SweepOptions};
 use super::spec::{Direction, OptimizeSpec, ParameterType, SpecProblem, SweepSpec};
 use super::table::{Row, RunStatus, SweepTable};
@@ -39,9 +39,9 @@ use super::table::{Row, RunStatus, SweepTable};
 /// The smallest population: DE/rand/1 draws three members other than the one it improves.
 pub const MIN_POPULATION: usize = 4;
 
-/// The problems of `prepared`'s `[optimize]` table that need the metric columns and the
-/// design: an objective or a constrained metric that is not a metric column, a population
-/// below [`MIN_POPULATION`]. Empty for a spec without `[optimize]`.
+/// The problems of a spec's `[optimize]` table that need the metric columns and the design:
+/// an objective or a constrained metric that is not a metric column, more runs than a sweep
+/// may have ([`MAX_POINTS`]), a population below [`MIN_POPULATION`].
 pub fn problems(
     optimize: &OptimizeSpec,
     metric_names: &[String],
@@ -72,6 +72,16 @@ pub fn problems(
                 ),
             ));
         }
+    }
+    let runs = (population as u128) * (optimize.generations as u128 + 1);
+    if runs > MAX_POINTS as u128 {
+        out.push(problem(
+            optimize.line,
+            format!(
+                "the optimisation runs {runs} points (population x (generations + 1)); at most \
+                 {MAX_POINTS}"
+            ),
+        ));
     }
     if population < MIN_POPULATION {
         out.push(problem(
@@ -850,6 +860,16 @@ mod tests {
                 "spec.toml, line 16: constraint on 'rms': not a metric of this spec (its metrics: f)",
                 "spec.toml, line 13: the optimisation's population is the design's points: at least 4, not 3",
             ]
+        );
+        // More runs than a sweep may have.
+        let s = spec(1, 0.0, 1.0, "objective = \"f\"\ngenerations = 10000\n");
+        let e = Optimizer::from_spec(&s, uniform(1001, 1, 0.0, 1.0, 1), &names(&["f"]))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "spec.toml, line 13: the optimisation runs 10011001 points (population x \
+             (generations + 1)); at most 10000000"
         );
     }
 }
