@@ -282,6 +282,21 @@ fn resume_replays_the_journal_and_runs_the_rest() {
 }
 
 #[test]
+fn points_of_the_wrong_width_are_refused_not_run_short() {
+    let p = spec(SPEC).and_then(Prepared::new).unwrap();
+    let e = p
+        .run_batch(&[(0, vec![300.0])], 1, &mut |_| Ok(()))
+        .unwrap_err();
+    assert_eq!(e.to_string(), "point 0 has 1 values for 2 parameters");
+    let loaded = p.worker_system().unwrap();
+    let row = p.run_values(&loaded, 7, &[300.0, 160.0, 1.0]);
+    assert_eq!(row.status, RunStatus::Failed);
+    assert_eq!(row.message, "point 7 has 3 values for 2 parameters");
+    assert!(row.metrics.iter().all(|m| m.is_nan()));
+    p.give_back(loaded);
+}
+
+#[test]
 fn a_sweep_refuses_an_optimisation() {
     let p = spec(SPEC).and_then(Prepared::new).unwrap();
     let e = run_sweep(&p, None, &options(1)).unwrap_err();

@@ -714,7 +714,8 @@ impl Prepared {
     }
 
     /// Runs the parameter values `values` (in spec order) as point `id` on a loaded system:
-    /// its row, whatever happens.
+    /// its row, whatever happens (values of another number than the parameters' give a failed
+    /// row).
     pub fn run_values(&self, loaded: &LoadedSystem, id: u64, values: &[f64]) -> Row {
         let mut row = Row {
             point: id,
@@ -728,6 +729,14 @@ impl Prepared {
             row.message = message;
             row
         };
+        if values.len() != self.spec.parameters.len() {
+            let message = format!(
+                "point {id} has {} values for {} parameters",
+                values.len(),
+                self.spec.parameters.len()
+            );
+            return fail(row, message);
+        }
         let mut system = match fresh_system(loaded) {
             Ok(s) => s,
             Err(e) => return fail(row, e.to_string()),
