@@ -2,38 +2,19 @@
 //! (shortened) runs and prints its best run; each command refuses the other's spec with exit
 //! code 2 and says which command to use.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::Command;
 
 fn kneebench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kneebench"))
 }
 
-/// The FMUs exported by the binary into `dir` (the FMU library is built next to it, or under
-/// `deps/` in the workspace's test build).
-fn export(dir: &Path) -> PathBuf {
-    let bin = Path::new(env!("CARGO_BIN_EXE_kneebench"));
-    let lib = ["libkneebench_fmu.so", "deps/libkneebench_fmu.so"]
-        .iter()
-        .map(|f| bin.parent().unwrap().join(f))
-        .find(|p| p.is_file())
-        .expect("libkneebench_fmu.so built next to kneebench");
-    let out = dir.join("fmus");
-    let e = kneebench()
-        .args(["export", "--out"])
-        .arg(&out)
-        .arg("--library")
-        .arg(lib)
-        .output()
-        .unwrap();
-    assert!(e.status.success(), "{}", String::from_utf8_lossy(&e.stderr));
-    out
-}
-
 #[test]
 fn optimize_runs_the_example_and_each_command_refuses_the_others_spec() {
     let dir = tempfile::tempdir().unwrap();
-    let fmus = export(dir.path());
+    let fmus = common::exported_fmus(dir.path());
     let example =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/stiffness-sweep/optimize.toml");
     let text = std::fs::read_to_string(example).unwrap();

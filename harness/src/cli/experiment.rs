@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kneebench_harness::experiment::{
-    Bench, BenchKind, RawFormat, bode, calibration, map, step, triangle,
+    Bench, BenchKind, RawFormat, RunEnd, bode, calibration, map, step, triangle,
 };
 
 /// The raw run file's format.
@@ -208,10 +208,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                     r.skipped.len()
                 );
             }
-            (
-                r.written,
-                r.end != kneebench_harness::experiment::RunEnd::Completed,
-            )
+            let tripped = ended("map", &r.end);
+            (r.written, tripped)
         }
         "bode" => {
             let input = match a.input.as_str() {
@@ -249,10 +247,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                     p.model[1].1.to_degrees(),
                 );
             }
-            (
-                r.written,
-                r.end != kneebench_harness::experiment::RunEnd::Completed,
-            )
+            let tripped = ended("bode", &r.end);
+            (r.written, tripped)
         }
         "triangle" => {
             let mut c = triangle::TriangleConfig {
@@ -297,10 +293,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                     f.a, f.b, f.c, f.residual_rms
                 );
             }
-            (
-                r.written,
-                r.end != kneebench_harness::experiment::RunEnd::Completed,
-            )
+            let tripped = ended("calibration", &r.end);
+            (r.written, tripped)
         }
         "step" => {
             let mut c = step::StepConfig {
@@ -336,11 +330,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 100.0 * m.overshoot,
                 m.peak_time
             );
-            let tripped = r
-                .ends
-                .iter()
-                .any(|e| *e != kneebench_harness::experiment::RunEnd::Completed);
-            (r.written, tripped)
+            let open = ended("step: the open-loop run", &r.ends[0]);
+            let closed = ended("step: the closed-loop run", &r.ends[1]);
+            (r.written, open || closed)
         }
         other => {
             anyhow::bail!("unknown experiment '{other}' (map, bode, triangle, calibration, step)")
@@ -358,4 +350,16 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     } else {
         super::EXIT_OK
     })
+}
+
+/// Says on stderr why a run of `what` ended early (the reason is in its section too); returns
+/// whether it did.
+fn ended(what: &str, end: &RunEnd) -> bool {
+    match end {
+        RunEnd::Completed => false,
+        RunEnd::Tripped { time, reason } => {
+            eprintln!("{what} was ended at {time:.3} s: {reason}");
+            true
+        }
+    }
 }

@@ -152,3 +152,24 @@ pub fn kbtest_fmu(dir: &Path) -> PathBuf {
     }
     p
 }
+
+/// The bench's FMUs exported by the `kneebench` binary into `dir/fmus` (the FMU library is
+/// built next to it, or under `deps/` in the workspace's test build).
+pub fn exported_fmus(dir: &Path) -> PathBuf {
+    let bin = Path::new(env!("CARGO_BIN_EXE_kneebench"));
+    let lib = ["libkneebench_fmu.so", "deps/libkneebench_fmu.so"]
+        .iter()
+        .map(|f| bin.parent().unwrap().join(f))
+        .find(|p| p.is_file())
+        .expect("libkneebench_fmu.so built next to kneebench");
+    let out = dir.join("fmus");
+    let e = Command::new(bin)
+        .args(["export", "--out"])
+        .arg(&out)
+        .arg("--library")
+        .arg(lib)
+        .output()
+        .unwrap();
+    assert!(e.status.success(), "{}", String::from_utf8_lossy(&e.stderr));
+    out
+}
