@@ -3,12 +3,13 @@
 
 mod common;
 
+use std::path::Path;
 use std::process::Command;
 
 #[test]
 fn a_step_whose_closed_loop_trips_says_why_and_exits_3() {
     let dir = tempfile::tempdir().unwrap();
-    let fmus = common::exported_fmus(dir.path());
+    let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
     let run = |limit: &str| {
         Command::new(env!("CARGO_BIN_EXE_kneebench"))
             .args(["experiment", "step", "--fmu"])

@@ -14,7 +14,7 @@ fn kneebench() -> Command {
 #[test]
 fn optimize_runs_the_example_and_each_command_refuses_the_others_spec() {
     let dir = tempfile::tempdir().unwrap();
-    let fmus = common::exported_fmus(dir.path());
+    let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
     let example =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/stiffness-sweep/optimize.toml");
     let text = std::fs::read_to_string(example).unwrap();

@@ -153,10 +153,9 @@ pub fn kbtest_fmu(dir: &Path) -> PathBuf {
     p
 }
 
-/// The bench's FMUs exported by the `kneebench` binary into `dir/fmus` (the FMU library is
-/// built next to it, or under `deps/` in the workspace's test build).
-pub fn exported_fmus(dir: &Path) -> PathBuf {
-    let bin = Path::new(env!("CARGO_BIN_EXE_kneebench"));
+/// The bench's FMUs exported by the `kneebench` binary `bin` into `dir/fmus` (the FMU library
+/// is built next to it, or under `deps/` in the workspace's test build).
+pub fn exported_fmus(bin: &Path, dir: &Path) -> PathBuf {
     let lib = ["libkneebench_fmu.so", "deps/libkneebench_fmu.so"]
         .iter()
         .map(|f| bin.parent().unwrap().join(f))
