@@ -79,8 +79,8 @@ fn link(address: std::net::SocketAddr) -> BenchLink {
 /// protection after the loop lost track) or the knee leave the tolerance for a moment. Such a
 /// run measured its own disturbance (the bench's longest interval between two of the master's
 /// frames above 5 ms, or the watchdog's reason) and is run again on a fresh emulator, at most
-/// three attempts; a run without such a measurement is always asserted on, and so is the
-/// third.
+/// five attempts (three were too few on a host whose 1 ms sleeps stall above 5 ms several
+/// times in 9 s); a run without such a measurement is always asserted on, and so is the fifth.
 #[test]
 fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
     let _real_time = one_real_time_test_at_a_time();
@@ -124,7 +124,7 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
             .fold(0.0f64, f64::max);
         let disturbed = stats.largest_frame_gap > disturbance
             || matches!(stats.safe_reason, Some(r) if r == reason::HEARTBEAT_TIMEOUT);
-        if (completed && worst < tolerance) || !disturbed || attempt == 3 {
+        if (completed && worst < tolerance) || !disturbed || attempt == 5 {
             assert!(
                 completed,
                 "attempt {attempt}: {:?} (longest frame gap {:.0} us, bench safe reason {:?}, plant trip {:?})",
