@@ -362,6 +362,16 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
     assert!((r.damping - 13.0).abs() < 0.1 * 13.0, "{r:?}");
     assert!((r.inertia - 1.43).abs() < 0.1 * 1.43, "{r:?}");
     assert!(r.position.rise_time.is_some(), "{:?}", r.position);
+    // The encoder-differenced speed (0.0196 rad/s per count) changes by about a quarter of a
+    // count per sample: no Ziegler-Nichols gains from its tangent, and the reason says so.
+    let why = r
+        .ziegler_nichols
+        .as_ref()
+        .expect_err("gains from an unresolved tangent");
+    assert!(
+        why.contains("counts per sample") && why.contains("0.0196"),
+        "{why}"
+    );
 }
 
 /// Runs `experiment` on `BenchHardware` over a fresh emulator of the plant with

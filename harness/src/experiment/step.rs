@@ -7,7 +7,9 @@
 //!    actuation-side speed's reaction curve (`crate::metrics::reaction_curve`, the code of
 //!    `kneebench tune --step-response`) gives the static gain K [(rad/s)/A], dead time L and
 //!    time constant T, and the Ziegler-Nichols PID of a velocity loop
-//!    (`crate::metrics::ziegler_nichols_reaction`). The mean residence time
+//!    (`crate::metrics::ziegler_nichols_reaction`); on `BenchHardware`, whose speed is an
+//!    encoder difference, only when the response moves by 10 counts per sample or more (see
+//!    `unresolved_tangent`: at 1 kHz this bench's never does). The mean residence time
 //!    `T_ar = integral (w_end - w) dt / w_end` identifies the plant: without friction the
 //!    two-mass speed response has `K = i_HD Km1 / (c1 + c2)` and `T_ar = (I1 + I2)/(c1 + c2) -
 //!    c2^2 / (k (c1 + c2)) + tau_c` (current loop), so `c = i_HD Km1 / K` and
@@ -136,7 +138,10 @@ pub fn run_step(
     let residence_time = area / (w_end - w0);
     let damping = bench.test_torque_per_ampere()? / reaction.gain;
     let inertia = damping * residence_time;
-    let ziegler_nichols = ziegler_nichols_reaction(&reaction).map_err(|e| e.to_string());
+    let ziegler_nichols = match unresolved_tangent(bench, (w_end - w0) / residence_time)? {
+        Some(why) => Err(why),
+        None => ziegler_nichols_reaction(&reaction).map_err(|e| e.to_string()),
+    };
 
     // 2. Closed loop.
     let mut system = bench.system()?;
@@ -227,6 +232,41 @@ pub fn run_step(
 }
 
 /// Mean of the last tenth of a record.
+/// Why the tangent of the reaction curve cannot be read from this bench's speed, if it cannot.
+///
+/// The tangent is one sample-to-sample slope of the speed. `BenchPlant` gives the speed
+/// itself; `BenchHardware` (the physical bench) the difference of two encoder readings over
+/// the period, in counts of `2 pi / (encoderCountsPerRevolution x harmonicDriveRatio) / h`
+/// (0.0196 rad/s at the bench's 2,000 counts, 160:1 and 1 ms). When the response changes by
+/// fewer than 10 counts per sample (`typical_slope`, the change over the mean residence time,
+/// is an estimate of its steepest slope from below), one count is more than 10 % of the
+/// slope, and the steepest sample slope is a count edge anywhere in the record: six runs
+/// through the emulator gave dead times from 0.05 to 1.5 s against 0.4 ms on the plant, and
+/// Ziegler-Nichols kp 2,000 to 80,000 times below the plant's. Those gains are refused, with this
+/// reason, rather than printed.
+fn unresolved_tangent(
+    bench: &Bench,
+    typical_slope: f64,
+) -> Result<Option<String>, ExperimentError> {
+    if bench.kind() != super::BenchKind::Hardware {
+        return Ok(None);
+    }
+    let count = std::f64::consts::TAU
+        / (bench.real("encoderCountsPerRevolution")? * bench.real("harmonicDriveRatio")?)
+        / super::STEP;
+    let per_sample = (typical_slope * super::STEP / count).abs();
+    // A NaN count (a residence time of zero) is unresolved too.
+    let resolved = per_sample >= 10.0;
+    Ok((!resolved).then(|| {
+        format!(
+            "the speed is an encoder difference in counts of {count:.4} rad/s, and the response \
+             changes by about {per_sample:.2} counts per sample: its tangent (so L and T above) \
+             is not resolved; identify the bench's model from its Bode and map logs \
+             (`kneebench identify`) and tune on the twin instead"
+        )
+    }))
+}
+
 fn tail_mean(v: &[f64]) -> f64 {
     let k = (v.len() / 10).max(1);
     super::analysis::mean(&v[v.len() - k..])
