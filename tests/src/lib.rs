@@ -579,3 +579,64 @@ pub fn hardware_bench_over_emulator(
     .expect("BenchHardware as an experiment bench");
     (emu, bench)
 }
+
+/// The longest host stall up to which a real-time run on the emulated bench is the test's to
+/// judge, as the run measured it (the bench's longest pause between two of the master's
+/// frames, `EmulatorStats::largest_frame_gap`, or a row's lateness plus reply time); above it
+/// the host disturbed the run (the bench integrated the stall under one logged period) \[s\].
+pub const HOST_DISTURBANCE: f64 = 5e-3;
+
+/// Whether an end reason (or error text) names a stop that the host's timing causes: the
+/// master's link watchdog, or the bench stopping itself (its heartbeat watchdog or protection).
+pub fn ended_by_host(reason: &str) -> bool {
+    reason.contains("link watchdog") || reason.contains("stopped itself")
+}
+
+/// Runs `experiment` on `BenchHardware` over a fresh emulator of the plant with
+/// `plant_params` ([`hardware_bench_over_emulator`]), in a fresh directory. An attempt the host
+/// disturbed is run again on a fresh emulator, at most `attempts`: one that the link watchdog
+/// or the emulated bench itself stopped (`experiment` returns the run's end reason, or the
+/// error a run whose safe state was not confirmed fails with; see [`ended_by_host`]), and one
+/// in which the bench measured a pause above [`HOST_DISTURBANCE`] between two of the master's
+/// frames, whatever its outcome. Any other outcome is the caller's to assert on (any other
+/// error panics). `None`, said as `NOT COMPARED`, when every attempt was disturbed.
+pub fn experiment_over_emulator<T>(
+    plant_params: &[(&str, &str)],
+    attempts: usize,
+    mut experiment: impl FnMut(
+        &kneebench_harness::experiment::Bench,
+        &Path,
+    ) -> Result<(T, Option<String>), String>,
+) -> Option<T> {
+    for attempt in 1..=attempts {
+        let (emu, bench) = hardware_bench_over_emulator(
+            plant_params
+                .iter()
+                .map(|(n, v)| (n.to_string(), v.to_string()))
+                .collect(),
+        );
+        let out = tempfile::tempdir().unwrap();
+        let outcome = experiment(&bench, out.path());
+        let gap = emu.stop().map(|s| s.largest_frame_gap).unwrap_or(0.0);
+        let reason = match outcome {
+            _ if gap > HOST_DISTURBANCE => Some(format!("a pause of {:.0} us", gap * 1e6)),
+            Ok((result, reason)) if !reason.as_deref().is_some_and(ended_by_host) => {
+                return Some(result);
+            }
+            Ok((_, reason)) => reason,
+            Err(e) if ended_by_host(&e) => Some(e),
+            Err(e) => panic!("attempt {attempt}: {e}"),
+        };
+        eprintln!("attempt {attempt} disturbed by the host ({reason:?}); run again");
+    }
+    eprintln!("NOT COMPARED: the host disturbed all {attempts} attempts");
+    None
+}
+
+/// The reason an experiment's run ended early, if it did.
+pub fn reason_of(end: &kneebench_harness::experiment::RunEnd) -> Option<String> {
+    match end {
+        kneebench_harness::experiment::RunEnd::Completed => None,
+        kneebench_harness::experiment::RunEnd::Tripped { reason, .. } => Some(reason.clone()),
+    }
+}

@@ -376,52 +376,14 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
     );
 }
 
-/// Runs `experiment` on `BenchHardware` over a fresh emulator of the plant with
-/// `plant_params`, at the armed defaults. An attempt the host disturbed is run again on a fresh
-/// emulator, at most three attempts (these runs take seconds each): one that the link watchdog or the emulated bench itself
-/// stopped (`experiment` returns the run's end reason, or the error a run whose safe state was
-/// not confirmed fails with), and one in which the bench measured a pause above 5 ms between
-/// two of the master's frames, whatever its outcome (the bench integrated the stall under one
-/// logged period: seen here as an inertia 18 % low, a sensor-plausibility trip, a braking
-/// limit one increment off). Any other outcome is the test's to assert on. `None`, said as
-/// `NOT COMPARED`, when every attempt was disturbed.
+/// [`experiment_over_emulator`] with three attempts (these runs take seconds each). A pause
+/// above [`HOST_DISTURBANCE`] counts whatever the run's outcome: seen here as an inertia 18 %
+/// low, a sensor-plausibility trip, a braking limit one increment off.
 fn over_emulator<T>(
     plant_params: &[(&str, &str)],
-    mut experiment: impl FnMut(&Bench, &std::path::Path) -> Result<(T, Option<String>), String>,
+    experiment: impl FnMut(&Bench, &std::path::Path) -> Result<(T, Option<String>), String>,
 ) -> Option<T> {
-    const ATTEMPTS: usize = 3;
-    const DISTURBANCE: f64 = 5e-3;
-    for attempt in 1..=ATTEMPTS {
-        let (emu, bench) = hardware_bench_over_emulator(
-            plant_params
-                .iter()
-                .map(|(n, v)| (n.to_string(), v.to_string()))
-                .collect(),
-        );
-        let out = tempfile::tempdir().unwrap();
-        let outcome = experiment(&bench, out.path());
-        let gap = emu.stop().map(|s| s.largest_frame_gap).unwrap_or(0.0);
-        let by_host = |r: &str| r.contains("link watchdog") || r.contains("stopped itself");
-        let reason = match outcome {
-            _ if gap > DISTURBANCE => Some(format!("a pause of {:.0} us", gap * 1e6)),
-            Ok((result, reason)) if !reason.as_deref().is_some_and(by_host) => {
-                return Some(result);
-            }
-            Ok((_, reason)) => reason,
-            Err(e) if by_host(&e) => Some(e),
-            Err(e) => panic!("attempt {attempt}: {e}"),
-        };
-        eprintln!("attempt {attempt} disturbed by the host ({reason:?}); run again");
-    }
-    eprintln!("NOT COMPARED: the host disturbed all {ATTEMPTS} attempts");
-    None
-}
-
-fn reason_of(end: &RunEnd) -> Option<String> {
-    match end {
-        RunEnd::Completed => None,
-        RunEnd::Tripped { reason, .. } => Some(reason.clone()),
-    }
+    experiment_over_emulator(plant_params, 3, experiment)
 }
 
 /// The load driver's steady regenerated power at load torque `torque` and speed `omega`,

@@ -464,24 +464,18 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             .max()
             .unwrap()
     };
-    // The comparison itself sees one period of delay on a host that keeps its deadlines (a
-    // mean shift of 100 us: 50 us of I/O on loopback and the master's work), whatever this
-    // host does.
+    // The mean shift of a host that keeps its deadlines: 50 us of I/O on loopback and the
+    // master's work. The comparison itself sees one period of delay there, whatever this host
+    // does.
+    let quiet_shift = 100e-6;
     assert_eq!(
-        periods_seen(100e-6),
+        periods_seen(quiet_shift),
         1,
         "the tolerance hides one period of delay"
     );
-    // The hardware run, on a fresh emulator each attempt, at most five. A run that the host
-    // disturbed so much that the emulated bench stopped itself (a stall of several periods,
-    // after which its own protection or heartbeat watchdog ends the run) measured that
-    // disturbance itself and is run again; a run that ends early without such a measurement
-    // fails the test. A completed run whose mean shift hides a period of delay is kept (the
-    // least shifted of them) and a quieter one tried; the first that sees one period ends the
-    // attempts. A completed run whose mean shift hides 8 periods or more (2 ms on average: the
-    // host no longer runs a 1 kHz loop) is disturbed too.
+    // The hardware run, at most five attempts (the rules: the doc comment's "Disturbed runs").
     const ATTEMPTS: usize = 5;
-    let disturbance = 5e-3;
+    let disturbance = HOST_DISTURBANCE;
     let mut best: Option<(Results, EmulatorStats, usize, f64)> = None;
     for attempt in 1..=ATTEMPTS {
         let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
@@ -610,7 +604,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         );
         // The comparison can fail: on a host that keeps its deadlines, every signal moves by
         // more than 5 times its sustained tolerance.
-        let quiet = sustained_of(recorded, quantum, rate, 100e-6);
+        let quiet = sustained_of(recorded, quantum, rate, quiet_shift);
         assert!(
             range > 5.0 * quiet,
             "{signal}: range {range} vs sustained tolerance {quiet} on a quiet host"

@@ -406,8 +406,7 @@ fn bad_logs_are_refused_with_the_file_and_line() {
 #[test]
 fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() {
     const ATTEMPTS: usize = 5;
-    const DISTURBANCE: f64 = 5e-3;
-    use kneebench_tests::hardware_bench_over_emulator;
+    use kneebench_tests::experiment_over_emulator;
     let _real_time = kneebench_tests::one_real_time_test_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let mut logs = Vec::new();
@@ -418,57 +417,21 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
     .into_iter()
     .enumerate()
     {
-        // A run the host disturbed (a pause of more than 5 ms between two of the master's
-        // frames, as the bench measures it, or a run the link watchdog ended) logged motion
-        // the emulated bench integrated over the stall under one nominal period: it is run
-        // again on a fresh emulator, at most five attempts.
-        let mut attempt = 0;
-        let out = loop {
-            attempt += 1;
-            if attempt > ATTEMPTS {
-                eprintln!(
-                    "NOT COMPARED: the host disturbed all {ATTEMPTS} runs of sweep {k} (pauses above 5 ms)"
-                );
-                return;
-            }
-            let (emu, bench) = hardware_bench_over_emulator(
-                TRUTH
-                    .iter()
-                    .map(|(n, v)| (n.to_string(), format!("{v:?}")))
-                    .collect(),
-            );
-            let out = dir.path().join(format!("run{k}-{attempt}"));
-            let r = bode::run_bode(&bench, &short_sweep(input, amplitude, 3.0, 3), &out);
-            let stats = emu.stop().unwrap();
-            let gap = stats.largest_frame_gap;
-            let ended = match &r {
-                Ok(r) => r.end.clone(),
-                Err(e) => panic!("sweep {k}, attempt {attempt}: {e}"),
-            };
-            let by_host = |end: &RunEnd| match end {
-                RunEnd::Completed => false,
-                RunEnd::Tripped { reason, .. } => {
-                    reason.contains("link watchdog") || reason.contains("stopped itself")
-                }
-            };
-            if gap <= DISTURBANCE && ended == RunEnd::Completed {
-                eprintln!(
-                    "sweep {k}, attempt {attempt}: longest frame gap {:.0} us",
-                    gap * 1e6
-                );
-                break out;
-            }
-            assert!(
-                gap > DISTURBANCE || by_host(&ended),
-                "sweep {k}, attempt {attempt}: {ended:?} (longest frame gap {:.0} us)",
-                gap * 1e6
-            );
-            eprintln!(
-                "sweep {k}, attempt {attempt} disturbed by the host (longest frame gap {:.0} us, {ended:?}); run again",
-                gap * 1e6
-            );
+        // A run the host disturbed logged motion the emulated bench integrated over the
+        // stall under one nominal period: it is run again, at most five attempts.
+        let truth: Vec<(&str, String)> =
+            TRUTH.iter().map(|(n, v)| (*n, format!("{v:?}"))).collect();
+        let truth: Vec<(&str, &str)> = truth.iter().map(|(n, v)| (*n, v.as_str())).collect();
+        let Some((end, run)) = experiment_over_emulator(&truth, ATTEMPTS, |bench, out| {
+            let r = bode::run_bode(bench, &short_sweep(input, amplitude, 3.0, 3), out)
+                .map_err(|e| e.to_string())?;
+            let reason = kneebench_tests::reason_of(&r.end);
+            let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+            Ok(((r.end, run), reason))
+        }) else {
+            return;
         };
-        let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+        assert_eq!(end, RunEnd::Completed);
         let path = dir.path().join(format!("bode-hardware-{k}.csv"));
         noisy_log(&run, &path, k as u64 + 11, 0.0);
         logs.push(path);

@@ -12,7 +12,9 @@ use kneebench_harness::master::Value;
 use kneebench_harness::study::{
     Actuator, BenchLink, StudyConfig, StudyScenario, gait_scenario, run_study,
 };
-use kneebench_tests::{bench_key_file, exported_fmu, exported_fmus, one_real_time_test_at_a_time};
+use kneebench_tests::{
+    HOST_DISTURBANCE, bench_key_file, exported_fmu, exported_fmus, one_real_time_test_at_a_time,
+};
 
 fn config(
     out: &std::path::Path,
@@ -100,7 +102,7 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
     // most about 0.6 deg with millisecond stalls); here the whole study path must agree within
     // a degree over two cycles.
     let tolerance = 1f64.to_radians();
-    let disturbance = 5e-3;
+    let disturbance = HOST_DISTURBANCE;
     const ATTEMPTS: usize = 5;
     let mut attempt = 0;
     let (bench_run, stats, worst) = loop {

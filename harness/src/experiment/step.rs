@@ -231,7 +231,6 @@ pub fn run_step(
     })
 }
 
-/// Mean of the last tenth of a record.
 /// Why the tangent of the reaction curve cannot be read from this bench's speed, if it cannot.
 ///
 /// The tangent is one sample-to-sample slope of the speed. `BenchPlant` gives the speed
@@ -267,6 +266,7 @@ fn unresolved_tangent(
     }))
 }
 
+/// Mean of the last tenth of a record.
 fn tail_mean(v: &[f64]) -> f64 {
     let k = (v.len() / 10).max(1);
     super::analysis::mean(&v[v.len() - k..])
