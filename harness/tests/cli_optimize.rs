@@ -1,6 +1,7 @@
 //! `kneebench optimize` and `kneebench sweep` on each other's specs: the example optimisation
-//! (shortened) runs and prints its best run; each command refuses the other's spec with exit
-//! code 2 and says which command to use.
+//! (shortened) runs and prints its best run, and `--resume` continues its finished Parquet
+//! table with one more generation; each command refuses the other's spec with exit code 2 and
+//! says which command to use.
 
 mod common;
 
@@ -56,6 +57,38 @@ fn optimize_runs_the_example_and_each_command_refuses_the_others_spec() {
     let csv = std::fs::read_to_string(&table).unwrap();
     assert_eq!(csv.lines().count(), 1 + 8, "{csv}");
     assert!(csv.starts_with("point,plant.springStiffness,plant.harmonicDriveRatio,"));
+
+    // Finished to Parquet, then continued with one more generation: only its 4 runs are new
+    // (tests/tests/optimize.rs shows that they alone run), and the table has all 12.
+    let parquet = dir.path().join("o.parquet");
+    let optimize = |spec: &Path, resume: bool| {
+        let mut c = kneebench();
+        c.arg("optimize").arg(spec).arg("--output").arg(&parquet);
+        if resume {
+            c.arg("--resume");
+        }
+        let out = c.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert_eq!(out.status.code(), Some(0), "{stderr}");
+        stderr
+    };
+    optimize(&spec, false);
+    let longer = dir.path().join("optimize-longer.toml");
+    std::fs::write(&longer, short.replace("generations = 1", "generations = 2")).unwrap();
+    let stderr = optimize(&longer, true);
+    assert!(
+        stderr.contains("generation 2/2: best all_electrical_energy = "),
+        "{stderr}"
+    );
+    let table = kneebench_harness::sweep::SweepTable::read_parquet(&parquet, 2).unwrap();
+    assert_eq!(table.rows.len(), 12);
+    assert!(
+        table
+            .rows
+            .iter()
+            .enumerate()
+            .all(|(i, r)| r.point == i as u64)
+    );
 
     let sweep = kneebench()
         .arg("sweep")

@@ -335,7 +335,9 @@ def optimize(
 
     Without ``client`` the generations run on ``workers`` local threads (default: every
     core); ``output`` (``.parquet`` or CSV) is written as ``kneebench optimize`` writes it,
-    with a journal next to it for ``resume``. With a ``dask.distributed.Client`` each
+    with a journal next to it for ``resume``; ``resume`` without a journal continues the
+    finished Parquet ``output`` of the same spec given more ``generations`` (only the new
+    generations run). With a ``dask.distributed.Client`` each
     generation's points are sent in batches (``batch_size``, default: about four batches per
     worker) to the workers, as :func:`sweep` sends a sweep's (``retries``, the spec and the
     FMUs at the same absolute paths or :func:`ship`), and its rows gathered before the next

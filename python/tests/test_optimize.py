@@ -242,3 +242,24 @@ def test_an_exception_of_on_generation_stops_the_optimisation_and_resume_ends_it
     assert not journal.exists()
     assert_bit_identical(resumed, full)
     assert out.read_bytes() == (tmp_path / "full.parquet").read_bytes()
+
+
+def test_resume_continues_a_finished_optimisation_given_more_generations(
+    optimize_spec, tmp_path: Path
+):
+    spec = optimize_spec()
+    text = spec.read_text()
+    generations = int(text.split("generations = ")[1].split()[0])
+    fewer = tmp_path / "fewer.toml"
+    fewer.write_text(text.replace(f"generations = {generations}", "generations = 1"))
+    full = kneebench.optimize(spec, workers=2, output=tmp_path / "full.parquet")
+    out = tmp_path / "continued.parquet"
+    kneebench.optimize(fewer, workers=2, output=out)
+    continued = kneebench.optimize(spec, workers=1, output=out, resume=True)
+    assert_bit_identical(continued, full)
+    assert continued.attrs["optimize"]["generations"] == generations
+    # More generations than asked: refused, the table kept.
+    before = out.read_bytes()
+    with pytest.raises(kneebench.KneebenchError, match="beyond this sweep"):
+        kneebench.optimize(fewer, workers=1, output=out, resume=True)
+    assert out.read_bytes() == before

@@ -1,14 +1,15 @@
 //! Optimisation end to end through the exported FMUs: a bad `[optimize]` table is refused
 //! naming its line before anything runs; the result is bit-identical whatever the number of
 //! workers; the optimum is the best feasible row of the table; `--resume` replays the journal's
-//! rows and runs the rest; a sweep refuses an optimisation's spec (the command line:
-//! harness/tests/cli_optimize.rs).
+//! rows and runs the rest, and continues a finished Parquet table with more generations; a
+//! sweep refuses an optimisation's spec (the command line: harness/tests/cli_optimize.rs).
 
 use std::path::Path;
 
 use kneebench_harness::sweep::runner::{journal_line, journal_path};
 use kneebench_harness::sweep::{
-    Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, run_optimization, run_sweep,
+    Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, SweepTable, run_optimization,
+    run_sweep,
 };
 
 fn fmus() -> &'static Path {
@@ -279,6 +280,87 @@ fn resume_replays_the_journal_and_runs_the_rest() {
         e.to_string().contains("line 2 is not a row of this sweep"),
         "{e}"
     );
+}
+
+#[test]
+fn a_finished_optimisation_continues_with_more_generations() {
+    let dir = tempfile::tempdir().unwrap();
+    let resume = SweepOptions {
+        resume: true,
+        ..options(2)
+    };
+    let one = spec(&SPEC.replace("generations = 2", "generations = 1"))
+        .and_then(Prepared::new)
+        .unwrap();
+    let two = spec(SPEC).and_then(Prepared::new).unwrap();
+    // The generations are the one part of the spec the fingerprint leaves out.
+    assert_eq!(one.fingerprint, two.fingerprint);
+    let reseeded = spec(&SPEC.replace("seed = 5", "seed = 6"))
+        .and_then(Prepared::new)
+        .unwrap();
+    assert_ne!(reseeded.fingerprint, two.fingerprint);
+    let fresh = run_optimization(&two, None, &options(2), &mut |_| Ok(())).unwrap();
+
+    // Generation 1 finished; its rows marked in the table, so that a rerun would show.
+    let out = dir.path().join("o.parquet");
+    run_optimization(&one, Some(&out), &options(2), &mut |_| Ok(())).unwrap();
+    let mut table = SweepTable::read_parquet(&out, 2).unwrap();
+    assert_eq!(table.rows.len(), 8);
+    assert!(table.bit_identical(&SweepTable {
+        rows: fresh.table.rows[..8].to_vec(),
+        ..fresh.table.clone()
+    }));
+    for r in &mut table.rows {
+        r.message = "from the table".into();
+    }
+    table.write_parquet(&out).unwrap();
+    // Without --resume it runs afresh; with it, only generation 2's four runs.
+    let continued = run_optimization(&two, Some(&out), &resume, &mut |_| Ok(())).unwrap();
+    let mut expected = fresh.table.clone();
+    for r in &mut expected.rows[..8] {
+        r.message = "from the table".into();
+    }
+    assert!(continued.table.bit_identical(&expected));
+    assert_eq!(continued.best.point, fresh.best.point);
+    assert!(!journal_path(&out).exists());
+    let written = SweepTable::read_parquet(&out, 2).unwrap();
+    assert!(written.bit_identical(&expected));
+    let meta = |k: &str| {
+        written
+            .metadata
+            .iter()
+            .find(|(key, _)| key == k)
+            .map(|(_, v)| v.clone())
+    };
+    assert_eq!(meta("kneebench.optimize.generations").as_deref(), Some("2"));
+
+    // Refused: fewer generations than the table holds, another sweep's table, a CSV table.
+    let e = run_optimization(&one, Some(&out), &resume, &mut |_| Ok(())).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("point 8 of the finished table is beyond this sweep"),
+        "{e}"
+    );
+    let e = run_optimization(&reseeded, Some(&out), &resume, &mut |_| Ok(())).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("the finished table belongs to another sweep"),
+        "{e}"
+    );
+    let csv = dir.path().join("o.csv");
+    run_optimization(&one, Some(&csv), &options(2), &mut |_| Ok(())).unwrap();
+    let e = run_optimization(&two, Some(&csv), &resume, &mut |_| Ok(())).unwrap_err();
+    assert!(
+        e.to_string().contains("a CSV table carries no fingerprint"),
+        "{e}"
+    );
+    // Every refusal left the tables and wrote no journal.
+    assert!(
+        SweepTable::read_parquet(&out, 2)
+            .unwrap()
+            .bit_identical(&expected)
+    );
+    assert!(!journal_path(&out).exists() && !journal_path(&csv).exists());
 }
 
 #[test]

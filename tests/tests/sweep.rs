@@ -378,6 +378,19 @@ fn resume_runs_only_the_points_the_journal_lacks() {
     )
     .unwrap();
     assert!(resumed.bit_identical(&marked), "only points 3.. ran again");
+    // --resume of the finished table (no journal): every point is in it, nothing runs, and
+    // the table is written again as it was (its marks kept).
+    assert!(!journal_path(&out).exists());
+    let again = run_sweep(
+        &p,
+        Some(&out),
+        &SweepOptions {
+            resume: true,
+            ..options(1)
+        },
+    )
+    .unwrap();
+    assert!(again.bit_identical(&marked));
     // A journal of another sweep is refused.
     std::fs::write(journal_path(&out), "kneebench-sweep-journal 1 0123\n").unwrap();
     let e = run_sweep(

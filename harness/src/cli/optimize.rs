@@ -24,8 +24,10 @@ one trial per member and generation within the parameters' [min, max]. A run tha
 interlock or fails, or breaks a constraint, loses against one that does not. Every run is a
 row of the table (generation = point / population); the best run is printed and named in the
 table's metadata (kneebench.optimize.best_point). Finished rows are journaled to
-OUTPUT.journal; --resume replays them and runs the rest. The result is identical whatever the
-number of workers.
+OUTPUT.journal; --resume replays them and runs the rest. --resume with no journal continues a
+finished Parquet table: raise the spec's generations (nothing else) and only the new
+generations run; the result equals a run with that many generations from the start. The
+result is identical whatever the number of workers.
 
 --dask ADDRESS runs each generation's points in batches on a Dask cluster's workers through
 the kneebench Python package (kneebench.optimize(spec, client=...)), as kneebench sweep
@@ -42,7 +44,8 @@ pub struct Args {
     /// Worker threads (default: every local core).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub workers: Option<u64>,
-    /// Continue an interrupted optimisation from OUTPUT.journal, replaying its finished runs.
+    /// Continue an interrupted optimisation from OUTPUT.journal, replaying its finished runs;
+    /// without a journal, continue the finished Parquet table at OUTPUT (more generations).
     #[arg(long)]
     pub resume: bool,
     /// Do not print each generation's best (on a terminal: a progress bar instead).

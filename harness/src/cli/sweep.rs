@@ -37,7 +37,8 @@ pub struct Args {
     /// Worker threads (default: every local core).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub workers: Option<u64>,
-    /// Continue an interrupted sweep from OUTPUT.journal, skipping its finished points.
+    /// Continue an interrupted sweep from OUTPUT.journal, skipping its finished points
+    /// (without a journal: the finished Parquet table at OUTPUT, if it is this sweep's).
     #[arg(long)]
     pub resume: bool,
     /// Run the points on the Dask cluster whose scheduler is at ADDRESS (e.g.

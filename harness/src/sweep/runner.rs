@@ -11,7 +11,9 @@
 //! per row, floats as their 64-bit patterns in hex) and flushed. A resumed sweep reads the
 //! journal, refuses it if the fingerprint differs, skips the points it holds and runs the rest;
 //! a torn last line (the process was killed while writing it) is ignored. The journal is
-//! removed once the table is written.
+//! removed once the table is written. `--resume` with no journal continues a finished Parquet
+//! table of the same sweep (its fingerprint is in the table's metadata): an optimisation given
+//! more generations runs only the new ones.
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write;
@@ -472,7 +474,7 @@ impl Prepared {
             .components()
             .map(|(n, f)| (n.to_string(), f.model_description().guid.clone()))
             .collect();
-        let fingerprint = fingerprint(&spec.text, &design, &guids);
+        let fingerprint = fingerprint(&spec.fingerprint_text(), &design, &guids);
         let mut metric_units: Vec<String> = Vec::new();
         if spec.study_metrics {
             metric_units.extend(STUDY_METRIC_UNITS.iter().map(|u| u.to_string()));
@@ -932,6 +934,66 @@ fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
     })
 }
 
+/// The rows of the finished table at `output`, to continue it (an optimisation given more
+/// generations; a sweep whose table is complete runs nothing). Only a Parquet table can be
+/// continued: it carries the sweep's fingerprint in its metadata, and it must be this one's
+/// (the same spec but for an optimisation's `generations`, the same points, the same FMUs).
+/// Its names must be this sweep's, and every point's id accepted by `known` (an optimisation
+/// asked for fewer generations than the table holds is refused). A CSV table carries no
+/// fingerprint and is refused.
+fn finished_rows(
+    output: &Path,
+    prepared: &Prepared,
+    known: &dyn Fn(u64) -> bool,
+) -> Result<BTreeMap<u64, Row>, SweepError> {
+    let bad = |message: String| SweepError::Table {
+        path: output.to_path_buf(),
+        message,
+    };
+    let parquet = output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
+    if !parquet {
+        return Err(bad(
+            "--resume found a finished table and no journal; a CSV table carries no fingerprint \
+             to check it against this spec, so it cannot be continued: leave out --resume to run \
+             afresh, or write Parquet (--output *.parquet) to be able to continue"
+                .into(),
+        ));
+    }
+    let table = SweepTable::read_parquet(output, prepared.design.names.len())?;
+    let theirs = table
+        .metadata
+        .iter()
+        .find(|(k, _)| k == "kneebench.sweep.fingerprint")
+        .map(|(_, v)| v.as_str());
+    if theirs != Some(prepared.fingerprint.as_str()) {
+        return Err(bad(
+            "the finished table belongs to another sweep (the spec but for an optimisation's \
+             generations, its points or the FMUs changed): leave out --resume to run afresh"
+                .into(),
+        ));
+    }
+    if table.parameter_names != prepared.design.names || table.metric_names != prepared.metric_names
+    {
+        return Err(bad(
+            "the finished table's columns are not this sweep's".into()
+        ));
+    }
+    let mut rows = BTreeMap::new();
+    for row in table.rows {
+        if !known(row.point) {
+            return Err(bad(format!(
+                "point {} of the finished table is beyond this sweep (an optimisation can be \
+                 continued with more generations, not fewer)",
+                row.point
+            )));
+        }
+        rows.insert(row.point, row);
+    }
+    Ok(rows)
+}
+
 /// The journal of a sweep or an optimisation written to `output`: `<output>.journal`, one line
 /// per finished row after the fingerprint (see the module documentation).
 pub(crate) struct Journal {
@@ -944,7 +1006,9 @@ impl Journal {
     /// `resume`; with it, its rows are returned (their parameters empty, each id accepted by
     /// `known`, else the line is refused) and the journal is rewritten with the complete rows
     /// only (a torn last line, from a kill while it was written, is dropped: that point runs
-    /// again). A journal of another fingerprint is refused.
+    /// again). A journal of another fingerprint is refused. With `resume` and no journal, a
+    /// finished table at `output` is continued: its rows are returned ([`finished_rows`]) and
+    /// journaled.
     pub(crate) fn open(
         output: &Path,
         resume: bool,
@@ -988,6 +1052,8 @@ impl Journal {
                     .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
                 rows.insert(row.point, row);
             }
+        } else if resume && output.exists() {
+            rows = finished_rows(output, prepared, known)?;
         }
         let mut text = header;
         for r in rows.values() {

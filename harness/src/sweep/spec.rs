@@ -383,6 +383,10 @@ pub struct OptimizeSpec {
     pub direction: Direction,
     /// Generations after the first (the design).
     pub generations: usize,
+    /// Byte range of the `generations` value in the spec's text: the one part of the text the
+    /// fingerprint leaves out ([`SweepSpec::fingerprint_text`]), so that a finished
+    /// optimisation can be continued with more generations.
+    pub generations_span: std::ops::Range<usize>,
     /// Seed of the mutation and crossover draws.
     pub seed: u64,
     /// The differential weight `F` (scale of a mutation), in (0, 2].
@@ -510,6 +514,7 @@ fn optimize_spec(
         objective_line: line_of(p.text, o.objective.span().start),
         direction,
         generations,
+        generations_span: o.generations.span(),
         seed,
         differential_weight,
         crossover,
@@ -519,6 +524,21 @@ fn optimize_spec(
 }
 
 impl SweepSpec {
+    /// The text the sweep's fingerprint covers: the spec's text, with an optimisation's
+    /// `generations` value replaced by `*`. The first `g` generations of an optimisation do not
+    /// depend on how many follow them (a generation's draws come from the seed and its own
+    /// number), so a finished optimisation continued with more generations is the same sweep;
+    /// any other change to the text makes another one.
+    pub fn fingerprint_text(&self) -> std::borrow::Cow<'_, str> {
+        match &self.optimize {
+            Some(o) => {
+                let r = &o.generations_span;
+                format!("{}*{}", &self.text[..r.start], &self.text[r.end..]).into()
+            }
+            None => self.text.as_str().into(),
+        }
+    }
+
     /// Reads and parses a spec file (paths in it are relative to its directory). The result is
     /// not yet checked against the system's FMUs: see [`Prepared::new`](super::Prepared::new).
     pub fn from_file(path: &Path) -> Result<SweepSpec, SweepError> {

@@ -263,6 +263,87 @@ impl SweepTable {
         })
     }
 
+    /// Reads a table that [`write_parquet`](Self::write_parquet) wrote: `point`, the DOUBLE
+    /// columns (the first `parameter_count` of them the parameters, the rest the metrics),
+    /// `status` and `message`, with its key-value metadata. Values read back bit for bit.
+    ///
+    /// Errors: the file cannot be opened or is not Parquet, or its columns are not those of a
+    /// sweep table (fewer than `parameter_count` value columns, another type or order, an
+    /// unknown status).
+    pub fn read_parquet(path: &Path, parameter_count: usize) -> Result<SweepTable, SweepError> {
+        use parquet::file::reader::{FileReader, SerializedFileReader};
+        use parquet::record::RowAccessor;
+        let bad = |message: String| SweepError::Table {
+            path: path.to_path_buf(),
+            message,
+        };
+        let file = File::open(path).map_err(|source| SweepError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let reader =
+            SerializedFileReader::new(file).map_err(|e| bad(format!("not Parquet: {e}")))?;
+        let meta = reader.metadata().file_metadata();
+        let metadata: Vec<(String, String)> = meta
+            .key_value_metadata()
+            .map(|kv| {
+                kv.iter()
+                    .map(|k| (k.key.clone(), k.value.clone().unwrap_or_default()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let columns = meta.schema_descr().columns().to_vec();
+        let names: Vec<String> = columns.iter().map(|c| c.name().to_string()).collect();
+        let types: Vec<PhysicalType> = columns.iter().map(|c| c.physical_type()).collect();
+        let n = names.len();
+        let shape = n >= 3 + parameter_count
+            && names[0] == "point"
+            && types[0] == PhysicalType::INT64
+            && names[n - 2] == "status"
+            && names[n - 1] == "message"
+            && types[n - 2..]
+                .iter()
+                .all(|t| *t == PhysicalType::BYTE_ARRAY)
+            && types[1..n - 2].iter().all(|t| *t == PhysicalType::DOUBLE)
+            && columns
+                .iter()
+                .all(|c| c.max_def_level() == 0 && c.max_rep_level() == 0);
+        if !shape {
+            return Err(bad(format!(
+                "not a sweep table of {parameter_count} parameters (its columns: {})",
+                names.join(", ")
+            )));
+        }
+        let mut table = SweepTable {
+            parameter_names: names[1..1 + parameter_count].to_vec(),
+            metric_names: names[1 + parameter_count..n - 2].to_vec(),
+            rows: Vec::new(),
+            metadata,
+        };
+        let rows = reader
+            .get_row_iter(None)
+            .map_err(|e| bad(format!("rows: {e}")))?;
+        for (i, record) in rows.enumerate() {
+            let at = |e: parquet::errors::ParquetError| bad(format!("row {}: {e}", i + 1));
+            let record = record.map_err(at)?;
+            let values = (1..n - 2)
+                .map(|k| record.get_double(k))
+                .collect::<Result<Vec<f64>, _>>()
+                .map_err(at)?;
+            let status = record.get_string(n - 2).map_err(at)?;
+            table.rows.push(Row {
+                point: u64::try_from(record.get_long(0).map_err(at)?)
+                    .map_err(|_| bad(format!("row {}: a negative point id", i + 1)))?,
+                parameters: values[..parameter_count].to_vec(),
+                metrics: values[parameter_count..].to_vec(),
+                status: RunStatus::from_name(status)
+                    .ok_or_else(|| bad(format!("row {}: unknown status '{status}'", i + 1)))?,
+                message: record.get_string(n - 1).map_err(at)?.clone(),
+            });
+        }
+        Ok(table)
+    }
+
     /// Refuses a row whose values do not fit the columns.
     fn check_rows(&self, path: &Path) -> Result<(), SweepError> {
         let (np, nm) = (self.parameter_names.len(), self.metric_names.len());
@@ -392,6 +473,53 @@ mod tests {
         assert!(rows[1].get_double(2).unwrap().is_nan());
         assert_eq!(rows[1].get_string(3).unwrap(), "failed");
         assert_eq!(rows[1].get_string(4).unwrap(), "plant: \"bad\", value");
+    }
+
+    #[test]
+    fn read_parquet_gives_back_what_write_parquet_wrote_bit_for_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let mut t = table();
+        // A NaN with its sign set (x86's 0/0) and a message across lines keep their bits.
+        t.rows[1].metrics[0] = f64::from_bits(0xfff8_0000_0000_0000);
+        t.rows[1].message.push_str("\nsecond line");
+        t.write_parquet(&path).unwrap();
+        let back = SweepTable::read_parquet(&path, 1).unwrap();
+        assert!(back.bit_identical(&t));
+        assert_eq!(back.parameter_names, t.parameter_names);
+        assert_eq!(back.metadata, t.metadata);
+        // Two value columns read as parameters: the names say which.
+        let two = SweepTable::read_parquet(&path, 2).unwrap();
+        assert!(two.metric_names.is_empty());
+        assert_eq!(two.rows[0].parameters, [0.1, 1.0 / 3.0]);
+        // Not a sweep table of 3 parameters, not a sweep table, not Parquet, no file.
+        let e = SweepTable::read_parquet(&path, 3).unwrap_err().to_string();
+        assert!(
+            e.contains(
+                "not a sweep table of 3 parameters (its columns: point, \
+                 plant.springStiffness, rms_error_knee, status, message)"
+            ),
+            "{e}"
+        );
+        let results = dir.path().join("r.parquet");
+        let mut f = crate::results::parquet::ParquetFile::create(&results).unwrap();
+        use crate::results::ResultSink;
+        f.begin(&["a".to_string()], &[crate::results::ColumnKind::Real])
+            .unwrap();
+        f.push_row(0.0, &[1.0]).unwrap();
+        f.commit().unwrap();
+        let e = SweepTable::read_parquet(&results, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a sweep table of 0 parameters"), "{e}");
+        let csv = dir.path().join("t.csv");
+        t.write_csv(&csv).unwrap();
+        let e = SweepTable::read_parquet(&csv, 1).unwrap_err().to_string();
+        assert!(e.contains("not Parquet"), "{e}");
+        let e = SweepTable::read_parquet(&dir.path().join("none.parquet"), 1)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("none.parquet"), "{e}");
     }
 
     #[test]
