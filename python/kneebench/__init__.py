@@ -153,22 +153,24 @@ def _run_on_cluster(
     ids: Sequence[Sequence[int]],
     fingerprint: str,
     retries: int,
+    on_part: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Runs ``task(spec, batch)`` for every batch on the workers of ``client`` and returns
-    their rows dicts (in batch order), each checked against ``fingerprint``. ``ids`` are the
-    batches' point ids: those of batches that never came back (their worker died more often
-    than the scheduler allows, or their task raised ``retries + 1`` times) are named in the
-    KneebenchError raised."""
-    from distributed import wait
+    their rows dicts (in batch order), each checked against ``fingerprint`` and handed to
+    ``on_part`` as it comes back (a journal). ``ids`` are the batches' point ids: those of
+    batches that never came back (their worker died more often than the scheduler allows, or
+    their task raised ``retries + 1`` times) are named in the KneebenchError raised."""
+    from distributed import as_completed
 
     futures = client.map(task, [spec] * len(batches), batches, pure=False, retries=retries)
-    wait(futures)
-    parts = []
+    index = {f.key: k for k, f in enumerate(futures)}
+    parts: list[dict[str, Any] | None] = [None] * len(futures)
     missing: list[int] = []
     errors: list[str] = []
-    for fut, batch_ids in zip(futures, ids):
+    for fut in as_completed(futures):
+        k = index[fut.key]
         if fut.status != "finished":
-            missing.extend(batch_ids)
+            missing.extend(ids[k])
             try:
                 errors.append(repr(fut.exception()))
             except Exception as e:  # noqa: BLE001 - the worker's error, whatever it is
@@ -180,13 +182,15 @@ def _run_on_cluster(
                 "a worker sees another sweep (the spec, its points or the FMUs' GUIDs differ): "
                 f"fingerprint {d['fingerprint']} != {fingerprint}"
             )
-        parts.append(d)
+        if on_part is not None:
+            on_part(d)
+        parts[k] = d
     if missing:
         raise KneebenchError(
-            f"{len(missing)} points without a row: {missing}; first error: "
+            f"{len(missing)} points without a row: {sorted(missing)}; first error: "
             f"{errors[0] if errors else 'unknown'}"
         )
-    return parts
+    return [d for d in parts if d is not None]
 
 
 def ship(client: Any, spec: str | os.PathLike[str]) -> list[str]:
@@ -218,8 +222,8 @@ def sweep(
     ``df.attrs["units"]`` maps each column to its unit (the FMUs' unit names, ``""`` for
     none). ``output`` (``.parquet`` or CSV) writes the same table as ``kneebench sweep``.
 
-    Without ``client`` the points run on ``workers`` local threads (default: every core), with
-    a journal next to ``output`` for ``resume``. With a ``dask.distributed.Client`` the points
+    Without ``client`` the points run on ``workers`` local threads (default: every core). With
+    a ``dask.distributed.Client`` the points
     are sent in batches (``batch_size``, default: about four batches per worker) to the
     cluster's workers; the spec and the FMUs must be at the same absolute paths there (a
     shared file system, or :func:`ship` first). ``retries`` is how many times Dask reruns a
@@ -229,34 +233,40 @@ def sweep(
     Points still without a row raise KneebenchError naming them. The table equals the local
     one bit for bit. A spec with an ``[optimize]`` table raises SpecError: run it with
     :func:`optimize`.
+
+    Either way, with ``output`` every finished row is journaled next to it (on Dask, as each
+    batch comes back), so that an interrupted sweep (a killed client, points without a row)
+    continues with ``resume=True`` running only the points the journal lacks (and a finished
+    Parquet ``output`` of the same sweep runs nothing); ``resume`` needs ``output``.
     """
     path = os.path.abspath(os.fspath(spec))
+    out = None if output is None else os.fspath(output)
+    if resume and out is None:
+        raise KneebenchError("resume needs output: the journal is next to it")
     if client is None:
-        out = None if output is None else os.fspath(output)
         return _frame(_native.sweep(path, workers, out, resume))
-    if resume:
-        raise KneebenchError("resume is for local sweeps (a Dask sweep keeps no journal)")
     info = _native.sweep_info(path)
-    n = int(info["points"])
+    journal = None if out is None else _native.SweepJournal(path, out, resume)
+    todo = list(range(int(info["points"]))) if journal is None else journal.pending()
     if batch_size is None:
-        batch_size = _default_batch_size(client, n)
-    batches = [list(range(i, min(i + batch_size, n))) for i in range(0, n, batch_size)]
+        batch_size = _default_batch_size(client, len(todo))
+    batches = [todo[i : i + batch_size] for i in range(0, len(todo), batch_size)]
     parts = _run_on_cluster(
-        client, _run_batch, path, batches, batches, info["fingerprint"], retries
+        client,
+        _run_batch,
+        path,
+        batches,
+        batches,
+        info["fingerprint"],
+        retries,
+        None if journal is None else journal.record,
     )
-    table = pd.concat([_frame(d) for d in parts], ignore_index=True)
-    table = table.sort_values("point", kind="stable").reset_index(drop=True)
+    if journal is not None:
+        table = _frame(journal.finish())
+    else:
+        table = pd.concat([_frame(d) for d in parts], ignore_index=True)
+        table = table.sort_values("point", kind="stable").reset_index(drop=True)
     _set_units(table, {**info, "units": info["units"]})
-    if output is not None:
-        names = list(info["parameters"]) + list(info["metrics"])
-        _native.write_sweep_table(
-            path,
-            os.fspath(output),
-            [int(p) for p in table["point"]],
-            [np.ascontiguousarray(table[c].to_numpy(dtype="<f8")).tobytes() for c in names],
-            [str(s) for s in table["status"]],
-            [str(m) for m in table["message"]],
-        )
     return table
 
 

@@ -4,7 +4,7 @@
 //!
 //! Every function runs its simulation with the GIL released (`Python::detach`) and raises
 //! `kneebench.KneebenchError` (`SpecError` for a refused sweep spec) with the Rust message.
-//! Sweeps: `sweep` (local), `sweep_info`, `sweep_points` and `write_sweep_table` (Dask);
+//! Sweeps: `sweep` (local), `sweep_info`, `sweep_points` and `SweepJournal` (Dask);
 //! optimisations: `optimize` (local), `optimize_info`, the ask/tell `Optimizer` and
 //! `optimize_points` (Dask). A sweep refuses a spec with `[optimize]`, an optimisation one
 //! without.
@@ -18,8 +18,8 @@ use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScena
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{
-    Optimization, Optimizer, Prepared, Row, RunStatus, SweepError, SweepOptions, SweepSpec,
-    run_optimization, run_sweep,
+    JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus, SweepError, SweepOptions,
+    SweepSpec, run_optimization, run_sweep,
 };
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
@@ -485,30 +485,89 @@ fn input_files(py: Python<'_>, spec: PathBuf) -> PyResult<Vec<PathBuf>> {
     Ok(absolute_input_files(&p))
 }
 
-/// Writes a sweep's table (rows from `kneebench.sweep`, e.g. gathered from a Dask cluster) to
-/// `output` as the local sweep does: Parquet for `.parquet`, CSV otherwise, with the sweep's
-/// metadata. `columns` holds one float64 column (bytes) per parameter, then per metric, in the
-/// spec's order; `point`, `status` and `message` one entry per row.
-#[pyfunction]
-#[pyo3(signature = (spec, output, point, columns, status, message))]
-fn write_sweep_table(
-    py: Python<'_>,
-    spec: PathBuf,
+/// A sweep whose points run elsewhere (the package's Dask sweep), with the local sweep's
+/// journal and table: `pending` gives the points without a row (all of them, or after
+/// `resume` those the journal, or a finished Parquet table of the same sweep, lacks),
+/// `record(rows)` journals rows as batches come back (dicts of `sweep_points`, their
+/// fingerprint checked), and `finish()` writes the table to `output`, removes the journal and
+/// returns the rows as `sweep` does (points still without a row are an error naming them,
+/// the journal kept for `resume`).
+#[pyclass(module = "kneebench._native", name = "SweepJournal")]
+struct PySweepJournal {
+    prepared: std::sync::Arc<Prepared>,
     output: PathBuf,
-    point: Vec<u64>,
-    columns: Vec<Vec<u8>>,
-    status: Vec<String>,
-    message: Vec<String>,
-) -> PyResult<()> {
-    py.detach(|| {
-        let p = prepare(&spec).map_err(sweep_err)?;
-        p.refuse_optimization().map_err(sweep_err)?;
-        let mut table = p.empty_table();
-        table.rows = decode_rows("write_sweep_table", &p, &point, &columns, &status, &message)
-            .map_err(err)?;
-        table.rows.sort_by_key(|r| r.point);
-        table.write(&output).map_err(sweep_err)
-    })
+    inner: Option<JournaledSweep<std::sync::Arc<Prepared>>>,
+}
+
+impl PySweepJournal {
+    fn inner(&mut self) -> PyResult<&mut JournaledSweep<std::sync::Arc<Prepared>>> {
+        self.inner
+            .as_mut()
+            .ok_or_else(|| err("SweepJournal: finished already"))
+    }
+}
+
+#[pymethods]
+impl PySweepJournal {
+    /// The journal of the sweep `spec` (checked in full; one with `[optimize]` is refused)
+    /// written to `output`: an existing journal is refused without `resume`.
+    #[new]
+    #[pyo3(signature = (spec, output, resume=false))]
+    fn new(py: Python<'_>, spec: PathBuf, output: PathBuf, resume: bool) -> PyResult<Self> {
+        py.detach(|| {
+            let prepared = std::sync::Arc::new(prepare(&spec)?);
+            let inner = JournaledSweep::start(
+                prepared.clone(),
+                Some(&output),
+                &local_options(None, resume),
+            )?;
+            Ok(PySweepJournal {
+                prepared,
+                output,
+                inner: Some(inner),
+            })
+        })
+        .map_err(sweep_err)
+    }
+
+    /// The points without a row, in id order.
+    fn pending(&self) -> PyResult<Vec<u64>> {
+        self.inner
+            .as_ref()
+            .map(|i| i.pending())
+            .ok_or_else(|| err("SweepJournal: finished already"))
+    }
+
+    /// Journals the rows of a dict of `sweep_points` (or a list of them).
+    fn record(&mut self, rows: &Bound<'_, PyAny>) -> PyResult<()> {
+        const WHAT: &str = "SweepJournal.record";
+        let mut all = Vec::new();
+        if rows.is_instance_of::<PyDict>() {
+            all = rows_of_dict(WHAT, &self.prepared, rows)?;
+        } else {
+            for d in rows.try_iter()? {
+                all.extend(rows_of_dict(WHAT, &self.prepared, &d?)?);
+            }
+        }
+        let inner = self.inner()?;
+        for row in all {
+            inner.record(row).map_err(sweep_err)?;
+        }
+        Ok(())
+    }
+
+    /// Writes the table and removes the journal; returns the rows as `sweep` does.
+    fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let inner = self
+            .inner
+            .take()
+            .ok_or_else(|| err("SweepJournal: finished already"))?;
+        let output = self.output.clone();
+        let table = py
+            .detach(|| inner.finish(Some(&output)))
+            .map_err(sweep_err)?;
+        rows_dict(py, &self.prepared, &table.rows)
+    }
 }
 
 /// The optimisation's settings in `d`: `objective`, `direction`, `population`, `generations`
@@ -864,7 +923,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_info, m)?)?;
     m.add_function(wrap_pyfunction!(sweep_points, m)?)?;
-    m.add_function(wrap_pyfunction!(write_sweep_table, m)?)?;
+    m.add_class::<PySweepJournal>()?;
     m.add_function(wrap_pyfunction!(input_files, m)?)?;
     m.add_function(wrap_pyfunction!(optimize, m)?)?;
     m.add_function(wrap_pyfunction!(optimize_info, m)?)?;

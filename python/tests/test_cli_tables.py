@@ -61,9 +61,13 @@ def test_cli_dask_writes_the_local_table(sweep_spec, tmp_path: Path):
         assert f"wrote 8 rows to {tmp_path / 'dask.parquet'} (8 ok, 0 tripped, 0 failed; " \
             f"Dask cluster {address}" in r.stderr, r.stderr
         cli("sweep", spec, "--dask", address, "--output", tmp_path / "dask.csv", env=env)
+        # --resume of the finished table: every row is in it, nothing runs, the same table.
+        r = cli("sweep", spec, "--dask", address, "--output", tmp_path / "dask.parquet",
+                "--resume", env=env)
+        assert "wrote 8 rows to" in r.stderr, r.stderr
     same_parquet(tmp_path / "local.parquet", tmp_path / "dask.parquet")
     assert (tmp_path / "dask.csv").read_bytes() == (tmp_path / "local.csv").read_bytes()
-    # --dask and local threads or --resume do not mix.
+    # --dask and local threads do not mix.
     r = cli("sweep", spec, "--dask", "tcp://x:1", "--workers", "2", check=False)
     assert r.returncode == 2 and "cannot be used with" in r.stderr, r.stderr
 

@@ -220,21 +220,27 @@ def test_errors_raised_on_a_dask_worker_reach_the_client_as_their_class(sweep_sp
             fut.result()
 
 
-def test_points_that_never_come_back_are_named(sweep_spec):
+def test_points_that_never_come_back_are_named_and_resume_runs_only_them(
+    sweep_spec, tmp_path: Path
+):
     """A worker killed while it runs a batch, with the scheduler allowed no failure: the
-    batch never comes back, and the error names its points."""
+    batch never comes back, and the error names its points. The rows that came back are in
+    the journal next to ``output``; ``resume`` on another cluster runs only the named points
+    and the table equals the local one."""
     distributed = pytest.importorskip("distributed")
     import dask
     import re
 
     spec = sweep_spec(12, cycles=40)
+    out = tmp_path / "t.parquet"
+    journal = tmp_path / "t.parquet.journal"
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}), distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster, distributed.Client(cluster) as client:
         with a_worker_killed_while_busy(client), pytest.raises(
             kneebench.KneebenchError, match=r"points without a row: \["
         ) as e:
-            kneebench.sweep(spec, client=client, batch_size=3, retries=0)
+            kneebench.sweep(spec, client=client, batch_size=3, retries=0, output=out)
     named = [int(x) for x in re.search(r"\[([0-9, ]+)\]", str(e.value)).group(1).split(",")]
     # Whole batches of three, each named once, and not all of them (the other worker's rows
     # came back).
@@ -242,6 +248,25 @@ def test_points_that_never_come_back_are_named(sweep_spec):
     assert sorted(named) == [p for b in sorted(batches) for p in range(3 * b, 3 * b + 3)], named
     assert 0 < len(named) < 12, named
     assert "KilledWorker" in str(e.value)
+    # The journal holds every other row (marked here, so that a rerun would show).
+    assert not out.exists()
+    header, *rows = journal.read_text().splitlines()
+    assert sorted(int(r.split("\t")[0]) for r in rows) == sorted(set(range(12)) - set(named))
+    journal.write_text(
+        "\n".join([header] + ["\t".join(r.split("\t")[:3] + ["from the journal"]) for r in rows])
+        + "\n"
+    )
+    local = kneebench.sweep(spec, workers=2)
+    local.loc[~local["point"].isin(named), "message"] = "from the journal"
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        with pytest.raises(kneebench.KneebenchError, match="pass --resume"):
+            kneebench.sweep(spec, client=client, output=out)
+        table = kneebench.sweep(spec, client=client, batch_size=3, output=out, resume=True)
+    assert not journal.exists()
+    assert_bit_identical(local, table)
+    assert_bit_identical(local, kneebench.sweep(spec, workers=1, output=out, resume=True))
 
 
 def test_ship_sends_the_sweeps_files_to_the_workers(sweep_spec, fmus: Path, tmp_path: Path):

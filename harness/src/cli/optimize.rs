@@ -67,7 +67,7 @@ pub struct Args {
 const OPTIMIZE_CALL: DaskCall<'static> = DaskCall {
     what: "optimisation",
     source: r#"
-def call(client, spec, output, batch_size):
+def call(client, spec, output, batch_size, resume):
     def show(g):
         emit("generation", g["generation"], g["point"], repr(g["objective"]),
              repr(g["violation"]))
@@ -215,6 +215,7 @@ fn run_on_cluster(
         address,
         &a.output,
         a.batch_size,
+        false,
         &mut on_report,
     )?;
     eprintln!(

@@ -25,7 +25,8 @@ only the points the journal lacks. The table is identical whatever the number of
 --dask ADDRESS sends the points in batches to a Dask cluster's workers through the kneebench
 Python package: the interpreter named by KNEEBENCH_PYTHON (default: python3 on PATH) must
 import kneebench and distributed, and the workers must read the spec and the FMUs at the same
-absolute paths (see the README). The table is the same as the local one:
+absolute paths (see the README). The table is the same as the local one, its rows journaled as
+the batches come back (--resume as for a local sweep):
   kneebench sweep examples/stiffness-sweep/sweep.toml --output out/sweep.parquet \\
       --dask tcp://scheduler:8786")]
 pub struct Args {
@@ -38,12 +39,13 @@ pub struct Args {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub workers: Option<u64>,
     /// Continue an interrupted sweep from OUTPUT.journal, skipping its finished points
-    /// (without a journal: the finished Parquet table at OUTPUT, if it is this sweep's).
+    /// (without a journal: the finished Parquet table at OUTPUT, if it is this sweep's); with
+    /// --dask too.
     #[arg(long)]
     pub resume: bool,
     /// Run the points on the Dask cluster whose scheduler is at ADDRESS (e.g.
     /// tcp://scheduler:8786) instead of local threads.
-    #[arg(long, value_name = "ADDRESS", conflicts_with_all = ["workers", "resume"])]
+    #[arg(long, value_name = "ADDRESS", conflicts_with = "workers")]
     pub dask: Option<String>,
     /// With --dask: points per Dask task (default: about four tasks per worker).
     #[arg(long, requires = "dask", value_parser = clap::value_parser!(u64).range(1..))]
@@ -65,7 +67,7 @@ for module in ("kneebench", "distributed"):
         sys.exit(3)
 import kneebench
 from distributed import Client
-spec, address, output, batch, tag = sys.argv[1:6]
+spec, address, output, batch, resume, tag = sys.argv[1:7]
 
 def emit(*words):
     print(tag, *words, flush=True)
@@ -73,7 +75,7 @@ def emit(*words):
     r#"
 try:
     with Client(address, timeout="30s") as client:
-        table = call(client, spec, output, int(batch) or None)
+        table = call(client, spec, output, int(batch) or None, resume == "1")
 except (kneebench.KneebenchError, OSError, TimeoutError, ValueError) as e:
     sys.stderr.write(f"{type(e).__name__}: {e}\n")
     sys.exit(1)
@@ -90,8 +92,8 @@ const DASK_TAG: &str = "@kneebench";
 pub(crate) struct DaskCall<'a> {
     /// What runs, for the messages: "sweep", "optimisation".
     pub what: &'a str,
-    /// Python source defining `call(client, spec, output, batch_size)`: runs it on the cluster
-    /// of `client`, writes `output` and returns the table's DataFrame; it may report on
+    /// Python source defining `call(client, spec, output, batch_size, resume)`: runs it on the
+    /// cluster of `client`, writes `output` and returns the table's DataFrame; it may report on
     /// stdout with `emit(word, ...)` (see [`run_on_dask`]).
     pub source: &'a str,
 }
@@ -100,8 +102,9 @@ pub(crate) struct DaskCall<'a> {
 const SWEEP_CALL: DaskCall<'static> = DaskCall {
     what: "sweep",
     source: r#"
-def call(client, spec, output, batch_size):
-    return kneebench.sweep(spec, client=client, output=output, batch_size=batch_size)
+def call(client, spec, output, batch_size, resume):
+    return kneebench.sweep(spec, client=client, output=output, batch_size=batch_size,
+                           resume=resume)
 "#,
 };
 
@@ -122,6 +125,7 @@ pub(crate) fn run_on_dask(
     address: &str,
     output: &Path,
     batch_size: Option<u64>,
+    resume: bool,
     on_report: &mut dyn FnMut(&[&str]),
 ) -> anyhow::Result<[u64; 4]> {
     use std::io::{BufRead, Read};
@@ -136,6 +140,7 @@ pub(crate) fn run_on_dask(
         .arg(address)
         .arg(abs(output))
         .arg(batch_size.unwrap_or(0).to_string())
+        .arg(if resume { "1" } else { "0" })
         .arg(DASK_TAG)
         .stdin(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
@@ -255,6 +260,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             address,
             &a.output,
             a.batch_size,
+            a.resume,
             &mut |_| {},
         )?;
         eprintln!(

@@ -24,7 +24,7 @@ use std::path::PathBuf;
 
 pub use design::Design;
 pub use optimize::{Optimization, Optimizer, run_optimization};
-pub use runner::{Prepared, SweepOptions, run_sweep};
+pub use runner::{JournaledSweep, Prepared, SweepOptions, run_sweep};
 pub use spec::{SpecProblem, SweepSpec};
 pub use table::{Row, RunStatus, SweepTable};
 

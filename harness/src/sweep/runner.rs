@@ -1164,22 +1164,83 @@ pub fn run_sweep(
     output: Option<&Path>,
     options: &SweepOptions,
 ) -> Result<SweepTable, SweepError> {
-    prepared.refuse_optimization()?;
-    let points = &prepared.design.points;
-    let mut finished = Finished::start(prepared, output, options, points.len() as u64, &|id| {
-        (id as usize) < points.len()
-    })?;
-    for row in finished.rows.values_mut() {
-        row.parameters = points[row.point as usize].clone();
+    let mut sweep = JournaledSweep::start(prepared, output, options)?;
+    let todo = sweep.pending();
+    prepared.run_points(&todo, options.workers, &mut |row| sweep.record(row))?;
+    sweep.finish(output)
+}
+
+/// A sweep's rows as they come, journaled when the table goes to a file: the local
+/// [`run_sweep`], or a driver that runs the points elsewhere (the Python package's Dask
+/// sweep), with the same journal, `--resume` and table. `P` holds the prepared sweep (a
+/// reference, or an `Arc` for a driver that keeps it).
+pub struct JournaledSweep<P: std::borrow::Borrow<Prepared>> {
+    prepared: P,
+    finished: Finished,
+}
+
+impl<P: std::borrow::Borrow<Prepared>> JournaledSweep<P> {
+    /// Starts the sweep of `prepared` (a spec with `[optimize]` is refused): with `output`, its
+    /// journal, whose rows (or, with `options.resume` and no journal, a finished Parquet
+    /// table's) are taken as done.
+    pub fn start(
+        prepared: P,
+        output: Option<&Path>,
+        options: &SweepOptions,
+    ) -> Result<JournaledSweep<P>, SweepError> {
+        let p: &Prepared = prepared.borrow();
+        p.refuse_optimization()?;
+        let points = &p.design.points;
+        let mut finished = Finished::start(p, output, options, points.len() as u64, &|id| {
+            (id as usize) < points.len()
+        })?;
+        for row in finished.rows.values_mut() {
+            row.parameters = points[row.point as usize].clone();
+        }
+        Ok(JournaledSweep { prepared, finished })
     }
-    let todo: Vec<u64> = (0..points.len() as u64)
-        .filter(|i| !finished.rows.contains_key(i))
-        .collect();
-    prepared.run_points(&todo, options.workers, &mut |row| finished.record(row))?;
-    let mut table = prepared.empty_table();
-    table.rows = std::mem::take(&mut finished.rows).into_values().collect();
-    finished.end(&table, output)?;
-    Ok(table)
+
+    /// The design's points without a row yet, in id order.
+    pub fn pending(&self) -> Vec<u64> {
+        (0..self.prepared.borrow().design.points.len() as u64)
+            .filter(|i| !self.finished.rows.contains_key(i))
+            .collect()
+    }
+
+    /// Keeps a point's row (journaled first). A row of a point outside the design, or whose
+    /// parameters are not its point's (bit for bit), is refused.
+    pub fn record(&mut self, row: Row) -> Result<(), SweepError> {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let points = &self.prepared.borrow().design.points;
+        match points.get(row.point as usize) {
+            Some(values) if bits(values) == bits(&row.parameters) => self.finished.record(row),
+            Some(_) => Err(SweepError::System(format!(
+                "point {}: a row with other parameter values than the design's",
+                row.point
+            ))),
+            None => Err(SweepError::System(format!(
+                "point {} is not in the design ({} points)",
+                row.point,
+                points.len()
+            ))),
+        }
+    }
+
+    /// The table (rows sorted by point id), written to `output` when given, and the journal
+    /// removed. Points without a row are an error naming them ([`SweepError::Missing`]), the
+    /// journal kept for `--resume`.
+    pub fn finish(mut self, output: Option<&Path>) -> Result<SweepTable, SweepError> {
+        let missing = self.pending();
+        if !missing.is_empty() {
+            return Err(SweepError::Missing(missing));
+        }
+        let mut table = self.prepared.borrow().empty_table();
+        table.rows = std::mem::take(&mut self.finished.rows)
+            .into_values()
+            .collect();
+        self.finished.end(&table, output)?;
+        Ok(table)
+    }
 }
 
 /// Rows of `table` as `(point, status)` counts: (ok, tripped, failed).
