@@ -407,6 +407,18 @@ fn rows_of_dict(what: &str, p: &Prepared, d: &Bound<'_, PyAny>) -> PyResult<Vec<
     decode_rows(what, p, &point, &columns, &status, &message).map_err(err)
 }
 
+/// Rows from a dict of `rows_dict` or a list of them ([`rows_of_dict`] each).
+fn rows_of(what: &str, p: &Prepared, rows: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
+    if rows.is_instance_of::<PyDict>() {
+        return rows_of_dict(what, p, rows);
+    }
+    let mut all = Vec::new();
+    for d in rows.try_iter()? {
+        all.extend(rows_of_dict(what, p, &d?)?);
+    }
+    Ok(all)
+}
+
 /// What `sweep_info` and `optimize_info` say of a prepared spec.
 fn info_dict<'py>(py: Python<'py>, p: &Prepared) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -540,15 +552,7 @@ impl PySweepJournal {
 
     /// Journals the rows of a dict of `sweep_points` (or a list of them).
     fn record(&mut self, rows: &Bound<'_, PyAny>) -> PyResult<()> {
-        const WHAT: &str = "SweepJournal.record";
-        let mut all = Vec::new();
-        if rows.is_instance_of::<PyDict>() {
-            all = rows_of_dict(WHAT, &self.prepared, rows)?;
-        } else {
-            for d in rows.try_iter()? {
-                all.extend(rows_of_dict(WHAT, &self.prepared, &d?)?);
-            }
-        }
+        let all = rows_of("SweepJournal.record", &self.prepared, rows)?;
         let inner = self.inner()?;
         for row in all {
             inner.record(row).map_err(sweep_err)?;
@@ -704,15 +708,7 @@ impl PyOptimizer {
     /// any order; each asked point once, with the asked values; the fingerprint must be the
     /// spec's).
     fn tell(&mut self, rows: &Bound<'_, PyAny>) -> PyResult<()> {
-        const WHAT: &str = "Optimizer.tell";
-        let mut all = Vec::new();
-        if rows.is_instance_of::<PyDict>() {
-            all = rows_of_dict(WHAT, &self.prepared, rows)?;
-        } else {
-            for d in rows.try_iter()? {
-                all.extend(rows_of_dict(WHAT, &self.prepared, &d?)?);
-            }
-        }
+        let all = rows_of("Optimizer.tell", &self.prepared, rows)?;
         self.inner.tell(all).map_err(sweep_err)
     }
 
