@@ -351,11 +351,16 @@ def optimize(
     generation's points are sent in batches (``batch_size``, default: about four batches per
     worker) to the workers, as :func:`sweep` sends a sweep's (``retries``, the spec and the
     FMUs at the same absolute paths or :func:`ship`), and its rows gathered before the next
-    generation is made; ``resume`` cannot be combined with ``client``. The frame and the
-    table written are the same, bit for bit, whether run locally or on Dask.
+    generation is made. With ``output`` each batch's rows are journaled as they come back,
+    so that ``resume`` works as locally (an interrupted run, a killed client, a finished
+    table given more generations); ``on_generation`` then also sees the generations replayed
+    from the journal. ``resume`` needs ``output``. The frame and the table written are the
+    same, bit for bit, whether run locally or on Dask.
     """
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
+    if resume and out is None:
+        raise KneebenchError("resume needs output: the journal is next to it")
     if client is None:
         report = None
         if on_generation is not None:
@@ -364,20 +369,26 @@ def optimize(
                 on_generation(_history_entry(g))
 
         return _optimization_frame(_native.optimize(path, workers, out, resume, report))
-    if resume:
-        raise ValueError(
-            "resume is for local optimisations (client=None): a Dask optimisation keeps no "
-            "journal"
-        )
-    optimizer = _native.Optimizer(path)
+    optimizer = _native.Optimizer(path, out, resume)
     fingerprint = optimizer.info["fingerprint"]
+    reported = 0
+
+    def report_told() -> None:
+        # Every generation told since the last call: replayed from the journal, or just run.
+        nonlocal reported
+        history = optimizer.history
+        if on_generation is not None:
+            for g in history[reported:]:
+                on_generation(_history_entry(g))
+        reported = len(history)
+
     while points := optimizer.ask():
+        report_told()
         size = batch_size or _default_batch_size(client, len(points))
         batches = [points[i : i + size] for i in range(0, len(points), size)]
         ids = [[int(p[0]) for p in b] for b in batches]
-        optimizer.tell(
-            _run_on_cluster(client, _run_optimize_batch, path, batches, ids, fingerprint, retries)
+        _run_on_cluster(
+            client, _run_optimize_batch, path, batches, ids, fingerprint, retries, optimizer.tell
         )
-        if on_generation is not None:
-            on_generation(_history_entry(optimizer.history[-1]))
-    return _optimization_frame(optimizer.finish(out))
+    report_told()
+    return _optimization_frame(optimizer.finish())

@@ -18,8 +18,8 @@ use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScena
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{
-    JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus, SweepError, SweepOptions,
-    SweepSpec, run_optimization, run_sweep,
+    JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
+    SweepError, SweepOptions, SweepSpec, run_optimization, run_sweep,
 };
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
@@ -672,63 +672,96 @@ fn optimize<'py>(
 }
 
 /// Differential evolution as ask and tell, for a driver that runs the points elsewhere (the
-/// package's Dask optimisation): `ask()` gives the next generation's points, `tell(rows)`
-/// takes their rows (dicts of `optimize_points`), `finish(output)` gives the result of the
-/// local `optimize`, and writes the same table.
+/// package's Dask optimisation), with the local optimisation's journal when given an `output`:
+/// `ask()` gives the current generation's points without a row (generations whose rows the
+/// journal, or a finished Parquet table continued with `resume`, already holds are told on the
+/// way), `tell(rows)` journals rows (dicts of `optimize_points`, a batch at a time as they come
+/// back) and selects the next members once a generation's rows are all there, and `finish()`
+/// gives the result of the local `optimize` and writes the same table to `output`, removing
+/// the journal.
 #[pyclass(module = "kneebench._native", name = "Optimizer")]
 struct PyOptimizer {
     prepared: std::sync::Arc<Prepared>,
-    inner: Optimizer,
+    output: Option<PathBuf>,
+    inner: Option<JournaledOptimization<std::sync::Arc<Prepared>>>,
+}
+
+impl PyOptimizer {
+    fn inner(&self) -> PyResult<&JournaledOptimization<std::sync::Arc<Prepared>>> {
+        self.inner
+            .as_ref()
+            .ok_or_else(|| err("Optimizer: finished already"))
+    }
+
+    fn inner_mut(&mut self) -> PyResult<&mut JournaledOptimization<std::sync::Arc<Prepared>>> {
+        self.inner
+            .as_mut()
+            .ok_or_else(|| err("Optimizer: finished already"))
+    }
 }
 
 #[pymethods]
 impl PyOptimizer {
     /// The optimiser of the spec at `spec` (checked in full; one without `[optimize]` is
-    /// refused).
+    /// refused), journaling its rows next to `output` when given (an existing journal is
+    /// refused without `resume`).
     #[new]
-    fn new(py: Python<'_>, spec: PathBuf) -> PyResult<Self> {
+    #[pyo3(signature = (spec, output=None, resume=false))]
+    fn new(py: Python<'_>, spec: PathBuf, output: Option<PathBuf>, resume: bool) -> PyResult<Self> {
         py.detach(|| {
-            let prepared = prepare(&spec)?;
-            let inner = Optimizer::new(&prepared)?;
+            let prepared = std::sync::Arc::new(prepare(&spec)?);
+            let inner = JournaledOptimization::start(
+                prepared.clone(),
+                output.as_deref(),
+                &local_options(None, resume),
+            )?;
             Ok(PyOptimizer {
-                prepared: std::sync::Arc::new(prepared),
-                inner,
+                prepared,
+                output,
+                inner: Some(inner),
             })
         })
         .map_err(sweep_err)
     }
 
-    /// The next generation's points, `[(id, [value per parameter])]` (the same until their
-    /// rows are told; empty once every generation is told).
+    /// The current generation's points without a row, `[(id, [value per parameter])]`;
+    /// empty once every generation is told.
     fn ask(&mut self) -> PyResult<Vec<(u64, Vec<f64>)>> {
-        Ok(self.inner.ask())
+        self.inner_mut()?
+            .pending(&mut |_| Ok(()))
+            .map_err(sweep_err)
     }
 
-    /// Takes the rows of the asked points: a dict of `optimize_points` or a list of them (in
-    /// any order; each asked point once, with the asked values; the fingerprint must be the
-    /// spec's).
+    /// Journals the rows of asked points: a dict of `optimize_points` or a list of them (in
+    /// any order; each with the asked values; the fingerprint must be the spec's); the
+    /// generation is told once all its rows are there.
     fn tell(&mut self, rows: &Bound<'_, PyAny>) -> PyResult<()> {
         let all = rows_of("Optimizer.tell", &self.prepared, rows)?;
-        self.inner.tell(all).map_err(sweep_err)
+        let inner = self.inner_mut()?;
+        for row in all {
+            inner.record(row).map_err(sweep_err)?;
+        }
+        inner.pending(&mut |_| Ok(())).map_err(sweep_err)?;
+        Ok(())
     }
 
     /// Whether every generation has been told.
     #[getter]
-    fn finished(&self) -> bool {
-        self.inner.finished()
+    fn finished(&self) -> PyResult<bool> {
+        Ok(self.inner()?.optimizer().finished())
     }
 
     /// The best member after each generation told: `[(generation, point, objective,
     /// violation)]`.
     #[getter]
     fn history(&self) -> PyResult<Vec<(usize, u64, f64, f64)>> {
-        Ok(history_tuples(self.inner.history()))
+        Ok(history_tuples(self.inner()?.optimizer().history()))
     }
 
     /// Runs of the whole optimisation (population x (generations + 1)).
     #[getter]
     fn total_runs(&self) -> PyResult<u64> {
-        Ok(self.inner.total_runs())
+        Ok(self.inner()?.optimizer().total_runs())
     }
 
     /// `optimize_info` of the spec.
@@ -739,24 +772,26 @@ impl PyOptimizer {
         Ok(d)
     }
 
-    /// The finished optimisation (every generation told): `optimize`'s dict, the table written
-    /// to `output` when given (`.parquet`, else CSV) the same as the local `optimize` writes.
-    #[pyo3(signature = (output=None))]
-    fn finish<'py>(
-        &mut self,
-        py: Python<'py>,
-        output: Option<PathBuf>,
-    ) -> PyResult<Bound<'py, PyDict>> {
-        let inner = self.inner.clone();
-        let prepared = self.prepared.clone();
+    /// The finished optimisation (every generation told): `optimize`'s dict, the table
+    /// written to the `output` given (`.parquet`, else CSV) the same as the local `optimize`
+    /// writes it, and the journal removed. Before the end it is an error, and the journal is
+    /// kept for `resume`.
+    fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        if !self.inner()?.optimizer().finished() {
+            let o = self.inner()?.optimizer();
+            return Err(err(format!(
+                "optimisation: {} of {} generations told",
+                o.history().len(),
+                o.settings().generations + 1
+            )));
+        }
+        let inner = self
+            .inner
+            .take()
+            .ok_or_else(|| err("Optimizer: finished already"))?;
+        let output = self.output.clone();
         let optimization = py
-            .detach(|| {
-                let o = inner.finish(&prepared)?;
-                if let Some(out) = &output {
-                    o.table.write(out)?;
-                }
-                Ok(o)
-            })
+            .detach(|| inner.finish(output.as_deref()))
             .map_err(sweep_err)?;
         optimization_dict(py, &self.prepared, &optimization)
     }

@@ -106,10 +106,11 @@ def test_optimize_gives_every_run_its_generation_and_the_best_feasible_run(
 
 def test_the_ask_tell_optimizer_gives_the_local_result(optimize_spec, tmp_path: Path):
     """The native Optimizer (what the Dask driver uses), its points run in this process by
-    optimize_points: the same result as the local optimize; refusals on the way."""
+    optimize_points: the same result and table as the local optimize; refusals on the way."""
     spec = str(optimize_spec())
     local = kneebench.optimize(spec, output=tmp_path / "local.parquet")
-    opt = kneebench._native.Optimizer(spec)
+    out = tmp_path / "asked.parquet"
+    opt = kneebench._native.Optimizer(spec, str(out))
     assert opt.total_runs == 24 and not opt.finished
     assert opt.info["population"] == 6
     with pytest.raises(kneebench.KneebenchError, match="0 of 4 generations told"):
@@ -120,20 +121,28 @@ def test_the_ask_tell_optimizer_gives_the_local_result(optimize_spec, tmp_path: 
     assert rows["fingerprint"] == opt.info["fingerprint"]
     with pytest.raises(kneebench.KneebenchError, match="fingerprint"):
         opt.tell({**rows, "fingerprint": "0" * 64})
-    with pytest.raises(kneebench.KneebenchError, match="no row for point 5"):
-        opt.tell(kneebench._native.optimize_points(spec, points[:5]))
-    # In batches, told together in any order.
-    opt.tell([kneebench._native.optimize_points(spec, points[3:]),
+    moved = [(points[0][0], [v + 1.0 for v in points[0][1]])]
+    with pytest.raises(kneebench.KneebenchError, match="other parameter values than asked"):
+        opt.tell(kneebench._native.optimize_points(spec, moved))
+    with pytest.raises(kneebench.KneebenchError, match="point 6 is not a point of the current"):
+        opt.tell(kneebench._native.optimize_points(spec, [(6, points[0][1])]))
+    # A batch at a time: journaled, the generation told when its last row is there.
+    opt.tell([kneebench._native.optimize_points(spec, points[3:5]),
               kneebench._native.optimize_points(spec, points[:3])])
+    assert opt.history == [] and opt.ask() == points[5:]
+    journal = tmp_path / "asked.parquet.journal"
+    assert len(journal.read_text().splitlines()) == 1 + 5
+    opt.tell(kneebench._native.optimize_points(spec, points[5:]))
+    assert len(opt.history) == 1
     while points := opt.ask():
         opt.tell(kneebench._native.optimize_points(spec, points))
     assert opt.finished and len(opt.history) == 4
-    d = opt.finish(str(tmp_path / "asked.parquet"))
-    assert (tmp_path / "asked.parquet").read_bytes() == (tmp_path / "local.parquet").read_bytes()
+    d = opt.finish()
+    assert not journal.exists()
+    assert out.read_bytes() == (tmp_path / "local.parquet").read_bytes()
     assert_bit_identical(kneebench._optimization_frame(d), local)
-    # A finished optimiser asks for nothing more and finishes again the same way.
-    assert opt.ask() == []
-    assert opt.finish()["best_point"] == d["best_point"]
+    with pytest.raises(kneebench.KneebenchError, match="finished already"):
+        opt.ask()
 
 
 def test_a_sweep_refuses_an_optimisation_and_the_other_way_round(
@@ -160,7 +169,7 @@ def test_a_sweep_refuses_an_optimisation_and_the_other_way_round(
                                             'objective = "energy"'))
     with pytest.raises(kneebench.SpecError, match=r"line 27: objective 'energy' is not a metric"):
         kneebench.optimize(bad)
-    with pytest.raises(ValueError, match="resume is for local optimisations"):
+    with pytest.raises(kneebench.KneebenchError, match="resume needs output"):
         kneebench.optimize(spec, client=object(), resume=True)
     # ship() takes an optimisation's spec too.
     files = kneebench._native.input_files(str(spec))
@@ -217,9 +226,42 @@ def test_cli_optimize_dask_prints_and_writes_what_the_local_run_does(
         in dask.stderr, dask.stderr
     quiet = cli("--output", tmp_path / "quiet.csv", "--dask", address, "-q", env=env)
     assert "generation" not in quiet.stderr and quiet.stdout == local.stdout
-    r = subprocess.run([kneebench_bin(), "optimize", spec, "--dask", address, "--resume"],
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "cannot be used with" in r.stderr, r.stderr
+    # --resume of the finished table on Dask: nothing runs, the same table and printout.
+    before = (tmp_path / "dask.parquet").read_bytes()
+    again = cli("--output", tmp_path / "dask.parquet", "--dask", address, "--resume", env=env)
+    assert again.stdout == local.stdout
+    assert [line for line in again.stderr.splitlines() if line.startswith("generation")] \
+        == generations
+    assert (tmp_path / "dask.parquet").read_bytes() == before
+
+
+def test_a_dask_optimisation_stopped_mid_way_resumes_from_its_journal(
+    optimize_spec, cluster, tmp_path: Path
+):
+    distributed = pytest.importorskip("distributed")
+    spec = optimize_spec()
+    full = kneebench.optimize(spec, workers=2, output=tmp_path / "full.parquet")
+    out = tmp_path / "stopped.parquet"
+    journal = tmp_path / "stopped.parquet.journal"
+
+    def stop(g: dict) -> None:
+        if g["generation"] == 1:
+            raise RuntimeError("enough")
+
+    seen: list[dict] = []
+    with distributed.Client(cluster) as client:
+        with pytest.raises(RuntimeError, match="enough"):
+            kneebench.optimize(spec, client=client, output=out, batch_size=2, on_generation=stop)
+        assert not out.exists()
+        assert len(journal.read_text().splitlines()) == 1 + 12  # generations 0 and 1
+        with pytest.raises(kneebench.KneebenchError, match="pass --resume"):
+            kneebench.optimize(spec, client=client, output=out)
+        resumed = kneebench.optimize(spec, client=client, output=out, resume=True,
+                                     on_generation=seen.append)
+    assert not journal.exists()
+    assert_bit_identical(resumed, full)
+    assert seen == full.attrs["history"]  # the replayed generations reported too
+    assert out.read_bytes() == (tmp_path / "full.parquet").read_bytes()
 
 
 def test_an_exception_of_on_generation_stops_the_optimisation_and_resume_ends_it(

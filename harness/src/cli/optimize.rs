@@ -32,7 +32,8 @@ result is identical whatever the number of workers.
 --dask ADDRESS runs each generation's points in batches on a Dask cluster's workers through
 the kneebench Python package (kneebench.optimize(spec, client=...)), as kneebench sweep
 --dask does (KNEEBENCH_PYTHON, the same absolute paths on the workers; see the README); the
-table and the printed result are the same as the local run's:
+table and the printed result are the same as the local run's, the rows journaled as the
+batches come back (--resume as for a local run):
   kneebench optimize examples/stiffness-sweep/optimize.toml --output out/optimize.parquet \\
       --dask tcp://scheduler:8786")]
 pub struct Args {
@@ -53,7 +54,7 @@ pub struct Args {
     pub quiet: bool,
     /// Run the generations on the Dask cluster whose scheduler is at ADDRESS (e.g.
     /// tcp://scheduler:8786) instead of local threads.
-    #[arg(long, value_name = "ADDRESS", conflicts_with_all = ["workers", "resume"])]
+    #[arg(long, value_name = "ADDRESS", conflicts_with = "workers")]
     pub dask: Option<String>,
     /// With --dask: points per Dask task (default: about four tasks per worker and generation).
     #[arg(long, requires = "dask", value_parser = clap::value_parser!(u64).range(1..))]
@@ -72,7 +73,7 @@ def call(client, spec, output, batch_size, resume):
         emit("generation", g["generation"], g["point"], repr(g["objective"]),
              repr(g["violation"]))
     table = kneebench.optimize(spec, client=client, output=output, batch_size=batch_size,
-                               on_generation=show)
+                               resume=resume, on_generation=show)
     best = table.attrs["best"]
     emit("best", best["point"], repr(best["violation"]), best["status"],
          *(repr(v) for v in best["parameters"].values()),
@@ -215,7 +216,7 @@ fn run_on_cluster(
         address,
         &a.output,
         a.batch_size,
-        false,
+        a.resume,
         &mut on_report,
     )?;
     eprintln!(

@@ -23,7 +23,7 @@ pub mod table;
 use std::path::PathBuf;
 
 pub use design::Design;
-pub use optimize::{Optimization, Optimizer, run_optimization};
+pub use optimize::{JournaledOptimization, Optimization, Optimizer, run_optimization};
 pub use runner::{JournaledSweep, Prepared, SweepOptions, run_sweep};
 pub use spec::{SpecProblem, SweepSpec};
 pub use table::{Row, RunStatus, SweepTable};

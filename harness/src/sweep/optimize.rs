@@ -445,41 +445,126 @@ pub fn run_optimization(
     options: &SweepOptions,
     on_generation: &mut dyn FnMut(&GenerationBest) -> Result<(), SweepError>,
 ) -> Result<Optimization, SweepError> {
-    let mut optimizer = Optimizer::new(prepared)?;
-    let total = optimizer.total_runs();
-    let mut finished = Finished::start(prepared, output, options, total, &|id| id < total)?;
+    let mut run = JournaledOptimization::start(prepared, output, options)?;
     loop {
-        let asked = optimizer.ask();
-        if asked.is_empty() {
+        let todo = run.pending(on_generation)?;
+        if todo.is_empty() {
             break;
         }
-        let todo: Vec<(u64, Vec<f64>)> = asked
+        prepared.run_batch(&todo, options.workers, &mut |row| run.record(row))?;
+        let missing: Vec<u64> = todo
             .iter()
-            .filter(|(id, _)| !finished.rows.contains_key(id))
-            .cloned()
+            .map(|(id, _)| *id)
+            .filter(|id| !run.has_row(*id))
             .collect();
-        prepared.run_batch(&todo, options.workers, &mut |row| finished.record(row))?;
-        let rows = asked
-            .into_iter()
-            .map(|(id, values)| {
-                let mut row = finished
-                    .rows
-                    .get(&id)
-                    .cloned()
-                    .ok_or(SweepError::Missing(vec![id]))?;
-                // A journaled row has no parameters of its own: they are the asked ones.
-                row.parameters = values;
-                Ok(row)
-            })
-            .collect::<Result<Vec<Row>, SweepError>>()?;
-        optimizer.tell(rows)?;
-        if let Some(best) = optimizer.history().last() {
-            on_generation(best)?;
+        if !missing.is_empty() {
+            return Err(SweepError::Missing(missing));
         }
     }
-    let optimization = optimizer.finish(prepared)?;
-    finished.end(&optimization.table, output)?;
-    Ok(optimization)
+    run.finish(output)
+}
+
+/// An optimisation's runs as they come, journaled when the table goes to a file: the local
+/// [`run_optimization`], or a driver that runs the points elsewhere (the Python package's Dask
+/// optimisation), with the same journal, `--resume` (a finished Parquet table continued with
+/// more generations too) and table. `P` holds the prepared sweep (a reference, or an `Arc`).
+pub struct JournaledOptimization<P: std::borrow::Borrow<Prepared>> {
+    prepared: P,
+    optimizer: Optimizer,
+    finished: Finished,
+}
+
+impl<P: std::borrow::Borrow<Prepared>> JournaledOptimization<P> {
+    /// Starts the optimisation of `prepared` (an error for a spec without `[optimize]`): with
+    /// `output`, its journal, whose rows (or, with `options.resume` and no journal, a finished
+    /// Parquet table's) are taken as done.
+    pub fn start(
+        prepared: P,
+        output: Option<&Path>,
+        options: &SweepOptions,
+    ) -> Result<JournaledOptimization<P>, SweepError> {
+        let p: &Prepared = prepared.borrow();
+        let optimizer = Optimizer::new(p)?;
+        let total = optimizer.total_runs();
+        let finished = Finished::start(p, output, options, total, &|id| id < total)?;
+        Ok(JournaledOptimization {
+            prepared,
+            optimizer,
+            finished,
+        })
+    }
+
+    /// The current generation's points without a row (id, values in spec order). A
+    /// generation whose rows are all there is told first, its best handed to `on_generation`
+    /// (an error it returns is returned); empty once every generation is told.
+    pub fn pending(
+        &mut self,
+        on_generation: &mut dyn FnMut(&GenerationBest) -> Result<(), SweepError>,
+    ) -> Result<Vec<(u64, Vec<f64>)>, SweepError> {
+        loop {
+            let asked = self.optimizer.ask();
+            if asked.is_empty() {
+                return Ok(Vec::new());
+            }
+            let missing: Vec<(u64, Vec<f64>)> = asked
+                .iter()
+                .filter(|(id, _)| !self.finished.rows.contains_key(id))
+                .cloned()
+                .collect();
+            if !missing.is_empty() {
+                return Ok(missing);
+            }
+            let rows = asked
+                .into_iter()
+                .map(|(id, values)| {
+                    let mut row = self.finished.rows[&id].clone();
+                    // A journaled row has no parameters of its own: they are the asked ones.
+                    row.parameters = values;
+                    row
+                })
+                .collect();
+            self.optimizer.tell(rows)?;
+            if let Some(best) = self.optimizer.history().last() {
+                on_generation(best)?;
+            }
+        }
+    }
+
+    /// Keeps a run's row (journaled first): it must be a point of the current generation
+    /// with the asked values, bit for bit.
+    pub fn record(&mut self, row: Row) -> Result<(), SweepError> {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let asked = self.optimizer.ask();
+        match asked.iter().find(|(id, _)| *id == row.point) {
+            Some((_, values)) if bits(values) == bits(&row.parameters) => self.finished.record(row),
+            Some(_) => Err(SweepError::System(format!(
+                "optimisation: point {}'s row has other parameter values than asked",
+                row.point
+            ))),
+            None => Err(SweepError::System(format!(
+                "optimisation: point {} is not a point of the current generation",
+                row.point
+            ))),
+        }
+    }
+
+    /// Whether point `id` has a row.
+    pub fn has_row(&self, id: u64) -> bool {
+        self.finished.rows.contains_key(&id)
+    }
+
+    /// The optimiser (its history, whether it is finished).
+    pub fn optimizer(&self) -> &Optimizer {
+        &self.optimizer
+    }
+
+    /// The finished optimisation (every generation told: see [`pending`](Self::pending)),
+    /// its table written to `output` when given and the journal removed.
+    pub fn finish(self, output: Option<&Path>) -> Result<Optimization, SweepError> {
+        let optimization = self.optimizer.finish(self.prepared.borrow())?;
+        self.finished.end(&optimization.table, output)?;
+        Ok(optimization)
+    }
 }
 
 impl Optimizer {
