@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use kneebench_harness::sweep::runner::{journal_line, journal_path};
+use kneebench_harness::sweep::journal::{journal_line, journal_path};
 use kneebench_harness::sweep::{
     Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, SweepTable, run_optimization,
     run_sweep,

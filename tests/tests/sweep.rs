@@ -5,7 +5,8 @@
 
 use std::path::Path;
 
-use kneebench_harness::sweep::runner::{fingerprint, journal_path};
+use kneebench_harness::sweep::journal::journal_path;
+use kneebench_harness::sweep::runner::fingerprint;
 use kneebench_harness::sweep::{
     Prepared, RunStatus, SweepError, SweepOptions, SweepSpec, SweepTable, run_sweep,
 };
@@ -360,9 +361,9 @@ fn resume_runs_only_the_points_the_journal_lacks() {
     let mut marked = full.clone();
     for r in &mut marked.rows[..3] {
         r.message = "from the journal".into();
-        journal.push_str(&kneebench_harness::sweep::runner::journal_line(r));
+        journal.push_str(&kneebench_harness::sweep::journal::journal_line(r));
     }
-    let torn = kneebench_harness::sweep::runner::journal_line(&full.rows[3]);
+    let torn = kneebench_harness::sweep::journal::journal_line(&full.rows[3]);
     journal.push_str(&torn[..torn.len() / 2]);
     std::fs::write(journal_path(&out), &journal).unwrap();
     // Without --resume the journal is not overwritten.

@@ -15,6 +15,7 @@
 //! the order in which they take points.
 
 pub mod design;
+pub mod journal;
 pub mod optimize;
 pub mod runner;
 pub mod spec;

@@ -32,7 +32,8 @@ use std::path::Path;
 
 use super::SweepError;
 use super::design::{MAX_POINTS, SplitMix64};
-use super::runner::{Finished, Prepared, SweepOptions};
+use super::journal::Finished;
+use super::runner::{Prepared, SweepOptions};
 use super::spec::{Direction, OptimizeSpec, ParameterType, SpecProblem, SweepSpec};
 use super::table::{Row, RunStatus, SweepTable};
 

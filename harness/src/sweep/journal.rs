@@ -1,0 +1,325 @@
+//! The journal of a sweep or an optimisation, and `--resume`.
+//!
+//! Every finished row is appended to `<output>.journal` (first line: the sweep's
+//! [`fingerprint`](super::runner::fingerprint): the spec text, every point's bits, the FMUs'
+//! GUIDs; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
+//! sweep reads the journal, refuses it if the fingerprint differs, skips the points it holds
+//! and runs the rest; a torn last line (the process was killed while writing it) is ignored.
+//! The journal is removed once the table is written. `--resume` with no journal continues a
+//! finished Parquet table of the same sweep (its fingerprint is in the table's metadata): an
+//! optimisation given more generations runs only the new ones.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use super::SweepError;
+use super::runner::{Prepared, SweepOptions};
+use super::table::{Row, RunStatus, SweepTable};
+
+/// `<output>.journal`.
+pub fn journal_path(output: &Path) -> PathBuf {
+    let mut name = output
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
+    name.push(".journal");
+    output.with_file_name(name)
+}
+
+/// The first words of a journal's first line (its format and version).
+pub(crate) const JOURNAL_MAGIC: &str = "kneebench-sweep-journal 1";
+
+fn escape(s: &str) -> String {
+    s.replace('\\', "\\\\")
+        .replace('\t', "\\t")
+        .replace('\n', "\\n")
+        .replace('\r', "\\r")
+}
+
+fn unescape(s: &str) -> String {
+    let mut out = String::new();
+    let mut it = s.chars();
+    while let Some(c) = it.next() {
+        if c == '\\' {
+            match it.next() {
+                Some('t') => out.push('\t'),
+                Some('n') => out.push('\n'),
+                Some('r') => out.push('\r'),
+                Some(o) => out.push(o),
+                None => {}
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// One journal line: a finished row (see the module documentation).
+pub fn journal_line(row: &Row) -> String {
+    let hex = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{:016x}", x.to_bits()))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    format!(
+        "{}\t{}\t{}\t{}\n",
+        row.point,
+        row.status.name(),
+        hex(&row.metrics),
+        escape(&row.message)
+    )
+}
+
+/// A journal line's row, its parameters left empty (the caller knows them from the point's
+/// id); `None` if the line is not a row with `metrics` metrics.
+fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
+    let mut parts = line.splitn(4, '\t');
+    let point: u64 = parts.next()?.parse().ok()?;
+    let status = RunStatus::from_name(parts.next()?)?;
+    let metrics_text = parts.next()?;
+    let message = unescape(parts.next()?);
+    let values: Vec<f64> = if metrics_text.is_empty() {
+        Vec::new()
+    } else {
+        metrics_text
+            .split(',')
+            .map(|h| u64::from_str_radix(h, 16).ok().map(f64::from_bits))
+            .collect::<Option<_>>()?
+    };
+    if values.len() != metrics {
+        return None;
+    }
+    Some(Row {
+        point,
+        parameters: Vec::new(),
+        metrics: values,
+        status,
+        message,
+    })
+}
+
+/// The rows of the finished table at `output`, to continue it (an optimisation given more
+/// generations; a sweep whose table is complete runs nothing). Only a Parquet table can be
+/// continued: it carries the sweep's fingerprint in its metadata, and it must be this one's
+/// (the same spec but for an optimisation's `generations`, the same points, the same FMUs).
+/// Its names must be this sweep's, and every point's id accepted by `known` (an optimisation
+/// asked for fewer generations than the table holds is refused). A CSV table carries no
+/// fingerprint and is refused.
+fn finished_rows(
+    output: &Path,
+    prepared: &Prepared,
+    known: &dyn Fn(u64) -> bool,
+) -> Result<BTreeMap<u64, Row>, SweepError> {
+    let bad = |message: String| SweepError::Table {
+        path: output.to_path_buf(),
+        message,
+    };
+    let parquet = output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
+    if !parquet {
+        return Err(bad(
+            "--resume found a finished table and no journal; a CSV table carries no fingerprint \
+             to check it against this spec, so it cannot be continued: leave out --resume to run \
+             afresh, or write Parquet (--output *.parquet) to be able to continue"
+                .into(),
+        ));
+    }
+    let table = SweepTable::read_parquet(output, prepared.design.names.len())?;
+    let theirs = table
+        .metadata
+        .iter()
+        .find(|(k, _)| k == "kneebench.sweep.fingerprint")
+        .map(|(_, v)| v.as_str());
+    if theirs != Some(prepared.fingerprint.as_str()) {
+        return Err(bad(
+            "the finished table belongs to another sweep (the spec but for an optimisation's \
+             generations, its points or the FMUs changed): leave out --resume to run afresh"
+                .into(),
+        ));
+    }
+    if table.parameter_names != prepared.design.names || table.metric_names != prepared.metric_names
+    {
+        return Err(bad(
+            "the finished table's columns are not this sweep's".into()
+        ));
+    }
+    let mut rows = BTreeMap::new();
+    for row in table.rows {
+        if !known(row.point) {
+            return Err(bad(format!(
+                "point {} of the finished table is beyond this sweep (an optimisation can be \
+                 continued with more generations, not fewer)",
+                row.point
+            )));
+        }
+        rows.insert(row.point, row);
+    }
+    Ok(rows)
+}
+
+/// The journal of a sweep or an optimisation written to `output`: `<output>.journal`, one line
+/// per finished row after the fingerprint (see the module documentation).
+pub(crate) struct Journal {
+    path: PathBuf,
+    file: std::fs::File,
+}
+
+impl Journal {
+    /// Starts the journal of `prepared` for `output`. An existing journal is refused without
+    /// `resume`; with it, its rows are returned (their parameters empty, each id accepted by
+    /// `known`, else the line is refused) and the journal is rewritten with the complete rows
+    /// only (a torn last line, from a kill while it was written, is dropped: that point runs
+    /// again). A journal of another fingerprint is refused. With `resume` and no journal, a
+    /// finished table at `output` is continued: its rows are returned ([`finished_rows`]) and
+    /// journaled.
+    pub(crate) fn open(
+        output: &Path,
+        resume: bool,
+        prepared: &Prepared,
+        known: &dyn Fn(u64) -> bool,
+    ) -> Result<(Journal, BTreeMap<u64, Row>), SweepError> {
+        let path = journal_path(output);
+        let bad = |message: String| SweepError::Journal {
+            path: path.clone(),
+            message,
+        };
+        let io = |source| SweepError::Io {
+            path: path.clone(),
+            source,
+        };
+        let header = prepared.journal_header();
+        let mut rows = BTreeMap::new();
+        if path.exists() {
+            if !resume {
+                return Err(bad(
+                    "an unfinished sweep's journal exists: pass --resume to \
+                     continue it, or remove it"
+                        .into(),
+                ));
+            }
+            let text = std::fs::read_to_string(&path).map_err(io)?;
+            let mut lines = text.split_inclusive('\n');
+            if lines.next().unwrap_or("").trim_end() != header.trim_end() {
+                return Err(bad(
+                    "belongs to another sweep (the spec or its points changed); \
+                     remove it to start afresh"
+                        .into(),
+                ));
+            }
+            for (i, line) in lines.enumerate() {
+                let Some(line) = line.strip_suffix('\n') else {
+                    break;
+                };
+                let row = parse_journal_line(line, prepared.metric_names.len())
+                    .filter(|r| known(r.point))
+                    .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
+                rows.insert(row.point, row);
+            }
+        } else if resume && output.exists() {
+            rows = finished_rows(output, prepared, known)?;
+        }
+        let mut text = header;
+        for r in rows.values() {
+            text.push_str(&journal_line(r));
+        }
+        let mut file = std::fs::File::create(&path).map_err(io)?;
+        file.write_all(text.as_bytes()).map_err(io)?;
+        Ok((Journal { path, file }, rows))
+    }
+
+    /// Appends a finished row.
+    pub(crate) fn record(&mut self, row: &Row) -> Result<(), SweepError> {
+        self.file
+            .write_all(journal_line(row).as_bytes())
+            .map_err(|source| SweepError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Removes the journal (its table is written).
+    pub(crate) fn remove(self) -> Result<(), SweepError> {
+        drop(self.file);
+        std::fs::remove_file(&self.path).map_err(|source| SweepError::Io {
+            path: self.path,
+            source,
+        })
+    }
+}
+
+/// A progress bar of `total` runs on stderr, at `done` already, if `show`.
+pub(crate) fn progress_bar(show: bool, total: u64, done: u64) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let pb = indicatif::ProgressBar::new(total);
+    pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:40}] {pos}/{len} runs ({eta} left)",
+    ) {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_position(done);
+    Some(pb)
+}
+
+/// The finished rows of a sweep or an optimisation, kept as they come: journaled (when the
+/// table goes to a file) and counted on the progress bar.
+pub(crate) struct Finished {
+    /// The rows so far, by point id (a resumed journal's first, their parameters empty).
+    pub(crate) rows: BTreeMap<u64, Row>,
+    journal: Option<Journal>,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Finished {
+    /// Starts the rows of `total` runs of `prepared`: with `output`, its journal (see
+    /// [`Journal::open`]: ids accepted by `known`), and a progress bar if the options ask.
+    pub(crate) fn start(
+        prepared: &Prepared,
+        output: Option<&Path>,
+        options: &SweepOptions,
+        total: u64,
+        known: &dyn Fn(u64) -> bool,
+    ) -> Result<Finished, SweepError> {
+        let (journal, rows) = match output {
+            Some(out) => {
+                let (j, rows) = Journal::open(out, options.resume, prepared, known)?;
+                (Some(j), rows)
+            }
+            None => (None, BTreeMap::new()),
+        };
+        let bar = progress_bar(options.progress, total, rows.len() as u64);
+        Ok(Finished { rows, journal, bar })
+    }
+
+    /// Keeps a finished row: journaled first, so that a kill after this loses nothing.
+    pub(crate) fn record(&mut self, row: Row) -> Result<(), SweepError> {
+        if let Some(j) = &mut self.journal {
+            j.record(&row)?;
+        }
+        if let Some(pb) = &self.bar {
+            pb.inc(1);
+        }
+        self.rows.insert(row.point, row);
+        Ok(())
+    }
+
+    /// Ends the run: `table` written to `output` (if given) and then the journal removed.
+    pub(crate) fn end(self, table: &SweepTable, output: Option<&Path>) -> Result<(), SweepError> {
+        if let Some(pb) = self.bar {
+            pb.finish_and_clear();
+        }
+        if let Some(out) = output {
+            table.write(out)?;
+        }
+        match self.journal {
+            Some(j) => j.remove(),
+            None => Ok(()),
+        }
+    }
+}
