@@ -560,8 +560,13 @@ impl PySweepJournal {
         Ok(())
     }
 
-    /// Writes the table and removes the journal; returns the rows as `sweep` does.
+    /// Writes the table and removes the journal; returns the rows as `sweep` does. Points
+    /// without a row are an error naming them (the journal kept, the journal object usable).
     fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let missing = self.pending()?;
+        if !missing.is_empty() {
+            return Err(sweep_err(SweepError::Missing(missing)));
+        }
         let inner = self
             .inner
             .take()

@@ -715,7 +715,13 @@ const HOST_TRIP_CODES: [i32; 2] = [8, 11];
 
 /// Whether the host explains how `e` ended: the bench measured a pause above
 /// [`HOST_DISTURBANCE`] between the master's frames, or the run ended the way a stall ends it.
-fn host_explains(e: &Ended) -> bool {
+/// Not once the run reached `link_fault_at`, the step of an injected link fault (dropped,
+/// delayed or no replies): that fault makes the same pause and the same trip itself, and
+/// what follows it is the test's to judge.
+fn host_explains(e: &Ended, link_fault_at: Option<usize>) -> bool {
+    if link_fault_at.is_some_and(|k| e.completed >= k) {
+        return false;
+    }
     e.stats.largest_frame_gap > HOST_DISTURBANCE
         || match &e.result {
             Ok((code, _)) => HOST_TRIP_CODES.contains(code),
@@ -738,7 +744,16 @@ fn drive_undisturbed(
     for attempt in 1..=attempts {
         let emu = emulator(params);
         let e = drive_configured(&emu, configuration, &current, fault);
-        if expected(&e) || !host_explains(&e) {
+        let link_fault_at = fault.and_then(|(k, f)| {
+            matches!(
+                f,
+                FaultInjection::DropReplies { .. }
+                    | FaultInjection::DelayReplies { .. }
+                    | FaultInjection::Silence
+            )
+            .then_some(k)
+        });
+        if expected(&e) || !host_explains(&e, link_fault_at) {
             return Some((emu, e));
         }
         eprintln!(

@@ -277,7 +277,8 @@ fn resume_replays_the_journal_and_runs_the_rest() {
     )
     .unwrap_err();
     assert!(
-        e.to_string().contains("line 2 is not a row of this sweep"),
+        e.to_string()
+            .contains("line 2: point 12 is beyond this sweep (an optimisation can be continued"),
         "{e}"
     );
 }
@@ -314,7 +315,7 @@ fn a_finished_optimisation_continues_with_more_generations() {
         r.message = "from the table".into();
     }
     table.write_parquet(&out).unwrap();
-    // Without --resume it runs afresh; with it, only generation 2's four runs.
+    // With --resume only generation 2's four runs run (afresh without it: below).
     let continued = run_optimization(&two, Some(&out), &resume, &mut |_| Ok(())).unwrap();
     let mut expected = fresh.table.clone();
     for r in &mut expected.rows[..8] {
@@ -361,6 +362,9 @@ fn a_finished_optimisation_continues_with_more_generations() {
             .bit_identical(&expected)
     );
     assert!(!journal_path(&out).exists() && !journal_path(&csv).exists());
+    // Without --resume the finished table is run afresh (its marks gone).
+    let afresh = run_optimization(&two, Some(&out), &options(2), &mut |_| Ok(())).unwrap();
+    assert!(afresh.table.bit_identical(&fresh.table));
 }
 
 #[test]

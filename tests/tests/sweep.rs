@@ -392,6 +392,17 @@ fn resume_runs_only_the_points_the_journal_lacks() {
     )
     .unwrap();
     assert!(again.bit_identical(&marked));
+    // A second row for a point: ignored when it equals the first, refused otherwise.
+    let mut sweep = kneebench_harness::sweep::JournaledSweep::start(&p, None, &options(1)).unwrap();
+    sweep.record(full.rows[0].clone()).unwrap();
+    sweep.record(full.rows[0].clone()).unwrap();
+    let mut other = full.rows[0].clone();
+    other.message = "another run".into();
+    let e = sweep.record(other).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "point 0: a second row that differs from the first"
+    );
     // A journal of another sweep is refused.
     std::fs::write(journal_path(&out), "kneebench-sweep-journal 1 0123\n").unwrap();
     let e = run_sweep(

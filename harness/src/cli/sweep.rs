@@ -20,7 +20,9 @@ The spec (TOML) names the system (DA, SEA, CSEA or an .ssp/.ssd), the parameters
 against the system's FMUs before anything runs; every problem is printed with its line (exit
 code 2). Every point is a row: a run that trips an interlock or fails has its status and
 message. Finished rows are journaled to OUTPUT.journal; after an interruption, --resume runs
-only the points the journal lacks. The table is identical whatever the number of workers.
+only the points the journal lacks (with no journal, a finished Parquet table of the same sweep
+is taken as done; a finished CSV table is refused: it has no fingerprint). The table is
+identical whatever the number of workers.
 
 --dask ADDRESS sends the points in batches to a Dask cluster's workers through the kneebench
 Python package: the interpreter named by KNEEBENCH_PYTHON (default: python3 on PATH) must

@@ -1,8 +1,8 @@
 //! The journal of a sweep or an optimisation, and `--resume`.
 //!
 //! Every finished row is appended to `<output>.journal` (first line: the sweep's
-//! [`fingerprint`](super::runner::fingerprint): the spec text, every point's bits, the FMUs'
-//! GUIDs; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
+//! [`fingerprint`](super::runner::fingerprint): the spec text but for an optimisation's
+//! `generations`, every point's bits, the FMUs' GUIDs; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
 //! sweep reads the journal, refuses it if the fingerprint differs, skips the points it holds
 //! and runs the rest; a torn last line (the process was killed while writing it) is ignored.
 //! The journal is removed once the table is written. `--resume` with no journal continues a
@@ -134,12 +134,24 @@ fn finished_rows(
         .iter()
         .find(|(k, _)| k == "kneebench.sweep.fingerprint")
         .map(|(_, v)| v.as_str());
-    if theirs != Some(prepared.fingerprint.as_str()) {
-        return Err(bad(
-            "the finished table belongs to another sweep (the spec but for an optimisation's \
-             generations, its points or the FMUs changed): leave out --resume to run afresh"
-                .into(),
-        ));
+    match theirs {
+        None => {
+            return Err(bad(
+                "the finished table has no kneebench.sweep.fingerprint in its metadata (not \
+                 written by kneebench sweep or optimize), so it cannot be continued: leave out \
+                 --resume to run afresh"
+                    .into(),
+            ));
+        }
+        Some(f) if f != prepared.fingerprint => {
+            return Err(bad(
+                "the finished table belongs to another sweep (the spec but for an \
+                 optimisation's generations, its points or the FMUs changed, or an older \
+                 kneebench wrote it): leave out --resume to run afresh"
+                    .into(),
+            ));
+        }
+        Some(_) => {}
     }
     if table.parameter_names != prepared.design.names || table.metric_names != prepared.metric_names
     {
@@ -196,8 +208,8 @@ impl Journal {
         if path.exists() {
             if !resume {
                 return Err(bad(
-                    "an unfinished sweep's journal exists: pass --resume to \
-                     continue it, or remove it"
+                    "an unfinished sweep's journal exists: pass --resume (resume=True in \
+                     Python) to continue it, or remove it"
                         .into(),
                 ));
             }
@@ -215,8 +227,15 @@ impl Journal {
                     break;
                 };
                 let row = parse_journal_line(line, prepared.metric_names.len())
-                    .filter(|r| known(r.point))
                     .ok_or_else(|| bad(format!("line {} is not a row of this sweep", i + 2)))?;
+                if !known(row.point) {
+                    return Err(bad(format!(
+                        "line {}: point {} is beyond this sweep (an optimisation can be \
+                         continued with more generations, not fewer)",
+                        i + 2,
+                        row.point
+                    )));
+                }
                 rows.insert(row.point, row);
             }
         } else if resume && output.exists() {
@@ -298,7 +317,23 @@ impl Finished {
     }
 
     /// Keeps a finished row: journaled first, so that a kill after this loses nothing.
+    /// A second row for a point is not journaled again: it is ignored when it equals the
+    /// first bit for bit (its metrics, status and message), and refused otherwise.
     pub(crate) fn record(&mut self, row: Row) -> Result<(), SweepError> {
+        if let Some(first) = self.rows.get(&row.point) {
+            let same = Row {
+                parameters: first.parameters.clone(),
+                ..row
+            };
+            return if same.bit_identical(first) {
+                Ok(())
+            } else {
+                Err(SweepError::System(format!(
+                    "point {}: a second row that differs from the first",
+                    same.point
+                )))
+            };
+        }
         if let Some(j) = &mut self.journal {
             j.record(&row)?;
         }

@@ -63,7 +63,9 @@ pub const STUDY_METRIC_UNITS: [&str; STUDY_METRICS.len()] = [
     "J", "J", "J", "J", "J", "J", "J", "J", "s",
 ];
 
-/// The sweep's fingerprint: a SHA-256 (hex) of the spec text, the parameter names, every
+/// The sweep's fingerprint: a SHA-256 (hex) of the spec text (as
+/// [`SweepSpec::fingerprint_text`] gives it: an optimisation's `generations` left out), the
+/// parameter names, every
 /// point's bits and every component's FMU GUID (`component`, GUID). A journal, or a Dask
 /// worker's batch, with another fingerprint belongs to another sweep: the spec, its points or
 /// the FMUs differ.
@@ -171,7 +173,8 @@ pub struct Prepared {
     pub input_files: Vec<PathBuf>,
     /// The GUID of every component's FMU (`component` -> GUID).
     pub guids: Vec<(String, String)>,
-    /// The sweep's fingerprint (spec text and points).
+    /// The sweep's fingerprint ([`fingerprint`]: the spec text but for an optimisation's
+    /// `generations`, the points, the FMUs' GUIDs).
     pub fingerprint: String,
     /// Loaded systems not in use: the one loaded to check the spec (one loading of every FMU
     /// less per sweep), then those the workers of a batch give back when it ends, so that the
