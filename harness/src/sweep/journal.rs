@@ -321,16 +321,12 @@ impl Finished {
     /// first bit for bit (its metrics, status and message), and refused otherwise.
     pub(crate) fn record(&mut self, row: Row) -> Result<(), SweepError> {
         if let Some(first) = self.rows.get(&row.point) {
-            let same = Row {
-                parameters: first.parameters.clone(),
-                ..row
-            };
-            return if same.bit_identical(first) {
+            return if row.same_outcome(first) {
                 Ok(())
             } else {
                 Err(SweepError::System(format!(
                     "point {}: a second row that differs from the first",
-                    same.point
+                    row.point
                 )))
             };
         }

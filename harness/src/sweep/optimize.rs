@@ -35,7 +35,7 @@ use super::design::{MAX_POINTS, SplitMix64};
 use super::journal::Finished;
 use super::runner::{Prepared, SweepOptions};
 use super::spec::{Direction, OptimizeSpec, ParameterType, SpecProblem, SweepSpec};
-use super::table::{Row, RunStatus, SweepTable};
+use super::table::{Row, RunStatus, SweepTable, same_bits};
 
 /// The smallest population: DE/rand/1 draws three members other than the one it improves.
 pub const MIN_POPULATION: usize = 4;
@@ -238,13 +238,7 @@ impl Optimizer {
             let row = by_id.remove(id).ok_or_else(|| {
                 SweepError::System(format!("optimisation: no row for point {id}"))
             })?;
-            let same = row.parameters.len() == values.len()
-                && row
-                    .parameters
-                    .iter()
-                    .zip(values)
-                    .all(|(a, b)| a.to_bits() == b.to_bits());
-            if !same {
+            if !same_bits(&row.parameters, values) {
                 return Err(SweepError::System(format!(
                     "optimisation: point {id}'s row has other parameter values than asked"
                 )));
@@ -534,10 +528,12 @@ impl<P: std::borrow::Borrow<Prepared>> JournaledOptimization<P> {
     /// Keeps a run's row (journaled first): it must be a point of the current generation
     /// with the asked values, bit for bit.
     pub fn record(&mut self, row: Row) -> Result<(), SweepError> {
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        let asked = self.optimizer.ask();
-        match asked.iter().find(|(id, _)| *id == row.point) {
-            Some((_, values)) if bits(values) == bits(&row.parameters) => self.finished.record(row),
+        // The asked points where they stand, not a copy per row (asked first if need be).
+        if self.optimizer.asked.is_empty() {
+            self.optimizer.ask();
+        }
+        match self.optimizer.asked.iter().find(|(id, _)| *id == row.point) {
+            Some((_, values)) if same_bits(values, &row.parameters) => self.finished.record(row),
             Some(_) => Err(SweepError::System(format!(
                 "optimisation: point {}'s row has other parameter values than asked",
                 row.point

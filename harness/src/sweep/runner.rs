@@ -18,7 +18,7 @@ use super::SweepError;
 use super::design::{self, Design};
 use super::journal::{Finished, JOURNAL_MAGIC};
 use super::spec::{DesignKind, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource};
-use super::table::{Row, RunStatus, SweepTable};
+use super::table::{Row, RunStatus, SweepTable, same_bits};
 use crate::master::{MasterError, Outcome, RunConfig, System, Value};
 use crate::results::Results;
 use crate::ssp::{self, LoadedSystem};
@@ -898,10 +898,9 @@ impl<P: std::borrow::Borrow<Prepared>> JournaledSweep<P> {
     /// Keeps a point's row (journaled first). A row of a point outside the design, or whose
     /// parameters are not its point's (bit for bit), is refused.
     pub fn record(&mut self, row: Row) -> Result<(), SweepError> {
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let points = &self.prepared.borrow().design.points;
         match points.get(row.point as usize) {
-            Some(values) if bits(values) == bits(&row.parameters) => self.finished.record(row),
+            Some(values) if same_bits(values, &row.parameters) => self.finished.record(row),
             Some(_) => Err(SweepError::System(format!(
                 "point {}: a row with other parameter values than the design's",
                 row.point
