@@ -3,12 +3,15 @@
 //! system, its parameters, the kneebench version, the FMUs' GUIDs).
 //!
 //! Rows are buffered per column as they come (one buffer holding every column of the row group)
-//! and written in row groups of [`ROW_GROUP_ROWS`] rows by the `parquet` crate's column
-//! writer: plain encoding, uncompressed (the values of a recording are mostly full-precision
-//! doubles: Snappy saved a fifth of the bytes and no time in the writers bench), no
-//! dictionary, one data page per column chunk. Statistics (min and max per row group) are
-//! kept for `time` only, so that readers skip row groups by time; the signals' statistics
-//! cost a sixth of the writer's own time and no reader needs them.
+//! and written in row groups of [`ROW_GROUP_ROWS`] rows: plain encoding, uncompressed (the
+//! values of a recording are mostly full-precision doubles: Snappy saved a fifth of the bytes
+//! and no time in the writers bench), no dictionary, one data page per column chunk.
+//! Statistics (min and max per row group) are kept for `time` only, so that readers skip row
+//! groups by time; the signals' statistics cost a sixth of the writer's own time and no reader
+//! needs them. The file is the one the `parquet` crate's `SerializedFileWriter` writes, byte
+//! for byte (tested), but for one fast path, in the `Encoder`: each signal's page goes to the
+//! file straight from the row group's buffer, where the crate's column writer copies every
+//! value twice first (`time` still goes through it, for its statistics).
 //!
 //! **Where the encoding runs** ([`EncodeOn`]): by default a full row group is handed to a
 //! thread of the file's own, which encodes and writes it while the run fills the next one
@@ -29,18 +32,29 @@
 //! per second would fragment the file).
 
 use std::fs::File;
-use std::io::{self, BufWriter};
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
-use parquet::basic::{Repetition, Type as PhysicalType};
-use parquet::data_type::DoubleType;
+use bytes::Bytes;
+use parquet::basic::{
+    Compression, Encoding, EncodingMask, PageType, Repetition, Type as PhysicalType,
+};
+use parquet::column::page::{CompressedPage, Page, PageWriter};
+use parquet::column::writer::{ColumnCloseResult, ColumnWriter, get_column_writer};
 use parquet::errors::ParquetError;
-use parquet::file::metadata::KeyValue;
-use parquet::file::properties::{EnabledStatistics, WriterProperties, WriterPropertiesBuilder};
-use parquet::file::writer::SerializedFileWriter;
-use parquet::schema::types::ColumnPath;
-use parquet::schema::types::Type;
+use parquet::file::metadata::page_index::PageIndexBuilder;
+use parquet::file::metadata::{
+    ColumnChunkMetaData, FileMetaData, KeyValue, OffsetIndexBuilder, PageEncodingStats,
+    ParquetMetaDataBuilder, ParquetMetaDataWriter, RowGroupMetaData,
+};
+use parquet::file::page_index::column_index::ColumnIndexMetaData;
+use parquet::file::page_index::offset_index::OffsetIndexMetaData;
+use parquet::file::properties::{
+    EnabledStatistics, WriterProperties, WriterPropertiesBuilder, WriterPropertiesPtr,
+};
+use parquet::file::writer::{SerializedPageWriter, TrackedWrite};
+use parquet::schema::types::{ColumnDescPtr, ColumnPath, SchemaDescPtr, SchemaDescriptor, Type};
 
 pub use super::background::EncodeOn;
 use super::background::{Background, BlockEncoder, closed_error};
@@ -54,11 +68,6 @@ use super::{ColumnKind, ResultSink, ResultsError};
 /// `kneebench run` recording every output of the SEA scenario for 100 s takes 2 400 page faults instead of 13 900 with 65 536 rows (53 MB of
 /// buffers instead of 6.6 MB), 36 400 with each column handed over in one batch.
 pub const ROW_GROUP_ROWS: usize = 8192;
-
-/// The file's write buffer: it gathers the small writes (page headers, the footer), and a
-/// page's values, larger, go to the file straight from the encoder's page (a `BufWriter`
-/// copies only what fits in it: with 1 MiB, every page was copied once more on its way).
-const WRITE_BUFFER: usize = 8 << 10;
 
 /// One row group's values, column by column in one buffer: `time`'s slots, then each
 /// signal's.
@@ -106,13 +115,6 @@ impl Group {
     fn is_full(&self) -> bool {
         self.rows >= ROW_GROUP_ROWS
     }
-
-    /// The filled part of each column, `time` first.
-    fn columns(&self) -> impl Iterator<Item = &[f64]> {
-        self.values
-            .chunks_exact(COLUMN_STRIDE)
-            .map(|column| &column[..self.rows])
-    }
 }
 
 impl Default for Group {
@@ -133,36 +135,229 @@ fn io_error(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> R
     }
 }
 
-/// The `parquet` crate's file writer over the partial file: row groups, then the footer.
+/// The partial file as the `parquet` crate's sink: writes go to the file, and the first
+/// failed write is kept. The crate's footer writer flushes its buffer when it is dropped,
+/// where a failure cannot be returned; [`Encoder::finish`] reports it from here.
+struct FileSink {
+    file: Arc<File>,
+    failure: Arc<Mutex<Option<io::Error>>>,
+}
+
+impl FileSink {
+    fn remember(&self, e: &io::Error) {
+        let mut failure = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+        if failure.is_none() {
+            *failure = Some(io::Error::new(e.kind(), e.to_string()));
+        }
+    }
+}
+
+impl Write for FileSink {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        (&*self.file).write(buf).inspect_err(|e| self.remember(e))
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A row group's buffer lent to its pages: the bytes of its columns as they are in memory,
+/// which on a little-endian machine are the plain encoding of the doubles (Parquet's is
+/// little endian).
+struct GroupBytes(Arc<Vec<f64>>);
+
+impl AsRef<[u8]> for GroupBytes {
+    fn as_ref(&self) -> &[u8] {
+        let values: &[f64] = &self.0;
+        // SAFETY: the pointer and length describe the initialised doubles of `values` as
+        // bytes: an f64 has no padding and every byte is initialised, u8 needs no alignment,
+        // and the borrow lives as long as `self`, which owns the buffer.
+        unsafe { std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), size_of_val(values)) }
+    }
+}
+
+/// Writes the file the way the `parquet` crate's `SerializedFileWriter` does (the same
+/// bytes, tested against it), with the signals' pages written straight from the row group's
+/// buffer: the crate's column writer copies every value twice on its way to the file (into
+/// its plain encoder's buffer, then into the page with its levels), which on this machine
+/// was a third of the writer's own time. `time` (the one column with statistics) and every
+/// column on a big-endian machine go through the crate's column writer.
 struct Encoder {
-    writer: SerializedFileWriter<BufWriter<File>>,
+    /// The partial file, behind the crate's byte counter (page offsets) and write buffer.
+    sink: Option<TrackedWrite<FileSink>>,
+    /// The same file, for the write-back and the final sync.
+    file: Arc<File>,
+    failure: Arc<Mutex<Option<io::Error>>>,
+    schema: SchemaDescPtr,
+    props: WriterPropertiesPtr,
+    row_groups: Vec<RowGroupMetaData>,
+    /// Per row group and column: the page locations (every column has them, as the crate
+    /// writes them by default) and the page statistics (none here: `time`'s are per chunk).
+    offset_indexes: Vec<Vec<Option<OffsetIndexMetaData>>>,
+    column_indexes: Vec<Vec<Option<ColumnIndexMetaData>>>,
     partial: PathBuf,
 }
 
 impl Encoder {
+    /// Starts the file (its magic bytes) with `schema` and `props`.
+    fn start(
+        file: File,
+        schema: SchemaDescPtr,
+        props: WriterPropertiesPtr,
+        partial: PathBuf,
+    ) -> Result<Encoder, ResultsError> {
+        let file = Arc::new(file);
+        let failure = Arc::new(Mutex::new(None));
+        let mut sink = TrackedWrite::new(FileSink {
+            file: Arc::clone(&file),
+            failure: Arc::clone(&failure),
+        });
+        // Parquet's magic bytes, which open the file (and close it, after the footer).
+        sink.write_all(b"PAR1").map_err(|e| io_error(&partial, e))?;
+        Ok(Encoder {
+            sink: Some(sink),
+            file,
+            failure,
+            schema,
+            props,
+            row_groups: Vec::new(),
+            offset_indexes: Vec::new(),
+            column_indexes: Vec::new(),
+            partial,
+        })
+    }
+
+    fn sink(&mut self) -> Result<&mut TrackedWrite<FileSink>, ParquetError> {
+        self.sink
+            .as_mut()
+            .ok_or_else(|| ParquetError::General("the Parquet file is closed".into()))
+    }
+
     /// Writes `group` as one row group (nothing if it has no row) and empties it, its buffer
     /// kept.
     fn write_group(&mut self, group: &mut Group) -> Result<(), ResultsError> {
         if group.rows == 0 {
             return Ok(());
         }
-        let partial = &self.partial;
-        let err = |e: ParquetError| io_error(partial, e);
-        let mut writer = self.writer.next_row_group().map_err(err)?;
-        for values in group.columns() {
-            let mut col = writer.next_column().map_err(err)?.ok_or_else(|| {
-                err(ParquetError::General(
-                    "fewer columns than the schema".into(),
-                ))
-            })?;
-            col.typed::<DoubleType>()
-                .write_batch(values, None, None)
-                .map_err(err)?;
-            col.close().map_err(err)?;
-        }
-        writer.close().map_err(err)?;
-        group.rows = 0;
+        let rows = std::mem::take(&mut group.rows);
+        // The buffer is lent to the pages (no copy) and taken back once they are written;
+        // the page writer keeps none of them, so the buffer is never shared by then.
+        let buffer = Arc::new(std::mem::take(&mut group.values));
+        let written = self.write_row_group(&buffer, rows);
+        group.values = Arc::try_unwrap(buffer).unwrap_or_else(|shared| shared.to_vec());
+        written.map_err(|e| io_error(&self.partial, e))?;
         self.start_writeback()
+    }
+
+    /// Writes the first `rows` of each column of `buffer` as the next row group.
+    fn write_row_group(&mut self, buffer: &Arc<Vec<f64>>, rows: usize) -> Result<(), ParquetError> {
+        let ordinal = i32::try_from(self.row_groups.len())
+            .map_err(|_| ParquetError::General("too many row groups".into()))?;
+        let file_offset = self.sink()?.bytes_written() as i64;
+        let bytes = Bytes::from_owner(GroupBytes(Arc::clone(buffer)));
+        let schema = Arc::clone(&self.schema);
+        let mut closed = Vec::with_capacity(schema.num_columns());
+        for (i, descr) in schema.columns().iter().enumerate() {
+            let start = i * COLUMN_STRIDE;
+            let values = &buffer[start..start + rows];
+            closed.push(if i > 0 && cfg!(target_endian = "little") {
+                let page = bytes.slice(start * 8..(start + rows) * 8);
+                self.write_page(descr, page, rows)?
+            } else {
+                self.write_column(descr, values)?
+            });
+        }
+        let mut chunks = Vec::with_capacity(closed.len());
+        let (mut offsets, mut indexes) = (Vec::new(), Vec::new());
+        let mut total_uncompressed = 0;
+        for c in closed {
+            total_uncompressed += c.metadata.uncompressed_size();
+            chunks.push(c.metadata);
+            offsets.push(c.offset_index);
+            indexes.push(c.column_index);
+        }
+        let group = RowGroupMetaData::builder(schema)
+            .set_column_metadata(chunks)
+            .set_total_byte_size(total_uncompressed)
+            .set_num_rows(rows as i64)
+            .set_sorting_columns(self.props.sorting_columns().cloned())
+            .set_ordinal(ordinal)
+            .set_file_offset(file_offset)
+            .build()?;
+        self.row_groups.push(group);
+        self.offset_indexes.push(offsets);
+        self.column_indexes.push(indexes);
+        Ok(())
+    }
+
+    /// One column chunk through the crate's column writer (the plain path).
+    fn write_column(
+        &mut self,
+        descr: &ColumnDescPtr,
+        values: &[f64],
+    ) -> Result<ColumnCloseResult, ParquetError> {
+        let props = Arc::clone(&self.props);
+        let page_writer = Box::new(SerializedPageWriter::new(self.sink()?));
+        let mut writer = get_column_writer(Arc::clone(descr), props, page_writer);
+        match &mut writer {
+            ColumnWriter::DoubleColumnWriter(w) => {
+                w.write_batch(values, None, None)?;
+            }
+            _ => return Err(ParquetError::General("a column is not float64".into())),
+        }
+        writer.close()
+    }
+
+    /// One column chunk of one plain page, `page` holding its `rows` values as bytes, with
+    /// the metadata the crate's column writer gives such a chunk (no statistics).
+    fn write_page(
+        &mut self,
+        descr: &ColumnDescPtr,
+        page: Bytes,
+        rows: usize,
+    ) -> Result<ColumnCloseResult, ParquetError> {
+        let num_values = u32::try_from(rows)
+            .map_err(|_| ParquetError::General("too many rows in a row group".into()))?;
+        let size = page.len();
+        let page = Page::DataPage {
+            buf: page,
+            num_values,
+            encoding: Encoding::PLAIN,
+            def_level_encoding: Encoding::RLE,
+            rep_level_encoding: Encoding::RLE,
+            statistics: None,
+        };
+        let mut page_writer = SerializedPageWriter::new(self.sink()?);
+        let spec = page_writer.write_page(CompressedPage::new(page, size))?;
+        page_writer.close()?;
+        let mut offset_index = OffsetIndexBuilder::new();
+        offset_index.append_row_count(rows as i64);
+        offset_index.append_offset_and_size(spec.offset as i64, spec.compressed_size as i32);
+        // The crate's writer lists RLE (its levels' encoding) whether or not there are levels.
+        let encodings = [Encoding::PLAIN, Encoding::RLE];
+        let metadata = ColumnChunkMetaData::builder(Arc::clone(descr))
+            .set_compression(Compression::UNCOMPRESSED)
+            .set_encodings_mask(EncodingMask::new_from_encodings(encodings.iter()))
+            .set_page_encoding_stats(vec![PageEncodingStats {
+                page_type: PageType::DATA_PAGE,
+                encoding: Encoding::PLAIN,
+                count: 1,
+            }])
+            .set_total_compressed_size(spec.compressed_size as i64)
+            .set_total_uncompressed_size(spec.uncompressed_size as i64)
+            .set_num_values(i64::from(num_values))
+            .set_data_page_offset(spec.offset as i64)
+            .set_dictionary_page_offset(None)
+            .build()?;
+        Ok(ColumnCloseResult {
+            bytes_written: spec.bytes_written,
+            rows_written: rows as u64,
+            metadata,
+            bloom_filter: None,
+            column_index: None,
+            offset_index: Some(offset_index.build()),
+        })
     }
 
     /// Hands the row groups written so far to the kernel and starts their write to the disk
@@ -170,13 +365,13 @@ impl Encoder {
     /// the last ones: the durable write goes on while the run fills the next groups instead
     /// of all of it after the run (Linux's `sync_file_range`; elsewhere the sync does it all).
     fn start_writeback(&mut self) -> Result<(), ResultsError> {
-        self.writer
-            .flush()
-            .map_err(|e| io_error(&self.partial, e))?;
+        if let Some(sink) = self.sink.as_mut() {
+            sink.flush().map_err(|e| io_error(&self.partial, e))?;
+        }
         #[cfg(target_os = "linux")]
         {
             use std::os::fd::AsRawFd;
-            let fd = self.writer.inner().get_ref().as_raw_fd();
+            let fd = self.file.as_raw_fd();
             // Its result is not an error of the file: it only starts the write early (a file
             // system may not support it), and a failed write to the disk is reported by the
             // `fsync` of `finish` all the same.
@@ -187,17 +382,59 @@ impl Encoder {
         Ok(())
     }
 
-    /// Writes the footer and syncs the file.
-    fn finish(self) -> Result<(), ResultsError> {
-        let partial = self.partial;
-        let inner = self
-            .writer
-            .into_inner()
-            .map_err(|e| io_error(&partial, e))?;
-        let file = inner
-            .into_inner()
-            .map_err(|e| io_error(&partial, e.into_error()))?;
-        file.sync_all().map_err(|e| io_error(&partial, e))
+    /// Writes the page indexes and the footer (the crate's metadata writer, as its file
+    /// writer does) and syncs the file.
+    fn finish(mut self) -> Result<(), ResultsError> {
+        let partial = self.partial.clone();
+        let err = |e: ParquetError| io_error(&partial, e);
+        let sink = self
+            .sink
+            .take()
+            .ok_or_else(|| err(ParquetError::General("the Parquet file is closed".into())))?;
+        let (groups, columns) = (self.row_groups.len(), self.schema.num_columns());
+        let mut index = PageIndexBuilder::new(groups, columns);
+        for (g, (offsets, indexes)) in self
+            .offset_indexes
+            .drain(..)
+            .zip(self.column_indexes.drain(..))
+            .enumerate()
+        {
+            for (c, (offset, column)) in offsets.into_iter().zip(indexes).enumerate() {
+                if let Some(offset) = offset {
+                    index.put_offset_index(offset, g, c);
+                }
+                if let Some(column) = column {
+                    index.put_column_index(column, g, c);
+                }
+            }
+        }
+        let num_rows = self.row_groups.iter().map(RowGroupMetaData::num_rows).sum();
+        let file_metadata = FileMetaData::new(
+            self.props.writer_version().as_num(),
+            num_rows,
+            Some(self.props.created_by().to_string()),
+            self.props.key_value_metadata().cloned(),
+            Arc::clone(&self.schema),
+            None,
+        );
+        let metadata = ParquetMetaDataBuilder::new(file_metadata)
+            .set_row_groups(std::mem::take(&mut self.row_groups))
+            .set_page_index(Some(Arc::new(index.build())))
+            .build();
+        ParquetMetaDataWriter::new_with_tracked(sink, &metadata)
+            .with_write_path_in_schema(self.props.write_path_in_schema())
+            .finish()
+            .map_err(err)?;
+        // The footer writer flushed its buffer as it was dropped: a failure there is here.
+        let failure = self
+            .failure
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        if let Some(e) = failure {
+            return Err(io_error(&partial, e));
+        }
+        self.file.sync_all().map_err(|e| io_error(&partial, e))
     }
 }
 
@@ -449,16 +686,12 @@ impl ResultSink for ParquetFile {
             // default) its buffer grows by doubling, copying the page three more times.
             .set_write_batch_size(ROW_GROUP_ROWS)
             .build();
-        let writer = SerializedFileWriter::new(
-            BufWriter::with_capacity(WRITE_BUFFER, file),
-            schema,
+        let encoder = Encoder::start(
+            file,
+            Arc::new(SchemaDescriptor::new(schema)),
             Arc::new(props),
-        )
-        .map_err(|e| self.err(e))?;
-        let encoder = Encoder {
-            writer,
-            partial: self.partial.clone(),
-        };
+            self.partial.clone(),
+        )?;
         self.writer = Some(match self.encode_on {
             EncodeOn::Caller => Writer::Caller(Box::new(encoder)),
             EncodeOn::Thread => Writer::Thread(
@@ -534,6 +767,10 @@ mod tests {
 #[cfg(test)]
 mod thread_tests {
     use super::*;
+    use std::io::BufWriter;
+
+    use parquet::data_type::DoubleType;
+    use parquet::file::writer::SerializedFileWriter;
 
     use crate::results::test_rows::row;
 
@@ -634,8 +871,9 @@ mod thread_tests {
         f.file = None;
     }
 
-    /// Both fast paths (one batch per column, the small write buffer, the early write-back,
-    /// the thread) write the plain path's bytes.
+    /// The fast paths (the signals' pages written straight from the row group's buffer, one
+    /// batch per column, the small write buffer, the early write-back, the thread) write the
+    /// plain path's bytes: the crate's own file and column writers.
     #[test]
     fn the_fast_paths_write_the_plain_bytes() {
         let dir = tempfile::tempdir().unwrap();
@@ -680,6 +918,26 @@ mod thread_tests {
             k += 1;
         }
         assert_eq!(k, rows);
+    }
+
+    /// The footer writer's last flush happens as it is dropped, where its error cannot be
+    /// returned: the sink keeps it for `finish` to return.
+    #[test]
+    fn a_failed_write_on_drop_is_kept() {
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let failure = Arc::new(Mutex::new(None));
+        {
+            let mut w = TrackedWrite::new(FileSink {
+                file: Arc::new(file),
+                failure: Arc::clone(&failure),
+            });
+            w.write_all(b"the footer's tail").unwrap();
+        }
+        let kept = failure.lock().unwrap().take().expect("the failure is kept");
+        assert!(kept.to_string().contains("No space left"), "{kept}");
     }
 
     /// A file whose writes fail (`/dev/full`: no space left) with `columns` columns.
