@@ -320,7 +320,34 @@ impl Sweep {
     }
     /// The frequency of stage n \[Hz\].
     pub fn frequency(&self, stage: u32) -> f64 {
-        self.start_frequency * self.ratio.powi(stage as i32)
+        // `powi` takes an i32: stages past it (2^31 dwells, 25 days at the shortest) stay at
+        // its last, where a wrapped exponent would be negative.
+        self.start_frequency * self.ratio.powi(stage.min(i32::MAX as u32) as i32)
+    }
+    /// The first stage whose frequency exceeds `end` \[Hz\], `None` when none does (a ratio of
+    /// 1 above the start, or a stage past `u32`). In closed form: a search stage by stage took
+    /// seconds per step for a ratio just above 1 and never ended for a ratio of 1.
+    pub fn end_stage(&self, end: f64) -> Option<u32> {
+        if self.start_frequency > end {
+            return Some(0);
+        }
+        if self.ratio <= 1.0 {
+            return None;
+        }
+        // ln(end / f0) / ln(r) is the stage to within the rounding of the logarithms; the
+        // stage test itself then settles it, as a search stage by stage would.
+        let estimate = ((end / self.start_frequency).ln() / self.ratio.ln()).floor();
+        if !(estimate < f64::from(i32::MAX - 2)) {
+            return None;
+        }
+        let mut stage = (estimate.max(0.0) as u32).saturating_sub(1);
+        while stage > 0 && self.frequency(stage - 1) > end {
+            stage -= 1;
+        }
+        while self.frequency(stage) <= end {
+            stage += 1;
+        }
+        Some(stage)
     }
     /// Phase [rad] at the start of stage n.
     fn stage_phase(&self, stage: u32) -> f64 {
@@ -841,11 +868,9 @@ impl Model for GaitReference {
         if self.sweeping() && self.sweep_end_frequency > 0.0 {
             let sweep = self.sweep();
             let end = t + h;
-            // First stage whose frequency exceeds the end frequency.
-            let mut stage = sweep.stage(t);
-            while sweep.frequency(stage) <= self.sweep_end_frequency {
-                stage += 1;
-            }
+            let Some(stage) = sweep.end_stage(self.sweep_end_frequency) else {
+                return Ok(StepOutcome::Completed);
+            };
             let stop_at = stage as f64 * sweep.dwell;
             if stop_at <= t {
                 return Ok(StepOutcome::Terminated {
@@ -1252,6 +1277,46 @@ mod tests {
                 reason: "the stepped-sine sweep reached sweepEndFrequency"
             }
         );
+    }
+
+    /// The end stage in closed form equals the search stage by stage, and a ratio of 1 (or
+    /// one so close to 1 that the end is millions of stages away) neither hangs nor ends early.
+    #[test]
+    fn the_end_stage_is_found_without_walking_the_stages() {
+        let walk = |s: &Sweep, end: f64| {
+            let mut stage = 0;
+            while s.frequency(stage) <= end {
+                stage += 1;
+            }
+            stage
+        };
+        for (f0, ratio, end) in [
+            (0.05, 10f64.powf(1.0 / 30.0), 20.0),
+            (1.0, 2.0, 4.0),
+            (1.0, 2.0, 3.999_999),
+            (0.3, 1.6, 0.3),
+            (0.3, 1.6, 0.1),
+            (1e-4, 1.001, 1e3),
+            (0.05, 10.0, 1e3),
+        ] {
+            let s = Sweep {
+                start_frequency: f0,
+                ratio,
+                dwell: 1.0,
+            };
+            assert_eq!(s.end_stage(end), Some(walk(&s, end)), "{f0} {ratio} {end}");
+        }
+        let mut m = model();
+        m.motion_waveform = Waveform::SteppedSine as i32;
+        m.sweep_start_frequency = 0.05;
+        m.sweep_end_frequency = 1.0;
+        m.sweep_ratio = 1.0;
+        assert_eq!(m.do_step(0.0, 1e-3).unwrap(), StepOutcome::Completed);
+        m.sweep_ratio = 1.000_000_1; // the end is about 30 million stages away
+        let s = m.sweep();
+        let stage = s.end_stage(1.0).unwrap();
+        assert!(s.frequency(stage) > 1.0 && s.frequency(stage - 1) <= 1.0);
+        assert_eq!(m.do_step(0.0, 1e-3).unwrap(), StepOutcome::Completed);
     }
 
     #[test]
