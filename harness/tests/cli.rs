@@ -205,3 +205,59 @@ fn emulate_refuses_arguments_outside_the_protocols_limits() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("missing"), "{err}");
 }
+
+/// An output that names one of the command's inputs (however spelled) is refused before
+/// anything runs, and the input is left as it was: the results renamed into place would
+/// have replaced the FMU, the inputs CSV or the sweep's spec.
+#[test]
+fn an_output_that_is_an_input_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let before = std::fs::read(&fmu).unwrap();
+    let inputs = d.path().join("inputs.csv");
+    std::fs::write(&inputs, "time,u\n0,1\n1,1\n").unwrap();
+    let spelled_otherwise = d.path().join(".").join(fmu.file_name().unwrap());
+    for (output, extra) in [
+        (&spelled_otherwise, vec![]),
+        (
+            &inputs,
+            vec!["--inputs".to_string(), inputs.display().to_string()],
+        ),
+    ] {
+        let out = kneebench()
+            .arg("run")
+            .arg(&fmu)
+            .args(["--stop-time", "1", "--step", "0.1", "-q"])
+            .args(&extra)
+            .arg("--output")
+            .arg(output)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains("the results would replace it"), "{stderr}");
+    }
+    assert_eq!(std::fs::read(&fmu).unwrap(), before);
+    assert_eq!(
+        std::fs::read_to_string(&inputs).unwrap(),
+        "time,u\n0,1\n1,1\n"
+    );
+    let spec = d.path().join("spec.toml");
+    std::fs::write(&spec, "not read: the output is checked first\n").unwrap();
+    for command in ["sweep", "optimize"] {
+        let out = kneebench()
+            .arg(command)
+            .arg(&spec)
+            .arg("--output")
+            .arg(&spec)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{command}: {stderr}");
+        assert!(stderr.contains("the results would replace it"), "{stderr}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(&spec).unwrap(),
+        "not read: the output is checked first\n"
+    );
+}

@@ -115,3 +115,22 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<i32> {
         Command::Identify(a) => identify::run(a),
     }
 }
+
+/// The input among `inputs` that `output` names (the same file, however spelled), with a
+/// message: the results, renamed into place at the end, would replace it.
+pub(crate) fn output_replaces_input(
+    output: &std::path::Path,
+    inputs: &[&std::path::Path],
+) -> Option<String> {
+    let out = std::fs::canonicalize(output).ok()?;
+    inputs
+        .iter()
+        .find(|i| std::fs::canonicalize(i).ok().as_ref() == Some(&out))
+        .map(|i| {
+            format!(
+                "the output {} is the input {}: the results would replace it",
+                output.display(),
+                i.display()
+            )
+        })
+}

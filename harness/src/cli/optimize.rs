@@ -242,6 +242,10 @@ fn run_on_cluster(
 /// Runs `kneebench optimize`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     kneebench_harness::tempdirs::remove_stale();
+    if let Some(message) = super::output_replaces_input(&a.output, &[a.spec.as_path()]) {
+        eprintln!("error: {message}");
+        return Ok(super::EXIT_USAGE);
+    }
     let prepared = match super::sweep::prepare(&a.spec, true)? {
         Ok(p) => p,
         Err(code) => return Ok(code),

@@ -1,7 +1,7 @@
 //! `kneebench run`.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -227,6 +227,18 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         return usage("--inputs is for a single FMU; connect inputs in the system instead");
     }
     // The output is checked (and its partial file created) before anything is loaded.
+    let named_files: Vec<PathBuf> = a
+        .parameter_sets
+        .iter()
+        .chain(&a.replace)
+        .map(|s| PathBuf::from(s.split_once('=').map_or(s.as_str(), |(_, file)| file)))
+        .collect();
+    let mut inputs: Vec<&Path> = vec![a.system.as_path()];
+    inputs.extend(a.inputs.as_deref());
+    inputs.extend(named_files.iter().map(PathBuf::as_path));
+    if let Some(message) = super::output_replaces_input(&a.output, &inputs) {
+        return usage(message);
+    }
     if a.flush_every_row
         && a.output
             .extension()

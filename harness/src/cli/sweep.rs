@@ -249,6 +249,10 @@ pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<
 /// Runs `kneebench sweep`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     kneebench_harness::tempdirs::remove_stale();
+    if let Some(message) = super::output_replaces_input(&a.output, &[a.spec.as_path()]) {
+        eprintln!("error: {message}");
+        return Ok(super::EXIT_USAGE);
+    }
     let prepared = match prepare(&a.spec, false)? {
         Ok(p) => p,
         Err(code) => return Ok(code),

@@ -194,6 +194,51 @@ pub fn partial_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Checks that `path` can take a results file written as `<path>.partial` and renamed into
+/// place: a file name in an existing directory, and not an existing directory, device, FIFO
+/// or socket (the rename would replace a device such as `/dev/null` with a regular file, and
+/// a reader waiting on a FIFO would get nothing).
+pub fn check_output_path(path: &Path) -> Result<(), ResultsError> {
+    let io_err = |path: &Path, source: io::Error| io_error(path, source);
+    if path.is_dir() {
+        return Err(io_err(
+            path,
+            io::Error::new(io::ErrorKind::IsADirectory, "is a directory"),
+        ));
+    }
+    if path.file_name().is_none() {
+        return Err(io_err(
+            path,
+            io::Error::new(io::ErrorKind::InvalidInput, "not a file name"),
+        ));
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => {
+            return Err(io_err(
+                dir,
+                io::Error::new(io::ErrorKind::NotADirectory, "not a directory"),
+            ));
+        }
+        Err(e) => return Err(io_err(dir, e)),
+    }
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => Err(io_err(
+            path,
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "exists and is not a regular file (a device, FIFO or socket): kneebench writes \
+                 its results beside it and renames them into place, which would replace it",
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// The crash-safe CSV file sink (see the [module documentation](self)).
 pub struct CsvFile {
     path: PathBuf,
@@ -323,32 +368,7 @@ impl CsvFile {
     /// (see [`encoding_on`](Self::encoding_on)).
     pub fn create(path: &Path) -> Result<CsvFile, ResultsError> {
         let io_err = |path: &Path, source: io::Error| io_error(path, source);
-        if path.is_dir() {
-            return Err(io_err(
-                path,
-                io::Error::new(io::ErrorKind::IsADirectory, "is a directory"),
-            ));
-        }
-        if path.file_name().is_none() {
-            return Err(io_err(
-                path,
-                io::Error::new(io::ErrorKind::InvalidInput, "not a file name"),
-            ));
-        }
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        match std::fs::metadata(dir) {
-            Ok(m) if m.is_dir() => {}
-            Ok(_) => {
-                return Err(io_err(
-                    dir,
-                    io::Error::new(io::ErrorKind::NotADirectory, "not a directory"),
-                ));
-            }
-            Err(e) => return Err(io_err(dir, e)),
-        }
+        check_output_path(path)?;
         let partial = partial_path(path);
         let file = File::create(&partial).map_err(|e| io_err(&partial, e))?;
         Ok(CsvFile {
@@ -855,6 +875,28 @@ mod tests {
                 got: 2
             })
         ));
+    }
+
+    /// An output that exists and is not a regular file (a FIFO here; a device such as
+    /// `/dev/null` alike) is refused by both writers and the sweep's table before anything is
+    /// written, and is left as it was: the rename into place would have replaced it.
+    #[test]
+    fn a_device_or_fifo_output_is_refused_and_left_alone() {
+        use std::os::unix::fs::FileTypeExt;
+        let d = tempfile::tempdir().unwrap();
+        let fifo = d.path().join("pipe.csv");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: a valid NUL-terminated path; mkfifo only creates the node.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = CsvFile::create(&fifo).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        let e = crate::results::parquet::ParquetFile::create(&fifo).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        let e = check_output_path(Path::new("/dev/null")).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+        assert!(!partial_path(&fifo).exists());
+        check_output_path(&d.path().join("new.csv")).unwrap();
     }
 
     /// Rows with what a recording holds (NaN, signed zeros, infinities, subnormals, whole

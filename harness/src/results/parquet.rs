@@ -58,7 +58,7 @@ use parquet::schema::types::{ColumnDescPtr, ColumnPath, SchemaDescPtr, SchemaDes
 
 pub use super::background::EncodeOn;
 use super::background::{Background, BlockEncoder, closed_error};
-use super::csv::partial_path;
+use super::csv::{check_output_path, partial_path};
 use super::{ColumnKind, ResultSink, ResultsError};
 
 /// Rows per row group: a column's page of 8192 doubles is 64 KiB, under glibc's threshold
@@ -502,12 +502,7 @@ impl ParquetFile {
         path: &Path,
         encode_on: EncodeOn,
     ) -> Result<ParquetFile, ResultsError> {
-        if path.is_dir() || path.file_name().is_none() {
-            return Err(ResultsError::Io {
-                path: path.to_path_buf(),
-                source: io::Error::new(io::ErrorKind::InvalidInput, "not a file name"),
-            });
-        }
+        check_output_path(path)?;
         let partial = partial_path(path);
         let file = File::create(&partial).map_err(|source| ResultsError::Io {
             path: partial.clone(),

@@ -307,6 +307,7 @@ impl Finished {
     ) -> Result<Finished, SweepError> {
         let (journal, rows) = match output {
             Some(out) => {
+                super::table::check_table_path(out)?;
                 let (j, rows) = Journal::open(out, options.resume, prepared, known)?;
                 (Some(j), rows)
             }

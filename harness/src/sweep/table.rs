@@ -20,7 +20,8 @@ use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
 use super::SweepError;
-use crate::results::csv::partial_path;
+use crate::results::ResultsError;
+use crate::results::csv::{check_output_path, partial_path};
 
 /// How a run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -387,18 +388,25 @@ impl SweepTable {
     }
 }
 
+/// Checks that a table can be written to `path` (see [`check_output_path`]), before a sweep
+/// runs and again when its table is written.
+pub(crate) fn check_table_path(path: &Path) -> Result<(), SweepError> {
+    check_output_path(path).map_err(|e| match e {
+        ResultsError::Io { path, source } => SweepError::Io { path, source },
+        other => SweepError::Table {
+            path: path.to_path_buf(),
+            message: other.to_string(),
+        },
+    })
+}
+
 /// Writes a table through `<path>.partial` (`write` creates and fills it, returning the file),
 /// syncs it and renames it to `path`; the partial file is removed if anything fails.
 fn write_then_rename(
     path: &Path,
     write: impl FnOnce(&Path) -> Result<File, SweepError>,
 ) -> Result<(), SweepError> {
-    if path.is_dir() || path.file_name().is_none() {
-        return Err(SweepError::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a file name"),
-        });
-    }
+    check_table_path(path)?;
     let partial = partial_path(path);
     let done = write(&partial).and_then(|file| {
         file.sync_all().map_err(|source| SweepError::Io {
