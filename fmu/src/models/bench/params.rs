@@ -248,6 +248,10 @@ impl Default for BenchParameters {
     }
 }
 
+/// The smallest magnitude of a torque sensor's calibration gain b \[V\] that
+/// [`BenchParameters::validate`] accepts (the reason is given there).
+pub const MIN_SENSOR_GAIN: f64 = 1e-6;
+
 impl BenchParameters {
     /// Sensible (min, max) of every real-valued parameter, by field name. `validate` enforces
     /// these; the FMU declares them as min/max attributes.
@@ -435,7 +439,8 @@ impl BenchParameters {
     }
 
     /// Checks every value is finite and inside [`Self::PARAMETER_LIMITS`], and that the
-    /// parameters are consistent (nonzero sensor gains, integral encoder counts).
+    /// parameters are consistent (sensor gains of at least [`MIN_SENSOR_GAIN`], integral
+    /// encoder counts).
     pub fn validate(&self) -> Result<(), ParameterError> {
         let fields = self.real_fields();
         debug_assert_eq!(fields.len(), Self::PARAMETER_LIMITS.len());
@@ -464,9 +469,16 @@ impl BenchParameters {
                 return Err(ParameterError::NotFinite { name, value });
             }
         }
-        if self.transducer_gain == 0.0 || self.load_cell_gain == 0.0 {
+        // The calibration gain b is the sensor's voltage swing over the calibration pendulum
+        // (published: -8 mV and 1 mV); the myRIO resolves about 5 mV (12 bits over +-10 V), so
+        // a gain under a microvolt could never have been calibrated. The bound also keeps the
+        // conversion back to torque, (m g Lg / b)(V - a) with m g Lg <= 1e3 N m, finite: a
+        // subnormal gain made it inf * 0 = NaN.
+        if self.transducer_gain.abs() < MIN_SENSOR_GAIN
+            || self.load_cell_gain.abs() < MIN_SENSOR_GAIN
+        {
             return Err(ParameterError::Inconsistent(
-                "sensor calibration gains must be nonzero",
+                "sensor calibration gains must be at least 1e-6 V in magnitude",
             ));
         }
         if self.encoder_counts_per_revolution.fract() != 0.0 {
@@ -543,6 +555,26 @@ mod tests {
             ..BenchParameters::default()
         };
         assert!(matches!(q.validate(), Err(ParameterError::Inconsistent(_))));
+        for gain in [0.0, -0.0, 5e-324, f64::MIN_POSITIVE, -9.9e-7] {
+            for transducer in [false, true] {
+                let mut g = BenchParameters::default();
+                if transducer {
+                    g.transducer_gain = gain;
+                } else {
+                    g.load_cell_gain = gain;
+                }
+                assert!(
+                    matches!(g.validate(), Err(ParameterError::Inconsistent(_))),
+                    "{gain:e}, transducer {transducer}"
+                );
+            }
+        }
+        let smallest = BenchParameters {
+            transducer_gain: -MIN_SENSOR_GAIN,
+            load_cell_gain: MIN_SENSOR_GAIN,
+            ..BenchParameters::default()
+        };
+        assert_eq!(smallest.validate(), Ok(()));
         let mut r = BenchParameters::default();
         r.hd_loss_negative_speed[20] = f64::INFINITY;
         assert_eq!(
