@@ -43,20 +43,57 @@ pub const VERSION: &str = env!("CARGO_PKG_VERSION");
 /// The `generationTool` string.
 pub const GENERATION_TOOL: &str = concat!("kneebench ", env!("CARGO_PKG_VERSION"));
 
-/// An error a model reports; the glue logs it and answers with the status given.
+/// An error a model reports; the glue logs it and answers `fmi2Error`, and its
+/// [`ErrorKind`] says whether the instance stays usable.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{message}")]
 pub struct ModelError {
     /// What went wrong, for the log.
     pub message: String,
+    /// Whether the model is as it was before the call.
+    pub kind: ErrorKind,
+}
+
+/// What a [`ModelError`] did to the model, which decides what the glue does with the instance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// The model refused the call before changing anything (parameters that do not fit
+    /// together, rejected inputs, a step off the sample grid): the glue answers `fmi2Error`
+    /// and keeps the instance's state, so the importer may correct the call and go on.
+    Refused,
+    /// The computation failed after the model may have changed, or the hardware behind it
+    /// failed: the glue moves the instance to the error state.
+    Failed,
 }
 
 impl ModelError {
-    /// A new error with this message.
+    /// A failure (the instance goes to the error state) with this message.
     pub fn new(message: impl Into<String>) -> Self {
         Self {
             message: message.into(),
+            kind: ErrorKind::Failed,
         }
+    }
+
+    /// A refusal that left the model unchanged (the instance stays usable) with this message.
+    pub fn refused(message: impl Into<String>) -> Self {
+        Self {
+            message: message.into(),
+            kind: ErrorKind::Refused,
+        }
+    }
+
+    /// The same error as a refusal: for checks made before the model changes anything.
+    pub fn into_refused(self) -> Self {
+        Self {
+            kind: ErrorKind::Refused,
+            ..self
+        }
+    }
+
+    /// Whether the model is unchanged by the call that answered this error.
+    pub fn is_refused(&self) -> bool {
+        self.kind == ErrorKind::Refused
     }
 }
 
@@ -233,10 +270,14 @@ pub trait Model: Default + Clone + Send + 'static {
     fn initialize(&mut self, start_time: f64) -> Result<(), ModelError>;
 
     /// Computes the outputs at time `t` from parameters, inputs and state (no state change).
-    /// The glue calls it lazily before a get that follows a set or a step.
+    /// The glue calls it lazily before a get that follows a set or a step. Because it changes
+    /// no state, the glue refuses the get on any error (whatever its [`ErrorKind`]): the
+    /// importer may correct the parameters or inputs and read again.
     fn calculate(&mut self, t: f64) -> Result<(), ModelError>;
 
-    /// Advances the state from `t` to `t + h` with the inputs held.
+    /// Advances the state from `t` to `t + h` with the inputs held. An error of kind
+    /// [`ErrorKind::Refused`] promises that nothing was changed (the glue then keeps the
+    /// instance usable); any other error moves the instance to the error state.
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError>;
 
     /// The largest communication step [`Model::do_step`] accepts, in seconds, with the

@@ -4,8 +4,12 @@
 //! Error policy (documented in every FMU's page): a call that is not allowed in the current
 //! state, or that carries a bad argument (unknown value reference, NaN, a value outside
 //! min/max, a variable that may not be set now), answers `fmi2Error` with a log line and
-//! changes nothing, so the importer loses nothing and may correct the call. A failure of the
-//! model's own computation answers `fmi2Error` and moves the instance to the error state.
+//! changes nothing, so the importer loses nothing and may correct the call. So does a model
+//! error that left the model unchanged: parameters that do not fit together (found when the
+//! outputs are computed before a get, or at a step: parameters are set one at a time, so an
+//! inconsistent set in between is legitimate), rejected inputs, a step off the sample grid
+//! ([`crate::model::ErrorKind::Refused`]). A failure of the model's own computation after it
+//! changed its state answers `fmi2Error` and moves the instance to the error state.
 
 use std::ffi::CString;
 
@@ -340,7 +344,9 @@ impl<M: Model> Instance<M> {
     fn refresh(&mut self, function: &str) -> Result<(), fmi2Status> {
         if self.dirty {
             if let Err(e) = self.model.calculate(self.time) {
-                return Err(self.fail(function, &e.message));
+                // `calculate` changes no state (its contract), so whatever went wrong, the
+                // instance is as it was: refuse, and compute again at the next get.
+                return Err(self.refuse(function, &e.message));
             }
             self.dirty = false;
         }
@@ -1135,6 +1141,7 @@ impl<M: Model> FmiInstance for Instance<M> {
                 );
                 fmi2Discard
             }
+            Err(e) if e.is_refused() => self.refuse(f, &e.message),
             Err(e) => self.fail(f, &e.message),
         }
     }

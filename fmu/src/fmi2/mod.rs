@@ -4,4 +4,6 @@
 pub mod export;
 pub mod instance;
 pub mod logging;
+#[cfg(test)]
+mod refusal_tests;
 pub mod types;

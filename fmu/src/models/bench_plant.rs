@@ -1049,12 +1049,13 @@ impl BenchPlantModel {
                 self.test_driver_mode,
                 self.load_driver_mode,
             )
-            .map_err(ModelError::new)
+            .map_err(ModelError::refused)
     }
 
     fn build(&mut self) -> Result<(), ModelError> {
         let p = self.parameters()?;
-        let plant = super::bench::BenchPlant::new(p).map_err(|e| ModelError::new(e.to_string()))?;
+        let plant =
+            super::bench::BenchPlant::new(p).map_err(|e| ModelError::refused(e.to_string()))?;
         self.plant = Some(plant);
         self.outputs_changed();
         self.parameters_changed = false;
@@ -1146,7 +1147,7 @@ impl Model for BenchPlantModel {
                 .ok_or_else(|| ModelError::new("the plant was not initialized"))?;
             plant
                 .set_parameters(p)
-                .map_err(|e| ModelError::new(format!("tunable parameters refused: {e}")))?;
+                .map_err(|e| ModelError::refused(format!("tunable parameters refused: {e}")))?;
             self.parameters_changed = false;
         }
         let Some(plant) = self.plant.as_mut() else {
@@ -1162,7 +1163,7 @@ impl Model for BenchPlantModel {
                 at: self.start_time + time,
                 reason: interlock.name(),
             }),
-            PlantOutcome::Rejected(e) => Err(ModelError::new(e.to_string())),
+            PlantOutcome::Rejected(e) => Err(ModelError::refused(e.to_string())),
         }
     }
 

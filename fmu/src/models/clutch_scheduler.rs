@@ -325,7 +325,7 @@ impl ClutchScheduler {
     pub fn settings(&self) -> Result<ClutchSettings, ModelError> {
         let s = ClutchSettings {
             mode: ClutchMode::from_i32(self.mode)
-                .ok_or_else(|| ModelError::new(format!("mode {} is not an item", self.mode)))?,
+                .ok_or_else(|| ModelError::refused(format!("mode {} is not an item", self.mode)))?,
             engage_start: self.engage_start,
             engage_end: self.engage_end,
             engage_speed: self.engage_speed,
@@ -336,18 +336,18 @@ impl ClutchScheduler {
             sample_period: self.sample_period,
         };
         if s.mode == ClutchMode::GaitPhase && s.engage_start == s.engage_end {
-            return Err(ModelError::new(
+            return Err(ModelError::refused(
                 "engageStart equals engageEnd: the engagement window would be empty",
             ));
         }
         if s.release_speed < s.engage_speed {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "releaseSpeed {} is below engageSpeed {}: the hysteresis must not be inverted",
                 s.release_speed, s.engage_speed
             )));
         }
         if s.sample_period.is_nan() || s.sample_period <= 0.0 {
-            return Err(ModelError::new("samplePeriod must be positive"));
+            return Err(ModelError::refused("samplePeriod must be positive"));
         }
         Ok(s)
     }

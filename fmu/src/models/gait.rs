@@ -337,7 +337,8 @@ impl Sweep {
         // ln(end / f0) / ln(r) is the stage to within the rounding of the logarithms; the
         // stage test itself then settles it, as a search stage by stage would.
         let estimate = ((end / self.start_frequency).ln() / self.ratio.ln()).floor();
-        if !(estimate < f64::from(i32::MAX - 2)) {
+        // NaN (never from checked parameters) counts as past the last stage, like a huge one.
+        if estimate.is_nan() || estimate >= f64::from(i32::MAX - 2) {
             return None;
         }
         let mut stage = (estimate.max(0.0) as u32).saturating_sub(1);
@@ -670,8 +671,9 @@ impl GaitReference {
         harmonics: &Harmonics,
         t: f64,
     ) -> Result<Shape, ModelError> {
-        let wave = Waveform::from_i32(w)
-            .ok_or_else(|| ModelError::new(format!("waveform {w} is not an item of Waveform")))?;
+        let wave = Waveform::from_i32(w).ok_or_else(|| {
+            ModelError::refused(format!("waveform {w} is not an item of Waveform"))
+        })?;
         let p = self.period;
         let w1 = TAU / p;
         Ok(match wave {
@@ -779,7 +781,7 @@ impl Model for GaitReference {
 
     fn initialize(&mut self, _start_time: f64) -> Result<(), ModelError> {
         if self.stance_start == self.stance_end {
-            return Err(ModelError::new(
+            return Err(ModelError::refused(
                 "stanceStart equals stanceEnd: the stance window would be empty",
             ));
         }
@@ -835,7 +837,7 @@ impl Model for GaitReference {
                 self.knee_jerk = a * motion.d2;
             }
             other => {
-                return Err(ModelError::new(format!(
+                return Err(ModelError::refused(format!(
                     "motionQuantity {other} is not an item of MotionQuantity"
                 )));
             }

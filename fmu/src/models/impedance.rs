@@ -434,14 +434,14 @@ impl ImpedanceController {
             output_min: self.output_min,
             output_max: self.output_max,
             anti_windup: AntiWindup::from_i32(self.anti_windup).ok_or_else(|| {
-                ModelError::new(format!("antiWindup {} is not an item", self.anti_windup))
+                ModelError::refused(format!("antiWindup {} is not an item", self.anti_windup))
             })?,
             tracking_time: self.tracking_time,
             feed_forward_gain: self.torque_feed_forward_gain,
             setpoint_weights: [0.0; AUXILIARIES],
             feed_forward_weights: [0.0; AUXILIARIES],
             hold_action: HoldAction::from_i32(self.hold_action).ok_or_else(|| {
-                ModelError::new(format!("holdAction {} is not an item", self.hold_action))
+                ModelError::refused(format!("holdAction {} is not an item", self.hold_action))
             })?,
             reverse_acting: false,
         };
@@ -463,12 +463,12 @@ impl ImpedanceController {
         .iter()
         .all(|x| x.is_finite() && *x >= 0.0)
         {
-            return Err(ModelError::new(
+            return Err(ModelError::refused(
                 "virtualStiffness, virtualDamping, springStiffness and desiredTorqueLimit must be finite and not negative",
             ));
         }
         if !s.feed_forward_weights.iter().all(|w| w.is_finite()) {
-            return Err(ModelError::new(
+            return Err(ModelError::refused(
                 "torqueFeedForwardWeight1..3 must be finite",
             ));
         }

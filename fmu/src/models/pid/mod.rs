@@ -64,7 +64,8 @@
 //!
 //! Any other step (for instance 1.5 ms with Ts = 1 ms, or 0.3 ms steps that eventually straddle
 //! an instant) would run a sample with inputs stale by a fraction of a period and drift off the
-//! communication grid: it is refused with `fmi2Error` and a message naming Ts, t and h.
+//! communication grid: it is refused with `fmi2Error` and a message naming Ts, t and h, before
+//! anything changes (the instance stays at `t`, usable for a step that fits).
 //!
 //! The output changes at sample instants only (zero-order hold between them). At a
 //! communication point that **is** a sample instant not executed yet, the outputs are
@@ -186,7 +187,7 @@ impl PidController {
         let (kp, ki, kd) = match self.preset {
             0 => (self.kp, self.ki, self.kd),
             p => preset_gains(p).ok_or_else(|| {
-                ModelError::new(format!("preset {p} is not an item of PidPreset"))
+                ModelError::refused(format!("preset {p} is not an item of PidPreset"))
             })?,
         };
         let s = PidSettings {
@@ -198,14 +199,14 @@ impl PidController {
             output_min: self.output_min,
             output_max: self.output_max,
             anti_windup: AntiWindup::from_i32(self.anti_windup).ok_or_else(|| {
-                ModelError::new(format!("antiWindup {} is not an item", self.anti_windup))
+                ModelError::refused(format!("antiWindup {} is not an item", self.anti_windup))
             })?,
             tracking_time: self.tracking_time,
             feed_forward_gain: self.feed_forward_gain,
             setpoint_weights: self.setpoint_weights,
             feed_forward_weights: self.feed_forward_weights,
             hold_action: HoldAction::from_i32(self.hold_action).ok_or_else(|| {
-                ModelError::new(format!("holdAction {} is not an item", self.hold_action))
+                ModelError::refused(format!("holdAction {} is not an item", self.hold_action))
             })?,
             reverse_acting: self.reverse_acting,
         };

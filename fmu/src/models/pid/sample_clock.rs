@@ -120,7 +120,7 @@ impl SampleClock {
     /// [`Self::samples_in_step`] for any step, at grid positions `a` and `b` of its ends.
     fn samples_in_general_step(&self, a: f64, b: f64, t: f64, h: f64) -> Result<u64, ModelError> {
         if !(a.is_finite() && b.is_finite()) || b > 2f64.powi(52) || a < -SAMPLE_TOLERANCE {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "the step from t = {t} s by h = {h} s is outside the sample grid of period {} s starting at {} s",
                 self.period, self.start
             )));
@@ -134,7 +134,7 @@ impl SampleClock {
         let interior = (end_index as i64 - first_after_start).max(0);
         let whole_periods = on_grid(a) && on_grid(b);
         if interior > 0 && !whole_periods {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "communication step h = {h} s from t = {t} s does not fit the sample period Ts = {} s: \
                  a step must either span whole sample periods from a sample instant or stay within \
                  one sample period (no sample instant strictly inside the step); this one crosses \

@@ -198,28 +198,28 @@ impl PidSettings {
         .chain(&self.feed_forward_weights)
         .all(|x| x.is_finite());
         if !finite {
-            return Err(ModelError::new("PID settings must be finite"));
+            return Err(ModelError::refused("PID settings must be finite"));
         }
         if self.sample_period <= 0.0 {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "samplePeriod {} must be positive",
                 self.sample_period
             )));
         }
         if self.output_min > self.output_max {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "outputMin {} is above outputMax {}",
                 self.output_min, self.output_max
             )));
         }
         if self.derivative_filter_time < 0.0 {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "derivativeFilterTime {} must not be negative",
                 self.derivative_filter_time
             )));
         }
         if self.anti_windup == AntiWindup::BackCalculation && self.tracking_time <= 0.0 {
-            return Err(ModelError::new(format!(
+            return Err(ModelError::refused(format!(
                 "trackingTime {} must be positive for back-calculation",
                 self.tracking_time
             )));

@@ -365,6 +365,8 @@ fn sample_clock_accepts_nesting_steps_and_refuses_others() {
     // 1.5 ms from a sample instant crosses 1 ms and ends off the grid.
     let e = c.samples_in_step(0.0, 1.5e-3).unwrap_err();
     assert!(e.message.contains("does not fit the sample period"), "{e}");
+    // Found before anything changes: the glue keeps the instance usable.
+    assert!(e.is_refused());
     // From off the grid across an instant.
     assert!(c1.samples_in_step(0.5e-3, 1e-3).is_err());
     // Decimal times count as on the grid.
@@ -450,6 +452,8 @@ fn an_overflowing_law_answers_an_error_naming_the_output() {
         e.message.contains("output error is inf at t = 0.001 s"),
         "{e}"
     );
+    // The step has advanced the controller: a genuine failure, not a refusal.
+    assert!(!e.is_refused());
 }
 
 #[test]
@@ -480,7 +484,7 @@ fn model_refuses_inconsistent_limits() {
     let mut m = fresh_model::<PidController>();
     m.output_min = 5.0;
     m.output_max = 1.0;
-    assert!(m.initialize(0.0).is_err());
+    assert!(m.initialize(0.0).is_err_and(|e| e.is_refused()));
 }
 
 #[test]
