@@ -61,3 +61,67 @@ fn many_columns_are_refused_without_a_choice_and_chosen_ones_plot() {
         .unwrap();
     assert!(status.success());
 }
+
+/// A plot that is refused or fails leaves an earlier image at `--out` as it was (the image is
+/// drawn beside it and renamed into place), and nothing beside it; values at the edge of a
+/// double (an axis wider than a double, on which plotters looped for ever), an image too
+/// large to allocate and a file of no rows are refused with their reason, quickly.
+#[test]
+fn a_refused_plot_leaves_an_earlier_image_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let ok = dir.path().join("ok.csv");
+    write_csv(&ok, 2);
+    let huge = dir.path().join("huge.csv");
+    std::fs::write(&huge, "time,y\n0,-1e308\n1,1e308\n").unwrap();
+    let empty = dir.path().join("empty.csv");
+    std::fs::write(&empty, "time,y\n").unwrap();
+    for ext in ["svg", "png"] {
+        let out = dir.path().join(format!("victim.{ext}"));
+        std::fs::write(&out, "an earlier image").unwrap();
+        for (file, extra, reason) in [
+            (&ok, vec!["--signals", "nope"], "nope"),
+            (&ok, vec!["--width", "0"], "1 to 16384"),
+            (
+                &ok,
+                vec!["--width", "100000", "--height", "100000"],
+                "1 to 16384",
+            ),
+            (&huge, vec![], "more than a double"),
+            (&empty, vec![], "no rows"),
+        ] {
+            let started = std::time::Instant::now();
+            let refused = kneebench()
+                .arg("plot")
+                .arg(file)
+                .args(&extra)
+                .arg("--out")
+                .arg(&out)
+                .output()
+                .unwrap();
+            let message = String::from_utf8_lossy(&refused.stderr);
+            assert_eq!(refused.status.code(), Some(1), "{extra:?}: {message}");
+            assert!(message.contains(reason), "{extra:?}: {message}");
+            assert!(started.elapsed().as_secs() < 60, "{extra:?}");
+            assert_eq!(std::fs::read_to_string(&out).unwrap(), "an earlier image");
+        }
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .filter(|n| n.contains("partial"))
+            .collect();
+        assert!(left.is_empty(), "{left:?}");
+        let plotted = kneebench()
+            .arg("plot")
+            .arg(&ok)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            plotted.status.success(),
+            "{}",
+            String::from_utf8_lossy(&plotted.stderr)
+        );
+        assert!(std::fs::read(&out).unwrap().len() > 1000);
+    }
+}

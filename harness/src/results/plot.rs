@@ -63,30 +63,125 @@ pub fn plot_signals_with(
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase());
-    match ext.as_deref() {
-        Some("svg") => draw(
-            SVGBackend::new(out, size).into_drawing_area(),
-            results,
-            signals,
+    let ext = match ext.as_deref() {
+        Some(e @ ("svg" | "png")) => e.to_string(),
+        _ => {
+            return Err(ResultsError::Plot(format!(
+                "unknown plot format for '{}': use .svg or .png",
+                out.display()
+            )));
+        }
+    };
+    if !(1..=MAX_SIDE).contains(&size.0) || !(1..=MAX_SIDE).contains(&size.1) {
+        return Err(ResultsError::Plot(format!(
+            "an image of {} x {} pixels: each side must be 1 to {MAX_SIDE}",
+            size.0, size.1
+        )));
+    }
+    // Everything that can be refused is checked before a file is opened, and the image is
+    // drawn into a file beside `out`, renamed into place once complete: a refused or failed
+    // plot leaves an earlier image at `out` as it was.
+    let chart = Chart::of(results, signals)?;
+    let mut partial_name = out.file_stem().unwrap_or_default().to_os_string();
+    partial_name.push(format!(".partial.{ext}"));
+    let partial = out.with_file_name(partial_name);
+    let drawn = if ext == "svg" {
+        draw(
+            SVGBackend::new(&partial, size).into_drawing_area(),
+            &chart,
             labels,
-        ),
-        Some("png") => draw(
-            BitMapBackend::new(out, size).into_drawing_area(),
-            results,
-            signals,
+        )
+    } else {
+        draw(
+            BitMapBackend::new(&partial, size).into_drawing_area(),
+            &chart,
             labels,
-        ),
-        _ => Err(ResultsError::Plot(format!(
-            "unknown plot format for '{}': use .svg or .png",
-            out.display()
-        ))),
+        )
+    };
+    let done = drawn.and_then(|()| {
+        std::fs::rename(&partial, out).map_err(|source| ResultsError::Io {
+            path: out.to_path_buf(),
+            source,
+        })
+    });
+    if done.is_err() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    done
+}
+
+/// The largest side of an image in pixels: a PNG's buffer (3 bytes a pixel) of 16384 x 16384
+/// is 805 MB, and plotters' bitmap indexes overflow past 32 bits.
+pub const MAX_SIDE: u32 = 16_384;
+
+/// What a plot draws, checked: the series by name, the axes' ranges, finite.
+struct Chart {
+    times: Vec<f64>,
+    series: Vec<(String, Vec<f64>)>,
+    x: (f64, f64),
+    y: (f64, f64),
+}
+
+impl Chart {
+    fn of(results: &Results, signals: &[&str]) -> Result<Chart, ResultsError> {
+        let times = results.times();
+        let mut series = Vec::new();
+        for s in signals {
+            let col = results.column(s).ok_or_else(|| {
+                ResultsError::UnknownSignal(s.to_string(), results.names().join(", "))
+            })?;
+            series.push((s.to_string(), col));
+        }
+        if times.is_empty() {
+            return Err(ResultsError::Plot("no rows to plot".into()));
+        }
+        if times.iter().any(|t| !t.is_finite()) {
+            return Err(ResultsError::Plot(format!(
+                "the first column ({}) holds a value that is not finite",
+                results.names().first().map_or("time", String::as_str)
+            )));
+        }
+        let (t0, t1) = match (times.first(), times.last()) {
+            (Some(&a), Some(&b)) if b > a => (a, b),
+            (Some(&a), _) => (a, a + 1.0),
+            _ => (0.0, 1.0),
+        };
+        let finite = series
+            .iter()
+            .flat_map(|(_, c)| c.iter().copied())
+            .filter(|v| v.is_finite());
+        let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        });
+        if !lo.is_finite() {
+            (lo, hi) = (0.0, 1.0);
+        }
+        if hi - lo < 1e-12 * (1.0 + lo.abs()) {
+            lo -= 0.5;
+            hi += 0.5;
+        }
+        let pad = (hi - lo) * 0.05;
+        let (y0, y1) = (lo - pad, hi + pad);
+        // Axes wider than a double (values near +-1.8e308) have no scale: plotters then
+        // looped for ever looking for tick marks.
+        if !((t1 - t0).is_finite() && (y1 - y0).is_finite()) {
+            return Err(ResultsError::Plot(format!(
+                "the axes span more than a double can hold (time {t0:e} to {t1:e}, values \
+                 {lo:e} to {hi:e})"
+            )));
+        }
+        Ok(Chart {
+            times,
+            series,
+            x: (t0, t1),
+            y: (y0, y1),
+        })
     }
 }
 
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, plotters::coord::Shift>,
-    results: &Results,
-    signals: &[&str],
+    plot: &Chart,
     labels: &PlotLabels,
 ) -> Result<(), ResultsError>
 where
@@ -94,34 +189,7 @@ where
 {
     register_font();
     let e = |x: &dyn std::fmt::Display| ResultsError::Plot(x.to_string());
-    let times = results.times();
-    let mut series = Vec::new();
-    for s in signals {
-        let col = results.column(s).ok_or_else(|| {
-            ResultsError::UnknownSignal(s.to_string(), results.names().join(", "))
-        })?;
-        series.push((s.to_string(), col));
-    }
-    let (t0, t1) = match (times.first(), times.last()) {
-        (Some(&a), Some(&b)) if b > a => (a, b),
-        (Some(&a), _) => (a, a + 1.0),
-        _ => (0.0, 1.0),
-    };
-    let finite = series
-        .iter()
-        .flat_map(|(_, c)| c.iter().copied())
-        .filter(|v| v.is_finite());
-    let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
-        (l.min(v), h.max(v))
-    });
-    if !lo.is_finite() {
-        (lo, hi) = (0.0, 1.0);
-    }
-    if hi - lo < 1e-12 * (1.0 + lo.abs()) {
-        lo -= 0.5;
-        hi += 0.5;
-    }
-    let pad = (hi - lo) * 0.05;
+    let (times, series) = (&plot.times, &plot.series);
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut builder = ChartBuilder::on(&root);
     if !labels.title.is_empty() {
@@ -131,7 +199,7 @@ where
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(70)
-        .build_cartesian_2d(t0..t1, (lo - pad)..(hi + pad))
+        .build_cartesian_2d(plot.x.0..plot.x.1, plot.y.0..plot.y.1)
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
