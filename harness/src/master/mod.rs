@@ -351,6 +351,9 @@ pub enum MasterError {
     /// The thread that keeps the time limit and the periodic flushes could not start.
     #[error("cannot start the run's timer thread: {0}")]
     Thread(std::io::Error),
+    /// A thread to step components in parallel (`--parallel`) could not start.
+    #[error("cannot start a thread to step components in parallel: {0}")]
+    SteppingThread(std::io::Error),
     /// Writing the results failed.
     #[error("writing the results: {0}")]
     Sink(#[from] ResultsError),

@@ -511,16 +511,28 @@ impl Run<'_> {
                     .filter(|(i, _)| due.contains(i))
                     .map(|(i, (rt, out))| (i, rt, out))
                     .collect();
-                std::thread::scope(|s| {
+                // A thread that cannot start (a process limit) ends the run with an error
+                // once the started ones are done: `spawn` would panic.
+                let mut not_started = None;
+                let results = std::thread::scope(|s| {
                     let handles: Vec<_> = work
                         .drain(..)
-                        .map(|(i, rt, out)| s.spawn(move || (i, rt.step_read_into(out, t))))
+                        .filter_map(|(i, rt, out)| {
+                            std::thread::Builder::new()
+                                .spawn_scoped(s, move || (i, rt.step_read_into(out, t)))
+                                .map_err(|e| not_started.get_or_insert(e))
+                                .ok()
+                        })
                         .collect();
                     handles
                         .into_iter()
                         .map(|h| h.join().expect("a stepping thread panicked"))
                         .collect()
-                })
+                });
+                if let Some(e) = not_started {
+                    return Err(Stop::Failed(MasterError::SteppingThread(e)));
+                }
+                results
             };
             for (i, r) in results {
                 match r {

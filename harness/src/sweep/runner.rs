@@ -609,11 +609,15 @@ impl Prepared {
         let (tx, rx) = mpsc::channel::<Result<Row, SweepError>>();
         let mut done = vec![false; points.len()];
         let mut outcome = Ok(());
+        let mut started = 0;
+        let mut not_started = None;
         std::thread::scope(|scope| {
             for _ in 0..workers {
                 let tx = tx.clone();
                 let next = &next;
-                scope.spawn(move || {
+                // A worker that cannot start (a process limit) leaves the points to the
+                // others; none at all is an error below (`spawn` would panic).
+                let spawned = std::thread::Builder::new().spawn_scoped(scope, move || {
                     let loaded = match self.worker_system() {
                         Ok(l) => l,
                         Err(e) => {
@@ -633,6 +637,12 @@ impl Prepared {
                     }
                     self.give_back(loaded);
                 });
+                match spawned {
+                    Ok(_) => started += 1,
+                    Err(e) => {
+                        not_started.get_or_insert(e);
+                    }
+                }
             }
             drop(tx);
             let index: HashMap<u64, usize> = points
@@ -657,6 +667,11 @@ impl Prepared {
             }
         });
         outcome?;
+        if let (0, Some(e)) = (started, not_started) {
+            return Err(SweepError::System(format!(
+                "cannot start a sweep worker thread: {e}"
+            )));
+        }
         let missing: Vec<u64> = points
             .iter()
             .zip(&done)
