@@ -394,50 +394,16 @@ impl<M: Model> Instance<M> {
     }
 
     fn check_range(&self, function: &str, v: &Variable<M>, x: f64) -> Result<(), fmi2Status> {
-        if !x.is_finite() {
-            return Err(self.refuse(
-                function,
-                &format!("{} = {x} refused: values must be finite", v.name),
-            ));
+        match range_problem(v, x) {
+            None => Ok(()),
+            Some(why) => Err(self.refuse(function, &why)),
         }
-        if v.min.is_some_and(|lo| x < lo) || v.max.is_some_and(|hi| x > hi) {
-            return Err(self.refuse(
-                function,
-                &format!(
-                    "{} = {x} refused: outside [{}, {}]",
-                    v.name,
-                    v.min.unwrap_or(f64::NEG_INFINITY),
-                    v.max.unwrap_or(f64::INFINITY)
-                ),
-            ));
-        }
-        Ok(())
     }
 
     fn check_enumeration(&self, function: &str, v: &Variable<M>, x: i32) -> Result<(), fmi2Status> {
-        let Some(ty) = v.declared_type else {
-            return Ok(());
-        };
-        let items = M::enumerations()
-            .iter()
-            .find(|e| e.name == ty)
-            .map(|e| e.items)
-            .unwrap_or(&[]);
-        if items.iter().any(|(_, value, _)| *value == x) {
-            Ok(())
-        } else {
-            Err(self.refuse(
-                function,
-                &format!(
-                    "{} = {x} refused: not an item of {ty} ({})",
-                    v.name,
-                    items
-                        .iter()
-                        .map(|(n, val, _)| format!("{val}={n}"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            ))
+        match enumeration_problem(v, x) {
+            None => Ok(()),
+            Some(why) => Err(self.refuse(function, &why)),
         }
     }
 
@@ -512,11 +478,30 @@ impl<M: Model> Instance<M> {
                 vars.len()
             )));
         }
+        if ![start_time, time, last_successful_time]
+            .iter()
+            .all(|t| t.is_finite())
+            || has_stop && !stop.is_finite()
+        {
+            return Err(StateError("the state's times must be finite".into()));
+        }
         let mut model = fresh_model::<M>();
+        let check = |v: &Variable<M>, x: StateValue| match state_value_problem(v, x) {
+            None => Ok(()),
+            Some(why) => Err(StateError(why)),
+        };
         for v in vars {
             match &v.access {
-                Access::Real(_, set) => set(&mut model, r.f64()?),
-                Access::Integer(_, set) | Access::Enumeration(_, set) => set(&mut model, r.i32()?),
+                Access::Real(_, set) => {
+                    let x = r.f64()?;
+                    check(v, StateValue::Real(x))?;
+                    set(&mut model, x);
+                }
+                Access::Integer(_, set) | Access::Enumeration(_, set) => {
+                    let x = r.i32()?;
+                    check(v, StateValue::Integer(x))?;
+                    set(&mut model, x);
+                }
                 Access::Boolean(_, set) => set(&mut model, r.bool()?),
                 Access::String(_, set) => set(&mut model, &r.string()?),
             }
@@ -538,6 +523,67 @@ impl<M: Model> Instance<M> {
             terminated,
         })
     }
+}
+
+/// Why `fmi2SetReal`/`fmi2SetInteger` refuses value `x` for `v` (not finite, outside its
+/// min/max), or `None`.
+fn range_problem<M>(v: &Variable<M>, x: f64) -> Option<String> {
+    if !x.is_finite() {
+        return Some(format!("{} = {x} refused: values must be finite", v.name));
+    }
+    if v.min.is_some_and(|lo| x < lo) || v.max.is_some_and(|hi| x > hi) {
+        return Some(format!(
+            "{} = {x} refused: outside [{}, {}]",
+            v.name,
+            v.min.unwrap_or(f64::NEG_INFINITY),
+            v.max.unwrap_or(f64::INFINITY)
+        ));
+    }
+    None
+}
+
+/// Why a mode `v` may not take value `x` (no item of its enumeration), or `None`.
+fn enumeration_problem<M: Model>(v: &Variable<M>, x: i32) -> Option<String> {
+    let ty = v.declared_type?;
+    let items = M::enumerations()
+        .iter()
+        .find(|e| e.name == ty)
+        .map(|e| e.items)
+        .unwrap_or(&[]);
+    if items.iter().any(|(_, value, _)| *value == x) {
+        return None;
+    }
+    Some(format!(
+        "{} = {x} refused: not an item of {ty} ({})",
+        v.name,
+        items
+            .iter()
+            .map(|(n, val, _)| format!("{val}={n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    ))
+}
+
+/// Why a restored state may not hold value `x` for `v`: the checks of `fmi2Set*`, for every
+/// variable an importer can set (a state is only ever made of values that passed them, so a
+/// value that fails them is a corrupted or forged state, which would fail later steps).
+fn state_value_problem<M: Model>(v: &Variable<M>, x: StateValue) -> Option<String> {
+    if !settable_phases(v).contains(&true) {
+        return None;
+    }
+    match (&v.access, x) {
+        (Access::Real(..), StateValue::Real(x)) => range_problem(v, x),
+        (Access::Integer(..), StateValue::Integer(x)) => range_problem(v, f64::from(x)),
+        (Access::Enumeration(..), StateValue::Integer(x)) => enumeration_problem(v, x),
+        _ => None,
+    }
+}
+
+/// A numeric variable value read from a state, for [`state_value_problem`].
+#[derive(Clone, Copy)]
+enum StateValue {
+    Real(f64),
+    Integer(i32),
 }
 
 struct Decoded<M> {

@@ -194,3 +194,89 @@ fn a_step_off_the_sample_grid_is_refused_and_the_instance_stays_usable() {
         assert_eq!(i.last_successful_time(), 3e-3, "{model}");
     }
 }
+
+/// `bytes` with the 8 bytes of `from` (which must occur once) replaced by those of `to`.
+fn patched_real(bytes: &[u8], from: f64, to: f64) -> Vec<u8> {
+    let pattern = from.to_le_bytes();
+    let at: Vec<usize> = (0..=bytes.len() - 8)
+        .filter(|&k| bytes[k..k + 8] == pattern)
+        .collect();
+    assert_eq!(at.len(), 1, "{from} occurs once in the state");
+    let mut out = bytes.to_vec();
+    out[at[0]..at[0] + 8].copy_from_slice(&to.to_le_bytes());
+    out
+}
+
+/// A state holding a value `fmi2Set*` would refuse (out of range, not finite, no item of its
+/// enumeration) is refused by `fmi2DeSerializeFMUstate` (its check) and `fmi2SetFMUstate`,
+/// and the instance is left as it was.
+#[test]
+fn a_state_with_a_value_the_setters_refuse_is_refused_and_changes_nothing() {
+    let mut forged = Vec::new();
+    // Reals: a distinctive value set through fmi2SetReal, then replaced in the bytes.
+    for (model, name, bad) in [
+        ("PidController", "outputMax", f64::NAN),
+        ("PidController", "outputMax", f64::INFINITY),
+        ("PidController", "samplePeriod", -1e-3),
+        ("ClutchScheduler", "engageStart", 2.0),
+        ("BenchPlant", "loadCellGain", 50.0),
+        ("GaitReference", "gaitPeriod", f64::NEG_INFINITY),
+    ] {
+        let mut i = initializing(model);
+        let marker = 0.123_456_789_012_345_6;
+        assert_eq!(
+            i.set_real(&[vr(model, name)], &[marker]),
+            fmi2OK,
+            "{model}.{name}"
+        );
+        forged.push((model, name, patched_real(&i.save_state(), marker, bad)));
+    }
+    // A mode: the bytes where two states differing only in antiWindup differ.
+    let model = "PidController";
+    let mode = vr(model, "antiWindup");
+    let mut i = initializing(model);
+    assert_eq!(i.set_integer(&[mode], &[1]), fmi2OK);
+    let a = i.save_state();
+    assert_eq!(i.set_integer(&[mode], &[2]), fmi2OK);
+    let b = i.save_state();
+    let at = (0..a.len()).find(|&k| a[k] != b[k]).unwrap();
+    let mut bad = a.clone();
+    bad[at..at + 4].copy_from_slice(&12345i32.to_le_bytes());
+    forged.push((model, "antiWindup", bad));
+
+    for (model, name, bytes) in forged {
+        let mut i = stepping(model);
+        assert_eq!(i.do_step(0.0, 1e-3), fmi2OK, "{model}");
+        let good = i.save_state();
+        let e = i.check_state(&bytes).unwrap_err();
+        assert!(e.0.contains(name), "{model}.{name}: {e}");
+        assert!(i.restore_state(&bytes).is_err(), "{model}.{name}");
+        // Nothing restored: the instance goes on from where it was.
+        assert_eq!(i.save_state(), good, "{model}.{name}");
+        assert_eq!(i.do_step(1e-3, 1e-3), fmi2OK, "{model}.{name}");
+        assert_eq!(i.restore_state(&good), Ok(()), "{model}.{name}");
+    }
+}
+
+/// Every value a state holds passed the setters' checks, so every model's own states restore:
+/// at the start values, in each phase.
+#[test]
+fn the_states_of_every_model_pass_the_value_checks() {
+    for entry in crate::MODELS.iter() {
+        let model = entry.identifier;
+        let mut i = instance(model);
+        let state = i.save_state();
+        assert_eq!(i.check_state(&state), Ok(()), "{model}");
+        assert_eq!(i.enter_initialization_mode(), fmi2OK, "{model}");
+        let state = i.save_state();
+        assert_eq!(i.check_state(&state), Ok(()), "{model}");
+        if model == "BenchHardware" {
+            // Its states after initialization cannot be restored (the bench cannot rewind).
+            continue;
+        }
+        assert_eq!(i.exit_initialization_mode(), fmi2OK, "{model}");
+        assert_eq!(i.do_step(0.0, 1e-3), fmi2OK, "{model}");
+        let state = i.save_state();
+        assert_eq!(i.restore_state(&state), Ok(()), "{model}");
+    }
+}
