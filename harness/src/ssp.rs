@@ -624,7 +624,21 @@ fn read_parameter_set(xml: &str, file: &str) -> Result<Vec<SspParameter>, SspErr
                                     problem: format!("parameter {name}: '{v}' is not an Integer"),
                                 })?)
                             }
-                            b"Boolean" => Value::Boolean(matches!(v.trim(), "true" | "1")),
+                            // xs:boolean, as in a parameter set (.ssv): anything else was
+                            // read as false.
+                            b"Boolean" => Value::Boolean(match v.trim() {
+                                "true" | "1" => true,
+                                "false" | "0" => false,
+                                _ => {
+                                    return Err(SspError::Invalid {
+                                        file: file.to_string(),
+                                        problem: format!(
+                                            "parameter {name}: '{v}' is not a Boolean (true, \
+                                             false, 1 or 0)"
+                                        ),
+                                    });
+                                }
+                            }),
                             b"String" => Value::String(v),
                             _ => {
                                 return Err(SspError::Unsupported {
@@ -872,7 +886,13 @@ pub fn read_ssd_with(
                 d.algorithm = match a.get("algorithm").map(String::as_str) {
                     Some("jacobi") => Some(Algorithm::Jacobi),
                     Some("gauss-seidel") => Some(Algorithm::GaussSeidel),
-                    _ => d.algorithm,
+                    None => d.algorithm,
+                    // A misspelt algorithm ran the default silently.
+                    Some(other) => {
+                        return Err(invalid(format!(
+                            "kb:Master algorithm '{other}' is not one of jacobi, gauss-seidel"
+                        )));
+                    }
                 };
             }
             _ => {}

@@ -200,3 +200,33 @@ fn write_sample_ssp_for_fmpy() {
     )
     .unwrap();
 }
+
+/// A parameter binding's Boolean that is not xs:boolean, and a master annotation naming an
+/// unknown algorithm, are refused with their text (they were read as false and as the
+/// default algorithm, silently); xs:boolean's four spellings are read.
+#[test]
+fn a_malformed_boolean_or_algorithm_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = Fmu::load(common::kbtest_fmu(d.path()), &LoadOptions::default()).unwrap();
+    let xml = sample(fmu.model_description()).to_xml();
+    let boolean = "<ssv:Boolean value=\"true\"/>";
+    let algorithm = "algorithm=\"gauss-seidel\"";
+    assert!(xml.contains(boolean) && xml.contains(algorithm), "{xml}");
+    for (spelling, value) in [("true", true), ("1", true), ("false", false), ("0", false)] {
+        let ssd =
+            ssp::read_ssd(&xml.replace(boolean, &format!("<ssv:Boolean value=\"{spelling}\"/>")))
+                .unwrap();
+        let read = ssd
+            .system
+            .components
+            .iter()
+            .flat_map(|c| &c.parameters)
+            .find(|p| matches!(p.value, Value::Boolean(_)))
+            .unwrap();
+        assert_eq!(read.value, Value::Boolean(value), "{spelling}");
+    }
+    let e = ssp::read_ssd(&xml.replace(boolean, "<ssv:Boolean value=\"maybe\"/>")).unwrap_err();
+    assert!(e.to_string().contains("'maybe' is not a Boolean"), "{e}");
+    let e = ssp::read_ssd(&xml.replace(algorithm, "algorithm=\"magic\"")).unwrap_err();
+    assert!(e.to_string().contains("algorithm 'magic'"), "{e}");
+}
