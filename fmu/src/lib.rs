@@ -11,6 +11,7 @@ pub mod fmi2;
 pub mod hardware;
 pub mod model;
 pub mod models;
+mod num;
 pub mod registry;
 mod release;
 

@@ -18,6 +18,7 @@ use super::types::{fmi2Boolean, fmi2Status, fmi2String};
 use crate::model::{
     Access, Model, Phase, StateError, StateReader, StateWriter, StepOutcome, Variable,
 };
+use crate::num::num;
 use crate::registry::ModelInfo;
 
 use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK, fmi2Warning};
@@ -533,10 +534,11 @@ fn range_problem<M>(v: &Variable<M>, x: f64) -> Option<String> {
     }
     if v.min.is_some_and(|lo| x < lo) || v.max.is_some_and(|hi| x > hi) {
         return Some(format!(
-            "{} = {x} refused: outside [{}, {}]",
+            "{} = {} refused: outside [{}, {}]",
             v.name,
-            v.min.unwrap_or(f64::NEG_INFINITY),
-            v.max.unwrap_or(f64::INFINITY)
+            num(x),
+            num(v.min.unwrap_or(f64::NEG_INFINITY)),
+            num(v.max.unwrap_or(f64::INFINITY))
         ));
     }
     None
@@ -1124,19 +1126,26 @@ impl<M: Model> FmiInstance for Instance<M> {
             return self.refuse(
                 f,
                 &format!(
-                    "currentCommunicationPoint {t} and communicationStepSize {h} must be finite"
+                    "currentCommunicationPoint {} and communicationStepSize {} must be finite",
+                    num(t),
+                    num(h)
                 ),
             );
         }
         if h <= 0.0 {
-            return self.refuse(f, &format!("communicationStepSize {h} must be positive"));
+            return self.refuse(
+                f,
+                &format!("communicationStepSize {} must be positive", num(h)),
+            );
         }
         let max = self.model.max_step_size();
         if h > max {
             return self.refuse(
                 f,
                 &format!(
-                    "communicationStepSize {h} s exceeds this model's largest step per call, {max} s ({} internal steps with the current parameters); split the step",
+                    "communicationStepSize {} s exceeds this model's largest step per call, {} s ({} internal steps with the current parameters); split the step",
+                    num(h),
+                    num(max),
                     crate::model::MAX_INTERNAL_STEPS_PER_CALL
                 ),
             );
@@ -1145,8 +1154,9 @@ impl<M: Model> FmiInstance for Instance<M> {
             return self.refuse(
                 f,
                 &format!(
-                    "currentCommunicationPoint {t} is not the last communication point {}",
-                    self.time
+                    "currentCommunicationPoint {} is not the last communication point {}",
+                    num(t),
+                    num(self.time)
                 ),
             );
         }
@@ -1157,8 +1167,9 @@ impl<M: Model> FmiInstance for Instance<M> {
             return self.refuse(
                 f,
                 &format!(
-                    "the step to {} ends after the stopTime {stop} given in fmi2SetupExperiment",
-                    t + h
+                    "the step to {} ends after the stopTime {} given in fmi2SetupExperiment",
+                    num(t + h),
+                    num(stop)
                 ),
             );
         }
@@ -1183,7 +1194,7 @@ impl<M: Model> FmiInstance for Instance<M> {
                 self.logger.log(
                     fmi2Discard,
                     Category::Discard,
-                    &format!("{f}: simulation ended at t = {at}: {reason}"),
+                    &format!("{f}: simulation ended at t = {}: {reason}", num(at)),
                 );
                 fmi2Discard
             }

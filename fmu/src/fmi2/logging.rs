@@ -43,6 +43,10 @@ pub struct Logger {
     debug_logging: bool,
     /// Bit i set: category i of [`LOG_CATEGORIES`] is enabled.
     enabled: u32,
+    /// The messages passed on, kept in test builds so unit tests can read what a call logged
+    /// (the importer's callback is variadic, which a Rust test cannot define).
+    #[cfg(test)]
+    pub(crate) captured: std::sync::Mutex<Vec<String>>,
 }
 
 // SAFETY: the logger callback and the environment pointer belong to the importer, which by the
@@ -63,6 +67,8 @@ impl Logger {
             instance_name: instance_name.to_owned(),
             debug_logging,
             enabled: (1 << LOG_CATEGORIES.len()) - 1,
+            #[cfg(test)]
+            captured: std::sync::Mutex::default(),
         }
     }
 
@@ -128,6 +134,10 @@ impl Logger {
         };
         if !pass {
             return;
+        }
+        #[cfg(test)]
+        if let Ok(mut captured) = self.captured.lock() {
+            captured.push(message.to_owned());
         }
         let Some(callback) = self.callback else {
             return;

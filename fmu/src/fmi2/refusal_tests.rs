@@ -280,3 +280,58 @@ fn the_states_of_every_model_pass_the_value_checks() {
         assert_eq!(i.restore_state(&state), Ok(()), "{model}");
     }
 }
+
+/// The messages logged since the last call of this function.
+fn take_log(i: &dyn FmiInstance) -> String {
+    let mut captured = i.logger().captured.lock().unwrap();
+    std::mem::take(&mut *captured).join("\n")
+}
+
+/// A refusal names extreme values compactly (`5e-324`, not 324 digits) and ordinary ones as
+/// before.
+#[test]
+fn refusals_name_extreme_values_compactly() {
+    let mut i = instance("PidController");
+    assert_eq!(i.setup_experiment(5e-324, None, None), fmi2OK);
+    assert_eq!(i.enter_initialization_mode(), fmi2OK);
+    assert_eq!(
+        i.set_real(&[vr("PidController", "outputMin")], &[1e300]),
+        fmi2OK
+    );
+    assert_eq!(get(&mut i, vr("PidController", "u")), Err(fmi2Error));
+    let log = take_log(&*i);
+    assert!(
+        log.contains("outputMin 1e300 is above outputMax 15"),
+        "{log}"
+    );
+    assert_eq!(
+        i.set_real(&[vr("PidController", "outputMin")], &[-15.0]),
+        fmi2OK
+    );
+    assert_eq!(i.exit_initialization_mode(), fmi2OK);
+    assert_eq!(i.do_step(0.5, 1e-3), fmi2Error);
+    assert_eq!(i.do_step(5e-324, -1e-300), fmi2Error);
+    assert_eq!(i.do_step(5e-324, 1e300), fmi2Error);
+    let log = take_log(&*i);
+    for want in [
+        "currentCommunicationPoint 0.5 is not the last communication point 5e-324",
+        "communicationStepSize -1e-300 must be positive",
+        "communicationStepSize 1e300 s exceeds this model's largest step per call, 10 s",
+    ] {
+        assert!(log.contains(want), "{want}: {log}");
+    }
+
+    let model = "ClutchScheduler";
+    let mut i = stepping(model);
+    assert_eq!(i.set_real(&[vr(model, "engageStart")], &[1e300]), fmi2Error);
+    assert_eq!(i.set_real(&[vr(model, "releaseSpeed")], &[5e-324]), fmi2OK);
+    assert_eq!(i.do_step(0.0, 1e-3), fmi2Error);
+    let log = take_log(&*i);
+    for want in [
+        "engageStart = 1e300 refused: outside [0, 1]",
+        "releaseSpeed 5e-324 is below engageSpeed 0.3",
+    ] {
+        assert!(log.contains(want), "{want}: {log}");
+    }
+    assert!(log.len() < 1000, "{log}");
+}

@@ -44,6 +44,7 @@ use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
     Variable,
 };
+use crate::num::num;
 use crate::registry::ReferenceInputs;
 
 /// How the scheduler decides.
@@ -343,7 +344,8 @@ impl ClutchScheduler {
         if s.release_speed < s.engage_speed {
             return Err(ModelError::refused(format!(
                 "releaseSpeed {} is below engageSpeed {}: the hysteresis must not be inverted",
-                s.release_speed, s.engage_speed
+                num(s.release_speed),
+                num(s.engage_speed)
             )));
         }
         if s.sample_period.is_nan() || s.sample_period <= 0.0 {

@@ -3,6 +3,7 @@
 //! and direct feedthrough").
 
 use crate::model::{ModelError, StateError, StateReader, StateWriter};
+use crate::num::num;
 
 /// A sample instant is "at" a time within this fraction of the sample period.
 pub const SAMPLE_TOLERANCE: f64 = 1e-6;
@@ -121,8 +122,11 @@ impl SampleClock {
     fn samples_in_general_step(&self, a: f64, b: f64, t: f64, h: f64) -> Result<u64, ModelError> {
         if !(a.is_finite() && b.is_finite()) || b > 2f64.powi(52) || a < -SAMPLE_TOLERANCE {
             return Err(ModelError::refused(format!(
-                "the step from t = {t} s by h = {h} s is outside the sample grid of period {} s starting at {} s",
-                self.period, self.start
+                "the step from t = {} s by h = {} s is outside the sample grid of period {} s starting at {} s",
+                num(t),
+                num(h),
+                num(self.period),
+                num(self.start)
             )));
         }
         let on_grid = |x: f64| (x - x.round()).abs() <= SAMPLE_TOLERANCE;
@@ -135,11 +139,13 @@ impl SampleClock {
         let whole_periods = on_grid(a) && on_grid(b);
         if interior > 0 && !whole_periods {
             return Err(ModelError::refused(format!(
-                "communication step h = {h} s from t = {t} s does not fit the sample period Ts = {} s: \
+                "communication step h = {} s from t = {} s does not fit the sample period Ts = {} s: \
                  a step must either span whole sample periods from a sample instant or stay within \
                  one sample period (no sample instant strictly inside the step); this one crosses \
                  {interior} sample instant(s) and {}",
-                self.period,
+                num(h),
+                num(t),
+                num(self.period),
                 if on_grid(a) {
                     "ends between two instants"
                 } else {

@@ -3,6 +3,7 @@
 
 use super::law::AUXILIARIES;
 use crate::model::ModelError;
+use crate::num::num;
 
 /// The items of the `AntiWindup` enumeration (the values of [`AntiWindup`]), for every model
 /// whose integrator offers the schemes.
@@ -203,25 +204,26 @@ impl PidSettings {
         if self.sample_period <= 0.0 {
             return Err(ModelError::refused(format!(
                 "samplePeriod {} must be positive",
-                self.sample_period
+                num(self.sample_period)
             )));
         }
         if self.output_min > self.output_max {
             return Err(ModelError::refused(format!(
                 "outputMin {} is above outputMax {}",
-                self.output_min, self.output_max
+                num(self.output_min),
+                num(self.output_max)
             )));
         }
         if self.derivative_filter_time < 0.0 {
             return Err(ModelError::refused(format!(
                 "derivativeFilterTime {} must not be negative",
-                self.derivative_filter_time
+                num(self.derivative_filter_time)
             )));
         }
         if self.anti_windup == AntiWindup::BackCalculation && self.tracking_time <= 0.0 {
             return Err(ModelError::refused(format!(
                 "trackingTime {} must be positive for back-calculation",
-                self.tracking_time
+                num(self.tracking_time)
             )));
         }
         Ok(())
