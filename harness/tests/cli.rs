@@ -261,3 +261,26 @@ fn an_output_that_is_an_input_is_refused() {
         "not read: the output is checked first\n"
     );
 }
+
+/// `identify --name` names the file OUT/NAME.ssv: a name with a path in it (which wrote
+/// outside OUT) is refused before anything is read, with exit code 2.
+#[test]
+fn an_identified_set_name_with_a_path_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    for name in ["../escaped", "..", "", "a/b"] {
+        let refused = kneebench()
+            .args(["identify", "--defaults", "--fmu", "missing.fmu", "--out"])
+            .arg(&out)
+            .args(["--name", name])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert_eq!(refused.status.code(), Some(2), "{name}: {stderr}");
+        assert!(
+            stderr.contains("must be a plain file name"),
+            "{name}: {stderr}"
+        );
+    }
+    assert!(!out.exists() && !d.path().join("escaped.ssv").exists());
+}

@@ -92,6 +92,17 @@ pub struct Args {
 /// Runs `kneebench identify`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
+    // The set is written as OUT/NAME.ssv: a name with a path in it wrote outside OUT.
+    let plain = std::path::Path::new(&a.name)
+        .file_name()
+        .is_some_and(|f| f == a.name.as_str());
+    if !plain || a.name.contains(['/', '\\', '\0']) {
+        eprintln!(
+            "error: --name '{}' must be a plain file name (the set is written as OUT/NAME.ssv)",
+            a.name
+        );
+        return Ok(super::EXIT_USAGE);
+    }
     if a.defaults {
         let (_dir, md) = extract_and_parse(&a.fmu, &ArchiveLimits::default())
             .with_context(|| format!("reading {}", a.fmu.display()))?;
