@@ -94,6 +94,17 @@ pub enum ResultsError {
         /// What is wrong, with the row and its time.
         problem: String,
     },
+    /// The rows in memory could not grow: the allocator refused the room for more rows.
+    #[error(
+        "out of memory: no room for more than {rows} rows of {columns} columns (time included) \
+         in memory; record fewer variables, a shorter run or every n-th row, or write to a file"
+    )]
+    OutOfMemory {
+        /// The rows stored when the allocation failed.
+        rows: usize,
+        /// The columns of a row, time included.
+        columns: usize,
+    },
     /// A row whose number of values differs from the number of columns.
     #[error("a row of {got} values for {expected} columns")]
     RowLength {
@@ -247,6 +258,10 @@ impl ResultSink for Results {
                 got: values.len(),
             });
         }
+        let stride = self.stride();
+        if self.data.capacity() - self.data.len() < stride {
+            self.try_grow(stride)?;
+        }
         self.data.push(time);
         self.data.extend_from_slice(values);
         Ok(())
@@ -299,6 +314,18 @@ impl Results {
             kinds,
             data: Vec::with_capacity(rows.min(MAX_RESERVED_ROWS).saturating_mul(stride)),
         }
+    }
+
+    /// Makes room for `additional` more values (growing the buffer as `reserve` does), or
+    /// [`ResultsError::OutOfMemory`] when the allocator refuses it (instead of the abort of an
+    /// infallible allocation: a run whose rows do not fit in memory ends with an error).
+    fn try_grow(&mut self, additional: usize) -> Result<(), ResultsError> {
+        self.data
+            .try_reserve(additional)
+            .map_err(|_| ResultsError::OutOfMemory {
+                rows: self.len(),
+                columns: self.stride(),
+            })
     }
 
     /// Starts a new row at time `t` (followed by one value per column: [`push_value`](Self::push_value),
@@ -678,5 +705,32 @@ mod tests {
         big.begin(&names, &kinds).unwrap();
         big.expect_rows(u64::MAX);
         assert!(big.data.capacity() < 2 * MAX_RESERVED_ROWS * 3);
+    }
+
+    /// Room the allocator refuses is an error naming the rows and columns, not an abort, and
+    /// the rows stored so far stay.
+    #[test]
+    fn refused_room_is_an_out_of_memory_error() {
+        let names = vec!["a".to_string(), "b".to_string()];
+        let kinds = vec![ColumnKind::Real, ColumnKind::Real];
+        let mut r = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        r.begin(&names, &kinds).unwrap();
+        ResultSink::push_row(&mut r, 0.0, &[1.0, 2.0]).unwrap();
+        let e = r.try_grow(usize::MAX / 2).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ResultsError::OutOfMemory {
+                    rows: 1,
+                    columns: 3
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("1 rows of 3 columns"), "{e}");
+        assert_eq!(r.len(), 1);
+        r.try_grow(3).unwrap();
+        ResultSink::push_row(&mut r, 1.0, &[3.0, 4.0]).unwrap();
+        assert_eq!(r.column("b"), Some(vec![2.0, 4.0]));
     }
 }
