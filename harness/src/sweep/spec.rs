@@ -623,6 +623,14 @@ impl SweepSpec {
         };
         let stop_time = positive(&mut p, &raw.stop_time, "stop_time");
         let step = positive(&mut p, &raw.step, "step");
+        // The runs' stop time where the spec tells it: its own, or a scenario's cycles of the
+        // bench's gait (a system file's experiment is only known once it is loaded).
+        let known_stop = stop_time.or(match &system {
+            SystemSource::Scenario { cycles, .. } => {
+                Some(crate::study::StudyScenario::BenchFull.gait().period * f64::from(*cycles))
+            }
+            SystemSource::File(_) => None,
+        });
 
         let d = raw.design.get_ref();
         let points = |p: &mut Problems<'_>| match &d.points {
@@ -868,6 +876,16 @@ impl SweepSpec {
                     p.at(v.span(), "window bounds must be finite");
                 }
             }
+            if let (Some(r_from), Some(a), Some(stop)) = (&r.from, from, known_stop)
+                && a > stop
+            {
+                p.at(
+                    r_from.span(),
+                    format!(
+                        "window from {a} s starts after the run ends at {stop} s: it holds no row"
+                    ),
+                );
+            }
             if let (Some(a), Some(b)) = (from, to)
                 && a > b
             {
@@ -919,5 +937,58 @@ impl SweepSpec {
             line,
             message: message.into(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SPEC: &str = r#"system = "SEA"
+fmus = "/nowhere"
+cycles = 1
+[design]
+kind = "grid"
+[[parameters]]
+name = "plant.springStiffness"
+values = [300.0, 400.0]
+[[metrics.signals]]
+signal = "plant.springDeflection"
+stats = ["max"]
+from = FROM
+"#;
+
+    fn parse(text: &str) -> Result<SweepSpec, SweepError> {
+        SweepSpec::parse(text, Path::new("/nowhere/s.toml"), Path::new("/nowhere"))
+    }
+
+    /// A window that starts after the runs end (a scenario's cycles of the gait, or the
+    /// spec's stop time) would give NaN with status ok: refused, naming its line.
+    #[test]
+    fn a_window_after_the_run_is_refused_where_the_stop_time_is_known() {
+        let period = crate::study::StudyScenario::BenchFull.gait().period;
+        let after = SPEC.replace("FROM", &format!("{}", period + 0.5));
+        match parse(&after) {
+            Err(SweepError::Invalid(problems)) => {
+                assert_eq!(problems.len(), 1, "{problems:?}");
+                assert_eq!(problems[0].line, 12);
+                assert!(
+                    problems[0].message.contains("starts after the run ends"),
+                    "{}",
+                    problems[0].message
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        // Within the run, or the run made longer: accepted.
+        parse(&SPEC.replace("FROM", &format!("{}", period - 0.5))).unwrap();
+        parse(&after.replace("cycles = 1", "cycles = 2")).unwrap();
+        let stopped = after.replace("cycles = 1", "cycles = 4\nstop_time = 1.0");
+        assert!(matches!(parse(&stopped), Err(SweepError::Invalid(_))));
+        // A system file's stop time is not known before it is loaded.
+        let file = after
+            .replace("system = \"SEA\"", "system = \"x.ssp\"")
+            .replace("fmus = \"/nowhere\"\n", "");
+        parse(&file).unwrap();
     }
 }
