@@ -160,6 +160,9 @@ pub enum StudyError {
     /// Plotting failed.
     #[error(transparent)]
     Results(#[from] crate::results::ResultsError),
+    /// A run was stopped from outside ([`run_study_with`]'s control).
+    #[error("the study was stopped: {0}")]
+    Stopped(crate::master::StopReason),
 }
 
 impl From<ssp::SspError> for StudyError {
@@ -341,6 +344,17 @@ fn on_the_bench(
 /// harness's master, writes `<stem>.csv`, and returns the runs. A run ended by an interlock
 /// keeps its rows and names the interlock in its report.
 pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
+    run_study_with(config, None)
+}
+
+/// [`run_study`] under a [`RunControl`](crate::master::RunControl): every run takes it, so a
+/// stop it is asked for ([`RunControl::request_stop`](crate::master::RunControl::request_stop),
+/// a signal) ends the run at its next communication point and the study with
+/// [`StudyError::Stopped`] (the scenarios and CSV files of the runs before it are written).
+pub fn run_study_with(
+    config: &StudyConfig,
+    control: Option<&crate::master::RunControl>,
+) -> Result<Vec<StudyRun>, StudyError> {
     if config.bench.is_some() && config.actuators.len() != 1 {
         return Err(StudyError::Parameter(format!(
             "on a bench the study runs one actuator (the one the bench is built as): name it, e.g. --actuators sea (given: {})",
@@ -377,6 +391,9 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
     for &actuator in config.scenario.actuators() {
         if !config.actuators.is_empty() && !config.actuators.contains(&actuator) {
             continue;
+        }
+        if let Some(reason) = control.and_then(|c| c.stop_reason()) {
+            return Err(StudyError::Stopped(reason));
         }
         let mut gait = config.scenario.gait();
         gait.angle_amplitude *= config.scale;
@@ -416,13 +433,23 @@ pub fn run_study(config: &StudyConfig) -> Result<Vec<StudyRun>, StudyError> {
             None => ssp::load_system(&path, &crate::load::LoadOptions::default())?,
             Some(link) => on_the_bench(&path, &config.fmu_dir, link)?,
         };
+        let mut run_config = loaded.config.clone();
+        if let Some(c) = control {
+            run_config.control = Some(c.clone());
+        }
         let output = loaded
             .system
-            .run(&loaded.config)
+            .run(&run_config)
             .map_err(|e| StudyError::Fmu {
                 path: path.clone(),
                 message: e.to_string(),
             })?;
+        if let crate::master::Outcome::Failed(crate::master::MasterError::Stopped {
+            reason, ..
+        }) = &output.outcome
+        {
+            return Err(StudyError::Stopped(*reason));
+        }
         let mut report = analyse(
             actuator.name(),
             &output.results,
