@@ -283,6 +283,12 @@ impl UdpBench {
             .ok_or_else(|| {
                 IoError::Setup(format!("server address `{address}` resolves to nothing"))
             })?;
+        // No server listens on port 0: refused at once, not after the handshake timeout.
+        if server.port() == 0 {
+            return Err(IoError::Setup(format!(
+                "server address `{address}`: port 0 is not a bench address"
+            )));
+        }
         let key = match &setup.key {
             Some(k) => k.clone(),
             None if server.ip().is_loopback() => Key::loopback(),
@@ -584,6 +590,26 @@ mod tests {
         };
         let e = UdpBench::connect(&setup).unwrap_err().to_string();
         assert!(e.contains("a key file is needed"), "{e}");
+    }
+
+    #[test]
+    fn port_0_is_refused_before_the_handshake() {
+        let setup = UdpSetup {
+            address: "127.0.0.1:0".into(),
+            key: None,
+            setup: BenchSetup {
+                configuration: 0,
+                test_kind: SetValueKind::Current,
+                load_kind: SetValueKind::Current,
+            },
+            handshake_timeout: Duration::from_secs(60),
+            reply_timeout: Duration::from_millis(1),
+            spin: Duration::ZERO,
+        };
+        let start = Instant::now();
+        let e = UdpBench::connect(&setup).unwrap_err().to_string();
+        assert!(start.elapsed() < Duration::from_secs(10));
+        assert!(e.contains("port 0 is not a bench address"), "{e}");
     }
 
     #[test]

@@ -43,6 +43,10 @@ pub enum KeyError {
         /// Its permission bits.
         mode: u32,
     },
+    /// The key file is no regular file (a directory, a FIFO, a device): reading it would
+    /// fail, block or never end.
+    #[error("key file {0} is not a regular file; give the file written by `kneebench key new`")]
+    NotAFile(String),
     /// The key file does not hold 64 hexadecimal digits.
     #[error(
         "key file {0}: expected one line of 64 hexadecimal digits (a key from `kneebench key new`)"
@@ -162,7 +166,7 @@ impl Key {
         };
         let meta = std::fs::metadata(path).map_err(io)?;
         if !meta.is_file() {
-            return Err(KeyError::Format(name));
+            return Err(KeyError::NotAFile(name));
         }
         #[cfg(unix)]
         {
@@ -339,6 +343,9 @@ mod tests {
             std::fs::set_permissions(&bad, std::fs::Permissions::from_mode(0o600)).unwrap();
         }
         assert!(matches!(Key::load_file(&bad), Err(KeyError::Format(_))));
+        let e = Key::load_file(dir.path()).unwrap_err();
+        assert!(matches!(e, KeyError::NotAFile(_)), "{e}");
+        assert!(e.to_string().contains("is not a regular file"), "{e}");
         assert!(matches!(
             Key::load_file(&dir.path().join("missing")),
             Err(KeyError::Io { .. })
