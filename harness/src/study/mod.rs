@@ -496,3 +496,34 @@ pub fn run_study_with(
     }
     Ok(runs)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stop asked for before a run starts ends the study with `Stopped`, nothing run.
+    #[test]
+    fn a_stopped_control_stops_the_study() {
+        let out = tempfile::tempdir().unwrap();
+        let config = StudyConfig {
+            fmu_dir: PathBuf::from("/nowhere"),
+            out_dir: out.path().to_path_buf(),
+            scenario: StudyScenario::BenchFull,
+            cycles: 1,
+            scale: 1.0,
+            gains: None,
+            actuators: Vec::new(),
+            overrides: Vec::new(),
+            parameter_set: None,
+            bench: None,
+        };
+        let control = crate::master::RunControl::new();
+        control.request_stop();
+        match run_study_with(&config, Some(&control)) {
+            Err(StudyError::Stopped(crate::master::StopReason::Requested)) => {}
+            other => panic!("{other:?}"),
+        }
+        // Without the control the same config goes on (and fails on the missing FMUs).
+        assert!(matches!(run_study(&config), Err(e) if !matches!(e, StudyError::Stopped(_))));
+    }
+}
