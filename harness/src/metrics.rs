@@ -222,9 +222,14 @@ pub fn reaction_curve(
     let v_mid = 0.5 * (values[i] + values[i - 1]);
     let dead_time = t_mid - (v_mid - initial) / slope - times[0];
     let time_constant = change / slope;
+    // A response that rises at once (a ramp from the first sample) has no dead time; the
+    // rounding of the tangent left ~1e-17 s, which the Ziegler-Nichols rules turned into
+    // gains of 1e15 and more. Below a billionth of the record it is zero.
+    let resolvable = 1e-9 * (times[times.len() - 1] - times[0]);
+    let dead_time = if dead_time > resolvable { dead_time } else { 0.0 };
     Ok(ReactionCurve {
         gain: change / input_step,
-        dead_time: dead_time.max(0.0),
+        dead_time,
         time_constant,
     })
 }
@@ -359,6 +364,18 @@ mod tests {
             (c.gain - k).abs() < 1e-3 && (c.time_constant - tau).abs() < 1e-3,
             "{c:?}"
         );
+    }
+
+    /// A response rising from its first sample (a ramp) has no dead time, not the rounding
+    /// of its tangent; the Ziegler-Nichols rules then refuse it instead of giving gains of
+    /// 1e15.
+    #[test]
+    fn a_ramp_from_the_first_sample_has_no_dead_time() {
+        let (t, y) = ([0.0, 0.1, 0.2, 0.3], [0.0, 1.0, 2.0, 3.0]);
+        let c = reaction_curve(&t, &y, 1.0).unwrap();
+        assert_eq!(c.dead_time, 0.0, "{c:?}");
+        let e = ziegler_nichols_reaction(&c).unwrap_err();
+        assert!(e.to_string().contains("positive dead time"), "{e}");
     }
 
     #[test]

@@ -48,6 +48,8 @@ pub enum PythonThreadStateArg {
 
 /// Arguments of `kneebench run`.
 #[derive(Debug, clap::Args)]
+// A negative --start-time is valid: without this, `--start-time -1` was "unexpected argument".
+#[command(allow_negative_numbers = true)]
 #[command(after_help = "\
 Examples:
   kneebench run out/fmus/GaitReference.fmu --stop-time 5 --step 0.001 --output gait.csv
