@@ -50,24 +50,62 @@ def _columns(names: Sequence[str], columns: Sequence[bytes]) -> dict[str, np.nda
     return {n: np.frombuffer(c, dtype="<f8").copy() for n, c in zip(names, columns)}
 
 
+def _names(what: str, names: Iterable[str] | None) -> list[str] | None:
+    """``names`` as a list (``None`` stays ``None``): a single ``str`` is refused (a list of
+    names is needed, ``["x"]``, not ``"x"``), and so is an empty list."""
+    if names is None:
+        return None
+    if isinstance(names, (str, bytes)):
+        raise TypeError(f"{what} must be a list of names, not a str: [{names!r}]")
+    out = list(names)
+    for n in out:
+        if not isinstance(n, str):
+            raise TypeError(f"{what}: a name must be a str, not {type(n).__name__}: {n!r}")
+    if not out:
+        raise ValueError(f"{what} is empty: leave it out (None) for the default")
+    return out
+
+
+def _at_least_one(what: str, value: int | None) -> None:
+    """Refuses an ``int`` argument below 1 (``None`` passes) with a ValueError naming it."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{what} must be an int, not {type(value).__name__}")
+    if value < 1:
+        raise ValueError(f"{what} must be >= 1 (given: {value})")
+
+
 def run(
     system: str | os.PathLike[str],
     params: Mapping[str, Any] | None = None,
     variables: Iterable[str] | None = None,
     stop_time: float | None = None,
     step: float | None = None,
+    *,
+    force: bool = False,
 ) -> pd.DataFrame:
     """Run an FMU (``.fmu``) or an SSP system (``.ssp``/``.ssd``) and return its results.
 
-    ``params`` sets parameters or start values before initialisation (``variable`` for an
-    FMU, ``component.variable`` for a system); ``variables`` chooses the recorded columns
-    (default: every output). The DataFrame has a ``time`` column [s] and one float64 column
-    per signal; ``df.attrs["units"]`` maps each column to its unit (``""`` when it has none),
-    ``df.attrs["status"]`` is ``"completed"`` or ``"terminated"`` (an FMU ended the run, e.g.
-    an interlock; ``df.attrs["message"]`` says why). A failed run raises KneebenchError.
+    ``params`` (a mapping, name to value) sets parameters or start values before
+    initialisation (``variable`` for an FMU, ``component.variable`` for a system);
+    ``variables`` (a list of names; a single ``str`` or an empty list raises) chooses the
+    recorded columns (default, ``None``: every output). The DataFrame has a ``time`` column
+    [s] and one float64 column per signal; ``df.attrs["units"]`` maps each column to its unit
+    (``""`` when it has none), ``df.attrs["status"]`` is ``"completed"`` or ``"terminated"``
+    (an FMU ended the run, e.g. an interlock; ``df.attrs["message"]`` says why). A failed run
+    raises KneebenchError, and so does an FMU with a problem ``kneebench validate`` reports (a
+    variable name that is not unique, say) unless ``force=True`` (``kneebench run --force``).
+    Ctrl-C (SIGINT) stops the run at its next communication point and raises
+    KeyboardInterrupt.
     """
+    if params is not None and not isinstance(params, Mapping):
+        raise TypeError(
+            f"params must be a mapping of names to values (a dict), not {type(params).__name__}"
+        )
+    names = _names("variables", variables)
     p = [(k, _text(v)) for k, v in (params or {}).items()]
-    r = _native.run(os.fspath(system), p, list(variables or []), stop_time, step)
+    r = _native.run(os.fspath(system), p, names or [], stop_time, step, bool(force))
     df = pd.DataFrame(_columns(r["names"], r["columns"]))
     df.attrs["units"] = dict(zip(r["names"], r["units"]))
     df.attrs["status"] = r["status"]
@@ -75,26 +113,36 @@ def run(
     return df
 
 
+_SCENARIO_ACTUATORS = {"bench-full": ("DA", "SEA", "CSEA"), "bench-clutch": ("SEA", "CSEA")}
+
+
 def study(
     fmus: str | os.PathLike[str],
     out: str | os.PathLike[str],
-    actuators: Sequence[str] = ("DA", "SEA", "CSEA"),
+    actuators: Sequence[str] | None = None,
     cycles: int = 4,
     scale: float = 1.0,
     scenario: str = "bench-full",
 ) -> pd.DataFrame:
     """Run the gait study (the bench's gait on each actuator, FMUs from ``fmus``; scenarios
-    and CSV results written under ``out``) and return one row per actuator: tracking errors
-    [rad], peak torques [N m], energy terms per gait cycle [J] (the columns of a sweep's study
-    metrics), and the interlock trip if any (``trip``, ``trip_time`` [s]). ``scenario`` is
-    ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg, SEA/CSEA under
-    impedance control). ``df.attrs["units"]`` maps each column to its unit (``1`` for a count
-    or a fraction)."""
-    reports = _native.study(
-        os.fspath(fmus), os.fspath(out), list(actuators), cycles, scale, scenario
-    )
+    and CSV results written under ``out``) and return one row per actuator: ``status``
+    (``ok``; ``tripped``: an interlock ended the run, ``trip`` names it and ``trip_time`` [s]
+    says when; ``failed``: the run failed, ``message`` says why, its metrics are those of the
+    rows before the failure and ``trip`` is ``None``), ``message``, tracking errors [rad], peak
+    torques [N m], energy terms per gait cycle [J] (the columns of a sweep's study metrics).
+    ``scenario`` is ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg,
+    SEA/CSEA under impedance control: it has no DA). ``actuators`` is a list of the
+    scenario's actuators (default, ``None``: all of the scenario's; a single ``str``, an
+    empty list or an actuator the scenario lacks raises). ``df.attrs["units"]`` maps each
+    column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
+    run at its next communication point and raises KeyboardInterrupt."""
+    names = _names("actuators", actuators)
+    if names is None:
+        names = list(_SCENARIO_ACTUATORS.get(scenario, ("DA", "SEA", "CSEA")))
+    _at_least_one("cycles", cycles)
+    reports = _native.study(os.fspath(fmus), os.fspath(out), names, cycles, scale, scenario)
     df = pd.DataFrame(reports).set_index("actuator")
-    df.attrs["units"] = {**_native.STUDY_METRIC_UNITS, "trip": ""}
+    df.attrs["units"] = {**_native.STUDY_METRIC_UNITS, "trip": "", "status": "", "message": ""}
     return df
 
 
@@ -235,10 +283,15 @@ def sweep(
     :func:`optimize`.
 
     Either way, with ``output`` every finished row is journaled next to it (on Dask, as each
-    batch comes back), so that an interrupted sweep (a killed client, points without a row)
-    continues with ``resume=True`` running only the points the journal lacks (and a finished
-    Parquet ``output`` of the same sweep runs nothing); ``resume`` needs ``output``.
+    batch comes back), so that an interrupted sweep (a killed client, Ctrl-C, points without a
+    row) continues with ``resume=True`` running only the points the journal lacks (and a
+    finished Parquet ``output`` of the same sweep runs nothing); ``resume`` needs ``output``.
+    Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
+    raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
+    ``batch_size`` must be at least 1 (ValueError).
     """
+    _at_least_one("workers", workers)
+    _at_least_one("batch_size", batch_size)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
@@ -355,8 +408,17 @@ def optimize(
     so that ``resume`` works as locally (an interrupted run, a killed client, a finished
     table given more generations); ``on_generation`` then also sees the generations replayed
     from the journal. ``resume`` needs ``output``. The frame and the table written are the
-    same, bit for bit, whether run locally or on Dask.
+    same, bit for bit, whether run locally or on Dask. Locally, Ctrl-C (SIGINT) stops the
+    running points at their next communication point and raises KeyboardInterrupt, the
+    journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1
+    (ValueError) and ``on_generation`` callable (TypeError), checked before anything runs.
     """
+    _at_least_one("workers", workers)
+    _at_least_one("batch_size", batch_size)
+    if on_generation is not None and not callable(on_generation):
+        raise TypeError(
+            f"on_generation must be callable (or None), not {type(on_generation).__name__}"
+        )
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
@@ -384,7 +446,7 @@ def optimize(
 
     while points := optimizer.ask():
         report_told()
-        size = batch_size or _default_batch_size(client, len(points))
+        size = batch_size if batch_size is not None else _default_batch_size(client, len(points))
         batches = [points[i : i + size] for i in range(0, len(points), size)]
         ids = [[int(p[0]) for p in b] for b in batches]
         _run_on_cluster(

@@ -20,11 +20,13 @@ def run(
     variables: Iterable[str] | None = None,
     stop_time: float | None = None,
     step: float | None = None,
+    *,
+    force: bool = False,
 ) -> pd.DataFrame: ...
 def study(
     fmus: str | os.PathLike[str],
     out: str | os.PathLike[str],
-    actuators: Sequence[str] = ("DA", "SEA", "CSEA"),
+    actuators: Sequence[str] | None = None,
     cycles: int = 4,
     scale: float = 1.0,
     scenario: str = "bench-full",

@@ -15,6 +15,7 @@ def run(
     variables: list[str],
     stop_time: float | None = None,
     step: float | None = None,
+    force: bool = False,
 ) -> dict[str, Any]: ...
 def study(
     fmus: str, out: str, actuators: list[str], cycles: int, scale: float, scenario: str

@@ -13,13 +13,15 @@
 
 use std::path::{Path, PathBuf};
 
-use kneebench_harness::master::{Outcome, RunConfig, System};
-use kneebench_harness::study::{Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study};
+use kneebench_harness::master::{Outcome, RunConfig, RunControl, System};
+use kneebench_harness::study::{
+    Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
+};
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{
     JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
-    SweepError, SweepOptions, SweepSpec, run_optimization, run_sweep,
+    SweepError, SweepOptions, SweepSpec,
 };
 use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
 use model_description::VariableKind;
@@ -52,6 +54,85 @@ fn sweep_err(e: SweepError) -> PyErr {
         SweepError::Invalid(_) => SpecError::new_err(e.to_string()),
         e => err(e),
     }
+}
+
+/// How often a native call waiting for its work checks for Python signals (Ctrl-C).
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Runs `work` on a thread of its own while this thread waits with the GIL released, taking
+/// it back every [`SIGNAL_POLL`] to run Python's signal handlers (`py.check_signals`). A
+/// handler that raises (`KeyboardInterrupt` on Ctrl-C) asks `control` to stop: the work ends
+/// at its next communication point, and the handler's exception is returned once it has ended
+/// (whatever the work returned). A panic of the work is a `KneebenchError`, not an abort.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    control: &RunControl,
+    work: impl FnOnce() -> T + Send,
+) -> PyResult<T> {
+    use std::sync::mpsc::RecvTimeoutError;
+    let (tx, rx) = std::sync::mpsc::channel();
+    // Behind a mutex to be `Sync` (`detach` needs it); only this thread takes it.
+    let rx = std::sync::Mutex::new(rx);
+    std::thread::scope(|scope| {
+        let worker = scope.spawn(move || {
+            let _ = tx.send(work());
+        });
+        let mut raised: Option<PyErr> = None;
+        loop {
+            let received = py.detach(|| match rx.lock() {
+                Ok(rx) => rx.recv_timeout(SIGNAL_POLL),
+                Err(_) => Err(RecvTimeoutError::Disconnected),
+            });
+            match received {
+                Ok(value) => {
+                    let _ = worker.join();
+                    return match raised {
+                        Some(e) => Err(e),
+                        None => Ok(value),
+                    };
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    if raised.is_none()
+                        && let Err(e) = py.check_signals()
+                    {
+                        control.request_stop();
+                        raised = Some(e);
+                    }
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    let _ = py.detach(|| worker.join());
+                    return Err(raised.unwrap_or_else(|| err("internal error: the run panicked")));
+                }
+            }
+        }
+    })
+}
+
+/// The error of a point's row dropped because the caller stopped the sweep (never raised:
+/// [`interruptible`] returns the signal handler's exception instead).
+fn stopped() -> SweepError {
+    SweepError::System("stopped".into())
+}
+
+/// Column `j` of `results` (0: time) as little-endian float64 bytes, the room for them asked
+/// of the allocator fallibly: an error naming the rows and columns when it is refused (not the
+/// abort of an infallible allocation).
+fn column_bytes(results: &Results, j: usize) -> Result<Vec<u8>, String> {
+    let rows = results.len();
+    let mut bytes = Vec::new();
+    bytes
+        .try_reserve_exact(rows.saturating_mul(8))
+        .map_err(|_| {
+            format!(
+                "out of memory: no room for a copy of the results' columns ({rows} rows of {} \
+             columns, time included); record fewer variables or a shorter run",
+                results.names().len() + 1
+            )
+        })?;
+    for r in results.rows() {
+        bytes.extend_from_slice(&r[j].to_le_bytes());
+    }
+    Ok(bytes)
 }
 
 fn f64_bytes(values: &[f64]) -> Vec<u8> {
@@ -133,14 +214,87 @@ struct RunResult {
     message: String,
 }
 
+/// The problems `kneebench validate` reports of a loaded FMU, which `kneebench run` refuses
+/// without `--force` (harness/src/cli/validate.rs: `description_problems` and
+/// `binary_problems`): the model description's semantic problems (duplicate names, ...), a
+/// types platform other than `default`, and optional functions the capability flags promise
+/// but the binary does not export.
+fn fmu_problems(fmu: &Fmu) -> Vec<String> {
+    let md = fmu.model_description();
+    let mut problems: Vec<String> = md
+        .check()
+        .into_iter()
+        .map(|p| format!("model description: {}", p.message))
+        .collect();
+    let platform = fmu.types_platform();
+    if platform != "default" {
+        problems.push(format!(
+            "fmi2GetTypesPlatform returns '{platform}', expected 'default'"
+        ));
+    }
+    let cs = md.co_simulation.clone().unwrap_or_default();
+    let missing = fmu.missing_optional_functions();
+    let mut promised: Vec<&str> = Vec::new();
+    if cs.can_get_and_set_fmu_state == Some(true) {
+        promised.extend(["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"]);
+    }
+    if cs.can_serialize_fmu_state == Some(true) {
+        promised.extend([
+            "fmi2SerializedFMUstateSize",
+            "fmi2SerializeFMUstate",
+            "fmi2DeSerializeFMUstate",
+        ]);
+    }
+    if cs.provides_directional_derivative == Some(true) {
+        promised.push("fmi2GetDirectionalDerivative");
+    }
+    if cs.max_output_derivative_order.unwrap_or(0) > 0 {
+        promised.push("fmi2GetRealOutputDerivatives");
+    }
+    if cs.can_interpolate_inputs == Some(true) {
+        promised.push("fmi2SetRealInputDerivatives");
+    }
+    for f in promised {
+        if missing.contains(&f) {
+            problems.push(format!(
+                "the capability flags promise {f}, which the binary does not export"
+            ));
+        }
+    }
+    problems
+}
+
+#[allow(clippy::too_many_arguments)]
 fn run_inner(
     system: PathBuf,
     params: Vec<(String, String)>,
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,
+    force: bool,
+    control: RunControl,
 ) -> Result<RunResult, String> {
     let (mut sys, mut config, single) = load(&system)?;
+    if !force {
+        let problems: Vec<String> = sys
+            .components()
+            .flat_map(|(name, fmu)| {
+                fmu_problems(fmu)
+                    .into_iter()
+                    .map(move |p| format!("{name}: {p}"))
+            })
+            .collect();
+        if !problems.is_empty() {
+            return Err(format!(
+                "{}: {} problem(s) that `kneebench validate` reports ({}); fix the FMU or pass \
+                 force=True",
+                system.display(),
+                problems.len(),
+                problems.join("; ")
+            ));
+        }
+    }
+    config.control = Some(control);
     let first = sys.component_names()[0].to_string();
     let prefix = |n: &str| {
         if single {
@@ -185,10 +339,10 @@ fn run_inner(
         Outcome::Failed(e) => return Err(e.to_string()),
     };
     let mut names = vec!["time".to_string()];
-    let mut columns = vec![f64_bytes(&results.times())];
+    let mut columns = vec![column_bytes(&results, 0)?];
     let mut units = vec!["s".to_string()];
-    for n in results.names() {
-        columns.push(f64_bytes(&results.column(n).unwrap_or_default()));
+    for (k, n) in results.names().iter().enumerate() {
+        columns.push(column_bytes(&results, k + 1)?);
         units.push(unit_of(&sys, single, n));
         names.push(n.clone());
     }
@@ -202,9 +356,11 @@ fn run_inner(
 }
 
 /// Runs an FMU or SSP system; returns `{"names", "columns" (float64 bytes), "units",
-/// "status", "message"}`.
+/// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
+/// unless `force`. Ctrl-C stops the run at its next communication point and raises
+/// `KeyboardInterrupt` ([`interruptible`]).
 #[pyfunction]
-#[pyo3(signature = (system, params, variables, stop_time=None, step=None))]
+#[pyo3(signature = (system, params, variables, stop_time=None, step=None, force=false))]
 fn run<'py>(
     py: Python<'py>,
     system: PathBuf,
@@ -212,10 +368,14 @@ fn run<'py>(
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,
+    force: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let r = py
-        .detach(|| run_inner(system, params, variables, stop_time, step))
-        .map_err(err)?;
+    let control = RunControl::new();
+    let c = control.clone();
+    let r = interruptible(py, &control, move || {
+        run_inner(system, params, variables, stop_time, step, force, c)
+    })?
+    .map_err(err)?;
     let d = PyDict::new(py);
     d.set_item("names", r.names)?;
     let cols: Vec<Bound<'py, PyBytes>> = r.columns.iter().map(|c| PyBytes::new(py, c)).collect();
@@ -226,9 +386,41 @@ fn run<'py>(
     Ok(d)
 }
 
-fn report_dict<'py>(py: Python<'py>, r: &ActuatorReport) -> PyResult<Bound<'py, PyDict>> {
+/// A study run's report: `actuator`, the study metrics, `trip` (the interlock, or `None`),
+/// `status` (`ok`, `tripped`: an interlock ended it, `failed`: the run failed, its error in
+/// `message`, its trip `None` and `trip_time` NaN) and `message`.
+fn report_dict<'py>(
+    py: Python<'py>,
+    r: &ActuatorReport,
+    outcome: &Outcome,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("actuator", &r.name)?;
+    let (status, message, r) = match outcome {
+        Outcome::Failed(e) => {
+            let mut r = r.clone();
+            r.trip = None;
+            (
+                "failed",
+                format!("run failed: {e}"),
+                std::borrow::Cow::Owned(r),
+            )
+        }
+        Outcome::Terminated { .. } => (
+            "tripped",
+            r.trip.as_ref().map(|t| t.0.clone()).unwrap_or_default(),
+            std::borrow::Cow::Borrowed(r),
+        ),
+        Outcome::Completed { .. } if r.trip.is_some() => (
+            "tripped",
+            r.trip.as_ref().map(|t| t.0.clone()).unwrap_or_default(),
+            std::borrow::Cow::Borrowed(r),
+        ),
+        Outcome::Completed { .. } => ("ok", String::new(), std::borrow::Cow::Borrowed(r)),
+    };
+    let r = r.as_ref();
+    d.set_item("status", status)?;
+    d.set_item("message", message)?;
     let values = study_metric_values(r);
     for (k, v) in STUDY_METRICS.iter().zip(values) {
         if *k == "cycles" {
@@ -254,13 +446,32 @@ fn study<'py>(
     scale: f64,
     scenario: String,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let study_scenario = StudyScenario::from_name(&scenario).ok_or_else(|| {
+        err(format!(
+            "unknown scenario '{scenario}' (bench-full, bench-clutch)"
+        ))
+    })?;
+    let names = |list: &[Actuator]| list.iter().map(|a| a.name()).collect::<Vec<_>>().join(", ");
     let mut list = Vec::new();
     for a in &actuators {
         let found = Actuator::ALL
             .into_iter()
             .find(|x| x.name().eq_ignore_ascii_case(a))
             .ok_or_else(|| err(format!("unknown actuator '{a}' (DA, SEA, CSEA)")))?;
+        if !study_scenario.actuators().contains(&found) {
+            return Err(err(format!(
+                "the {scenario} scenario has no {} (its actuators: {})",
+                found.name(),
+                names(study_scenario.actuators())
+            )));
+        }
         list.push(found);
+    }
+    if list.is_empty() {
+        return Err(err(format!(
+            "no actuator given (the {scenario} scenario's: {})",
+            names(study_scenario.actuators())
+        )));
     }
     if cycles == 0 || !(scale.is_finite() && scale > 0.0) {
         return Err(err(
@@ -270,11 +481,7 @@ fn study<'py>(
     let config = StudyConfig {
         fmu_dir: fmus,
         out_dir: out,
-        scenario: StudyScenario::from_name(&scenario).ok_or_else(|| {
-            err(format!(
-                "unknown scenario '{scenario}' (bench-full, bench-clutch)"
-            ))
-        })?,
+        scenario: study_scenario,
         cycles,
         scale,
         gains: None,
@@ -283,8 +490,12 @@ fn study<'py>(
         parameter_set: None,
         bench: None,
     };
-    let runs = py.detach(|| run_study(&config)).map_err(err)?;
-    runs.iter().map(|r| report_dict(py, &r.report)).collect()
+    let control = RunControl::new();
+    let runs =
+        interruptible(py, &control, || run_study_with(&config, Some(&control)))?.map_err(err)?;
+    runs.iter()
+        .map(|r| report_dict(py, &r.report, &r.outcome))
+        .collect()
 }
 
 fn prepare(spec: &Path) -> Result<Prepared, SweepError> {
@@ -449,18 +660,27 @@ fn sweep<'py>(
     output: Option<PathBuf>,
     resume: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (prepared, table) = py
-        .detach(|| {
-            let prepared = prepare(&spec)?;
-            prepared.refuse_optimization()?;
-            let table = run_sweep(
-                &prepared,
-                output.as_deref(),
-                &local_options(workers, resume),
-            )?;
-            Ok((prepared, table))
-        })
-        .map_err(sweep_err)?;
+    let control = RunControl::new();
+    let (prepared, table) = interruptible(py, &control, || {
+        let mut prepared = prepare(&spec)?;
+        prepared.refuse_optimization()?;
+        // `run_sweep` with the control: every point's run takes it, and a row that comes
+        // after a stop (its run stopped, or it just ended) is not journaled; the journal keeps
+        // the rows before it for `resume`.
+        prepared.config.control = Some(control.clone());
+        let options = local_options(workers, resume);
+        let mut sweep = JournaledSweep::start(&prepared, output.as_deref(), &options)?;
+        let todo = sweep.pending();
+        prepared.run_points(&todo, options.workers, &mut |row| {
+            if control.stop_reason().is_some() {
+                return Err(stopped());
+            }
+            sweep.record(row)
+        })?;
+        let table = sweep.finish(output.as_deref())?;
+        Ok((prepared, table))
+    })?
+    .map_err(sweep_err)?;
     rows_dict(py, &prepared, &table.rows)
 }
 
@@ -646,8 +866,11 @@ fn optimize<'py>(
     on_generation: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let mut raised: Option<PyErr> = None;
-    let outcome = py.detach(|| {
-        let prepared = prepare(&spec)?;
+    let control = RunControl::new();
+    let outcome = interruptible(py, &control, || {
+        let mut prepared = prepare(&spec)?;
+        // `run_optimization` with the control, as `sweep` runs `run_sweep`.
+        prepared.config.control = Some(control.clone());
         let mut report = |g: &GenerationBest| {
             if let Some(f) = &on_generation {
                 raised = Python::attach(|py| {
@@ -661,14 +884,31 @@ fn optimize<'py>(
             }
             Ok(())
         };
-        let optimization = run_optimization(
-            &prepared,
-            output.as_deref(),
-            &local_options(workers, resume),
-            &mut report,
-        )?;
+        let options = local_options(workers, resume);
+        let mut run = JournaledOptimization::start(&prepared, output.as_deref(), &options)?;
+        loop {
+            let todo = run.pending(&mut report)?;
+            if todo.is_empty() {
+                break;
+            }
+            prepared.run_batch(&todo, options.workers, &mut |row| {
+                if control.stop_reason().is_some() {
+                    return Err(stopped());
+                }
+                run.record(row)
+            })?;
+            let missing: Vec<u64> = todo
+                .iter()
+                .map(|(id, _)| *id)
+                .filter(|id| !run.has_row(*id))
+                .collect();
+            if !missing.is_empty() {
+                return Err(SweepError::Missing(missing));
+            }
+        }
+        let optimization = run.finish(output.as_deref())?;
         Ok((prepared, optimization))
-    });
+    })?;
     if let Some(e) = raised {
         return Err(e);
     }

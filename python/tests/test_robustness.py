@@ -1,0 +1,220 @@
+"""Robustness of the package's API: Ctrl-C during a native call, argument checks before anything
+runs, the study's scenarios and failed runs, FMUs that `kneebench validate` refuses."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import kneebench
+from kneebench import KneebenchError
+
+# A child process that runs `CALL` (kneebench imported as `k`), sends itself SIGINT `DELAY`
+# seconds after the call starts and prints how it ended: "interrupted <seconds>" or "returned
+# <seconds>".
+CHILD = """\
+import os, signal, threading, time
+import kneebench as k
+threading.Timer({delay}, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+t0 = time.monotonic()
+try:
+    {call}
+    print("returned", time.monotonic() - t0)
+except KeyboardInterrupt:
+    print("interrupted", time.monotonic() - t0)
+"""
+
+
+def _interrupted_after(call: str, delay: float, timeout: float = 120) -> float:
+    """Seconds from the start of ``call`` to its KeyboardInterrupt in a child process sent
+    SIGINT ``delay`` seconds in (fails if the call returned instead)."""
+    code = CHILD.format(delay=delay, call=call)
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout
+    )
+    assert r.returncode == 0, r.stderr
+    how, seconds = r.stdout.split()[-2:]
+    assert how == "interrupted", r.stdout
+    return float(seconds)
+
+
+@pytest.fixture(scope="module")
+def sea_ssp(fmus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sea-study")
+    kneebench.study(fmus, out, actuators=["SEA"], cycles=1)
+    (ssp,) = (out / "scenarios").glob("*.ssp")
+    return ssp
+
+
+def test_ctrl_c_stops_a_run_at_the_next_communication_point(sea_ssp: Path):
+    # Uninterrupted this run takes over ten seconds.
+    call = f"k.run({str(sea_ssp)!r}, variables=['plant.actuationAngle'], stop_time=8000)"
+    assert _interrupted_after(call, 1.5) < 4.5
+
+
+def test_ctrl_c_stops_a_study(fmus: Path, tmp_path: Path):
+    # Three runs of sixty cycles: over ten seconds in all.
+    call = f"k.study({str(fmus)!r}, {str(tmp_path)!r}, cycles=60)"
+    assert _interrupted_after(call, 1.5) < 4.5
+
+
+def _long_sweep(sweep_spec) -> Path:
+    # 16 points of 60 gait cycles on two threads: several seconds.
+    return sweep_spec(16, cycles=60)
+
+
+def test_ctrl_c_stops_a_sweep_and_its_journal_resumes_to_the_same_table(
+    sweep_spec, tmp_path: Path
+):
+    spec = _long_sweep(sweep_spec)
+    out = tmp_path / "table.parquet"
+    call = f"k.sweep({str(spec)!r}, workers=2, output={str(out)!r})"
+    assert _interrupted_after(call, 1.5) < 4.0
+    journal = Path(str(out) + ".journal")
+    assert journal.exists() and not out.exists()
+    resumed = kneebench.sweep(spec, workers=2, output=out, resume=True)
+    assert not journal.exists()
+    fresh = kneebench.sweep(spec, workers=2)
+    pd.testing.assert_frame_equal(resumed, fresh)
+    # No row of a stopped run was journaled as failed.
+    assert (resumed["status"] == "ok").all()
+
+
+def test_ctrl_c_stops_an_optimisation_and_its_journal_resumes(
+    optimize_spec, tmp_path: Path
+):
+    spec = optimize_spec()
+    text = spec.read_text().replace("cycles = 1", "cycles = 30").replace(
+        "generations = 3", "generations = 1"
+    )
+    spec.write_text(text)
+    out = tmp_path / "opt.parquet"
+    call = f"k.optimize({str(spec)!r}, workers=2, output={str(out)!r})"
+    assert _interrupted_after(call, 1.5) < 4.0
+    assert Path(str(out) + ".journal").exists() and not out.exists()
+    resumed = kneebench.optimize(spec, workers=2, output=out, resume=True)
+    fresh = kneebench.optimize(spec, workers=2)
+    pd.testing.assert_frame_equal(resumed, fresh)
+
+
+@pytest.mark.parametrize("batch_size", [0, -1])
+def test_batch_size_below_one_is_refused_up_front(sweep_spec, optimize_spec, batch_size: int):
+    client = object()  # never used: the check comes first
+    with pytest.raises(ValueError, match="batch_size must be >= 1"):
+        kneebench.sweep(sweep_spec(4), client, batch_size=batch_size)
+    with pytest.raises(ValueError, match="batch_size must be >= 1"):
+        kneebench.optimize(optimize_spec(), client, batch_size=batch_size)
+
+
+def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Path, sweep_spec):
+    gait = fmus / "GaitReference.fmu"
+    with pytest.raises(TypeError, match="params must be a mapping"):
+        kneebench.run(gait, params=[("gaitPeriod", 2.0)], stop_time=0.01)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="variables must be a list of names, not a str"):
+        kneebench.run(gait, variables="gaitPhase", stop_time=0.01)
+    with pytest.raises(ValueError, match="variables is empty"):
+        kneebench.run(gait, variables=[], stop_time=0.01)
+    with pytest.raises(TypeError, match="actuators must be a list of names, not a str"):
+        kneebench.study(fmus, tmp_path, actuators="SEA", cycles=1)
+    with pytest.raises(ValueError, match="actuators is empty"):
+        kneebench.study(fmus, tmp_path, actuators=[], cycles=1)
+    with pytest.raises(ValueError, match="cycles must be >= 1"):
+        kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=-1)
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        kneebench.sweep(sweep_spec(4), workers=-1)
+
+
+def test_on_generation_must_be_callable_before_anything_runs(optimize_spec, tmp_path: Path):
+    out = tmp_path / "o.parquet"
+    with pytest.raises(TypeError, match="on_generation must be callable"):
+        kneebench.optimize(optimize_spec(), output=out, on_generation=5)  # type: ignore[arg-type]
+    assert not Path(str(out) + ".journal").exists()
+
+
+def test_the_clutch_scenario_has_no_da(fmus: Path, tmp_path: Path):
+    with pytest.raises(KneebenchError, match="bench-clutch scenario has no DA"):
+        kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=1, scenario="bench-clutch")
+
+
+def test_a_failed_study_run_is_not_a_trip(fmus: Path, tmp_path: Path):
+    # Ten times the gait's amplitude: the gait FMU refuses the knee angle.
+    df = kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=1, scale=10.0)
+    row = df.loc["SEA"]
+    assert row["status"] == "failed"
+    assert "run failed" in row["message"] and "kneeAngleAmplitude" in row["message"]
+    assert row["trip"] is None and np.isnan(row["trip_time"])
+    ok = kneebench.study(fmus, tmp_path / "ok", actuators=["SEA"], cycles=1)
+    assert ok.loc["SEA", "status"] == "ok" and ok.loc["SEA", "message"] == ""
+
+
+def _duplicate_name_fmu(fmus: Path, out: Path) -> Path:
+    """GaitReference with its output gaitPhase renamed to another variable's name."""
+    with zipfile.ZipFile(fmus / "GaitReference.fmu") as zin, zipfile.ZipFile(out, "w") as zout:
+        for info in zin.infolist():
+            data = zin.read(info.filename)
+            if info.filename == "modelDescription.xml":
+                text = data.decode().replace('name="gaitPhase"', 'name="kneeAngleReference"', 1)
+                data = text.encode()
+            zout.writestr(info, data)
+    return out
+
+
+def test_an_fmu_that_validate_refuses_is_refused_unless_forced(fmus: Path, tmp_path: Path):
+    fmu = _duplicate_name_fmu(fmus, tmp_path / "dup.fmu")
+    with pytest.raises(KneebenchError, match='"kneeAngleReference" is not unique.*force=True'):
+        kneebench.run(fmu, stop_time=0.01)
+    df = kneebench.run(fmu, stop_time=0.01, force=True)
+    assert len(df) > 0
+
+
+def test_results_that_do_not_fit_in_memory_raise_instead_of_aborting(fmus: Path):
+    # Under a 1.5 GB address-space limit, 1e8 rows of 9 columns cannot be kept: the run ends
+    # with an error naming the rows and columns (it aborted the interpreter).
+    import resource
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1_500_000_000, 1_500_000_000))
+
+    code = textwrap.dedent(f"""\
+        import kneebench
+        try:
+            kneebench.run({str(fmus / "GaitReference.fmu")!r}, stop_time=100000)
+            print("returned")
+        except kneebench.KneebenchError as e:
+            print("raised", e)
+        """)
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+        preexec_fn=limit,
+    )
+    assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
+    assert r.stdout.startswith("raised"), r.stdout
+    assert "out of memory" in r.stdout and "rows of 9 columns" in r.stdout, r.stdout
+
+
+def test_a_window_after_the_runs_end_is_refused(fmus: Path, tmp_path: Path):
+    spec = tmp_path / "late.toml"
+    spec.write_text(textwrap.dedent(f"""\
+        system = "SEA"
+        fmus = "{fmus}"
+        cycles = 1
+        [design]
+        kind = "grid"
+        [[parameters]]
+        name = "plant.springStiffness"
+        values = [300.0, 400.0]
+        [[metrics.signals]]
+        signal = "plant.springDeflection"
+        stats = ["max"]
+        from = 1000.0
+        """))
+    with pytest.raises(kneebench.SpecError, match="line 12: window from 1000 s starts after"):
+        kneebench.sweep(spec)
