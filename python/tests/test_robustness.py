@@ -67,8 +67,8 @@ def test_ctrl_c_stops_a_study(fmus: Path, tmp_path: Path):
 
 
 def _long_sweep(sweep_spec) -> Path:
-    # 16 points of 60 gait cycles on two threads: several seconds.
-    return sweep_spec(16, cycles=60)
+    # 12 points of 200 gait cycles on two threads: about seven seconds.
+    return sweep_spec(12, cycles=200)
 
 
 def test_ctrl_c_stops_a_sweep_and_its_journal_resumes_to_the_same_table(
@@ -92,7 +92,8 @@ def test_ctrl_c_stops_an_optimisation_and_its_journal_resumes(
     optimize_spec, tmp_path: Path
 ):
     spec = optimize_spec()
-    text = spec.read_text().replace("cycles = 1", "cycles = 30").replace(
+    # 12 runs of 200 gait cycles on two threads: about six seconds.
+    text = spec.read_text().replace("cycles = 1", "cycles = 200").replace(
         "generations = 3", "generations = 1"
     )
     spec.write_text(text)
