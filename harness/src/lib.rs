@@ -52,6 +52,7 @@ pub mod fmi2;
 /// (`docs/bench-protocol.md`).
 #[path = "../../fmu/src/hardware/protocol/mod.rs"]
 pub mod bench_protocol;
+pub mod conformance;
 
 pub mod control;
 pub mod embedded_python;

@@ -18,12 +18,14 @@ use kneebench_harness::study::{
     Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
 };
 use kneebench_harness::sweep::optimize::GenerationBest;
+use kneebench_harness::sweep::optimize::run_optimization;
+use kneebench_harness::sweep::runner::run_sweep;
 use kneebench_harness::sweep::runner::{STUDY_METRIC_UNITS, STUDY_METRICS, study_metric_values};
 use kneebench_harness::sweep::{
     JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
     SweepError, SweepOptions, SweepSpec,
 };
-use kneebench_harness::{Fmu, LoadOptions, Results, ssp};
+use kneebench_harness::{Fmu, LoadOptions, Results, conformance, ssp};
 use model_description::VariableKind;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
@@ -106,12 +108,6 @@ fn interruptible<T: Send>(
             }
         }
     })
-}
-
-/// The error of a point's row dropped because the caller stopped the sweep (never raised:
-/// [`interruptible`] returns the signal handler's exception instead).
-fn stopped() -> SweepError {
-    SweepError::System("stopped".into())
 }
 
 /// Column `j` of `results` (0: time) as little-endian float64 bytes, the room for them asked
@@ -215,52 +211,10 @@ struct RunResult {
 }
 
 /// The problems `kneebench validate` reports of a loaded FMU, which `kneebench run` refuses
-/// without `--force` (harness/src/cli/validate.rs: `description_problems` and
-/// `binary_problems`): the model description's semantic problems (duplicate names, ...), a
-/// types platform other than `default`, and optional functions the capability flags promise
-/// but the binary does not export.
+/// without `--force` (`kneebench_harness::conformance`, shared with the CLI).
 fn fmu_problems(fmu: &Fmu) -> Vec<String> {
-    let md = fmu.model_description();
-    let mut problems: Vec<String> = md
-        .check()
-        .into_iter()
-        .map(|p| format!("model description: {}", p.message))
-        .collect();
-    let platform = fmu.types_platform();
-    if platform != "default" {
-        problems.push(format!(
-            "fmi2GetTypesPlatform returns '{platform}', expected 'default'"
-        ));
-    }
-    let cs = md.co_simulation.clone().unwrap_or_default();
-    let missing = fmu.missing_optional_functions();
-    let mut promised: Vec<&str> = Vec::new();
-    if cs.can_get_and_set_fmu_state == Some(true) {
-        promised.extend(["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"]);
-    }
-    if cs.can_serialize_fmu_state == Some(true) {
-        promised.extend([
-            "fmi2SerializedFMUstateSize",
-            "fmi2SerializeFMUstate",
-            "fmi2DeSerializeFMUstate",
-        ]);
-    }
-    if cs.provides_directional_derivative == Some(true) {
-        promised.push("fmi2GetDirectionalDerivative");
-    }
-    if cs.max_output_derivative_order.unwrap_or(0) > 0 {
-        promised.push("fmi2GetRealOutputDerivatives");
-    }
-    if cs.can_interpolate_inputs == Some(true) {
-        promised.push("fmi2SetRealInputDerivatives");
-    }
-    for f in promised {
-        if missing.contains(&f) {
-            problems.push(format!(
-                "the capability flags promise {f}, which the binary does not export"
-            ));
-        }
-    }
+    let mut problems = conformance::description_problems(fmu.model_description());
+    problems.extend(conformance::binary_problems(fmu));
     problems
 }
 
@@ -664,20 +618,11 @@ fn sweep<'py>(
     let (prepared, table) = interruptible(py, &control, || {
         let mut prepared = prepare(&spec)?;
         prepared.refuse_optimization()?;
-        // `run_sweep` with the control: every point's run takes it, and a row that comes
-        // after a stop (its run stopped, or it just ended) is not journaled; the journal keeps
-        // the rows before it for `resume`.
+        // Every point's run takes the control; a row after a stop is not journaled
+        // (`Prepared::unless_stopped`), so the journal keeps the rows before it for `resume`.
         prepared.config.control = Some(control.clone());
         let options = local_options(workers, resume);
-        let mut sweep = JournaledSweep::start(&prepared, output.as_deref(), &options)?;
-        let todo = sweep.pending();
-        prepared.run_points(&todo, options.workers, &mut |row| {
-            if control.stop_reason().is_some() {
-                return Err(stopped());
-            }
-            sweep.record(row)
-        })?;
-        let table = sweep.finish(output.as_deref())?;
+        let table = run_sweep(&prepared, output.as_deref(), &options)?;
         Ok((prepared, table))
     })?
     .map_err(sweep_err)?;
@@ -885,28 +830,7 @@ fn optimize<'py>(
             Ok(())
         };
         let options = local_options(workers, resume);
-        let mut run = JournaledOptimization::start(&prepared, output.as_deref(), &options)?;
-        loop {
-            let todo = run.pending(&mut report)?;
-            if todo.is_empty() {
-                break;
-            }
-            prepared.run_batch(&todo, options.workers, &mut |row| {
-                if control.stop_reason().is_some() {
-                    return Err(stopped());
-                }
-                run.record(row)
-            })?;
-            let missing: Vec<u64> = todo
-                .iter()
-                .map(|(id, _)| *id)
-                .filter(|id| !run.has_row(*id))
-                .collect();
-            if !missing.is_empty() {
-                return Err(SweepError::Missing(missing));
-            }
-        }
-        let optimization = run.finish(output.as_deref())?;
+        let optimization = run_optimization(&prepared, output.as_deref(), &options, &mut report)?;
         Ok((prepared, optimization))
     })?;
     if let Some(e) = raised {

@@ -291,9 +291,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if !a.force {
         let mut problems = Vec::new();
         for (name, fmu) in system.components() {
-            for p in super::validate::description_problems(fmu.model_description())
+            for p in kneebench_harness::conformance::description_problems(fmu.model_description())
                 .into_iter()
-                .chain(super::validate::binary_problems(fmu))
+                .chain(kneebench_harness::conformance::binary_problems(fmu))
             {
                 problems.push(format!("{name}: {p}"));
             }

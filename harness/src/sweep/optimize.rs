@@ -446,7 +446,10 @@ pub fn run_optimization(
         if todo.is_empty() {
             break;
         }
-        prepared.run_batch(&todo, options.workers, &mut |row| run.record(row))?;
+        prepared.run_batch(&todo, options.workers, &mut |row| {
+            prepared.unless_stopped()?;
+            run.record(row)
+        })?;
         let missing: Vec<u64> = todo
             .iter()
             .map(|(id, _)| *id)

@@ -347,6 +347,16 @@ fn ssd_parameter(loaded: &LoadedSystem, reference: &str) -> Option<f64> {
 }
 
 impl Prepared {
+    /// An error once the runs' control (`config.control`, the Python package's Ctrl-C) has
+    /// stopped: a row that comes after the stop (its run stopped, or it just ended) is not
+    /// journaled, so the journal keeps the rows before it for `--resume`.
+    pub fn unless_stopped(&self) -> Result<(), SweepError> {
+        match self.config.control.as_ref().and_then(|c| c.stop_reason()) {
+            Some(reason) => Err(SweepError::System(format!("stopped: {reason}"))),
+            None => Ok(()),
+        }
+    }
+
     /// Checks `spec` against its system (every problem with its line: unknown variables,
     /// values outside a variable's `[min, max]`, wrong types, unknown signals, a missing gait
     /// period) and computes its points. Nothing runs.
@@ -869,7 +879,10 @@ pub fn run_sweep(
 ) -> Result<SweepTable, SweepError> {
     let mut sweep = JournaledSweep::start(prepared, output, options)?;
     let todo = sweep.pending();
-    prepared.run_points(&todo, options.workers, &mut |row| sweep.record(row))?;
+    prepared.run_points(&todo, options.workers, &mut |row| {
+        prepared.unless_stopped()?;
+        sweep.record(row)
+    })?;
     sweep.finish(output)
 }
 
