@@ -226,7 +226,11 @@ pub fn reaction_curve(
     // rounding of the tangent left ~1e-17 s, which the Ziegler-Nichols rules turned into
     // gains of 1e15 and more. Below a billionth of the record it is zero.
     let resolvable = 1e-9 * (times[times.len() - 1] - times[0]);
-    let dead_time = if dead_time > resolvable { dead_time } else { 0.0 };
+    let dead_time = if dead_time > resolvable {
+        dead_time
+    } else {
+        0.0
+    };
     Ok(ReactionCurve {
         gain: change / input_step,
         dead_time,
