@@ -151,6 +151,10 @@
 //! See the `sensors` module's docs: quantised encoders (2000 counts per motor revolution),
 //! torque transducer on the spring torque and load cell on the test motor's output torque, both
 //! as raw volts and as torque by the bench's calibration; supply dividers; ACS712 voltages.
+//! The calibration gains b (`transducerGain`, `loadCellGain`; published -8 mV and 1 mV) must be
+//! at least 1e-6 V in magnitude: the myRIO resolves about 5 mV (12 bits over +-10 V), so a
+//! smaller gain could never have been calibrated, and the conversion back to torque,
+//! (m g Lg / b)(V - a), stays finite (a subnormal gain made it NaN).
 //!
 //! ## Energy (§9)
 //! `P_test + P_load + P_HD = dE_k/dt + dE_p/dt` with `P_test = i_HD Km1 i1 w1`,
