@@ -439,7 +439,7 @@ impl BenchParameters {
     }
 
     /// Checks every value is finite and inside [`Self::PARAMETER_LIMITS`], and that the
-    /// parameters are consistent (sensor gains of at least [`MIN_SENSOR_GAIN`], integral
+    /// parameters are consistent (sensor gains of at least `MIN_SENSOR_GAIN`, 1e-6 V, integral
     /// encoder counts).
     pub fn validate(&self) -> Result<(), ParameterError> {
         let fields = self.real_fields();
