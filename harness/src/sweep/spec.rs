@@ -850,6 +850,33 @@ impl SweepSpec {
             .and_then(|m| m.study)
             .unwrap_or(matches!(system, SystemSource::Scenario { .. }));
         let period = positive(&mut p, &metrics.and_then(|m| m.period.clone()), "period");
+        // The study's metrics are per gait cycle: a run shorter than one has none, and its
+        // rows read as tripped though no interlock tripped.
+        let gait_period = period.or(match &system {
+            SystemSource::Scenario { .. } => {
+                Some(crate::study::StudyScenario::BenchFull.gait().period)
+            }
+            SystemSource::File(_) => None,
+        });
+        if study_metrics
+            && let (Some(stop), Some(cycle)) = (known_stop, gait_period)
+            && stop < cycle
+        {
+            let span = raw
+                .stop_time
+                .as_ref()
+                .map(|s| s.span())
+                .or_else(|| metrics.and_then(|m| m.period.as_ref()).map(|s| s.span()));
+            if let Some(span) = span {
+                p.at(
+                    span,
+                    format!(
+                        "the study's metrics need a whole gait cycle: the runs end at {stop} s, \
+                         before one period ({cycle} s); set study = false or run longer"
+                    ),
+                );
+            }
+        }
         let mut signals = Vec::new();
         for s in metrics.map(|m| m.signals.as_slice()).unwrap_or_default() {
             let r = s.get_ref();
@@ -960,6 +987,33 @@ from = FROM
 
     fn parse(text: &str) -> Result<SweepSpec, SweepError> {
         SweepSpec::parse(text, Path::new("/nowhere/s.toml"), Path::new("/nowhere"))
+    }
+
+    /// The study's metrics of runs shorter than one gait cycle are refused at `stop_time`'s
+    /// line (their rows read as tripped); with `study = false`, or a whole cycle, accepted.
+    #[test]
+    fn study_metrics_of_runs_shorter_than_a_cycle_are_refused() {
+        let spec = SPEC
+            .replace("from = FROM\n", "")
+            .replace("cycles = 1", "cycles = 1\nstop_time = 0.2");
+        match parse(&spec) {
+            Err(SweepError::Invalid(problems)) => {
+                assert_eq!(problems.len(), 1, "{problems:?}");
+                assert_eq!(problems[0].line, 4);
+                assert!(
+                    problems[0].message.contains("need a whole gait cycle"),
+                    "{}",
+                    problems[0].message
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        parse(&spec.replace(
+            "[[metrics.signals]]",
+            "[metrics]\nstudy = false\n\n[[metrics.signals]]",
+        ))
+        .unwrap();
+        parse(&spec.replace("stop_time = 0.2", "stop_time = 2.5")).unwrap();
     }
 
     /// A window that starts after the runs end (a scenario's cycles of the gait, or the
