@@ -31,6 +31,7 @@ pub enum ColumnKind {
 mod background;
 pub mod csv;
 pub mod parquet;
+mod parquet_dictionary;
 pub mod parquet_read;
 
 /// Rows for the writers' tests.
