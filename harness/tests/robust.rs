@@ -665,3 +665,45 @@ fn memory_stays_flat_over_a_million_rows() {
         "in memory: {in_memory} kB vs {short} kB"
     );
 }
+
+/// An earlier run's partial file (its rows) is set aside as `r.csv.partial.1`, named on
+/// standard error, never overwritten by the next run; a Parquet output likewise.
+#[test]
+fn a_rerun_keeps_an_earlier_runs_partial_file() {
+    let d = tempfile::tempdir().unwrap();
+    let earlier = "time,x\n0.0,0.0\n0.1,1.0\n";
+    std::fs::write(d.path().join("r.csv.partial"), earlier).unwrap();
+    let o = run(d.path(), &["--stop-time", "0.2", "--step", "0.1"]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.contains("kept an earlier run's rows: r.csv.partial is now r.csv.partial.1"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(d.path().join("r.csv.partial.1")).unwrap(),
+        earlier
+    );
+    assert!(d.path().join("r.csv").is_file());
+    assert!(!d.path().join("r.csv.partial").exists());
+
+    std::fs::write(d.path().join("r.parquet.partial"), "PAR1 rows").unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let o = kneebench()
+        .current_dir(d.path())
+        .arg("run")
+        .arg(&fmu)
+        .args(["-q", "--output", "r.parquet", "--stop-time", "0.2"])
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.contains("r.parquet.partial is now r.parquet.partial.1"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(d.path().join("r.parquet.partial.1")).unwrap(),
+        b"PAR1 rows"
+    );
+}

@@ -2,7 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
-use kneebench_harness::results::csv::CsvFile;
+use kneebench_harness::results::csv::{
+    CsvFile, check_output_path, partial_path, set_aside_partial,
+};
 use kneebench_harness::results::parquet::ParquetFile;
 use kneebench_harness::results::{ColumnKind, ResultSink, ResultsError};
 
@@ -16,8 +18,17 @@ pub enum OutputFile {
 }
 
 impl OutputFile {
-    /// Checks `path` and creates its partial file.
+    /// Checks `path` and creates its partial file, an earlier run's partial file (its rows)
+    /// set aside first and named on standard error.
     pub fn create(path: &Path) -> Result<OutputFile, ResultsError> {
+        check_output_path(path)?;
+        if let Some(kept) = set_aside_partial(path)? {
+            eprintln!(
+                "kept an earlier run's rows: {} is now {}",
+                partial_path(path).display(),
+                kept.display()
+            );
+        }
         if path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"))

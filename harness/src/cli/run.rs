@@ -69,7 +69,8 @@ takes `var=value` for a single FMU, `component.var=value` for a system.
 
 Results are streamed to OUTPUT.partial (flushed at least every second) and renamed to OUTPUT
 when the run completes or an FMU ends it; a run that fails or is stopped keeps its rows in
-OUTPUT.partial and leaves an earlier OUTPUT untouched. SIGINT, SIGTERM and SIGHUP stop the run
+OUTPUT.partial and leaves an earlier OUTPUT untouched. An earlier run's OUTPUT.partial is
+never overwritten: it is renamed OUTPUT.partial.1 (or the first free .partial.N). SIGINT, SIGTERM and SIGHUP stop the run
 at the next communication point (a second SIGINT/SIGTERM ends the process at once). An FMU in
 kneebench's process (--isolate never, or one of ours) that calls exit() ends the run with exit
 code 1; one whose call never returns is ended 5 s after --timeout with exit code 4 (both keep

@@ -194,6 +194,51 @@ pub fn partial_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Sets aside an earlier run's `<path>.partial` (rows of a run that failed, was stopped or
+/// crashed: on the bench, measurements that cannot be taken again) before a new run creates
+/// its own: it is renamed `<path>.partial.1` (or the first free `.partial.N`) and that name
+/// is returned; `None` when there is none, or it is empty (no row to keep). A name taken
+/// since is never replaced: the new name is made as a hard link, which fails if it exists,
+/// then the old one is removed (a rename where links are not supported).
+pub fn set_aside_partial(path: &Path) -> Result<Option<PathBuf>, ResultsError> {
+    let partial = partial_path(path);
+    let keep = match std::fs::symlink_metadata(&partial) {
+        Ok(m) => m.file_type().is_symlink() || (m.is_file() && m.len() > 0),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => false,
+        Err(e) => return Err(io_error(&partial, e)),
+    };
+    if !keep {
+        return Ok(None);
+    }
+    let mut name = partial.clone().into_os_string();
+    name.push(".");
+    for n in 1..=10_000u32 {
+        let mut candidate = name.clone();
+        candidate.push(n.to_string());
+        let candidate = PathBuf::from(candidate);
+        match std::fs::hard_link(&partial, &candidate) {
+            Ok(()) => {
+                std::fs::remove_file(&partial).map_err(|e| io_error(&partial, e))?;
+                return Ok(Some(candidate));
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+            Err(_) if std::fs::symlink_metadata(&candidate).is_err() => {
+                std::fs::rename(&partial, &candidate).map_err(|e| io_error(&partial, e))?;
+                return Ok(Some(candidate));
+            }
+            Err(e) => return Err(io_error(&candidate, e)),
+        }
+    }
+    Err(io_error(
+        &partial,
+        io::Error::new(
+            io::ErrorKind::AlreadyExists,
+            "holds an earlier run's rows and every name `.partial.1` to `.partial.10000` \
+             beside it is taken: move them away",
+        ),
+    ))
+}
+
 /// Checks that `path` can take a results file written as `<path>.partial` and renamed into
 /// place: a file name in an existing directory, and not an existing directory, device, FIFO
 /// or socket (the rename would replace a device such as `/dev/null` with a regular file, and
@@ -819,6 +864,34 @@ mod tests {
             String::from_utf8(w.into_inner().unwrap()).unwrap(),
             expected
         );
+    }
+
+    /// An earlier run's partial file is set aside under the first free `.partial.N`, never
+    /// replaced; an empty one or none is left to the new run.
+    #[test]
+    fn an_earlier_partial_file_is_set_aside() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("r.csv");
+        let partial = partial_path(&out);
+        assert_eq!(set_aside_partial(&out).unwrap(), None);
+        std::fs::write(&partial, "").unwrap();
+        assert_eq!(set_aside_partial(&out).unwrap(), None);
+        std::fs::write(&partial, "time\n0\n").unwrap();
+        std::fs::write(dir.path().join("r.csv.partial.1"), "taken").unwrap();
+        let kept = set_aside_partial(&out).unwrap().unwrap();
+        assert_eq!(kept, dir.path().join("r.csv.partial.2"));
+        assert_eq!(std::fs::read_to_string(&kept).unwrap(), "time\n0\n");
+        assert_eq!(
+            std::fs::read_to_string(dir.path().join("r.csv.partial.1")).unwrap(),
+            "taken"
+        );
+        assert!(!partial.exists());
+        // The new run's file starts from nothing; the kept rows stay.
+        let mut f = CsvFile::create(&out).unwrap();
+        f.begin(&["x".into()], &[ColumnKind::Real]).unwrap();
+        f.push_row(0.0, &[1.0]).unwrap();
+        f.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&kept).unwrap(), "time\n0\n");
     }
 
     #[test]
