@@ -125,3 +125,27 @@ fn a_refused_plot_leaves_an_earlier_image_untouched() {
         assert!(std::fs::read(&out).unwrap().len() > 1000);
     }
 }
+
+/// A Parquet results file (what `kneebench run --output x.parquet` writes) plots as its CSV
+/// twin does; it was read as text before ("stream did not contain valid UTF-8").
+#[test]
+fn a_parquet_results_file_plots() {
+    use kneebench_harness::Results;
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("r.csv");
+    write_csv(&csv, 3);
+    let parquet = dir.path().join("r.parquet");
+    Results::read_csv_file(&csv)
+        .unwrap()
+        .write_parquet_file(&parquet, Vec::new())
+        .unwrap();
+    let out = dir.path().join("r.svg");
+    let o = kneebench()
+        .args(["plot", parquet.to_str().unwrap(), "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let svg = std::fs::read_to_string(&out).unwrap();
+    assert!(svg.contains("s2"), "the legend names the columns");
+}

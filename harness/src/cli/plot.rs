@@ -16,7 +16,7 @@ The format follows the extension of --out (.svg or .png). Text uses an embedded 
 system font library is needed. A file with more than 12 columns is refused without --signals:
 one chart of a hundred curves is unreadable.")]
 pub struct Args {
-    /// A results CSV (header `time,<names>`, as written by `kneebench run`).
+    /// A results file as `kneebench run` writes it: CSV (header `time,<names>`) or Parquet.
     pub results: PathBuf,
     /// Comma-separated column names to plot (default: every column, at most
     /// `MAX_DEFAULT_COLUMNS`).
@@ -38,7 +38,7 @@ pub const MAX_DEFAULT_COLUMNS: usize = 12;
 
 /// Runs `kneebench plot`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let r = Results::read_csv_file(&a.results)?;
+    let r = Results::read_file(&a.results)?;
     let names: Vec<&str> = if a.signals.is_empty() {
         let names = r.names();
         anyhow::ensure!(

@@ -110,7 +110,8 @@ pub struct Args {
     /// `component.variable`.
     #[arg(long, value_delimiter = ',')]
     pub variables: Vec<String>,
-    /// Time-varying inputs for a single FMU: a CSV whose first column is time.
+    /// Time-varying inputs for a single FMU: a CSV whose first column is time (or a Parquet
+    /// file with a `time` column).
     #[arg(long)]
     pub inputs: Option<PathBuf>,
     /// Set a parameter or start value before initialization (repeatable).
@@ -534,7 +535,7 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
         config.tolerance = d.tolerance;
     }
     if let Some(path) = &a.inputs {
-        let csv = match Results::read_csv_file(path).and_then(|c| {
+        let csv = match Results::read_file(path).and_then(|c| {
             c.check_series(path)?;
             Ok(c)
         }) {

@@ -482,6 +482,26 @@ impl Results {
         file.commit().map(drop)
     }
 
+    /// Reads a results file, Parquet or CSV by its content (a Parquet file begins with its
+    /// magic bytes `PAR1`, whatever its name): [`parquet_read::read_parquet`] or
+    /// [`read_csv_file`](Self::read_csv_file). What `kneebench run --output` writes, in
+    /// either format, reads back here.
+    pub fn read_file(path: impl AsRef<Path>) -> Result<Results, ResultsError> {
+        let path = path.as_ref();
+        let io_err = |source| ResultsError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut magic = Vec::with_capacity(4);
+        let f = std::fs::File::open(path).map_err(io_err)?;
+        io::Read::read_to_end(&mut io::Read::take(f, 4), &mut magic).map_err(io_err)?;
+        if magic == b"PAR1" {
+            parquet_read::read_parquet(path, None)
+        } else {
+            Results::read_csv_file(path)
+        }
+    }
+
     /// Reads a CSV with a header whose first column is time (any name). Every value is read as
     /// a float; columns whose values are all integers are marked [`ColumnKind::Integer`].
     pub fn read_csv_file(path: impl AsRef<Path>) -> Result<Results, ResultsError> {
@@ -685,6 +705,36 @@ pub mod plot;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `read_file` reads Parquet by its magic bytes whatever the file's name, CSV otherwise:
+    /// the same rows from both formats.
+    #[test]
+    fn read_file_tells_parquet_from_csv_by_content() {
+        let dir = tempfile::tempdir().unwrap();
+        let names = vec!["x".to_string(), "flag".to_string()];
+        let kinds = vec![ColumnKind::Real, ColumnKind::Real];
+        let mut r = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        ResultSink::begin(&mut r, &names, &kinds).unwrap();
+        for k in 0..20 {
+            r.push_row(k as f64 * 0.5, &[(k as f64).sin(), f64::from(k > 9)]);
+        }
+        let (csv, parquet) = (dir.path().join("r.csv"), dir.path().join("r.dat"));
+        r.write_csv_file(&csv).unwrap();
+        r.write_parquet_file(dir.path().join("r.parquet"), Vec::new())
+            .unwrap();
+        std::fs::rename(dir.path().join("r.parquet"), &parquet).unwrap();
+        let (a, b) = (
+            Results::read_file(&csv).unwrap(),
+            Results::read_file(&parquet).unwrap(),
+        );
+        assert_eq!(a.names(), b.names());
+        assert_eq!(a.times(), b.times());
+        for n in &names {
+            assert_eq!(a.column(n), b.column(n), "{n}");
+        }
+        let e = Results::read_file(dir.path().join("none.csv")).unwrap_err();
+        assert!(e.to_string().contains("none.csv"), "{e}");
+    }
 
     /// The rows a run announces are stored without growing the buffer (the buffer is never
     /// moved), and the reservation is capped.
