@@ -286,7 +286,10 @@ def sweep(
     batch comes back), so that an interrupted sweep (a killed client, Ctrl-C, points without a
     row) continues with ``resume=True`` running only the points the journal lacks (and a
     finished Parquet ``output`` of the same sweep runs nothing); ``resume`` needs ``output``.
-    Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
+    One sweep at a time writes to an ``output``: while another (a ``kneebench sweep``, or a
+    sweep of this or another interpreter) holds its journal, this one raises KneebenchError
+    ("another sweep is running into this output") before running anything; the journal's lock
+    goes with that sweep's end, a killed process's included. Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
     raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
     ``batch_size`` must be at least 1 (ValueError).
     """
@@ -408,7 +411,9 @@ def optimize(
     so that ``resume`` works as locally (an interrupted run, a killed client, a finished
     table given more generations); ``on_generation`` then also sees the generations replayed
     from the journal. ``resume`` needs ``output``. The frame and the table written are the
-    same, bit for bit, whether run locally or on Dask. Locally, Ctrl-C (SIGINT) stops the
+    same, bit for bit, whether run locally or on Dask. As for :func:`sweep`, an ``output``
+    that another sweep or optimisation is writing to raises KneebenchError before anything
+    runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
     journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1
     (ValueError) and ``on_generation`` callable (TypeError), checked before anything runs.
