@@ -65,7 +65,8 @@ const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 /// it back every [`SIGNAL_POLL`] to run Python's signal handlers (`py.check_signals`). A
 /// handler that raises (`KeyboardInterrupt` on Ctrl-C) asks `control` to stop: the work ends
 /// at its next communication point, and the handler's exception is returned once it has ended
-/// (whatever the work returned). A panic of the work is a `KneebenchError`, not an abort.
+/// (whatever the work returned). A panic of the work is a `KneebenchError`, not an abort, and
+/// so is a thread that cannot start (a process or memory limit): the work is then not run.
 fn interruptible<T: Send>(
     py: Python<'_>,
     control: &RunControl,
@@ -76,9 +77,13 @@ fn interruptible<T: Send>(
     // Behind a mutex to be `Sync` (`detach` needs it); only this thread takes it.
     let rx = std::sync::Mutex::new(rx);
     std::thread::scope(|scope| {
-        let worker = scope.spawn(move || {
-            let _ = tx.send(work());
-        });
+        // `scope.spawn` would panic when the thread cannot start.
+        let worker = std::thread::Builder::new()
+            .name("kneebench-run".into())
+            .spawn_scoped(scope, move || {
+                let _ = tx.send(work());
+            })
+            .map_err(|e| err(format!("cannot start a thread for the run: {e}")))?;
         let mut raised: Option<PyErr> = None;
         loop {
             let received = py.detach(|| match rx.lock() {

@@ -253,3 +253,21 @@ def test_a_second_sweep_into_an_output_being_swept_is_refused(sweep_spec, tmp_pa
     resumed = kneebench._native.SweepJournal(str(spec), str(out), True)
     assert len(resumed.pending()) == 12 - done
 
+
+def test_a_thread_that_cannot_start_raises_instead_of_panicking(fmus: Path):
+    # RUST_MIN_STACK asks every Rust thread of the child for a stack larger than the address
+    # space: the run's thread cannot start, which is a KneebenchError (it was a PanicException).
+    code = textwrap.dedent(f"""\
+        import kneebench
+        try:
+            kneebench.run({str(fmus / "GaitReference.fmu")!r}, stop_time=0.01)
+            print("returned")
+        except kneebench.KneebenchError as e:
+            print("raised", e)
+        """)
+    env = dict(os.environ, RUST_MIN_STACK=str(1 << 50))
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env
+    )
+    assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
+    assert r.stdout.startswith("raised cannot start a thread for the run"), r.stdout
