@@ -303,23 +303,28 @@ def sweep(
         return _frame(_native.sweep(path, workers, out, resume))
     info = _native.sweep_info(path)
     journal = None if out is None else _native.SweepJournal(path, out, resume)
-    todo = list(range(int(info["points"]))) if journal is None else journal.pending()
-    if batch_size is None:
-        batch_size = _default_batch_size(client, len(todo))
-    batches = [todo[i : i + batch_size] for i in range(0, len(todo), batch_size)]
-    parts = _run_on_cluster(
-        client,
-        _run_batch,
-        path,
-        batches,
-        batches,
-        info["fingerprint"],
-        retries,
-        None if journal is None else journal.record,
-    )
-    if journal is not None:
-        table = _frame(journal.finish())
-    else:
+    try:
+        todo = list(range(int(info["points"]))) if journal is None else journal.pending()
+        if batch_size is None:
+            batch_size = _default_batch_size(client, len(todo))
+        batches = [todo[i : i + batch_size] for i in range(0, len(todo), batch_size)]
+        parts = _run_on_cluster(
+            client,
+            _run_batch,
+            path,
+            batches,
+            batches,
+            info["fingerprint"],
+            retries,
+            None if journal is None else journal.record,
+        )
+        if journal is not None:
+            table = _frame(journal.finish())
+    finally:
+        # The journal's lock goes now, not when a traceback holding this frame is dropped.
+        if journal is not None:
+            journal.close()
+    if journal is None:
         table = pd.concat([_frame(d) for d in parts], ignore_index=True)
         table = table.sort_values("point", kind="stable").reset_index(drop=True)
     _set_units(table, {**info, "units": info["units"]})
@@ -449,13 +454,26 @@ def optimize(
                 on_generation(_history_entry(g))
         reported = len(history)
 
-    while points := optimizer.ask():
+    try:
+        while points := optimizer.ask():
+            report_told()
+            size = (
+                batch_size if batch_size is not None else _default_batch_size(client, len(points))
+            )
+            batches = [points[i : i + size] for i in range(0, len(points), size)]
+            ids = [[int(p[0]) for p in b] for b in batches]
+            _run_on_cluster(
+                client,
+                _run_optimize_batch,
+                path,
+                batches,
+                ids,
+                fingerprint,
+                retries,
+                optimizer.tell,
+            )
         report_told()
-        size = batch_size if batch_size is not None else _default_batch_size(client, len(points))
-        batches = [points[i : i + size] for i in range(0, len(points), size)]
-        ids = [[int(p[0]) for p in b] for b in batches]
-        _run_on_cluster(
-            client, _run_optimize_batch, path, batches, ids, fingerprint, retries, optimizer.tell
-        )
-    report_told()
-    return _optimization_frame(optimizer.finish())
+        return _optimization_frame(optimizer.finish())
+    finally:
+        # The journal's lock goes now, not when a traceback holding this frame is dropped.
+        optimizer.close()

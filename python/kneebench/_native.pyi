@@ -47,6 +47,8 @@ class SweepJournal:
     def pending(self) -> list[int]: ...
     def record(self, rows: dict[str, Any] | Sequence[dict[str, Any]]) -> None: ...
     def finish(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Lets the journal go (kept for ``resume``) and releases its lock at once."""
 
 class Optimizer:
     """Differential evolution as ask and tell (the Dask driver of kneebench.optimize)."""
@@ -63,5 +65,7 @@ class Optimizer:
     @property
     def info(self) -> dict[str, Any]: ...
     def finish(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Lets the journal (if any) go, kept for ``resume``, and releases its lock at once."""
 
 STUDY_METRIC_UNITS: dict[str, str]

@@ -730,6 +730,13 @@ impl PySweepJournal {
         Ok(())
     }
 
+    /// Lets the journal go without a table: it is kept for `resume`, and its lock released at
+    /// once (not when the object is collected, which a traceback holding it can put off), so
+    /// that the output can be resumed. The object is finished; closing it again does nothing.
+    fn close(&mut self) {
+        self.inner = None;
+    }
+
     /// Writes the table and removes the journal; returns the rows as `sweep` does. Points
     /// without a row are an error naming them (the journal kept, the journal object usable).
     fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
@@ -944,6 +951,13 @@ impl PyOptimizer {
         let d = info_dict(py, &self.prepared)?;
         set_settings(&d, &self.prepared)?;
         Ok(d)
+    }
+
+    /// Lets the journal (if any) go without a table: it is kept for `resume`, and its lock
+    /// released at once (not when the object is collected). The optimiser is finished;
+    /// closing it again does nothing.
+    fn close(&mut self) {
+        self.inner = None;
     }
 
     /// The finished optimisation (every generation told): `optimize`'s dict, the table

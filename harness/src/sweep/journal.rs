@@ -13,9 +13,9 @@
 //! [`std::fs::File::try_lock`]) on its journal from before it reads it until it is removed, so
 //! that a second sweep into the same output (a CLI and a Python one, two Python ones: with
 //! `--resume` each would otherwise take the journal's rows as done and both run every other
-//! point) is refused at once ([`SweepError::Busy`](super::SweepError::Busy)) instead of doubling
-//! the work and interleaving the journal. The kernel releases the lock when the process ends,
-//! however it ends (a kill included), so a later `--resume` is never blocked by a dead sweep.
+//! point) is refused at once ([`SweepError::Busy`]) instead of doubling the work and
+//! interleaving the journal. The kernel releases the lock when the process ends, however it
+//! ends (a kill included), so a later `--resume` is never blocked by a dead sweep.
 
 use std::collections::BTreeMap;
 use std::io::{Read, Seek, SeekFrom, Write};
