@@ -16,6 +16,9 @@ def run(
     stop_time: float | None = None,
     step: float | None = None,
     force: bool = False,
+    isolate: str = "never",
+    host: str | None = None,
+    preload: list[str] = ...,
 ) -> dict[str, Any]: ...
 def study(
     fmus: str, out: str, actuators: list[str], cycles: int, scale: float, scenario: str

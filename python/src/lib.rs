@@ -25,7 +25,7 @@ use kneebench_harness::sweep::{
     JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
     SweepError, SweepOptions, SweepSpec,
 };
-use kneebench_harness::{Fmu, LoadOptions, Results, conformance, ssp};
+use kneebench_harness::{Fmu, Isolation, LoadOptions, Results, conformance, ssp};
 use model_description::VariableKind;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
@@ -140,8 +140,40 @@ fn f64_bytes(values: &[f64]) -> Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
-/// A system from an `.fmu` (columns named by variable) or an `.ssp`/`.ssd`.
-fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
+/// Where `run` runs an FMU's binary: `isolate` is `"never"` (in this process), `"auto"` (a
+/// host process for an FMU kneebench did not generate, as `kneebench run` does by default) or
+/// `"always"`; `host` the host executable (`None`: found as the harness finds it, e.g.
+/// `KNEEBENCH_FMU_HOST`); `preload` the libraries a host loads first (the interpreter's
+/// libpython, for a PythonFMU export).
+fn load_options(
+    isolate: &str,
+    host: Option<PathBuf>,
+    preload: Vec<PathBuf>,
+) -> Result<LoadOptions, String> {
+    let isolation = match isolate {
+        "never" => Isolation::InProcess,
+        "auto" => Isolation::Auto,
+        "always" => Isolation::Process,
+        other => {
+            return Err(format!(
+                "isolate must be 'auto', 'always' or 'never', not {other:?}"
+            ));
+        }
+    };
+    let mut options = LoadOptions {
+        isolation,
+        ..LoadOptions::default()
+    };
+    if isolation != Isolation::InProcess {
+        options.host.helper = host;
+        options.preload = preload;
+    }
+    Ok(options)
+}
+
+/// A system from an `.fmu` (columns named by variable) or an `.ssp`/`.ssd`, loaded with
+/// `options`.
+fn load(path: &Path, options: &LoadOptions) -> Result<(System, RunConfig, bool), String> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -149,7 +181,7 @@ fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
         .unwrap_or_default();
     match ext.as_str() {
         "fmu" => {
-            let fmu = Fmu::load(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
+            let fmu = Fmu::load(path, options).map_err(|e| e.to_string())?;
             let md = fmu.model_description().clone();
             let name = md
                 .co_simulation
@@ -176,8 +208,7 @@ fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
             Ok((system, config, true))
         }
         "ssp" | "ssd" => {
-            let loaded =
-                ssp::load_system(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
+            let loaded = ssp::load_system(path, options).map_err(|e| e.to_string())?;
             Ok((loaded.system, loaded.config, false))
         }
         _ => Err(format!(
@@ -231,9 +262,10 @@ fn run_inner(
     stop_time: Option<f64>,
     step: Option<f64>,
     force: bool,
+    options: LoadOptions,
     control: RunControl,
 ) -> Result<RunResult, String> {
-    let (mut sys, mut config, single) = load(&system)?;
+    let (mut sys, mut config, single) = load(&system, &options)?;
     if !force {
         let problems: Vec<String> = sys
             .components()
@@ -317,9 +349,14 @@ fn run_inner(
 /// Runs an FMU or SSP system; returns `{"names", "columns" (float64 bytes), "units",
 /// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
 /// unless `force`. Ctrl-C stops the run at its next communication point and raises
-/// `KeyboardInterrupt` ([`interruptible`]).
+/// `KeyboardInterrupt` ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs'
+/// binaries run ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
 #[pyfunction]
-#[pyo3(signature = (system, params, variables, stop_time=None, step=None, force=false))]
+#[pyo3(signature = (
+    system, params, variables, stop_time=None, step=None, force=false, isolate="never",
+    host=None, preload=Vec::new()
+))]
+#[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
     system: PathBuf,
@@ -328,11 +365,17 @@ fn run<'py>(
     stop_time: Option<f64>,
     step: Option<f64>,
     force: bool,
+    isolate: &str,
+    host: Option<PathBuf>,
+    preload: Vec<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let options = load_options(isolate, host, preload).map_err(err)?;
     let control = RunControl::new();
     let c = control.clone();
     let r = interruptible(py, &control, move || {
-        run_inner(system, params, variables, stop_time, step, force, c)
+        run_inner(
+            system, params, variables, stop_time, step, force, options, c,
+        )
     })?
     .map_err(err)?;
     let d = PyDict::new(py);
