@@ -26,6 +26,9 @@ echo "== python package (maturin wheel into the venv, pytest)"
 cargo build --release --locked -p kneebench-harness --bins -p kneebench-fmu --lib --quiet
 target_dir=${CARGO_TARGET_DIR:-$root/target}
 rm -rf "$target_dir/wheels"
+# The FMU host of isolated FMUs ships in the wheel next to the native module
+# (kneebench.run(..., isolate="auto"), the default).
+install -m 0755 "$target_dir/release/kneebench-fmu-host" python/kneebench/kneebench-fmu-host
 "$KNEEBENCH_PYTHON" -m maturin build --release --locked --quiet -i "$KNEEBENCH_PYTHON" -m python/Cargo.toml -o "$target_dir/wheels" >&2
 "$KNEEBENCH_PYTHON" -m pip install --quiet --disable-pip-version-check --no-deps --force-reinstall "$target_dir"/wheels/kneebench-*.whl
 "$KNEEBENCH_PYTHON" -m pytest python/tests -q -p no:cacheprovider 2>&1 | tee -a "$log"

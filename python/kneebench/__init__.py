@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import math
 import os
+import sysconfig
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -33,6 +34,29 @@ __all__ = [
     "__version__",
 ]
 __version__: str = _native.__version__
+
+# The FMU host executable the wheel ships next to the native module (`scripts/test.sh` copies
+# it in before maturin builds the wheel).
+_FMU_HOST = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kneebench-fmu-host")
+
+
+def _fmu_host() -> str | None:
+    """The host of isolated FMUs: the shipped one, unless ``KNEEBENCH_FMU_HOST`` names another
+    (``None`` lets the harness find it, and name where it looked when it cannot)."""
+    if os.environ.get("KNEEBENCH_FMU_HOST") or not os.path.isfile(_FMU_HOST):
+        return None
+    return _FMU_HOST
+
+
+def _libpython() -> list[str]:
+    """This interpreter's shared libpython, if it has one: preloaded by the host of an
+    isolated FMU, whose PythonFMU binary leaves every ``Py*`` symbol to its host."""
+    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        return []
+    lib = os.path.join(
+        sysconfig.get_config_var("LIBDIR") or "", sysconfig.get_config_var("LDLIBRARY") or ""
+    )
+    return [lib] if os.path.isfile(lib) else []
 # The sweep a Dask worker keeps prepared between batches holds a scenario and extracted FMUs
 # in temporary directories: removed when the interpreter exits.
 atexit.register(_native.clear_cache)
@@ -84,6 +108,7 @@ def run(
     step: float | None = None,
     *,
     force: bool = False,
+    isolate: str = "auto",
 ) -> pd.DataFrame:
     """Run an FMU (``.fmu``) or an SSP system (``.ssp``/``.ssd``) and return its results.
 
@@ -98,14 +123,36 @@ def run(
     variable name that is not unique, say) unless ``force=True`` (``kneebench run --force``).
     Ctrl-C (SIGINT) stops the run at its next communication point and raises
     KeyboardInterrupt.
+
+    ``isolate`` is where the FMUs' binaries run, as ``kneebench run --isolate``: ``"auto"``
+    (the default) runs an FMU that kneebench did not generate (a PythonFMU export, another
+    tool's) in a host process of its own, so that its crash, ``exit()`` or hang is a
+    KneebenchError naming it instead of the end of this interpreter; ``"always"`` isolates
+    kneebench's own FMUs too, ``"never"`` runs every FMU in this process (faster per step;
+    a PythonFMU export then runs on this interpreter and its threads). The host is the
+    ``kneebench-fmu-host`` shipped next to this package (``KNEEBENCH_FMU_HOST`` names another);
+    an isolated host preloads this interpreter's shared libpython, which a PythonFMU export
+    needs (its slave's third-party imports need ``PYTHONPATH`` in the host's environment).
     """
+    if isolate not in ("auto", "always", "never"):
+        raise ValueError(f"isolate must be 'auto', 'always' or 'never', not {isolate!r}")
     if params is not None and not isinstance(params, Mapping):
         raise TypeError(
             f"params must be a mapping of names to values (a dict), not {type(params).__name__}"
         )
     names = _names("variables", variables)
     p = [(k, _text(v)) for k, v in (params or {}).items()]
-    r = _native.run(os.fspath(system), p, names or [], stop_time, step, bool(force))
+    r = _native.run(
+        os.fspath(system),
+        p,
+        names or [],
+        stop_time,
+        step,
+        bool(force),
+        isolate,
+        _fmu_host(),
+        _libpython(),
+    )
     df = pd.DataFrame(_columns(r["names"], r["columns"]))
     df.attrs["units"] = dict(zip(r["names"], r["units"]))
     df.attrs["status"] = r["status"]
@@ -286,7 +333,10 @@ def sweep(
     batch comes back), so that an interrupted sweep (a killed client, Ctrl-C, points without a
     row) continues with ``resume=True`` running only the points the journal lacks (and a
     finished Parquet ``output`` of the same sweep runs nothing); ``resume`` needs ``output``.
-    Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
+    One sweep at a time writes to an ``output``: while another (a ``kneebench sweep``, or a
+    sweep of this or another interpreter) holds its journal, this one raises KneebenchError
+    ("another sweep is running into this output") before running anything; the journal's lock
+    goes with that sweep's end, a killed process's included. Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
     raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
     ``batch_size`` must be at least 1 (ValueError).
     """
@@ -300,23 +350,28 @@ def sweep(
         return _frame(_native.sweep(path, workers, out, resume))
     info = _native.sweep_info(path)
     journal = None if out is None else _native.SweepJournal(path, out, resume)
-    todo = list(range(int(info["points"]))) if journal is None else journal.pending()
-    if batch_size is None:
-        batch_size = _default_batch_size(client, len(todo))
-    batches = [todo[i : i + batch_size] for i in range(0, len(todo), batch_size)]
-    parts = _run_on_cluster(
-        client,
-        _run_batch,
-        path,
-        batches,
-        batches,
-        info["fingerprint"],
-        retries,
-        None if journal is None else journal.record,
-    )
-    if journal is not None:
-        table = _frame(journal.finish())
-    else:
+    try:
+        todo = list(range(int(info["points"]))) if journal is None else journal.pending()
+        if batch_size is None:
+            batch_size = _default_batch_size(client, len(todo))
+        batches = [todo[i : i + batch_size] for i in range(0, len(todo), batch_size)]
+        parts = _run_on_cluster(
+            client,
+            _run_batch,
+            path,
+            batches,
+            batches,
+            info["fingerprint"],
+            retries,
+            None if journal is None else journal.record,
+        )
+        if journal is not None:
+            table = _frame(journal.finish())
+    finally:
+        # The journal's lock goes now, not when a traceback holding this frame is dropped.
+        if journal is not None:
+            journal.close()
+    if journal is None:
         table = pd.concat([_frame(d) for d in parts], ignore_index=True)
         table = table.sort_values("point", kind="stable").reset_index(drop=True)
     _set_units(table, {**info, "units": info["units"]})
@@ -408,7 +463,9 @@ def optimize(
     so that ``resume`` works as locally (an interrupted run, a killed client, a finished
     table given more generations); ``on_generation`` then also sees the generations replayed
     from the journal. ``resume`` needs ``output``. The frame and the table written are the
-    same, bit for bit, whether run locally or on Dask. Locally, Ctrl-C (SIGINT) stops the
+    same, bit for bit, whether run locally or on Dask. As for :func:`sweep`, an ``output``
+    that another sweep or optimisation is writing to raises KneebenchError before anything
+    runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
     journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1
     (ValueError) and ``on_generation`` callable (TypeError), checked before anything runs.
@@ -444,13 +501,26 @@ def optimize(
                 on_generation(_history_entry(g))
         reported = len(history)
 
-    while points := optimizer.ask():
+    try:
+        while points := optimizer.ask():
+            report_told()
+            size = (
+                batch_size if batch_size is not None else _default_batch_size(client, len(points))
+            )
+            batches = [points[i : i + size] for i in range(0, len(points), size)]
+            ids = [[int(p[0]) for p in b] for b in batches]
+            _run_on_cluster(
+                client,
+                _run_optimize_batch,
+                path,
+                batches,
+                ids,
+                fingerprint,
+                retries,
+                optimizer.tell,
+            )
         report_told()
-        size = batch_size if batch_size is not None else _default_batch_size(client, len(points))
-        batches = [points[i : i + size] for i in range(0, len(points), size)]
-        ids = [[int(p[0]) for p in b] for b in batches]
-        _run_on_cluster(
-            client, _run_optimize_batch, path, batches, ids, fingerprint, retries, optimizer.tell
-        )
-    report_told()
-    return _optimization_frame(optimizer.finish())
+        return _optimization_frame(optimizer.finish())
+    finally:
+        # The journal's lock goes now, not when a traceback holding this frame is dropped.
+        optimizer.close()

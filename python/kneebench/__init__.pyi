@@ -22,6 +22,7 @@ def run(
     step: float | None = None,
     *,
     force: bool = False,
+    isolate: str = "auto",
 ) -> pd.DataFrame: ...
 def study(
     fmus: str | os.PathLike[str],

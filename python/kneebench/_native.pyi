@@ -16,6 +16,9 @@ def run(
     stop_time: float | None = None,
     step: float | None = None,
     force: bool = False,
+    isolate: str = "never",
+    host: str | None = None,
+    preload: list[str] = ...,
 ) -> dict[str, Any]: ...
 def study(
     fmus: str, out: str, actuators: list[str], cycles: int, scale: float, scenario: str
@@ -38,12 +41,17 @@ def optimize_info(spec: str) -> dict[str, Any]: ...
 def optimize_points(spec: str, points: list[tuple[int, list[float]]]) -> dict[str, Any]: ...
 
 class SweepJournal:
-    """A sweep run elsewhere (the Dask driver of kneebench.sweep) with the local journal."""
+    """A sweep run elsewhere (the Dask driver of kneebench.sweep) with the local journal.
+
+    It holds the journal's lock while it lives: another sweep into ``output`` raises
+    KneebenchError until it is finished or dropped."""
 
     def __init__(self, spec: str, output: str, resume: bool = False) -> None: ...
     def pending(self) -> list[int]: ...
     def record(self, rows: dict[str, Any] | Sequence[dict[str, Any]]) -> None: ...
     def finish(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Lets the journal go (kept for ``resume``) and releases its lock at once."""
 
 class Optimizer:
     """Differential evolution as ask and tell (the Dask driver of kneebench.optimize)."""
@@ -60,5 +68,7 @@ class Optimizer:
     @property
     def info(self) -> dict[str, Any]: ...
     def finish(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Lets the journal (if any) go, kept for ``resume``, and releases its lock at once."""
 
 STUDY_METRIC_UNITS: dict[str, str]

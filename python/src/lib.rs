@@ -25,7 +25,7 @@ use kneebench_harness::sweep::{
     JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
     SweepError, SweepOptions, SweepSpec,
 };
-use kneebench_harness::{Fmu, LoadOptions, Results, conformance, ssp};
+use kneebench_harness::{Fmu, Isolation, LoadOptions, Results, conformance, ssp};
 use model_description::VariableKind;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
@@ -65,7 +65,8 @@ const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 /// it back every [`SIGNAL_POLL`] to run Python's signal handlers (`py.check_signals`). A
 /// handler that raises (`KeyboardInterrupt` on Ctrl-C) asks `control` to stop: the work ends
 /// at its next communication point, and the handler's exception is returned once it has ended
-/// (whatever the work returned). A panic of the work is a `KneebenchError`, not an abort.
+/// (whatever the work returned). A panic of the work is a `KneebenchError`, not an abort, and
+/// so is a thread that cannot start (a process or memory limit): the work is then not run.
 fn interruptible<T: Send>(
     py: Python<'_>,
     control: &RunControl,
@@ -76,9 +77,13 @@ fn interruptible<T: Send>(
     // Behind a mutex to be `Sync` (`detach` needs it); only this thread takes it.
     let rx = std::sync::Mutex::new(rx);
     std::thread::scope(|scope| {
-        let worker = scope.spawn(move || {
-            let _ = tx.send(work());
-        });
+        // `scope.spawn` would panic when the thread cannot start.
+        let worker = std::thread::Builder::new()
+            .name("kneebench-run".into())
+            .spawn_scoped(scope, move || {
+                let _ = tx.send(work());
+            })
+            .map_err(|e| err(format!("cannot start a thread for the run: {e}")))?;
         let mut raised: Option<PyErr> = None;
         loop {
             let received = py.detach(|| match rx.lock() {
@@ -135,8 +140,40 @@ fn f64_bytes(values: &[f64]) -> Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
-/// A system from an `.fmu` (columns named by variable) or an `.ssp`/`.ssd`.
-fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
+/// Where `run` runs an FMU's binary: `isolate` is `"never"` (in this process), `"auto"` (a
+/// host process for an FMU kneebench did not generate, as `kneebench run` does by default) or
+/// `"always"`; `host` the host executable (`None`: found as the harness finds it, e.g.
+/// `KNEEBENCH_FMU_HOST`); `preload` the libraries a host loads first (the interpreter's
+/// libpython, for a PythonFMU export).
+fn load_options(
+    isolate: &str,
+    host: Option<PathBuf>,
+    preload: Vec<PathBuf>,
+) -> Result<LoadOptions, String> {
+    let isolation = match isolate {
+        "never" => Isolation::InProcess,
+        "auto" => Isolation::Auto,
+        "always" => Isolation::Process,
+        other => {
+            return Err(format!(
+                "isolate must be 'auto', 'always' or 'never', not {other:?}"
+            ));
+        }
+    };
+    let mut options = LoadOptions {
+        isolation,
+        ..LoadOptions::default()
+    };
+    if isolation != Isolation::InProcess {
+        options.host.helper = host;
+        options.preload = preload;
+    }
+    Ok(options)
+}
+
+/// A system from an `.fmu` (columns named by variable) or an `.ssp`/`.ssd`, loaded with
+/// `options`.
+fn load(path: &Path, options: &LoadOptions) -> Result<(System, RunConfig, bool), String> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -144,7 +181,7 @@ fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
         .unwrap_or_default();
     match ext.as_str() {
         "fmu" => {
-            let fmu = Fmu::load(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
+            let fmu = Fmu::load(path, options).map_err(|e| e.to_string())?;
             let md = fmu.model_description().clone();
             let name = md
                 .co_simulation
@@ -171,8 +208,7 @@ fn load(path: &Path) -> Result<(System, RunConfig, bool), String> {
             Ok((system, config, true))
         }
         "ssp" | "ssd" => {
-            let loaded =
-                ssp::load_system(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
+            let loaded = ssp::load_system(path, options).map_err(|e| e.to_string())?;
             Ok((loaded.system, loaded.config, false))
         }
         _ => Err(format!(
@@ -226,9 +262,10 @@ fn run_inner(
     stop_time: Option<f64>,
     step: Option<f64>,
     force: bool,
+    options: LoadOptions,
     control: RunControl,
 ) -> Result<RunResult, String> {
-    let (mut sys, mut config, single) = load(&system)?;
+    let (mut sys, mut config, single) = load(&system, &options)?;
     if !force {
         let problems: Vec<String> = sys
             .components()
@@ -312,9 +349,14 @@ fn run_inner(
 /// Runs an FMU or SSP system; returns `{"names", "columns" (float64 bytes), "units",
 /// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
 /// unless `force`. Ctrl-C stops the run at its next communication point and raises
-/// `KeyboardInterrupt` ([`interruptible`]).
+/// `KeyboardInterrupt` ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs'
+/// binaries run ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
 #[pyfunction]
-#[pyo3(signature = (system, params, variables, stop_time=None, step=None, force=false))]
+#[pyo3(signature = (
+    system, params, variables, stop_time=None, step=None, force=false, isolate="never",
+    host=None, preload=Vec::new()
+))]
+#[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
     system: PathBuf,
@@ -323,11 +365,17 @@ fn run<'py>(
     stop_time: Option<f64>,
     step: Option<f64>,
     force: bool,
+    isolate: &str,
+    host: Option<PathBuf>,
+    preload: Vec<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let options = load_options(isolate, host, preload).map_err(err)?;
     let control = RunControl::new();
     let c = control.clone();
     let r = interruptible(py, &control, move || {
-        run_inner(system, params, variables, stop_time, step, force, c)
+        run_inner(
+            system, params, variables, stop_time, step, force, options, c,
+        )
     })?
     .map_err(err)?;
     let d = PyDict::new(py);
@@ -725,6 +773,13 @@ impl PySweepJournal {
         Ok(())
     }
 
+    /// Lets the journal go without a table: it is kept for `resume`, and its lock released at
+    /// once (not when the object is collected, which a traceback holding it can put off), so
+    /// that the output can be resumed. The object is finished; closing it again does nothing.
+    fn close(&mut self) {
+        self.inner = None;
+    }
+
     /// Writes the table and removes the journal; returns the rows as `sweep` does. Points
     /// without a row are an error naming them (the journal kept, the journal object usable).
     fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
@@ -939,6 +994,13 @@ impl PyOptimizer {
         let d = info_dict(py, &self.prepared)?;
         set_settings(&d, &self.prepared)?;
         Ok(d)
+    }
+
+    /// Lets the journal (if any) go without a table: it is kept for `resume`, and its lock
+    /// released at once (not when the object is collected). The optimiser is finished;
+    /// closing it again does nothing.
+    fn close(&mut self) {
+        self.inner = None;
     }
 
     /// The finished optimisation (every generation told): `optimize`'s dict, the table

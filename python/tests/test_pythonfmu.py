@@ -118,8 +118,15 @@ def test_a_pythonfmu_export_runs_on_the_callers_python_threads(lag_fmu: Path):
     def one(k: float) -> None:
         # force: the export's model description lacks an InitialUnknown that `kneebench
         # validate` asks for (refused without force, as `kneebench run` without --force).
+        # isolate="never": in this process, on the calling thread (the default runs a
+        # foreign FMU in a host process: test_a_pythonfmu_export_runs_isolated_by_default).
         df = kneebench.run(
-            lag_fmu, params={"k": k, "u": 0.75}, stop_time=STOP, step=STEP, force=True
+            lag_fmu,
+            params={"k": k, "u": 0.75},
+            stop_time=STOP,
+            step=STEP,
+            force=True,
+            isolate="never",
         )
         assert df.attrs["status"] == "completed"
         results[k] = df["y"].to_numpy()
@@ -145,3 +152,69 @@ def test_a_pythonfmu_export_sweeps_on_worker_threads(lag_fmu: Path):
     # The lag rises monotonically under a constant input: its maximum is its last value.
     for k, top in zip(two["lag.k"], two["max(lag.y)"]):
         assert bits(top) == bits(lag(k, 0.75)[-1]), k
+
+
+def test_a_pythonfmu_export_runs_isolated_by_default_with_the_same_bits(lag_fmu: Path):
+    # The default isolate="auto" runs the export in the kneebench-fmu-host shipped in the
+    # wheel, which preloads this interpreter's libpython: the same recurrence, bit for bit.
+    df = kneebench.run(lag_fmu, params={"k": 3.0, "u": 0.75}, stop_time=STOP, step=STEP, force=True)
+    assert df.attrs["status"] == "completed"
+    assert np.array_equal(bits(df["y"].to_numpy()), bits(lag(3.0, 0.75)))
+
+
+CRASH = """
+import os
+from pythonfmu import Fmi2Causality, Fmi2Slave, Real
+
+
+class Crash(Fmi2Slave):
+    author = "kneebench tests"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.y = 0.0
+        self.register_variable(Real("y", causality=Fmi2Causality.output))
+
+    def do_step(self, current_time, step_size):
+        if current_time >= 0.1:
+            os.abort()
+        self.y = current_time
+        return True
+"""
+
+
+def test_a_crashing_foreign_fmu_raises_instead_of_killing_the_interpreter(tmp_path: Path):
+    # A PythonFMU export that aborts its process at t = 0.1 s. By default (isolate="auto", as
+    # `kneebench run`) it crashes its host process and the run raises KneebenchError naming
+    # the signal; in this process (isolate="never", before: always) it ends the interpreter.
+    (tmp_path / "Crash.py").write_text(CRASH)
+    subprocess.run(
+        [sys.executable, "-m", "pythonfmu", "build", "-f", tmp_path / "Crash.py", "--dest", tmp_path],
+        check=True,
+        capture_output=True,
+    )
+    code = """\
+import sys, kneebench
+try:
+    kneebench.run(sys.argv[1], stop_time=0.5, step=0.001, force=True, isolate=sys.argv[2])
+    print("returned")
+except kneebench.KneebenchError as e:
+    print("raised", e)
+"""
+    fmu = str(tmp_path / "Crash.fmu")
+    r = subprocess.run(
+        [sys.executable, "-c", code, fmu, "auto"], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
+    assert r.stdout.startswith("raised"), r.stdout
+    assert "crashed (signal 6, SIGABRT)" in r.stdout, r.stdout
+    r = subprocess.run(
+        [sys.executable, "-c", code, fmu, "never"], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == -6, (r.returncode, r.stdout, r.stderr[-2000:])
+
+
+def test_isolate_is_checked_before_anything_runs(lag_fmu: Path):
+    with pytest.raises(ValueError, match="isolate must be 'auto', 'always' or 'never'"):
+        kneebench.run(lag_fmu, stop_time=STOP, force=True, isolate="sometimes")
+

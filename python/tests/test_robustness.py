@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 import zipfile
 from pathlib import Path
 
@@ -15,6 +16,7 @@ import pandas as pd
 import pytest
 
 import kneebench
+from conftest import kneebench_bin
 from kneebench import KneebenchError
 
 # A child process that runs `CALL` (kneebench imported as `k`), sends itself SIGINT `DELAY`
@@ -219,3 +221,53 @@ def test_a_window_after_the_runs_end_is_refused(fmus: Path, tmp_path: Path):
         """))
     with pytest.raises(kneebench.SpecError, match="line 12: window from 1000 s starts after"):
         kneebench.sweep(spec)
+
+
+def test_a_second_sweep_into_an_output_being_swept_is_refused(sweep_spec, tmp_path: Path):
+    # A CLI sweep (12 points of 200 gait cycles on one thread: over ten seconds) and a Python
+    # one resuming into the same output at once: the Python one is refused while the CLI holds
+    # the journal (both ran every point the journal lacked, each rewriting it). Killed, the
+    # CLI's lock goes with its process: the output resumes from its journal.
+    spec = _long_sweep(sweep_spec)
+    out = tmp_path / "table.parquet"
+    journal = Path(str(out) + ".journal")
+    cli = subprocess.Popen(
+        [kneebench_bin(), "sweep", spec, "--output", out, "--workers", "1"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not (journal.exists() and journal.read_text().count("\n") >= 2):
+            assert cli.poll() is None, cli.stderr.read() if cli.stderr else ""
+            assert time.monotonic() < deadline, "no row journaled in a minute"
+            time.sleep(0.05)
+        with pytest.raises(KneebenchError, match="another sweep is running into this output"):
+            kneebench.sweep(spec, workers=1, output=out, resume=True)
+        assert cli.poll() is None, "the CLI sweep ended before the second was refused"
+    finally:
+        cli.kill()
+        cli.wait()
+    done = journal.read_text().count("\n") - 1
+    assert 1 <= done < 12
+    resumed = kneebench._native.SweepJournal(str(spec), str(out), True)
+    assert len(resumed.pending()) == 12 - done
+
+
+def test_a_thread_that_cannot_start_raises_instead_of_panicking(fmus: Path):
+    # RUST_MIN_STACK asks every Rust thread of the child for a stack larger than the address
+    # space: the run's thread cannot start, which is a KneebenchError (it was a PanicException).
+    code = textwrap.dedent(f"""\
+        import kneebench
+        try:
+            kneebench.run({str(fmus / "GaitReference.fmu")!r}, stop_time=0.01)
+            print("returned")
+        except kneebench.KneebenchError as e:
+            print("raised", e)
+        """)
+    env = dict(os.environ, RUST_MIN_STACK=str(1 << 50))
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env
+    )
+    assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
+    assert r.stdout.startswith("raised cannot start a thread for the run"), r.stdout

@@ -416,3 +416,51 @@ fn resume_runs_only_the_points_the_journal_lacks() {
     .unwrap_err();
     assert!(e.to_string().contains("belongs to another sweep"), "{e}");
 }
+
+/// Two sweeps into one output at once (two Python `sweep(..., resume=True)` calls, or a CLI
+/// sweep and a Python one): the second is refused while the first holds the journal's lock,
+/// instead of taking the journal's rows as done and running every other point again beside
+/// the first. Once the first is gone (dropped, as a killed process's lock goes with it) the
+/// output can be resumed: only the missing points run.
+#[test]
+fn a_second_sweep_into_the_same_output_is_refused_while_the_first_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(DETERMINISM, dir.path()).unwrap();
+    let out = dir.path().join("table.parquet");
+    let resume = SweepOptions {
+        resume: true,
+        ..options(1)
+    };
+    let mut first = kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &resume)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut rows = Vec::new();
+    p.run_points(&[0], 1, &mut |row| {
+        rows.push(row);
+        Ok(())
+    })
+    .unwrap();
+    let mut row = rows.pop().unwrap();
+    row.message = "from the first sweep".into();
+    first.record(row).unwrap();
+    for options in [&resume, &options(1)] {
+        let e = match kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), options) {
+            Err(e) => e,
+            Ok(_) => panic!("a second sweep into the output was started"),
+        };
+        assert!(matches!(e, SweepError::Busy { .. }), "{e}");
+        assert!(
+            e.to_string()
+                .contains("another sweep is running into this output"),
+            "{e}"
+        );
+    }
+    // The refusals left the first's journal alone.
+    let journal = std::fs::read_to_string(journal_path(&out)).unwrap();
+    assert_eq!(journal.lines().count(), 2, "{journal}");
+    drop(first);
+    let table = run_sweep(&p, Some(&out), &resume).unwrap();
+    assert_eq!(table.rows.len(), 6);
+    assert_eq!(table.rows[0].message, "from the first sweep");
+    assert!(table.rows[1..].iter().all(|r| r.message.is_empty()));
+    assert!(!journal_path(&out).exists());
+}

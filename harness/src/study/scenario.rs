@@ -488,6 +488,10 @@ fn connect(from: &str, to: &str) -> (String, String) {
     (from.to_string(), to.to_string())
 }
 
+/// The base step \[s\] of every [`gait_scenario`] (the sweep spec's bound on a run's recorded
+/// values assumes it when the spec gives no `step`).
+pub const GAIT_SCENARIO_STEP: f64 = 1e-3;
+
 /// The closed-loop gait scenario of one actuator: the gait reference feeds a position loop on
 /// the test motor (DA, SEA: `PidController` on the actuation encoder with velocity
 /// feed-forward; CSEA: `ImpedanceController` with the `ClutchScheduler` locking the actuation
@@ -671,6 +675,6 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         components,
         connections,
         stop_time: gait.period * f64::from(cycles),
-        step_size: 1e-3,
+        step_size: GAIT_SCENARIO_STEP,
     }
 }

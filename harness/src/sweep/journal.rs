@@ -8,9 +8,18 @@
 //! The journal is removed once the table is written. `--resume` with no journal continues a
 //! finished Parquet table of the same sweep (its fingerprint is in the table's metadata): an
 //! optimisation given more generations runs only the new ones.
+//!
+//! **One sweep per output at a time.** A sweep holds an exclusive lock (`flock`, through
+//! [`std::fs::File::try_lock`]) on its journal from before it reads it until it is removed, so
+//! that a second sweep into the same output (a CLI and a Python one, two Python ones: with
+//! `--resume` each would otherwise take the journal's rows as done and both run every other
+//! point) is refused at once ([`SweepError::Busy`]) instead of doubling the work and
+//! interleaving the journal. The kernel releases the lock when the process ends, however it
+//! ends (a kill included), so a later `--resume` is never blocked by a dead sweep.
 
 use std::collections::BTreeMap;
-use std::io::Write;
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
 use super::SweepError;
@@ -173,6 +182,47 @@ fn finished_rows(
     Ok(rows)
 }
 
+/// The journal at `path` opened for reading and writing (created if there is none) and locked
+/// for this sweep alone, and whether it was there before (an empty file counts as none: a
+/// journal always has its header, so an empty one is a sweep's that had only just created it).
+/// A journal locked by another sweep, in this process or another, is refused
+/// ([`SweepError::Busy`]). The lock is taken on the file the path names when it is held: a
+/// journal removed (its sweep finished) or replaced between the opening and the locking is
+/// opened again.
+fn lock(path: &Path) -> Result<(std::fs::File, bool), SweepError> {
+    let io = |source| SweepError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    loop {
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .map_err(io)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(SweepError::Busy {
+                    path: path.to_path_buf(),
+                });
+            }
+            Err(std::fs::TryLockError::Error(source)) => return Err(io(source)),
+        }
+        let held = file.metadata().map_err(io)?;
+        match std::fs::metadata(path) {
+            Ok(named) if named.dev() == held.dev() && named.ino() == held.ino() => {
+                return Ok((file, held.len() > 0));
+            }
+            Ok(_) => continue,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(io(e)),
+        }
+    }
+}
+
 /// The journal of a sweep or an optimisation written to `output`: `<output>.journal`, one line
 /// per finished row after the fingerprint (see the module documentation).
 pub(crate) struct Journal {
@@ -187,13 +237,38 @@ impl Journal {
     /// only (a torn last line, from a kill while it was written, is dropped: that point runs
     /// again). A journal of another fingerprint is refused. With `resume` and no journal, a
     /// finished table at `output` is continued: its rows are returned ([`finished_rows`]) and
-    /// journaled.
+    /// journaled. The journal is locked for this sweep alone first: one that another sweep
+    /// holds is refused ([`SweepError::Busy`]; see the module documentation).
     pub(crate) fn open(
         output: &Path,
         resume: bool,
         prepared: &Prepared,
         known: &dyn Fn(u64) -> bool,
     ) -> Result<(Journal, BTreeMap<u64, Row>), SweepError> {
+        let path = journal_path(output);
+        let (mut file, existed) = lock(&path)?;
+        match Journal::fill(&mut file, existed, output, resume, prepared, known) {
+            Ok(rows) => Ok((Journal { path, file }, rows)),
+            Err(e) => {
+                // A journal this call created (it found none) goes with the refusal.
+                if !existed {
+                    let _ = std::fs::remove_file(&path);
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// [`open`](Self::open)'s work once the journal is locked: its rows (or a finished
+    /// table's), written back to it after the header.
+    fn fill(
+        file: &mut std::fs::File,
+        existed: bool,
+        output: &Path,
+        resume: bool,
+        prepared: &Prepared,
+        known: &dyn Fn(u64) -> bool,
+    ) -> Result<BTreeMap<u64, Row>, SweepError> {
         let path = journal_path(output);
         let bad = |message: String| SweepError::Journal {
             path: path.clone(),
@@ -205,7 +280,7 @@ impl Journal {
         };
         let header = prepared.journal_header();
         let mut rows = BTreeMap::new();
-        if path.exists() {
+        if existed {
             if !resume {
                 return Err(bad(
                     "an unfinished sweep's journal exists: pass --resume (resume=True in \
@@ -213,7 +288,8 @@ impl Journal {
                         .into(),
                 ));
             }
-            let text = std::fs::read_to_string(&path).map_err(io)?;
+            let mut text = String::new();
+            file.read_to_string(&mut text).map_err(io)?;
             let mut lines = text.split_inclusive('\n');
             if lines.next().unwrap_or("").trim_end() != header.trim_end() {
                 return Err(bad(
@@ -245,9 +321,11 @@ impl Journal {
         for r in rows.values() {
             text.push_str(&journal_line(r));
         }
-        let mut file = std::fs::File::create(&path).map_err(io)?;
+        // Rewritten in place, through the locked file (a new file would not be locked).
+        file.set_len(0).map_err(io)?;
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
         file.write_all(text.as_bytes()).map_err(io)?;
-        Ok((Journal { path, file }, rows))
+        Ok(rows)
     }
 
     /// Appends a finished row.
@@ -260,13 +338,15 @@ impl Journal {
             })
     }
 
-    /// Removes the journal (its table is written).
+    /// Removes the journal (its table is written), then lets its lock go: a sweep that opened
+    /// it meanwhile finds it gone once it holds the lock, and starts afresh ([`lock`]).
     pub(crate) fn remove(self) -> Result<(), SweepError> {
-        drop(self.file);
-        std::fs::remove_file(&self.path).map_err(|source| SweepError::Io {
+        let removed = std::fs::remove_file(&self.path).map_err(|source| SweepError::Io {
             path: self.path,
             source,
-        })
+        });
+        drop(self.file);
+        removed
     }
 }
 

@@ -62,6 +62,18 @@ pub enum SweepError {
         /// What is wrong.
         message: String,
     },
+    /// Another sweep (or optimisation), in this process or another, is writing to the same
+    /// output: it holds the lock on the journal (see [`journal`]). The lock goes with that
+    /// sweep's end, however it ends.
+    #[error(
+        "{}: another sweep is running into this output (it holds the journal's lock); wait for \
+         it to end, or write to another output",
+        path.display()
+    )]
+    Busy {
+        /// The journal.
+        path: PathBuf,
+    },
     /// A worker ended without returning every point it took.
     #[error("points without a row: {0:?}")]
     Missing(Vec<u64>),

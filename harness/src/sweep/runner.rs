@@ -17,7 +17,10 @@ use sha2::{Digest, Sha256};
 use super::SweepError;
 use super::design::{self, Design};
 use super::journal::{Finished, JOURNAL_MAGIC};
-use super::spec::{DesignKind, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource};
+use super::spec::{
+    DesignKind, MAX_RUN_VALUES, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource,
+    too_many_values,
+};
 use super::table::{Row, RunStatus, SweepTable, same_bits};
 use crate::master::{MasterError, Outcome, RunConfig, System, Value};
 use crate::results::Results;
@@ -457,8 +460,24 @@ impl Prepared {
         if let Some(h) = spec.step {
             config.step_size = h;
         }
-        if let Err(e) = probe.check_config(&config) {
-            problems.push(spec.problem(0, format!("stop_time and step: {e}")));
+        match probe.check_config(&config) {
+            Err(e) => problems.push(spec.problem(0, format!("stop_time and step: {e}"))),
+            // The bound on a run's recorded values (the spec checked it where it tells the
+            // length and the step; a system file's experiment is only known here).
+            Ok(grid) => {
+                let rows = (grid.n_steps / config.record_every.max(1)).saturating_add(1);
+                let over = |rows: f64| rows * (recorded.len() as f64 + 1.0) > MAX_RUN_VALUES as f64;
+                if over(rows as f64) {
+                    // The spec's step is to blame when the system's own would have fitted.
+                    let own = loaded.config.step_size;
+                    let own_rows = ((config.stop_time - config.start_time) / own).floor() + 1.0;
+                    let line = match spec.step_line {
+                        Some(line) if !over(own_rows / config.record_every.max(1) as f64) => line,
+                        _ => spec.length_line,
+                    };
+                    problems.push(spec.problem(line, too_many_values(rows as f64, recorded.len())));
+                }
+            }
         }
         if !problems.is_empty() {
             return Err(SweepError::Invalid(problems));

@@ -140,6 +140,52 @@ struct RawSignalMetric {
     to: Option<Spanned<f64>>,
 }
 
+/// The most values one run of a sweep (or of an optimisation) may record: rows x (recorded
+/// signals + the time column); 2^24 values, 128 MiB of 8-byte floats. A spec whose runs would
+/// record more is refused at the line that makes them so long (`stop_time`, `cycles`, `step`, or
+/// `system` for a system file's own experiment: [`SweepSpec::length_line`]).
+///
+/// Why a bound: a sweep's worker keeps every row of the run it is on in memory (the metrics
+/// need the whole run), so a sweep holds rows recorded x (signals + 1) x 8 bytes per worker,
+/// times the workers at once (one per core by default), and nothing else limits it: `cycles =
+/// 1000000`, a long `stop_time` or a tiny `step` grew the workers' buffers until the machine ran
+/// out of memory (the kernel killing a process, not an error naming the spec's line).
+///
+/// Why this bound: at it, a run records 128 MiB; with the slack of its growing buffer and the
+/// columns the metrics copy, a worker peaks at about 1.5 times that, some 200 MB (measured: a
+/// SEA sweep of 300 gait cycles, 16.5 million values or 126 MiB a run, peaked at 194 MB
+/// resident with one worker and 365 MB with two, README "Parameter sweeps"). With one worker
+/// per core that is 400 MB on 2 cores, 3.2 GB on 16 and 13 GB on 64: what a machine with that
+/// many cores has to spare. For the study's scenarios (20 recorded signals and the time, a 1 ms
+/// step, a 2.5 s gait cycle) the bound is 798,915 rows: 798 s of bench time, 319 gait cycles a
+/// run (305 with one more signal), far beyond a sweep's usual 2 to 10. A longer run is
+/// `kneebench run`, which streams its rows to a file.
+pub const MAX_RUN_VALUES: u64 = 1 << 24;
+
+/// The most gait cycles of a scenario's run (a typo guard, and `cycles` fits the scenario's
+/// 32-bit count): at the scenario's 1 ms step far fewer cycles already exceed
+/// [`MAX_RUN_VALUES`], which bounds the run's length whatever its step.
+pub const MAX_CYCLES: usize = 10_000;
+
+/// Values a run from 0 to `stop` with base step `step` records with `columns` recorded signals
+/// (the time column added): one row per step and the initial one, as [`MAX_RUN_VALUES`] counts
+/// them. Saturating (a float): for bounds only.
+pub fn run_values(stop: f64, step: f64, columns: usize) -> f64 {
+    ((stop / step).floor() + 1.0) * (columns as f64 + 1.0)
+}
+
+/// The message of a run recording more than [`MAX_RUN_VALUES`].
+pub(crate) fn too_many_values(rows: f64, columns: usize) -> String {
+    let values = rows * (columns as f64 + 1.0);
+    format!(
+        "each run would record {rows:.0} rows of {columns} signals and the time ({values:.0} \
+         values, {:.0} MiB), more than {MAX_RUN_VALUES} values ({} MiB) per run: shorten the \
+         runs (stop_time, cycles), take a longer step, or record fewer signals",
+        values * 8.0 / f64::from(1u32 << 20),
+        (MAX_RUN_VALUES * 8) >> 20
+    )
+}
+
 /// The most points of a Sobol design: `sobol_burley` gives 2^16 points per sequence (beyond
 /// that its samples are unspecified).
 pub const SOBOL_MAX_POINTS: usize = 1 << 16;
@@ -290,6 +336,14 @@ pub struct SweepSpec {
     /// The optimisation, if the spec has an `[optimize]` table (the design is then its first
     /// generation): see [`optimize`](super::optimize).
     pub optimize: Option<OptimizeSpec>,
+    /// 1-based line of the value that sets how long the runs are: `stop_time`, else a
+    /// scenario's `cycles`, else `system` (a scenario's default cycles, or a system file's own
+    /// experiment). A run over [`MAX_RUN_VALUES`] is refused there, unless the spec's `step`
+    /// is to blame ([`step_line`](Self::step_line)).
+    pub length_line: usize,
+    /// 1-based line of `step`, if the spec gives one: a run over [`MAX_RUN_VALUES`] that the
+    /// system's own step would have kept within it is refused there.
+    pub step_line: Option<usize>,
     /// The spec's text (its fingerprint identifies a sweep's journal).
     pub text: String,
 }
@@ -574,7 +628,17 @@ impl SweepSpec {
             }
         };
         let cycles = match &raw.cycles {
-            Some(c) => count(&mut p, c, "cycles").unwrap_or(1) as u32,
+            Some(c) => match count(&mut p, c, "cycles") {
+                Some(n) if n > MAX_CYCLES => {
+                    p.at(
+                        c.span(),
+                        format!("cycles must be at most {MAX_CYCLES}, not {n}"),
+                    );
+                    1
+                }
+                Some(n) => n as u32,
+                None => 1,
+            },
             None => 2,
         };
         let name = raw.system.get_ref().trim();
@@ -634,7 +698,20 @@ impl SweepSpec {
 
         let d = raw.design.get_ref();
         let points = |p: &mut Problems<'_>| match &d.points {
-            Some(n) => count(p, n, "points").unwrap_or(1),
+            Some(n) => match count(p, n, "points") {
+                Some(k) if k > super::design::MAX_POINTS => {
+                    p.at(
+                        n.span(),
+                        format!(
+                            "points must be at most {}, not {k}",
+                            super::design::MAX_POINTS
+                        ),
+                    );
+                    1
+                }
+                Some(k) => k,
+                None => 1,
+            },
             None => {
                 p.at(
                     raw.design.span(),
@@ -751,7 +828,21 @@ impl SweepSpec {
                 );
             }
             let levels = match &r.levels {
-                Some(l) => count(&mut p, l, &format!("parameter '{name}': levels")),
+                // More levels than a design's points: refused here, before the grid's axes
+                // (one value per level) are made.
+                Some(l) => match count(&mut p, l, &format!("parameter '{name}': levels")) {
+                    Some(n) if n > super::design::MAX_POINTS => {
+                        p.at(
+                            l.span(),
+                            format!(
+                                "parameter '{name}': levels must be at most {}, not {n}",
+                                super::design::MAX_POINTS
+                            ),
+                        );
+                        None
+                    }
+                    n => n,
+                },
                 None => None,
             };
             let values = r.values.as_ref().map(|v| v.get_ref().clone());
@@ -929,6 +1020,43 @@ impl SweepSpec {
                 line: line_of(text, s.span().start),
             });
         }
+        // The runs' recorded values, where the spec tells their length and step (a system
+        // file's experiment is checked once it is loaded, in `Prepared::new`): at most
+        // MAX_RUN_VALUES, refused at the line that sets the length.
+        let scenario = matches!(system, SystemSource::Scenario { .. });
+        let length_span = raw
+            .stop_time
+            .as_ref()
+            .map(|s| s.span())
+            .or_else(|| raw.cycles.as_ref().filter(|_| scenario).map(|c| c.span()))
+            .unwrap_or_else(|| raw.system.span());
+        let length_line = line_of(text, length_span.start);
+        let step_line = raw.step.as_ref().map(|s| line_of(text, s.span().start));
+        let mut columns: Vec<String> = if study_metrics {
+            crate::study::Columns::default().names()
+        } else {
+            Vec::new()
+        };
+        for s in &signals {
+            if !columns.contains(&s.signal) {
+                columns.push(s.signal.clone());
+            }
+        }
+        let own_step = scenario.then_some(crate::study::GAIT_SCENARIO_STEP);
+        if let (Some(stop), Some(h)) = (known_stop, step.or(own_step))
+            && run_values(stop, h, columns.len()) > MAX_RUN_VALUES as f64
+        {
+            let rows = (stop / h).floor() + 1.0;
+            let span = match (&raw.step, own_step) {
+                (Some(s), Some(own))
+                    if run_values(stop, own, columns.len()) <= MAX_RUN_VALUES as f64 =>
+                {
+                    s.span()
+                }
+                _ => length_span,
+            };
+            p.at(span, too_many_values(rows, columns.len()));
+        }
         let optimize = raw
             .optimize
             .as_ref()
@@ -953,6 +1081,8 @@ impl SweepSpec {
             period,
             signals,
             optimize,
+            length_line,
+            step_line,
             text: text.to_string(),
         })
     }
@@ -1014,6 +1144,99 @@ from = FROM
         ))
         .unwrap();
         parse(&spec.replace("stop_time = 0.2", "stop_time = 2.5")).unwrap();
+    }
+
+    /// The problems of a refused spec as (line, message).
+    fn refused(text: &str) -> Vec<(usize, String)> {
+        match parse(text) {
+            Err(SweepError::Invalid(problems)) => {
+                problems.into_iter().map(|p| (p.line, p.message)).collect()
+            }
+            other => panic!("not refused: {other:?}"),
+        }
+    }
+
+    /// Runs longer than MAX_RUN_VALUES allows (rows x recorded signals) are refused at the
+    /// line that makes them long: `cycles`, `stop_time`, or `step` when the scenario's own step
+    /// would have fitted; `cycles` beyond MAX_CYCLES (which no longer wraps in the scenario's
+    /// 32-bit count). Before, each was accepted and grew the workers' memory without bound.
+    #[test]
+    fn runs_recording_too_much_are_refused_at_the_line_that_makes_them_long() {
+        let spec = SPEC.replace("from = FROM\n", "");
+        // The study's 20 signals, plant.springDeflection and the time: 22 values a row, 2500
+        // rows a gait cycle at 1 ms; 300 cycles fit in 2^24 values, 400 do not.
+        parse(&spec.replace("cycles = 1", "cycles = 300")).unwrap();
+        let p = refused(&spec.replace("cycles = 1", "cycles = 400"));
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 3);
+        assert!(
+            p[0].1
+                .starts_with("each run would record 1000001 rows of 21 signals"),
+            "{}",
+            p[0].1
+        );
+        assert!(
+            p[0].1.contains("more than 16777216 values (128 MiB)"),
+            "{}",
+            p[0].1
+        );
+        // A cycle count that wrapped in the scenario's u32 (2^32 + 1 ran one cycle).
+        let p = refused(&spec.replace("cycles = 1", "cycles = 4294967297"));
+        assert_eq!(
+            p,
+            [(
+                3,
+                "cycles must be at most 10000, not 4294967297".to_string()
+            )]
+        );
+        // stop_time sets the length.
+        let p = refused(&spec.replace("cycles = 1", "cycles = 1\nstop_time = 1e6"));
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 4);
+        assert!(p[0].1.contains("shorten the runs"), "{}", p[0].1);
+        // A step far below the scenario's 1 ms: its line.
+        let p = refused(&spec.replace("cycles = 1", "cycles = 1\nstep = 1e-7"));
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 4);
+        // Fewer signals record less: without the study's, 400 cycles fit.
+        parse(&spec.replace("cycles = 1", "cycles = 400").replace(
+            "[[metrics.signals]]",
+            "[metrics]\nstudy = false\n\n[[metrics.signals]]",
+        ))
+        .unwrap();
+    }
+
+    /// `points` and a grid's `levels` beyond the design's MAX_POINTS are refused at their
+    /// line while the spec is read: `levels` made its axis (a value per level) before the
+    /// grid's size was checked, so `levels = 10^12` asked the allocator for 8 TB.
+    #[test]
+    fn design_sizes_beyond_the_most_points_are_refused_at_their_line() {
+        let spec = SPEC.replace("from = FROM\n", "");
+        let p = refused(&spec.replace(
+            "values = [300.0, 400.0]",
+            "min = 300.0\nmax = 400.0\nlevels = 1000000000000",
+        ));
+        assert_eq!(
+            p,
+            [(
+                10,
+                "parameter 'plant.springStiffness': levels must be at most 10000000, not \
+                 1000000000000"
+                    .to_string()
+            )]
+        );
+        let p = refused(
+            &spec
+                .replace("kind = \"grid\"", "kind = \"random\"\npoints = 20000000")
+                .replace("values = [300.0, 400.0]", "min = 300.0\nmax = 400.0"),
+        );
+        assert_eq!(
+            p,
+            [(
+                6,
+                "points must be at most 10000000, not 20000000".to_string()
+            )]
+        );
     }
 
     /// A window that starts after the runs end (a scenario's cycles of the gait, or the
