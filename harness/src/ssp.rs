@@ -579,6 +579,18 @@ fn line_of(xml: &str, position: u64) -> usize {
         .count()
 }
 
+/// Where an event the reader reads from byte `position` of `xml` starts: after the blanks it
+/// skips (ASCII, so counted in bytes: `position` need not be a character boundary).
+fn skip_blanks(xml: &str, position: u64) -> u64 {
+    let skipped = usize::try_from(position)
+        .ok()
+        .and_then(|p| xml.as_bytes().get(p..))
+        .map_or(0, |rest| {
+            rest.iter().take_while(|b| b.is_ascii_whitespace()).count()
+        });
+    position + skipped as u64
+}
+
 /// A malformed-XML error of `file` at byte `position` of `xml`.
 fn xml_error(xml: &str, file: &str, position: u64, message: String) -> SspError {
     SspError::Xml {
@@ -645,7 +657,7 @@ fn read_parameter_set(
     // Open elements: one still open at the end is malformed XML (the reader does not say).
     let mut open: Vec<(Vec<u8>, u64)> = Vec::new();
     loop {
-        let pos = r.buffer_position();
+        let pos = skip_blanks(xml, r.buffer_position());
         let ev = r
             .read_event()
             .map_err(|e| xml_error(r.error_position(), e.to_string()))?;
@@ -774,11 +786,7 @@ fn read_ssd_labelled(
         let ev = r
             .read_event()
             .map_err(|e| xml_error(xml, file, r.error_position(), e.to_string()))?;
-        // The event starts after the blanks the reader skipped (ASCII: counted in bytes).
-        let start = pos
-            + xml.as_bytes().get(pos as usize..).map_or(0, |rest| {
-                rest.iter().take_while(|b| b.is_ascii_whitespace()).count()
-            }) as u64;
+        let start = skip_blanks(xml, pos);
         // The file and the line of the element, for errors about it.
         let here = format!("{file} line {}", line_of(xml, start));
         let (e, empty) = match ev {

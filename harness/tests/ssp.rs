@@ -304,6 +304,20 @@ fn errors_in_an_ssp_name_the_archive_and_the_line() {
         )) && e.contains("ends inside <ssv:ParameterSet> (opened at line 1)"),
         "{e}"
     );
+    // A bad tag is on its own line, not on the line of the blanks before it.
+    let e = read(&[
+        ("SystemStructure.ssd", binding),
+        (
+            "resources/p.ssv",
+            "<ssv:ParameterSet version=\"1.0\" name=\"p\">\n<ssv:Parameters>\n\n  <ssv:Parameter name=\"k<\"/>\n</ssv:Parameters>\n</ssv:ParameterSet>",
+        ),
+    ]);
+    assert!(
+        e.starts_with(&format!(
+            "{ssp_name}: resources/p.ssv line 4: malformed XML"
+        )) && e.contains("the value of name holds a '<'"),
+        "{e}"
+    );
 }
 
 /// Malformed XML in an SSD is reported as malformed XML with the parser's position and reason,
