@@ -51,7 +51,7 @@ fn main() {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {}", message(&e));
-            cli::EXIT_ERROR
+            cli::exit_code_of(&e)
         }
     };
     std::process::exit(code);

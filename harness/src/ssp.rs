@@ -200,20 +200,26 @@ pub enum SspError {
         /// The cause.
         source: io::Error,
     },
-    /// Malformed XML.
-    #[error("{file}: malformed XML at byte {position}: {message}")]
+    /// Malformed XML (not well-formed: the parser's reason, or a tag whose attribute names or
+    /// values no XML document may hold, or an element not closed at the end).
+    #[error("{file} line {line}: malformed XML (byte {position}): {message}")]
     Xml {
-        /// The file (name inside the archive or path).
+        /// The file: its path, or for a file inside an `.ssp` archive the archive's path and
+        /// the file's name in it (`Foo.ssp: SystemStructure.ssd`).
         file: String,
         /// Byte offset.
         position: u64,
+        /// 1-based line of `position`.
+        line: usize,
         /// The parser's message.
         message: String,
     },
     /// Valid XML but not a usable SSD.
     #[error("{file}: {problem}")]
     Invalid {
-        /// The file.
+        /// The file (inside an `.ssp`: the archive's path and the file's name in it), with the
+        /// line of the element concerned where there is one (`Foo.ssp: SystemStructure.ssd
+        /// line 12`).
         file: String,
         /// What is wrong.
         problem: String,
@@ -562,20 +568,60 @@ impl SspComponent {
 // ---------------------------------------------------------------------------------------------
 // Reading
 
-fn attrs(e: &BytesStart<'_>, file: &str) -> Result<HashMap<String, String>, SspError> {
+/// The 1-based line of byte `position` of `xml`.
+fn line_of(xml: &str, position: u64) -> usize {
+    let end = usize::try_from(position)
+        .unwrap_or(usize::MAX)
+        .min(xml.len());
+    1 + xml.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+}
+
+/// Where an event the reader reads from byte `position` of `xml` starts: after the blanks it
+/// skips (ASCII, so counted in bytes: `position` need not be a character boundary).
+fn skip_blanks(xml: &str, position: u64) -> u64 {
+    let skipped = usize::try_from(position)
+        .ok()
+        .and_then(|p| xml.as_bytes().get(p..))
+        .map_or(0, |rest| {
+            rest.iter().take_while(|b| b.is_ascii_whitespace()).count()
+        });
+    position + skipped as u64
+}
+
+/// A malformed-XML error of `file` at byte `position` of `xml`.
+fn xml_error(xml: &str, file: &str, position: u64, message: String) -> SspError {
+    SspError::Xml {
+        file: file.to_string(),
+        position,
+        line: line_of(xml, position),
+        message,
+    }
+}
+
+/// The attributes of the tag `e`, which starts at byte `position` of `xml`, by local name. A
+/// tag that no well-formed document holds (a bad attribute name, an unquoted or duplicated
+/// attribute, a `<` or a bad reference in a value) is malformed XML.
+fn attrs(
+    xml: &str,
+    e: &BytesStart<'_>,
+    position: u64,
+    file: &str,
+) -> Result<HashMap<String, String>, SspError> {
+    let malformed = |message: String| xml_error(xml, file, position, message);
+    let element = e.name().as_ref().to_string();
+    if let Some(problem) = model_description::read::malformed_tag(e.as_ref()) {
+        return Err(malformed(format!("in <{element}>: {problem}")));
+    }
     let mut m = HashMap::new();
     for a in e.attributes() {
-        let a = a.map_err(|err| SspError::Invalid {
-            file: file.to_string(),
-            problem: format!("bad attribute: {err}"),
-        })?;
+        let a = a.map_err(|err| malformed(format!("in <{element}>: {err}")))?;
         let key = a.key.local_name().as_ref().to_string();
         let v = a
             .normalized_value(quick_xml::XmlVersion::Implicit1_0)
-            .map_err(|err| SspError::Invalid {
-                file: file.to_string(),
-                problem: format!("bad attribute value: {err}"),
-            })?
+            .map_err(|err| malformed(format!("in <{element}>: {err}")))?
             .into_owned();
         m.insert(key, v);
     }
@@ -593,22 +639,35 @@ fn parse_f64(file: &str, what: &str, s: &str) -> Result<f64, SspError> {
     }
 }
 
-/// Reads parameter values from an `ssv:ParameterSet` document or fragment.
-fn read_parameter_set(xml: &str, file: &str) -> Result<Vec<SspParameter>, SspError> {
+/// Reads parameter values from an `ssv:ParameterSet` document, or a fragment of one: the bytes
+/// `span` of `doc` (errors give positions and lines in `doc`).
+fn read_parameter_set(
+    doc: &str,
+    span: std::ops::Range<usize>,
+    file: &str,
+) -> Result<Vec<SspParameter>, SspError> {
+    let offset = span.start as u64;
+    let xml = &doc[span];
+    let xml_error =
+        |position: u64, message: String| xml_error(doc, file, offset + position, message);
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
     let mut out = Vec::new();
     let mut current: Option<String> = None;
+    // Open elements: one still open at the end is malformed XML (the reader does not say).
+    let mut open: Vec<(Vec<u8>, u64)> = Vec::new();
     loop {
-        let ev = r.read_event().map_err(|e| SspError::Xml {
-            file: file.to_string(),
-            position: r.buffer_position(),
-            message: e.to_string(),
-        })?;
+        let pos = skip_blanks(xml, r.buffer_position());
+        let ev = r
+            .read_event()
+            .map_err(|e| xml_error(r.error_position(), e.to_string()))?;
+        if let Event::Start(e) = &ev {
+            open.push((e.name().as_ref().as_bytes().to_vec(), offset + pos));
+        }
         match ev {
             Event::Start(e) | Event::Empty(e) => {
                 let local = e.local_name();
-                let a = attrs(&e, file)?;
+                let a = attrs(doc, &e, offset + pos, file)?;
                 match local.as_ref().as_bytes() {
                     b"Parameter" => current = a.get("name").cloned(),
                     t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
@@ -652,12 +711,34 @@ fn read_parameter_set(xml: &str, file: &str) -> Result<Vec<SspParameter>, SspErr
                     _ => {}
                 }
             }
-            Event::End(e) if e.local_name().as_ref().as_bytes() == b"Parameter" => current = None,
+            Event::End(e) => {
+                open.pop();
+                if e.local_name().as_ref().as_bytes() == b"Parameter" {
+                    current = None;
+                }
+            }
             Event::Eof => break,
             _ => {}
         }
     }
+    if let Some((name, at)) = open.last() {
+        return Err(unclosed(doc, file, name, *at));
+    }
     Ok(out)
+}
+
+/// The error of an element `name` opened at byte `at` of `xml` and not closed by the end.
+fn unclosed(xml: &str, file: &str, name: &[u8], at: u64) -> SspError {
+    xml_error(
+        xml,
+        file,
+        xml.len() as u64,
+        format!(
+            "the document ends inside <{}> (opened at line {})",
+            String::from_utf8_lossy(name),
+            line_of(xml, at)
+        ),
+    )
 }
 
 /// Reads an SSD document. `read_file` resolves `source` references of parameter bindings
@@ -667,42 +748,54 @@ pub fn read_ssd_with(
     file: &str,
     read_file: &mut dyn FnMut(&str) -> Result<String, SspError>,
 ) -> Result<Ssd, SspError> {
+    read_ssd_labelled(xml, file, &|src| src.to_string(), read_file)
+}
+
+/// [`read_ssd_with`], errors in a referenced file naming it as `source_label` names the
+/// reference (for an archive: the archive's path with the name inside it).
+fn read_ssd_labelled(
+    xml: &str,
+    file: &str,
+    source_label: &dyn Fn(&str) -> String,
+    read_file: &mut dyn FnMut(&str) -> Result<String, SspError>,
+) -> Result<Ssd, SspError> {
     let xml = xml.strip_prefix('\u{feff}').unwrap_or(xml);
     // The XML parser would skip a second mark too and count its positions from after it, so
     // that inline parameter sets were cut three bytes off.
     if xml.starts_with('\u{feff}') {
-        return Err(SspError::Xml {
-            file: file.to_string(),
-            position: 0,
-            message: "a second byte order mark".into(),
-        });
+        return Err(xml_error(xml, file, 0, "a second byte order mark".into()));
     }
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
     let mut ssd = Ssd::default();
+    // The open elements' local names, and where each starts (the reader does not say when the
+    // document ends inside one).
     let mut stack: Vec<Vec<u8>> = Vec::new();
+    let mut opened: Vec<(Vec<u8>, u64)> = Vec::new();
     let mut saw_root = false;
     let mut system_depth: Option<usize> = None;
     let mut comp: Option<SspComponent> = None;
     let mut connector: Option<SspConnector> = None;
     let mut binding_prefix = String::new();
-    let invalid = |p: String| SspError::Invalid {
-        file: file.to_string(),
+    let invalid = |here: &str, p: String| SspError::Invalid {
+        file: here.to_string(),
         problem: p,
     };
     loop {
         let pos = r.buffer_position();
-        let ev = r.read_event().map_err(|e| SspError::Xml {
-            file: file.to_string(),
-            position: pos,
-            message: e.to_string(),
-        })?;
+        let ev = r
+            .read_event()
+            .map_err(|e| xml_error(xml, file, r.error_position(), e.to_string()))?;
+        let start = skip_blanks(xml, pos);
+        // The file and the line of the element, for errors about it.
+        let here = format!("{file} line {}", line_of(xml, start));
         let (e, empty) = match ev {
             Event::Start(e) => (e, false),
             Event::Empty(e) => (e, true),
             Event::End(e) => {
                 let name = e.local_name().as_ref().as_bytes().to_vec();
                 stack.pop();
+                opened.pop();
                 let parent = stack.last().map(Vec::as_slice).unwrap_or_default();
                 match name.as_slice() {
                     b"Component" if parent == b"Elements" => {
@@ -719,7 +812,12 @@ pub fn read_ssd_with(
                 }
                 continue;
             }
-            Event::Eof => break,
+            Event::Eof => {
+                if let Some((name, at)) = opened.last() {
+                    return Err(unclosed(xml, file, name, *at));
+                }
+                break;
+            }
             _ => continue,
         };
         let local = e.local_name().as_ref().as_bytes().to_vec();
@@ -727,13 +825,16 @@ pub fn read_ssd_with(
         // before or after it would be silently added.
         if stack.is_empty() && (saw_root || local != b"SystemStructureDescription") {
             let name = String::from_utf8_lossy(&local);
-            return Err(invalid(if saw_root {
-                format!("an element <{name}> after the root element")
-            } else {
-                format!("the root element is <{name}>, not SystemStructureDescription")
-            }));
+            return Err(invalid(
+                &here,
+                if saw_root {
+                    format!("an element <{name}> after the root element")
+                } else {
+                    format!("the root element is <{name}>, not SystemStructureDescription")
+                },
+            ));
         }
-        let a = attrs(&e, file)?;
+        let a = attrs(xml, &e, start, file)?;
         let parent = stack.last().cloned().unwrap_or_default();
         let in_annotation = parent.as_slice() == b"Annotation";
         match local.as_slice() {
@@ -741,7 +842,10 @@ pub fn read_ssd_with(
             b"Component" if in_annotation => {
                 if let (Some(c), Some(m)) = (comp.as_mut(), a.get("stepMultiple")) {
                     c.step_multiple = Some(m.trim().parse().map_err(|_| {
-                        invalid(format!("stepMultiple '{m}' is not a positive integer"))
+                        invalid(
+                            &here,
+                            format!("stepMultiple '{m}' is not a positive integer"),
+                        )
                     })?);
                 }
             }
@@ -750,16 +854,16 @@ pub fn read_ssd_with(
                 ssd.name = a.get("name").cloned().unwrap_or_default();
                 ssd.version = a.get("version").cloned().unwrap_or_default();
                 if !ssd.version.starts_with("1.") {
-                    return Err(invalid(format!(
-                        "version '{}' is not an SSP 1.x version",
-                        ssd.version
-                    )));
+                    return Err(invalid(
+                        &here,
+                        format!("version '{}' is not an SSP 1.x version", ssd.version),
+                    ));
                 }
             }
             b"System" => {
                 if system_depth.is_some() {
                     return Err(SspError::Unsupported {
-                        file: file.to_string(),
+                        file: here.clone(),
                         what: "nested systems".into(),
                     });
                 }
@@ -770,16 +874,16 @@ pub fn read_ssd_with(
                 let name = a
                     .get("name")
                     .cloned()
-                    .ok_or_else(|| invalid("a Component has no name".into()))?;
+                    .ok_or_else(|| invalid(&here, "a Component has no name".into()))?;
                 let source = a
                     .get("source")
                     .cloned()
-                    .ok_or_else(|| invalid(format!("Component '{name}' has no source")))?;
+                    .ok_or_else(|| invalid(&here, format!("Component '{name}' has no source")))?;
                 if let Some(t) = a.get("type")
                     && t != "application/x-fmu-sharedlibrary"
                 {
                     return Err(SspError::Unsupported {
-                        file: file.to_string(),
+                        file: here.clone(),
                         what: format!("component '{name}' of type '{t}' (only FMUs)"),
                     });
                 }
@@ -799,7 +903,9 @@ pub fn read_ssd_with(
                 let kind = a
                     .get("kind")
                     .and_then(|k| ConnectorKind::parse(k))
-                    .ok_or_else(|| invalid(format!("connector '{name}' has no valid kind")))?;
+                    .ok_or_else(|| {
+                        invalid(&here, format!("connector '{name}' has no valid kind"))
+                    })?;
                 let k = SspConnector {
                     name,
                     kind,
@@ -835,29 +941,28 @@ pub fn read_ssd_with(
                         c.parameter_sources.push(src.clone());
                     }
                     let text = read_file(src)?;
-                    let params = read_parameter_set(&text, src)?;
-                    push_params(comp.as_mut(), params, &binding_prefix, file)?;
+                    let params = read_parameter_set(&text, 0..text.len(), &source_label(src))?;
+                    push_params(comp.as_mut(), params, &binding_prefix, &here)?;
                 }
             }
             b"ParameterSet" if !empty => {
                 // Inline: parse the fragment from here to its end.
                 let start = pos as usize;
-                let end_tag = r.read_to_end(e.name()).map_err(|err| SspError::Xml {
-                    file: file.to_string(),
-                    position: r.buffer_position(),
-                    message: err.to_string(),
-                })?;
+                let end_tag = r
+                    .read_to_end(e.name())
+                    .map_err(|err| xml_error(xml, file, r.error_position(), err.to_string()))?;
                 let _ = end_tag;
                 let end = r.buffer_position() as usize;
                 // Checked, not sliced: the reader's positions need not be character
                 // boundaries (a second byte order mark).
-                let fragment = xml.get(start..end).ok_or_else(|| {
-                    invalid(format!(
-                        "a ParameterSet at byte {start} the reader cannot cut out"
-                    ))
+                xml.get(start..end).ok_or_else(|| {
+                    invalid(
+                        &here,
+                        format!("a ParameterSet at byte {start} the reader cannot cut out"),
+                    )
                 })?;
-                let params = read_parameter_set(fragment, file)?;
-                push_params(comp.as_mut(), params, &binding_prefix, file)?;
+                let params = read_parameter_set(xml, start..end, file)?;
+                push_params(comp.as_mut(), params, &binding_prefix, &here)?;
                 continue; // the end tag was consumed
             }
             b"Connection" => {
@@ -872,16 +977,16 @@ pub fn read_ssd_with(
             b"DefaultExperiment" => {
                 let d = ssd.default_experiment.get_or_insert_with(Default::default);
                 if let Some(v) = a.get("startTime") {
-                    d.start_time = Some(parse_f64(file, "startTime", v)?);
+                    d.start_time = Some(parse_f64(&here, "startTime", v)?);
                 }
                 if let Some(v) = a.get("stopTime") {
-                    d.stop_time = Some(parse_f64(file, "stopTime", v)?);
+                    d.stop_time = Some(parse_f64(&here, "stopTime", v)?);
                 }
             }
             b"Master" => {
                 let d = ssd.default_experiment.get_or_insert_with(Default::default);
                 if let Some(v) = a.get("stepSize") {
-                    d.step_size = Some(parse_f64(file, "stepSize", v)?);
+                    d.step_size = Some(parse_f64(&here, "stepSize", v)?);
                 }
                 d.algorithm = match a.get("algorithm").map(String::as_str) {
                     Some("jacobi") => Some(Algorithm::Jacobi),
@@ -889,25 +994,30 @@ pub fn read_ssd_with(
                     None => d.algorithm,
                     // A misspelt algorithm ran the default silently.
                     Some(other) => {
-                        return Err(invalid(format!(
-                            "kb:Master algorithm '{other}' is not one of jacobi, gauss-seidel"
-                        )));
+                        return Err(invalid(
+                            &here,
+                            format!(
+                                "kb:Master algorithm '{other}' is not one of jacobi, gauss-seidel"
+                            ),
+                        ));
                     }
                 };
             }
             _ => {}
         }
         if !empty {
+            opened.push((e.name().as_ref().as_bytes().to_vec(), start));
             stack.push(local);
         }
     }
     if !saw_root {
         return Err(invalid(
+            file,
             "the root element is not SystemStructureDescription".into(),
         ));
     }
     if system_depth.is_none() {
-        return Err(invalid("no System element".into()));
+        return Err(invalid(file, "no System element".into()));
     }
     Ok(ssd)
 }
@@ -940,13 +1050,6 @@ pub fn read_ssd(xml: &str) -> Result<Ssd, SspError> {
             file: "SystemStructure.ssd".into(),
             what: format!("parameter binding source '{src}' (no file access)"),
         })
-    })
-}
-
-fn read_text(path: &Path) -> Result<String, SspError> {
-    std::fs::read_to_string(path).map_err(|source| SspError::Io {
-        path: path.to_path_buf(),
-        source,
     })
 }
 
@@ -1032,21 +1135,49 @@ pub fn read_file_within(
         })?;
         (dir.path().to_path_buf(), Some(dir))
     };
-    let ssd_path = if is_ssd {
-        path.to_path_buf()
+    let ssd = if is_ssd {
+        read_ssd_file(path, &base, None)?
     } else {
-        base.join("SystemStructure.ssd")
+        read_ssd_file(&base.join(SSD_NAME), &base, Some(path))?
     };
-    Ok((read_ssd_file(&ssd_path, &base)?, base, dir))
+    Ok((ssd, base, dir))
 }
 
+/// The description's name inside an `.ssp` archive.
+const SSD_NAME: &str = "SystemStructure.ssd";
+
 /// Reads and parses the description `ssd_path`, its references (parameter values) relative to
-/// `base`.
-fn read_ssd_file(ssd_path: &Path, base: &Path) -> Result<Ssd, SspError> {
-    let xml = read_text(ssd_path)?;
-    let file = ssd_path.display().to_string();
-    read_ssd_with(&xml, &file, &mut |src| {
-        read_text(&relative_ref(base, src, &file)?)
+/// `base`. For an `.ssp` extracted into `base`, `archive` is the archive: errors name it and
+/// the file inside it (`Foo.ssp: SystemStructure.ssd line 12: ...`), never the extraction
+/// directory, which is gone when the user reads them.
+fn read_ssd_file(ssd_path: &Path, base: &Path, archive: Option<&Path>) -> Result<Ssd, SspError> {
+    let inside = |name: &str| match archive {
+        Some(a) => format!("{}: {name}", a.display()),
+        None => base.join(name).display().to_string(),
+    };
+    let file = match archive {
+        Some(_) => inside(SSD_NAME),
+        None => ssd_path.display().to_string(),
+    };
+    let read = |path: &Path, name: &str| {
+        std::fs::read_to_string(path).map_err(|source| match archive {
+            Some(a) if source.kind() == io::ErrorKind::NotFound => SspError::Invalid {
+                file: a.display().to_string(),
+                problem: format!("the archive has no {name}"),
+            },
+            Some(_) => SspError::Invalid {
+                file: inside(name),
+                problem: source.to_string(),
+            },
+            None => SspError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+        })
+    };
+    let xml = read(ssd_path, SSD_NAME)?;
+    read_ssd_labelled(&xml, &file, &inside, &mut |src| {
+        read(&relative_ref(base, src, &file)?, src)
     })
 }
 
@@ -1128,7 +1259,7 @@ fn read_file_for_run(path: &Path, budget: &ArchiveBudget) -> Result<ForRun, SspE
             }
         }
     }
-    let ssd = read_ssd_file(&base.join("SystemStructure.ssd"), &base)?;
+    let ssd = read_ssd_file(&base.join(SSD_NAME), &base, Some(path))?;
     Ok((ssd, base, Some(dir), in_place))
 }
 

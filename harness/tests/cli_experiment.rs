@@ -41,3 +41,26 @@ fn a_step_whose_closed_loop_trips_says_why_and_exits_3() {
     assert_eq!(completed.status.code(), Some(0), "{stderr}");
     assert!(!stderr.contains("was ended"), "{stderr}");
 }
+
+/// A run that fails before its first row (the bench FMU refuses a parameter while starting)
+/// says so: the message said "the run failed at t = None".
+#[test]
+fn a_run_that_fails_while_starting_says_so_without_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
+    let out = Command::new(env!("CARGO_BIN_EXE_kneebench"))
+        .args(["experiment", "step", "--fmu"])
+        .arg(fmus.join("BenchPlant.fmu"))
+        .args(["--param", "actuationInertia=0", "--out"])
+        .arg(dir.path().join("step"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("the run failed before its first row")
+            && stderr.contains("actuationInertia"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("None"), "{stderr}");
+}

@@ -83,11 +83,129 @@ fn tune_prints_ziegler_nichols_gains_and_refuses_bad_input() {
             && text.contains("kd = 0.375000"),
         "{text}"
     );
+    // A negative gain is a usage error, refused while parsing (it exited with 1).
     let out = kneebench()
         .args(["tune", "--ku=-1", "--tu", "0.5"])
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(out.status.code(), Some(2));
     let out = kneebench().args(["tune", "--ku", "1"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2), "usage error");
+}
+
+/// A CSV whose data rows are not its lines: a comment, the header and a blank line before them.
+fn csv_with_a_bad_sample(dir: &std::path::Path, bad: &str) -> std::path::PathBuf {
+    let path = dir.join("bad.csv");
+    let mut text = String::from("# recorded by hand\ntime,y,other\n\n");
+    for k in 0..50 {
+        let t = k as f64 * 0.01;
+        let y = if k == 30 {
+            bad.to_string()
+        } else {
+            format!("{:?}", 1.0 - (-t / 0.1).exp())
+        };
+        text.push_str(&format!("{t:?},{y},nan\n"));
+    }
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A non-finite sample in the signal metrics or tune reads is named by the file and its line
+/// (row 31 is line 34 of the file: a comment, the header and a blank line come first); a
+/// non-finite time too. A column neither reads (`other`, all NaN) does not matter.
+#[test]
+fn metrics_and_tune_name_the_file_and_line_of_a_non_finite_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    for bad in ["nan", "inf", "-inf"] {
+        let csv = csv_with_a_bad_sample(dir.path(), bad);
+        let name = csv.display().to_string();
+        for args in [
+            vec!["metrics", &name, "--signal", "y"],
+            vec!["metrics", &name, "--signal", "y", "--reference", "y"],
+            vec![
+                "tune",
+                "--step-response",
+                &name,
+                "--signal",
+                "y",
+                "--input-step",
+                "1",
+            ],
+        ] {
+            let out = kneebench().args(&args).output().unwrap();
+            let e = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(1), "{args:?}: {e}");
+            assert!(
+                e.contains(&format!("{name}, line 34: y = ")) && e.contains("is not finite"),
+                "{args:?}: {e}"
+            );
+        }
+        // Rows before --from are not read.
+        let out = kneebench()
+            .args(["metrics", &name, "--signal", "y", "--from", "0.31"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // A time that is not finite, or not increasing, whatever --from says.
+    let path = dir.path().join("time.csv");
+    std::fs::write(&path, "time,y\n0,0\n0.1,1\nnan,1\n0.3,1\n").unwrap();
+    let out = kneebench()
+        .args([
+            "metrics",
+            path.to_str().unwrap(),
+            "--signal",
+            "y",
+            "--from",
+            "0.2",
+        ])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains(&format!("{}, line 4: the time NaN", path.display())),
+        "{e}"
+    );
+}
+
+/// `--from` and `--target` must be finite, and the window from `--from` to the end must hold
+/// two rows: usage errors (exit code 2), not run errors (1).
+#[test]
+fn metrics_refuses_non_finite_and_empty_windows_as_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("ok.csv");
+    std::fs::write(&csv, "time,y\n0,0\n1,1\n2,1\n").unwrap();
+    let csv = csv.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--from", "nan"], "--from"),
+        (vec!["--from", "inf"], "--from"),
+        (vec!["--from=-inf"], "--from"),
+        (vec!["--target", "NaN"], "--target"),
+        (vec!["--from", "1.5"], "fewer than two rows"),
+        (vec!["--from", "7"], "the last is at t = 2"),
+    ] {
+        let out = kneebench()
+            .args(["metrics", csv, "--signal", "y"])
+            .args(&args)
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(needle), "{args:?}: {e}");
+    }
+    // A negative --from is a time like any other.
+    let out = kneebench()
+        .args(["metrics", csv, "--signal", "y", "--from", "-1"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

@@ -230,3 +230,139 @@ fn a_malformed_boolean_or_algorithm_is_refused() {
     let e = ssp::read_ssd(&xml.replace(algorithm, "algorithm=\"magic\"")).unwrap_err();
     assert!(e.to_string().contains("algorithm 'magic'"), "{e}");
 }
+
+/// Writes an `.ssp` at `path` holding `entries` (name, text).
+fn write_ssp_entries(path: &std::path::Path, entries: &[(&str, &str)]) {
+    use std::io::Write;
+    let mut z = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+    for (name, text) in entries {
+        z.start_file(*name, zip::write::SimpleFileOptions::default())
+            .unwrap();
+        z.write_all(text.as_bytes()).unwrap();
+    }
+    z.finish().unwrap();
+}
+
+/// Errors in an `.ssp` name the archive the user gave and the file inside it, with the line,
+/// never the temporary directory it was extracted into (gone when the message is read).
+#[test]
+fn errors_in_an_ssp_name_the_archive_and_the_line() {
+    let d = tempfile::tempdir().unwrap();
+    let ssp_path = d.path().join("Foo.ssp");
+    let ssp_name = ssp_path.display().to_string();
+    let mut ssd = String::from(
+        "<?xml version=\"1.0\"?>\n<ssd:SystemStructureDescription xmlns:ssd=\"x\" version=\"1.0\" name=\"x\">\n<ssd:System name=\"s\">\n",
+    );
+    for _ in 0..8 {
+        ssd.push('\n');
+    }
+    // Line 12.
+    ssd.push_str("<ssd:Elements></ssd:Foo>\n</ssd:System>\n</ssd:SystemStructureDescription>\n");
+    let read = |entries: &[(&str, &str)]| {
+        write_ssp_entries(&ssp_path, entries);
+        ssp::read_file(&ssp_path, &Default::default())
+            .unwrap_err()
+            .to_string()
+    };
+    let e = read(&[("SystemStructure.ssd", &ssd)]);
+    assert!(
+        e.starts_with(&format!(
+            "{ssp_name}: SystemStructure.ssd line 12: malformed XML"
+        )),
+        "{e}"
+    );
+    assert!(!e.contains("kneebench-ssp"), "{e}");
+    // Valid XML, not a usable SSD: the line of the element too.
+    let e = read(&[(
+        "SystemStructure.ssd",
+        "<?xml version=\"1.0\"?>\n<SystemStructureDescription version=\"2.0\" name=\"x\"><System name=\"s\"/></SystemStructureDescription>",
+    )]);
+    assert_eq!(
+        e,
+        format!("{ssp_name}: SystemStructure.ssd line 2: version '2.0' is not an SSP 1.x version")
+    );
+    // No description in the archive.
+    let e = read(&[("other.txt", "x")]);
+    assert_eq!(
+        e,
+        format!("{ssp_name}: the archive has no SystemStructure.ssd")
+    );
+    // A parameter file it references: missing, then malformed.
+    let binding = "<?xml version=\"1.0\"?>\n<SystemStructureDescription version=\"1.0\" name=\"x\"><System name=\"s\"><Elements><Component name=\"c\" source=\"resources/c.fmu\"><ParameterBindings><ParameterBinding source=\"resources/p.ssv\"/></ParameterBindings></Component></Elements></System></SystemStructureDescription>";
+    let e = read(&[("SystemStructure.ssd", binding)]);
+    assert_eq!(e, format!("{ssp_name}: the archive has no resources/p.ssv"));
+    let e = read(&[
+        ("SystemStructure.ssd", binding),
+        (
+            "resources/p.ssv",
+            "<ssv:ParameterSet version=\"1.0\" name=\"p\">\n<ssv:Parameters>\n<ssv:Parameter name=\"k\"><ssv:Real value=\"1\"/></ssv:Parameter>\n</ssv:Parameters>",
+        ),
+    ]);
+    assert!(
+        e.starts_with(&format!(
+            "{ssp_name}: resources/p.ssv line 4: malformed XML"
+        )) && e.contains("ends inside <ssv:ParameterSet> (opened at line 1)"),
+        "{e}"
+    );
+    // A bad tag is on its own line, not on the line of the blanks before it.
+    let e = read(&[
+        ("SystemStructure.ssd", binding),
+        (
+            "resources/p.ssv",
+            "<ssv:ParameterSet version=\"1.0\" name=\"p\">\n<ssv:Parameters>\n\n  <ssv:Parameter name=\"k<\"/>\n</ssv:Parameters>\n</ssv:ParameterSet>",
+        ),
+    ]);
+    assert!(
+        e.starts_with(&format!(
+            "{ssp_name}: resources/p.ssv line 4: malformed XML"
+        )) && e.contains("the value of name holds a '<'"),
+        "{e}"
+    );
+}
+
+/// Malformed XML in an SSD is reported as malformed XML with the parser's position and reason,
+/// not as what the reader made of it: a tag with `<` in it read as an attribute named
+/// `<version` (so: "version '' is not an SSP 1.x version"), a `<` in a value, and a document
+/// that ends inside its root (accepted).
+#[test]
+fn malformed_xml_in_an_ssd_is_not_a_bad_version() {
+    for (xml, line, reason) in [
+        (
+            "<?xml version=\"1.0\"?>\n<SystemStructureDescription <version=\"1.0\" name=\"x\"><System name=\"s\"/></SystemStructureDescription>",
+            2,
+            "'<version' is not an attribute name",
+        ),
+        (
+            "<SystemStructureDescription versi<on=\"1.0\" name=\"x\"><System name=\"s\"/></SystemStructureDescription>",
+            1,
+            "'versi<on' is not an attribute name",
+        ),
+        (
+            "<SystemStructureDescription version=\"1.0<\" name=\"x\"><System name=\"s\"/></SystemStructureDescription>",
+            1,
+            "the value of version holds a '<'",
+        ),
+        (
+            "<SystemStructureDescription version=\"1.0\" name=\"x\">\n<System name=\"s\"/>\n",
+            3,
+            "ends inside <SystemStructureDescription> (opened at line 1)",
+        ),
+        (
+            "<SystemStructureDescription version=\"1.0\" name=\"x\">\n<System name=\"s\">\n</Elements>\n</SystemStructureDescription>",
+            3,
+            "expected `</System>`",
+        ),
+    ] {
+        let e = ssp::read_ssd(xml).unwrap_err();
+        match &e {
+            ssp::SspError::Xml {
+                line: l, message, ..
+            } => {
+                assert_eq!(*l, line, "{xml}: {e}");
+                assert!(message.contains(reason), "{xml}: {e}");
+            }
+            other => panic!("{xml}: expected malformed XML, got {other:?}"),
+        }
+        assert!(!e.to_string().contains("version '"), "{e}");
+    }
+}

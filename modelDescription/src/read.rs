@@ -294,6 +294,9 @@ impl<'a> Parser<'a> {
             ));
         }
         let name = raw_name.as_ref().to_owned();
+        if let Some(problem) = malformed_tag(e.as_ref()) {
+            return Err(self.xml_error(format!("in <{name}>: {problem}"), pos));
+        }
         let mut attrs = Vec::new();
         for attr in e.attributes() {
             let attr = match attr {
@@ -852,6 +855,83 @@ fn unexpected(e: &Elem, parent: &str) -> ParseError {
         element: e.name.clone(),
         parent: parent.to_owned(),
         line: e.line,
+    }
+}
+
+/// Whether `name` is an XML name (of an element or attribute; namespace prefixes included).
+/// Non-ASCII characters are taken as name characters.
+fn is_xml_name(name: &str) -> bool {
+    let mut chars = name.chars();
+    let Some(first) = chars.next() else {
+        return false;
+    };
+    let start = |c: char| !c.is_ascii() || c.is_ascii_alphabetic() || c == '_' || c == ':';
+    start(first) && chars.all(|c| start(c) || c.is_ascii_digit() || c == '-' || c == '.')
+}
+
+/// Why the text of a start tag (between `<` and `>`, without an empty element's closing `/`)
+/// is not well-formed XML, in the ways the XML reader (quick-xml) lets through: an element or
+/// attribute name that is not an XML name (`<a <b="1">` read as an attribute `<b`, and so
+/// the attribute looked for as missing), a `<` in an attribute value (`fmiVersion="2.0<"`
+/// read as an unsupported version), or attributes without white space between them. `None`
+/// when it has none of these; what the reader itself refuses (an unquoted value, a missing
+/// `=`, a value not closed) is left to it.
+pub fn malformed_tag(tag: &str) -> Option<String> {
+    let b = tag.as_bytes();
+    let blank = |i: usize| b.get(i).is_some_and(u8::is_ascii_whitespace);
+    let mut i = b
+        .iter()
+        .position(u8::is_ascii_whitespace)
+        .unwrap_or(b.len());
+    // Every index below stops at an ASCII byte: slicing there is on a character boundary.
+    let name = &tag[..i];
+    if !is_xml_name(name) {
+        return Some(format!("'{name}' is not an element name"));
+    }
+    loop {
+        while blank(i) {
+            i += 1;
+        }
+        if i == b.len() {
+            return None;
+        }
+        let start = i;
+        while i < b.len() && b[i] != b'=' && !blank(i) {
+            i += 1;
+        }
+        let key = &tag[start..i];
+        if !is_xml_name(key) {
+            return Some(format!("'{key}' is not an attribute name"));
+        }
+        while blank(i) {
+            i += 1;
+        }
+        if b.get(i) != Some(&b'=') {
+            return None;
+        }
+        i += 1;
+        while blank(i) {
+            i += 1;
+        }
+        let quote = match b.get(i) {
+            Some(q @ (b'"' | b'\'')) => *q,
+            _ => return None,
+        };
+        i += 1;
+        let value_start = i;
+        while i < b.len() && b[i] != quote {
+            i += 1;
+        }
+        if i == b.len() {
+            return None;
+        }
+        if tag[value_start..i].contains('<') {
+            return Some(format!("the value of {key} holds a '<'"));
+        }
+        i += 1;
+        if i < b.len() && !blank(i) {
+            return Some(format!("no white space after the value of {key}"));
+        }
     }
 }
 

@@ -138,6 +138,75 @@ fn unsupported_versions() {
     }
 }
 
+/// Tags the XML reader lets through but no well-formed document holds are malformed XML, with
+/// the line: they were reported as an unsupported version (`fmiVersion="2.0<"`) or a missing
+/// `fmiVersion` (read as an attribute named `<fmiVersion`).
+#[test]
+fn malformed_tags_are_malformed_xml_not_a_bad_version() {
+    for (root, reason) in [
+        ("fmiVersion=\"2.0<\"", "the value of fmiVersion holds a '<'"),
+        (
+            "<fmiVersion=\"2.0\"",
+            "'<fmiVersion' is not an attribute name",
+        ),
+        (
+            "fmi<Version=\"2.0\"",
+            "'fmi<Version' is not an attribute name",
+        ),
+        (
+            "fmiVersion=\"2.0\"modelName=\"m\"",
+            "no white space after the value of fmiVersion",
+        ),
+    ] {
+        let xml = format!(
+            "<?xml version=\"1.0\"?>\n<fmiModelDescription {root} guid=\"g\">\
+             <ModelVariables/><ModelStructure/></fmiModelDescription>"
+        );
+        match err(&xml) {
+            ParseError::Xml { message, line, .. } => {
+                assert_eq!(line, 2, "{root}");
+                assert!(message.contains(reason), "{root}: {message}");
+            }
+            other => panic!("{root}: expected Xml, got {other:?}"),
+        }
+    }
+    // The same in a child element, on its line.
+    let xml = vars("<ScalarVariable name=\"x<\" valueReference=\"0\"><Real/></ScalarVariable>");
+    match err(&xml) {
+        ParseError::Xml { message, line, .. } => {
+            assert_eq!(line, 5, "{xml}");
+            assert!(
+                message.contains("the value of name holds a '<'"),
+                "{message}"
+            );
+        }
+        other => panic!("expected Xml, got {other:?}"),
+    }
+}
+
+#[test]
+fn malformed_tag_accepts_well_formed_tags() {
+    use model_description::read::malformed_tag;
+    for tag in [
+        "a",
+        "a ",
+        "ssd:Component name=\"x\" source='y.fmu'",
+        "a b = \"1\"\tc='>' d=\"&amp;\"",
+        "\u{e9}l\u{e9}ment \u{e9}=\"\u{fc}\"",
+    ] {
+        assert_eq!(malformed_tag(tag), None, "{tag}");
+    }
+    for tag in [
+        "1a",
+        "a <b=\"1\"",
+        "a b=\"<\"",
+        "a b=\"1\"c=\"2\"",
+        "a b='1'/c='2'",
+    ] {
+        assert!(malformed_tag(tag).is_some(), "{tag}");
+    }
+}
+
 #[test]
 fn missing_fmi_version() {
     assert_missing(

@@ -54,7 +54,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub new_key: Option<PathBuf>,
     /// Heartbeat timeout in seconds: silence after which the server enters the safe state.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = heartbeat_timeout)]
     pub heartbeat_timeout: f64,
     /// A fault in force from the start (see below; repeatable).
     #[arg(long = "fault", value_name = "FAULT", conflicts_with = "no_faults")]
@@ -67,7 +67,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub state: Option<PathBuf>,
     /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long)]
+    #[arg(long, value_parser = duration)]
     pub duration: Option<f64>,
     /// Serve from a SCHED_FIFO thread of this priority (1-99; needs CAP_SYS_NICE or root; a
     /// refusal is reported and the emulator runs with normal scheduling).
@@ -175,17 +175,35 @@ fn side(text: &str, which: f64) -> anyhow::Result<u8> {
 /// The longest `--duration` \[s\]: a year.
 const MAX_DURATION: f64 = 365.0 * 86400.0;
 
+/// Parses `--heartbeat-timeout`: a positive number of seconds, at most the protocol's 0.1 s.
+fn heartbeat_timeout(text: &str) -> Result<f64, String> {
+    let s = super::values::finite(text)
+        .ok()
+        .filter(|s| *s > 0.0)
+        .ok_or("must be a positive number of seconds")?;
+    if s > 0.1 {
+        return Err("must not exceed 0.1 s (docs/bench-protocol.md, §7)".into());
+    }
+    Ok(s)
+}
+
+/// Parses `--duration`: a number of seconds from 0 to [`MAX_DURATION`].
+fn duration(text: &str) -> Result<f64, String> {
+    super::values::non_negative(text)
+        .ok()
+        .filter(|d| *d <= MAX_DURATION)
+        .ok_or_else(|| format!("must be a number of seconds from 0 to {MAX_DURATION} (a year)"))
+}
+
 /// Runs `kneebench emulate`.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let mut config = EmulatorConfig::new(args.bind.clone(), args.fmu.clone());
     for p in &args.params {
         config.parameters.push(super::name_value(p)?);
     }
-    if !(args.heartbeat_timeout.is_finite() && args.heartbeat_timeout > 0.0) {
-        bail!("--heartbeat-timeout must be a positive number of seconds");
-    }
-    if args.heartbeat_timeout > 0.1 {
-        bail!("--heartbeat-timeout must not exceed 0.1 s (docs/bench-protocol.md, §7)");
+    // Checked by its parser too (a value set in code is checked here).
+    if let Err(e) = heartbeat_timeout(&args.heartbeat_timeout.to_string()) {
+        bail!("--heartbeat-timeout {}: {e}", args.heartbeat_timeout);
     }
     config.heartbeat_timeout = std::time::Duration::from_secs_f64(args.heartbeat_timeout);
     config.key = match (&args.key, &args.new_key) {
@@ -210,8 +228,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let stop = std::sync::Arc::new(AtomicBool::new(false));
     let stats = Mutex::new(EmulatorStats::default());
     if let Some(d) = args.duration {
-        if !(d.is_finite() && (0.0..=MAX_DURATION).contains(&d)) {
-            bail!("--duration must be a number of seconds from 0 to {MAX_DURATION} (a year)");
+        if let Err(e) = duration(&d.to_string()) {
+            bail!("--duration {d}: {e}");
         }
         let stop = stop.clone();
         std::thread::spawn(move || {
@@ -258,7 +276,8 @@ mod tests {
     fn durations_out_of_range_are_refused_before_anything_starts() {
         for bad in ["nan", "inf", "-1", "1e300"] {
             let bad = &format!("--duration={bad}");
-            let args = Cli::try_parse_from([
+            // Refused while parsing (a usage error, exit code 2), before anything starts.
+            let e = Cli::try_parse_from([
                 "emulate",
                 "--fmu",
                 "missing.fmu",
@@ -266,10 +285,13 @@ mod tests {
                 "127.0.0.1:0",
                 bad,
             ])
-            .unwrap()
-            .args;
-            let e = run(args).unwrap_err().to_string();
-            assert!(e.contains("--duration must be"), "{bad}: {e}");
+            .unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}: {e}");
+            let e = e.to_string();
+            assert!(
+                e.contains("--duration") && e.contains("must be a number of seconds"),
+                "{bad}: {e}"
+            );
         }
     }
 

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kneebench_harness::experiment::{
-    Bench, BenchKind, RawFormat, RunEnd, bode, calibration, map, step, triangle,
+    Bench, BenchKind, ExperimentError, RawFormat, RunEnd, bode, calibration, map, step, triangle,
 };
 
 /// The raw run file's format.
@@ -73,24 +73,24 @@ pub struct Args {
     pub format: Format,
     /// map: speed magnitudes (deg/s), each run both ways (default the bench's 0, 3, 6, 10, 20,
     /// 30, 50, 70, 90, 110, 130, 150).
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::values::non_negative)]
     pub speeds: Option<Vec<f64>>,
     /// map: load torques (N m) (default -9, -4.5, 0, 4.5, 9).
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::values::finite)]
     pub torques: Option<Vec<f64>>,
     /// map: run only points whose predicted regenerated power in the load driver is at most this
     /// fraction of loadRegenPowerLimit (the others are listed as skipped).
-    #[arg(long, default_value_t = map::DEFAULT_REGEN_FRACTION)]
+    #[arg(long, default_value_t = map::DEFAULT_REGEN_FRACTION, value_parser = fraction)]
     pub regen_fraction: f64,
     /// map: settling time per point (s).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, value_parser = super::values::positive)]
     pub settle: f64,
     /// map, calibration: averaging time per point (s) (default 1 for the map, 3 for the
     /// calibration).
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::positive)]
     pub measure: Option<f64>,
     /// calibration: hold time at each angle (s).
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 6.0, value_parser = super::values::positive)]
     pub hold: f64,
     /// map: the loss surface CSV to compare with.
     #[arg(long)]
@@ -99,56 +99,98 @@ pub struct Args {
     #[arg(long, default_value = "test")]
     pub input: String,
     /// bode: torque amplitude (N m).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::values::positive)]
     pub amplitude: f64,
     /// bode: first frequency (Hz).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = super::values::positive)]
     pub start_frequency: f64,
-    /// bode: frequency ratio between stages (default 10^(1/30)).
-    #[arg(long)]
+    /// bode: frequency ratio between stages, at least 1 (default 10^(1/30)).
+    #[arg(long, value_parser = ratio)]
     pub ratio: Option<f64>,
     /// bode: duration of a stage (s).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, value_parser = super::values::positive)]
     pub dwell: f64,
-    /// bode: number of stages (default 70: 0.05 ... 10 Hz).
-    #[arg(long, default_value_t = 70)]
+    /// bode: number of stages, 1 to 100 (the bound keeps the run within the rows an experiment
+    /// records in memory; default 70: 0.05 ... 10 Hz).
+    #[arg(long, default_value_t = 70, value_parser = clap::value_parser!(u32).range(1..=i64::from(bode::MAX_STAGES)))]
     pub stages: u32,
     /// triangle: amplitude (deg).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = super::values::positive)]
     pub triangle_amplitude: f64,
     /// triangle: period (s).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = super::values::positive)]
     pub period: f64,
     /// triangle: load torque increment per cycle (N m).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = super::values::non_zero)]
     pub increment: f64,
     /// triangle: most cycles.
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_cycles: u32,
     /// calibration: pendulum angles (deg) (default -45 ... 45 in steps of 9).
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::values::finite)]
     pub angles: Option<Vec<f64>>,
     /// calibration: the emulated pendulum's hanging direction from the encoder's zero (deg): the
     /// c the fit recovers.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::values::finite)]
     pub pendulum_offset: f64,
     /// triangle, calibration, step: position-loop gains kp,ki,kd (A/rad, A/(rad s), A s/rad)
     /// (default 1000,1000,15 for triangle and calibration, 60,30,4 for the step).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, value_parser = super::values::finite)]
     pub gains: Option<Vec<f64>>,
     /// step: open-loop current step (A).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true, value_parser = super::values::non_zero)]
     pub current: f64,
     /// step: closed-loop position step (deg).
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = super::values::positive)]
     pub step_angle: f64,
     /// step: record length after the step (s).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, value_parser = super::values::positive)]
     pub duration: f64,
+}
+
+/// The experiments, as `kneebench experiment NAME` names them.
+const EXPERIMENTS: [&str; 5] = ["map", "bode", "triangle", "calibration", "step"];
+
+/// Parses `--regen-fraction`: a number in (0, 1].
+fn fraction(text: &str) -> Result<f64, String> {
+    let v = super::values::positive(text)?;
+    if v <= 1.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is above 1"))
+    }
+}
+
+/// Parses `--ratio`: a finite number of at least 1 (1 repeats the start frequency).
+fn ratio(text: &str) -> Result<f64, String> {
+    let v = super::values::finite(text)?;
+    if v >= 1.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is below 1"))
+    }
+}
+
+/// An experiment's refusal of its settings ([`ExperimentError::Invalid`]: an option, a
+/// parameter or the bench FMU) as a usage error (exit code 2); other errors as they are.
+fn usage_if_invalid(e: ExperimentError) -> anyhow::Error {
+    match e {
+        ExperimentError::Invalid(problem) => super::Usage(problem).into(),
+        e => e.into(),
+    }
 }
 
 /// Runs `kneebench experiment`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Before anything is loaded.
+    if !EXPERIMENTS.contains(&a.name.as_str()) {
+        return Err(super::Usage(format!(
+            "unknown experiment '{}' ({})",
+            a.name,
+            EXPERIMENTS.join(", ")
+        ))
+        .into());
+    }
     let set = super::identify::read_set_for(a.parameter_set.as_deref(), &a.fmu)?;
     let params = set
         .iter()
@@ -156,10 +198,12 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .map(|p| Ok((p.name.clone(), p.value.to_text())))
         .chain(a.params.iter().map(|p| super::name_value(p)))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut bench = Bench::load(&a.fmu, params, a.fmus.clone())?.with_raw_format(match a.format {
-        Format::Csv => RawFormat::Csv,
-        Format::Parquet => RawFormat::Parquet,
-    });
+    let mut bench = Bench::load(&a.fmu, params, a.fmus.clone())
+        .map_err(usage_if_invalid)?
+        .with_raw_format(match a.format {
+            Format::Csv => RawFormat::Csv,
+            Format::Parquet => RawFormat::Parquet,
+        });
     if let Some(set) = &set {
         bench = bench.with_parameter_set(set.label());
     }
@@ -170,7 +214,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let gains = match a.gains.as_deref() {
         None => None,
         Some(&[kp, ki, kd]) => Some((kp, ki, kd)),
-        Some(_) => anyhow::bail!("--gains takes three values: kp,ki,kd"),
+        Some(_) => return Err(super::Usage("--gains takes three values: kp,ki,kd".into()).into()),
     };
     let (written, tripped) = match a.name.as_str() {
         "map" => {
@@ -190,7 +234,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 c.surface = std::fs::read_to_string(p)
                     .with_context(|| format!("reading {}", p.display()))?;
             }
-            let r = map::run_map(&bench, &c, out)?;
+            let r = map::run_map(&bench, &c, out).map_err(usage_if_invalid)?;
             let worst = r
                 .points
                 .iter()
@@ -215,7 +259,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             let input = match a.input.as_str() {
                 "test" => bode::SweepInput::Test,
                 "load" => bode::SweepInput::Load,
-                other => anyhow::bail!("--input '{other}': test or load"),
+                other => {
+                    return Err(super::Usage(format!("--input '{other}': test or load")).into());
+                }
             };
             let mut c = bode::BodeConfig {
                 input,
@@ -228,7 +274,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             if let Some(r) = a.ratio {
                 c.ratio = r;
             }
-            let r = bode::run_bode(&bench, &c, out)?;
+            let r = bode::run_bode(&bench, &c, out).map_err(usage_if_invalid)?;
             for p in &r.points {
                 println!(
                     "{:8.4} Hz  {} {:7.2} +- {:.2} dB (model {:7.2}), {:7.1} +- {:.1} deg (model {:7.1})  {} {:7.2} dB (model {:7.2}), {:7.1} deg (model {:7.1})",
@@ -261,7 +307,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             if let Some(g) = gains {
                 c.gains = g;
             }
-            let r = triangle::run_triangle(&bench, &c, out)?;
+            let r = triangle::run_triangle(&bench, &c, out).map_err(usage_if_invalid)?;
             match &r.trip {
                 Some((torque, time, reason)) => {
                     println!(
@@ -286,7 +332,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             if let Some(g) = gains {
                 c.gains = g;
             }
-            let r = calibration::run_calibration(&bench, &c, out)?;
+            let r = calibration::run_calibration(&bench, &c, out).map_err(usage_if_invalid)?;
             for (name, f) in [("transducer", &r.transducer), ("load cell", &r.load_cell)] {
                 println!(
                     "{name}: a = {:.6} V, b = {:.7} V, c = {:.5} rad (residual {:.2e} V)",
@@ -306,7 +352,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             if let Some(g) = gains {
                 c.gains = g;
             }
-            let r = step::run_step(&bench, &c, out)?;
+            let r = step::run_step(&bench, &c, out).map_err(usage_if_invalid)?;
             println!(
                 "open loop: K = {:.5} (rad/s)/A, L = {:.5} s, T = {:.5} s; damping {:.4} N m s/rad, inertia {:.4} kg m^2",
                 r.reaction.gain,
@@ -323,10 +369,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 Err(e) => println!("no Ziegler-Nichols gains: {e}"),
             }
             let m = &r.position;
+            let time = |t: Option<f64>| t.map_or("not reached".to_string(), |t| format!("{t} s"));
             println!(
-                "position step: rise {:?} s, settling {:?} s, overshoot {:.2} %, peak {:.4} s",
-                m.rise_time,
-                m.settling_time,
+                "position step: rise {}, settling {}, overshoot {:.2} %, peak {:.4} s",
+                time(m.rise_time),
+                time(m.settling_time),
                 100.0 * m.overshoot,
                 m.peak_time
             );
@@ -335,7 +382,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             (r.written, open || closed)
         }
         other => {
-            anyhow::bail!("unknown experiment '{other}' (map, bode, triangle, calibration, step)")
+            return Err(super::Usage(format!(
+                "unknown experiment '{other}' (map, bode, triangle, calibration, step)"
+            ))
+            .into());
         }
     };
     for f in written.data.iter().chain(&written.figures) {

@@ -71,27 +71,39 @@ pub struct Args {
     #[arg(long)]
     pub no_refine: bool,
     /// Seconds of each log the refinement simulates.
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 6.0, value_parser = super::values::positive)]
     pub refine_seconds: f64,
     /// Half width of the smoothing window (samples).
-    #[arg(long, default_value_t = 25)]
+    #[arg(long, default_value_t = 25, value_parser = window)]
     pub window: usize,
     /// Half width (samples) of the smoothing of the logged currents fed to the refinement's
     /// simulation.
-    #[arg(long, default_value_t = 75)]
+    #[arg(long, default_value_t = 75, value_parser = window)]
     pub drive_window: usize,
     /// Half width of the smoothing window of the loss surface's regression (samples; logs
     /// recorded with frictionModel = HdLossSurface).
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 12, value_parser = window)]
     pub surface_window: usize,
     /// Write the FMU's default parameter set (the bench facts) as OUT/NAME.ssv and stop.
     #[arg(long)]
     pub defaults: bool,
 }
 
+/// The parser of the smoothing windows' half widths: at least 2 samples (a half width of 0 or
+/// 1 leaves nothing to smooth and the derivatives as noisy as the encoder's steps).
+fn window(text: &str) -> Result<usize, String> {
+    match text.trim().parse::<usize>() {
+        Ok(n) if n >= 2 => Ok(n),
+        Ok(n) => Err(format!("{n} is below 2 samples")),
+        Err(_) => Err(format!("'{text}' is not a whole number of samples")),
+    }
+}
+
 /// Runs `kneebench identify`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
+    use kneebench_harness::identify::{
+        IdentifyConfig, IdentifyError, Status, identify, write_outputs,
+    };
     // The set is written as OUT/NAME.ssv: a name with a path in it wrote outside OUT.
     let plain = std::path::Path::new(&a.name)
         .file_name()
@@ -122,12 +134,6 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         !a.logs.is_empty(),
         "no log given (kneebench identify LOG.csv ... --fmu BenchPlant.fmu)"
     );
-    anyhow::ensure!(a.window >= 2, "--window must be at least 2");
-    anyhow::ensure!(a.surface_window >= 2, "--surface-window must be at least 2");
-    anyhow::ensure!(
-        a.refine_seconds.is_finite() && a.refine_seconds > 0.0,
-        "--refine-seconds must be positive"
-    );
     let prior = read_set_for(a.prior.as_deref(), &a.fmu)?;
     let plant_parameters = a
         .params
@@ -136,7 +142,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .collect::<anyhow::Result<Vec<_>>>()?;
     let config = IdentifyConfig {
         window: a.window,
-        drive_window: a.drive_window.max(2),
+        drive_window: a.drive_window,
         surface_window: a.surface_window,
         refine: !a.no_refine,
         refine_seconds: a.refine_seconds,
@@ -145,7 +151,16 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         version: a.set_version.clone(),
         ..IdentifyConfig::default()
     };
-    let id = identify(&a.logs, &a.fmu, prior.as_ref(), &config)?;
+    // The --param names and values are checked as the FMU is loaded, before the logs are read
+    // or anything is fitted (with --no-refine too).
+    let id = match identify(&a.logs, &a.fmu, prior.as_ref(), &config) {
+        Ok(id) => id,
+        Err(IdentifyError::Parameter(problem)) => {
+            eprintln!("error: --param: {problem}");
+            return Ok(super::EXIT_USAGE);
+        }
+        Err(e) => return Err(e.into()),
+    };
     for e in &id.estimates {
         let (mut v, mut ci) = e.value();
         let status = match &e.status {

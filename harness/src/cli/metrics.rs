@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use kneebench_harness::Results;
 use kneebench_harness::metrics::{step_metrics, tracking_error};
 
@@ -27,25 +27,44 @@ pub struct Args {
     #[arg(long, conflicts_with = "target")]
     pub reference: Option<String>,
     /// The step's target value (default: the last sample).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::values::finite)]
     pub target: Option<f64>,
     /// Time of the step, in seconds; earlier rows are ignored.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::values::finite)]
     pub from: f64,
 }
 
 /// Runs `kneebench metrics`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let results = Results::read_csv_file(&a.results)?;
+    let (results, lines) = Results::read_csv_file_lines(&a.results)?;
     let column = |name: &str| {
         results
             .column(name)
             .with_context(|| format!("no column '{name}' in {}", a.results.display()))
     };
     let times = results.times();
+    // A NaN time would fail `>= from` and so be dropped silently: times are checked first.
+    let all: Vec<usize> = (0..times.len()).collect();
+    results.check_rows(&a.results, &lines, &[], &all)?;
     let keep: Vec<usize> = (0..times.len()).filter(|&i| times[i] >= a.from).collect();
     if keep.len() < 2 {
-        bail!("fewer than two rows at or after t = {}", a.from);
+        eprintln!(
+            "error: --from {}: fewer than two rows of {} at or after it ({})",
+            a.from,
+            a.results.display(),
+            match times.last() {
+                Some(t) => format!("the last is at t = {t}"),
+                None => "it has no rows".to_string(),
+            }
+        );
+        return Ok(super::EXIT_USAGE);
+    }
+    let used: Vec<&str> = std::iter::once(a.signal.as_str())
+        .chain(a.reference.as_deref())
+        .collect();
+    // Unknown names are reported by `column` below, with the file.
+    if used.iter().all(|n| results.column(n).is_some()) {
+        results.check_rows(&a.results, &lines, &used, &keep)?;
     }
     let pick = |v: &[f64]| keep.iter().map(|&i| v[i]).collect::<Vec<f64>>();
     let signal = pick(&column(&a.signal)?);

@@ -86,12 +86,110 @@ pub enum Command {
     Key(key::Args),
 }
 
+/// Value parsers of numeric options: a bad value is refused while the command line is parsed,
+/// as a usage error (exit code 2) naming the option, instead of failing later with exit code 1
+/// (or being accepted: NaN passes every `<` and `>` test).
+pub mod values {
+    /// Parses a number (Rust's `f64` syntax, surrounding blanks allowed).
+    fn number(text: &str) -> Result<f64, String> {
+        text.trim()
+            .parse()
+            .map_err(|_| format!("'{text}' is not a number"))
+    }
+
+    /// A finite number (not NaN, not infinite).
+    pub fn finite(text: &str) -> Result<f64, String> {
+        let v = number(text)?;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("{v} is not a finite number"))
+        }
+    }
+
+    /// A finite number greater than zero.
+    pub fn positive(text: &str) -> Result<f64, String> {
+        let v = finite(text)?;
+        if v > 0.0 {
+            Ok(v)
+        } else {
+            Err(format!("{v} is not greater than zero"))
+        }
+    }
+
+    /// A finite number other than zero.
+    pub fn non_zero(text: &str) -> Result<f64, String> {
+        let v = finite(text)?;
+        if v != 0.0 {
+            Ok(v)
+        } else {
+            Err("must not be zero".into())
+        }
+    }
+
+    /// A finite number at least zero.
+    pub fn non_negative(text: &str) -> Result<f64, String> {
+        let v = finite(text)?;
+        if v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(format!("{v} is negative"))
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn non_finite_zero_and_negative_values_are_refused_by_the_right_parsers() {
+            for bad in ["nan", "NaN", "inf", "-inf", "infinity", "x", ""] {
+                assert!(finite(bad).is_err(), "{bad}");
+                assert!(positive(bad).is_err(), "{bad}");
+                assert!(non_negative(bad).is_err(), "{bad}");
+                assert!(non_zero(bad).is_err(), "{bad}");
+            }
+            assert_eq!(finite(" -1.5 "), Ok(-1.5));
+            assert!(positive("0").is_err() && positive("-1").is_err());
+            assert_eq!(positive("1e-3"), Ok(1e-3));
+            assert!(non_negative("-1e-300").is_err());
+            assert_eq!(non_negative("0"), Ok(0.0));
+            assert!(non_zero("0").is_err() && non_zero("-0").is_err());
+            assert_eq!(non_zero("-2"), Ok(-2.0));
+        }
+    }
+}
+
+/// A usage error found after parsing (a value that only the input files show to be wrong, a
+/// malformed `--param`): `main` prints it and exits with [`EXIT_USAGE`] instead of
+/// [`EXIT_ERROR`].
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// The exit code of an error `dispatch` returned: [`EXIT_USAGE`] for a [`Usage`] error,
+/// [`EXIT_ERROR`] for any other.
+pub fn exit_code_of(e: &anyhow::Error) -> i32 {
+    if e.chain().any(|c| c.is::<Usage>()) {
+        EXIT_USAGE
+    } else {
+        EXIT_ERROR
+    }
+}
+
 /// Splits a `--param NAME=VALUE` argument into its trimmed name and value (every subcommand's
 /// `--param` reads this way; `run` reports the same failure as a usage error itself).
 pub fn name_value(text: &str) -> anyhow::Result<(String, String)> {
     text.split_once('=')
         .map(|(n, v)| (n.trim().to_string(), v.trim().to_string()))
-        .ok_or_else(|| anyhow::anyhow!("--param '{text}': expected NAME=VALUE"))
+        .ok_or_else(|| Usage(format!("--param '{text}': expected NAME=VALUE")).into())
 }
 
 /// Runs a parsed command line; returns the exit code.

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use kneebench_harness::Results;
-use kneebench_harness::results::plot::plot_signals;
+use kneebench_harness::results::plot::{self, plot_signals};
 
 /// Arguments of `kneebench plot`.
 #[derive(Debug, clap::Args)]
@@ -25,12 +25,18 @@ pub struct Args {
     /// Output image: .svg or .png.
     #[arg(long, default_value = "plot.svg")]
     pub out: PathBuf,
-    /// Image width in pixels.
-    #[arg(long, default_value_t = 1024)]
+    /// Image width in pixels (1 to 16384).
+    #[arg(long, default_value_t = 1024, value_parser = side())]
     pub width: u32,
-    /// Image height in pixels.
-    #[arg(long, default_value_t = 640)]
+    /// Image height in pixels (1 to 16384).
+    #[arg(long, default_value_t = 640, value_parser = side())]
     pub height: u32,
+}
+
+/// The parser of `--width` and `--height`: 1 to [`MAX_SIDE`](plot::MAX_SIDE) pixels (refused
+/// while parsing, a usage error, before the file is read).
+fn side() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(1..=i64::from(plot::MAX_SIDE))
 }
 
 /// The most columns `kneebench plot` draws when `--signals` does not choose.

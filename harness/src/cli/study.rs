@@ -43,10 +43,10 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "bench-full,bench-clutch")]
     pub scenario: Vec<String>,
     /// Gait cycles per run.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
     pub cycles: u32,
     /// Multiplies the gait's angle and torque amplitudes.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::values::positive)]
     pub scale: f64,
     /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's).
     #[arg(long, value_delimiter = ',')]
@@ -115,11 +115,6 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .iter()
         .map(|p| parse_override(p))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    anyhow::ensure!(a.cycles >= 1, "--cycles must be at least 1");
-    anyhow::ensure!(
-        a.scale.is_finite() && a.scale > 0.0,
-        "--scale must be positive"
-    );
     let parameter_set = a
         .parameter_set
         .as_deref()

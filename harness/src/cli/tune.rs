@@ -24,10 +24,10 @@ Ti = 2 L, Td = L/2. Both are starting points for manual refinement, as in the be
 Gains are printed in parallel form: u = kp e + ki integral(e) + kd de/dt.")]
 pub struct Args {
     /// Ultimate gain Ku.
-    #[arg(long, requires = "tu", conflicts_with = "step_response")]
+    #[arg(long, requires = "tu", conflicts_with = "step_response", value_parser = super::values::positive)]
     pub ku: Option<f64>,
     /// Ultimate period Tu, in seconds.
-    #[arg(long, requires = "ku")]
+    #[arg(long, requires = "ku", value_parser = super::values::positive)]
     pub tu: Option<f64>,
     /// Results CSV holding an open-loop step response.
     #[arg(long, requires_all = ["signal", "input_step"])]
@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long)]
     pub signal: Option<String>,
     /// Size of the input step.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::values::non_zero)]
     pub input_step: Option<f64>,
 }
 
@@ -45,11 +45,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let gains = match (a.ku, a.tu, &a.step_response) {
         (Some(ku), Some(tu), None) => ziegler_nichols_ultimate(ku, tu)?,
         (None, None, Some(path)) => {
-            let results = Results::read_csv_file(path)?;
+            let (results, lines) = Results::read_csv_file_lines(path)?;
             let name = a.signal.as_deref().unwrap_or_default();
             let values = results
                 .column(name)
                 .with_context(|| format!("no column '{name}' in {}", path.display()))?;
+            let all: Vec<usize> = (0..results.len()).collect();
+            results.check_rows(path, &lines, &[name], &all)?;
             let curve = reaction_curve(&results.times(), &values, a.input_step.unwrap_or(1.0))?;
             println!(
                 "reaction curve: K = {:.6}, L = {:.6} s, T = {:.6} s",

@@ -130,6 +130,13 @@ pub fn two_mass_response(i1: f64, i2: f64, c1: f64, c2: f64, k: f64, w: f64) -> 
     [h1, h2, h2, h4]
 }
 
+/// The most stages of a sweep: 100, the [`MAX_RUN_ROWS`](super::MAX_RUN_ROWS) rows one run
+/// records at the default 20 s dwell (20 000 rows a stage at the 1 ms step). More are of no
+/// use at the default ratio 10^(1/30): from the default 0.05 Hz, stage 100 is at 100 Hz, ten
+/// samples a period at the 1 ms step, about the fewest the sine fits can use. The sweep's
+/// length (`dwell x stages`) is bounded by `MAX_RUN_ROWS` too.
+pub const MAX_STAGES: u32 = 100;
+
 /// Runs the sweep on `bench` and writes its files into `out`.
 pub fn run_bode(
     bench: &Bench,
@@ -143,14 +150,23 @@ pub fn run_bode(
         && config.ratio.is_finite()
         && config.ratio >= 1.0
         && ok(config.dwell)
-        && config.stages >= 1
+        && (1..=MAX_STAGES).contains(&config.stages)
         && config.fit_fraction > 0.0
         && config.fit_fraction <= 1.0)
     {
-        return Err(ExperimentError::Invalid(
-            "bode: amplitude, start frequency and dwell must be positive, the ratio >= 1, at least one stage, fit fraction in (0, 1]".into(),
-        ));
+        return Err(ExperimentError::Invalid(format!(
+            "bode: amplitude, start frequency and dwell must be positive, the ratio >= 1, 1 to {MAX_STAGES} stages, fit fraction in (0, 1]"
+        )));
     }
+    // Before the bench is touched: dwell x stages, the run's length.
+    super::check_length(
+        &format!(
+            "the sweep ({} stages of {} s)",
+            config.stages,
+            crate::num::Num(config.dwell)
+        ),
+        config.dwell * f64::from(config.stages),
+    )?;
     let (per_amp, command, limit, names, torque_column) = match config.input {
         SweepInput::Test => (
             bench.test_torque_per_ampere()?,
@@ -243,7 +259,7 @@ pub fn run_bode(
     }
     if points.is_empty() {
         return Err(ExperimentError::Run(format!(
-            "bode: no stage completed ({end:?})"
+            "bode: no stage completed ({end})"
         )));
     }
     let written = write_bode(bench, config, &points, names, &end, r, out)?;

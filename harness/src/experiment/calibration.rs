@@ -220,7 +220,7 @@ pub fn run_calibration(
     }
     if holds.len() < 3 {
         return Err(ExperimentError::Run(format!(
-            "calibration: only {} holds completed ({end:?})",
+            "calibration: only {} holds completed ({end})",
             holds.len()
         )));
     }

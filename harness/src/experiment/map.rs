@@ -355,7 +355,7 @@ pub fn run_map(
     }
     if measured.is_empty() {
         return Err(ExperimentError::Run(format!(
-            "map: no point completed ({end:?})"
+            "map: no point completed ({end})"
         )));
     }
     let written = write_map(bench, config, &measured, &skipped, budget, &end, r, out)?;

@@ -349,9 +349,21 @@ pub enum RunEnd {
     },
 }
 
+impl std::fmt::Display for RunEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunEnd::Completed => f.write_str("the run completed"),
+            RunEnd::Tripped { time, reason } => {
+                write!(f, "the run was ended at {time:.3} s: {reason}")
+            }
+        }
+    }
+}
+
 /// Runs `system` to `stop_time` at 1 ms steps (Gauss-Seidel). A run ended by the bench keeps its
 /// rows and says why; a failure is an error.
 fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), ExperimentError> {
+    check_length("the schedule", stop_time)?;
     let config = RunConfig {
         stop_time,
         step_size: STEP,
@@ -373,10 +385,15 @@ fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), Experimen
             ),
         },
         Outcome::Failed(e) => {
-            return Err(ExperimentError::Run(format!(
-                "the run failed at t = {:?}: {e}",
-                output.results.last_time()
-            )));
+            // The error names its own time where it has one; the last row says how far the
+            // run got (none: it failed before recording its first row, while starting).
+            return Err(ExperimentError::Run(match output.results.last_time() {
+                Some(t) => format!(
+                    "the run failed after its row at t = {}: {e}",
+                    crate::num::Num(t)
+                ),
+                None => format!("the run failed before its first row: {e}"),
+            }));
         }
     };
     Ok((output, end))
@@ -384,6 +401,34 @@ fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), Experimen
 
 /// The control period of every experiment \[s\] (the myRIO's 1 ms).
 pub const STEP: f64 = 1e-3;
+
+/// The most rows one run of an experiment records: 2 million, 2000 s (33 min) of bench time at
+/// the 1 ms [`STEP`], above the default Bode sweep's 1.4 million (70 stages of 20 s), the
+/// longest default schedule.
+///
+/// Every row of a run stays in memory until the analysis: the bench records about 90 columns
+/// (every output of the bench FMU and its companions) of 8 bytes, about 1.5 GB at this bound,
+/// and the raw run file is about as large as CSV. A longer schedule grew until the machine ran
+/// out of memory; it is refused before it starts, as an invalid setting
+/// ([`ExperimentError::Invalid`]).
+pub const MAX_RUN_ROWS: u64 = 2_000_000;
+
+/// Refuses a run of `seconds` (the schedule of `what`) longer than [`MAX_RUN_ROWS`] rows.
+pub(crate) fn check_length(what: &str, seconds: f64) -> Result<(), ExperimentError> {
+    let rows = (seconds / STEP).round();
+    // Written so that NaN is refused too.
+    if rows <= MAX_RUN_ROWS as f64 {
+        return Ok(());
+    }
+    Err(ExperimentError::Invalid(format!(
+        "{what} lasts {} s: {} rows at the {} ms step, more than the {MAX_RUN_ROWS} rows \
+         ({} s) a run of an experiment records (they are kept in memory)",
+        crate::num::Num(seconds),
+        crate::num::Num(rows),
+        STEP * 1e3,
+        MAX_RUN_ROWS as f64 * STEP
+    )))
+}
 
 /// A column of the results, or an error naming it.
 fn column(results: &Results, name: &str) -> Result<Vec<f64>, ExperimentError> {

@@ -101,6 +101,15 @@ pub fn run_triangle(
             "triangle: amplitude and period must be positive, the increment non-zero, at least one cycle".into(),
         ));
     }
+    // Before the schedule (two points a cycle) is built.
+    super::check_length(
+        &format!(
+            "the triangle test ({} cycles of {} s)",
+            config.max_cycles,
+            crate::num::Num(config.period)
+        ),
+        config.period * f64::from(config.max_cycles),
+    )?;
     let per_amp = bench.load_torque_per_ampere()?;
     let torque_of = |n: u32| config.start_torque + f64::from(n) * config.increment;
     let stairs: Vec<(f64, f64)> = (0..config.max_cycles)

@@ -533,4 +533,37 @@ mod tests {
             assert!(text.contains(what), "{text}");
         }
     }
+
+    /// Malformed XML the XML reader lets through is malformed XML, not a bad version (a tag
+    /// `<ssv:ParameterSet <version="1.0">` read as an attribute `<version`) or an accepted
+    /// document (one that ends inside its root).
+    #[test]
+    fn malformed_xml_is_not_a_bad_version() {
+        for (xml, line, what) in [
+            (
+                "<ssv:ParameterSet xmlns:ssv=\"x\"\n <version=\"1.0\" name=\"n\"/>",
+                1,
+                "'<version' is not an attribute name",
+            ),
+            (
+                "<ssv:ParameterSet xmlns:ssv=\"x\" version=\"1.0<\" name=\"n\"/>",
+                1,
+                "the value of version holds a '<'",
+            ),
+            (
+                "<ssv:ParameterSet xmlns:ssv=\"x\" version=\"1.0\" name=\"n\">\n<ssv:Parameters>\n",
+                3,
+                "ends inside",
+            ),
+        ] {
+            let e = ParameterSet::from_xml(xml, "f.ssv").unwrap_err();
+            assert!(matches!(e, ParamsError::Syntax { .. }), "{e:?}");
+            let text = e.to_string();
+            assert!(
+                text.starts_with(&format!("f.ssv:{line}: malformed XML")),
+                "{text}"
+            );
+            assert!(text.contains(what), "{text}");
+        }
+    }
 }

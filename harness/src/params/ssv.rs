@@ -117,6 +117,13 @@ fn attributes(
     line: usize,
 ) -> Result<Vec<(String, String)>, ParamsError> {
     let mut out = Vec::new();
+    if let Some(problem) = model_description::read::malformed_tag(e.as_ref()) {
+        return Err(ParamsError::Syntax {
+            file: file.to_string(),
+            line,
+            message: format!("in <{}>: {problem}", e.name().as_ref()),
+        });
+    }
     for a in e.attributes() {
         let a = a.map_err(|err| ParamsError::Syntax {
             file: file.to_string(),
@@ -330,6 +337,14 @@ pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> 
         if !empty {
             depth += 1;
         }
+    }
+    // The reader does not say when the document ends inside an element.
+    if depth > 0 {
+        return Err(ParamsError::Syntax {
+            file: file.to_string(),
+            line: line_of(text, text.len()),
+            message: format!("the document ends inside {depth} element(s) not closed"),
+        });
     }
     let set = set.ok_or_else(|| bad(1, "no ssv:ParameterSet element".into()))?;
     // Every unit used must be defined (the schema's rule), so a misspelt unit is caught here.

@@ -513,8 +513,30 @@ impl Results {
         Results::read_csv(io::BufReader::new(f), path)
     }
 
+    /// [`read_csv_file`](Self::read_csv_file), with the 1-based line of the file that each
+    /// data row was read from (comments, blank lines and the header are not rows), for errors
+    /// that name where a bad sample is ([`check_rows`](Self::check_rows)).
+    pub fn read_csv_file_lines(
+        path: impl AsRef<Path>,
+    ) -> Result<(Results, Vec<usize>), ResultsError> {
+        let path = path.as_ref();
+        let f = std::fs::File::open(path).map_err(|source| ResultsError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Results::read_csv_lines(io::BufReader::new(f), path)
+    }
+
     /// Reads a CSV from a reader (`path` is used in error messages).
     pub fn read_csv(r: impl BufRead, path: &Path) -> Result<Results, ResultsError> {
+        Results::read_csv_lines(r, path).map(|(results, _)| results)
+    }
+
+    /// [`read_csv`](Self::read_csv), with the 1-based line of each data row.
+    pub fn read_csv_lines(
+        r: impl BufRead,
+        path: &Path,
+    ) -> Result<(Results, Vec<usize>), ResultsError> {
         let csv_err = |line: usize, problem: String| ResultsError::Csv {
             path: path.to_path_buf(),
             line,
@@ -543,11 +565,13 @@ impl Results {
         let mut res =
             Results::with_capacity(names.clone(), vec![ColumnKind::Real; names.len()], 1024);
         let mut integral = vec![true; names.len()];
+        let mut row_lines = Vec::new();
         for (i, l) in lines {
             let l = l.map_err(|e| csv_err(i + 1, e.to_string()))?;
             if l.trim().is_empty() || l.starts_with('#') {
                 continue;
             }
+            row_lines.push(i + 1);
             let fields = split_csv(&l);
             if fields.len() != cols.len() {
                 return Err(csv_err(
@@ -575,7 +599,68 @@ impl Results {
                 *k = ColumnKind::Integer;
             }
         }
-        Ok(res)
+        Ok((res, row_lines))
+    }
+
+    /// Checks rows read from the file `path` ([`read_csv_file_lines`](Self::read_csv_file_lines)
+    /// gives `lines`): every time finite and strictly increasing, and, in the rows whose
+    /// indices `rows` holds, the columns `names` finite. The error names the file and the line
+    /// of the first bad sample.
+    pub fn check_rows(
+        &self,
+        path: &Path,
+        lines: &[usize],
+        names: &[&str],
+        rows: &[usize],
+    ) -> Result<(), ResultsError> {
+        let line_of = |i: usize| lines.get(i).copied().unwrap_or(i + 1);
+        let err = |i: usize, problem: String| ResultsError::Csv {
+            path: path.to_path_buf(),
+            line: line_of(i),
+            problem,
+        };
+        let mut previous: Option<f64> = None;
+        for (i, r) in self.rows().enumerate() {
+            let t = r[0];
+            if !t.is_finite() {
+                return Err(err(i, format!("the time {t} is not finite")));
+            }
+            if let Some(p) = previous
+                && t <= p
+            {
+                return Err(err(
+                    i,
+                    format!("the time {t} is not after the previous row's {p}"),
+                ));
+            }
+            previous = Some(t);
+        }
+        let columns: Vec<(&str, usize)> = names
+            .iter()
+            .map(|&n| {
+                let j = if n == "time" {
+                    Some(0)
+                } else {
+                    self.names.iter().position(|c| c == n).map(|j| j + 1)
+                };
+                j.map(|j| (n, j)).ok_or_else(|| {
+                    ResultsError::UnknownSignal(n.to_string(), self.names.join(", "))
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        for &i in rows {
+            if i >= self.len() {
+                continue;
+            }
+            let r = self.row(i);
+            if let Some((name, j)) = columns.iter().find(|(_, j)| !r[*j].is_finite()) {
+                return Err(err(
+                    i,
+                    format!("{name} = {} is not finite (t = {})", r[*j], r[0]),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Checks that the rows form a usable time series, as `kneebench metrics` and `run

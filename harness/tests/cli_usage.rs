@@ -1,0 +1,218 @@
+//! Bad argument values are usage errors: exit code 2 with a message naming the option,
+//! refused before any work (most while the command line is parsed), not run errors (exit code
+//! 1) found after loading FMUs or reading logs, and not accepted (NaN passes every `<` test).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn kneebench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_kneebench"))
+}
+
+/// The bench's FMUs, exported once for the whole test binary.
+fn fmus() -> &'static Path {
+    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
+        (dir, fmus)
+    })
+    .1
+}
+
+/// Asserts `out` is a usage error whose message contains every one of `needles`.
+fn assert_usage(what: &str, out: &Output, needles: &[&str]) {
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{what}: {e}");
+    for n in needles {
+        assert!(e.contains(n), "{what}: no '{n}' in: {e}");
+    }
+}
+
+#[test]
+fn identify_refuses_bad_windows_and_durations() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmu = dir.path().join("missing.fmu");
+    for (args, option) in [
+        (&["--window", "0"][..], "--window"),
+        (&["--window", "1"], "--window"),
+        (&["--window=-3"], "--window"),
+        (&["--surface-window", "0"], "--surface-window"),
+        (&["--drive-window", "1"], "--drive-window"),
+        (&["--refine-seconds", "0"], "--refine-seconds"),
+        (&["--refine-seconds", "nan"], "--refine-seconds"),
+        (&["--refine-seconds", "inf"], "--refine-seconds"),
+    ] {
+        let out = kneebench()
+            .args(["identify", "log.csv", "--fmu"])
+            .arg(&fmu)
+            .args(args)
+            .output()
+            .unwrap();
+        assert_usage(&format!("{args:?}"), &out, &[option]);
+    }
+}
+
+/// `identify --param` names (and values) are checked against the plant FMU before the logs are
+/// read or anything is fitted, with `--no-refine` too (there they were not checked at all): the
+/// log named here does not exist, so a check that came later would fail on it instead.
+#[test]
+fn identify_checks_param_names_up_front_and_lists_the_valid_ones() {
+    let plant = fmus().join("BenchPlant.fmu");
+    for refine in [false, true] {
+        for (param, needles) in [
+            (
+                "nosuchParameter=1",
+                &[
+                    "--param",
+                    "'nosuchParameter' is not a parameter of BenchPlant",
+                    "actuationInertia",
+                    "frictionModel",
+                ][..],
+            ),
+            (
+                "frictionModel=abc",
+                &["--param", "frictionModel = 'abc'"][..],
+            ),
+            (
+                "frictionModel",
+                &["--param 'frictionModel': expected NAME=VALUE"][..],
+            ),
+        ] {
+            let mut cmd = kneebench();
+            cmd.args(["identify", "missing-log.csv", "--fmu"])
+                .arg(&plant)
+                .args(["--param", param, "--out"])
+                .arg(std::env::temp_dir().join("kneebench-cli-usage-identify"));
+            if !refine {
+                cmd.arg("--no-refine");
+            }
+            let out = cmd.output().unwrap();
+            assert_usage(&format!("{param} (refine {refine})"), &out, needles);
+            let e = String::from_utf8_lossy(&out.stderr);
+            assert!(!e.contains("missing-log.csv"), "{e}");
+        }
+    }
+}
+
+#[test]
+fn experiment_refuses_bad_values_before_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    for (name, args, needles) in [
+        ("bode", &["--stages", "0"][..], &["--stages"][..]),
+        ("bode", &["--dwell", "0"], &["--dwell"]),
+        ("bode", &["--dwell", "nan"], &["--dwell"]),
+        ("bode", &["--start-frequency=-1"], &["--start-frequency"]),
+        ("bode", &["--ratio", "0.5"], &["--ratio"]),
+        ("bode", &["--amplitude", "inf"], &["--amplitude"]),
+        ("bode", &["--input", "both"], &["--input 'both'"]),
+        ("map", &["--regen-fraction", "1.5"], &["--regen-fraction"]),
+        ("map", &["--speeds", "3,-5"], &["--speeds"]),
+        ("map", &["--torques", "1,nan"], &["--torques"]),
+        ("map", &["--settle", "0"], &["--settle"]),
+        ("triangle", &["--max-cycles", "0"], &["--max-cycles"]),
+        ("triangle", &["--increment", "0"], &["--increment"]),
+        ("triangle", &["--period=-3"], &["--period"]),
+        (
+            "triangle",
+            &["--gains", "1,2"],
+            &["--gains takes three values"],
+        ),
+        ("calibration", &["--hold", "0"], &["--hold"]),
+        ("calibration", &["--angles", "1,nan,3"], &["--angles"]),
+        ("step", &["--current", "0"], &["--current"]),
+        ("step", &["--duration", "nan"], &["--duration"]),
+        ("step", &["--step-angle", "0"], &["--step-angle"]),
+        // Found by the experiment (the bench's limits): a usage error too.
+        ("step", &["--current", "1000"], &["within the driver's"]),
+        (
+            "step",
+            &["--param", "nosuchParameter=1"],
+            &["no variable 'nosuchParameter'"],
+        ),
+        ("step", &["--param", "noequals"], &["expected NAME=VALUE"]),
+        ("nosuch", &[], &["unknown experiment 'nosuch'"]),
+    ] {
+        let out = kneebench()
+            .args(["experiment", name, "--fmu"])
+            .arg(&plant)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert_usage(&format!("{name} {args:?}"), &out, needles);
+    }
+    assert!(!dir.path().join("out").exists());
+}
+
+/// `experiment bode --stages` is bounded (its rows are kept in memory: the process grew until
+/// the machine ran out), and so is the length of any schedule (dwell x stages here, cycles x
+/// period for the triangle): refused as usage errors before anything runs.
+#[test]
+fn experiment_runs_are_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    for (name, args, needles) in [
+        (
+            "bode",
+            &["--stages", "101"][..],
+            &["--stages", "1..=100"][..],
+        ),
+        ("bode", &["--stages", "4294967295"], &["--stages"]),
+        (
+            "bode",
+            &["--stages", "100", "--dwell", "1000"],
+            &["100 stages of 1000 s", "more than the 2000000 rows"],
+        ),
+        (
+            "triangle",
+            &["--max-cycles", "4000000000", "--period", "3"],
+            &["4000000000 cycles of 3 s", "more than the 2000000 rows"],
+        ),
+    ] {
+        let started = std::time::Instant::now();
+        let out = kneebench()
+            .args(["experiment", name, "--fmu"])
+            .arg(&plant)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert_usage(&format!("{name} {args:?}"), &out, needles);
+        assert!(started.elapsed().as_secs() < 30, "{name} {args:?}");
+    }
+}
+
+#[test]
+fn tune_study_and_plot_refuse_bad_values_while_parsing() {
+    for (args, option) in [
+        (&["tune", "--ku", "0", "--tu", "1"][..], "--ku"),
+        (&["tune", "--ku", "nan", "--tu", "1"], "--ku"),
+        (&["tune", "--ku", "1", "--tu", "inf"], "--tu"),
+        (
+            &[
+                "tune",
+                "--step-response",
+                "x.csv",
+                "--signal",
+                "y",
+                "--input-step",
+                "0",
+            ],
+            "--input-step",
+        ),
+        (&["study", "--cycles", "0"], "--cycles"),
+        (&["study", "--scale", "0"], "--scale"),
+        (&["study", "--scale", "nan"], "--scale"),
+        (&["plot", "x.csv", "--height", "0"], "--height"),
+    ] {
+        let out = kneebench().args(args).output().unwrap();
+        assert_usage(&format!("{args:?}"), &out, &[option]);
+    }
+}
