@@ -209,3 +209,57 @@ fn metrics_refuses_non_finite_and_empty_windows_as_usage_errors() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `metrics` and `tune` read the Parquet that `kneebench run` writes (by its content, any
+/// name), with the same figures as its CSV twin; a non-finite sample is named by its row.
+#[test]
+fn metrics_and_tune_read_parquet_and_name_the_row_of_a_bad_sample() {
+    use kneebench_harness::Results;
+    let dir = tempfile::tempdir().unwrap();
+    let csv = csv_with_a_bad_sample(dir.path(), "0.5");
+    let parquet = dir.path().join("good.parquet");
+    Results::read_csv_file(&csv)
+        .unwrap()
+        .write_parquet_file(&parquet, Vec::new())
+        .unwrap();
+    let stdout = |path: &std::path::Path| {
+        let out = kneebench()
+            .args(["metrics", path.to_str().unwrap(), "--signal", "y"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    assert_eq!(stdout(&parquet), stdout(&csv));
+    let bad = csv_with_a_bad_sample(dir.path(), "nan");
+    let parquet = dir.path().join("bad.parquet");
+    Results::read_csv_file(&bad)
+        .unwrap()
+        .write_parquet_file(&parquet, Vec::new())
+        .unwrap();
+    let name = parquet.display().to_string();
+    for args in [
+        vec!["metrics", &name, "--signal", "y"],
+        vec![
+            "tune",
+            "--step-response",
+            &name,
+            "--signal",
+            "y",
+            "--input-step",
+            "1",
+        ],
+    ] {
+        let out = kneebench().args(&args).output().unwrap();
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {e}");
+        assert!(
+            e.contains(&format!("{name}: row 31: y = NaN is not finite")),
+            "{args:?}: {e}"
+        );
+    }
+}

@@ -18,7 +18,7 @@ With --target (or neither option), the signal is treated as a step response star
 --from: rise time to 90 %, settling time in a 5 % band, overshoot and peak time (the bench
 study's measures). With --reference, the RMS and maximum tracking error against that signal.")]
 pub struct Args {
-    /// Results CSV (first column time).
+    /// Results file: CSV (first column time) or Parquet, as `kneebench run` writes them.
     pub results: PathBuf,
     /// The response signal (column name).
     #[arg(long)]
@@ -36,7 +36,7 @@ pub struct Args {
 
 /// Runs `kneebench metrics`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let (results, lines) = Results::read_csv_file_lines(&a.results)?;
+    let (results, lines) = Results::read_file_lines(&a.results)?;
     let column = |name: &str| {
         results
             .column(name)

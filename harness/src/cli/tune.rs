@@ -29,7 +29,7 @@ pub struct Args {
     /// Ultimate period Tu, in seconds.
     #[arg(long, requires = "ku", value_parser = super::values::positive)]
     pub tu: Option<f64>,
-    /// Results CSV holding an open-loop step response.
+    /// Results file (CSV or Parquet) holding an open-loop step response.
     #[arg(long, requires_all = ["signal", "input_step"])]
     pub step_response: Option<PathBuf>,
     /// The response column.
@@ -45,7 +45,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let gains = match (a.ku, a.tu, &a.step_response) {
         (Some(ku), Some(tu), None) => ziegler_nichols_ultimate(ku, tu)?,
         (None, None, Some(path)) => {
-            let (results, lines) = Results::read_csv_file_lines(path)?;
+            let (results, lines) = Results::read_file_lines(path)?;
             let name = a.signal.as_deref().unwrap_or_default();
             let values = results
                 .column(name)

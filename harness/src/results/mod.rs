@@ -59,6 +59,18 @@ pub(crate) mod test_rows {
     }
 }
 
+/// Whether the file at `path` is Parquet: it begins with Parquet's magic bytes `PAR1`.
+fn is_parquet(path: &Path) -> Result<bool, ResultsError> {
+    let io_err = |source| ResultsError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut magic = Vec::with_capacity(4);
+    let f = std::fs::File::open(path).map_err(io_err)?;
+    io::Read::read_to_end(&mut io::Read::take(f, 4), &mut magic).map_err(io_err)?;
+    Ok(magic == b"PAR1")
+}
+
 /// Errors of reading, writing and plotting results.
 #[derive(Debug, thiserror::Error)]
 pub enum ResultsError {
@@ -488,14 +500,7 @@ impl Results {
     /// either format, reads back here.
     pub fn read_file(path: impl AsRef<Path>) -> Result<Results, ResultsError> {
         let path = path.as_ref();
-        let io_err = |source| ResultsError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut magic = Vec::with_capacity(4);
-        let f = std::fs::File::open(path).map_err(io_err)?;
-        io::Read::read_to_end(&mut io::Read::take(f, 4), &mut magic).map_err(io_err)?;
-        if magic == b"PAR1" {
+        if is_parquet(path)? {
             parquet_read::read_parquet(path, None)
         } else {
             Results::read_csv_file(path)
@@ -511,6 +516,18 @@ impl Results {
             source,
         })?;
         Results::read_csv(io::BufReader::new(f), path)
+    }
+
+    /// [`read_file`](Self::read_file), with the 1-based line of each data row of a CSV
+    /// ([`read_csv_file_lines`](Self::read_csv_file_lines)); none for Parquet, whose errors
+    /// name rows.
+    pub fn read_file_lines(path: impl AsRef<Path>) -> Result<(Results, Vec<usize>), ResultsError> {
+        let path = path.as_ref();
+        if is_parquet(path)? {
+            Ok((parquet_read::read_parquet(path, None)?, Vec::new()))
+        } else {
+            Results::read_csv_file_lines(path)
+        }
     }
 
     /// [`read_csv_file`](Self::read_csv_file), with the 1-based line of the file that each
@@ -603,9 +620,10 @@ impl Results {
     }
 
     /// Checks rows read from the file `path` ([`read_csv_file_lines`](Self::read_csv_file_lines)
-    /// gives `lines`): every time finite and strictly increasing, and, in the rows whose
-    /// indices `rows` holds, the columns `names` finite. The error names the file and the line
-    /// of the first bad sample.
+    /// gives `lines`; [`read_file_lines`](Self::read_file_lines) none for Parquet): every time
+    /// finite and strictly increasing, and, in the rows whose indices `rows` holds, the
+    /// columns `names` finite. The error names the file and the line of the first bad sample
+    /// (its row, in a file without lines).
     pub fn check_rows(
         &self,
         path: &Path,
@@ -613,11 +631,17 @@ impl Results {
         names: &[&str],
         rows: &[usize],
     ) -> Result<(), ResultsError> {
-        let line_of = |i: usize| lines.get(i).copied().unwrap_or(i + 1);
-        let err = |i: usize, problem: String| ResultsError::Csv {
-            path: path.to_path_buf(),
-            line: line_of(i),
-            problem,
+        let err = |i: usize, problem: String| match lines.get(i) {
+            Some(&line) => ResultsError::Csv {
+                path: path.to_path_buf(),
+                line,
+                problem,
+            },
+            // A table without lines (Parquet): its 1-based row.
+            None => ResultsError::Series {
+                path: path.to_path_buf(),
+                problem: format!("row {}: {problem}", i + 1),
+            },
         };
         let mut previous: Option<f64> = None;
         for (i, r) in self.rows().enumerate() {
