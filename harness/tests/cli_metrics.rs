@@ -110,6 +110,22 @@ fn csv_with_a_bad_sample(dir: &std::path::Path, bad: &str) -> std::path::PathBuf
     path
 }
 
+/// `metrics` and `tune` of the signal `y` of the results file `name`.
+fn metrics_and_tune_of_y(name: &str) -> Vec<Vec<&str>> {
+    vec![
+        vec!["metrics", name, "--signal", "y"],
+        vec![
+            "tune",
+            "--step-response",
+            name,
+            "--signal",
+            "y",
+            "--input-step",
+            "1",
+        ],
+    ]
+}
+
 /// A non-finite sample in the signal metrics or tune reads is named by the file and its line
 /// (row 31 is line 34 of the file: a comment, the header and a blank line come first); a
 /// non-finite time too. A column neither reads (`other`, all NaN) does not matter.
@@ -119,19 +135,9 @@ fn metrics_and_tune_name_the_file_and_line_of_a_non_finite_sample() {
     for bad in ["nan", "inf", "-inf"] {
         let csv = csv_with_a_bad_sample(dir.path(), bad);
         let name = csv.display().to_string();
-        for args in [
-            vec!["metrics", &name, "--signal", "y"],
-            vec!["metrics", &name, "--signal", "y", "--reference", "y"],
-            vec![
-                "tune",
-                "--step-response",
-                &name,
-                "--signal",
-                "y",
-                "--input-step",
-                "1",
-            ],
-        ] {
+        let mut commands = metrics_and_tune_of_y(&name);
+        commands.push(vec!["metrics", &name, "--signal", "y", "--reference", "y"]);
+        for args in commands {
             let out = kneebench().args(&args).output().unwrap();
             let e = String::from_utf8_lossy(&out.stderr);
             assert_eq!(out.status.code(), Some(1), "{args:?}: {e}");
@@ -242,18 +248,7 @@ fn metrics_and_tune_read_parquet_and_name_the_row_of_a_bad_sample() {
         .write_parquet_file(&parquet, Vec::new())
         .unwrap();
     let name = parquet.display().to_string();
-    for args in [
-        vec!["metrics", &name, "--signal", "y"],
-        vec![
-            "tune",
-            "--step-response",
-            &name,
-            "--signal",
-            "y",
-            "--input-step",
-            "1",
-        ],
-    ] {
+    for args in metrics_and_tune_of_y(&name) {
         let out = kneebench().args(&args).output().unwrap();
         let e = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{args:?}: {e}");

@@ -974,29 +974,40 @@ mod thread_tests {
     /// The row groups' values as the `parquet` crate reads them back: every bit of the rows.
     #[test]
     fn the_writer_thread_keeps_every_bit() {
-        use parquet::file::reader::{FileReader, SerializedFileReader};
-        use parquet::record::Field;
+        use parquet::file::reader::SerializedFileReader;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("t.parquet");
         let rows = ROW_GROUP_ROWS + 3;
         write(&path, EncodeOn::Thread, rows, 3, true);
-        let reader = SerializedFileReader::new(File::open(&path).unwrap()).unwrap();
-        let mut k = 0;
-        for record in reader.get_row_iter(None).unwrap() {
+        let read = rows_as_bits(&SerializedFileReader::new(File::open(&path).unwrap()).unwrap());
+        assert_eq!(read.len(), rows);
+        for (k, got) in read.iter().enumerate() {
             let (t, v) = row(k, 3);
-            let got: Vec<u64> = record
-                .unwrap()
-                .get_column_iter()
-                .map(|(_, f)| match f {
-                    Field::Double(x) => x.to_bits(),
-                    other => panic!("{other:?}"),
-                })
-                .collect();
             let want: Vec<u64> = std::iter::once(t).chain(v).map(f64::to_bits).collect();
-            assert_eq!(got, want, "row {k}");
-            k += 1;
+            assert_eq!(got, &want, "row {k}");
         }
-        assert_eq!(k, rows);
+    }
+
+    /// Every row of the file as the crate's record reader gives it, each value's bits.
+    fn rows_as_bits(
+        reader: &parquet::file::serialized_reader::SerializedFileReader<File>,
+    ) -> Vec<Vec<u64>> {
+        use parquet::file::reader::FileReader;
+        use parquet::record::Field;
+        reader
+            .get_row_iter(None)
+            .unwrap()
+            .map(|record| {
+                record
+                    .unwrap()
+                    .get_column_iter()
+                    .map(|(_, f)| match f {
+                        Field::Double(x) => x.to_bits(),
+                        other => panic!("{other:?}"),
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// Columns of few values (a constant, a flag, a three-level chatter, signed zeros and a
@@ -1007,7 +1018,6 @@ mod thread_tests {
     fn few_valued_columns_are_dictionaries_and_keep_every_bit() {
         use parquet::file::reader::{FileReader, SerializedFileReader};
         use parquet::file::serialized_reader::ReadOptionsBuilder;
-        use parquet::record::Field;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("d.parquet");
         let rows = 2 * ROW_GROUP_ROWS + 100;
@@ -1055,24 +1065,15 @@ mod thread_tests {
                 );
             }
         }
-        let mut k = 0;
-        for record in reader.get_row_iter(None).unwrap() {
-            let got: Vec<u64> = record
-                .unwrap()
-                .get_column_iter()
-                .map(|(_, f)| match f {
-                    Field::Double(x) => x.to_bits(),
-                    other => panic!("{other:?}"),
-                })
-                .collect();
+        let read = rows_as_bits(&reader);
+        assert_eq!(read.len(), rows);
+        for (k, got) in read.iter().enumerate() {
             let want: Vec<u64> = std::iter::once(k as f64)
                 .chain(values(k))
                 .map(f64::to_bits)
                 .collect();
-            assert_eq!(got, want, "row {k}");
-            k += 1;
+            assert_eq!(got, &want, "row {k}");
         }
-        assert_eq!(k, rows);
         // Plain, the four few-valued columns and the fifth's first chunk would take 8 bytes
         // per value.
         let plain_bytes = rows * 7 * 8;
