@@ -137,17 +137,22 @@ fn experiment_refuses_bad_values_before_running() {
         ("step", &["--param", "noequals"], &["expected NAME=VALUE"]),
         ("nosuch", &[], &["unknown experiment 'nosuch'"]),
     ] {
-        let out = kneebench()
-            .args(["experiment", name, "--fmu"])
-            .arg(&plant)
-            .arg("--out")
-            .arg(dir.path().join("out"))
-            .args(args)
-            .output()
-            .unwrap();
+        let out = experiment(name, &plant, &dir.path().join("out"), args);
         assert_usage(&format!("{name} {args:?}"), &out, needles);
     }
     assert!(!dir.path().join("out").exists());
+}
+
+/// `kneebench experiment NAME --fmu PLANT --out OUT ARGS`.
+fn experiment(name: &str, plant: &Path, out: &Path, args: &[&str]) -> Output {
+    kneebench()
+        .args(["experiment", name, "--fmu"])
+        .arg(plant)
+        .arg("--out")
+        .arg(out)
+        .args(args)
+        .output()
+        .unwrap()
 }
 
 /// `experiment bode --stages` is bounded (its rows are kept in memory: the process grew until
@@ -176,14 +181,7 @@ fn experiment_runs_are_bounded() {
         ),
     ] {
         let started = std::time::Instant::now();
-        let out = kneebench()
-            .args(["experiment", name, "--fmu"])
-            .arg(&plant)
-            .arg("--out")
-            .arg(dir.path().join("out"))
-            .args(args)
-            .output()
-            .unwrap();
+        let out = experiment(name, &plant, &dir.path().join("out"), args);
         assert_usage(&format!("{name} {args:?}"), &out, needles);
         assert!(started.elapsed().as_secs() < 30, "{name} {args:?}");
     }
