@@ -160,9 +160,6 @@ def run(
     return df
 
 
-_SCENARIO_ACTUATORS = {"bench-full": ("DA", "SEA", "CSEA"), "bench-clutch": ("SEA", "CSEA")}
-
-
 def study(
     fmus: str | os.PathLike[str],
     out: str | os.PathLike[str],
@@ -183,9 +180,8 @@ def study(
     empty list or an actuator the scenario lacks raises). ``df.attrs["units"]`` maps each
     column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
     run at its next communication point and raises KeyboardInterrupt."""
+    # None: the scenario's own actuators (the harness knows them).
     names = _names("actuators", actuators)
-    if names is None:
-        names = list(_SCENARIO_ACTUATORS.get(scenario, ("DA", "SEA", "CSEA")))
     _at_least_one("cycles", cycles)
     reports = _native.study(os.fspath(fmus), os.fspath(out), names, cycles, scale, scenario)
     df = pd.DataFrame(reports).set_index("actuator")

@@ -21,7 +21,7 @@ def run(
     preload: list[str] = ...,
 ) -> dict[str, Any]: ...
 def study(
-    fmus: str, out: str, actuators: list[str], cycles: int, scale: float, scenario: str
+    fmus: str, out: str, actuators: list[str] | None, cycles: int, scale: float, scenario: str
 ) -> list[dict[str, Any]]: ...
 def sweep(
     spec: str, workers: int | None = None, output: str | None = None, resume: bool = False

@@ -436,14 +436,14 @@ fn report_dict<'py>(
 }
 
 /// Runs the DA/SEA/CSEA study (`scenario`: bench-full or bench-clutch); returns one report
-/// dict per actuator.
+/// dict per actuator. `actuators` `None`: the scenario's own.
 #[pyfunction]
 #[pyo3(signature = (fmus, out, actuators, cycles, scale, scenario))]
 fn study<'py>(
     py: Python<'py>,
     fmus: PathBuf,
     out: PathBuf,
-    actuators: Vec<String>,
+    actuators: Option<Vec<String>>,
     cycles: u32,
     scale: f64,
     scenario: String,
@@ -454,6 +454,13 @@ fn study<'py>(
         ))
     })?;
     let names = |list: &[Actuator]| list.iter().map(|a| a.name()).collect::<Vec<_>>().join(", ");
+    let actuators = actuators.unwrap_or_else(|| {
+        study_scenario
+            .actuators()
+            .iter()
+            .map(|a| a.name().to_string())
+            .collect()
+    });
     let mut list = Vec::new();
     for a in &actuators {
         let found = Actuator::ALL

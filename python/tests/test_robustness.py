@@ -142,6 +142,12 @@ def test_on_generation_must_be_callable_before_anything_runs(optimize_spec, tmp_
     assert not Path(str(out) + ".journal").exists()
 
 
+def test_the_default_actuators_are_the_scenarios_own(fmus: Path, tmp_path: Path):
+    """Without ``actuators`` the harness picks the scenario's (the package keeps no copy)."""
+    df = kneebench.study(fmus, tmp_path, cycles=1, scenario="bench-clutch")
+    assert list(df.index) == ["SEA", "CSEA"]
+
+
 def test_the_clutch_scenario_has_no_da(fmus: Path, tmp_path: Path):
     with pytest.raises(KneebenchError, match="bench-clutch scenario has no DA"):
         kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=1, scenario="bench-clutch")
