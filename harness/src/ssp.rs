@@ -718,6 +718,11 @@ fn read_parameter_set(
                 }
             }
             Event::Eof => break,
+            Event::Decl(d) => {
+                if let Some(problem) = model_description::read::malformed_declaration(&d) {
+                    return Err(xml_error(pos, problem));
+                }
+            }
             _ => {}
         }
     }
@@ -817,6 +822,12 @@ fn read_ssd_labelled(
                     return Err(unclosed(xml, file, name, *at));
                 }
                 break;
+            }
+            Event::Decl(d) => {
+                if let Some(problem) = model_description::read::malformed_declaration(&d) {
+                    return Err(xml_error(xml, file, start, problem));
+                }
+                continue;
             }
             _ => continue,
         };

@@ -352,6 +352,11 @@ fn malformed_xml_in_an_ssd_is_not_a_bad_version() {
             3,
             "expected `</System>`",
         ),
+        (
+            "\n<?xml version=\"1.0\" standalone=\"maybe\"?>\n<SystemStructureDescription version=\"1.0\" name=\"x\"><System name=\"s\"/></SystemStructureDescription>",
+            2,
+            "standalone 'maybe' is not a valid one",
+        ),
     ] {
         let e = ssp::read_ssd(xml).unwrap_err();
         match &e {

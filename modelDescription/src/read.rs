@@ -270,8 +270,13 @@ impl<'a> Parser<'a> {
                 Event::Empty(e) => return Ok(Item::Start(self.elem(&e, pos, true)?)),
                 Event::End(_) => return Ok(Item::End),
                 Event::Eof => return Ok(Item::Eof),
-                // Text, CDATA, references, comments, PIs, declaration, DOCTYPE: not part of the
-                // model description's content.
+                Event::Decl(d) => {
+                    if let Some(problem) = malformed_declaration(&d) {
+                        return Err(self.xml_error(problem, pos));
+                    }
+                }
+                // Text, CDATA, references, comments, PIs, DOCTYPE: not part of the model
+                // description's content.
                 _ => {}
             }
         }
@@ -933,6 +938,54 @@ pub fn malformed_tag(tag: &str) -> Option<String> {
             return Some(format!("no white space after the value of {key}"));
         }
     }
+}
+
+/// Why the text of an XML declaration (between `<?` and `?>`, `xml version="1.0" ...`) is
+/// not a well-formed one, which the XML reader (quick-xml) does not check: its version first
+/// (`1.` and digits), then at most an encoding and `standalone` (`yes` or `no`), in that
+/// order, each once (`<?xml versio="1.0"?>` was read as a document without a version).
+/// `None` when it is well-formed.
+pub fn malformed_declaration(text: &str) -> Option<String> {
+    let text = text.strip_suffix('?').unwrap_or(text);
+    if let Some(problem) = malformed_tag(text) {
+        return Some(format!("in the XML declaration: {problem}"));
+    }
+    let declaration = quick_xml::events::BytesStart::from_content(text, 3);
+    let mut allowed = ["version", "encoding", "standalone"].into_iter();
+    let mut any = false;
+    for a in declaration.attributes() {
+        let a = match a {
+            Ok(a) => a,
+            Err(e) => return Some(format!("in the XML declaration: {e}")),
+        };
+        let key = a.key.as_ref().to_string();
+        let value = a.value.to_string();
+        if !any && key != "version" {
+            return Some(format!(
+                "the XML declaration starts with '{key}', not its version"
+            ));
+        }
+        any = true;
+        if !allowed.any(|k| k == key) {
+            return Some(format!(
+                "'{key}' is not an attribute of the XML declaration here (version, encoding, \
+                 standalone, in that order, each once)"
+            ));
+        }
+        let ok = match key.as_str() {
+            "version" => value
+                .strip_prefix("1.")
+                .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit())),
+            "standalone" => value == "yes" || value == "no",
+            _ => !value.is_empty(),
+        };
+        if !ok {
+            return Some(format!(
+                "the XML declaration's {key} '{value}' is not a valid one"
+            ));
+        }
+    }
+    (!any).then(|| "the XML declaration has no version".to_string())
 }
 
 fn to_usize(pos: u64) -> usize {

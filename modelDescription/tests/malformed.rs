@@ -559,3 +559,26 @@ fn errors_say_where() {
     assert!(text.contains("start"), "{text}");
     assert!(text.contains("Real"), "{text}");
 }
+
+/// A malformed XML declaration is malformed XML (quick-xml does not check it): a misspelt
+/// version, a version that is not 1.x, an attribute out of place; a well-formed one passes.
+#[test]
+fn malformed_xml_declarations_are_malformed_xml() {
+    let body = vars("<ScalarVariable name=\"x\" valueReference=\"0\"><Real/></ScalarVariable>");
+    let body = body.split_once('\n').unwrap().1;
+    for decl in [
+        "<?xml versio=\"1.0\"?>",
+        "<?xml version=\"2.0\"?>",
+        "<?xml encoding=\"UTF-8\" version=\"1.0\"?>",
+        "<?xml version=\"1.0\" name=\"x\"?>",
+        "<?xml?>",
+    ] {
+        assert_xml_error(&format!("{decl}\n{body}"));
+    }
+    for decl in [
+        "<?xml version=\"1.0\"?>",
+        "<?xml version='1.1' encoding='utf-8' standalone='yes'?>",
+    ] {
+        ModelDescription::from_xml(&format!("{decl}\n{body}")).unwrap();
+    }
+}

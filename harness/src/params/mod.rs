@@ -555,6 +555,11 @@ mod tests {
                 3,
                 "ends inside",
             ),
+            (
+                "<?xml versio=\"1.0\"?>\n<ssv:ParameterSet xmlns:ssv=\"x\" version=\"1.0\" name=\"n\"/>",
+                1,
+                "starts with 'versio', not its version",
+            ),
         ] {
             let e = ParameterSet::from_xml(xml, "f.ssv").unwrap_err();
             assert!(matches!(e, ParamsError::Syntax { .. }), "{e:?}");

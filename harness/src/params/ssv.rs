@@ -205,6 +205,16 @@ pub(super) fn read(text: &str, file: &str) -> Result<ParameterSet, ParamsError> 
                 continue;
             }
             Event::Eof => break,
+            Event::Decl(d) => {
+                if let Some(message) = model_description::read::malformed_declaration(&d) {
+                    return Err(ParamsError::Syntax {
+                        file: file.to_string(),
+                        line,
+                        message,
+                    });
+                }
+                continue;
+            }
             _ => continue,
         };
         let a = attributes(&e, file, line)?;
