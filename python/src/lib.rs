@@ -150,16 +150,8 @@ fn load_options(
     host: Option<PathBuf>,
     preload: Vec<PathBuf>,
 ) -> Result<LoadOptions, String> {
-    let isolation = match isolate {
-        "never" => Isolation::InProcess,
-        "auto" => Isolation::Auto,
-        "always" => Isolation::Process,
-        other => {
-            return Err(format!(
-                "isolate must be 'auto', 'always' or 'never', not {other:?}"
-            ));
-        }
-    };
+    let isolation = Isolation::from_name(isolate)
+        .ok_or_else(|| format!("isolate must be 'auto', 'always' or 'never', not {isolate:?}"))?;
     let mut options = LoadOptions {
         isolation,
         ..LoadOptions::default()

@@ -44,8 +44,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     let times = results.times();
     // A NaN time would fail `>= from` and so be dropped silently: times are checked first.
-    let all: Vec<usize> = (0..times.len()).collect();
-    results.check_rows(&a.results, &lines, &[], &all)?;
+    results.check_times(&a.results, &lines)?;
     let keep: Vec<usize> = (0..times.len()).filter(|&i| times[i] >= a.from).collect();
     if keep.len() < 2 {
         eprintln!(
@@ -64,7 +63,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .collect();
     // Unknown names are reported by `column` below, with the file.
     if used.iter().all(|n| results.column(n).is_some()) {
-        results.check_rows(&a.results, &lines, &used, &keep)?;
+        results.check_values(&a.results, &lines, &used, &keep)?;
     }
     let pick = |v: &[f64]| keep.iter().map(|&i| v[i]).collect::<Vec<f64>>();
     let signal = pick(&column(&a.signal)?);

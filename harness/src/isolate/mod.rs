@@ -72,6 +72,17 @@ pub enum Isolation {
 }
 
 impl Isolation {
+    /// The isolation named as on the command line (`kneebench run --isolate`) and in the
+    /// Python package: `auto`, `always` (in a process) or `never` (in process).
+    pub fn from_name(name: &str) -> Option<Isolation> {
+        match name {
+            "auto" => Some(Isolation::Auto),
+            "always" => Some(Isolation::Process),
+            "never" => Some(Isolation::InProcess),
+            _ => None,
+        }
+    }
+
     /// Whether an FMU with this `generationTool` runs in a host process.
     pub fn isolates(self, generation_tool: Option<&str>) -> bool {
         match self {

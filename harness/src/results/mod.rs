@@ -59,6 +59,22 @@ pub(crate) mod test_rows {
     }
 }
 
+/// The error of a bad sample in data row `i` (0-based) of the file `path`: its line when
+/// `lines` has it (a CSV), else its 1-based row (a table without lines: Parquet).
+fn sample_error(path: &Path, lines: &[usize], i: usize, problem: String) -> ResultsError {
+    match lines.get(i) {
+        Some(&line) => ResultsError::Csv {
+            path: path.to_path_buf(),
+            line,
+            problem,
+        },
+        None => ResultsError::Series {
+            path: path.to_path_buf(),
+            problem: format!("row {}: {problem}", i + 1),
+        },
+    }
+}
+
 /// Whether the file at `path` is Parquet: it begins with Parquet's magic bytes `PAR1`.
 fn is_parquet(path: &Path) -> Result<bool, ResultsError> {
     let io_err = |source| ResultsError::Io {
@@ -631,18 +647,14 @@ impl Results {
         names: &[&str],
         rows: &[usize],
     ) -> Result<(), ResultsError> {
-        let err = |i: usize, problem: String| match lines.get(i) {
-            Some(&line) => ResultsError::Csv {
-                path: path.to_path_buf(),
-                line,
-                problem,
-            },
-            // A table without lines (Parquet): its 1-based row.
-            None => ResultsError::Series {
-                path: path.to_path_buf(),
-                problem: format!("row {}: {problem}", i + 1),
-            },
-        };
+        self.check_times(path, lines)?;
+        self.check_values(path, lines, names, rows)
+    }
+
+    /// The time part of [`check_rows`](Self::check_rows): every time finite and strictly
+    /// increasing.
+    pub fn check_times(&self, path: &Path, lines: &[usize]) -> Result<(), ResultsError> {
+        let err = |i: usize, problem: String| sample_error(path, lines, i, problem);
         let mut previous: Option<f64> = None;
         for (i, r) in self.rows().enumerate() {
             let t = r[0];
@@ -659,6 +671,19 @@ impl Results {
             }
             previous = Some(t);
         }
+        Ok(())
+    }
+
+    /// The value part of [`check_rows`](Self::check_rows): in the rows whose indices `rows`
+    /// holds, the columns `names` finite.
+    pub fn check_values(
+        &self,
+        path: &Path,
+        lines: &[usize],
+        names: &[&str],
+        rows: &[usize],
+    ) -> Result<(), ResultsError> {
+        let err = |i: usize, problem: String| sample_error(path, lines, i, problem);
         let columns: Vec<(&str, usize)> = names
             .iter()
             .map(|&n| {
@@ -687,9 +712,10 @@ impl Results {
         Ok(())
     }
 
-    /// Checks that the rows form a usable time series, as `kneebench metrics` and `run
-    /// --inputs` need: at least one row, every time and value finite, time strictly
-    /// increasing. `path` names the source in the error.
+    /// Checks that the rows form a usable time series, as `kneebench run --inputs` needs: at
+    /// least one row, every time and value finite, time strictly increasing. `path` names the
+    /// source in the error ([`check_rows`](Self::check_rows) checks chosen columns and rows,
+    /// naming the line).
     pub fn check_series(&self, path: &Path) -> Result<(), ResultsError> {
         let err = |problem: String| ResultsError::Series {
             path: path.to_path_buf(),

@@ -382,6 +382,17 @@ fn count(p: &mut Problems<'_>, v: &Spanned<i64>, what: &str) -> Option<usize> {
     Some(n as usize)
 }
 
+/// [`count`], at most `max` (a larger one is refused at its line: a typo guard, and a bound
+/// on what is allocated from it).
+fn count_at_most(p: &mut Problems<'_>, v: &Spanned<i64>, what: &str, max: usize) -> Option<usize> {
+    let n = count(p, v, what)?;
+    if n > max {
+        p.at(v.span(), format!("{what} must be at most {max}, not {n}"));
+        return None;
+    }
+    Some(n)
+}
+
 fn seed(p: &mut Problems<'_>, d: &RawDesign) -> u64 {
     match &d.seed {
         Some(s) if *s.get_ref() < 0 => {
@@ -628,17 +639,8 @@ impl SweepSpec {
             }
         };
         let cycles = match &raw.cycles {
-            Some(c) => match count(&mut p, c, "cycles") {
-                Some(n) if n > MAX_CYCLES => {
-                    p.at(
-                        c.span(),
-                        format!("cycles must be at most {MAX_CYCLES}, not {n}"),
-                    );
-                    1
-                }
-                Some(n) => n as u32,
-                None => 1,
-            },
+            // At most MAX_CYCLES: the count fits the scenario's u32.
+            Some(c) => count_at_most(&mut p, c, "cycles", MAX_CYCLES).map_or(1, |n| n as u32),
             None => 2,
         };
         let name = raw.system.get_ref().trim();
@@ -698,20 +700,7 @@ impl SweepSpec {
 
         let d = raw.design.get_ref();
         let points = |p: &mut Problems<'_>| match &d.points {
-            Some(n) => match count(p, n, "points") {
-                Some(k) if k > super::design::MAX_POINTS => {
-                    p.at(
-                        n.span(),
-                        format!(
-                            "points must be at most {}, not {k}",
-                            super::design::MAX_POINTS
-                        ),
-                    );
-                    1
-                }
-                Some(k) => k,
-                None => 1,
-            },
+            Some(n) => count_at_most(p, n, "points", super::design::MAX_POINTS).unwrap_or(1),
             None => {
                 p.at(
                     raw.design.span(),
@@ -830,19 +819,12 @@ impl SweepSpec {
             let levels = match &r.levels {
                 // More levels than a design's points: refused here, before the grid's axes
                 // (one value per level) are made.
-                Some(l) => match count(&mut p, l, &format!("parameter '{name}': levels")) {
-                    Some(n) if n > super::design::MAX_POINTS => {
-                        p.at(
-                            l.span(),
-                            format!(
-                                "parameter '{name}': levels must be at most {}, not {n}",
-                                super::design::MAX_POINTS
-                            ),
-                        );
-                        None
-                    }
-                    n => n,
-                },
+                Some(l) => count_at_most(
+                    &mut p,
+                    l,
+                    &format!("parameter '{name}': levels"),
+                    super::design::MAX_POINTS,
+                ),
                 None => None,
             };
             let values = r.values.as_ref().map(|v| v.get_ref().clone());
