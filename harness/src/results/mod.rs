@@ -515,23 +515,13 @@ impl Results {
     /// [`read_csv_file`](Self::read_csv_file). What `kneebench run --output` writes, in
     /// either format, reads back here.
     pub fn read_file(path: impl AsRef<Path>) -> Result<Results, ResultsError> {
-        let path = path.as_ref();
-        if is_parquet(path)? {
-            parquet_read::read_parquet(path, None)
-        } else {
-            Results::read_csv_file(path)
-        }
+        Results::read_file_lines(path).map(|(results, _)| results)
     }
 
     /// Reads a CSV with a header whose first column is time (any name). Every value is read as
     /// a float; columns whose values are all integers are marked [`ColumnKind::Integer`].
     pub fn read_csv_file(path: impl AsRef<Path>) -> Result<Results, ResultsError> {
-        let path = path.as_ref();
-        let f = std::fs::File::open(path).map_err(|source| ResultsError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Results::read_csv(io::BufReader::new(f), path)
+        Results::read_csv_file_lines(path).map(|(results, _)| results)
     }
 
     /// [`read_file`](Self::read_file), with the 1-based line of each data row of a CSV
