@@ -3,6 +3,7 @@
 
 use std::process::Command;
 
+use kneebench_fmu::fmi2::instance::reseal_state;
 use kneebench_tests::*;
 
 use fmi2Status::{fmi2Error, fmi2OK};
@@ -125,6 +126,10 @@ fn foreign_truncated_and_corrupted_states_are_refused() {
         .expect("the state embeds the GUID");
     let mut foreign = saved.clone();
     foreign[pos + 1] = if foreign[pos + 1] == b'0' { b'1' } else { b'0' };
+    // Unsealed, the change is caught by the checksum; resealed (forged on purpose), by the GUID.
+    assert_eq!(i.restore(&foreign), fmi2Error);
+    assert!(i.log_text().contains("corrupted"), "{}", i.log_text());
+    reseal_state(&mut foreign);
     assert_eq!(i.restore(&foreign), fmi2Error);
     assert!(
         i.log_text().contains("belongs to model"),
@@ -142,6 +147,18 @@ fn foreign_truncated_and_corrupted_states_are_refused() {
     let mut longer = saved.clone();
     longer.push(0);
     assert_eq!(i.restore(&longer), fmi2Error);
+    // One bit flipped in any byte (header, times, values, the gait's internal state, the
+    // checksum): every change is refused, none restores a plausible wrong state.
+    for k in 0..saved.len() {
+        let mut flipped = saved.clone();
+        flipped[k] ^= 1 << (k % 8);
+        assert_eq!(i.restore(&flipped), fmi2Error, "byte {k}");
+    }
+    assert!(
+        i.log_text().contains("corrupted: its checksum is"),
+        "{}",
+        i.log_text()
+    );
     let log = i.log_text();
     for needle in [
         "truncated",

@@ -439,7 +439,7 @@ impl<M: Model> Instance<M> {
         self.model.save_internal(&mut internal);
         w.u32(internal.bytes.len() as u32);
         w.bytes.extend_from_slice(&internal.bytes);
-        w.bytes
+        seal_state(w.bytes)
     }
 
     /// Decodes `bytes` into a fresh model and instance fields, without touching `self`.
@@ -455,6 +455,8 @@ impl<M: Model> Instance<M> {
                 "state format version {version}, this binary reads version {STATE_FORMAT_VERSION}"
             )));
         }
+        let mut r = StateReader::new(unsealed_state(bytes)?);
+        r.take(STATE_HEADER_LEN)?;
         let guid = r.string()?;
         let identifier = r.string()?;
         if guid != self.info.guid {
@@ -714,8 +716,82 @@ fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
 
 /// First bytes of every serialized FMU state.
 pub const STATE_MAGIC: &[u8; 8] = b"KNEEBNCH";
-/// Version of the FMU-state byte format; bumped whenever the layout changes.
-pub const STATE_FORMAT_VERSION: u32 = 1;
+/// Version of the FMU-state byte format; bumped whenever the layout changes. Version 2 added
+/// the length and the checksum ([`seal_state`]).
+pub const STATE_FORMAT_VERSION: u32 = 2;
+
+/// Bytes before a state's content: the magic, the format version and the length.
+const STATE_HEADER_LEN: usize = STATE_MAGIC.len() + 4 + 4;
+/// Bytes after a state's content: its CRC-32.
+const STATE_TRAILER_LEN: usize = 4;
+
+/// Seals an encoded state (the magic, the version, then the content): writes its total length
+/// after the version and appends the CRC-32 (IEEE) of every byte before the checksum.
+///
+/// The length tells a truncated or extended state from a corrupted one; the checksum catches a
+/// byte changed anywhere, including inside a model's internal state, where a plausible wrong
+/// value would pass every other check and only show in later steps. It is not a signature:
+/// a deliberately edited state can be resealed (tests do), and then still meets every value
+/// check of `fmi2DeSerializeFMUstate`.
+pub fn seal_state(content: Vec<u8>) -> Vec<u8> {
+    let prefix = STATE_MAGIC.len() + 4;
+    let mut bytes = Vec::with_capacity(content.len() + 4 + STATE_TRAILER_LEN);
+    bytes.extend_from_slice(&content[..prefix.min(content.len())]);
+    let total = content.len() + 4 + STATE_TRAILER_LEN;
+    bytes.extend_from_slice(&(total as u32).to_le_bytes());
+    bytes.extend_from_slice(&content[prefix.min(content.len())..]);
+    let crc = crc32fast::hash(&bytes);
+    bytes.extend_from_slice(&crc.to_le_bytes());
+    bytes
+}
+
+/// Rewrites the checksum of a sealed state whose bytes were edited in place (tests and tools
+/// that forge states on purpose); the length must be unchanged.
+pub fn reseal_state(bytes: &mut [u8]) {
+    if let Some(end) = bytes.len().checked_sub(STATE_TRAILER_LEN) {
+        let crc = crc32fast::hash(&bytes[..end]);
+        bytes[end..].copy_from_slice(&crc.to_le_bytes());
+    }
+}
+
+/// The bytes of a sealed state before its checksum, once its length and checksum are checked
+/// (the magic and version are checked by the caller first, so that another format version is
+/// named as such).
+fn unsealed_state(bytes: &[u8]) -> Result<&[u8], StateError> {
+    let mut r = StateReader::new(bytes);
+    r.take(STATE_MAGIC.len() + 4)?;
+    let declared = r.u32()? as usize;
+    match bytes.len().cmp(&declared) {
+        std::cmp::Ordering::Less => {
+            return Err(StateError(format!(
+                "truncated: {} bytes of the {declared} the state declares",
+                bytes.len()
+            )));
+        }
+        std::cmp::Ordering::Greater => {
+            return Err(StateError(format!(
+                "trailing bytes after the state: {} bytes, it declares {declared}",
+                bytes.len()
+            )));
+        }
+        std::cmp::Ordering::Equal => {}
+    }
+    if declared < STATE_HEADER_LEN + STATE_TRAILER_LEN {
+        return Err(StateError(format!(
+            "truncated: a state declaring {declared} bytes has no room for its content"
+        )));
+    }
+    let (content, trailer) = bytes.split_at(declared - STATE_TRAILER_LEN);
+    let stored = u32::from_le_bytes([trailer[0], trailer[1], trailer[2], trailer[3]]);
+    let computed = crc32fast::hash(content);
+    if stored != computed {
+        return Err(StateError(format!(
+            "corrupted: its checksum is {stored:#010x}, its bytes give {computed:#010x} \
+             (a byte changed since it was serialized)"
+        )));
+    }
+    Ok(content)
+}
 
 /// A model with every declared start value applied.
 pub fn fresh_model<M: Model>() -> M {

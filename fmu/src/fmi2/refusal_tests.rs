@@ -204,6 +204,8 @@ fn patched_real(bytes: &[u8], from: f64, to: f64) -> Vec<u8> {
     assert_eq!(at.len(), 1, "{from} occurs once in the state");
     let mut out = bytes.to_vec();
     out[at[0]..at[0] + 8].copy_from_slice(&to.to_le_bytes());
+    // Forged on purpose: resealed, so that the value checks, not the checksum, refuse it.
+    super::instance::reseal_state(&mut out);
     out
 }
 
@@ -242,6 +244,7 @@ fn a_state_with_a_value_the_setters_refuse_is_refused_and_changes_nothing() {
     let at = (0..a.len()).find(|&k| a[k] != b[k]).unwrap();
     let mut bad = a.clone();
     bad[at..at + 4].copy_from_slice(&12345i32.to_le_bytes());
+    super::instance::reseal_state(&mut bad);
     forged.push((model, "antiWindup", bad));
 
     for (model, name, bytes) in forged {
