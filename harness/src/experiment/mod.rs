@@ -135,7 +135,9 @@ pub const ARMED_LIMITS: [(&str, f64, &str); 5] = [
 impl Bench {
     /// Loads the bench FMU at `path` (a `BenchPlant` or `BenchHardware` FMU) with `parameters`
     /// (name, value as text) to set on it; `fmu_dir` holds the other FMUs (default: the bench
-    /// FMU's directory).
+    /// FMU's directory). A name that is not a parameter of the FMU, or a value not of its type
+    /// or outside its declared `[min, max]`, is [`ExperimentError::Invalid`]
+    /// ([`check_assignments`](crate::params::check_assignments)).
     pub fn load(
         path: &Path,
         parameters: Vec<(String, String)>,
@@ -158,14 +160,12 @@ impl Bench {
                 )));
             }
         };
-        for (name, _) in &parameters {
-            if fmu.variable(name).is_none() {
-                return Err(ExperimentError::Invalid(format!(
-                    "{} has no variable '{name}'",
-                    path.display()
-                )));
-            }
-        }
+        // Each name a parameter, each value of its type and inside its declared range, before
+        // anything runs: a value the FMU would refuse while the experiment starts is an invalid
+        // setting, not a failed run.
+        crate::params::check_assignments(&fmu, &parameters).map_err(|problem| {
+            ExperimentError::Invalid(format!("{}: {problem}", path.display()))
+        })?;
         let fmu_dir = fmu_dir.unwrap_or_else(|| {
             path.parent()
                 .map(Path::to_path_buf)
