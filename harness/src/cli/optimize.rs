@@ -3,10 +3,10 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use kneebench_harness::num::Num;
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::spec::OptimizeSpec;
 use kneebench_harness::sweep::{Row, RunStatus, SweepOptions, run_optimization};
+use model_description::num::Num;
 
 use super::sweep::{DaskCall, run_on_dask};
 

@@ -390,7 +390,7 @@ fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), Experimen
             return Err(ExperimentError::Run(match output.results.last_time() {
                 Some(t) => format!(
                     "the run failed after its row at t = {}: {e}",
-                    crate::num::Num(t)
+                    model_description::num::Num(t)
                 ),
                 None => format!("the run failed before its first row: {e}"),
             }));
@@ -423,8 +423,8 @@ pub(crate) fn check_length(what: &str, seconds: f64) -> Result<(), ExperimentErr
     Err(ExperimentError::Invalid(format!(
         "{what} lasts {} s: {} rows at the {} ms step, more than the {MAX_RUN_ROWS} rows \
          ({} s) a run of an experiment records (they are kept in memory)",
-        crate::num::Num(seconds),
-        crate::num::Num(rows),
+        model_description::num::Num(seconds),
+        model_description::num::Num(rows),
         STEP * 1e3,
         MAX_RUN_ROWS as f64 * STEP
     )))

@@ -94,9 +94,9 @@ use model_description::{Causality, ModelDescription, ScalarVariable, VariableKin
 pub use crate::control::{RunControl, StopReason};
 use crate::instance::{FmuError, InstanceOptions};
 use crate::load::Fmu;
-use crate::num::num;
 use crate::results::{ColumnKind, ResultSink, Results, ResultsError};
 use crate::time::{Grid, GridError};
+use model_description::num::num;
 
 /// The base type of a variable, which decides the `fmi2Get*`/`fmi2Set*` family.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -834,7 +834,7 @@ impl Prepared {
                 row.status = RunStatus::Tripped;
                 row.message = format!(
                     "{component}: {reason} at t = {}",
-                    crate::num::Num(*last_successful_time)
+                    model_description::num::Num(*last_successful_time)
                 );
             }
             Outcome::Failed(e) => {
@@ -875,7 +875,7 @@ impl Prepared {
                 && row.status == RunStatus::Ok
             {
                 row.status = RunStatus::Tripped;
-                row.message = format!("{name} at t = {}", crate::num::Num(*t));
+                row.message = format!("{name} at t = {}", model_description::num::Num(*t));
             }
         }
         let times = results.times();
