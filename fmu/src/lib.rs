@@ -11,7 +11,6 @@ pub mod fmi2;
 pub mod hardware;
 pub mod model;
 pub mod models;
-mod num;
 pub mod registry;
 mod release;
 

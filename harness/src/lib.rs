@@ -65,7 +65,6 @@ pub mod isolate;
 pub mod load;
 pub mod master;
 pub mod metrics;
-pub mod num;
 pub mod package;
 pub mod params;
 pub mod results;

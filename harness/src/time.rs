@@ -22,7 +22,7 @@
 //! thousandth of the step apart (a run at 1 ms steps may reach about 8.6e9 s). Anything
 //! beyond is refused with a [`GridError`] that says which bound.
 
-use crate::num::num;
+use model_description::num::num;
 
 /// Ticks per second: the tick is 1 ns.
 pub const TICKS_PER_SECOND: u64 = 1_000_000_000;

@@ -1,5 +1,6 @@
 //! `kneebench experiment`: a run the bench ended early says why on stderr (the reason is in its
-//! section too) and exits with code 3.
+//! section too) and exits with code 3; a `--param` value the bench would refuse is a usage error
+//! (exit code 2).
 
 mod common;
 
@@ -42,8 +43,9 @@ fn a_step_whose_closed_loop_trips_says_why_and_exits_3() {
     assert!(!stderr.contains("was ended"), "{stderr}");
 }
 
-/// A run that fails before its first row (the bench FMU refuses a parameter while starting)
-/// says so: the message said "the run failed at t = None".
+/// A run that fails before its first row (the bench FMU refuses its parameters while starting:
+/// each value is inside its declared range, the FMU's own consistency check refuses a fractional
+/// encoder count) says so: the message said "the run failed at t = None".
 #[test]
 fn a_run_that_fails_while_starting_says_so_without_none() {
     let dir = tempfile::tempdir().unwrap();
@@ -51,7 +53,7 @@ fn a_run_that_fails_while_starting_says_so_without_none() {
     let out = Command::new(env!("CARGO_BIN_EXE_kneebench"))
         .args(["experiment", "step", "--fmu"])
         .arg(fmus.join("BenchPlant.fmu"))
-        .args(["--param", "actuationInertia=0", "--out"])
+        .args(["--param", "encoderCountsPerRevolution=2000.5", "--out"])
         .arg(dir.path().join("step"))
         .output()
         .unwrap();
@@ -59,8 +61,41 @@ fn a_run_that_fails_while_starting_says_so_without_none() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains("the run failed before its first row")
-            && stderr.contains("actuationInertia"),
+            && stderr.contains("encoder counts per revolution"),
         "{stderr}"
     );
     assert!(!stderr.contains("None"), "{stderr}");
+}
+
+/// A `--param` value the bench FMU would refuse when the experiment starts (outside the
+/// parameter's declared range, not of its type, not an item of its enumeration) is a bad
+/// argument: refused with exit code 2 naming the parameter, before anything runs. It failed
+/// the run with exit code 1.
+#[test]
+fn a_param_value_the_bench_refuses_is_a_usage_error_before_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
+    for (param, expected) in [
+        ("actuationInertia=0", "0 is outside [0.001, 100]"),
+        ("frictionModel=Sticky", "is no item of FrictionModel"),
+        ("actuationDamping=fast", "'fast' is not a Real"),
+    ] {
+        let out_dir = dir.path().join("step");
+        let out = Command::new(env!("CARGO_BIN_EXE_kneebench"))
+            .args(["experiment", "step", "--fmu"])
+            .arg(fmus.join("BenchPlant.fmu"))
+            .args(["--param", param, "--out"])
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{param}: {stderr}");
+        let name = param.split('=').next().unwrap();
+        assert!(
+            stderr.contains(name) && stderr.contains(expected),
+            "{param}: {stderr}"
+        );
+        assert!(!stderr.contains("the run failed"), "{param}: {stderr}");
+        assert!(!out_dir.join("step.md").exists(), "{param}");
+    }
 }

@@ -214,3 +214,51 @@ fn tune_study_and_plot_refuse_bad_values_while_parsing() {
         assert_usage(&format!("{args:?}"), &out, &[option]);
     }
 }
+
+/// `sweep --workers` and `optimize --workers` are bounded (1 to `MAX_WORKERS`, 1024): a huge
+/// count tried to start that many threads, each loading the system. Above it is a usage error
+/// while the command line is parsed, before the spec is read or anything written (the spec
+/// here is a valid one-point sweep that ran with any count).
+#[test]
+fn sweep_and_optimize_refuse_more_workers_than_the_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = dir.path().join("spec.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n\n[design]\nkind = \"grid\"\n\n\
+             [[parameters]]\nname = \"plant.springStiffness\"\nvalues = [340.54]\n",
+            fmus().display()
+        ),
+    )
+    .unwrap();
+    let output = dir.path().join("sweep.csv");
+    for command in ["sweep", "optimize"] {
+        for workers in ["1025", "100000000", "99999999999999999999999", "0"] {
+            let out = kneebench()
+                .args([command, "--workers", workers, "--output"])
+                .arg(&output)
+                .arg(&spec)
+                .output()
+                .unwrap();
+            assert_usage(
+                &format!("{command} --workers {workers}"),
+                &out,
+                &["--workers", "1 to 1024"],
+            );
+            assert!(!output.exists(), "{command} --workers {workers}");
+        }
+    }
+    // The bound itself runs.
+    let out = kneebench()
+        .args(["sweep", "--workers", "1024", "--output"])
+        .arg(&output)
+        .arg(&spec)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

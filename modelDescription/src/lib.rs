@@ -10,11 +10,14 @@
 //!   without `Enumeration` support), kept in a vendor annotation.
 //! - [`check`]: semantic checks beyond the schema (unique names and value references, a
 //!   consistent `ModelStructure`, legal causality/variability/initial combinations).
+//! - [`num`](mod@num): numbers in messages, compact and exact (shared by the FMUs and the
+//!   harness).
 
 #![warn(missing_docs)]
 
 pub mod check;
 pub mod items;
+pub mod num;
 pub mod read;
 pub mod types;
 pub mod write;

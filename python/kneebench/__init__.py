@@ -100,6 +100,18 @@ def _at_least_one(what: str, value: int | None) -> None:
         raise ValueError(f"{what} must be >= 1 (given: {value})")
 
 
+def _workers(workers: int | None) -> None:
+    """Refuses ``workers`` below 1 (ValueError, as :func:`_at_least_one`) and above the
+    harness's bound (``_native.MAX_WORKERS``, 1024: each is a thread loading its own copy of
+    the system) with a KneebenchError, before anything runs."""
+    _at_least_one("workers", workers)
+    if workers is not None and workers > _native.MAX_WORKERS:
+        raise KneebenchError(
+            f"{workers} worker threads: a sweep or an optimisation runs on 1 to "
+            f"{_native.MAX_WORKERS}"
+        )
+
+
 def run(
     system: str | os.PathLike[str],
     params: Mapping[str, Any] | None = None,
@@ -334,9 +346,10 @@ def sweep(
     ("another sweep is running into this output") before running anything; the journal's lock
     goes with that sweep's end, a killed process's included. Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
     raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
-    ``batch_size`` must be at least 1 (ValueError).
+    ``batch_size`` must be at least 1 (ValueError); ``workers`` above 1024 raises
+    KneebenchError.
     """
-    _at_least_one("workers", workers)
+    _workers(workers)
     _at_least_one("batch_size", batch_size)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
@@ -464,9 +477,10 @@ def optimize(
     runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
     journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1
-    (ValueError) and ``on_generation`` callable (TypeError), checked before anything runs.
+    (ValueError), ``workers`` at most 1024 (KneebenchError), and ``on_generation`` callable
+    (TypeError), checked before anything runs.
     """
-    _at_least_one("workers", workers)
+    _workers(workers)
     _at_least_one("batch_size", batch_size)
     if on_generation is not None and not callable(on_generation):
         raise TypeError(

@@ -72,3 +72,4 @@ class Optimizer:
         """Lets the journal (if any) go, kept for ``resume``, and releases its lock at once."""
 
 STUDY_METRIC_UNITS: dict[str, str]
+MAX_WORKERS: int

@@ -663,12 +663,12 @@ fn sweep<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let control = RunControl::new();
     let (prepared, table) = interruptible(py, &control, || {
+        let options = local_options(workers, resume)?;
         let mut prepared = prepare(&spec)?;
         prepared.refuse_optimization()?;
         // Every point's run takes the control; a row after a stop is not journaled
         // (`Prepared::unless_stopped`), so the journal keeps the rows before it for `resume`.
         prepared.config.control = Some(control.clone());
-        let options = local_options(workers, resume);
         let table = run_sweep(&prepared, output.as_deref(), &options)?;
         Ok((prepared, table))
     })?
@@ -676,15 +676,19 @@ fn sweep<'py>(
     rows_dict(py, &prepared, &table.rows)
 }
 
-fn local_options(workers: Option<usize>, resume: bool) -> SweepOptions {
+/// The options of a local sweep or optimisation: `workers` threads (default: every core), at
+/// most [`MAX_WORKERS`](kneebench_harness::sweep::MAX_WORKERS) (more is refused here, before the
+/// spec is read).
+fn local_options(workers: Option<usize>, resume: bool) -> Result<SweepOptions, SweepError> {
     let mut options = SweepOptions {
         resume,
         ..SweepOptions::default()
     };
     if let Some(w) = workers {
-        options.workers = w.max(1);
+        kneebench_harness::sweep::check_workers(w)?;
+        options.workers = w;
     }
-    options
+    Ok(options)
 }
 
 /// The sweep's size and columns: `{"points", "parameters", "metrics", "units",
@@ -743,7 +747,10 @@ impl PySweepJournal {
             let inner = JournaledSweep::start(
                 prepared.clone(),
                 Some(&output),
-                &local_options(None, resume),
+                &SweepOptions {
+                    resume,
+                    ..SweepOptions::default()
+                },
             )?;
             Ok(PySweepJournal {
                 prepared,
@@ -867,6 +874,7 @@ fn optimize<'py>(
     let mut raised: Option<PyErr> = None;
     let control = RunControl::new();
     let outcome = interruptible(py, &control, || {
+        let options = local_options(workers, resume)?;
         let mut prepared = prepare(&spec)?;
         // `run_optimization` with the control, as `sweep` runs `run_sweep`.
         prepared.config.control = Some(control.clone());
@@ -883,7 +891,6 @@ fn optimize<'py>(
             }
             Ok(())
         };
-        let options = local_options(workers, resume);
         let optimization = run_optimization(&prepared, output.as_deref(), &options, &mut report)?;
         Ok((prepared, optimization))
     })?;
@@ -936,7 +943,10 @@ impl PyOptimizer {
             let inner = JournaledOptimization::start(
                 prepared.clone(),
                 output.as_deref(),
-                &local_options(None, resume),
+                &SweepOptions {
+                    resume,
+                    ..SweepOptions::default()
+                },
             )?;
             Ok(PyOptimizer {
                 prepared,
@@ -1179,6 +1189,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("KneebenchError", m.py().get_type::<KneebenchError>())?;
     m.add("SpecError", m.py().get_type::<SpecError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("MAX_WORKERS", kneebench_harness::sweep::MAX_WORKERS)?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(study, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;

@@ -135,6 +135,20 @@ def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Pat
         kneebench.sweep(sweep_spec(4), workers=-1)
 
 
+@pytest.mark.parametrize("workers", [1025, 10**8, 2**70])
+def test_workers_above_the_bound_raise_before_anything_runs(
+    sweep_spec, optimize_spec, tmp_path: Path, workers: int
+):
+    """A huge ``workers`` tried to start that many threads; above 1024 it raises, and neither
+    call writes anything (no journal)."""
+    out = tmp_path / "t.parquet"
+    with pytest.raises(kneebench.KneebenchError, match=f"{workers} worker threads: .* 1 to 1024"):
+        kneebench.sweep(sweep_spec(4), workers=workers, output=out)
+    with pytest.raises(kneebench.KneebenchError, match=f"{workers} worker threads: .* 1 to 1024"):
+        kneebench.optimize(optimize_spec(), workers=workers, output=out)
+    assert not Path(str(out) + ".journal").exists() and not out.exists()
+
+
 def test_on_generation_must_be_callable_before_anything_runs(optimize_spec, tmp_path: Path):
     out = tmp_path / "o.parquet"
     with pytest.raises(TypeError, match="on_generation must be callable"):

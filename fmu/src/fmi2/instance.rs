@@ -18,8 +18,8 @@ use super::types::{fmi2Boolean, fmi2Status, fmi2String};
 use crate::model::{
     Access, Model, Phase, StateError, StateReader, StateWriter, StepOutcome, Variable,
 };
-use crate::num::num;
 use crate::registry::ModelInfo;
+use model_description::num::num;
 
 use fmi2Status::{fmi2Discard, fmi2Error, fmi2OK, fmi2Warning};
 

@@ -44,8 +44,8 @@ use crate::model::{
     EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
     Variable,
 };
-use crate::num::num;
 use crate::registry::ReferenceInputs;
+use model_description::num::num;
 
 /// How the scheduler decides.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -3,10 +3,10 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use kneebench_harness::num::Num;
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::spec::OptimizeSpec;
 use kneebench_harness::sweep::{Row, RunStatus, SweepOptions, run_optimization};
+use model_description::num::Num;
 
 use super::sweep::{DaskCall, run_on_dask};
 
@@ -42,9 +42,9 @@ pub struct Args {
     /// The table of every run: Parquet for `.parquet`, CSV otherwise.
     #[arg(long, short, default_value = "optimize.parquet")]
     pub output: PathBuf,
-    /// Worker threads (default: every local core).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
-    pub workers: Option<u64>,
+    /// Worker threads, 1 to 1024 (default: every local core).
+    #[arg(long, value_parser = super::sweep::workers)]
+    pub workers: Option<usize>,
     /// Continue an interrupted optimisation from OUTPUT.journal, replaying its finished runs;
     /// without a journal, continue the finished Parquet table at OUTPUT (more generations).
     #[arg(long)]
@@ -262,7 +262,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         ..SweepOptions::default()
     };
     if let Some(w) = a.workers {
-        options.workers = w as usize;
+        options.workers = w;
     }
     let started = std::time::Instant::now();
     let quiet = a.quiet;

@@ -8,12 +8,12 @@ use std::time::Duration;
 use anyhow::Context;
 use kneebench_harness::instance::{LogStatus, stderr_log_handler};
 use kneebench_harness::master::{Signal, VarType};
-use kneebench_harness::num::Num;
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
     Algorithm, Fmu, InstanceOptions, Isolation, LoadOptions, MasterError, Outcome,
     PythonThreadState, Results, RunConfig, RunControl, StopReason, System, ssp,
 };
+use model_description::num::Num;
 use model_description::{Causality, Variability};
 
 /// The master algorithm, as a command-line value.

@@ -37,9 +37,9 @@ pub struct Args {
     /// The table to write: Parquet for `.parquet`, CSV otherwise.
     #[arg(long, short, default_value = "sweep.parquet")]
     pub output: PathBuf,
-    /// Worker threads (default: every local core).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
-    pub workers: Option<u64>,
+    /// Worker threads, 1 to 1024 (default: every local core).
+    #[arg(long, value_parser = super::sweep::workers)]
+    pub workers: Option<usize>,
     /// Continue an interrupted sweep from OUTPUT.journal, skipping its finished points
     /// (without a journal: the finished Parquet table at OUTPUT, if it is this sweep's); with
     /// --dask too.
@@ -52,6 +52,21 @@ pub struct Args {
     /// With --dask: points per Dask task (default: about four tasks per worker).
     #[arg(long, requires = "dask", value_parser = clap::value_parser!(u64).range(1..))]
     pub batch_size: Option<u64>,
+}
+
+/// Parses `--workers` (of `sweep` and `optimize`): a whole number of threads within the
+/// library's bound, 1 to [`MAX_WORKERS`](kneebench_harness::sweep::MAX_WORKERS)
+/// ([`check_workers`](kneebench_harness::sweep::check_workers)); more tried to start that many
+/// threads.
+pub(crate) fn workers(text: &str) -> Result<usize, String> {
+    let n = text.trim().parse::<usize>().map_err(|_| {
+        format!(
+            "'{text}' is not a whole number of threads from 1 to {}",
+            kneebench_harness::sweep::MAX_WORKERS
+        )
+    })?;
+    kneebench_harness::sweep::check_workers(n).map_err(|e| e.to_string())?;
+    Ok(n)
 }
 
 /// The script `--dask` runs in the Python interpreter, around a [`DaskCall`]'s source: exit
@@ -283,7 +298,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         ..SweepOptions::default()
     };
     if let Some(w) = a.workers {
-        options.workers = w as usize;
+        options.workers = w;
     }
     let started = std::time::Instant::now();
     let table = run_sweep(&prepared, Some(&a.output), &options)?;

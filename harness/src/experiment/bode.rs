@@ -163,7 +163,7 @@ pub fn run_bode(
         &format!(
             "the sweep ({} stages of {} s)",
             config.stages,
-            crate::num::Num(config.dwell)
+            model_description::num::Num(config.dwell)
         ),
         config.dwell * f64::from(config.stages),
     )?;

@@ -135,7 +135,9 @@ pub const ARMED_LIMITS: [(&str, f64, &str); 5] = [
 impl Bench {
     /// Loads the bench FMU at `path` (a `BenchPlant` or `BenchHardware` FMU) with `parameters`
     /// (name, value as text) to set on it; `fmu_dir` holds the other FMUs (default: the bench
-    /// FMU's directory).
+    /// FMU's directory). A name that is not a parameter of the FMU, or a value not of its type
+    /// or outside its declared `[min, max]`, is [`ExperimentError::Invalid`]
+    /// ([`check_assignments`](crate::params::check_assignments)).
     pub fn load(
         path: &Path,
         parameters: Vec<(String, String)>,
@@ -158,14 +160,12 @@ impl Bench {
                 )));
             }
         };
-        for (name, _) in &parameters {
-            if fmu.variable(name).is_none() {
-                return Err(ExperimentError::Invalid(format!(
-                    "{} has no variable '{name}'",
-                    path.display()
-                )));
-            }
-        }
+        // Each name a parameter, each value of its type and inside its declared range, before
+        // anything runs: a value the FMU would refuse while the experiment starts is an invalid
+        // setting, not a failed run.
+        crate::params::check_assignments(&fmu, &parameters).map_err(|problem| {
+            ExperimentError::Invalid(format!("{}: {problem}", path.display()))
+        })?;
         let fmu_dir = fmu_dir.unwrap_or_else(|| {
             path.parent()
                 .map(Path::to_path_buf)
@@ -390,7 +390,7 @@ fn run(system: &System, stop_time: f64) -> Result<(RunOutput, RunEnd), Experimen
             return Err(ExperimentError::Run(match output.results.last_time() {
                 Some(t) => format!(
                     "the run failed after its row at t = {}: {e}",
-                    crate::num::Num(t)
+                    model_description::num::Num(t)
                 ),
                 None => format!("the run failed before its first row: {e}"),
             }));
@@ -423,8 +423,8 @@ pub(crate) fn check_length(what: &str, seconds: f64) -> Result<(), ExperimentErr
     Err(ExperimentError::Invalid(format!(
         "{what} lasts {} s: {} rows at the {} ms step, more than the {MAX_RUN_ROWS} rows \
          ({} s) a run of an experiment records (they are kept in memory)",
-        crate::num::Num(seconds),
-        crate::num::Num(rows),
+        model_description::num::Num(seconds),
+        model_description::num::Num(rows),
         STEP * 1e3,
         MAX_RUN_ROWS as f64 * STEP
     )))

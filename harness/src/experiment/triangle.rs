@@ -106,7 +106,7 @@ pub fn run_triangle(
         &format!(
             "the triangle test ({} cycles of {} s)",
             config.max_cycles,
-            crate::num::Num(config.period)
+            model_description::num::Num(config.period)
         ),
         config.period * f64::from(config.max_cycles),
     )?;

@@ -172,36 +172,13 @@ impl IdentifyConfig {
 /// Checks [`IdentifyConfig::plant_parameters`] against the bench FMU `fmu` before any work: each
 /// name must be a parameter of the FMU (the error lists them) and each value must read as the
 /// parameter's type (a number, or an item of its enumeration), as the refinement's simulation
-/// will set it.
+/// will set it, inside the parameter's declared `[min, max]`
+/// ([`check_assignments`](crate::params::check_assignments)).
 pub fn check_plant_parameters(
     fmu: &Fmu,
     parameters: &[(String, String)],
 ) -> Result<(), IdentifyError> {
-    use model_description::Causality;
-    let md = fmu.model_description();
-    let valid: Vec<&str> = md
-        .model_variables
-        .iter()
-        .filter(|v| v.causality == Some(Causality::Parameter))
-        .map(|v| v.name.as_str())
-        .collect();
-    let mut system = crate::master::System::new();
-    system
-        .add_component("plant", fmu.clone())
-        .map_err(|e| IdentifyError::Fmu(e.to_string()))?;
-    for (name, value) in parameters {
-        if !valid.contains(&name.as_str()) {
-            return Err(IdentifyError::Parameter(format!(
-                "'{name}' is not a parameter of {} (its parameters: {})",
-                md.model_name,
-                valid.join(", ")
-            )));
-        }
-        system
-            .set_value_str(&format!("plant.{name}"), value)
-            .map_err(|e| IdentifyError::Parameter(format!("{name} = '{value}': {e}")))?;
-    }
-    Ok(())
+    crate::params::check_assignments(fmu, parameters).map_err(IdentifyError::Parameter)
 }
 
 impl Default for IdentifyConfig {

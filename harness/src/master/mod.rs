@@ -94,9 +94,9 @@ use model_description::{Causality, ModelDescription, ScalarVariable, VariableKin
 pub use crate::control::{RunControl, StopReason};
 use crate::instance::{FmuError, InstanceOptions};
 use crate::load::Fmu;
-use crate::num::num;
 use crate::results::{ColumnKind, ResultSink, Results, ResultsError};
 use crate::time::{Grid, GridError};
+use model_description::num::num;
 
 /// The base type of a variable, which decides the `fmi2Get*`/`fmi2Set*` family.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -696,17 +696,24 @@ impl System {
     /// ([`ModelDescription::items_of`](model_description::ModelDescription::items_of): our
     /// FMUs' modes).
     pub fn set_value_str(&mut self, reference: &str, text: &str) -> Result<(), MasterError> {
+        let value = self.parse_value_str(reference, text)?;
+        self.set_value(reference, value)
+    }
+
+    /// Parses `text` as a value of the variable `reference` as
+    /// [`set_value_str`](Self::set_value_str) reads it (its type, or an item's name), without
+    /// setting it.
+    pub fn parse_value_str(&self, reference: &str, text: &str) -> Result<Value, MasterError> {
         let (r, _) = self.resolve(reference)?;
-        let value = match Value::parse(r.ty, text) {
-            Some(v) => v,
+        match Value::parse(r.ty, text) {
+            Some(v) => Ok(v),
             None => self
                 .item_value(reference, text)?
                 .ok_or_else(|| MasterError::BadValue {
                     reference: reference.to_string(),
                     problem: format!("'{text}' is not a {:?}", r.ty),
-                })?,
-        };
-        self.set_value(reference, value)
+                }),
+        }
     }
 
     /// The value of item `name` when `reference` has named values (`None` when it has not);

@@ -23,7 +23,8 @@ use std::path::{Path, PathBuf};
 
 use model_description::{Causality, ModelDescription, ScalarVariable, VariableKind};
 
-use crate::master::Value;
+use crate::load::Fmu;
+use crate::master::{System, Value};
 
 /// Errors of reading, writing and checking parameter sets.
 #[derive(Debug, thiserror::Error)]
@@ -355,58 +356,7 @@ impl ParameterSet {
                     md.model_name, v.causality
                 )));
             }
-            match (&v.kind, &p.value) {
-                (VariableKind::Real { attributes, .. }, ParamValue::Real(x)) => {
-                    let declared = attributes.unit.as_deref();
-                    if let Some(u) = &p.unit
-                        && Some(u.as_str()) != declared
-                    {
-                        return Err(bad(format!(
-                            "unit '{u}' is not the declared unit '{}'",
-                            declared.unwrap_or("(none)")
-                        )));
-                    }
-                    let min = attributes.min.unwrap_or(f64::NEG_INFINITY);
-                    let max = attributes.max.unwrap_or(f64::INFINITY);
-                    if !(min..=max).contains(x) {
-                        return Err(bad(format!("{x} is outside [{min}, {max}]")));
-                    }
-                }
-                (VariableKind::Integer { attributes, .. }, ParamValue::Integer(x)) => {
-                    let min = attributes.min.unwrap_or(i32::MIN);
-                    let max = attributes.max.unwrap_or(i32::MAX);
-                    if !(min..=max).contains(x) {
-                        return Err(bad(format!("{x} is outside [{min}, {max}]")));
-                    }
-                    not_an_item(md, v, *x).map_or(Ok(()), |e| Err(bad(e)))?;
-                }
-                (VariableKind::Enumeration { min, max, .. }, ParamValue::Integer(x)) => {
-                    if min.is_some_and(|m| *x < m) || max.is_some_and(|m| *x > m) {
-                        return Err(bad(format!("{x} is not an item of the enumeration")));
-                    }
-                    not_an_item(md, v, *x).map_or(Ok(()), |e| Err(bad(e)))?;
-                }
-                (VariableKind::Boolean { .. }, ParamValue::Boolean(_))
-                | (VariableKind::String { .. }, ParamValue::String(_)) => {}
-                (kind, value) => {
-                    let declared = match kind {
-                        VariableKind::Real { .. } => "Real",
-                        VariableKind::Integer { .. } => "Integer",
-                        VariableKind::Boolean { .. } => "Boolean",
-                        VariableKind::String { .. } => "String",
-                        VariableKind::Enumeration { .. } => "Enumeration",
-                    };
-                    return Err(bad(format!(
-                        "{} value for a {declared} variable",
-                        match value {
-                            ParamValue::Real(_) => "a Real",
-                            ParamValue::Integer(_) => "an Integer",
-                            ParamValue::Boolean(_) => "a Boolean",
-                            ParamValue::String(_) => "a String",
-                        }
-                    )));
-                }
-            }
+            check_value(md, v, &p.value, p.unit.as_deref()).map_err(bad)?;
         }
         Ok(())
     }
@@ -418,6 +368,116 @@ impl ParameterSet {
             .map(|p| (p.name.clone(), p.value.to_value()))
             .collect()
     }
+}
+
+/// Checks the value `value` (with its unit, if any) of the parameter `v` of `md`: of the
+/// variable's type, a Real's unit the declared unit, inside the declared `[min, max]`, one of
+/// the items where the variable has named values. Says what is wrong.
+fn check_value(
+    md: &ModelDescription,
+    v: &ScalarVariable,
+    value: &ParamValue,
+    unit: Option<&str>,
+) -> Result<(), String> {
+    match (&v.kind, value) {
+        (VariableKind::Real { attributes, .. }, ParamValue::Real(x)) => {
+            let declared = attributes.unit.as_deref();
+            if let Some(u) = unit
+                && Some(u) != declared
+            {
+                return Err(format!(
+                    "unit '{u}' is not the declared unit '{}'",
+                    declared.unwrap_or("(none)")
+                ));
+            }
+            let min = attributes.min.unwrap_or(f64::NEG_INFINITY);
+            let max = attributes.max.unwrap_or(f64::INFINITY);
+            if !(min..=max).contains(x) {
+                return Err(format!("{x} is outside [{min}, {max}]"));
+            }
+        }
+        (VariableKind::Integer { attributes, .. }, ParamValue::Integer(x)) => {
+            let min = attributes.min.unwrap_or(i32::MIN);
+            let max = attributes.max.unwrap_or(i32::MAX);
+            if !(min..=max).contains(x) {
+                return Err(format!("{x} is outside [{min}, {max}]"));
+            }
+            not_an_item(md, v, *x).map_or(Ok(()), Err)?;
+        }
+        (VariableKind::Enumeration { min, max, .. }, ParamValue::Integer(x)) => {
+            if min.is_some_and(|m| *x < m) || max.is_some_and(|m| *x > m) {
+                return Err(format!("{x} is not an item of the enumeration"));
+            }
+            not_an_item(md, v, *x).map_or(Ok(()), Err)?;
+        }
+        (VariableKind::Boolean { .. }, ParamValue::Boolean(_))
+        | (VariableKind::String { .. }, ParamValue::String(_)) => {}
+        (kind, value) => {
+            let declared = match kind {
+                VariableKind::Real { .. } => "Real",
+                VariableKind::Integer { .. } => "Integer",
+                VariableKind::Boolean { .. } => "Boolean",
+                VariableKind::String { .. } => "String",
+                VariableKind::Enumeration { .. } => "Enumeration",
+            };
+            return Err(format!(
+                "{} value for a {declared} variable",
+                match value {
+                    ParamValue::Real(_) => "a Real",
+                    ParamValue::Integer(_) => "an Integer",
+                    ParamValue::Boolean(_) => "a Boolean",
+                    ParamValue::String(_) => "a String",
+                }
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks parameter values given as text, `(name, value)` as `--param NAME=VALUE` gives them,
+/// against the FMU `fmu` they are to be set on, before anything runs: each name a parameter of
+/// the FMU (the error lists them), each value readable as the parameter's type (a number, or
+/// an item's name where the variable names its values, as [`System::set_value_str`] reads it)
+/// and accepted by the checks of [`ParameterSet::check`] (inside the declared `[min, max]`, one
+/// of the items). Says what is wrong with the first value refused.
+///
+/// [`System::set_value_str`]: crate::master::System::set_value_str
+pub fn check_assignments(fmu: &Fmu, assignments: &[(String, String)]) -> Result<(), String> {
+    let md = fmu.model_description();
+    let mut system = System::new();
+    system
+        .add_component("plant", fmu.clone())
+        .map_err(|e| e.to_string())?;
+    for (name, text) in assignments {
+        let Some(v) = md
+            .model_variables
+            .iter()
+            .find(|v| v.name == *name && v.causality == Some(Causality::Parameter))
+        else {
+            let valid: Vec<&str> = md
+                .model_variables
+                .iter()
+                .filter(|v| v.causality == Some(Causality::Parameter))
+                .map(|v| v.name.as_str())
+                .collect();
+            return Err(format!(
+                "'{name}' is not a parameter of {} (its parameters: {})",
+                md.model_name,
+                valid.join(", ")
+            ));
+        };
+        let value = system
+            .parse_value_str(&format!("plant.{name}"), text)
+            .map_err(|e| format!("{name} = '{text}': {e}"))?;
+        let value = match value {
+            Value::Real(x) => ParamValue::Real(x),
+            Value::Integer(x) => ParamValue::Integer(x),
+            Value::Boolean(x) => ParamValue::Boolean(x),
+            Value::String(x) => ParamValue::String(x),
+        };
+        check_value(md, v, &value, None).map_err(|e| format!("{name} = '{text}': {e}"))?;
+    }
+    Ok(())
 }
 
 /// Why `x` cannot be the value of `v` when `v` has named values (an Enumeration, or one of our

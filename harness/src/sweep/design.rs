@@ -218,27 +218,73 @@ fn check_count(spec: &SweepSpec, n: usize) -> Result<(), SweepError> {
     Ok(())
 }
 
+/// The longest line of a design CSV \[bytes\]: a point's values take a few dozen bytes each, and
+/// a longer line (a file without line breaks) is refused at its line instead of being read whole.
+pub const MAX_CSV_LINE: usize = 1 << 20;
+
 fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+    let f = std::fs::File::open(path).map_err(|source| SweepError::Io {
         path: path.to_path_buf(),
         source,
     })?;
+    read_csv_from(spec, path, std::io::BufReader::new(f), MAX_POINTS)
+}
+
+/// Reads the design CSV `path` from `r` line by line: a header of parameter names, then one
+/// point per line. The line of point `max_points + 1` is refused as soon as it is read (with
+/// the file and the line), and so is a line longer than [`MAX_CSV_LINE`]: the rest of a huge
+/// file is never read. (The whole file was read into memory before its points were counted.)
+fn read_csv_from(
+    spec: &SweepSpec,
+    path: &Path,
+    mut r: impl std::io::BufRead,
+    max_points: usize,
+) -> Result<Vec<Vec<f64>>, SweepError> {
+    use std::io::{BufRead, Read};
     let problem = |line: usize, message: String| SpecProblem {
         file: path.to_path_buf(),
         line,
         message,
     };
     let mut problems = Vec::new();
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let Some((_, header)) = lines.next() else {
+    let mut buf = String::new();
+    let mut line = 0usize;
+    // The next line that is not blank, as (its 1-based number, its text without the line
+    // break); None at the end of the file.
+    let mut next_line = |buf: &mut String| -> Result<Option<usize>, SweepError> {
+        loop {
+            buf.clear();
+            line += 1;
+            let read = (&mut r)
+                .take(MAX_CSV_LINE as u64 + 1)
+                .read_line(buf)
+                .map_err(|source| SweepError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+            if read == 0 {
+                return Ok(None);
+            }
+            if read > MAX_CSV_LINE && !buf.ends_with('\n') {
+                return Err(SweepError::Invalid(vec![problem(
+                    line,
+                    format!("the line is longer than {MAX_CSV_LINE} bytes"),
+                )]));
+            }
+            let text = buf.trim_end_matches(['\n', '\r']).len();
+            buf.truncate(text);
+            if !buf.trim().is_empty() {
+                return Ok(Some(line));
+            }
+        }
+    };
+    if next_line(&mut buf)?.is_none() {
         return Err(SweepError::Invalid(vec![problem(
             0,
             "empty design: the CSV has no header".into(),
         )]));
-    };
+    }
+    let header = std::mem::take(&mut buf);
     let columns: Vec<&str> = header.split(',').map(str::trim).collect();
     let mut index = Vec::new();
     for c in &columns {
@@ -259,9 +305,17 @@ fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> 
         return Err(SweepError::Invalid(problems));
     }
     let mut points = Vec::new();
-    for (i, l) in lines {
-        let line = i + 1;
-        let cells: Vec<&str> = l.split(',').map(str::trim).collect();
+    let mut rows = 0usize;
+    while let Some(line) = next_line(&mut buf)? {
+        rows += 1;
+        if rows > max_points {
+            problems.push(problem(
+                line,
+                format!("more than {max_points} points: the design is refused at this line"),
+            ));
+            return Err(SweepError::Invalid(problems));
+        }
+        let cells: Vec<&str> = buf.split(',').map(str::trim).collect();
         if cells.len() != columns.len() {
             problems.push(problem(
                 line,
@@ -317,9 +371,6 @@ fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> 
     if points.is_empty() && problems.is_empty() {
         problems.push(problem(0, "empty design: the CSV has no points".into()));
     }
-    if points.len() > MAX_POINTS {
-        problems.push(problem(0, format!("more than {MAX_POINTS} points")));
-    }
     if !problems.is_empty() {
         return Err(SweepError::Invalid(problems));
     }
@@ -338,6 +389,103 @@ mod tests {
         assert_eq!(r.next_u64(), 6457827717110365317);
         assert_eq!(r.next_u64(), 3203168211198807973);
         assert_eq!(r.next_u64(), 9817491932198370423);
+    }
+
+    /// A reader of `head` then `row` repeated `rows` times, counting the bytes it hands out.
+    struct Rows {
+        data: std::io::Chain<std::io::Cursor<Vec<u8>>, std::io::Take<Repeat>>,
+        served: std::rc::Rc<std::cell::Cell<usize>>,
+    }
+
+    /// `row` without end.
+    struct Repeat(&'static [u8], usize);
+
+    impl std::io::Read for Repeat {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            for b in buf.iter_mut() {
+                *b = self.0[self.1];
+                self.1 = (self.1 + 1) % self.0.len();
+            }
+            Ok(buf.len())
+        }
+    }
+
+    impl std::io::Read for Rows {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = self.data.read(buf)?;
+            self.served.set(self.served.get() + n);
+            Ok(n)
+        }
+    }
+
+    fn rows(
+        head: &str,
+        row: &'static str,
+        rows: u64,
+    ) -> (
+        std::io::BufReader<Rows>,
+        std::rc::Rc<std::cell::Cell<usize>>,
+    ) {
+        use std::io::Read;
+        let served = std::rc::Rc::new(std::cell::Cell::new(0));
+        let data = std::io::Cursor::new(head.as_bytes().to_vec())
+            .chain(Repeat(row.as_bytes(), 0).take(rows * row.len() as u64));
+        let reader = Rows {
+            data,
+            served: served.clone(),
+        };
+        (std::io::BufReader::new(reader), served)
+    }
+
+    fn csv_spec() -> SweepSpec {
+        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 1\n[design]\nkind = \"csv\"\n\
+                    file = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n";
+        SweepSpec::parse(text, Path::new("/nowhere/s.toml"), Path::new("/nowhere")).unwrap()
+    }
+
+    /// A design CSV is read line by line and refused at the line of its point `max + 1`, naming
+    /// the file and that line, without reading the rest: the whole file was read into memory
+    /// before its points were counted.
+    #[test]
+    fn a_csv_design_with_too_many_points_is_refused_at_its_line_before_the_rest_is_read() {
+        let spec = csv_spec();
+        let path = Path::new("/nowhere/points.csv");
+        // Blank lines count as lines, not points.
+        let head = "plant.springStiffness\n\n300\n";
+        let (r, served) = rows(head, "310\r\n", 1_000_000);
+        match read_csv_from(&spec, path, r, 5) {
+            Err(SweepError::Invalid(problems)) => {
+                assert_eq!(problems.len(), 1, "{problems:?}");
+                let e = problems[0].to_string();
+                // Header at line 1, a blank line, points 1 to 5 at lines 3 to 7.
+                assert_eq!(problems[0].line, 8, "{e}");
+                assert!(
+                    e.contains("points.csv") && e.contains("more than 5 points"),
+                    "{e}"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        // One buffer's worth, not the 5 MB behind it.
+        assert!(served.get() <= 64 * 1024, "{} bytes read", served.get());
+        // At the bound: every point.
+        let (r, _) = rows(head, "310\r\n", 4);
+        let points = read_csv_from(&spec, path, r, 5).unwrap();
+        assert_eq!(points, [[300.0], [310.0], [310.0], [310.0], [310.0]]);
+        // A file without line breaks is refused at its first line too long, not read whole.
+        let (r, served) = rows("plant.springStiffness\n", "3", 1 << 30);
+        match read_csv_from(&spec, path, r, 5) {
+            Err(SweepError::Invalid(problems)) => {
+                assert_eq!(problems[0].line, 2, "{problems:?}");
+                assert!(problems[0].message.contains("longer than"), "{problems:?}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(
+            served.get() <= 2 * MAX_CSV_LINE,
+            "{} bytes read",
+            served.get()
+        );
     }
 
     #[test]

@@ -25,7 +25,7 @@ use std::path::PathBuf;
 
 pub use design::Design;
 pub use optimize::{JournaledOptimization, Optimization, Optimizer, run_optimization};
-pub use runner::{JournaledSweep, Prepared, SweepOptions, run_sweep};
+pub use runner::{JournaledSweep, MAX_WORKERS, Prepared, SweepOptions, check_workers, run_sweep};
 pub use spec::{SpecProblem, SweepSpec};
 pub use table::{Row, RunStatus, SweepTable};
 
@@ -74,6 +74,9 @@ pub enum SweepError {
         /// The journal.
         path: PathBuf,
     },
+    /// A number of worker threads outside `1..=`[`MAX_WORKERS`].
+    #[error("{0} worker threads: a sweep or an optimisation runs on 1 to {MAX_WORKERS}")]
+    Workers(usize),
     /// A worker ended without returning every point it took.
     #[error("points without a row: {0:?}")]
     Missing(Vec<u64>),

@@ -433,13 +433,15 @@ pub struct Optimization {
 /// generation one batch, writing every run's row to `output` (`.parquet`, else CSV) when given,
 /// with the sweep's journal for `--resume`; `on_generation` sees each generation's best as it
 /// is selected, and an error it returns ends the optimisation with that error (the journal
-/// kept for `--resume`).
+/// kept for `--resume`). A number of workers outside `1..=`[`MAX_WORKERS`](super::runner::MAX_WORKERS)
+/// is refused before anything is written.
 pub fn run_optimization(
     prepared: &Prepared,
     output: Option<&Path>,
     options: &SweepOptions,
     on_generation: &mut dyn FnMut(&GenerationBest) -> Result<(), SweepError>,
 ) -> Result<Optimization, SweepError> {
+    super::runner::check_workers(options.workers)?;
     let mut run = JournaledOptimization::start(prepared, output, options)?;
     loop {
         let todo = run.pending(on_generation)?;

@@ -130,10 +130,27 @@ pub fn study_metric_values(r: &study::ActuatorReport) -> [f64; STUDY_METRICS.len
 /// metrics use its value.
 pub const GAIT_PERIOD: &str = "gait.gaitPeriod";
 
+/// The most worker threads a sweep or an optimisation runs on ([`SweepOptions::workers`]):
+/// each worker is a thread with its own loaded copy of the system, so a count without a bound
+/// (`--workers 100000000`) tried to start that many. More is refused ([`check_workers`]).
+pub const MAX_WORKERS: usize = 1024;
+
+/// Refuses a number of worker threads outside `1..=`[`MAX_WORKERS`]
+/// ([`SweepError::Workers`]); `kneebench sweep/optimize --workers` and the Python package's
+/// `workers=` are checked against the same bound.
+pub fn check_workers(workers: usize) -> Result<(), SweepError> {
+    if (1..=MAX_WORKERS).contains(&workers) {
+        Ok(())
+    } else {
+        Err(SweepError::Workers(workers))
+    }
+}
+
 /// How a sweep runs.
 #[derive(Debug, Clone)]
 pub struct SweepOptions {
-    /// Worker threads (at least 1).
+    /// Worker threads, 1 to [`MAX_WORKERS`] (checked by [`check_workers`] before anything
+    /// runs).
     pub workers: usize,
     /// Show a progress bar on stderr.
     pub progress: bool,
@@ -144,7 +161,9 @@ pub struct SweepOptions {
 impl Default for SweepOptions {
     fn default() -> Self {
         SweepOptions {
-            workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            workers: std::thread::available_parallelism()
+                .map_or(1, |n| n.get())
+                .min(MAX_WORKERS),
             progress: false,
             resume: false,
         }
@@ -616,7 +635,8 @@ impl Prepared {
     /// threads, handing each row to `on_row` as it comes (in completion order): the design's
     /// points ([`run_points`](Self::run_points)) or an optimiser's (see
     /// [`optimize`](super::optimize)). Every point gets a row; a point whose number of values
-    /// is not the number of parameters is an error.
+    /// is not the number of parameters is an error, and so is a number of workers outside
+    /// `1..=`[`MAX_WORKERS`].
     pub fn run_batch(
         &self,
         points: &[(u64, Vec<f64>)],
@@ -633,7 +653,8 @@ impl Prepared {
                 self.spec.parameters.len()
             )));
         }
-        let workers = workers.max(1).min(points.len().max(1));
+        check_workers(workers)?;
+        let workers = workers.min(points.len().max(1));
         let next = AtomicUsize::new(0);
         let (tx, rx) = mpsc::channel::<Result<Row, SweepError>>();
         let mut done = vec![false; points.len()];
@@ -813,7 +834,7 @@ impl Prepared {
                 row.status = RunStatus::Tripped;
                 row.message = format!(
                     "{component}: {reason} at t = {}",
-                    crate::num::Num(*last_successful_time)
+                    model_description::num::Num(*last_successful_time)
                 );
             }
             Outcome::Failed(e) => {
@@ -854,7 +875,7 @@ impl Prepared {
                 && row.status == RunStatus::Ok
             {
                 row.status = RunStatus::Tripped;
-                row.message = format!("{name} at t = {}", crate::num::Num(*t));
+                row.message = format!("{name} at t = {}", model_description::num::Num(*t));
             }
         }
         let times = results.times();
@@ -890,12 +911,14 @@ impl Prepared {
 }
 
 /// Runs a whole sweep, writing the table to `output` (`.parquet`, else CSV) when given, with a
-/// journal next to it for `--resume`. Returns the table (rows sorted by point id).
+/// journal next to it for `--resume`. Returns the table (rows sorted by point id). A number of
+/// workers outside `1..=`[`MAX_WORKERS`] is refused before anything is written.
 pub fn run_sweep(
     prepared: &Prepared,
     output: Option<&Path>,
     options: &SweepOptions,
 ) -> Result<SweepTable, SweepError> {
+    check_workers(options.workers)?;
     let mut sweep = JournaledSweep::start(prepared, output, options)?;
     let todo = sweep.pending();
     prepared.run_points(&todo, options.workers, &mut |row| {
@@ -985,4 +1008,25 @@ pub fn status_counts(table: &SweepTable) -> (usize, usize, usize) {
         count(RunStatus::Tripped),
         count(RunStatus::Failed),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn worker_counts_outside_one_to_the_bound_are_refused() {
+        for ok in [1, 2, MAX_WORKERS] {
+            assert!(check_workers(ok).is_ok(), "{ok}");
+        }
+        for bad in [0, MAX_WORKERS + 1, usize::MAX] {
+            let e = check_workers(bad).unwrap_err().to_string();
+            assert!(
+                e.contains(&bad.to_string()) && e.contains("1 to 1024"),
+                "{e}"
+            );
+        }
+        // The default (every core) is within the bound whatever the machine.
+        assert!(check_workers(SweepOptions::default().workers).is_ok());
+    }
 }

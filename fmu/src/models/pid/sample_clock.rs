@@ -3,7 +3,7 @@
 //! and direct feedthrough").
 
 use crate::model::{ModelError, StateError, StateReader, StateWriter};
-use crate::num::num;
+use model_description::num::num;
 
 /// A sample instant is "at" a time within this fraction of the sample period.
 pub const SAMPLE_TOLERANCE: f64 = 1e-6;

@@ -3,7 +3,7 @@
 
 use super::law::AUXILIARIES;
 use crate::model::ModelError;
-use crate::num::num;
+use model_description::num::num;
 
 /// The items of the `AntiWindup` enumeration (the values of [`AntiWindup`]), for every model
 /// whose integrator offers the schemes.
