@@ -8,6 +8,8 @@ use std::time::Duration;
 use anyhow::Context;
 use kneebench_harness::instance::{LogStatus, stderr_log_handler};
 use kneebench_harness::master::{Signal, VarType};
+use kneebench_harness::params::check_start_value;
+use kneebench_harness::results::csv::{check_output_path, partial_path};
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
     Algorithm, Fmu, InstanceOptions, Isolation, LoadOptions, MasterError, Outcome,
@@ -250,17 +252,14 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     {
         return usage("--flush-every-row needs a CSV output (Parquet writes row groups)");
     }
-    let mut file = match super::output::OutputFile::create(&a.output)? {
-        super::output::OutputFile::Csv(f) => {
-            super::output::OutputFile::Csv(f.write_through(a.flush_every_row))
-        }
-        parquet => parquet,
-    };
-    let mut guard = PartialGuard(Some(file.partial_path().to_path_buf()));
+    // The output is checked here, before anything is loaded; its partial file is created (an
+    // earlier run's set aside) only once every argument has been accepted, so that a usage
+    // error changes no file.
+    check_output_path(&a.output)?;
     // From here on an FMU in this process that calls exit() (even while its binary is loaded)
     // or, with --timeout, never returns is reported (exit code 1 or 4) instead of ending
     // kneebench silently; disarmed when this function returns.
-    let mut armed = super::last_resort::arm(file.partial_path());
+    let mut armed = super::last_resort::arm(&partial_path(&a.output));
     let (mut system, mut config) = match ext.as_str() {
         "fmu" => {
             let fmu = Fmu::load(&a.system, &load)?;
@@ -335,8 +334,23 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             Ok(pair) => pair,
             Err(e) => return usage(e),
         };
-        if let Err(e) = system.set_value_str(&prefix(&name), &value) {
-            return usage(format_args!("--param '{p}': {e}"));
+        let reference = prefix(&name);
+        let checked = system
+            .parse_value_str(&reference, &value)
+            .and_then(|parsed| {
+                let problem = reference.split_once('.').and_then(|(component, variable)| {
+                    let fmu = system.components().find(|(c, _)| *c == component)?.1;
+                    check_start_value(fmu.model_description(), variable, &parsed).err()
+                });
+                match problem {
+                    Some(problem) => Ok(Err(problem)),
+                    None => system.set_value(&reference, parsed).map(Ok),
+                }
+            });
+        match checked {
+            Ok(Ok(())) => {}
+            Ok(Err(problem)) => return usage(format_args!("--param '{p}': {problem}")),
+            Err(e) => return usage(format_args!("--param '{p}': {e}")),
         }
     }
     if !a.variables.is_empty() {
@@ -371,6 +385,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         Err(e @ (MasterError::Grid(_) | MasterError::StepOverflow { .. })) => return usage(e),
         Err(e) => return Err(e.into()),
     };
+    let mut file = match super::output::OutputFile::create(&a.output)? {
+        super::output::OutputFile::Csv(f) => {
+            super::output::OutputFile::Csv(f.write_through(a.flush_every_row))
+        }
+        parquet => parquet,
+    };
+    let mut guard = PartialGuard(Some(file.partial_path().to_path_buf()));
     system.set_instance_options(InstanceOptions {
         log_handler: Some(stderr_log_handler(if a.verbose {
             LogStatus::Ok
@@ -439,6 +460,16 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         summary.outcome,
         Outcome::Completed { .. } | Outcome::Terminated { .. }
     );
+    if !complete && summary.rows == 0 {
+        // Nothing was recorded (an FMU refused its values at the start, say): no partial
+        // file is left behind for a later run to set aside; the guard removes it.
+        drop(file);
+        eprintln!(
+            "recorded no rows: {} removed",
+            partial_path(&a.output).display()
+        );
+        return Ok(report_outcome(summary.outcome));
+    }
     let written = if complete {
         file.commit()?
     } else {
@@ -454,7 +485,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         summary.rows,
         written.display(),
     );
-    Ok(match summary.outcome {
+    Ok(report_outcome(summary.outcome))
+}
+
+/// Prints how the run ended and gives the exit code (0 completed, 3 ended by an FMU, 4 the
+/// timeout, 128 + N a signal, 1 an error).
+fn report_outcome(outcome: Outcome) -> i32 {
+    match outcome {
         Outcome::Completed { stop_time } => {
             eprintln!("completed at t = {}", Num(stop_time));
             super::EXIT_OK
@@ -487,7 +524,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             eprintln!("error: {e}");
             super::EXIT_ERROR
         }
-    })
+    }
 }
 
 /// Removes the partial file of a run that never started (a setup error).
@@ -543,7 +580,13 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
             Err(e) => return Ok(Err(format!("--inputs: {e}"))),
         };
         let times = csv.times();
-        for col in csv.names() {
+        for (k, col) in csv.names().iter().enumerate() {
+            if csv.names()[..k].contains(col) {
+                return Ok(Err(format!(
+                    "--inputs {}: column '{col}' appears twice",
+                    path.display()
+                )));
+            }
             let Some(v) = md.model_variables.iter().find(|v| &v.name == col) else {
                 return Ok(Err(format!(
                     "--inputs {}: column '{col}' is not a variable of the FMU",

@@ -29,6 +29,7 @@ use crate::metrics::{
     PidGains, ReactionCurve, StepMetrics, reaction_curve, step_metrics, ziegler_nichols_reaction,
 };
 use crate::results::plot::PlotLabels;
+use model_description::num::Num;
 
 /// Settings of the step experiment.
 #[derive(Debug, Clone, PartialEq)]
@@ -127,6 +128,7 @@ pub fn run_step(
         &open.results.times(),
         &column(&open.results, "plant.actuationVelocity")?,
     );
+    check_settled(&t_open, &w, config.duration)?;
     let reaction = reaction_curve(&t_open, &w, config.current)
         .map_err(|e| ExperimentError::Analysis(e.to_string()))?;
     let (w0, w_end) = (w[0], tail_mean(&w));
@@ -267,6 +269,51 @@ fn unresolved_tangent(
 }
 
 /// Mean of the last tenth of a record.
+/// Samples the open-loop record must hold after the step for its tail to say whether the
+/// speed has settled.
+const MIN_SETTLING_SAMPLES: usize = 50;
+/// How fast the speed may still change over the record's last tenth, as a fraction of its
+/// steepest rate, for the record to count as settled: a first-order response gets there
+/// after 3.9 time constants, within 2 % of its final value.
+const SETTLED_RATE: f64 = 0.02;
+
+/// Refuses an open-loop record whose speed `w` has not settled by its end: the reaction curve
+/// takes the last value as the final one, and the damping, residence time and inertia follow
+/// from it, so a record cut short (`--duration 0.0005` gave two samples and an "identified"
+/// inertia of 1.2 kg m^2) would be reported as identified values.
+fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), ExperimentError> {
+    let lengthen = |why: String| {
+        Err(ExperimentError::Analysis(format!(
+            "step: {why}: the open-loop speed has not settled by the end of the record, so \
+             no gain, damping or inertia can be read from it; lengthen --duration (now {} s)",
+            Num(duration)
+        )))
+    };
+    if w.len() < MIN_SETTLING_SAMPLES {
+        return lengthen(format!(
+            "{} samples after the step, fewer than {MIN_SETTLING_SAMPLES}",
+            w.len()
+        ));
+    }
+    let steepest = times
+        .windows(2)
+        .zip(w.windows(2))
+        .map(|(t, v)| ((v[1] - v[0]) / (t[1] - t[0])).abs())
+        .fold(0.0, f64::max);
+    let n = w.len();
+    let k = (n / 10).max(1);
+    let end_rate = ((w[n - 1] - w[n - 1 - k]) / (times[n - 1] - times[n - 1 - k])).abs();
+    // NaN (a non-finite sample) counts as unsettled.
+    if end_rate.is_nan() || end_rate > SETTLED_RATE * steepest {
+        return lengthen(format!(
+            "over its last {:.3} s it still changes at {:.1} % of its steepest rate",
+            times[n - 1] - times[n - 1 - k],
+            100.0 * end_rate / steepest
+        ));
+    }
+    Ok(())
+}
+
 fn tail_mean(v: &[f64]) -> f64 {
     let k = (v.len() / 10).max(1);
     super::analysis::mean(&v[v.len() - k..])
@@ -372,4 +419,33 @@ fn write_step(
         },
         &body,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A first-order speed response `1 - e^(-t/tau)` sampled every millisecond for `length` s.
+    fn response(tau: f64, length: f64) -> (Vec<f64>, Vec<f64>) {
+        let n = (length / 1e-3).round() as usize + 1;
+        let times: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
+        let w = times.iter().map(|t| 1.0 - (-t / tau).exp()).collect();
+        (times, w)
+    }
+
+    #[test]
+    fn a_record_cut_before_the_speed_settles_is_refused() {
+        // Settled: ten time constants.
+        let (t, w) = response(0.1, 1.0);
+        assert!(check_settled(&t, &w, 1.0).is_ok());
+        // Two time constants: over the last tenth it still changes at 15 % of its steepest rate.
+        let (t, w) = response(0.1, 0.2);
+        let e = check_settled(&t, &w, 0.2).unwrap_err().to_string();
+        assert!(e.contains("still changes at"), "{e}");
+        assert!(e.contains("lengthen --duration (now 0.2 s)"), "{e}");
+        // Two samples (`--duration 0.0005`).
+        let (t, w) = response(0.1, 0.001);
+        let e = check_settled(&t, &w, 0.0005).unwrap_err().to_string();
+        assert!(e.contains("2 samples after the step, fewer than 50"), "{e}");
+    }
 }

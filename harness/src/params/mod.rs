@@ -21,7 +21,9 @@ pub use apply::{DEFAULT_COMPONENT, apply_spec};
 
 use std::path::{Path, PathBuf};
 
-use model_description::{Causality, ModelDescription, ScalarVariable, VariableKind};
+use model_description::{
+    Causality, Initial, ModelDescription, ScalarVariable, Variability, VariableKind,
+};
 
 use crate::load::Fmu;
 use crate::master::{System, Value};
@@ -76,6 +78,16 @@ pub enum ParamValue {
 }
 
 impl ParamValue {
+    /// The master's value as a parameter value.
+    pub fn of(value: &Value) -> ParamValue {
+        match value {
+            Value::Real(x) => ParamValue::Real(*x),
+            Value::Integer(x) => ParamValue::Integer(*x),
+            Value::Boolean(x) => ParamValue::Boolean(*x),
+            Value::String(x) => ParamValue::String(x.clone()),
+        }
+    }
+
     /// The value as the master sets it.
     pub fn to_value(&self) -> Value {
         match self {
@@ -469,15 +481,38 @@ pub fn check_assignments(fmu: &Fmu, assignments: &[(String, String)]) -> Result<
         let value = system
             .parse_value_str(&format!("plant.{name}"), text)
             .map_err(|e| format!("{name} = '{text}': {e}"))?;
-        let value = match value {
-            Value::Real(x) => ParamValue::Real(x),
-            Value::Integer(x) => ParamValue::Integer(x),
-            Value::Boolean(x) => ParamValue::Boolean(x),
-            Value::String(x) => ParamValue::String(x),
-        };
-        check_value(md, v, &value, None).map_err(|e| format!("{name} = '{text}': {e}"))?;
+        check_value(md, v, &ParamValue::of(&value), None)
+            .map_err(|e| format!("{name} = '{text}': {e}"))?;
     }
     Ok(())
+}
+
+/// Checks a value about to be set on variable `name` of `md` before the FMU is initialized
+/// (`kneebench run --param`): the variable can take a value then (not a constant; an input,
+/// or `initial` exact or approx: a parameter, a start value), and the value passes the checks
+/// of [`ParameterSet::check`] (its type, inside the declared `[min, max]`, one of the items).
+/// Says what is wrong, so that the FMU never has to refuse the value as the run starts.
+pub fn check_start_value(md: &ModelDescription, name: &str, value: &Value) -> Result<(), String> {
+    let Some(v) = md.model_variables.iter().find(|v| v.name == name) else {
+        return Err(format!("'{name}' is not a variable of {}", md.model_name));
+    };
+    let settable = v.variability != Some(Variability::Constant)
+        && (v.causality == Some(Causality::Input)
+            || matches!(
+                v.initial_or_default(),
+                Some(Initial::Exact | Initial::Approx)
+            ));
+    if !settable {
+        return Err(format!(
+            "{name} (causality {}, variability {}) takes no value before initialization: \
+             only parameters, inputs and start values do",
+            v.causality
+                .map_or("local".into(), |c| format!("{c:?}").to_lowercase()),
+            v.variability
+                .map_or("continuous".into(), |c| format!("{c:?}").to_lowercase()),
+        ));
+    }
+    check_value(md, v, &ParamValue::of(value), None)
 }
 
 /// Why `x` cannot be the value of `v` when `v` has named values (an Enumeration, or one of our
