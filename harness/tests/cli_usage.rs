@@ -132,7 +132,10 @@ fn experiment_refuses_bad_values_before_running() {
         (
             "step",
             &["--param", "nosuchParameter=1"],
-            &["no variable 'nosuchParameter'"],
+            &[
+                "'nosuchParameter' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
         ),
         ("step", &["--param", "noequals"], &["expected NAME=VALUE"]),
         ("nosuch", &[], &["unknown experiment 'nosuch'"]),
