@@ -20,7 +20,10 @@
 //!
 //! Reading matches elements by local name (any prefix), accepts parameter values inline or in an
 //! `.ssv` file referenced by `source`, and refuses what the master cannot run (nested systems,
-//! connections to system-level connectors) with a clear error.
+//! connections to system-level connectors) with a clear error. Errors name the file and the
+//! line of the element concerned: a malformed or unusable element, a parameter's bad value
+//! (inline or in the `.ssv`), and a problem of the whole document found at its end (no `System`:
+//! the root element's line).
 
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -668,6 +671,8 @@ fn read_parameter_set(
             Event::Start(e) | Event::Empty(e) => {
                 let local = e.local_name();
                 let a = attrs(doc, &e, offset + pos, file)?;
+                // The file and the line of the element, for errors about its value.
+                let here = format!("{file} line {}", line_of(doc, offset + pos));
                 match local.as_ref().as_bytes() {
                     b"Parameter" => current = a.get("name").cloned(),
                     t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
@@ -676,10 +681,12 @@ fn read_parameter_set(
                         };
                         let v = a.get("value").cloned().unwrap_or_default();
                         let value = match t {
-                            b"Real" => Value::Real(parse_f64(file, &name, &v)?),
+                            b"Real" => {
+                                Value::Real(parse_f64(&here, &format!("parameter {name}"), &v)?)
+                            }
                             b"Integer" => {
                                 Value::Integer(v.trim().parse().map_err(|_| SspError::Invalid {
-                                    file: file.to_string(),
+                                    file: here.clone(),
                                     problem: format!("parameter {name}: '{v}' is not an Integer"),
                                 })?)
                             }
@@ -690,7 +697,7 @@ fn read_parameter_set(
                                 "false" | "0" => false,
                                 _ => {
                                     return Err(SspError::Invalid {
-                                        file: file.to_string(),
+                                        file: here,
                                         problem: format!(
                                             "parameter {name}: '{v}' is not a Boolean (true, \
                                              false, 1 or 0)"
@@ -701,7 +708,7 @@ fn read_parameter_set(
                             b"String" => Value::String(v),
                             _ => {
                                 return Err(SspError::Unsupported {
-                                    file: file.to_string(),
+                                    file: here,
                                     what: format!("Enumeration parameter value ({name})"),
                                 });
                             }
@@ -777,7 +784,8 @@ fn read_ssd_labelled(
     // document ends inside one).
     let mut stack: Vec<Vec<u8>> = Vec::new();
     let mut opened: Vec<(Vec<u8>, u64)> = Vec::new();
-    let mut saw_root = false;
+    // Where the root element starts, once read.
+    let mut root: Option<u64> = None;
     let mut system_depth: Option<usize> = None;
     let mut comp: Option<SspComponent> = None;
     let mut connector: Option<SspConnector> = None;
@@ -834,11 +842,11 @@ fn read_ssd_labelled(
         let local = e.local_name().as_ref().as_bytes().to_vec();
         // One root element, SystemStructureDescription: the components of another element
         // before or after it would be silently added.
-        if stack.is_empty() && (saw_root || local != b"SystemStructureDescription") {
+        if stack.is_empty() && (root.is_some() || local != b"SystemStructureDescription") {
             let name = String::from_utf8_lossy(&local);
             return Err(invalid(
                 &here,
-                if saw_root {
+                if root.is_some() {
                     format!("an element <{name}> after the root element")
                 } else {
                     format!("the root element is <{name}>, not SystemStructureDescription")
@@ -861,7 +869,7 @@ fn read_ssd_labelled(
                 }
             }
             b"SystemStructureDescription" if stack.is_empty() => {
-                saw_root = true;
+                root = Some(start);
                 ssd.name = a.get("name").cloned().unwrap_or_default();
                 ssd.version = a.get("version").cloned().unwrap_or_default();
                 if !ssd.version.starts_with("1.") {
@@ -1021,14 +1029,19 @@ fn read_ssd_labelled(
             stack.push(local);
         }
     }
-    if !saw_root {
+    // Whole-document problems, found at the end: the line of the element concerned (the
+    // root), or of the end of the document where there is no element at all.
+    let Some(root) = root else {
         return Err(invalid(
-            file,
-            "the root element is not SystemStructureDescription".into(),
+            &format!("{file} line {}", line_of(xml, xml.len() as u64)),
+            "the document has no root element (SystemStructureDescription)".into(),
         ));
-    }
+    };
     if system_depth.is_none() {
-        return Err(invalid(file, "no System element".into()));
+        return Err(invalid(
+            &format!("{file} line {}", line_of(xml, root)),
+            "no System element in the SystemStructureDescription".into(),
+        ));
     }
     Ok(ssd)
 }

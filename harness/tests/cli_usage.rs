@@ -132,14 +132,29 @@ fn experiment_refuses_bad_values_before_running() {
         (
             "step",
             &["--param", "nosuchParameter=1"],
-            &["'nosuchParameter' is not a parameter of BenchPlant"],
+            &[
+                "'nosuchParameter' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
         ),
         ("step", &["--param", "noequals"], &["expected NAME=VALUE"]),
         ("nosuch", &[], &["unrecognized subcommand 'nosuch'"]),
         // Each experiment has its own options: another one's is refused, not ignored.
-        ("step", &["--dwell", "5"], &["unexpected argument '--dwell'"]),
-        ("map", &["--gains", "1,2,3"], &["unexpected argument '--gains'"]),
-        ("bode", &["--speeds", "3"], &["unexpected argument '--speeds'"]),
+        (
+            "step",
+            &["--dwell", "5"],
+            &["unexpected argument '--dwell'"],
+        ),
+        (
+            "map",
+            &["--gains", "1,2,3"],
+            &["unexpected argument '--gains'"],
+        ),
+        (
+            "bode",
+            &["--speeds", "3"],
+            &["unexpected argument '--speeds'"],
+        ),
     ] {
         let out = experiment(name, &plant, &dir.path().join("out"), args);
         assert_usage(&format!("{name} {args:?}"), &out, needles);

@@ -371,3 +371,90 @@ fn malformed_xml_in_an_ssd_is_not_a_bad_version() {
         assert!(!e.to_string().contains("version '"), "{e}");
     }
 }
+
+/// Errors found after the document is read (no System element, no root element at all) name
+/// the line of the element concerned, and so do a parameter set's bad values, inline in the
+/// SSD or in a referenced .ssv: they named the file alone.
+#[test]
+fn whole_document_and_parameter_value_errors_name_the_line() {
+    // No System: the root element's line.
+    let e = ssp::read_ssd(
+        "<?xml version=\"1.0\"?>\n\n<SystemStructureDescription version=\"1.0\" name=\"x\">\n</SystemStructureDescription>\n",
+    )
+    .unwrap_err()
+    .to_string();
+    assert_eq!(
+        e,
+        "SystemStructure.ssd line 3: no System element in the SystemStructureDescription"
+    );
+    // No element at all: the end of the document.
+    let e = ssp::read_ssd("<?xml version=\"1.0\"?>\n<!-- nothing -->\n")
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        "SystemStructure.ssd line 3: the document has no root element (SystemStructureDescription)"
+    );
+    // Inline parameter values: the line of the value's element in the SSD.
+    let inline = |value: &str| {
+        format!(
+            "<?xml version=\"1.0\"?>\n<SystemStructureDescription version=\"1.0\" name=\"x\">\n\
+             <System name=\"s\"><Elements>\n<Component name=\"c\" source=\"c.fmu\">\n\
+             <ParameterBindings><ParameterBinding><ParameterValues>\n\
+             <ParameterSet version=\"1.0\" name=\"p\"><Parameters>\n\
+             <Parameter name=\"k\">\n  {value}\n</Parameter>\n\
+             </Parameters></ParameterSet>\n\
+             </ParameterValues></ParameterBinding></ParameterBindings>\n\
+             </Component></Elements></System>\n</SystemStructureDescription>\n"
+        )
+    };
+    assert_eq!(
+        ssp::read_ssd(&inline("<Real value=\"1.5\"/>"))
+            .unwrap()
+            .system
+            .components[0]
+            .parameters[0]
+            .value,
+        Value::Real(1.5)
+    );
+    for (value, problem) in [
+        (
+            "<Real value=\"fast\"/>",
+            "parameter k: 'fast' is not a number",
+        ),
+        (
+            "<Integer value=\"1.5\"/>",
+            "parameter k: '1.5' is not an Integer",
+        ),
+        (
+            "<Boolean value=\"yes\"/>",
+            "parameter k: 'yes' is not a Boolean (true, false, 1 or 0)",
+        ),
+        (
+            "<Enumeration value=\"A\"/>",
+            "unsupported: Enumeration parameter value (k)",
+        ),
+    ] {
+        let e = ssp::read_ssd(&inline(value)).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!("SystemStructure.ssd line 8: {problem}"),
+            "{value}"
+        );
+    }
+    // A referenced .ssv: its own name and line.
+    let bound = "<?xml version=\"1.0\"?>\n<SystemStructureDescription version=\"1.0\" name=\"x\"><System name=\"s\"><Elements><Component name=\"c\" source=\"c.fmu\"><ParameterBindings><ParameterBinding source=\"p.ssv\"/></ParameterBindings></Component></Elements></System></SystemStructureDescription>";
+    #[allow(clippy::result_large_err)] // read_ssd_with's callback returns the SSP reader's error
+    fn bad_set(_source: &str) -> Result<String, ssp::SspError> {
+        Ok(
+            "<ssv:ParameterSet version=\"1.0\" name=\"p\">\n<ssv:Parameters>\n\n\
+            <ssv:Parameter name=\"k\"><ssv:Integer value=\"x\"/></ssv:Parameter>\n\
+            </ssv:Parameters>\n</ssv:ParameterSet>\n"
+                .into(),
+        )
+    }
+    let e = ssp::read_ssd_with(bound, "s.ssd", &mut bad_set)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(e, "p.ssv line 4: parameter k: 'x' is not an Integer");
+}

@@ -146,8 +146,9 @@ def run(
     an isolated host preloads this interpreter's shared libpython, which a PythonFMU export
     needs (its slave's third-party imports need ``PYTHONPATH`` in the host's environment).
     """
-    if isolate not in ("auto", "always", "never"):
-        raise ValueError(f"isolate must be 'auto', 'always' or 'never', not {isolate!r}")
+    if isolate not in _native.ISOLATE_NAMES:
+        *rest, last = (f"'{n}'" for n in _native.ISOLATE_NAMES)
+        raise ValueError(f"isolate must be {', '.join(rest)} or {last}, not {isolate!r}")
     if params is not None and not isinstance(params, Mapping):
         raise TypeError(
             f"params must be a mapping of names to values (a dict), not {type(params).__name__}"

@@ -73,3 +73,4 @@ class Optimizer:
 
 STUDY_METRIC_UNITS: dict[str, str]
 MAX_WORKERS: int
+ISOLATE_NAMES: list[str]

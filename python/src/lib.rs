@@ -150,8 +150,12 @@ fn load_options(
     host: Option<PathBuf>,
     preload: Vec<PathBuf>,
 ) -> Result<LoadOptions, String> {
-    let isolation = Isolation::from_name(isolate)
-        .ok_or_else(|| format!("isolate must be 'auto', 'always' or 'never', not {isolate:?}"))?;
+    let isolation = Isolation::from_name(isolate).ok_or_else(|| {
+        format!(
+            "isolate must be {}, not {isolate:?}",
+            Isolation::names_text()
+        )
+    })?;
     let mut options = LoadOptions {
         isolation,
         ..LoadOptions::default()
@@ -1190,6 +1194,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SpecError", m.py().get_type::<SpecError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("MAX_WORKERS", kneebench_harness::sweep::MAX_WORKERS)?;
+    m.add(
+        "ISOLATE_NAMES",
+        Isolation::NAMED.map(|(name, _, _)| name).to_vec(),
+    )?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(study, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;

@@ -18,8 +18,8 @@ use super::SweepError;
 use super::design::{self, Design};
 use super::journal::{Finished, JOURNAL_MAGIC};
 use super::spec::{
-    DesignKind, MAX_RUN_VALUES, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource,
-    too_many_values,
+    DesignKind, ParameterType, SpecProblem, Stat, SweepSpec, SystemSource, TooLong,
+    check_run_values, run_rows,
 };
 use super::table::{Row, RunStatus, SweepTable, same_bits};
 use crate::master::{MasterError, Outcome, RunConfig, System, Value};
@@ -484,17 +484,22 @@ impl Prepared {
             // The bound on a run's recorded values (the spec checked it where it tells the
             // length and the step; a system file's experiment is only known here).
             Ok(grid) => {
-                let rows = (grid.n_steps / config.record_every.max(1)).saturating_add(1);
-                let over = |rows: f64| rows * (recorded.len() as f64 + 1.0) > MAX_RUN_VALUES as f64;
-                if over(rows as f64) {
-                    // The spec's step is to blame when the system's own would have fitted.
-                    let own = loaded.config.step_size;
-                    let own_rows = ((config.stop_time - config.start_time) / own).floor() + 1.0;
-                    let line = match spec.step_line {
-                        Some(line) if !over(own_rows / config.record_every.max(1) as f64) => line,
+                let every = config.record_every.max(1);
+                let rows = (grid.n_steps / every).saturating_add(1) as f64;
+                // The spec's step is to blame when the system's own would have fitted.
+                let own_rows = spec.step_line.map(|_| {
+                    run_rows(
+                        config.stop_time - config.start_time,
+                        loaded.config.step_size,
+                        every,
+                    )
+                });
+                if let Err((blame, message)) = check_run_values(rows, own_rows, recorded.len()) {
+                    let line = match (blame, spec.step_line) {
+                        (TooLong::Step, Some(line)) => line,
                         _ => spec.length_line,
                     };
-                    problems.push(spec.problem(line, too_many_values(rows as f64, recorded.len())));
+                    problems.push(spec.problem(line, message));
                 }
             }
         }

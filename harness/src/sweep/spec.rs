@@ -167,23 +167,54 @@ pub const MAX_RUN_VALUES: u64 = 1 << 24;
 /// [`MAX_RUN_VALUES`], which bounds the run's length whatever its step.
 pub const MAX_CYCLES: usize = 10_000;
 
-/// Values a run from 0 to `stop` with base step `step` records with `columns` recorded signals
-/// (the time column added): one row per step and the initial one, as [`MAX_RUN_VALUES`] counts
-/// them. Saturating (a float): for bounds only.
-pub fn run_values(stop: f64, step: f64, columns: usize) -> f64 {
-    ((stop / step).floor() + 1.0) * (columns as f64 + 1.0)
+/// Rows a run of `duration` seconds records at base step `step`, keeping every
+/// `record_every`-th step: one per kept step and the initial one. Saturating (a float): for
+/// bounds only.
+pub fn run_rows(duration: f64, step: f64, record_every: u64) -> f64 {
+    ((duration / step).floor() / record_every.max(1) as f64).floor() + 1.0
 }
 
-/// The message of a run recording more than [`MAX_RUN_VALUES`].
-pub(crate) fn too_many_values(rows: f64, columns: usize) -> String {
+/// What makes a run record more than [`MAX_RUN_VALUES`] ([`check_run_values`]), and so whose
+/// line a refusal names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum TooLong {
+    /// The spec's `step`: at the system's own step the run would have fitted.
+    Step,
+    /// What sets the runs' length (`stop_time`, `cycles`, or the system file's experiment).
+    Length,
+}
+
+/// The bound on a run's recorded values, the one check of it: made where the spec tells the
+/// runs' length and step ([`SweepSpec::parse`]) and, for a system file's own experiment, once
+/// the system is loaded ([`Prepared::new`](super::Prepared::new)). `rows` are the rows a run
+/// records at the step it runs at ([`run_rows`]), `own_rows` those it would record at the
+/// system's own step when the spec sets another (`None` otherwise), `columns` the recorded
+/// signals (the time column is added). A run within [`MAX_RUN_VALUES`] is Ok; one over it gives
+/// what to blame and the message.
+pub(crate) fn check_run_values(
+    rows: f64,
+    own_rows: Option<f64>,
+    columns: usize,
+) -> Result<(), (TooLong, String)> {
+    let over = |rows: f64| rows * (columns as f64 + 1.0) > MAX_RUN_VALUES as f64;
+    if !over(rows) {
+        return Ok(());
+    }
+    let blame = match own_rows {
+        Some(own) if !over(own) => TooLong::Step,
+        _ => TooLong::Length,
+    };
     let values = rows * (columns as f64 + 1.0);
-    format!(
-        "each run would record {rows:.0} rows of {columns} signals and the time ({values:.0} \
-         values, {:.0} MiB), more than {MAX_RUN_VALUES} values ({} MiB) per run: shorten the \
-         runs (stop_time, cycles), take a longer step, or record fewer signals",
-        values * 8.0 / f64::from(1u32 << 20),
-        (MAX_RUN_VALUES * 8) >> 20
-    )
+    Err((
+        blame,
+        format!(
+            "each run would record {rows:.0} rows of {columns} signals and the time ({values:.0} \
+             values, {:.0} MiB), more than {MAX_RUN_VALUES} values ({} MiB) per run: shorten the \
+             runs (stop_time, cycles), take a longer step, or record fewer signals",
+            values * 8.0 / f64::from(1u32 << 20),
+            (MAX_RUN_VALUES * 8) >> 20
+        ),
+    ))
 }
 
 /// The most points of a Sobol design: `sobol_burley` gives 2^16 points per sequence (beyond
@@ -1025,19 +1056,21 @@ impl SweepSpec {
             }
         }
         let own_step = scenario.then_some(crate::study::GAIT_SCENARIO_STEP);
-        if let (Some(stop), Some(h)) = (known_stop, step.or(own_step))
-            && run_values(stop, h, columns.len()) > MAX_RUN_VALUES as f64
-        {
-            let rows = (stop / h).floor() + 1.0;
-            let span = match (&raw.step, own_step) {
-                (Some(s), Some(own))
-                    if run_values(stop, own, columns.len()) <= MAX_RUN_VALUES as f64 =>
-                {
-                    s.span()
-                }
-                _ => length_span,
-            };
-            p.at(span, too_many_values(rows, columns.len()));
+        if let (Some(stop), Some(h)) = (known_stop, step.or(own_step)) {
+            let own_rows = raw
+                .step
+                .as_ref()
+                .and(own_step)
+                .map(|own| run_rows(stop, own, 1));
+            if let Err((blame, message)) =
+                check_run_values(run_rows(stop, h, 1), own_rows, columns.len())
+            {
+                let span = match (blame, &raw.step) {
+                    (TooLong::Step, Some(s)) => s.span(),
+                    _ => length_span,
+                };
+                p.at(span, message);
+            }
         }
         let optimize = raw
             .optimize
@@ -1186,6 +1219,38 @@ from = FROM
             "[metrics]\nstudy = false\n\n[[metrics.signals]]",
         ))
         .unwrap();
+    }
+
+    /// The one check of a run's recorded values, as both the spec (`SweepSpec::parse`) and a
+    /// loaded system file (`Prepared::new`) make it: at the bound accepted, a row over it
+    /// refused, the spec's step blamed only when the system's own would have fitted, and the
+    /// rows counted with every `record_every`-th step kept.
+    #[test]
+    fn the_run_values_check_bounds_rows_times_columns_and_blames_the_step_only_when_it_matters() {
+        // 15 signals and the time: 2^20 rows exactly fill 2^24 values.
+        let rows = (1u64 << 20) as f64;
+        assert_eq!(check_run_values(rows, None, 15), Ok(()));
+        let (blame, message) = check_run_values(rows + 1.0, None, 15).unwrap_err();
+        assert_eq!(blame, TooLong::Length);
+        assert!(
+            message.starts_with("each run would record 1048577 rows of 15 signals")
+                && message.contains("more than 16777216 values (128 MiB)"),
+            "{message}"
+        );
+        assert_eq!(
+            check_run_values(rows + 1.0, Some(rows), 15).unwrap_err().0,
+            TooLong::Step
+        );
+        assert_eq!(
+            check_run_values(rows + 1.0, Some(rows + 1.0), 15)
+                .unwrap_err()
+                .0,
+            TooLong::Length
+        );
+        // 10 s at 1 ms: 10001 rows; every 10th kept: 1001.
+        assert_eq!(run_rows(10.0, 1e-3, 1), 10_001.0);
+        assert_eq!(run_rows(10.0, 1e-3, 10), 1_001.0);
+        assert_eq!(run_rows(10.0, 1e-3, 0), 10_001.0);
     }
 
     /// `points` and a grid's `levels` beyond the design's MAX_POINTS are refused at their
