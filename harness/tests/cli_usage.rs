@@ -81,6 +81,15 @@ fn identify_checks_param_names_up_front_and_lists_the_valid_ones() {
                 "frictionModel",
                 &["--param 'frictionModel': expected NAME=VALUE"][..],
             ),
+            // Bounds too (the study's check, shared): the FMU refused it only in the
+            // refinement's simulation, after the fit.
+            (
+                "actuationInertia=-1",
+                &[
+                    "--param",
+                    "actuationInertia = '-1': -1 is outside [0.001, 100]",
+                ][..],
+            ),
         ] {
             let mut cmd = kneebench();
             cmd.args(["identify", "missing-log.csv", "--fmu"])
@@ -212,5 +221,61 @@ fn tune_study_and_plot_refuse_bad_values_while_parsing() {
     ] {
         let out = kneebench().args(args).output().unwrap();
         assert_usage(&format!("{args:?}"), &out, &[option]);
+    }
+}
+
+/// `study --param` names and values are checked against the scenario's FMUs before anything
+/// runs or is written: a value the FMU refuses (outside its [min, max], not finite, no item of
+/// its enumeration), a name that is no parameter, a component a run lacks. Each refusal is a
+/// usage error naming the parameter and its bounds (or the valid names); an out-of-range
+/// value was passed on, failed every run at t = 0, and was reported as an interlock trip
+/// (exit code 3).
+#[test]
+fn study_checks_param_names_and_values_against_the_fmus_before_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    for (param, needles) in [
+        (
+            "plant.actuationInertia=-1",
+            &[
+                "--param 'plant.actuationInertia'",
+                "-1 is outside [0.001, 100]",
+            ][..],
+        ),
+        (
+            "plant.actuationInertia=1e400",
+            &["'plant.actuationInertia'", "not a finite number"],
+        ),
+        (
+            "torque.outputMin=nan",
+            &["'torque.outputMin'", "not a finite"],
+        ),
+        ("plant.configuration=7", &["7 is outside [0, 2]"]),
+        (
+            "plant.frictionModel=Nope",
+            &["'Nope' is no item of FrictionModel", "HdLossSurface"],
+        ),
+        (
+            "plant.nope=1",
+            &[
+                "'nope' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
+        ),
+        (
+            "impedance.virtualStiffness=100",
+            &["the DA run of bench-full has no component 'impedance'"],
+        ),
+        ("nodot=1", &["'nodot': not component.name"]),
+    ] {
+        let o = kneebench()
+            .args(["study", "--cycles", "1", "--param", param, "--fmus"])
+            .arg(fmus())
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_usage(param, &o, needles);
+        assert!(!out.exists(), "{param}: wrote {}", out.display());
     }
 }

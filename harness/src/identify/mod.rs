@@ -115,7 +115,7 @@ pub enum IdentifyError {
     #[error("no log given")]
     NoLog,
     /// A plant parameter of [`IdentifyConfig::plant_parameters`] that the bench FMU has not,
-    /// or whose value does not read as its type.
+    /// or whose value does not read as its type or lies outside its declared bounds.
     #[error("{0}")]
     Parameter(String),
 }
@@ -171,35 +171,17 @@ impl IdentifyConfig {
 
 /// Checks [`IdentifyConfig::plant_parameters`] against the bench FMU `fmu` before any work: each
 /// name must be a parameter of the FMU (the error lists them) and each value must read as the
-/// parameter's type (a number, or an item of its enumeration), as the refinement's simulation
-/// will set it.
+/// parameter's type (a number, or an item of its enumeration), finite and inside the declared
+/// `[min, max]`, as the refinement's simulation will set it
+/// ([`crate::params::parameter_value`]).
 pub fn check_plant_parameters(
     fmu: &Fmu,
     parameters: &[(String, String)],
 ) -> Result<(), IdentifyError> {
-    use model_description::Causality;
     let md = fmu.model_description();
-    let valid: Vec<&str> = md
-        .model_variables
-        .iter()
-        .filter(|v| v.causality == Some(Causality::Parameter))
-        .map(|v| v.name.as_str())
-        .collect();
-    let mut system = crate::master::System::new();
-    system
-        .add_component("plant", fmu.clone())
-        .map_err(|e| IdentifyError::Fmu(e.to_string()))?;
     for (name, value) in parameters {
-        if !valid.contains(&name.as_str()) {
-            return Err(IdentifyError::Parameter(format!(
-                "'{name}' is not a parameter of {} (its parameters: {})",
-                md.model_name,
-                valid.join(", ")
-            )));
-        }
-        system
-            .set_value_str(&format!("plant.{name}"), value)
-            .map_err(|e| IdentifyError::Parameter(format!("{name} = '{value}': {e}")))?;
+        crate::params::parameter_value(md, name, value)
+            .map_err(|e| IdentifyError::Parameter(e.to_string()))?;
     }
     Ok(())
 }
