@@ -78,9 +78,44 @@ fn tune_prints_ziegler_nichols_gains_and_refuses_bad_input() {
         .unwrap();
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(
-        text.contains("kp = 6.000000")
-            && text.contains("ki = 24.000000")
-            && text.contains("kd = 0.375000"),
+        text.contains("kp = 6\n") && text.contains("ki = 24\n") && text.contains("kd = 0.375\n"),
+        "{text}"
+    );
+    // Inputs whose gains overflow a double (or underflow to zero) are usage errors naming the
+    // gain, its rule and the inputs: ki = inf was printed, and kp with 300 digits, exit 0.
+    for (ku, tu, needle) in [
+        (
+            "1e308",
+            "1e-308",
+            "ki = 0.6 Ku / (Tu/2) is inf (overflow) for Ku = 1e308, Tu = 1e-308",
+        ),
+        (
+            "1e308",
+            "1e308",
+            "kd = 0.6 Ku Tu/8 is inf (overflow) for Ku = 1e308, Tu = 1e308",
+        ),
+        ("1e-308", "1e308", "ki = 0.6 Ku / (Tu/2) is 0 (underflow)"),
+    ] {
+        let out = kneebench()
+            .args(["tune", "--ku", ku, "--tu", tu])
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{ku} {tu}: {e}");
+        assert!(e.contains("--ku, --tu") && e.contains(needle), "{e}");
+        assert!(out.stdout.is_empty(), "{ku} {tu}");
+    }
+    // Large finite gains print compactly.
+    let out = kneebench()
+        .args(["tune", "--ku", "1e300", "--tu", "1"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    assert!(
+        text.contains("kp = 6e299\n")
+            && text.contains("ki = 1.2e300\n")
+            && text.contains("kd = 7.5e298\n"),
         "{text}"
     );
     // A negative gain is a usage error, refused while parsing (it exited with 1).
