@@ -61,12 +61,25 @@ fn metrics_of_a_first_order_step_and_a_tracking_error() {
         text.contains("RMS  1.0000") && text.contains("max  1.0000"),
         "{text}"
     );
-    // A missing column is an error with exit code 1.
+    // A missing column is a usage error (exit code 2; it was 1), for the reference too.
     let out = kneebench()
         .args(["metrics", csv.to_str().unwrap(), "--signal", "nope"])
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no column 'nope'"));
+    let out = kneebench()
+        .args([
+            "metrics",
+            csv.to_str().unwrap(),
+            "--signal",
+            "y",
+            "--reference",
+            "nope",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no column 'nope'"));
 }
 

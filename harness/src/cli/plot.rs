@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use kneebench_harness::Results;
+use kneebench_harness::results::ResultsError;
 use kneebench_harness::results::plot::{self, plot_signals};
 
 /// Arguments of `kneebench plot`.
@@ -44,6 +44,9 @@ pub const MAX_DEFAULT_COLUMNS: usize = 12;
 
 /// Runs `kneebench plot`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Usage errors (exit code 2): an --out of another format, checked before the file is read,
+    // and --signals that are no columns of it.
+    plot::image_format(&a.out).map_err(|e| super::Usage(format!("--out: {e}")))?;
     let r = Results::read_file(&a.results)?;
     let names: Vec<&str> = if a.signals.is_empty() {
         let names = r.names();
@@ -58,8 +61,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     } else {
         a.signals.iter().map(String::as_str).collect()
     };
-    plot_signals(&r, &names, &a.out, (a.width, a.height))
-        .with_context(|| format!("plotting into {}", a.out.display()))?;
+    plot_signals(&r, &names, &a.out, (a.width, a.height)).map_err(|e| {
+        let message = format!("plotting into {}: {e}", a.out.display());
+        match e {
+            ResultsError::UnknownSignal(..) => super::Usage(message).into(),
+            e => anyhow::Error::from(e).context(format!("plotting into {}", a.out.display())),
+        }
+    })?;
     eprintln!("wrote {}", a.out.display());
     Ok(super::EXIT_OK)
 }

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use kneebench_harness::Results;
 use kneebench_harness::metrics::{
     MetricsError, reaction_curve, ziegler_nichols_reaction, ziegler_nichols_ultimate,
@@ -51,9 +51,12 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         (None, None, Some(path)) => {
             let (results, lines) = Results::read_file_lines(path)?;
             let name = a.signal.as_deref().unwrap_or_default();
-            let values = results
-                .column(name)
-                .with_context(|| format!("no column '{name}' in {}", path.display()))?;
+            let values = results.column(name).ok_or_else(|| {
+                super::Usage(format!(
+                    "--signal: no column '{name}' in {}",
+                    path.display()
+                ))
+            })?;
             let all: Vec<usize> = (0..results.len()).collect();
             results.check_rows(path, &lines, &[name], &all)?;
             let curve = reaction_curve(&results.times(), &values, a.input_step.unwrap_or(1.0))?;
