@@ -18,8 +18,8 @@ one chart of a hundred curves is unreadable.")]
 pub struct Args {
     /// A results file as `kneebench run` writes it: CSV (header `time,<names>`) or Parquet.
     pub results: PathBuf,
-    /// Comma-separated column names to plot (default: every column, at most
-    /// `MAX_DEFAULT_COLUMNS`).
+    /// Comma-separated column names to plot (default: every column, at most 12).
+    // 12 is MAX_DEFAULT_COLUMNS (a doc comment cannot name a constant's value; a test checks).
     #[arg(long, visible_alias = "variables", value_delimiter = ',')]
     pub signals: Vec<String>,
     /// Output image: .svg or .png.
@@ -70,4 +70,32 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     })?;
     eprintln!("wrote {}", a.out.display());
     Ok(super::EXIT_OK)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    /// The help states [`MAX_DEFAULT_COLUMNS`]'s value wherever it speaks of the limit (it
+    /// showed the constant's name, `MAX_DEFAULT_COLUMNS`, in backquotes).
+    #[test]
+    fn the_help_states_the_default_column_limit() {
+        let help = Cli::command().render_long_help().to_string();
+        assert!(!help.contains("MAX_DEFAULT_COLUMNS"), "{help}");
+        let n = MAX_DEFAULT_COLUMNS;
+        for says in [
+            format!("every column, at most {n})"),
+            format!("every column, when there are at most {n}"),
+            format!("more than {n} columns"),
+        ] {
+            assert!(help.contains(&says), "no '{says}' in:\n{help}");
+        }
+    }
 }
