@@ -198,7 +198,7 @@ fn a_failed_study_run_is_reported_as_failed_not_as_a_trip() {
 
 /// `kneebench emulate` refuses a heartbeat timeout outside the protocol's range (above 0.1 s,
 /// docs/bench-protocol.md section 7; zero, negative, NaN) and a duration that is not a finite
-/// number of seconds up to a year, before it opens a socket or loads the plant (the FMU path
+/// number of seconds above 0 and up to a year, before it opens a socket or loads the plant (the FMU path
 /// named here does not exist, so a refusal that came later would name it instead).
 #[test]
 fn emulate_refuses_arguments_outside_the_protocols_limits() {
@@ -223,6 +223,8 @@ fn emulate_refuses_arguments_outside_the_protocols_limits() {
         ),
         (&["--duration", "NaN"][..], "--duration"),
         (&["--duration", "1e300"][..], "--duration"),
+        // 0 served for no time and exited 0; without --duration it runs until interrupted.
+        (&["--duration", "0"][..], "above 0"),
     ] {
         let o = kneebench()
             .args(["emulate", "--bind", "127.0.0.1:0", "--fmu"])
