@@ -3,6 +3,8 @@
 //! RMS and maximum tracking error; and Ziegler-Nichols starting gains, from the ultimate gain
 //! and period or from a step response's reaction curve.
 
+use model_description::num::Num;
+
 /// Errors of the metric computations.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MetricsError {
@@ -28,6 +30,19 @@ pub enum MetricsError {
     /// A parameter is out of its domain.
     #[error("{0}")]
     Domain(String),
+    /// A gain the tuning rule gives is not a finite, non-zero number: its inputs' combination
+    /// overflows (or underflows to zero) a double.
+    #[error("{gain} = {formula} is {result} for {inputs}: no usable gain")]
+    Gain {
+        /// The gain (`kp`, `ki`, `kd`).
+        gain: &'static str,
+        /// Its rule, e.g. `0.6 Ku / (Tu/2)`.
+        formula: &'static str,
+        /// What came out: `inf (overflow)`, `0 (underflow)`, `NaN`.
+        result: String,
+        /// The inputs, e.g. `Ku = 1e308, Tu = 1e-308`.
+        inputs: String,
+    },
 }
 
 /// Quality of a step response.
@@ -172,11 +187,43 @@ pub fn ziegler_nichols_ultimate(ku: f64, tu: f64) -> Result<PidGains, MetricsErr
         )));
     }
     let kp = 0.6 * ku;
-    Ok(PidGains {
-        kp,
-        ki: kp / (tu / 2.0),
-        kd: kp * tu / 8.0,
-    })
+    usable(
+        PidGains {
+            kp,
+            ki: kp / (tu / 2.0),
+            kd: kp * tu / 8.0,
+        },
+        ["0.6 Ku", "0.6 Ku / (Tu/2)", "0.6 Ku Tu/8"],
+        || format!("Ku = {}, Tu = {}", Num(ku), Num(tu)),
+    )
+}
+
+/// `gains` when each is a finite, non-zero number; otherwise [`MetricsError::Gain`] naming the
+/// first that is not, its rule (`formulas`: kp, ki, kd) and the inputs (`inputs`).
+fn usable(
+    gains: PidGains,
+    formulas: [&'static str; 3],
+    inputs: impl Fn() -> String,
+) -> Result<PidGains, MetricsError> {
+    let named = [("kp", gains.kp), ("ki", gains.ki), ("kd", gains.kd)];
+    for ((gain, value), formula) in named.into_iter().zip(formulas) {
+        let result = if value.is_nan() {
+            "NaN".to_string()
+        } else if value.is_infinite() {
+            format!("{} (overflow)", Num(value))
+        } else if value == 0.0 {
+            "0 (underflow)".to_string()
+        } else {
+            continue;
+        };
+        return Err(MetricsError::Gain {
+            gain,
+            formula,
+            result,
+            inputs: inputs(),
+        });
+    }
+    Ok(gains)
 }
 
 /// A first-order-plus-dead-time fit of a step response (the reaction curve).
@@ -251,16 +298,59 @@ pub fn ziegler_nichols_reaction(curve: &ReactionCurve) -> Result<PidGains, Metri
         )));
     }
     let kp = 1.2 * time_constant / (gain * dead_time);
-    Ok(PidGains {
-        kp,
-        ki: kp / (2.0 * dead_time),
-        kd: kp * dead_time / 2.0,
-    })
+    usable(
+        PidGains {
+            kp,
+            ki: kp / (2.0 * dead_time),
+            kd: kp * dead_time / 2.0,
+        },
+        ["1.2 T/(K L)", "1.2 T/(K L) / (2 L)", "1.2 T/(K L) L/2"],
+        || {
+            format!(
+                "K = {}, L = {} s, T = {} s",
+                Num(gain),
+                Num(dead_time),
+                Num(time_constant)
+            )
+        },
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Gains that overflow a double, or underflow to zero, are refused naming the gain, its
+    /// rule and the inputs (`ki = inf` was returned for Ku = 1e308, Tu = 1e-308).
+    #[test]
+    fn ziegler_nichols_gains_that_overflow_are_refused() {
+        let e = ziegler_nichols_ultimate(1e308, 1e-308).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "ki = 0.6 Ku / (Tu/2) is inf (overflow) for Ku = 1e308, Tu = 1e-308: no usable gain"
+        );
+        let e = ziegler_nichols_ultimate(1e308, 1e308).unwrap_err();
+        assert!(matches!(e, MetricsError::Gain { gain: "kd", .. }), "{e}");
+        let e = ziegler_nichols_ultimate(1e-308, 1e308).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("ki = 0.6 Ku / (Tu/2) is 0 (underflow)"),
+            "{e}"
+        );
+        let curve = ReactionCurve {
+            gain: 1e-300,
+            dead_time: 1e-10,
+            time_constant: 1e10,
+        };
+        let e = ziegler_nichols_reaction(&curve).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("kp = 1.2 T/(K L) is inf (overflow) for K = 1e-300"),
+            "{e}"
+        );
+        let g = ziegler_nichols_ultimate(1e300, 1.0).unwrap();
+        assert_eq!((g.kp, g.ki, g.kd), (6e299, 1.2e300, 7.5e298));
+    }
 
     fn grid(n: usize, dt: f64) -> Vec<f64> {
         (0..n).map(|i| i as f64 * dt).collect()

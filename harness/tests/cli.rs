@@ -149,9 +149,56 @@ fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
     assert!(!out.path().join("study").exists());
 }
 
+/// A study run that fails (here the torque loop's FMU refuses outputMin > outputMax when the
+/// run starts, a combination no single bound catches) is reported as a failed run, not as an
+/// interlock trip: the command exits with 1 (3 is for trips), names the failed runs, and
+/// report.md says why each failed, with no column of NaN for it in the table and no
+/// "run failed" in its interlock row.
+#[test]
+fn a_failed_study_run_is_reported_as_failed_not_as_a_trip() {
+    let d = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(
+        std::path::Path::new(env!("CARGO_BIN_EXE_kneebench")),
+        d.path(),
+    );
+    let out = d.path().join("study");
+    let o = kneebench()
+        .args([
+            "study",
+            "--scenario",
+            "bench-full",
+            "--actuators",
+            "da",
+            "--cycles",
+            "1",
+            "--param",
+            "torque.outputMin=100",
+            "--fmus",
+        ])
+        .arg(&fmus)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("1 run(s) failed (bench-full DA)"), "{e}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("**DA: the run failed** at t = 0 s")
+            && report.contains("outputMin 100 is above outputMax"),
+        "{report}"
+    );
+    assert!(!report.contains("NaN"), "{report}");
+    assert!(!report.contains("| interlock trip |"), "{report}");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("**DA: the run failed**"), "{stdout}");
+    assert!(!stdout.contains("NaN"), "{stdout}");
+}
+
 /// `kneebench emulate` refuses a heartbeat timeout outside the protocol's range (above 0.1 s,
 /// docs/bench-protocol.md section 7; zero, negative, NaN) and a duration that is not a finite
-/// number of seconds up to a year, before it opens a socket or loads the plant (the FMU path
+/// number of seconds above 0 and up to a year, before it opens a socket or loads the plant (the FMU path
 /// named here does not exist, so a refusal that came later would name it instead).
 #[test]
 fn emulate_refuses_arguments_outside_the_protocols_limits() {
@@ -176,6 +223,8 @@ fn emulate_refuses_arguments_outside_the_protocols_limits() {
         ),
         (&["--duration", "NaN"][..], "--duration"),
         (&["--duration", "1e300"][..], "--duration"),
+        // 0 served for no time and exited 0; without --duration it runs until interrupted.
+        (&["--duration", "0"][..], "above 0"),
     ] {
         let o = kneebench()
             .args(["emulate", "--bind", "127.0.0.1:0", "--fmu"])

@@ -61,12 +61,25 @@ fn metrics_of_a_first_order_step_and_a_tracking_error() {
         text.contains("RMS  1.0000") && text.contains("max  1.0000"),
         "{text}"
     );
-    // A missing column is an error with exit code 1.
+    // A missing column is a usage error (exit code 2; it was 1), for the reference too.
     let out = kneebench()
         .args(["metrics", csv.to_str().unwrap(), "--signal", "nope"])
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no column 'nope'"));
+    let out = kneebench()
+        .args([
+            "metrics",
+            csv.to_str().unwrap(),
+            "--signal",
+            "y",
+            "--reference",
+            "nope",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no column 'nope'"));
 }
 
@@ -78,9 +91,44 @@ fn tune_prints_ziegler_nichols_gains_and_refuses_bad_input() {
         .unwrap();
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(
-        text.contains("kp = 6.000000")
-            && text.contains("ki = 24.000000")
-            && text.contains("kd = 0.375000"),
+        text.contains("kp = 6\n") && text.contains("ki = 24\n") && text.contains("kd = 0.375\n"),
+        "{text}"
+    );
+    // Inputs whose gains overflow a double (or underflow to zero) are usage errors naming the
+    // gain, its rule and the inputs: ki = inf was printed, and kp with 300 digits, exit 0.
+    for (ku, tu, needle) in [
+        (
+            "1e308",
+            "1e-308",
+            "ki = 0.6 Ku / (Tu/2) is inf (overflow) for Ku = 1e308, Tu = 1e-308",
+        ),
+        (
+            "1e308",
+            "1e308",
+            "kd = 0.6 Ku Tu/8 is inf (overflow) for Ku = 1e308, Tu = 1e308",
+        ),
+        ("1e-308", "1e308", "ki = 0.6 Ku / (Tu/2) is 0 (underflow)"),
+    ] {
+        let out = kneebench()
+            .args(["tune", "--ku", ku, "--tu", tu])
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{ku} {tu}: {e}");
+        assert!(e.contains("--ku, --tu") && e.contains(needle), "{e}");
+        assert!(out.stdout.is_empty(), "{ku} {tu}");
+    }
+    // Large finite gains print compactly.
+    let out = kneebench()
+        .args(["tune", "--ku", "1e300", "--tu", "1"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    assert!(
+        text.contains("kp = 6e299\n")
+            && text.contains("ki = 1.2e300\n")
+            && text.contains("kd = 7.5e298\n"),
         "{text}"
     );
     // A negative gain is a usage error, refused while parsing (it exited with 1).

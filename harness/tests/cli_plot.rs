@@ -80,7 +80,8 @@ fn a_refused_plot_leaves_an_earlier_image_untouched() {
         std::fs::write(&out, "an earlier image").unwrap();
         // A size out of range is a usage error (exit code 2), refused while parsing.
         for (file, extra, reason, code) in [
-            (&ok, vec!["--signals", "nope"], "nope", 1),
+            // A column the file has not is a usage error too (it exited with 1).
+            (&ok, vec!["--signals", "nope"], "no column named 'nope'", 2),
             (&ok, vec!["--width", "0"], "1..=16384", 2),
             (
                 &ok,

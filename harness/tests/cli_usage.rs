@@ -81,6 +81,15 @@ fn identify_checks_param_names_up_front_and_lists_the_valid_ones() {
                 "frictionModel",
                 &["--param 'frictionModel': expected NAME=VALUE"][..],
             ),
+            // Bounds too (the study's check, shared): the FMU refused it only in the
+            // refinement's simulation, after the fit.
+            (
+                "actuationInertia=-1",
+                &[
+                    "--param",
+                    "actuationInertia = '-1': -1 is outside [0.001, 100]",
+                ][..],
+            ),
         ] {
             let mut cmd = kneebench();
             cmd.args(["identify", "missing-log.csv", "--fmu"])
@@ -280,4 +289,150 @@ fn sweep_and_optimize_refuse_more_workers_than_the_bound() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// `study --param` names and values are checked against the scenario's FMUs before anything
+/// runs or is written: a value the FMU refuses (outside its [min, max], not finite, no item of
+/// its enumeration), a name that is no parameter, a component a run lacks. Each refusal is a
+/// usage error naming the parameter and its bounds (or the valid names); an out-of-range
+/// value was passed on, failed every run at t = 0, and was reported as an interlock trip
+/// (exit code 3).
+#[test]
+fn study_checks_param_names_and_values_against_the_fmus_before_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    for (param, needles) in [
+        (
+            "plant.actuationInertia=-1",
+            &[
+                "--param 'plant.actuationInertia'",
+                "-1 is outside [0.001, 100]",
+            ][..],
+        ),
+        (
+            "plant.actuationInertia=1e400",
+            &["'plant.actuationInertia'", "not a finite number"],
+        ),
+        (
+            "torque.outputMin=nan",
+            &["'torque.outputMin'", "not a finite"],
+        ),
+        ("plant.configuration=7", &["7 is outside [0, 2]"]),
+        (
+            "plant.frictionModel=Nope",
+            &["'Nope' is no item of FrictionModel", "HdLossSurface"],
+        ),
+        (
+            "plant.nope=1",
+            &[
+                "'nope' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
+        ),
+        (
+            "impedance.virtualStiffness=100",
+            &["the DA run of bench-full has no component 'impedance'"],
+        ),
+        ("nodot=1", &["'nodot': not component.name"]),
+    ] {
+        let o = kneebench()
+            .args(["study", "--cycles", "1", "--param", param, "--fmus"])
+            .arg(fmus())
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_usage(param, &o, needles);
+        assert!(!out.exists(), "{param}: wrote {}", out.display());
+    }
+}
+
+/// Names that are no scenario, actuator, parameter or column, a missing log and an output of
+/// an unknown format are usage errors (exit code 2) with their message: each exited with 1.
+/// None needs the bench's FMUs (each is refused before they are read) but `--param`.
+#[test]
+fn unknown_names_and_missing_inputs_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("step.csv");
+    let mut text = String::from("time,y\n");
+    for k in 0..50 {
+        let t = k as f64 * 0.01;
+        text.push_str(&format!("{t:?},{:?}\n", 1.0 - (-t / 0.1).exp()));
+    }
+    std::fs::write(&csv, text).unwrap();
+    let csv = csv.to_str().unwrap();
+    let missing = dir.path().join("missing");
+    let missing = missing.to_str().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let plant = plant.to_str().unwrap();
+    let out = dir.path().join("out");
+    let out = out.to_str().unwrap();
+    for (args, needles) in [
+        (
+            &["study", "--fmus", missing, "--scenario", "nope"][..],
+            &["unknown scenario 'nope' (bench-full, bench-clutch)"][..],
+        ),
+        (
+            &["study", "--fmus", missing, "--actuators", "foo"],
+            &["unknown actuator 'foo' (da, sea, csea)"],
+        ),
+        (
+            &[
+                "study",
+                "--fmus",
+                fmus().to_str().unwrap(),
+                "--param",
+                "plant.nope=1",
+            ],
+            &["'nope' is not a parameter of BenchPlant"],
+        ),
+        (
+            &["identify", "--fmu", plant, "--out", out],
+            &["no log given"],
+        ),
+        (
+            &["identify", "--fmu", missing, "--out", out],
+            &["no log given"],
+        ),
+        (
+            &[
+                "plot",
+                csv,
+                "--signals",
+                "nope",
+                "--out",
+                &format!("{out}.svg"),
+            ],
+            &["no column named 'nope'", "available: y"],
+        ),
+        (
+            &["plot", csv, "--out", &format!("{out}.txt")],
+            &["--out", "unknown plot format", "use .svg or .png"],
+        ),
+        // The format is checked before the results file is read.
+        (
+            &["plot", missing, "--out", &format!("{out}.txt")],
+            &["unknown plot format"],
+        ),
+        (
+            &["metrics", csv, "--signal", "nope"],
+            &["no column 'nope' in"],
+        ),
+        (
+            &[
+                "tune",
+                "--step-response",
+                csv,
+                "--signal",
+                "nope",
+                "--input-step",
+                "1",
+            ],
+            &["no column 'nope' in"],
+        ),
+    ] {
+        let o = kneebench().args(args).output().unwrap();
+        assert_usage(&format!("{args:?}"), &o, needles);
+    }
+    assert!(!Path::new(out).exists());
 }

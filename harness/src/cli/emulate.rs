@@ -7,6 +7,7 @@ use std::sync::atomic::AtomicBool;
 use anyhow::{Context, bail};
 use kneebench_harness::bench_protocol::{FaultInjection, Key, LinkDirection};
 use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
+use model_description::num::Num;
 
 /// Arguments of `kneebench emulate`.
 #[derive(Debug, clap::Args)]
@@ -66,7 +67,8 @@ pub struct Args {
     /// one under a live session latches (reason: server restart).
     #[arg(long, value_name = "FILE")]
     pub state: Option<PathBuf>,
-    /// Stop after this many seconds (default: run until interrupted).
+    /// Stop after this many seconds, more than 0 and at most a year (default: run until
+    /// interrupted).
     #[arg(long, value_parser = duration)]
     pub duration: Option<f64>,
     /// Serve from a SCHED_FIFO thread of this priority (1-99; needs CAP_SYS_NICE or root; a
@@ -187,12 +189,164 @@ fn heartbeat_timeout(text: &str) -> Result<f64, String> {
     Ok(s)
 }
 
-/// Parses `--duration`: a number of seconds from 0 to [`MAX_DURATION`].
+/// Parses `--duration`: a number of seconds above 0 and up to [`MAX_DURATION`] (0 served for
+/// no time at all; without the option the emulator runs until interrupted).
 fn duration(text: &str) -> Result<f64, String> {
-    super::values::non_negative(text)
+    super::values::positive(text)
         .ok()
         .filter(|d| *d <= MAX_DURATION)
-        .ok_or_else(|| format!("must be a number of seconds from 0 to {MAX_DURATION} (a year)"))
+        .ok_or_else(|| {
+            format!(
+                "must be a number of seconds above 0 and at most {MAX_DURATION} (a year); without --duration the emulator runs until interrupted"
+            )
+        })
+}
+
+/// What the emulator did, for its exit: one line per counter, `  name  value`, the frames
+/// rejected by the causes docs/bench-protocol.md section 5 names (it printed the statistics'
+/// Rust debug form).
+fn summary(s: &EmulatorStats) -> String {
+    use kneebench_harness::bench_protocol::reason;
+    let reason_name = |r: u8| match r {
+        reason::CLIENT_REQUEST => "the master's request",
+        reason::HEARTBEAT_TIMEOUT => "heartbeat watchdog",
+        reason::EMERGENCY_STOP => "emergency stop",
+        reason::SESSION_END => "session end",
+        reason::BENCH_PROTECTION => "bench protection",
+        reason::SERVER_RESTART => "server restart",
+        _ => "unknown",
+    };
+    let latch = |r: Option<u8>| match r {
+        Some(r) => format!("{r} ({})", reason_name(r)),
+        None => "none".to_string(),
+    };
+    let onoff = |on: bool| if on { "enabled" } else { "disabled" };
+    let r = &s.rejected;
+    let lines: Vec<(&str, String)> = vec![
+        ("sessions begun", s.sessions.to_string()),
+        ("last session", s.session.to_string()),
+        (
+            "commands applied (last session)",
+            s.commands_applied.to_string(),
+        ),
+        (
+            "commands applied (all sessions)",
+            s.commands_applied_total.to_string(),
+        ),
+        (
+            "drive commands applied",
+            s.drive_commands_applied_total.to_string(),
+        ),
+        (
+            "commands refused (set-value kind)",
+            s.commands_refused.to_string(),
+        ),
+        (
+            "drive commands in the safe state",
+            s.drive_commands_in_safe_state.to_string(),
+        ),
+        (
+            "drive commands after a safe-state request",
+            s.drive_commands_after_safe_request.to_string(),
+        ),
+        ("safe-state requests", s.safe_state_requests.to_string()),
+        (
+            "safe-state acknowledgements sent",
+            s.safe_state_acks.to_string(),
+        ),
+        ("samples sent", s.samples_sent.to_string()),
+        (
+            "replies dropped or held by faults",
+            s.replies_dropped.to_string(),
+        ),
+        ("heartbeats seen", s.heartbeats_seen.to_string()),
+        ("frames accepted", r.accepted.to_string()),
+        (
+            "frames rejected: wrong version",
+            r.wrong_version.to_string(),
+        ),
+        ("frames rejected: truncated", r.truncated.to_string()),
+        ("frames rejected: malformed", r.malformed.to_string()),
+        (
+            "frames rejected: wrong session",
+            r.wrong_session.to_string(),
+        ),
+        ("frames rejected: foreign", s.foreign_frames.to_string()),
+        (
+            "frames rejected: unauthenticated",
+            r.unauthenticated.to_string(),
+        ),
+        ("frames rejected: replayed", r.replayed.to_string()),
+        ("frames rejected: out of order", r.out_of_order.to_string()),
+        ("sequence numbers skipped (gaps)", r.gaps.to_string()),
+        (
+            "handshakes refused: bench busy",
+            s.busy_refusals.to_string(),
+        ),
+        (
+            "handshakes refused: bench setup",
+            s.setup_refusals.to_string(),
+        ),
+        ("version refusals sent", s.version_refusals.to_string()),
+        ("latches acknowledged", s.acknowledgements.to_string()),
+        (
+            "acknowledgements refused",
+            s.acknowledgements_refused.to_string(),
+        ),
+        ("faults injected", s.faults_injected.to_string()),
+        (
+            "fault frames refused (--no-faults)",
+            s.fault_frames_refused.to_string(),
+        ),
+        ("link faults applied", s.link_faults_applied.to_string()),
+        ("rejection log lines", s.log_lines.to_string()),
+        ("safe state latched", latch(s.safe_reason)),
+        (
+            "safe state since (plant time)",
+            s.safe_since
+                .map_or("-".to_string(), |t| format!("{} s", Num(t))),
+        ),
+        ("latch restored at start", latch(s.restored_latch)),
+        (
+            "plant trip code",
+            s.plant_trip.map_or("none".to_string(), |c| c.to_string()),
+        ),
+        (
+            "plant time (last session)",
+            format!("{} s", Num(s.plant_time)),
+        ),
+        (
+            "largest gap between frames",
+            format!("{} s", Num(s.largest_frame_gap)),
+        ),
+        (
+            "outputs held",
+            match &s.outputs {
+                Some(c) => format!(
+                    "test {} ({}), load {} ({}), clutch {}",
+                    Num(c.test_set_value),
+                    onoff(c.test_enable),
+                    Num(c.load_set_value),
+                    onoff(c.load_enable),
+                    if c.clutch { "engaged" } else { "released" }
+                ),
+                None => "none".to_string(),
+            },
+        ),
+        (
+            "real-time priority",
+            match s.realtime_priority {
+                0 => "none (normal scheduling)".to_string(),
+                p => format!("SCHED_FIFO {p}"),
+            },
+        ),
+    ];
+    let width = lines.iter().map(|(n, _)| n.len()).max().unwrap_or(0);
+    let mut out = String::from("kneebench emulate: stopped\n");
+    for (name, value) in lines {
+        out.push_str(&format!("  {name:<width$}  {value}\n"));
+    }
+    out
 }
 
 /// Runs `kneebench emulate`.
@@ -242,7 +396,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     })
     .with_context(|| format!("emulator on {}", args.bind))?;
     if let Ok(s) = stats.lock() {
-        eprintln!("{s:#?}");
+        eprint!("{}", summary(&s));
     }
     Ok(super::EXIT_OK)
 }
@@ -274,7 +428,7 @@ mod tests {
 
     #[test]
     fn durations_out_of_range_are_refused_before_anything_starts() {
-        for bad in ["nan", "inf", "-1", "1e300"] {
+        for bad in ["nan", "inf", "-1", "1e300", "0", "-0"] {
             let bad = &format!("--duration={bad}");
             // Refused while parsing (a usage error, exit code 2), before anything starts.
             let e = Cli::try_parse_from([
@@ -300,7 +454,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let fmu = dir.path().join("missing.fmu");
         let args = |extra: &[&str]| {
-            let mut v = vec!["emulate", "--fmu", fmu.to_str().unwrap(), "--duration", "0"];
+            let mut v = vec!["emulate", "--fmu", fmu.to_str().unwrap(), "--duration", "1"];
             v.extend_from_slice(extra);
             Cli::try_parse_from(v).unwrap().args
         };
@@ -336,6 +490,86 @@ mod tests {
             Cli::try_parse_from(["emulate", "--key", "a", "--new-key", "b"]).is_err(),
             "--key and --new-key together"
         );
+    }
+
+    /// The exit summary is one line per counter, named (the frame rejections as the protocol
+    /// names them), not the statistics' debug dump; every counter's value is in it.
+    #[test]
+    fn the_summary_has_one_named_line_per_counter() {
+        use kneebench_harness::bench_protocol::Counters;
+        let mut s = EmulatorStats {
+            sessions: 101,
+            session: 102,
+            commands_applied: 103,
+            commands_applied_total: 104,
+            drive_commands_applied_total: 105,
+            commands_refused: 106,
+            drive_commands_in_safe_state: 107,
+            drive_commands_after_safe_request: 108,
+            safe_state_requests: 109,
+            safe_state_acks: 110,
+            samples_sent: 111,
+            replies_dropped: 112,
+            foreign_frames: 113,
+            busy_refusals: 114,
+            setup_refusals: 115,
+            version_refusals: 116,
+            acknowledgements: 117,
+            acknowledgements_refused: 118,
+            faults_injected: 119,
+            log_lines: 120,
+            fault_frames_refused: 121,
+            heartbeats_seen: 122,
+            link_faults_applied: 123,
+            rejected: Counters {
+                accepted: 201,
+                truncated: 202,
+                wrong_version: 203,
+                unauthenticated: 204,
+                malformed: 205,
+                wrong_session: 206,
+                replayed: 207,
+                out_of_order: 208,
+                gaps: 209,
+            },
+            safe_reason: Some(2),
+            plant_trip: Some(6),
+            plant_time: 12.5,
+            ..EmulatorStats::default()
+        };
+        let text = summary(&s);
+        assert!(!text.contains('{') && !text.contains("Counters"), "{text}");
+        for n in (101..=123).chain(201..=209) {
+            assert_eq!(
+                text.lines()
+                    .filter(|l| l.split_whitespace().last() == Some(&n.to_string()))
+                    .count(),
+                1,
+                "{n}: {text}"
+            );
+        }
+        for line in [
+            "frames rejected: wrong version     203",
+            "frames rejected: unauthenticated   204",
+            "frames rejected: out of order      208",
+            "safe state latched                 2 (heartbeat watchdog)",
+            "plant trip code                    6",
+            "plant time (last session)          12.5 s",
+        ] {
+            let (name, value) = line.split_at(line.find("  ").unwrap());
+            assert!(
+                text.lines()
+                    .any(|l| l.trim_start().starts_with(name)
+                        && l.trim_end().ends_with(value.trim())),
+                "no '{line}' in:\n{text}"
+            );
+        }
+        // Every line is `  name  value`.
+        for l in text.lines().skip(1) {
+            assert!(l.starts_with("  ") && l.trim().contains("  "), "{l}");
+        }
+        s.rejected = Counters::default();
+        assert!(summary(&s).contains("frames rejected: replayed"));
     }
 
     #[test]

@@ -130,10 +130,12 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         println!("written: {} ({})", path.display(), set.label());
         return Ok(super::EXIT_OK);
     }
-    anyhow::ensure!(
-        !a.logs.is_empty(),
-        "no log given (kneebench identify LOG.csv ... --fmu BenchPlant.fmu)"
-    );
+    if a.logs.is_empty() {
+        return Err(super::Usage(
+            "no log given (kneebench identify LOG.csv ... --fmu BenchPlant.fmu)".into(),
+        )
+        .into());
+    }
     let prior = read_set_for(a.prior.as_deref(), &a.fmu)?;
     let plant_parameters = a
         .params

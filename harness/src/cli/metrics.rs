@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use kneebench_harness::Results;
 use kneebench_harness::metrics::{step_metrics, tracking_error};
 
@@ -37,10 +36,11 @@ pub struct Args {
 /// Runs `kneebench metrics`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     let (results, lines) = Results::read_file_lines(&a.results)?;
+    // A name that is no column is a usage error (exit code 2).
     let column = |name: &str| {
         results
             .column(name)
-            .with_context(|| format!("no column '{name}' in {}", a.results.display()))
+            .ok_or_else(|| super::Usage(format!("no column '{name}' in {}", a.results.display())))
     };
     let times = results.times();
     // A NaN time would fail `>= from` and so be dropped silently: times are checked first.

@@ -39,7 +39,7 @@ Exit codes:
   2    usage error (bad arguments, a stop time off the step grid, an unusable --inputs file,
        an FMU that validate rejects without --force)
   3    `run`: an FMU ended the run (fmi2Discard with fmi2Terminated); the results are written
-       up to and including its last successful time
+       up to and including its last successful time. `study`: an interlock ended a run
   4    `run`: the --timeout passed; the rows so far are in OUTPUT.partial
   129  `run` stopped by SIGHUP, 130 by SIGINT, 143 by SIGTERM; the rows so far are in
        OUTPUT.partial";

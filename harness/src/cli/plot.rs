@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use kneebench_harness::Results;
+use kneebench_harness::results::ResultsError;
 use kneebench_harness::results::plot::{self, plot_signals};
 
 /// Arguments of `kneebench plot`.
@@ -18,8 +18,8 @@ one chart of a hundred curves is unreadable.")]
 pub struct Args {
     /// A results file as `kneebench run` writes it: CSV (header `time,<names>`) or Parquet.
     pub results: PathBuf,
-    /// Comma-separated column names to plot (default: every column, at most
-    /// `MAX_DEFAULT_COLUMNS`).
+    /// Comma-separated column names to plot (default: every column, at most 12).
+    // 12 is MAX_DEFAULT_COLUMNS (a doc comment cannot name a constant's value; a test checks).
     #[arg(long, visible_alias = "variables", value_delimiter = ',')]
     pub signals: Vec<String>,
     /// Output image: .svg or .png.
@@ -44,6 +44,9 @@ pub const MAX_DEFAULT_COLUMNS: usize = 12;
 
 /// Runs `kneebench plot`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Usage errors (exit code 2): an --out of another format, checked before the file is read,
+    // and --signals that are no columns of it.
+    plot::image_format(&a.out).map_err(|e| super::Usage(format!("--out: {e}")))?;
     let r = Results::read_file(&a.results)?;
     let names: Vec<&str> = if a.signals.is_empty() {
         let names = r.names();
@@ -58,8 +61,41 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     } else {
         a.signals.iter().map(String::as_str).collect()
     };
-    plot_signals(&r, &names, &a.out, (a.width, a.height))
-        .with_context(|| format!("plotting into {}", a.out.display()))?;
+    plot_signals(&r, &names, &a.out, (a.width, a.height)).map_err(|e| {
+        let message = format!("plotting into {}: {e}", a.out.display());
+        match e {
+            ResultsError::UnknownSignal(..) => super::Usage(message).into(),
+            e => anyhow::Error::from(e).context(format!("plotting into {}", a.out.display())),
+        }
+    })?;
     eprintln!("wrote {}", a.out.display());
     Ok(super::EXIT_OK)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    /// The help states [`MAX_DEFAULT_COLUMNS`]'s value wherever it speaks of the limit (it
+    /// showed the constant's name, `MAX_DEFAULT_COLUMNS`, in backquotes).
+    #[test]
+    fn the_help_states_the_default_column_limit() {
+        let help = Cli::command().render_long_help().to_string();
+        assert!(!help.contains("MAX_DEFAULT_COLUMNS"), "{help}");
+        let n = MAX_DEFAULT_COLUMNS;
+        for says in [
+            format!("every column, at most {n})"),
+            format!("every column, when there are at most {n}"),
+            format!("more than {n} columns"),
+        ] {
+            assert!(help.contains(&says), "no '{says}' in:\n{help}");
+        }
+    }
 }

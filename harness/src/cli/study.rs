@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use kneebench_harness::master::Value;
 use kneebench_harness::study::{
-    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyScenario, markdown_table, plot_study,
-    run_study, write_report,
+    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario,
+    checked_overrides, plot_study, run_study, runs_markdown, write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -31,7 +31,10 @@ torque loop -> load motor, written as an SSP file (<out>/scenarios/*.ssp) that t
 and other SSP tools can run. The first cycle is the start-up and is not analysed. Written: one
 CSV per run (every signal), per scenario a tracking, torque and power figure (PNG and SVG, the
 last cycle) and report.md with the measured-vs-twin table.
-Exit code 3 when an interlock ended a run (the report names it).")]
+Exit code 3 when an interlock ended a run (the report names it); 1 when a run failed (an FMU's
+error: report.md says why, and has no results for that run); 2 for bad arguments: a --param
+that names no parameter of the scenario's FMUs, or whose value is not finite, outside the
+parameter's [min, max] or none of its items (checked before anything runs).")]
 pub struct Args {
     /// Directory of the exported FMUs (kneebench export).
     #[arg(long)]
@@ -51,8 +54,9 @@ pub struct Args {
     /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's).
     #[arg(long, value_delimiter = ',')]
     pub actuators: Vec<String>,
-    /// Set a scenario parameter, `component.name=value` (repeatable), e.g.
-    /// `--param plant.actuationDamping=10` for another bench.
+    /// Set a scenario parameter, `component.name=value` (repeatable; a mode by its item name),
+    /// e.g. `--param plant.actuationDamping=10` for another bench; checked against the FMUs
+    /// (name, finite value inside [min, max], item) before anything runs.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
     /// A parameter set (.ssv) for the plant (e.g. from `kneebench identify`): checked against
@@ -72,18 +76,21 @@ pub struct Args {
     pub bench_params: Vec<String>,
 }
 
+/// Reads `--param component.name=value`: an Integer, a Real or a Boolean by its text, any other
+/// text as a String (an item's name, e.g. `plant.frictionModel=HdLossSurface`). The value is
+/// checked against the scenario's FMUs, and converted to the variable's type, before anything
+/// runs ([`checked_overrides`]).
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     let (name, value) = super::name_value(text)?;
     let value = value.as_str();
     let parsed = if let Ok(i) = value.parse::<i32>() {
         Value::Integer(i)
     } else if let Ok(x) = value.parse::<f64>() {
-        anyhow::ensure!(x.is_finite(), "--param '{text}': the value is not finite");
         Value::Real(x)
     } else if let Ok(b) = value.parse::<bool>() {
         Value::Boolean(b)
     } else {
-        anyhow::bail!("--param '{text}': '{value}' is not a number or true/false");
+        Value::String(value.to_string())
     };
     Ok((name, parsed))
 }
@@ -97,19 +104,22 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             "da" => Ok(Actuator::Da),
             "sea" => Ok(Actuator::Sea),
             "csea" => Ok(Actuator::Csea),
-            other => Err(anyhow::anyhow!(
-                "unknown actuator '{other}' (da, sea, csea)"
-            )),
+            other => Err(super::Usage(format!(
+                "--actuators: unknown actuator '{other}' (da, sea, csea)"
+            ))),
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, _>>()?;
     let scenarios = a
         .scenario
         .iter()
         .map(|s| {
-            StudyScenario::from_name(&s.to_ascii_lowercase())
-                .ok_or_else(|| anyhow::anyhow!("unknown scenario '{s}' (bench-full, bench-clutch)"))
+            StudyScenario::from_name(&s.to_ascii_lowercase()).ok_or_else(|| {
+                super::Usage(format!(
+                    "--scenario: unknown scenario '{s}' (bench-full, bench-clutch)"
+                ))
+            })
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, _>>()?;
     let overrides = a
         .params
         .iter()
@@ -132,9 +142,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         }),
         _ => None,
     };
-    let mut all = Vec::new();
-    for scenario in scenarios {
-        let config = StudyConfig {
+    let configs: Vec<StudyConfig> = scenarios
+        .into_iter()
+        .map(|scenario| StudyConfig {
             fmu_dir: a.fmus.clone(),
             out_dir: a.out.clone(),
             scenario,
@@ -145,10 +155,21 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             overrides: overrides.clone(),
             parameter_set: parameter_set.clone(),
             bench: bench.clone(),
-        };
-        let runs = run_study(&config)?;
+        })
+        .collect();
+    // Every scenario's --param values are checked before the first run (a later scenario's
+    // were found only after the earlier ones had run).
+    for config in &configs {
+        checked_overrides(config).map_err(|e| match e {
+            StudyError::Parameter(m) => super::Usage(format!("--param {m}")).into(),
+            e => anyhow::Error::from(e),
+        })?;
+    }
+    let mut all = Vec::new();
+    for config in &configs {
+        let runs = run_study(config)?;
         let figures = plot_study(&runs, &a.out)?;
-        all.push((scenario, runs, figures));
+        all.push((config.scenario, runs, figures));
     }
     let sections: Vec<ScenarioSection<'_>> = all
         .iter()
@@ -160,11 +181,17 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         .collect();
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let report = write_report(&a.out, &sections, &command)?;
-    let mut tripped = false;
+    let (mut tripped, mut failed) = (false, Vec::new());
     for (scenario, runs, figures) in &all {
-        let reports: Vec<_> = runs.iter().map(|r| r.report.clone()).collect();
-        tripped |= reports.iter().any(|r| r.trip.is_some());
-        println!("## {}\n\n{}", scenario.name(), markdown_table(&reports));
+        tripped |= runs
+            .iter()
+            .any(|r| r.failure().is_none() && r.report.trip.is_some());
+        failed.extend(
+            runs.iter()
+                .filter(|r| r.failure().is_some())
+                .map(|r| format!("{} {}", scenario.name(), r.report.name)),
+        );
+        println!("## {}\n\n{}", scenario.name(), runs_markdown(runs));
         for r in runs {
             println!("results: {}", r.csv.display());
         }
@@ -174,7 +201,15 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         println!();
     }
     println!("report:  {}", report.display());
-    Ok(if tripped {
+    Ok(if !failed.is_empty() {
+        eprintln!(
+            "error: {} run(s) failed ({}): see {}",
+            failed.len(),
+            failed.join(", "),
+            report.display()
+        );
+        super::EXIT_ERROR
+    } else if tripped {
         super::EXIT_TERMINATED
     } else {
         super::EXIT_OK

@@ -115,7 +115,7 @@ pub enum IdentifyError {
     #[error("no log given")]
     NoLog,
     /// A plant parameter of [`IdentifyConfig::plant_parameters`] that the bench FMU has not,
-    /// or whose value does not read as its type.
+    /// or whose value does not read as its type or lies outside its declared bounds.
     #[error("{0}")]
     Parameter(String),
 }

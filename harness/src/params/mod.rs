@@ -26,7 +26,8 @@ use model_description::{
 };
 
 use crate::load::Fmu;
-use crate::master::{System, Value};
+use crate::master::Value;
+use model_description::num::Num;
 
 /// Errors of reading, writing and checking parameter sets.
 #[derive(Debug, thiserror::Error)]
@@ -78,16 +79,6 @@ pub enum ParamValue {
 }
 
 impl ParamValue {
-    /// The master's value as a parameter value.
-    pub fn of(value: &Value) -> ParamValue {
-        match value {
-            Value::Real(x) => ParamValue::Real(*x),
-            Value::Integer(x) => ParamValue::Integer(*x),
-            Value::Boolean(x) => ParamValue::Boolean(*x),
-            Value::String(x) => ParamValue::String(x.clone()),
-        }
-    }
-
     /// The value as the master sets it.
     pub fn to_value(&self) -> Value {
         match self {
@@ -383,8 +374,8 @@ impl ParameterSet {
 }
 
 /// Checks the value `value` (with its unit, if any) of the parameter `v` of `md`: of the
-/// variable's type, a Real's unit the declared unit, inside the declared `[min, max]`, one of
-/// the items where the variable has named values. Says what is wrong.
+/// variable's type, a Real's unit the declared unit, then [`value_problem`]'s checks (finite,
+/// inside the declared `[min, max]`, one of the items). Says what is wrong.
 fn check_value(
     md: &ModelDescription,
     v: &ScalarVariable,
@@ -392,7 +383,7 @@ fn check_value(
     unit: Option<&str>,
 ) -> Result<(), String> {
     match (&v.kind, value) {
-        (VariableKind::Real { attributes, .. }, ParamValue::Real(x)) => {
+        (VariableKind::Real { attributes, .. }, ParamValue::Real(_)) => {
             let declared = attributes.unit.as_deref();
             if let Some(u) = unit
                 && Some(u) != declared
@@ -402,27 +393,12 @@ fn check_value(
                     declared.unwrap_or("(none)")
                 ));
             }
-            let min = attributes.min.unwrap_or(f64::NEG_INFINITY);
-            let max = attributes.max.unwrap_or(f64::INFINITY);
-            if !(min..=max).contains(x) {
-                return Err(format!("{x} is outside [{min}, {max}]"));
-            }
         }
-        (VariableKind::Integer { attributes, .. }, ParamValue::Integer(x)) => {
-            let min = attributes.min.unwrap_or(i32::MIN);
-            let max = attributes.max.unwrap_or(i32::MAX);
-            if !(min..=max).contains(x) {
-                return Err(format!("{x} is outside [{min}, {max}]"));
-            }
-            not_an_item(md, v, *x).map_or(Ok(()), Err)?;
-        }
-        (VariableKind::Enumeration { min, max, .. }, ParamValue::Integer(x)) => {
-            if min.is_some_and(|m| *x < m) || max.is_some_and(|m| *x > m) {
-                return Err(format!("{x} is not an item of the enumeration"));
-            }
-            not_an_item(md, v, *x).map_or(Ok(()), Err)?;
-        }
-        (VariableKind::Boolean { .. }, ParamValue::Boolean(_))
+        (
+            VariableKind::Integer { .. } | VariableKind::Enumeration { .. },
+            ParamValue::Integer(_),
+        )
+        | (VariableKind::Boolean { .. }, ParamValue::Boolean(_))
         | (VariableKind::String { .. }, ParamValue::String(_)) => {}
         (kind, value) => {
             let declared = match kind {
@@ -443,46 +419,17 @@ fn check_value(
             ));
         }
     }
-    Ok(())
+    value_problem(md, v, &value.to_value()).map_or(Ok(()), Err)
 }
 
 /// Checks parameter values given as text, `(name, value)` as `--param NAME=VALUE` gives them,
-/// against the FMU `fmu` they are to be set on, before anything runs: each name a parameter of
-/// the FMU (the error lists them), each value readable as the parameter's type (a number, or
-/// an item's name where the variable names its values, as [`System::set_value_str`] reads it)
-/// and accepted by the checks of [`ParameterSet::check`] (inside the declared `[min, max]`, one
-/// of the items). Says what is wrong with the first value refused.
-///
-/// [`System::set_value_str`]: crate::master::System::set_value_str
+/// against the FMU `fmu` they are to be set on, before anything runs ([`parameter_value`]:
+/// each name a parameter of the FMU, each value of its type, finite, inside the declared
+/// `[min, max]`, one of the items). Says what is wrong with the first value refused.
 pub fn check_assignments(fmu: &Fmu, assignments: &[(String, String)]) -> Result<(), String> {
     let md = fmu.model_description();
-    let mut system = System::new();
-    system
-        .add_component("plant", fmu.clone())
-        .map_err(|e| e.to_string())?;
     for (name, text) in assignments {
-        let Some(v) = md
-            .model_variables
-            .iter()
-            .find(|v| v.name == *name && v.causality == Some(Causality::Parameter))
-        else {
-            let valid: Vec<&str> = md
-                .model_variables
-                .iter()
-                .filter(|v| v.causality == Some(Causality::Parameter))
-                .map(|v| v.name.as_str())
-                .collect();
-            return Err(format!(
-                "'{name}' is not a parameter of {} (its parameters: {})",
-                md.model_name,
-                valid.join(", ")
-            ));
-        };
-        let value = system
-            .parse_value_str(&format!("plant.{name}"), text)
-            .map_err(|e| format!("{name} = '{text}': {e}"))?;
-        check_value(md, v, &ParamValue::of(&value), None)
-            .map_err(|e| format!("{name} = '{text}': {e}"))?;
+        parameter_value(md, name, text).map_err(|e| e.to_string())?;
     }
     Ok(())
 }
@@ -512,7 +459,7 @@ pub fn check_start_value(md: &ModelDescription, name: &str, value: &Value) -> Re
                 .map_or("continuous".into(), |c| format!("{c:?}").to_lowercase()),
         ));
     }
-    check_value(md, v, &ParamValue::of(value), None)
+    value_problem(md, v, value).map_or(Ok(()), Err)
 }
 
 /// Why `x` cannot be the value of `v` when `v` has named values (an Enumeration, or one of our
@@ -529,6 +476,145 @@ fn not_an_item(md: &ModelDescription, v: &ScalarVariable, x: i32) -> Option<Stri
                 .join(", ")
         )
     })
+}
+
+/// Why `value` cannot be the value of `v` (a value of `v`'s type): a Real that is not finite,
+/// a number outside the declared `[min, max]`, an integer that is no item of `v`'s named
+/// values; `None` when it can.
+fn value_problem(md: &ModelDescription, v: &ScalarVariable, value: &Value) -> Option<String> {
+    match (&v.kind, value) {
+        (VariableKind::Real { attributes, .. }, Value::Real(x)) => {
+            let min = attributes.min.unwrap_or(f64::NEG_INFINITY);
+            let max = attributes.max.unwrap_or(f64::INFINITY);
+            if !x.is_finite() {
+                Some(format!("{} is not a finite number", Num(*x)))
+            } else if !(min..=max).contains(x) {
+                Some(format!(
+                    "{} is outside [{}, {}]",
+                    Num(*x),
+                    Num(min),
+                    Num(max)
+                ))
+            } else {
+                None
+            }
+        }
+        (VariableKind::Integer { attributes, .. }, Value::Integer(x)) => {
+            let min = attributes.min.unwrap_or(i32::MIN);
+            let max = attributes.max.unwrap_or(i32::MAX);
+            if (min..=max).contains(x) {
+                not_an_item(md, v, *x)
+            } else {
+                Some(format!("{x} is outside [{min}, {max}]"))
+            }
+        }
+        (VariableKind::Enumeration { min, max, .. }, Value::Integer(x)) => {
+            if min.is_some_and(|m| *x < m) || max.is_some_and(|m| *x > m) {
+                Some(format!("{x} is not an item of the enumeration"))
+            } else {
+                not_an_item(md, v, *x)
+            }
+        }
+        _ => None,
+    }
+}
+
+/// Why a parameter given as `NAME=VALUE` text ([`parameter_value`]) is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParameterError {
+    /// The FMU has no parameter of this name.
+    #[error("'{name}' is not a parameter of {model} (its parameters: {})", .parameters.join(", "))]
+    NotAParameter {
+        /// The name given.
+        name: String,
+        /// The FMU's model name.
+        model: String,
+        /// The FMU's parameters (causality `parameter`), in the model description's order.
+        parameters: Vec<String>,
+    },
+    /// The value does not read as the parameter's type, is not finite, lies outside the
+    /// declared `[min, max]` or is none of the parameter's named values.
+    #[error("{name} = '{text}': {problem}")]
+    BadValue {
+        /// The parameter.
+        name: String,
+        /// The value as given.
+        text: String,
+        /// What is wrong (with the bounds or the items).
+        problem: String,
+    },
+}
+
+/// The value of the parameter `name` of the FMU that `md` describes, read from `text` as the
+/// parameter's type (a number; `true`/`false` for a Boolean; an item's name or value for an
+/// Enumeration or an Integer with named values) and checked as [`ParameterSet::check`]
+/// checks a set's values: finite, inside the declared `[min, max]`, one of the items. What
+/// `--param NAME=VALUE` of `kneebench identify` and `study` is checked with before anything
+/// runs.
+pub fn parameter_value(
+    md: &ModelDescription,
+    name: &str,
+    text: &str,
+) -> Result<Value, ParameterError> {
+    let is_parameter = |v: &&ScalarVariable| v.causality == Some(Causality::Parameter);
+    let Some(v) = md
+        .model_variables
+        .iter()
+        .filter(is_parameter)
+        .find(|v| v.name == name)
+    else {
+        return Err(ParameterError::NotAParameter {
+            name: name.to_string(),
+            model: md.model_name.clone(),
+            parameters: md
+                .model_variables
+                .iter()
+                .filter(is_parameter)
+                .map(|v| v.name.clone())
+                .collect(),
+        });
+    };
+    let bad = |problem: String| ParameterError::BadValue {
+        name: name.to_string(),
+        text: text.to_string(),
+        problem,
+    };
+    let t = text.trim();
+    let value = match &v.kind {
+        VariableKind::Real { .. } => Value::Real(
+            t.parse()
+                .map_err(|_| bad(format!("'{t}' is not a number (a Real)")))?,
+        ),
+        VariableKind::Integer { .. } | VariableKind::Enumeration { .. } => {
+            match (t.parse::<i32>(), md.items_of(v)) {
+                (Ok(x), _) => Value::Integer(x),
+                (Err(_), Some((type_name, items))) => match items.iter().find(|i| i.name == t) {
+                    Some(item) => Value::Integer(item.value),
+                    None => {
+                        return Err(bad(format!(
+                            "'{t}' is no item of {type_name} ({})",
+                            items
+                                .iter()
+                                .map(|i| format!("{} = {}", i.value, i.name))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )));
+                    }
+                },
+                (Err(_), None) => return Err(bad(format!("'{t}' is not an Integer"))),
+            }
+        }
+        VariableKind::Boolean { .. } => match t {
+            "true" | "1" => Value::Boolean(true),
+            "false" | "0" => Value::Boolean(false),
+            _ => return Err(bad(format!("'{t}' is not a Boolean (true or false)"))),
+        },
+        VariableKind::String { .. } => Value::String(text.to_string()),
+    };
+    match value_problem(md, v, &value) {
+        Some(problem) => Err(bad(problem)),
+        None => Ok(value),
+    }
 }
 
 #[cfg(test)]
@@ -665,5 +751,84 @@ mod tests {
             );
             assert!(text.contains(what), "{text}");
         }
+    }
+
+    /// A Real with bounds, a mode declared as Integer with named items, an Enumeration, a
+    /// Boolean and an output, as `parameter_value` sees them.
+    const DESCRIPTION: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="m" guid="{g}">
+  <CoSimulation modelIdentifier="m"/>
+  <TypeDefinitions>
+    <SimpleType name="Law"><Enumeration><Item name="Off" value="0"/><Item name="On" value="1"/></Enumeration></SimpleType>
+    <SimpleType name="Configuration"><Integer min="0" max="2"/></SimpleType>
+  </TypeDefinitions>
+  <VendorAnnotations>
+    <Tool name="org.kneebench.items"><IntegerItems><Type name="Configuration"><Item name="DA" value="0"/><Item name="SEA" value="1"/><Item name="CSEA" value="2"/></Type></IntegerItems></Tool>
+  </VendorAnnotations>
+  <ModelVariables>
+    <ScalarVariable name="inertia" valueReference="1" causality="parameter" variability="fixed"><Real start="1" min="0.001" max="100"/></ScalarVariable>
+    <ScalarVariable name="configuration" valueReference="2" causality="parameter" variability="fixed"><Integer declaredType="Configuration" start="1" min="0" max="2"/></ScalarVariable>
+    <ScalarVariable name="law" valueReference="3" causality="parameter" variability="fixed"><Enumeration declaredType="Law" start="0"/></ScalarVariable>
+    <ScalarVariable name="enabled" valueReference="4" causality="parameter" variability="fixed"><Boolean start="false"/></ScalarVariable>
+    <ScalarVariable name="y" valueReference="5" causality="output" variability="continuous" initial="exact"><Real start="0"/></ScalarVariable>
+  </ModelVariables>
+  <ModelStructure><Outputs><Unknown index="5" dependencies=""/></Outputs></ModelStructure>
+</fmiModelDescription>
+"#;
+
+    #[test]
+    fn parameter_values_are_read_as_their_type_and_checked_against_the_bounds_and_items() {
+        let md = ModelDescription::from_xml(DESCRIPTION).unwrap();
+        let ok = |name: &str, text: &str| parameter_value(&md, name, text).unwrap();
+        assert_eq!(ok("inertia", " 2 "), Value::Real(2.0));
+        assert_eq!(ok("inertia", "100"), Value::Real(100.0));
+        assert_eq!(ok("configuration", "CSEA"), Value::Integer(2));
+        assert_eq!(ok("configuration", "1"), Value::Integer(1));
+        assert_eq!(ok("law", "On"), Value::Integer(1));
+        assert_eq!(ok("enabled", "true"), Value::Boolean(true));
+        let problem = |name: &str, text: &str| match parameter_value(&md, name, text) {
+            Err(ParameterError::BadValue { problem, .. }) => problem,
+            other => panic!("{name} = {text}: {other:?}"),
+        };
+        assert_eq!(problem("inertia", "-1"), "-1 is outside [0.001, 100]");
+        assert_eq!(
+            problem("inertia", "1e-308"),
+            "1e-308 is outside [0.001, 100]"
+        );
+        for bad in ["nan", "inf", "-inf", "1e400"] {
+            assert!(
+                problem("inertia", bad).contains("is not a finite number"),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            problem("inertia", "heavy"),
+            "'heavy' is not a number (a Real)"
+        );
+        assert_eq!(problem("configuration", "3"), "3 is outside [0, 2]");
+        assert!(
+            problem("configuration", "ESA")
+                .starts_with("'ESA' is no item of Configuration (0 = DA,"),
+            "{}",
+            problem("configuration", "ESA")
+        );
+        assert_eq!(
+            problem("configuration", "1.5"),
+            "'1.5' is no item of Configuration (0 = DA, 1 = SEA, 2 = CSEA)"
+        );
+        assert_eq!(problem("law", "2"), "2 is no item of Law (0 = Off, 1 = On)");
+        assert!(problem("enabled", "yes").contains("not a Boolean"));
+        // The whole message names the parameter and the value as given.
+        let e = parameter_value(&md, "inertia", "-1")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "inertia = '-1': -1 is outside [0.001, 100]");
+        // An output is no parameter; the message lists the parameters.
+        let e = parameter_value(&md, "y", "1").unwrap_err();
+        assert!(matches!(e, ParameterError::NotAParameter { .. }), "{e}");
+        assert_eq!(
+            e.to_string(),
+            "'y' is not a parameter of m (its parameters: inertia, configuration, law, enabled)"
+        );
     }
 }

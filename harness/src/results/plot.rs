@@ -29,6 +29,23 @@ pub fn plot_signals(
     plot_signals_with(results, signals, out, size, &PlotLabels::default())
 }
 
+/// The image format of `out` by its extension, `svg` or `png` (any case); any other is refused
+/// ([`plot_signals`] draws nothing then). For checking an output before any work.
+pub fn image_format(out: &Path) -> Result<&'static str, ResultsError> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("svg") => Ok("svg"),
+        Some("png") => Ok("png"),
+        _ => Err(ResultsError::Plot(format!(
+            "unknown plot format for '{}': use .svg or .png",
+            out.display()
+        ))),
+    }
+}
+
 /// Axis labels and title of a plot.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlotLabels {
@@ -59,19 +76,7 @@ pub fn plot_signals_with(
     size: (u32, u32),
     labels: &PlotLabels,
 ) -> Result<(), ResultsError> {
-    let ext = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase());
-    let ext = match ext.as_deref() {
-        Some(e @ ("svg" | "png")) => e.to_string(),
-        _ => {
-            return Err(ResultsError::Plot(format!(
-                "unknown plot format for '{}': use .svg or .png",
-                out.display()
-            )));
-        }
-    };
+    let ext = image_format(out)?;
     if !(1..=MAX_SIDE).contains(&size.0) || !(1..=MAX_SIDE).contains(&size.1) {
         return Err(ResultsError::Plot(format!(
             "an image of {} x {} pixels: each side must be 1 to {MAX_SIDE}",

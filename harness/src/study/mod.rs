@@ -202,6 +202,20 @@ pub struct StudyRun {
     pub unapplied: Vec<String>,
 }
 
+impl StudyRun {
+    /// Why the run failed, and the time of its last recorded row: an FMU's error or another
+    /// failure of the run, which is not an interlock trip ([`ActuatorReport::trip`] is `None`)
+    /// and leaves nothing to analyse; `None` when the run completed or an interlock ended it.
+    pub fn failure(&self) -> Option<(String, f64)> {
+        match &self.outcome {
+            crate::master::Outcome::Failed(e) => {
+                Some((e.to_string(), self.results.last_time().unwrap_or(0.0)))
+            }
+            _ => None,
+        }
+    }
+}
+
 /// Settings of a study.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StudyConfig {
@@ -305,6 +319,92 @@ fn apply_overrides(
     Ok(())
 }
 
+/// The text of `value` as `--param` would give it (Reals exact).
+fn value_text(value: &Value) -> String {
+    match value {
+        Value::Real(v) => format!("{v:?}"),
+        Value::Integer(v) => v.to_string(),
+        Value::Boolean(v) => v.to_string(),
+        Value::String(v) => v.clone(),
+    }
+}
+
+/// The overrides of `config` ([`StudyConfig::overrides`]) checked against the scenario's FMUs
+/// before anything runs, each value converted to its variable's declared type (an Integer
+/// given for a Real, an item's name as `Value::String` for a mode): every reference must be
+/// `component.name` of a component in every run the study makes (each selected actuator's
+/// scenario), the name a parameter of the component's FMU and the value finite, inside the
+/// declared `[min, max]` and one of the named items ([`crate::params::parameter_value`]). A
+/// refusal is a [`StudyError::Parameter`] naming the reference, and the bounds or items.
+pub fn checked_overrides(config: &StudyConfig) -> Result<Vec<(String, Value)>, StudyError> {
+    if config.overrides.is_empty() {
+        return Ok(Vec::new());
+    }
+    let gait = config.scenario.gait();
+    let scenarios: Vec<Scenario> = config
+        .scenario
+        .actuators()
+        .iter()
+        .filter(|a| config.actuators.is_empty() || config.actuators.contains(a))
+        .map(|&a| {
+            let gains = config.gains.unwrap_or_else(|| config.scenario.gains(a));
+            gait_scenario(a, gait, gains, 1)
+        })
+        .collect();
+    let mut descriptions: Vec<(String, model_description::ModelDescription)> = Vec::new();
+    let mut checked = Vec::new();
+    for (reference, value) in &config.overrides {
+        let bad = |problem: String| StudyError::Parameter(format!("'{reference}': {problem}"));
+        let (component, name) = reference
+            .split_once('.')
+            .ok_or_else(|| bad("not component.name (e.g. plant.actuationDamping)".into()))?;
+        let mut typed = None;
+        for scenario in &scenarios {
+            let Some(c) = scenario.components.iter().find(|c| c.name == component) else {
+                return Err(bad(format!(
+                    "the {} run of {} has no component '{component}' (its components: {})",
+                    scenario.name,
+                    config.scenario.name(),
+                    scenario
+                        .components
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            };
+            let md = match descriptions.iter().position(|(f, _)| *f == c.fmu) {
+                Some(i) => &descriptions[i].1,
+                None => {
+                    let path = config.fmu_dir.join(&c.fmu);
+                    let (_dir, md) = crate::load::extract_and_parse(
+                        &path,
+                        &crate::load::ArchiveLimits::default(),
+                    )
+                    .map_err(|e| StudyError::Fmu {
+                        path: path.clone(),
+                        message: e.to_string(),
+                    })?;
+                    descriptions.push((c.fmu.clone(), md));
+                    &descriptions[descriptions.len() - 1].1
+                }
+            };
+            let v =
+                crate::params::parameter_value(md, name, &value_text(value)).map_err(
+                    |e| match e {
+                        crate::params::ParameterError::BadValue { problem, .. } => bad(problem),
+                        not_a_parameter => bad(not_a_parameter.to_string()),
+                    },
+                )?;
+            typed.get_or_insert(v);
+        }
+        if let Some(v) = typed {
+            checked.push((reference.clone(), v));
+        }
+    }
+    Ok(checked)
+}
+
 /// The component of the scenarios that a `--params` set applies to.
 const PLANT: &str = "plant";
 
@@ -382,6 +482,8 @@ pub fn run_study_with(
         set.check(&md, &format!("parameter set '{}'", set.name))
             .map_err(|e| StudyError::Parameter(e.to_string()))?;
     }
+    // Checked before anything is written or run (a bad value failed every run at t = 0).
+    let overrides = checked_overrides(config)?;
     let scenarios = config.out_dir.join("scenarios");
     std::fs::create_dir_all(&scenarios).map_err(|e| StudyError::Fmu {
         path: scenarios.clone(),
@@ -418,8 +520,8 @@ pub fn run_study_with(
                     .retain(|(n, _)| !set.parameters.iter().any(|p| &p.name == n));
             }
         }
-        apply_overrides(&mut effective, &config.overrides)?;
-        apply_overrides(&mut scenario, &config.overrides)?;
+        apply_overrides(&mut effective, &overrides)?;
+        apply_overrides(&mut scenario, &overrides)?;
         let stem = config.scenario.file_stem(actuator);
         scenario.name = stem.clone();
         effective.name = stem.clone();
@@ -471,10 +573,9 @@ pub fn run_study_with(
                     .unwrap_or("terminated");
                 report.trip = Some((format!("{component}: {reason}"), *last_successful_time));
             }
-            crate::master::Outcome::Failed(e) => {
-                let at = output.results.last_time().unwrap_or(0.0);
-                report.trip = Some((format!("run failed: {e}"), at));
-            }
+            // A failed run (an FMU's error, a refused value) is no interlock trip: its report
+            // names none ([`StudyRun::failure`] says why it failed).
+            crate::master::Outcome::Failed(_) => report.trip = None,
             crate::master::Outcome::Completed { .. } => {}
         }
         let csv = config.out_dir.join(format!("{stem}.csv"));

@@ -99,7 +99,11 @@ pub struct Figure {
 /// actuator's own reference (deg), the shaft and load-motor torques with the interlock limits,
 /// and the test motor's mechanical and the bench's electrical power.
 pub fn plot_study(runs: &[StudyRun], out_dir: &Path) -> Result<Vec<Figure>, StudyError> {
-    let complete: Vec<&StudyRun> = runs.iter().filter(|r| r.report.cycles > 0).collect();
+    // A failed run is not drawn (see [`StudyRun::failure`]).
+    let complete: Vec<&StudyRun> = runs
+        .iter()
+        .filter(|r| r.report.cycles > 0 && r.failure().is_none())
+        .collect();
     let Some(first) = complete.first() else {
         return Ok(Vec::new());
     };
@@ -209,6 +213,36 @@ pub fn plot_study(runs: &[StudyRun], out_dir: &Path) -> Result<Vec<Figure>, Stud
     Ok(figures)
 }
 
+/// The comparison table of `runs` ([`markdown_table`]) followed by one line per failed run
+/// ([`StudyRun::failure`]) saying why it failed: a failed run has no column of the table (its
+/// values would be NaN, and its failure no interlock trip). Without a run that did not fail,
+/// only those lines.
+pub fn runs_markdown(runs: &[StudyRun]) -> String {
+    let mut s = String::new();
+    let analysed: Vec<_> = runs
+        .iter()
+        .filter(|r| r.failure().is_none())
+        .map(|r| r.report.clone())
+        .collect();
+    if !analysed.is_empty() {
+        s.push_str(&markdown_table(&analysed));
+    }
+    for r in runs {
+        if let Some((why, at)) = r.failure() {
+            if !s.is_empty() {
+                s.push('\n');
+            }
+            let _ = writeln!(
+                s,
+                "**{}: the run failed** at t = {} s (not analysed; not an interlock trip): {why}",
+                r.report.name,
+                model_description::num::Num(at)
+            );
+        }
+    }
+    s
+}
+
 /// `path` relative to `base` when it lies inside it (report links), else as it is.
 fn relative<'a>(path: &'a Path, base: &Path) -> &'a Path {
     path.strip_prefix(base).unwrap_or(path)
@@ -237,7 +271,12 @@ pub fn write_report(
     );
     let _ = writeln!(s, "Reproduce with `{command}`.\n");
     s.push_str(CONVENTIONS);
-    let all: Vec<&StudyRun> = sections.iter().flat_map(|x| x.runs.iter()).collect();
+    // Failed runs have no results to compare (see [`StudyRun::failure`]).
+    let all: Vec<&StudyRun> = sections
+        .iter()
+        .flat_map(|x| x.runs.iter())
+        .filter(|r| r.failure().is_none())
+        .collect();
     for section in sections {
         let Some(first) = section.runs.first() else {
             continue;
@@ -251,8 +290,7 @@ pub fn write_report(
             g.angle_amplitude.to_degrees(),
             g.torque_amplitude,
         );
-        let reports: Vec<_> = section.runs.iter().map(|r| r.report.clone()).collect();
-        s.push_str(&markdown_table(&reports));
+        s.push_str(&runs_markdown(section.runs));
         s.push('\n');
         for f in section.figures {
             let _ = writeln!(
@@ -267,8 +305,13 @@ pub fn write_report(
         for r in section.runs {
             let _ = writeln!(
                 s,
-                "- {}: [{}]({}), [{}]({}), `{}`",
+                "- {}{}: [{}]({}), [{}]({}), `{}`",
                 r.report.name,
+                if r.failure().is_some() {
+                    " (run failed)"
+                } else {
+                    ""
+                },
                 relative(&r.scenario, out_dir).display(),
                 relative(&r.scenario, out_dir).display(),
                 relative(&r.csv, out_dir).display(),
