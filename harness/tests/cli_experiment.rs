@@ -78,7 +78,7 @@ fn a_param_value_the_bench_refuses_is_a_usage_error_before_the_run() {
     for (param, expected) in [
         ("actuationInertia=0", "0 is outside [0.001, 100]"),
         ("frictionModel=Sticky", "is no item of FrictionModel"),
-        ("actuationDamping=fast", "'fast' is not a Real"),
+        ("actuationDamping=fast", "'fast' is not a number (a Real)"),
     ] {
         let out_dir = dir.path().join("step");
         let out = Command::new(env!("CARGO_BIN_EXE_kneebench"))

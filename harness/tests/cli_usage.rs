@@ -119,6 +119,18 @@ fn experiment_refuses_bad_values_before_running() {
         ("bode", &["--ratio", "0.5"], &["--ratio"]),
         ("bode", &["--amplitude", "inf"], &["--amplitude"]),
         ("bode", &["--input", "both"], &["--input 'both'"]),
+        // Past a bound of the FMU the option sets, or too short for the analysis: refused
+        // before the run (they ran and failed with exit code 1).
+        (
+            "bode",
+            &["--stages", "1", "--start-frequency", "1e6"],
+            &["gait.sweepStartFrequency", "is outside"],
+        ),
+        (
+            "bode",
+            &["--stages", "1", "--dwell", "0.001"],
+            &["fit window", "lengthen --dwell"],
+        ),
         ("map", &["--regen-fraction", "1.5"], &["--regen-fraction"]),
         ("map", &["--speeds", "3,-5"], &["--speeds"]),
         ("map", &["--torques", "1,nan"], &["--torques"]),

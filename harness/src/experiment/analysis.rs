@@ -141,6 +141,9 @@ pub struct SineFit {
     pub residual_rms: f64,
 }
 
+/// The fewest samples [`sine_fit`] fits (amplitude, phase, offset and drift, and one more).
+pub const SINE_FIT_MIN_SAMPLES: usize = 5;
+
 /// Fits a sinusoid of `frequency` \[Hz\] with an offset and a linear drift to `(times, values)`.
 pub fn sine_fit(times: &[f64], values: &[f64], frequency: f64) -> Result<SineFit, ExperimentError> {
     if !(frequency.is_finite() && frequency > 0.0) {
@@ -148,9 +151,9 @@ pub fn sine_fit(times: &[f64], values: &[f64], frequency: f64) -> Result<SineFit
             "sine fit: frequency {frequency} must be positive"
         )));
     }
-    if times.len() != values.len() || times.len() < 5 {
+    if times.len() != values.len() || times.len() < SINE_FIT_MIN_SAMPLES {
         return Err(ExperimentError::Analysis(format!(
-            "sine fit needs at least 5 samples (got {})",
+            "sine fit needs at least {SINE_FIT_MIN_SAMPLES} samples (got {})",
             times.len()
         )));
     }

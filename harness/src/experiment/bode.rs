@@ -167,6 +167,19 @@ pub fn run_bode(
         ),
         config.dwell * f64::from(config.stages),
     )?;
+    // Each stage's sine fit takes the last `fit_fraction` of its dwell: too short a dwell ran
+    // the whole sweep and then failed its analysis.
+    let fit_samples = (config.dwell * config.fit_fraction / super::STEP).floor();
+    if fit_samples < super::analysis::SINE_FIT_MIN_SAMPLES as f64 {
+        return Err(ExperimentError::Invalid(format!(
+            "bode: a stage's fit window (the last {} of its {} s dwell) holds {fit_samples} \
+             samples at the {} s step; the sine fit needs at least {}: lengthen --dwell",
+            model_description::num::Num(config.fit_fraction),
+            model_description::num::Num(config.dwell),
+            model_description::num::Num(super::STEP),
+            super::analysis::SINE_FIT_MIN_SAMPLES
+        )));
+    }
     let (per_amp, command, limit, names, torque_column) = match config.input {
         SweepInput::Test => (
             bench.test_torque_per_ampere()?,

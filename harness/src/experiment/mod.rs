@@ -302,10 +302,7 @@ fn set_reals(
     values: &[(&str, f64)],
 ) -> Result<(), ExperimentError> {
     for (name, v) in values {
-        system.set_value(
-            &format!("{component}.{name}"),
-            crate::master::Value::Real(*v),
-        )?;
+        set_checked(system, component, name, crate::master::Value::Real(*v))?;
     }
     Ok(())
 }
@@ -317,11 +314,31 @@ fn set_integers(
     values: &[(&str, i32)],
 ) -> Result<(), ExperimentError> {
     for (name, v) in values {
-        system.set_value(
-            &format!("{component}.{name}"),
-            crate::master::Value::Integer(*v),
-        )?;
+        set_checked(system, component, name, crate::master::Value::Integer(*v))?;
     }
+    Ok(())
+}
+
+/// Sets `component.name` to `value` once the model description accepts it
+/// ([`check_start_value`](crate::params::check_start_value)): a value an option gives that
+/// the FMU would refuse as the run starts (`bode --start-frequency 1e6`, past the gait's
+/// `sweepStartFrequency` bound) is a refusal of the settings ([`ExperimentError::Invalid`],
+/// a usage error), not a failed run.
+fn set_checked(
+    system: &mut System,
+    component: &str,
+    name: &str,
+    value: crate::master::Value,
+) -> Result<(), ExperimentError> {
+    if let Some((_, fmu)) = system.components().find(|(c, _)| *c == component)
+        && let Err(problem) =
+            crate::params::check_start_value(fmu.model_description(), name, &value)
+    {
+        return Err(ExperimentError::Invalid(format!(
+            "{component}.{name}: {problem}"
+        )));
+    }
+    system.set_value(&format!("{component}.{name}"), value)?;
     Ok(())
 }
 

@@ -459,6 +459,20 @@ pub fn check_start_value(md: &ModelDescription, name: &str, value: &Value) -> Re
                 .map_or("continuous".into(), |c| format!("{c:?}").to_lowercase()),
         ));
     }
+    // An infinity for a Real that declares no bound on its side is left to the FMU: the
+    // standard does not forbid it, and a foreign FMU may take it (our FMUs refuse it at
+    // fmi2SetReal, and the run then fails naming the value).
+    if let (VariableKind::Real { attributes, .. }, Value::Real(x)) = (&v.kind, value)
+        && x.is_infinite()
+        && (if *x > 0.0 {
+            attributes.max
+        } else {
+            attributes.min
+        })
+        .is_none()
+    {
+        return Ok(());
+    }
     value_problem(md, v, value).map_or(Ok(()), Err)
 }
 
