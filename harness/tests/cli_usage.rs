@@ -379,14 +379,55 @@ fn unknown_names_and_missing_inputs_are_usage_errors() {
     let plant = plant.to_str().unwrap();
     let out = dir.path().join("out");
     let out = out.to_str().unwrap();
+    // 13 signals: more than plot draws without --signals.
+    let wide = dir.path().join("wide.csv");
+    let names: Vec<String> = (0..13).map(|k| format!("s{k}")).collect();
+    std::fs::write(
+        &wide,
+        format!(
+            "time,{}
+0,{}
+",
+            names.join(","),
+            vec!["1"; 13].join(",")
+        ),
+    )
+    .unwrap();
+    let wide = wide.to_str().unwrap();
+    let wide_out = format!("{out}.svg");
     for (args, needles) in [
         (
-            &["study", "--fmus", missing, "--scenario", "nope"][..],
-            &["unknown scenario 'nope' (bench-full, bench-clutch)"][..],
+            &["plot", wide, "--out", wide_out.as_str()][..],
+            &[
+                "has 13 columns, too many for one readable chart",
+                "--signals s0,s1,s2",
+            ][..],
+        ),
+        (
+            &["study", "--fmus", missing, "--scenario", "nope"],
+            &["unknown scenario 'nope' (bench-full, bench-clutch)"],
         ),
         (
             &["study", "--fmus", missing, "--actuators", "foo"],
             &["unknown actuator 'foo' (da, sea, csea)"],
+        ),
+        // The one scenario chosen has none of the actuators (it wrote an empty section).
+        (
+            &[
+                "study",
+                "--fmus",
+                missing,
+                "--scenario",
+                "bench-clutch",
+                "--actuators",
+                "da",
+                "--out",
+                out,
+            ],
+            &[
+                "the bench-clutch scenario has none of DA (its actuators: SEA, CSEA)",
+                "--actuators DA: no chosen scenario has them",
+            ],
         ),
         (
             &[

@@ -458,3 +458,44 @@ fn whole_document_and_parameter_value_errors_name_the_line() {
         .to_string();
     assert_eq!(e, "p.ssv line 4: parameter k: 'x' is not an Integer");
 }
+
+/// A bare `.ssd` on disk may refer to FMUs in a sibling directory (`../fmus/kbtest.fmu`, a
+/// relative URI like any other); the same description inside an `.ssp` may not leave the
+/// archive, and an absolute path is refused in both.
+#[test]
+fn a_bare_ssd_may_refer_to_a_sibling_directory_an_archive_may_not() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu_path = common::kbtest_fmu(d.path());
+    let fmu = Fmu::load(&fmu_path, &LoadOptions::default()).unwrap();
+    let mut ssd = sample(fmu.model_description());
+    for c in &mut ssd.system.components {
+        c.source = "../fmus/kbtest.fmu".into();
+    }
+    std::fs::create_dir_all(d.path().join("fmus")).unwrap();
+    std::fs::create_dir_all(d.path().join("systems")).unwrap();
+    std::fs::copy(&fmu_path, d.path().join("fmus/kbtest.fmu")).unwrap();
+    let ssd_path = d.path().join("systems/two.ssd");
+    ssp::write_ssd_file(&ssd, &ssd_path).unwrap();
+    let loaded = ssp::load_system(&ssd_path, &LoadOptions::default()).unwrap();
+    let out = loaded.system.run(&loaded.config).unwrap();
+    assert!(matches!(out.outcome, Outcome::Completed { .. }));
+
+    let ssp_path = d.path().join("two.ssp");
+    ssp::write_ssp(&ssd, &[], &ssp_path).unwrap();
+    let e = ssp::load_system(&ssp_path, &LoadOptions::default())
+        .expect_err("an archive's reference may not leave it")
+        .to_string();
+    assert!(
+        e.contains("'../fmus/kbtest.fmu'") && e.contains("'..'"),
+        "{e}"
+    );
+
+    for c in &mut ssd.system.components {
+        c.source = format!("{}", d.path().join("fmus/kbtest.fmu").display());
+    }
+    ssp::write_ssd_file(&ssd, &ssd_path).unwrap();
+    let e = ssp::load_system(&ssd_path, &LoadOptions::default())
+        .expect_err("an absolute path is no relative reference")
+        .to_string();
+    assert!(e.contains("absolute path"), "{e}");
+}

@@ -101,12 +101,12 @@ def _at_least_one(what: str, value: int | None) -> None:
 
 
 def _workers(workers: int | None) -> None:
-    """Refuses ``workers`` below 1 (ValueError, as :func:`_at_least_one`) and above the
-    harness's bound (``_native.MAX_WORKERS``, 1024: each is a thread loading its own copy of
-    the system) with a KneebenchError, before anything runs."""
+    """Refuses ``workers`` below 1 (as :func:`_at_least_one`) and above the harness's bound
+    (``_native.MAX_WORKERS``, 1024: each is a thread loading its own copy of the system), both
+    with a ValueError (a bad argument, as every other), before anything runs."""
     _at_least_one("workers", workers)
     if workers is not None and workers > _native.MAX_WORKERS:
-        raise KneebenchError(
+        raise ValueError(
             f"{workers} worker threads: a sweep or an optimisation runs on 1 to "
             f"{_native.MAX_WORKERS}"
         )
@@ -347,8 +347,7 @@ def sweep(
     ("another sweep is running into this output") before running anything; the journal's lock
     goes with that sweep's end, a killed process's included. Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
     raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
-    ``batch_size`` must be at least 1 (ValueError); ``workers`` above 1024 raises
-    KneebenchError.
+    ``batch_size`` must be at least 1 and ``workers`` at most 1024 (ValueError).
     """
     _workers(workers)
     _at_least_one("batch_size", batch_size)

@@ -142,9 +142,9 @@ def test_workers_above_the_bound_raise_before_anything_runs(
     """A huge ``workers`` tried to start that many threads; above 1024 it raises, and neither
     call writes anything (no journal)."""
     out = tmp_path / "t.parquet"
-    with pytest.raises(kneebench.KneebenchError, match=f"{workers} worker threads: .* 1 to 1024"):
+    with pytest.raises(ValueError, match=f"{workers} worker threads: .* 1 to 1024"):
         kneebench.sweep(sweep_spec(4), workers=workers, output=out)
-    with pytest.raises(kneebench.KneebenchError, match=f"{workers} worker threads: .* 1 to 1024"):
+    with pytest.raises(ValueError, match=f"{workers} worker threads: .* 1 to 1024"):
         kneebench.optimize(optimize_spec(), workers=workers, output=out)
     assert not Path(str(out) + ".journal").exists() and not out.exists()
 

@@ -50,13 +50,16 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let r = Results::read_file(&a.results)?;
     let names: Vec<&str> = if a.signals.is_empty() {
         let names = r.names();
-        anyhow::ensure!(
-            names.len() <= MAX_DEFAULT_COLUMNS,
-            "{} has {} columns, too many for one readable chart: choose up to {MAX_DEFAULT_COLUMNS} with --signals (or --variables), e.g. --signals {}",
-            a.results.display(),
-            names.len(),
-            names.iter().take(3).cloned().collect::<Vec<_>>().join(",")
-        );
+        // A usage error: the command needs --signals for such a file.
+        if names.len() > MAX_DEFAULT_COLUMNS {
+            return Err(super::Usage(format!(
+                "{} has {} columns, too many for one readable chart: choose up to {MAX_DEFAULT_COLUMNS} with --signals (or --variables), e.g. --signals {}",
+                a.results.display(),
+                names.len(),
+                names.iter().take(3).cloned().collect::<Vec<_>>().join(",")
+            ))
+            .into());
+        }
         names.iter().map(String::as_str).collect()
     } else {
         a.signals.iter().map(String::as_str).collect()

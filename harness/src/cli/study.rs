@@ -51,7 +51,8 @@ pub struct Args {
     /// Multiplies the gait's angle and torque amplitudes.
     #[arg(long, default_value_t = 1.0, value_parser = super::values::positive)]
     pub scale: f64,
-    /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's).
+    /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's); a scenario
+    /// with none of them is left out, with a note.
     #[arg(long, value_delimiter = ',')]
     pub actuators: Vec<String>,
     /// Set a scenario parameter, `component.name=value` (repeatable; a mode by its item name),
@@ -142,6 +143,27 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         }),
         _ => None,
     };
+    // A scenario with none of the chosen actuators (--actuators da: bench-clutch has no DA)
+    // is left out with a note; it wrote an empty section. None left is a usage error.
+    let names = |list: &[Actuator]| list.iter().map(|a| a.name()).collect::<Vec<_>>().join(", ");
+    let (scenarios, without): (Vec<StudyScenario>, Vec<StudyScenario>) = scenarios
+        .into_iter()
+        .partition(|s| actuators.is_empty() || s.actuators().iter().any(|a| actuators.contains(a)));
+    for s in &without {
+        eprintln!(
+            "note: the {} scenario has none of {} (its actuators: {}): left out",
+            s.name(),
+            names(&actuators),
+            names(s.actuators())
+        );
+    }
+    if scenarios.is_empty() {
+        return Err(super::Usage(format!(
+            "--actuators {}: no chosen scenario has them",
+            names(&actuators)
+        ))
+        .into());
+    }
     let configs: Vec<StudyConfig> = scenarios
         .into_iter()
         .map(|scenario| StudyConfig {

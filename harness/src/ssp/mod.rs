@@ -334,8 +334,18 @@ impl SspComponent {
     }
 }
 
-/// A relative reference inside an SSP (no `..`, not absolute, no scheme other than none).
-fn relative_ref(base: &Path, reference: &str, file: &str) -> Result<PathBuf, SspError> {
+/// The file a component's `source` (or a parameter set's) refers to, relative to `base`.
+///
+/// Inside an archive (`confined`, `base` the extraction directory) the reference must stay in
+/// it: no `..`, as for the archive's entries. Beside a bare `.ssd` on disk a relative reference
+/// may climb (`../fmus/Plant.fmu`: the FMUs in a sibling directory), as any relative URI may;
+/// an absolute path or a URI with a scheme is refused in both.
+fn relative_ref(
+    base: &Path,
+    reference: &str,
+    file: &str,
+    confined: bool,
+) -> Result<PathBuf, SspError> {
     let r = reference.strip_prefix("./").unwrap_or(reference);
     if r.contains("://") || r.starts_with("file:") {
         return Err(SspError::Unsupported {
@@ -343,15 +353,36 @@ fn relative_ref(base: &Path, reference: &str, file: &str) -> Result<PathBuf, Ssp
             what: format!("source URI '{reference}' (only relative references)"),
         });
     }
-    let rel = crate::load::sanitize_entry_name(r)
-        .map_err(|e| SspError::Invalid {
-            file: file.to_string(),
-            problem: format!("source '{reference}': {e}"),
-        })?
-        .ok_or_else(|| SspError::Invalid {
-            file: file.to_string(),
-            problem: format!("empty source '{reference}'"),
+    let invalid = |problem: String| SspError::Invalid {
+        file: file.to_string(),
+        problem: format!("source '{reference}': {problem}"),
+    };
+    let rel = if confined {
+        crate::load::sanitize_entry_name(r).map_err(|e| invalid(e.to_string()))?
+    } else {
+        // The archive's rules but for '..' (an absolute or Windows path, a NUL byte stay
+        // refused): each '..' checked as if it were a plain name.
+        let probe: Vec<&str> = r
+            .split('/')
+            .map(|c| if c == ".." { "parent" } else { c })
+            .collect();
+        crate::load::sanitize_entry_name(&probe.join("/")).map_err(|e| match e {
+            crate::load::LoadError::UnsafeEntryName { reason, .. } => invalid(reason.to_string()),
+            e => invalid(e.to_string()),
         })?;
+        let mut out = PathBuf::new();
+        for component in r.split('/') {
+            match component {
+                "" | "." => {}
+                c => out.push(c),
+            }
+        }
+        (!out.as_os_str().is_empty()).then_some(out)
+    };
+    let rel = rel.ok_or_else(|| SspError::Invalid {
+        file: file.to_string(),
+        problem: format!("empty source '{reference}'"),
+    })?;
     Ok(base.join(rel))
 }
 
@@ -458,7 +489,7 @@ fn read_ssd_file(ssd_path: &Path, base: &Path, archive: Option<&Path>) -> Result
     };
     let xml = read(ssd_path, SSD_NAME)?;
     read_ssd_labelled(&xml, &file, &inside, &mut |src| {
-        read(&relative_ref(base, src, &file)?, src)
+        read(&relative_ref(base, src, &file, archive.is_some())?, src)
     })
 }
 
@@ -699,7 +730,7 @@ pub fn load_system_replacing(
         let fmu = match fmus.get(&c.source) {
             Some(f) => f.clone(),
             None => {
-                let p = relative_ref(&base, &c.source, &file)?;
+                let p = relative_ref(&base, &c.source, &file, dir.is_some())?;
                 let loaded = match in_place.get(&p) {
                     Some(source) => Fmu::load_from(source, options),
                     None => Fmu::load(&p, options),
