@@ -202,8 +202,8 @@ fn a_bench_built_for_another_actuator_refuses_the_session_naming_the_setting() {
     ))
     .unwrap();
     let stats = emu.stop().unwrap();
-    // The study reports the run as failed at initialisation with the bench's reason (the CLI
-    // exits with code 3 and report.md names it).
+    // The study reports the run as failed at initialisation with the bench's reason, not as
+    // an interlock trip (the CLI exits with code 1 and report.md names the failure).
     let e = match &runs[0].outcome {
         Outcome::Failed(e) => format!("{e:?}"),
         other => panic!("{other:?}"),
@@ -212,8 +212,9 @@ fn a_bench_built_for_another_actuator_refuses_the_session_naming_the_setting() {
         e.contains("configuration differs: bench DA, client SEA"),
         "{e}"
     );
-    let trip = &runs[0].report.trip.as_ref().expect("named in the report").0;
-    assert!(trip.contains("configuration differs"), "{trip}");
+    assert_eq!(runs[0].report.trip, None);
+    let (failure, _) = runs[0].failure().expect("the run failed");
+    assert!(failure.contains("configuration differs"), "{failure}");
     assert_eq!(stats.drive_commands_applied_total, 0);
 }
 
