@@ -416,6 +416,8 @@ impl<M: Model> Instance<M> {
         let mut w = StateWriter::default();
         w.bytes.extend_from_slice(STATE_MAGIC);
         w.u32(STATE_FORMAT_VERSION);
+        // The length, written by `seal_state` once it is known.
+        w.u32(0);
         w.string(&self.info.guid);
         w.string(M::IDENTIFIER);
         w.u8(self.state as u8);
@@ -439,7 +441,8 @@ impl<M: Model> Instance<M> {
         self.model.save_internal(&mut internal);
         w.u32(internal.bytes.len() as u32);
         w.bytes.extend_from_slice(&internal.bytes);
-        seal_state(w.bytes)
+        seal_state(&mut w.bytes);
+        w.bytes
     }
 
     /// Decodes `bytes` into a fresh model and instance fields, without touching `self`.
@@ -717,7 +720,7 @@ fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
 /// First bytes of every serialized FMU state.
 pub const STATE_MAGIC: &[u8; 8] = b"KNEEBNCH";
 /// Version of the FMU-state byte format; bumped whenever the layout changes. Version 2 added
-/// the length and the checksum ([`seal_state`]).
+/// the length and the CRC-32 checksum (see [`reseal_state`]).
 pub const STATE_FORMAT_VERSION: u32 = 2;
 
 /// Bytes before a state's content: the magic, the format version and the length.
@@ -725,24 +728,21 @@ const STATE_HEADER_LEN: usize = STATE_MAGIC.len() + 4 + 4;
 /// Bytes after a state's content: its CRC-32.
 const STATE_TRAILER_LEN: usize = 4;
 
-/// Seals an encoded state (the magic, the version, then the content): writes its total length
-/// after the version and appends the CRC-32 (IEEE) of every byte before the checksum.
+/// Seals an encoded state in place (the magic, the version, a length slot, then the content):
+/// writes its total length into the slot after the version and appends the CRC-32 (IEEE) of
+/// every byte before the checksum.
 ///
 /// The length tells a truncated or extended state from a corrupted one; the checksum catches a
 /// byte changed anywhere, including inside a model's internal state, where a plausible wrong
 /// value would pass every other check and only show in later steps. It is not a signature:
-/// a deliberately edited state can be resealed (tests do), and then still meets every value
-/// check of `fmi2DeSerializeFMUstate`.
-pub fn seal_state(content: Vec<u8>) -> Vec<u8> {
-    let prefix = STATE_MAGIC.len() + 4;
-    let mut bytes = Vec::with_capacity(content.len() + 4 + STATE_TRAILER_LEN);
-    bytes.extend_from_slice(&content[..prefix.min(content.len())]);
-    let total = content.len() + 4 + STATE_TRAILER_LEN;
-    bytes.extend_from_slice(&(total as u32).to_le_bytes());
-    bytes.extend_from_slice(&content[prefix.min(content.len())..]);
-    let crc = crc32fast::hash(&bytes);
-    bytes.extend_from_slice(&crc.to_le_bytes());
-    bytes
+/// a deliberately edited state can be resealed ([`reseal_state`], tests do), and then still
+/// meets every value check of `fmi2DeSerializeFMUstate`.
+fn seal_state(bytes: &mut Vec<u8>) {
+    let total = (bytes.len() + STATE_TRAILER_LEN) as u32;
+    let slot = STATE_MAGIC.len() + 4;
+    bytes[slot..slot + 4].copy_from_slice(&total.to_le_bytes());
+    bytes.extend_from_slice(&[0; STATE_TRAILER_LEN]);
+    reseal_state(bytes);
 }
 
 /// Rewrites the checksum of a sealed state whose bytes were edited in place (tests and tools

@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::Context;
 use kneebench_harness::instance::{LogStatus, stderr_log_handler};
 use kneebench_harness::master::{Signal, VarType};
-use kneebench_harness::params::check_start_value;
+use kneebench_harness::params::check_system_start_value;
 use kneebench_harness::results::csv::{check_output_path, partial_path};
 use kneebench_harness::results::{RunningSummary, Tee, summary_table};
 use kneebench_harness::{
@@ -332,22 +332,15 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             Err(e) => return usage(e),
         };
         let reference = prefix(&name);
-        let checked = system
-            .parse_value_str(&reference, &value)
-            .and_then(|parsed| {
-                let problem = reference.split_once('.').and_then(|(component, variable)| {
-                    let fmu = system.components().find(|(c, _)| *c == component)?.1;
-                    check_start_value(fmu.model_description(), variable, &parsed).err()
-                });
-                match problem {
-                    Some(problem) => Ok(Err(problem)),
-                    None => system.set_value(&reference, parsed).map(Ok),
-                }
-            });
-        match checked {
-            Ok(Ok(())) => {}
-            Ok(Err(problem)) => return usage(format_args!("--param '{p}': {problem}")),
+        let parsed = match system.parse_value_str(&reference, &value) {
+            Ok(parsed) => parsed,
             Err(e) => return usage(format_args!("--param '{p}': {e}")),
+        };
+        if let Err(problem) = check_system_start_value(&system, &reference, &parsed) {
+            return usage(format_args!("--param '{p}': {problem}"));
+        }
+        if let Err(e) = system.set_value(&reference, parsed) {
+            return usage(format_args!("--param '{p}': {e}"));
         }
     }
     if !a.variables.is_empty() {

@@ -320,7 +320,7 @@ fn set_integers(
 }
 
 /// Sets `component.name` to `value` once the model description accepts it
-/// ([`check_start_value`](crate::params::check_start_value)): a value an option gives that
+/// ([`check_system_start_value`](crate::params::check_system_start_value)): a value an option gives that
 /// the FMU would refuse as the run starts (`bode --start-frequency 1e6`, past the gait's
 /// `sweepStartFrequency` bound) is a refusal of the settings ([`ExperimentError::Invalid`],
 /// a usage error), not a failed run.
@@ -330,15 +330,10 @@ fn set_checked(
     name: &str,
     value: crate::master::Value,
 ) -> Result<(), ExperimentError> {
-    if let Some((_, fmu)) = system.components().find(|(c, _)| *c == component)
-        && let Err(problem) =
-            crate::params::check_start_value(fmu.model_description(), name, &value)
-    {
-        return Err(ExperimentError::Invalid(format!(
-            "{component}.{name}: {problem}"
-        )));
-    }
-    system.set_value(&format!("{component}.{name}"), value)?;
+    let reference = format!("{component}.{name}");
+    crate::params::check_system_start_value(system, &reference, &value)
+        .map_err(|problem| ExperimentError::Invalid(format!("{reference}: {problem}")))?;
+    system.set_value(&reference, value)?;
     Ok(())
 }
 

@@ -26,7 +26,7 @@ use model_description::{
 };
 
 use crate::load::Fmu;
-use crate::master::Value;
+use crate::master::{Value, VarType};
 use model_description::num::Num;
 
 /// Errors of reading, writing and checking parameter sets.
@@ -476,6 +476,23 @@ pub fn check_start_value(md: &ModelDescription, name: &str, value: &Value) -> Re
     value_problem(md, v, value).map_or(Ok(()), Err)
 }
 
+/// [`check_start_value`] for `reference` (`component.variable`) of `system`, the component's
+/// model description found in the system (a reference it cannot resolve is left to
+/// [`System::set_value`](crate::master::System::set_value), which names it).
+pub fn check_system_start_value(
+    system: &crate::master::System,
+    reference: &str,
+    value: &Value,
+) -> Result<(), String> {
+    let Some((component, variable)) = reference.split_once('.') else {
+        return Ok(());
+    };
+    match system.components().find(|(c, _)| *c == component) {
+        Some((_, fmu)) => check_start_value(fmu.model_description(), variable, value),
+        None => Ok(()),
+    }
+}
+
 /// Why `x` cannot be the value of `v` when `v` has named values (an Enumeration, or one of our
 /// FMUs' modes declared as Integer) and `x` is none of them; `None` otherwise.
 fn not_an_item(md: &ModelDescription, v: &ScalarVariable, x: i32) -> Option<String> {
@@ -593,37 +610,32 @@ pub fn parameter_value(
         text: text.to_string(),
         problem,
     };
+    // Read as the master reads a value (`Value::parse`), then an item's name.
     let t = text.trim();
-    let value = match &v.kind {
-        VariableKind::Real { .. } => Value::Real(
-            t.parse()
-                .map_err(|_| bad(format!("'{t}' is not a number (a Real)")))?,
-        ),
-        VariableKind::Integer { .. } | VariableKind::Enumeration { .. } => {
-            match (t.parse::<i32>(), md.items_of(v)) {
-                (Ok(x), _) => Value::Integer(x),
-                (Err(_), Some((type_name, items))) => match items.iter().find(|i| i.name == t) {
-                    Some(item) => Value::Integer(item.value),
-                    None => {
-                        return Err(bad(format!(
-                            "'{t}' is no item of {type_name} ({})",
-                            items
-                                .iter()
-                                .map(|i| format!("{} = {}", i.value, i.name))
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        )));
-                    }
-                },
-                (Err(_), None) => return Err(bad(format!("'{t}' is not an Integer"))),
+    let value = match Value::parse(VarType::of(v), text) {
+        Some(value) => value,
+        None => match (&v.kind, md.items_of(v)) {
+            (VariableKind::Real { .. }, _) => {
+                return Err(bad(format!("'{t}' is not a number (a Real)")));
             }
-        }
-        VariableKind::Boolean { .. } => match t {
-            "true" | "1" => Value::Boolean(true),
-            "false" | "0" => Value::Boolean(false),
-            _ => return Err(bad(format!("'{t}' is not a Boolean (true or false)"))),
+            (VariableKind::Boolean { .. }, _) => {
+                return Err(bad(format!("'{t}' is not a Boolean (true or false)")));
+            }
+            (_, Some((type_name, items))) => match items.iter().find(|i| i.name == t) {
+                Some(item) => Value::Integer(item.value),
+                None => {
+                    return Err(bad(format!(
+                        "'{t}' is no item of {type_name} ({})",
+                        items
+                            .iter()
+                            .map(|i| format!("{} = {}", i.value, i.name))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )));
+                }
+            },
+            (_, None) => return Err(bad(format!("'{t}' is not an Integer"))),
         },
-        VariableKind::String { .. } => Value::String(text.to_string()),
     };
     match value_problem(md, v, &value) {
         Some(problem) => Err(bad(problem)),
