@@ -657,6 +657,11 @@ impl TaylorSegment {
     /// until every piece's series converges within [`PIECE_TERMS`] terms.
     #[inline(always)]
     pub(crate) fn rebuild(&mut self, m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) {
+        // The state rows of `m` by column: each term is a sweep over the columns that adds
+        // column `c` times the previous term's entry `c` into all six rows at once (the rows'
+        // sums are taken in column order, as a row-by-row dot product takes them).
+        let columns: [[f64; STATE_ROWS]; NZ] =
+            std::array::from_fn(|c| std::array::from_fn(|r| m[(r, c)]));
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
             let pieces_wanted = count;
@@ -683,13 +688,15 @@ impl TaylorSegment {
                 let mut converged = false;
                 for n in 1..PIECE_TERMS {
                     let prev = piece.coefficients[n - 1];
-                    let mut next = [0.0; NZ];
-                    for (r, v) in next.iter_mut().enumerate().take(STATE_ROWS) {
-                        let mut acc = 0.0;
-                        for (c, pv) in prev.iter().enumerate() {
-                            acc += m[(r, c)] * pv;
+                    let mut sums = [0.0; STATE_ROWS];
+                    for (column, pv) in columns.iter().zip(prev.iter()) {
+                        for (s, m) in sums.iter_mut().zip(column) {
+                            *s += m * pv;
                         }
-                        *v = acc * len / n as f64;
+                    }
+                    let mut next = [0.0; NZ];
+                    for (v, s) in next.iter_mut().zip(sums) {
+                        *v = s * len / n as f64;
                     }
                     piece.coefficients[n] = next;
                     piece.terms = n + 1;

@@ -275,29 +275,39 @@ impl BenchPlant {
                     .map(|(c, w)| c * w)
                     .sum::<f64>()
             };
-            let mut w = [[0.0; PIECE_TERMS]; 2];
-            let mut i = [[0.0; PIECE_TERMS]; 2];
-            for (k, c) in piece.coefficients[..n].iter().enumerate() {
-                w[0][k] = c[OMEGA1];
-                w[1][k] = c[OMEGA2];
-                i[0][k] = c[CURRENT1];
-                i[1][k] = c[CURRENT2];
+            // The four series (w1, w2, i1, i2) side by side, and their products as lanes:
+            // `squares_of[k]` = (w1^2, w2^2, i1^2, i2^2)_k, `wi[k]` = (i1 w1, i2 w2)_k.
+            let mut series = [[0.0; 4]; PIECE_TERMS];
+            for (s, c) in series.iter_mut().zip(&piece.coefficients[..n]) {
+                *s = [c[OMEGA1], c[OMEGA2], c[CURRENT1], c[CURRENT2]];
             }
-            let mut ww = [[0.0; 2 * PIECE_TERMS]; 2];
-            let mut ii = [[0.0; 2 * PIECE_TERMS]; 2];
-            let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
-            for j in 0..2 {
-                square_into(&w[j][..n], &mut ww[j]);
-                square_into(&i[j][..n], &mut ii[j]);
-                product_into(&i[j][..n], &w[j][..n], &mut wi[j]);
-            }
+            let mut squares_of = [[0.0; 4]; 2 * PIECE_TERMS];
+            let mut wi = [[0.0; 2]; 2 * PIECE_TERMS];
+            square_lanes(&series[..n], &mut squares_of);
+            product_lanes(&series[..n], &mut wi);
+            let lane = |p: &[[f64; 4]], l: usize| -> f64 {
+                p[..degree]
+                    .iter()
+                    .zip(weights.iter())
+                    .map(|(c, w)| c[l] * w)
+                    .sum::<f64>()
+            };
+            let wi_lane = |l: usize| -> f64 {
+                wi[..degree]
+                    .iter()
+                    .zip(weights.iter())
+                    .map(|(c, w)| c[l] * w)
+                    .sum::<f64>()
+            };
             let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
             for k in 0..degree {
-                let linear = |j: usize| if k < n { i[j][k] } else { 0.0 };
-                let el0 = law[0].0 * ii[0][k] + law[0].1 * wi[0][k] + law[0].2 * linear(0);
-                let el1 = law[1].0 * ii[1][k] + law[1].1 * wi[1][k] + law[1].2 * linear(1);
-                powers[0][k] = tpa[0] * wi[0][k];
-                powers[1][k] = tpa[1] * wi[1][k];
+                let linear = |j: usize| if k < n { series[k][2 + j] } else { 0.0 };
+                let [_, _, ii0, ii1] = squares_of[k];
+                let [wi0, wi1] = wi[k];
+                let el0 = law[0].0 * ii0 + law[0].1 * wi0 + law[0].2 * linear(0);
+                let el1 = law[1].0 * ii1 + law[1].1 * wi1 + law[1].2 * linear(1);
+                powers[0][k] = tpa[0] * wi0;
+                powers[1][k] = tpa[1] * wi1;
                 powers[2][k] = el0;
                 powers[3][k] = el1;
                 powers[4][k] = el0 + el1;
@@ -310,9 +320,9 @@ impl BenchPlant {
                 positive[k] += piece.len * positive_part(p, s_end, part);
             }
             for j in 0..2 {
-                squares[j] += piece.len * integral(&ww[j][..degree]);
-                copper[j] += piece.len * integral(&ii[j][..degree]);
-                emf[j] += piece.len * integral(&wi[j][..degree]);
+                squares[j] += piece.len * lane(&squares_of, j);
+                copper[j] += piece.len * lane(&squares_of, 2 + j);
+                emf[j] += piece.len * wi_lane(j);
             }
         }
         let z0 = segment.state_at(0.0);
@@ -377,15 +387,50 @@ fn positive_part(p: &[f64], s_end: f64, signed: f64) -> f64 {
     }
 }
 
-/// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled).
+/// The four polynomials of `series` (coefficient `k` of each in lane `k`'s four entries)
+/// squared, lane by lane, into `out[..2 series.len() - 1]`: each cross term once, doubled. A
+/// lane's sums are taken in the order a one-polynomial square takes them ([`square_into`]), so
+/// each lane is that square bit for bit; the four lanes make one vector operation.
 #[inline(always)]
+fn square_lanes(series: &[[f64; 4]], out: &mut [[f64; 4]]) {
+    let n = series.len();
+    out[..2 * n - 1].fill([0.0; 4]);
+    for (k, x) in series.iter().enumerate() {
+        let diagonal = &mut out[2 * k];
+        for l in 0..4 {
+            diagonal[l] += x[l] * x[l];
+        }
+        let twice = x.map(|v| 2.0 * v);
+        for (o, y) in out[2 * k + 1..k + n].iter_mut().zip(&series[k + 1..]) {
+            for l in 0..4 {
+                o[l] += twice[l] * y[l];
+            }
+        }
+    }
+}
+
+/// The products `i1 w1` and `i2 w2` of `series`' lanes (w1, w2, i1, i2), lane by lane, into
+/// `out[..2 series.len() - 1]`, each bit for bit [`product_into`]`(i, w)`.
+#[inline(always)]
+fn product_lanes(series: &[[f64; 4]], out: &mut [[f64; 2]]) {
+    let n = series.len();
+    out[..2 * n - 1].fill([0.0; 2]);
+    for (k, x) in series.iter().enumerate() {
+        let current = [x[2], x[3]];
+        for (o, y) in out[k..k + n].iter_mut().zip(series) {
+            o[0] += current[0] * y[0];
+            o[1] += current[1] * y[1];
+        }
+    }
+}
+
+/// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled): the
+/// plain form of one lane of [`square_lanes`].
+#[cfg(test)]
 fn square_into(a: &[f64], out: &mut [f64]) {
     let n = a.len();
     out[..2 * n - 1].fill(0.0);
     for (k, x) in a.iter().enumerate() {
-        if *x == 0.0 {
-            continue;
-        }
         out[2 * k] += x * x;
         let twice = 2.0 * x;
         for (o, y) in out[2 * k + 1..k + n].iter_mut().zip(&a[k + 1..]) {
@@ -394,14 +439,12 @@ fn square_into(a: &[f64], out: &mut [f64]) {
     }
 }
 
-/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product).
-#[inline(always)]
+/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product): the plain form of one lane of
+/// [`product_lanes`].
+#[cfg(test)]
 fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
     out[..a.len() + b.len() - 1].fill(0.0);
     for (k, x) in a.iter().enumerate() {
-        if *x == 0.0 {
-            continue;
-        }
         for (o, y) in out[k..k + b.len()].iter_mut().zip(b) {
             *o += x * y;
         }
@@ -498,6 +541,56 @@ mod tests {
         }
         assert_eq!(square[0], 0.09);
         assert_eq!(square[8], 1e-18);
+    }
+
+    /// Each lane of the four-lane square and of the two-lane product is the plain square or
+    /// product of that lane's polynomial bit for bit: zeros (a stuck body's speed series),
+    /// negative zeros, mixed magnitudes, every length a piece can have.
+    #[test]
+    #[allow(clippy::needless_range_loop)] // a lane index names the lane in the assertions
+    fn the_lanes_are_the_plain_products_bit_for_bit() {
+        let value = |k: usize, l: usize| -> f64 {
+            match (k * 7 + l * 3) % 6 {
+                0 => 0.0,
+                1 => -0.0,
+                2 => (k as f64 + 1.0).powi(-3) * if l.is_multiple_of(2) { 1.0 } else { -1.0 },
+                3 => 1e-300 * (l as f64 + 1.0),
+                4 => 3.7e5 / (k as f64 + l as f64 + 1.0),
+                _ => -0.1 * (k as f64).sin() + 1e-17 * l as f64,
+            }
+        };
+        for n in 1..=PIECE_TERMS {
+            let series: Vec<[f64; 4]> = (0..n)
+                .map(|k| std::array::from_fn(|l| value(k, l)))
+                .collect();
+            let mut squares = [[f64::NAN; 4]; 2 * PIECE_TERMS];
+            let mut products = [[f64::NAN; 2]; 2 * PIECE_TERMS];
+            square_lanes(&series, &mut squares);
+            product_lanes(&series, &mut products);
+            let lane = |l: usize| series.iter().map(|s| s[l]).collect::<Vec<f64>>();
+            for l in 0..4 {
+                let mut plain = vec![f64::NAN; 2 * n - 1];
+                square_into(&lane(l), &mut plain);
+                for (k, p) in plain.iter().enumerate() {
+                    assert_eq!(
+                        squares[k][l].to_bits(),
+                        p.to_bits(),
+                        "square n {n} lane {l} k {k}"
+                    );
+                }
+            }
+            for j in 0..2 {
+                let mut plain = vec![f64::NAN; 2 * n - 1];
+                product_into(&lane(2 + j), &lane(j), &mut plain);
+                for (k, p) in plain.iter().enumerate() {
+                    assert_eq!(
+                        products[k][j].to_bits(),
+                        p.to_bits(),
+                        "product n {n} lane {j} k {k}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
