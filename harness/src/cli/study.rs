@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use kneebench_harness::master::Value;
 use kneebench_harness::study::{
-    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario,
-    checked_overrides, plot_study, run_study, runs_markdown, write_report,
+    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario, checked_settings,
+    plot_study, run_study, runs_markdown, write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -34,7 +34,8 @@ last cycle) and report.md with the measured-vs-twin table.
 Exit code 3 when an interlock ended a run (the report names it); 1 when a run failed (an FMU's
 error: report.md says why, and has no results for that run); 2 for bad arguments: a --param
 that names no parameter of the scenario's FMUs, or whose value is not finite, outside the
-parameter's [min, max] or none of its items (checked before anything runs).")]
+parameter's [min, max] or none of its items; --bench without one actuator named (checked
+before anything runs).")]
 pub struct Args {
     /// Directory of the exported FMUs (kneebench export).
     #[arg(long)]
@@ -80,7 +81,7 @@ pub struct Args {
 /// Reads `--param component.name=value`: an Integer, a Real or a Boolean by its text, any other
 /// text as a String (an item's name, e.g. `plant.frictionModel=HdLossSurface`). The value is
 /// checked against the scenario's FMUs, and converted to the variable's type, before anything
-/// runs ([`checked_overrides`]).
+/// runs ([`checked_settings`]).
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     let (name, value) = super::name_value(text)?;
     let value = value.as_str();
@@ -179,10 +180,12 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             bench: bench.clone(),
         })
         .collect();
-    // Every scenario's --param values are checked before the first run (a later scenario's
-    // were found only after the earlier ones had run).
+    // Every scenario's settings (one actuator on a bench, the --param values) are checked
+    // before the first run (a later scenario's were found only after the earlier ones had
+    // run; a bench study of several actuators only as its first run began).
     for config in &configs {
-        checked_overrides(config).map_err(|e| match e {
+        checked_settings(config).map_err(|e| match e {
+            StudyError::BenchActuators { .. } => super::Usage(format!("--bench: {e}")).into(),
             StudyError::Parameter(m) => super::Usage(format!("--param {m}")).into(),
             e => anyhow::Error::from(e),
         })?;
