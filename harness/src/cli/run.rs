@@ -322,7 +322,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             &a.system,
             single.then_some(first.as_str()),
             spec,
-        )?;
+        )
+        .map_err(super::identify::set_error)?;
         eprintln!("parameter set: {}", set.label());
         set_labels.push(set.label());
     }

@@ -1,16 +1,48 @@
 //! The study's settings checked before anything runs or is written: what `kneebench study`
 //! refuses as a usage error (exit code 2) and [`run_study`](super::run_study) refuses first.
 
-use super::{Scenario, StudyConfig, StudyError, gait_scenario};
+use std::path::Path;
+
+use model_description::ModelDescription;
+
+use super::{HARDWARE_FMU, PLANT_FMU, Scenario, StudyConfig, StudyError, gait_scenario};
 use crate::master::Value;
 
 /// Every setting of `config` that can be checked before anything runs, in this order: a study
-/// on a bench names one actuator ([`StudyError::BenchActuators`]), and the overrides
-/// ([`checked_overrides`], returned typed). What [`run_study`](super::run_study) checks first,
-/// and what the CLI checks for every scenario before the first one runs.
+/// on a bench names one actuator ([`StudyError::BenchActuators`]), the plant's parameter set
+/// is one the plant FMU takes ([`ParameterSet::check`](crate::params::ParameterSet::check):
+/// [`StudyError::ParameterSet`]), the overrides ([`checked_overrides`], returned typed) and
+/// the bench's parameters ([`BenchLink::parameters`](super::BenchLink::parameters), checked
+/// against `BenchHardware.fmu` as the overrides are: [`StudyError::BenchParameter`]). What
+/// [`run_study`](super::run_study) checks first, and what the CLI checks for every scenario
+/// before the first one runs.
 pub fn checked_settings(config: &StudyConfig) -> Result<Vec<(String, Value)>, StudyError> {
     check_bench_actuators(config)?;
-    checked_overrides(config)
+    if let Some(set) = &config.parameter_set {
+        let md = model_description(&config.fmu_dir, PLANT_FMU)?;
+        set.check(&md, &format!("parameter set '{}'", set.name))
+            .map_err(StudyError::ParameterSet)?;
+    }
+    let overrides = checked_overrides(config)?;
+    if let Some(link) = config.bench.as_ref().filter(|l| !l.parameters.is_empty()) {
+        let md = model_description(&config.fmu_dir, HARDWARE_FMU)?;
+        for (name, value) in &link.parameters {
+            crate::params::parameter_value(&md, name, value)
+                .map_err(|e| StudyError::BenchParameter(e.to_string()))?;
+        }
+    }
+    Ok(overrides)
+}
+
+/// The model description of the FMU `file` of `fmu_dir`.
+fn model_description(fmu_dir: &Path, file: &str) -> Result<ModelDescription, StudyError> {
+    let path = fmu_dir.join(file);
+    let (_dir, md) = crate::load::extract_and_parse(&path, &crate::load::ArchiveLimits::default())
+        .map_err(|e| StudyError::Fmu {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+    Ok(md)
 }
 
 /// A study on a bench ([`StudyConfig::bench`]) runs one actuator, the one the bench is built
@@ -94,15 +126,7 @@ pub fn checked_overrides(config: &StudyConfig) -> Result<Vec<(String, Value)>, S
             let md = match descriptions.iter().position(|(f, _)| *f == c.fmu) {
                 Some(i) => &descriptions[i].1,
                 None => {
-                    let path = config.fmu_dir.join(&c.fmu);
-                    let (_dir, md) = crate::load::extract_and_parse(
-                        &path,
-                        &crate::load::ArchiveLimits::default(),
-                    )
-                    .map_err(|e| StudyError::Fmu {
-                        path: path.clone(),
-                        message: e.to_string(),
-                    })?;
+                    let md = model_description(&config.fmu_dir, &c.fmu)?;
                     descriptions.push((c.fmu.clone(), md));
                     &descriptions[descriptions.len() - 1].1
                 }

@@ -167,6 +167,14 @@ pub enum StudyError {
         /// The actuators given (`all` when none was named).
         given: String,
     },
+    /// The plant's parameter set ([`StudyConfig::parameter_set`]) is refused by the plant FMU
+    /// (a name it has no parameter for, a unit, a value outside the declared `[min, max]`).
+    #[error("{0}")]
+    ParameterSet(crate::params::ParamsError),
+    /// A parameter of `BenchHardware` ([`BenchLink::parameters`]) that the FMU has not, or a
+    /// value it refuses.
+    #[error("bench parameter {0}")]
+    BenchParameter(String),
     /// Plotting failed.
     #[error(transparent)]
     Results(#[from] crate::results::ResultsError),
@@ -331,6 +339,10 @@ fn apply_overrides(
 
 /// The component of the scenarios that a `--params` set applies to.
 const PLANT: &str = "plant";
+/// The FMU of [`PLANT`], which a `--params` set is checked against.
+const PLANT_FMU: &str = "BenchPlant.fmu";
+/// The bench's FMU, which replaces [`PLANT`] in a study on a bench.
+const HARDWARE_FMU: &str = "BenchHardware.fmu";
 
 /// Loads the scenario's SSP with its `plant` replaced by `BenchHardware` pointed at `link`.
 fn on_the_bench(
@@ -338,7 +350,7 @@ fn on_the_bench(
     fmu_dir: &Path,
     link: &BenchLink,
 ) -> Result<ssp::LoadedSystem, StudyError> {
-    let hardware = fmu_dir.join("BenchHardware.fmu");
+    let hardware = fmu_dir.join(HARDWARE_FMU);
     let mut loaded = ssp::load_system_replacing(
         path,
         &crate::load::LoadOptions::default(),
@@ -359,7 +371,7 @@ fn on_the_bench(
         loaded
             .system
             .set_value_str(&format!("{PLANT}.{name}"), value)
-            .map_err(|e| StudyError::Parameter(format!("bench parameter {name} = {value}: {e}")))?;
+            .map_err(|e| StudyError::BenchParameter(format!("{name} = {value}: {e}")))?;
     }
     Ok(loaded)
 }
@@ -379,18 +391,6 @@ pub fn run_study_with(
     config: &StudyConfig,
     control: Option<&crate::master::RunControl>,
 ) -> Result<Vec<StudyRun>, StudyError> {
-    if let Some(set) = &config.parameter_set {
-        let fmu = config.fmu_dir.join("BenchPlant.fmu");
-        let (_dir, md) =
-            crate::load::extract_and_parse(&fmu, &crate::load::ArchiveLimits::default()).map_err(
-                |e| StudyError::Fmu {
-                    path: fmu.clone(),
-                    message: e.to_string(),
-                },
-            )?;
-        set.check(&md, &format!("parameter set '{}'", set.name))
-            .map_err(|e| StudyError::Parameter(e.to_string()))?;
-    }
     // Checked before anything is written or run (a bad value failed every run at t = 0).
     let overrides = checked_settings(config)?;
     let scenarios = config.out_dir.join("scenarios");
