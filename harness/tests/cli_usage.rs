@@ -525,6 +525,67 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
     }
 }
 
+/// `emulate --param` names and values are checked against the plant FMU before the emulator
+/// starts or anything is written (here a new key file): a value the FMU refuses, a name that
+/// is no parameter, an item that is none of the mode's, each a usage error naming the
+/// parameter and the bounds or items. The FMU refused them as the emulator prepared its plant
+/// (exit code 1), and an item's name was not read at all; it now serves with one.
+#[test]
+fn emulate_checks_param_names_and_values_before_starting() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let key = dir.path().join("new.key");
+    let emulate = |param: &str, duration: &str| {
+        kneebench()
+            .args(["emulate", "--bind", "127.0.0.1:0", "--duration", duration])
+            .arg("--fmu")
+            .arg(&plant)
+            .arg("--new-key")
+            .arg(&key)
+            .args(["--param", param])
+            .output()
+            .unwrap()
+    };
+    for (param, needles) in [
+        (
+            "actuationInertia=-1",
+            &["--param actuationInertia = '-1': -1 is outside [0.001, 100]"][..],
+        ),
+        (
+            "actuationInertia=nan",
+            &["--param actuationInertia = 'nan': NaN is not a finite number"],
+        ),
+        (
+            "configuration=7",
+            &["--param configuration = '7': 7 is outside [0, 2]"],
+        ),
+        (
+            "frictionModel=Nope",
+            &["'Nope' is no item of FrictionModel", "3 = HdLossSurface"],
+        ),
+        (
+            "nope=1",
+            &[
+                "--param 'nope' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
+        ),
+        (
+            "configuration",
+            &["--param 'configuration': expected NAME=VALUE"],
+        ),
+    ] {
+        let o = emulate(param, "5");
+        assert_usage(param, &o, needles);
+        assert!(!key.exists(), "{param}: wrote {}", key.display());
+    }
+    // A mode by its item's name: the emulator starts with it.
+    let o = emulate("frictionModel=HdLossSurface", "0.2");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{e}");
+    assert!(e.contains("serving the bench protocol"), "{e}");
+}
+
 /// Names that are no scenario, actuator, parameter or column, a missing log and an output of
 /// an unknown format are usage errors (exit code 2) with their message: each exited with 1.
 /// None needs the bench's FMUs (each is refused before they are read) but `--param`.

@@ -152,6 +152,17 @@ impl Value {
         }
     }
 
+    /// The value as text that [`Value::parse`] reads back to it (`--param NAME=VALUE` form;
+    /// Reals exact, shortest round trip).
+    pub fn to_text(&self) -> String {
+        match self {
+            Value::Real(v) => format!("{v:?}"),
+            Value::Integer(v) => v.to_string(),
+            Value::Boolean(v) => v.to_string(),
+            Value::String(v) => v.clone(),
+        }
+    }
+
     fn ty(&self) -> VarType {
         match self {
             Value::Real(_) => VarType::Real,

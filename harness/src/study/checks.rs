@@ -69,16 +69,6 @@ fn check_bench_actuators(config: &StudyConfig) -> Result<(), StudyError> {
     })
 }
 
-/// The text of `value` as `--param` would give it (Reals exact).
-fn value_text(value: &Value) -> String {
-    match value {
-        Value::Real(v) => format!("{v:?}"),
-        Value::Integer(v) => v.to_string(),
-        Value::Boolean(v) => v.to_string(),
-        Value::String(v) => v.clone(),
-    }
-}
-
 /// The overrides of `config` ([`StudyConfig::overrides`]) checked against the scenario's FMUs
 /// before anything runs, each value converted to its variable's declared type (an Integer
 /// given for a Real, an item's name as `Value::String` for a mode): every reference must be
@@ -131,13 +121,12 @@ pub fn checked_overrides(config: &StudyConfig) -> Result<Vec<(String, Value)>, S
                     &descriptions[descriptions.len() - 1].1
                 }
             };
-            let v =
-                crate::params::parameter_value(md, name, &value_text(value)).map_err(
-                    |e| match e {
-                        crate::params::ParameterError::BadValue { problem, .. } => bad(problem),
-                        not_a_parameter => bad(not_a_parameter.to_string()),
-                    },
-                )?;
+            let v = crate::params::parameter_value(md, name, &value.to_text()).map_err(
+                |e| match e {
+                    crate::params::ParameterError::BadValue { problem, .. } => bad(problem),
+                    not_a_parameter => bad(not_a_parameter.to_string()),
+                },
+            )?;
             typed.get_or_insert(v);
         }
         if let Some(v) = typed {
