@@ -234,6 +234,29 @@ impl Default for RunConfig {
     }
 }
 
+impl RunConfig {
+    /// This configuration with the times of a default experiment (an FMU's or an SSP's
+    /// `DefaultExperiment`): each of `start_time`, `stop_time` and `step_size` that is given
+    /// replaces this configuration's, the others are kept.
+    pub fn with_times(
+        mut self,
+        start_time: Option<f64>,
+        stop_time: Option<f64>,
+        step_size: Option<f64>,
+    ) -> RunConfig {
+        if let Some(t) = start_time {
+            self.start_time = t;
+        }
+        if let Some(t) = stop_time {
+            self.stop_time = t;
+        }
+        if let Some(h) = step_size {
+            self.step_size = h;
+        }
+        self
+    }
+}
+
 impl fmt::Debug for RunConfig {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("RunConfig")
