@@ -500,3 +500,26 @@ fn a_default_experiment_replaces_only_the_times_it_gives() {
         (base.start_time, base.stop_time, base.step_size)
     );
 }
+
+/// `Value::to_text` reads back as the same value (`Value::parse`): Reals exactly.
+#[test]
+fn a_value_as_text_reads_back_as_itself() {
+    use super::Value;
+    for v in [
+        Value::Real(0.1 + 0.2),
+        Value::Real(-1e-300),
+        Value::Real(1e5),
+        Value::Integer(-7),
+        Value::Boolean(true),
+        Value::Boolean(false),
+        Value::String(" a b ".into()),
+    ] {
+        let ty = match v {
+            Value::Real(_) => VarType::Real,
+            Value::Integer(_) => VarType::Integer,
+            Value::Boolean(_) => VarType::Boolean,
+            Value::String(_) => VarType::String,
+        };
+        assert_eq!(Value::parse(ty, &v.to_text()), Some(v.clone()), "{v:?}");
+    }
+}
