@@ -115,7 +115,9 @@ fn a_closed_stdout_pipe_ends_quietly() {
 }
 
 /// `kneebench study --bench` needs the bench's key and one actuator, refused before anything
-/// runs (no FMU is read, nothing is written).
+/// runs (no FMU is read, nothing is written): usage errors (exit code 2) naming the rule. A
+/// study of several actuators (or of all, none named) on a bench exited with 1, refused only
+/// as its first run began.
 #[test]
 fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
     let out = tempfile::tempdir().unwrap();
@@ -129,6 +131,40 @@ fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("--key"), "{e}");
     let key = out.path().join("bench.key");
+    for (actuators, given) in [
+        (&[][..], "(given: all)"),
+        (&["--actuators", "sea,csea"], "(given: SEA, CSEA)"),
+        (
+            &["--scenario", "bench-clutch", "--actuators", "sea,csea"],
+            "(given: SEA, CSEA)",
+        ),
+    ] {
+        let o = kneebench()
+            .args([
+                "study",
+                "--fmus",
+                "no-such-dir",
+                "--bench",
+                "127.0.0.1:9",
+                "--key",
+            ])
+            .arg(&key)
+            .args(actuators)
+            .arg("--out")
+            .arg(out.path().join("study"))
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{actuators:?}: {e}");
+        assert!(
+            e.contains("--bench: on a bench the study runs one actuator")
+                && e.contains("--actuators sea")
+                && e.contains(given),
+            "{actuators:?}: {e}"
+        );
+        assert!(!out.path().join("study").exists(), "{actuators:?}");
+    }
+    // One actuator, named twice, is one actuator: refused next for the missing FMUs.
     let o = kneebench()
         .args([
             "study",
@@ -139,14 +175,12 @@ fn a_bench_study_without_its_key_or_its_actuator_is_refused() {
             "--key",
         ])
         .arg(&key)
-        .arg("--out")
+        .args(["--actuators", "sea,SEA", "--out"])
         .arg(out.path().join("study"))
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(1));
     let e = String::from_utf8_lossy(&o.stderr);
-    assert!(e.contains("one actuator"), "{e}");
-    assert!(!out.path().join("study").exists());
+    assert!(!e.contains("one actuator"), "{e}");
 }
 
 /// A study run that fails (here the torque loop's FMU refuses outputMin > outputMax when the

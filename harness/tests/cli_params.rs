@@ -113,8 +113,9 @@ fn a_run_with_a_parameter_set_names_it_in_its_results_and_a_refused_set_runs_not
 
     // Out of the declared range: refused with the file and line, the earlier results kept.
     std::fs::write(&set, HEAVY.replace("VALUE", "-1")).unwrap();
+    // A usage error (exit code 2), found before anything runs.
     let bad = run(&set);
-    assert_ne!(bad.status.code(), Some(0));
+    assert_eq!(bad.status.code(), Some(2));
     let e = String::from_utf8_lossy(&bad.stderr);
     assert!(e.contains("heavy.ssv:5:"), "{e}");
     assert!(e.contains("actuationInertia"), "{e}");

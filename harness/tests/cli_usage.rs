@@ -359,6 +359,233 @@ fn study_checks_param_names_and_values_against_the_fmus_before_running() {
     }
 }
 
+/// A parameter set's values the FMU would refuse (outside the declared `[min, max]`, none of
+/// a mode's items, NaN) are usage errors of every command that takes `--params` (exit code 2,
+/// naming the option, the file, the line and the bounds), before anything runs or is
+/// written: each exited with 1.
+#[test]
+fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let fmus_dir = fmus().to_str().unwrap();
+    let set = |name: &str, element: &str| {
+        let path = dir.path().join(format!("{name}.ssv"));
+        std::fs::write(
+            &path,
+            format!(
+                r#"<?xml version="1.0" encoding="UTF-8"?>
+<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" version="1.0" name="{name}">
+  <ssv:Parameters>
+    <ssv:Parameter name="actuationDamping"><ssv:Real value="10"/></ssv:Parameter>
+    {element}
+  </ssv:Parameters>
+</ssv:ParameterSet>
+"#
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let cases = [
+        (
+            set(
+                "range",
+                r#"<ssv:Parameter name="actuationInertia"><ssv:Real value="-1"/></ssv:Parameter>"#,
+            ),
+            "parameter 'actuationInertia': -1 is outside [0.001, 100]",
+        ),
+        (
+            set(
+                "item",
+                r#"<ssv:Parameter name="frictionModel"><ssv:Integer value="9"/></ssv:Parameter>"#,
+            ),
+            "parameter 'frictionModel': 9 is outside [0, 3]",
+        ),
+        (
+            set(
+                "nan",
+                r#"<ssv:Parameter name="actuationInertia"><ssv:Real value="NaN"/></ssv:Parameter>"#,
+            ),
+            "parameter 'actuationInertia': NaN is not finite",
+        ),
+    ];
+    let out = dir.path().join("out");
+    let out_csv = dir.path().join("out.csv");
+    for (path, problem) in &cases {
+        let file = path.to_str().unwrap();
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let needle = format!("--params {file}:5: {problem}");
+        for args in [
+            &[
+                "run",
+                plant.to_str().unwrap(),
+                "--stop-time",
+                "0.01",
+                "--output",
+                out_csv.to_str().unwrap(),
+            ][..],
+            &[
+                "study",
+                "--fmus",
+                fmus_dir,
+                "--cycles",
+                "1",
+                "--actuators",
+                "sea",
+                "--scenario",
+                "bench-full",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            &[
+                "experiment",
+                "step",
+                "--fmu",
+                plant.to_str().unwrap(),
+                "--duration",
+                "1",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            &[
+                "identify",
+                "missing-log.csv",
+                "--fmu",
+                plant.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        ] {
+            let o = kneebench()
+                .args(args)
+                .args(["--params", file])
+                .output()
+                .unwrap();
+            assert_usage(&format!("{name} {args:?}"), &o, &[&needle]);
+            assert!(!out.exists() && !out_csv.exists(), "{name} {args:?}");
+        }
+    }
+}
+
+/// `study --bench-param` values that `BenchHardware` would refuse (outside its `[min, max]`,
+/// NaN, none of a mode's items, no parameter of it) are usage errors before anything runs or
+/// is written: they failed the run (exit code 1) after the scenario and its results were
+/// written.
+#[test]
+fn bench_params_the_fmu_would_refuse_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus_dir = fmus().to_str().unwrap();
+    let out = dir.path().join("out");
+    let key = dir.path().join("bench.key");
+    for (param, needles) in [
+        (
+            "replyTimeout=-1",
+            &["--bench-param replyTimeout = '-1': -1 is outside [0.00001, 1]"][..],
+        ),
+        (
+            "replyTimeout=nan",
+            &["--bench-param replyTimeout = 'nan': NaN is not a finite number"],
+        ),
+        (
+            "pacing=7",
+            &["--bench-param pacing = '7': 7 is outside [0, 2]"],
+        ),
+        (
+            "backend=Serial",
+            &[
+                "--bench-param backend = 'Serial': 'Serial' is no item of Backend (0 = Simulated, 1 = Udp)",
+            ],
+        ),
+        (
+            "nope=1",
+            &[
+                "--bench-param 'nope' is not a parameter of BenchHardware",
+                "replyTimeout",
+            ],
+        ),
+    ] {
+        let o = kneebench()
+            .args([
+                "study",
+                "--fmus",
+                fmus_dir,
+                "--cycles",
+                "1",
+                "--actuators",
+                "sea",
+            ])
+            .args(["--bench", "127.0.0.1:9", "--key"])
+            .arg(&key)
+            .args(["--bench-param", param, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_usage(param, &o, needles);
+        assert!(!out.exists(), "{param}: wrote {}", out.display());
+    }
+}
+
+/// `emulate --param` names and values are checked against the plant FMU before the emulator
+/// starts or anything is written (here a new key file): a value the FMU refuses, a name that
+/// is no parameter, an item that is none of the mode's, each a usage error naming the
+/// parameter and the bounds or items. The FMU refused them as the emulator prepared its plant
+/// (exit code 1), and an item's name was not read at all; it now serves with one.
+#[test]
+fn emulate_checks_param_names_and_values_before_starting() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let key = dir.path().join("new.key");
+    let emulate = |param: &str, duration: &str| {
+        kneebench()
+            .args(["emulate", "--bind", "127.0.0.1:0", "--duration", duration])
+            .arg("--fmu")
+            .arg(&plant)
+            .arg("--new-key")
+            .arg(&key)
+            .args(["--param", param])
+            .output()
+            .unwrap()
+    };
+    for (param, needles) in [
+        (
+            "actuationInertia=-1",
+            &["--param actuationInertia = '-1': -1 is outside [0.001, 100]"][..],
+        ),
+        (
+            "actuationInertia=nan",
+            &["--param actuationInertia = 'nan': NaN is not a finite number"],
+        ),
+        (
+            "configuration=7",
+            &["--param configuration = '7': 7 is outside [0, 2]"],
+        ),
+        (
+            "frictionModel=Nope",
+            &["'Nope' is no item of FrictionModel", "3 = HdLossSurface"],
+        ),
+        (
+            "nope=1",
+            &[
+                "--param 'nope' is not a parameter of BenchPlant",
+                "actuationInertia",
+            ],
+        ),
+        (
+            "configuration",
+            &["--param 'configuration': expected NAME=VALUE"],
+        ),
+    ] {
+        let o = emulate(param, "5");
+        assert_usage(param, &o, needles);
+        assert!(!key.exists(), "{param}: wrote {}", key.display());
+    }
+    // A mode by its item's name: the emulator starts with it.
+    let o = emulate("frictionModel=HdLossSurface", "0.2");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{e}");
+    assert!(e.contains("serving the bench protocol"), "{e}");
+}
+
 /// Names that are no scenario, actuator, parameter or column, a missing log and an output of
 /// an unknown format are usage errors (exit code 2) with their message: each exited with 1.
 /// None needs the bench's FMUs (each is refused before they are read) but `--param`.

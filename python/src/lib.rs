@@ -189,18 +189,10 @@ fn load(path: &Path, options: &LoadOptions) -> Result<(System, RunConfig, bool),
                 .add_component(&name, fmu)
                 .map_err(|e| e.to_string())?;
             system.set_column_prefix(false);
-            let mut config = RunConfig::default();
-            if let Some(d) = &md.default_experiment {
-                if let Some(t) = d.start_time {
-                    config.start_time = t;
-                }
-                if let Some(t) = d.stop_time {
-                    config.stop_time = t;
-                }
-                if let Some(h) = d.step_size {
-                    config.step_size = h;
-                }
-            }
+            let config = match &md.default_experiment {
+                Some(d) => RunConfig::default().with_times(d.start_time, d.stop_time, d.step_size),
+                None => RunConfig::default(),
+            };
             Ok((system, config, true))
         }
         "ssp" | "ssd" => {

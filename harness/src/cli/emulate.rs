@@ -1,12 +1,14 @@
 //! `kneebench emulate`: serve the UDP bench protocol with the plant running in real time.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, bail};
 use kneebench_harness::bench_protocol::{FaultInjection, Key, LinkDirection};
 use kneebench_harness::emulator::{self, EmulatorConfig, EmulatorStats};
+use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
+use kneebench_harness::params::parameter_value;
 use model_description::num::Num;
 
 /// Arguments of `kneebench emulate`.
@@ -45,7 +47,8 @@ pub struct Args {
     /// The BenchPlant FMU (from `kneebench export`).
     #[arg(long, default_value = "BenchPlant.fmu")]
     pub fmu: PathBuf,
-    /// A plant parameter, NAME=VALUE (repeatable).
+    /// A plant parameter, NAME=VALUE (repeatable; a mode by its item's name), checked against
+    /// the FMU (name, finite value inside [min, max], item) before the emulator starts.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
     /// The bench key file (from `kneebench key new`; readable by its owner only).
@@ -202,6 +205,30 @@ fn duration(text: &str) -> Result<f64, String> {
         })
 }
 
+/// The `--param NAME=VALUE` arguments checked against the plant FMU's model description
+/// ([`parameter_value`]: a parameter of the FMU, a value of its type, finite, inside the
+/// declared `[min, max]`, one of the items), each refusal a usage error (exit code 2) naming
+/// the parameter and the bounds or items; the values as the emulator reads them (a mode given
+/// by its item's name as the item's value).
+fn checked_parameters(fmu: &Path, params: &[String]) -> anyhow::Result<Vec<(String, String)>> {
+    let pairs = params
+        .iter()
+        .map(|p| super::name_value(p))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    if pairs.is_empty() {
+        return Ok(pairs);
+    }
+    let (_dir, md) = extract_and_parse(fmu, &ArchiveLimits::default())
+        .with_context(|| format!("reading {}", fmu.display()))?;
+    pairs
+        .into_iter()
+        .map(|(name, text)| match parameter_value(&md, &name, &text) {
+            Ok(value) => Ok((name, value.to_text())),
+            Err(e) => Err(super::Usage(format!("--param {e}")).into()),
+        })
+        .collect()
+}
+
 /// What the emulator did, for its exit: one line per counter, `  name  value`, the frames
 /// rejected by the causes docs/bench-protocol.md section 5 names (it printed the statistics'
 /// Rust debug form).
@@ -352,9 +379,9 @@ fn summary(s: &EmulatorStats) -> String {
 /// Runs `kneebench emulate`.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let mut config = EmulatorConfig::new(args.bind.clone(), args.fmu.clone());
-    for p in &args.params {
-        config.parameters.push(super::name_value(p)?);
-    }
+    // Checked before anything starts or is written (a new key file): the FMU refused a value
+    // as the emulator prepared its first plant instance (exit code 1).
+    config.parameters = checked_parameters(&args.fmu, &args.params)?;
     // Checked by its parser too (a value set in code is checked here).
     if let Err(e) = heartbeat_timeout(&args.heartbeat_timeout.to_string()) {
         bail!("--heartbeat-timeout {}: {e}", args.heartbeat_timeout);

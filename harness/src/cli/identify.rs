@@ -4,14 +4,29 @@ use std::path::Path;
 
 use anyhow::Context;
 use kneebench_harness::load::{ArchiveLimits, extract_and_parse};
-use kneebench_harness::params::ParameterSet;
+use kneebench_harness::params::{ParameterSet, ParamsError};
 
-/// Reads the parameter set at `path` (if any) and checks it against the FMU at `fmu`.
+/// Reads the parameter set at `path` (if any) and checks it against the FMU at `fmu`; a set
+/// refused is a usage error ([`set_error`]).
 pub fn read_set_for(path: Option<&Path>, fmu: &Path) -> anyhow::Result<Option<ParameterSet>> {
     let Some(path) = path else { return Ok(None) };
     let (_dir, md) = extract_and_parse(fmu, &ArchiveLimits::default())
         .with_context(|| format!("reading {}", fmu.display()))?;
-    Ok(Some(ParameterSet::read_for(path, &md)?))
+    Ok(Some(ParameterSet::read_for(path, &md).map_err(set_error)?))
+}
+
+/// A `--params SET.ssv` refused as a usage error (exit code 2) naming the option, the file and
+/// the line: a file that cannot be read or is malformed, a value that is not finite, a name
+/// the FMU has no parameter for, a unit other than the declared one, a value outside the
+/// declared `[min, max]` or none of the items ([`ParameterSet::check`]). Other errors (the FMU
+/// or system it is applied to could not be read, [`ParamsError::Target`]) as they are.
+pub fn set_error(e: ParamsError) -> anyhow::Error {
+    match e {
+        e @ (ParamsError::Io { .. } | ParamsError::Syntax { .. } | ParamsError::Invalid { .. }) => {
+            super::Usage(format!("--params {e}")).into()
+        }
+        e => e.into(),
+    }
 }
 
 /// Appends "Parameter set: name vN (sha256 ...)" to a Markdown section.

@@ -322,7 +322,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             &a.system,
             single.then_some(first.as_str()),
             spec,
-        )?;
+        )
+        .map_err(super::identify::set_error)?;
         eprintln!("parameter set: {}", set.label());
         set_labels.push(set.label());
     }
@@ -550,15 +551,7 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
     system.set_column_prefix(false);
     let mut config = RunConfig::default();
     if let Some(d) = &md.default_experiment {
-        if let Some(t) = d.start_time {
-            config.start_time = t;
-        }
-        if let Some(t) = d.stop_time {
-            config.stop_time = t;
-        }
-        if let Some(h) = d.step_size {
-            config.step_size = h;
-        }
+        config = config.with_times(d.start_time, d.stop_time, d.step_size);
         config.tolerance = d.tolerance;
     }
     if let Some(path) = &a.inputs {

@@ -1,11 +1,12 @@
 //! `kneebench study`: the DA/SEA/CSEA gait study (the main job).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::Value;
+use kneebench_harness::params::ParamsError;
 use kneebench_harness::study::{
-    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario,
-    checked_overrides, plot_study, run_study, runs_markdown, write_report,
+    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario, checked_settings,
+    plot_study, run_study, runs_markdown, write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -34,7 +35,8 @@ last cycle) and report.md with the measured-vs-twin table.
 Exit code 3 when an interlock ended a run (the report names it); 1 when a run failed (an FMU's
 error: report.md says why, and has no results for that run); 2 for bad arguments: a --param
 that names no parameter of the scenario's FMUs, or whose value is not finite, outside the
-parameter's [min, max] or none of its items (checked before anything runs).")]
+parameter's [min, max] or none of its items, a --params set or --bench-param value refused
+the same way, --bench without one actuator named (checked before anything runs).")]
 pub struct Args {
     /// Directory of the exported FMUs (kneebench export).
     #[arg(long)]
@@ -80,7 +82,7 @@ pub struct Args {
 /// Reads `--param component.name=value`: an Integer, a Real or a Boolean by its text, any other
 /// text as a String (an item's name, e.g. `plant.frictionModel=HdLossSurface`). The value is
 /// checked against the scenario's FMUs, and converted to the variable's type, before anything
-/// runs ([`checked_overrides`]).
+/// runs ([`checked_settings`]).
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     let (name, value) = super::name_value(text)?;
     let value = value.as_str();
@@ -129,7 +131,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let parameter_set = a
         .parameter_set
         .as_deref()
-        .map(kneebench_harness::params::ParameterSet::read_file)
+        .map(|path| {
+            kneebench_harness::params::ParameterSet::read_file(path)
+                .map_err(super::identify::set_error)
+        })
         .transpose()?;
     let bench = match (&a.bench, &a.key) {
         (Some(address), Some(key)) => Some(BenchLink {
@@ -179,11 +184,19 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             bench: bench.clone(),
         })
         .collect();
-    // Every scenario's --param values are checked before the first run (a later scenario's
-    // were found only after the earlier ones had run).
+    // Every scenario's settings (one actuator on a bench, the --params set, the --param and
+    // --bench-param values) are checked before the first run (a later scenario's were found
+    // only after the earlier ones had run; a bench study of several actuators, a set's values
+    // only as its first run began, a --bench-param's when the bench refused it).
     for config in &configs {
-        checked_overrides(config).map_err(|e| match e {
+        checked_settings(config).map_err(|e| match e {
+            StudyError::BenchActuators { .. } => super::Usage(format!("--bench: {e}")).into(),
             StudyError::Parameter(m) => super::Usage(format!("--param {m}")).into(),
+            StudyError::ParameterSet(ParamsError::Invalid { line, problem, .. }) => {
+                let file = a.parameter_set.as_deref().unwrap_or(Path::new("SET.ssv"));
+                super::Usage(format!("--params {}:{line}: {problem}", file.display())).into()
+            }
+            StudyError::BenchParameter(m) => super::Usage(format!("--bench-param {m}")).into(),
             e => anyhow::Error::from(e),
         })?;
     }

@@ -152,6 +152,17 @@ impl Value {
         }
     }
 
+    /// The value as text that [`Value::parse`] reads back to it (`--param NAME=VALUE` form;
+    /// Reals exact, shortest round trip).
+    pub fn to_text(&self) -> String {
+        match self {
+            Value::Real(v) => format!("{v:?}"),
+            Value::Integer(v) => v.to_string(),
+            Value::Boolean(v) => v.to_string(),
+            Value::String(v) => v.clone(),
+        }
+    }
+
     fn ty(&self) -> VarType {
         match self {
             Value::Real(_) => VarType::Real,
@@ -220,6 +231,29 @@ impl Default for RunConfig {
             control: None,
             allow_nonfinite: false,
         }
+    }
+}
+
+impl RunConfig {
+    /// This configuration with the times of a default experiment (an FMU's or an SSP's
+    /// `DefaultExperiment`): each of `start_time`, `stop_time` and `step_size` that is given
+    /// replaces this configuration's, the others are kept.
+    pub fn with_times(
+        mut self,
+        start_time: Option<f64>,
+        stop_time: Option<f64>,
+        step_size: Option<f64>,
+    ) -> RunConfig {
+        if let Some(t) = start_time {
+            self.start_time = t;
+        }
+        if let Some(t) = stop_time {
+            self.stop_time = t;
+        }
+        if let Some(h) = step_size {
+            self.step_size = h;
+        }
+        self
     }
 }
 

@@ -471,3 +471,55 @@ fn a_sample_one_ulp_after_the_grid_time_counts_as_at_it() {
         assert_eq!(s.at(0.001), if interpolate { 1.0 } else { 0.0 });
     }
 }
+
+/// `RunConfig::with_times` (the one copy of a default experiment's times, an FMU's or an
+/// SSP's): each time given replaces the configuration's, the others and every other setting
+/// are kept.
+#[test]
+fn a_default_experiment_replaces_only_the_times_it_gives() {
+    use super::{Algorithm, RunConfig};
+    let base = RunConfig {
+        algorithm: Algorithm::Jacobi,
+        tolerance: Some(1e-6),
+        ..RunConfig::default()
+    };
+    let c = base.clone().with_times(Some(-1.0), None, Some(0.25));
+    assert_eq!(
+        (c.start_time, c.stop_time, c.step_size),
+        (-1.0, base.stop_time, 0.25)
+    );
+    assert_eq!((c.algorithm, c.tolerance), (Algorithm::Jacobi, Some(1e-6)));
+    let c = base.clone().with_times(None, Some(5.0), None);
+    assert_eq!(
+        (c.start_time, c.stop_time, c.step_size),
+        (base.start_time, 5.0, base.step_size)
+    );
+    let c = base.clone().with_times(None, None, None);
+    assert_eq!(
+        (c.start_time, c.stop_time, c.step_size),
+        (base.start_time, base.stop_time, base.step_size)
+    );
+}
+
+/// `Value::to_text` reads back as the same value (`Value::parse`): Reals exactly.
+#[test]
+fn a_value_as_text_reads_back_as_itself() {
+    use super::Value;
+    for v in [
+        Value::Real(0.1 + 0.2),
+        Value::Real(-1e-300),
+        Value::Real(1e5),
+        Value::Integer(-7),
+        Value::Boolean(true),
+        Value::Boolean(false),
+        Value::String(" a b ".into()),
+    ] {
+        let ty = match v {
+            Value::Real(_) => VarType::Real,
+            Value::Integer(_) => VarType::Integer,
+            Value::Boolean(_) => VarType::Boolean,
+            Value::String(_) => VarType::String,
+        };
+        assert_eq!(Value::parse(ty, &v.to_text()), Some(v.clone()), "{v:?}");
+    }
+}

@@ -766,15 +766,7 @@ pub fn load_system_replacing(
     }
     let mut config = RunConfig::default();
     if let Some(d) = &ssd.default_experiment {
-        if let Some(t) = d.start_time {
-            config.start_time = t;
-        }
-        if let Some(t) = d.stop_time {
-            config.stop_time = t;
-        }
-        if let Some(h) = d.step_size {
-            config.step_size = h;
-        }
+        config = config.with_times(d.start_time, d.stop_time, d.step_size);
         if let Some(a) = d.algorithm {
             config.algorithm = a;
         }

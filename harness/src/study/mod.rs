@@ -115,11 +115,13 @@
 
 mod analysis;
 mod bench;
+mod checks;
 mod report;
 mod scenario;
 
 pub use analysis::*;
 pub use bench::*;
+pub use checks::*;
 pub use report::*;
 pub use scenario::*;
 
@@ -157,6 +159,22 @@ pub enum StudyError {
     /// A parameter override names no parameter of the scenario.
     #[error("parameter override {0}")]
     Parameter(String),
+    /// A study on a bench names no single actuator ([`StudyConfig::bench`]).
+    #[error(
+        "on a bench the study runs one actuator (the one the bench is built as): name it, e.g. --actuators sea (given: {given})"
+    )]
+    BenchActuators {
+        /// The actuators given (`all` when none was named).
+        given: String,
+    },
+    /// The plant's parameter set ([`StudyConfig::parameter_set`]) is refused by the plant FMU
+    /// (a name it has no parameter for, a unit, a value outside the declared `[min, max]`).
+    #[error("{0}")]
+    ParameterSet(crate::params::ParamsError),
+    /// A parameter of `BenchHardware` ([`BenchLink::parameters`]) that the FMU has not, or a
+    /// value it refuses.
+    #[error("bench parameter {0}")]
+    BenchParameter(String),
     /// Plotting failed.
     #[error(transparent)]
     Results(#[from] crate::results::ResultsError),
@@ -319,94 +337,12 @@ fn apply_overrides(
     Ok(())
 }
 
-/// The text of `value` as `--param` would give it (Reals exact).
-fn value_text(value: &Value) -> String {
-    match value {
-        Value::Real(v) => format!("{v:?}"),
-        Value::Integer(v) => v.to_string(),
-        Value::Boolean(v) => v.to_string(),
-        Value::String(v) => v.clone(),
-    }
-}
-
-/// The overrides of `config` ([`StudyConfig::overrides`]) checked against the scenario's FMUs
-/// before anything runs, each value converted to its variable's declared type (an Integer
-/// given for a Real, an item's name as `Value::String` for a mode): every reference must be
-/// `component.name` of a component in every run the study makes (each selected actuator's
-/// scenario), the name a parameter of the component's FMU and the value finite, inside the
-/// declared `[min, max]` and one of the named items ([`crate::params::parameter_value`]). A
-/// refusal is a [`StudyError::Parameter`] naming the reference, and the bounds or items.
-pub fn checked_overrides(config: &StudyConfig) -> Result<Vec<(String, Value)>, StudyError> {
-    if config.overrides.is_empty() {
-        return Ok(Vec::new());
-    }
-    let gait = config.scenario.gait();
-    let scenarios: Vec<Scenario> = config
-        .scenario
-        .actuators()
-        .iter()
-        .filter(|a| config.actuators.is_empty() || config.actuators.contains(a))
-        .map(|&a| {
-            let gains = config.gains.unwrap_or_else(|| config.scenario.gains(a));
-            gait_scenario(a, gait, gains, 1)
-        })
-        .collect();
-    let mut descriptions: Vec<(String, model_description::ModelDescription)> = Vec::new();
-    let mut checked = Vec::new();
-    for (reference, value) in &config.overrides {
-        let bad = |problem: String| StudyError::Parameter(format!("'{reference}': {problem}"));
-        let (component, name) = reference
-            .split_once('.')
-            .ok_or_else(|| bad("not component.name (e.g. plant.actuationDamping)".into()))?;
-        let mut typed = None;
-        for scenario in &scenarios {
-            let Some(c) = scenario.components.iter().find(|c| c.name == component) else {
-                return Err(bad(format!(
-                    "the {} run of {} has no component '{component}' (its components: {})",
-                    scenario.name,
-                    config.scenario.name(),
-                    scenario
-                        .components
-                        .iter()
-                        .map(|c| c.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )));
-            };
-            let md = match descriptions.iter().position(|(f, _)| *f == c.fmu) {
-                Some(i) => &descriptions[i].1,
-                None => {
-                    let path = config.fmu_dir.join(&c.fmu);
-                    let (_dir, md) = crate::load::extract_and_parse(
-                        &path,
-                        &crate::load::ArchiveLimits::default(),
-                    )
-                    .map_err(|e| StudyError::Fmu {
-                        path: path.clone(),
-                        message: e.to_string(),
-                    })?;
-                    descriptions.push((c.fmu.clone(), md));
-                    &descriptions[descriptions.len() - 1].1
-                }
-            };
-            let v =
-                crate::params::parameter_value(md, name, &value_text(value)).map_err(
-                    |e| match e {
-                        crate::params::ParameterError::BadValue { problem, .. } => bad(problem),
-                        not_a_parameter => bad(not_a_parameter.to_string()),
-                    },
-                )?;
-            typed.get_or_insert(v);
-        }
-        if let Some(v) = typed {
-            checked.push((reference.clone(), v));
-        }
-    }
-    Ok(checked)
-}
-
 /// The component of the scenarios that a `--params` set applies to.
 const PLANT: &str = "plant";
+/// The FMU of [`PLANT`], which a `--params` set is checked against.
+const PLANT_FMU: &str = "BenchPlant.fmu";
+/// The bench's FMU, which replaces [`PLANT`] in a study on a bench.
+const HARDWARE_FMU: &str = "BenchHardware.fmu";
 
 /// Loads the scenario's SSP with its `plant` replaced by `BenchHardware` pointed at `link`.
 fn on_the_bench(
@@ -414,7 +350,7 @@ fn on_the_bench(
     fmu_dir: &Path,
     link: &BenchLink,
 ) -> Result<ssp::LoadedSystem, StudyError> {
-    let hardware = fmu_dir.join("BenchHardware.fmu");
+    let hardware = fmu_dir.join(HARDWARE_FMU);
     let mut loaded = ssp::load_system_replacing(
         path,
         &crate::load::LoadOptions::default(),
@@ -435,7 +371,7 @@ fn on_the_bench(
         loaded
             .system
             .set_value_str(&format!("{PLANT}.{name}"), value)
-            .map_err(|e| StudyError::Parameter(format!("bench parameter {name} = {value}: {e}")))?;
+            .map_err(|e| StudyError::BenchParameter(format!("{name} = {value}: {e}")))?;
     }
     Ok(loaded)
 }
@@ -455,35 +391,8 @@ pub fn run_study_with(
     config: &StudyConfig,
     control: Option<&crate::master::RunControl>,
 ) -> Result<Vec<StudyRun>, StudyError> {
-    if config.bench.is_some() && config.actuators.len() != 1 {
-        return Err(StudyError::Parameter(format!(
-            "on a bench the study runs one actuator (the one the bench is built as): name it, e.g. --actuators sea (given: {})",
-            if config.actuators.is_empty() {
-                "all".to_string()
-            } else {
-                config
-                    .actuators
-                    .iter()
-                    .map(|a| a.name())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            }
-        )));
-    }
-    if let Some(set) = &config.parameter_set {
-        let fmu = config.fmu_dir.join("BenchPlant.fmu");
-        let (_dir, md) =
-            crate::load::extract_and_parse(&fmu, &crate::load::ArchiveLimits::default()).map_err(
-                |e| StudyError::Fmu {
-                    path: fmu.clone(),
-                    message: e.to_string(),
-                },
-            )?;
-        set.check(&md, &format!("parameter set '{}'", set.name))
-            .map_err(|e| StudyError::Parameter(e.to_string()))?;
-    }
     // Checked before anything is written or run (a bad value failed every run at t = 0).
-    let overrides = checked_overrides(config)?;
+    let overrides = checked_settings(config)?;
     let scenarios = config.out_dir.join("scenarios");
     std::fs::create_dir_all(&scenarios).map_err(|e| StudyError::Fmu {
         path: scenarios.clone(),
