@@ -18,8 +18,8 @@ use super::bench::{
     StepOutcome as PlantOutcome, signal_group,
 };
 use crate::model::{
-    EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter, StepOutcome,
-    Variable,
+    Access, EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter,
+    StepOutcome, Variable,
 };
 use crate::registry::ReferenceInputs;
 
@@ -734,7 +734,56 @@ impl BenchSignals for BenchPlantModel {
     }
 }
 
+/// The outputs' first time derivatives seen through the bench's signal interface: the same
+/// variable table ([`io_variables`]) instantiated for this view reads, through each output's
+/// own field, its derivative instead of its value. Value and derivative of an output thus share
+/// its one declaration (name, value reference, field); no second table maps value references
+/// to derivatives.
+#[derive(Debug, Default)]
+struct OutputRates {
+    /// Unused (the view has no inputs); required by [`BenchSignals`].
+    commands: BenchCommands,
+    /// The derivatives ([`super::bench::BenchPlant::output_derivatives`]).
+    rates: BenchOutputs,
+}
+
+impl BenchSignals for OutputRates {
+    fn commands(&self) -> &BenchCommands {
+        &self.commands
+    }
+    fn commands_mut(&mut self) -> &mut BenchCommands {
+        &mut self.commands
+    }
+    fn signals_mut(&mut self) -> &mut BenchOutputs {
+        &mut self.rates
+    }
+    fn read_signal<T>(&self, _group: SignalGroup, read: fn(&BenchOutputs) -> T) -> T {
+        read(&self.rates)
+    }
+}
+
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static RATE_READERS: Lazy<Vec<Variable<OutputRates>>> =
+    unsafe { Lazy::new(io_variables::<OutputRates>) };
+
 impl BenchPlantModel {
+    /// The first time derivative of the Real output `value_reference` at the communication
+    /// point (`None` for any other variable, or before the plant exists): read by the output's
+    /// own getter from [`super::bench::BenchPlant::output_derivatives`].
+    fn rate_of(&self, value_reference: u32) -> Option<f64> {
+        let variable = RATE_READERS.iter().find(|v| {
+            v.value_reference == value_reference && v.causality == crate::model::Causality::Output
+        })?;
+        let Access::Real(get, _) = variable.access else {
+            return None;
+        };
+        let rates = self.plant.as_ref()?.output_derivatives();
+        Some(get(&OutputRates {
+            commands: BenchCommands::default(),
+            rates,
+        }))
+    }
+
     /// Computes the outputs of `group` (once per group and step: out of line, so that a read
     /// of a fresh group, every other read, is a bit test and a load without a stack frame).
     #[cold]
@@ -1167,34 +1216,13 @@ impl Model for BenchPlantModel {
         }
     }
 
+    /// Every Real output has a first derivative, read through its own variable declaration
+    /// from [`BenchPlant::output_derivatives`](super::bench::BenchPlant::output_derivatives).
     fn output_derivative(&self, value_reference: u32, order: u32) -> Option<f64> {
         if order != 1 {
             return None;
         }
-        let d = self.plant.as_ref()?.output_derivatives();
-        Some(match value_reference {
-            300 => d.actuation_angle,
-            301 => d.load_angle,
-            302 => d.actuation_velocity,
-            303 => d.load_velocity,
-            304 => d.actuation_acceleration,
-            305 => d.load_acceleration,
-            306 => d.spring_deflection,
-            307 => d.spring_torque,
-            308 => d.test_motor_current,
-            309 => d.load_motor_current,
-            314 => d.test_output_torque,
-            315 => d.load_output_torque,
-            322 => d.load_cell_voltage,
-            323 => d.load_cell_torque,
-            324 => d.transducer_voltage,
-            325 => d.transducer_torque,
-            348 => d.kinetic_energy,
-            349 => d.potential_energy,
-            350 => d.test_mechanical_energy,
-            352 => d.load_mechanical_energy,
-            _ => return None,
-        })
+        self.rate_of(value_reference)
     }
 
     fn save_internal(&self, w: &mut StateWriter) {
@@ -1327,3 +1355,6 @@ mod lazy_output_tests {
         assert_eq!(after, m.plant.as_ref().unwrap().outputs().actuation_angle);
     }
 }
+
+#[cfg(test)]
+mod derivative_tests;

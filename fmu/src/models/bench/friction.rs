@@ -33,6 +33,11 @@ impl StribeckLaw {
     pub(crate) fn magnitude(&self, speed: f64) -> f64 {
         self.a0 + self.a1 * (-self.b1 * speed).exp() + self.a2 * (1.0 - (-self.b2 * speed).exp())
     }
+
+    /// `d magnitude / d speed` at speed magnitude `speed` [N m s/rad].
+    pub(crate) fn slope(&self, speed: f64) -> f64 {
+        -self.a1 * self.b1 * (-self.b1 * speed).exp() + self.a2 * self.b2 * (-self.b2 * speed).exp()
+    }
 }
 
 /// Friction of one side as configured, evaluated at the start of a segment.
@@ -97,6 +102,38 @@ impl SideLaw {
             SideLaw::Surface { load_torque } => hd_loss::clamped_torque(
                 load_torque,
                 speed,
+                direction,
+                params.hd_surface_max_speed,
+                (
+                    params.hd_surface_min_load_torque,
+                    params.hd_surface_max_load_torque,
+                ),
+                params.hd_loss_coefficients(direction),
+            ),
+        }
+    }
+
+    /// Time derivative of [`Self::sliding_torque`] while the body keeps sliding in `direction`:
+    /// `speed_rate` is `d|w|/dt`, `load_torque_rate` the rate of the load torque the loss
+    /// surface reads. Coulomb friction (and none) is constant while sliding: 0; the exponential
+    /// law and the loss surface by the chain rule (a surface argument clamped to the tested box
+    /// is constant there).
+    pub(crate) fn sliding_torque_rate(
+        &self,
+        params: &BenchParameters,
+        direction: f64,
+        speed: f64,
+        speed_rate: f64,
+        load_torque_rate: f64,
+    ) -> f64 {
+        match *self {
+            SideLaw::None | SideLaw::Coulomb(_) => 0.0,
+            SideLaw::Stribeck(law) => -direction * law.slope(speed) * speed_rate,
+            SideLaw::Surface { load_torque } => hd_loss::clamped_torque_rate(
+                load_torque,
+                load_torque_rate,
+                speed,
+                speed_rate,
                 direction,
                 params.hd_surface_max_speed,
                 (

@@ -74,6 +74,59 @@ pub(crate) fn polynomial(x: f64, y: f64, coefficients: &[f64; 21]) -> f64 {
         .sum()
 }
 
+/// Gradient `(d/dx, d/dy)` of [`polynomial`] at `(x, y)` (the output derivative of the
+/// actuation-side friction torque under the loss surface: the chain rule through the load
+/// torque `x` and the speed `y`).
+pub(crate) fn polynomial_gradient(x: f64, y: f64, coefficients: &[f64; 21]) -> (f64, f64) {
+    let mut x_powers = [1.0; 6];
+    let mut y_powers = [1.0; 6];
+    for n in 1..6 {
+        x_powers[n] = x_powers[n - 1] * x;
+        y_powers[n] = y_powers[n - 1] * y;
+    }
+    let (mut dx, mut dy) = (0.0, 0.0);
+    for (&(i, j), p) in TERM_EXPONENTS.iter().zip(coefficients.iter()) {
+        let (i, j) = (i as usize, j as usize);
+        if i > 0 {
+            dx += p * i as f64 * x_powers[i - 1] * y_powers[j];
+        }
+        if j > 0 {
+            dy += p * j as f64 * x_powers[i] * y_powers[j - 1];
+        }
+    }
+    (dx, dy)
+}
+
+/// Time derivative of [`clamped_torque`] for a load torque changing at `load_torque_rate` and a
+/// speed magnitude changing at `speed_rate`: the gradient inside the tested box; an argument
+/// clamped to the box's edge is constant there, so it contributes nothing.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn clamped_torque_rate(
+    load_torque: f64,
+    load_torque_rate: f64,
+    speed: f64,
+    speed_rate: f64,
+    direction: f64,
+    max_speed: f64,
+    load_torque_range: (f64, f64),
+    coefficients: &[f64; 21],
+) -> f64 {
+    let x = load_torque.clamp(load_torque_range.0, load_torque_range.1);
+    let magnitude = speed.min(max_speed);
+    let (dx, dy) = polynomial_gradient(x, direction * magnitude, coefficients);
+    let x_rate = if x == load_torque {
+        load_torque_rate
+    } else {
+        0.0
+    };
+    let y_rate = if magnitude == speed {
+        direction * speed_rate
+    } else {
+        0.0
+    };
+    dx * x_rate + dy * y_rate
+}
+
 /// Loss-surface torque for motion in `direction` (+1/-1) at speed magnitude `speed` >= 0 and
 /// load torque `load_torque`, clamped to the tested box, with the coefficients of that direction
 /// (`coefficients`). Returns the torque and whether clamping was needed.

@@ -302,6 +302,7 @@
 //!   distinguish from an exact `V = a + b T / (m g Lg)` by more than that bias (-0.048 N m on
 //!   the transducer, +0.090 N m on the load cell).
 
+mod derivatives;
 mod friction;
 mod hd_loss;
 mod mechanics;
@@ -314,7 +315,8 @@ mod state;
 #[cfg(test)]
 mod tests;
 
-pub use self::outputs::{BenchOutputDerivatives, BenchOutputs, SignalGroup, signal_group};
+pub use self::derivatives::BenchOutputDerivatives;
+pub use self::outputs::{BenchOutputs, SignalGroup, signal_group};
 pub use self::params::{BenchParameters, ParameterError};
 pub use self::plant::BenchPlant;
 pub use self::state::StateError;

@@ -1,4 +1,4 @@
-//! Output values and their first derivatives.
+//! Output values (their first time derivatives are in the sibling module `derivatives`).
 
 use super::mechanics::{CURRENT1, CURRENT2, OMEGA1, OMEGA2, THETA1, THETA2};
 use super::{BenchPlant, sensors};
@@ -159,60 +159,6 @@ pub struct BenchOutputs {
     pub hd_surface_clamped: bool,
     /// Trip status: 0 running, else [`super::Interlock::code`].
     pub trip_code: i32,
-}
-
-/// First time derivatives of the continuous outputs of [`BenchOutputs`] (same names). Values
-/// that are piecewise constant or quantised (encoders, flags) have no entry here.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct BenchOutputDerivatives {
-    /// d theta1/dt [rad/s].
-    pub actuation_angle: f64,
-    /// d theta2/dt [rad/s].
-    pub load_angle: f64,
-    /// d omega1/dt [rad/s^2].
-    pub actuation_velocity: f64,
-    /// d omega2/dt [rad/s^2].
-    pub load_velocity: f64,
-    /// Jerk of the actuation side [rad/s^3].
-    pub actuation_acceleration: f64,
-    /// Jerk of the load side [rad/s^3].
-    pub load_acceleration: f64,
-    /// d(theta1 - theta2)/dt [rad/s].
-    pub spring_deflection: f64,
-    /// d(spring torque)/dt [N m/s].
-    pub spring_torque: f64,
-    /// di1/dt [A/s].
-    pub test_motor_current: f64,
-    /// di2/dt [A/s].
-    pub load_motor_current: f64,
-    /// d(test output torque)/dt [N m/s].
-    pub test_output_torque: f64,
-    /// d(load output torque)/dt [N m/s].
-    pub load_output_torque: f64,
-    /// d(load-cell voltage)/dt [V/s].
-    pub load_cell_voltage: f64,
-    /// d(load-cell torque)/dt [N m/s].
-    pub load_cell_torque: f64,
-    /// d(transducer voltage)/dt [V/s].
-    pub transducer_voltage: f64,
-    /// d(transducer torque)/dt [N m/s].
-    pub transducer_torque: f64,
-    /// dE_k/dt \[W\].
-    pub kinetic_energy: f64,
-    /// dE_p/dt \[W\].
-    pub potential_energy: f64,
-    /// Test mechanical energy rate = P_test \[W\].
-    pub test_mechanical_energy: f64,
-    /// Load mechanical energy rate = P_load \[W\].
-    pub load_mechanical_energy: f64,
-    /// Loss energy rate = P_HD \[W\].
-    pub loss_energy: f64,
-    /// Test electrical energy rate \[W\].
-    pub test_electrical_energy: f64,
-    /// Load electrical energy rate \[W\].
-    pub load_electrical_energy: f64,
-    /// Total electrical energy rate \[W\].
-    pub total_electrical_energy: f64,
 }
 
 /// The parts in which the plant computes its outputs on demand: an importer that reads a few
@@ -515,49 +461,5 @@ impl BenchPlant {
         o.load_electrical_power = powers[3];
         o.load_regenerated_power = (-powers[3]).max(0.0);
         o.total_electrical_power = powers[4];
-    }
-
-    /// First derivatives of the continuous outputs at the current time (inputs of the last step
-    /// held, the current mode of stick/slip and saturation).
-    pub fn output_derivatives(&self) -> BenchOutputDerivatives {
-        let p = &self.params;
-        let held = self.held_for_outputs();
-        let (z, rate) = self.rates(&held);
-        let jerk = self.apply_matrix(&held, &rate);
-        let k = p.coupling_stiffness();
-        let tpa = self.output_torque_per_ampere();
-        let powers = self.powers_at(&held, &z);
-        let out = self.outputs();
-        let moment = p.calibration_pendulum_moment;
-        let spring_rate = k * (rate[THETA1] - rate[THETA2]);
-        let test_torque_rate = tpa[0] * rate[CURRENT1];
-        let cell_gain = p.load_cell_gain * p.load_cell_phase.cos() / moment;
-        let transducer_gain = p.transducer_gain * p.transducer_phase.cos() / moment;
-        BenchOutputDerivatives {
-            actuation_angle: rate[THETA1],
-            load_angle: rate[THETA2],
-            actuation_velocity: rate[OMEGA1],
-            load_velocity: rate[OMEGA2],
-            actuation_acceleration: jerk[OMEGA1],
-            load_acceleration: jerk[OMEGA2],
-            spring_deflection: rate[THETA1] - rate[THETA2],
-            spring_torque: spring_rate,
-            test_motor_current: rate[CURRENT1],
-            load_motor_current: rate[CURRENT2],
-            test_output_torque: test_torque_rate,
-            load_output_torque: tpa[1] * rate[CURRENT2],
-            load_cell_voltage: cell_gain * test_torque_rate,
-            load_cell_torque: moment / p.load_cell_gain * cell_gain * test_torque_rate,
-            transducer_voltage: transducer_gain * spring_rate,
-            transducer_torque: moment / p.transducer_gain * transducer_gain * spring_rate,
-            kinetic_energy: out.kinetic_energy_rate,
-            potential_energy: out.potential_energy_rate,
-            test_mechanical_energy: powers[0],
-            load_mechanical_energy: powers[1],
-            loss_energy: out.loss_power,
-            test_electrical_energy: powers[2],
-            load_electrical_energy: powers[3],
-            total_electrical_energy: powers[4],
-        }
     }
 }

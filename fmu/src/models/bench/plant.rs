@@ -744,4 +744,16 @@ impl BenchPlant {
     pub(crate) fn output_torque_per_ampere(&self) -> [f64; 2] {
         self.torque_per_ampere()
     }
+
+    /// Armature voltage of motor `n` as `a i + b w + c` for the held mode (`a = b = 0` on a
+    /// voltage row: the held drive, a saturated loop's supply included).
+    pub(crate) fn voltage_law_at(&self, held: &Held, n: usize) -> (f64, f64, f64) {
+        self.voltage_law(held, n)
+    }
+
+    /// Resistance `R` and output-side back-emf constant `Ke G` of motor `n`.
+    pub(crate) fn resistance_and_back_emf(&self, n: usize) -> (f64, f64) {
+        let (r, _, ke, _, _) = self.motor(n);
+        (r, ke)
+    }
 }
