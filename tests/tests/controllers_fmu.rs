@@ -185,7 +185,7 @@ fn pid_ki_change_mid_run_is_bumpless() {
 }
 
 #[test]
-fn pid_steps_that_nest_with_the_sample_period_are_accepted_others_refused() {
+fn pid_accepts_any_step_and_holds_the_output_between_instants() {
     let f = Raw::load(&fmu_library());
     let mut i = pid_instance(&f, &[(pid::KP, 1.0), (pid::KI, 0.0), (pid::KD, 0.0)], 1);
     // Feedthrough at a sample instant: u follows the setpoint just set.
@@ -207,13 +207,152 @@ fn pid_steps_that_nest_with_the_sample_period_are_accepted_others_refused() {
     );
     // A variable step of whole periods.
     assert_eq!(i.step(1e-3, 4e-3), fmi2OK);
-    // 1.5 periods from an instant: refused with the rule in the log.
-    assert_eq!(i.step(5e-3, 1.5e-3), fmi2Error);
-    let log = i.log_text();
-    assert!(
-        log.contains("does not fit the sample period Ts = 0.001"),
-        "{log}"
+    // 1.5 periods from an instant: the samples at 5 and 6 ms from the inputs of 5 ms, the
+    // output of the one at 6 ms held at 6.5 ms.
+    assert_eq!(set_reals(&i, &[pid::SETPOINT], &[4.0]), fmi2OK);
+    assert_eq!(i.step(5e-3, 1.5e-3), fmi2OK, "{}", i.log_text());
+    assert_eq!(set_reals(&i, &[pid::SETPOINT], &[5.0]), fmi2OK);
+    assert_eq!(i.reals(&[pid::U])[0], 4.0, "held at 6.5 ms");
+    // From between two instants across the next one (7 ms), ending between two again.
+    assert_eq!(i.step(6.5e-3, 1e-3), fmi2OK, "{}", i.log_text());
+    assert_eq!(
+        i.reals(&[pid::U])[0],
+        5.0,
+        "the sample at 7 ms, held at 7.5 ms"
     );
+    assert_eq!(i.step(7.5e-3, 0.5e-3), fmi2OK);
+    assert_eq!(set_reals(&i, &[pid::SETPOINT], &[6.0]), fmi2OK);
+    assert_eq!(i.reals(&[pid::U])[0], 6.0, "feedthrough at 8 ms");
+}
+
+/// Value references of a model's variables of one causality, by base type.
+struct Variables {
+    /// Real variables with their bounds (min, max).
+    reals: Vec<(u32, Option<f64>, Option<f64>)>,
+    /// Integer and Enumeration variables.
+    integers: Vec<u32>,
+    /// Boolean variables.
+    booleans: Vec<u32>,
+}
+
+/// `identifier`'s variables of this causality.
+fn variables_of(identifier: &str, causality: model_description::Causality) -> Variables {
+    use model_description::VariableKind as K;
+    let mut out = Variables {
+        reals: Vec::new(),
+        integers: Vec::new(),
+        booleans: Vec::new(),
+    };
+    let info = kneebench_fmu::registry::find_by_identifier(identifier)
+        .expect("model exists")
+        .info();
+    for v in &info.description.model_variables {
+        if v.causality != Some(causality) {
+            continue;
+        }
+        match &v.kind {
+            K::Real { attributes, .. } => {
+                out.reals
+                    .push((v.value_reference, attributes.min, attributes.max))
+            }
+            K::Integer { .. } | K::Enumeration { .. } => out.integers.push(v.value_reference),
+            K::Boolean { .. } => out.booleans.push(v.value_reference),
+            K::String { .. } => panic!("{identifier}: a String {causality:?}"),
+        }
+    }
+    out
+}
+
+/// Every output of `i` (Real, Integer, Boolean) as bits.
+fn output_bits(i: &mut RawInstance, outputs: &Variables) -> Vec<u64> {
+    let vrs: Vec<u32> = outputs.reals.iter().map(|v| v.0).collect();
+    let mut bits: Vec<u64> = i.reals(&vrs).iter().map(|x| x.to_bits()).collect();
+    let mut ints = vec![0; outputs.integers.len()];
+    // SAFETY: valid component and arrays of equal length.
+    let s = unsafe {
+        (i.f.get_integer)(
+            i.c,
+            outputs.integers.as_ptr(),
+            ints.len(),
+            ints.as_mut_ptr(),
+        )
+    };
+    assert_eq!(s, fmi2OK, "{}", i.log_text());
+    bits.extend(ints.iter().map(|&n| n as u64));
+    bits.extend(booleans(i, &outputs.booleans).into_iter().map(u64::from));
+    bits
+}
+
+/// Each controller stepped by 1.5 ms (crossing sample instants, every other step ending between
+/// two) gives, at every communication point, bit for bit the outputs of an instance stepped by
+/// 0.5 ms whose inputs are held over the same 1.5 ms intervals: the same samples from the same
+/// inputs (FMI 2.0's inputs are constant over a step). Checked after the inputs are set (at
+/// 0, 3, 6 ms, ... the fresh sample from them) and after each step.
+#[test]
+fn steps_off_the_grid_equal_half_period_steps_with_the_same_held_inputs() {
+    use model_description::Causality;
+    const STEP: f64 = 1.5e-3;
+    const SUB: f64 = 0.5e-3;
+    let f = Raw::load(&fmu_library());
+    for model in ["PidController", "ImpedanceController", "ClutchScheduler"] {
+        let inputs = variables_of(model, Causality::Input);
+        let outputs = variables_of(model, Causality::Output);
+        assert!(
+            inputs.integers.is_empty(),
+            "{model}: Integer inputs are not driven here"
+        );
+        let make = |name: &str| {
+            let mut i = RawInstance::new(&f, name, &guid_of(model));
+            assert!(!i.c.is_null(), "{}", i.log_text());
+            i.initialize(0.0, None);
+            i
+        };
+        let (mut a, mut b) = (make("long"), make("short"));
+        let mut changes = 0;
+        let mut previous = Vec::new();
+        for k in 0..300 {
+            let t = k as f64 * STEP;
+            // The inputs of the interval [t, t + 1.5 ms), inside their bounds.
+            let (vrs, values): (Vec<u32>, Vec<f64>) = inputs
+                .reals
+                .iter()
+                .enumerate()
+                .map(|(j, &(vr, min, max))| {
+                    let s = (0.37 * k as f64 + 1.3 * j as f64).sin();
+                    let v = match (min, max) {
+                        (Some(lo), Some(hi)) => lo + (hi - lo) * (0.5 + 0.49 * s),
+                        _ => 0.5 * s,
+                    };
+                    (vr, v)
+                })
+                .unzip();
+            let flags: Vec<bool> = (0..inputs.booleans.len()).map(|_| k % 13 == 4).collect();
+            for i in [&a, &b] {
+                assert_eq!(set_reals(i, &vrs, &values), fmi2OK, "{model}");
+                assert_eq!(set_booleans(i, &inputs.booleans, &flags), fmi2OK, "{model}");
+            }
+            let now = output_bits(&mut a, &outputs);
+            assert_eq!(now, output_bits(&mut b, &outputs), "{model} at {t} s");
+            assert_eq!(a.step(t, STEP), fmi2OK, "{model}: {}", a.log_text());
+            for j in 0..3 {
+                let tj = t + j as f64 * SUB;
+                let _ = output_bits(&mut b, &outputs);
+                assert_eq!(b.step(tj, SUB), fmi2OK, "{model}: {}", b.log_text());
+            }
+            let end = output_bits(&mut a, &outputs);
+            assert_eq!(
+                end,
+                output_bits(&mut b, &outputs),
+                "{model} at the end of the step from {t} s"
+            );
+            changes += usize::from(end != previous);
+            previous = end;
+        }
+        assert!(
+            changes > 100,
+            "{model}: the outputs changed at {changes} of 300 points"
+        );
+    }
 }
 
 #[test]
@@ -285,7 +424,8 @@ fn impedance_controller_hand_computed_through_the_c_abi() {
     assert_eq!(set_reals(&i, &[102], &[1.0]), fmi2OK);
     // tau_d = 5.8, e = 2.8: i = 1.4 + 0.036 + 1.16.
     assert!(close(i.reals(&[200])[0], 2.596));
-    assert_eq!(i.step(1e-3, 1.5e-3), fmi2Error);
+    // 1.5 periods: the samples at 1 and 2 ms from these inputs.
+    assert_eq!(i.step(1e-3, 1.5e-3), fmi2OK, "{}", i.log_text());
 }
 
 #[test]
@@ -314,5 +454,43 @@ fn clutch_scheduler_through_the_c_abi() {
         assert_eq!(set_reals(&i, &[100], &[*phase]), fmi2OK);
         assert_eq!(booleans(&i, &[200])[0], *w, "phase {phase}");
         assert_eq!(i.step((6 + k) as f64 * H, H), fmi2OK);
+    }
+}
+
+/// fmpy's `simulate_fmu` (a foreign master) runs each controller with a constant output
+/// interval of 1.5 ms and 2.5 ms, steps that cross sample instants and end between two (the
+/// controllers declare `canHandleVariableCommunicationStepSize`), with a ramp on every Real
+/// input: every communication point is reached and every output is finite.
+#[test]
+fn fmpy_simulates_the_controllers_at_output_intervals_off_the_sample_grid() {
+    let script = r#"
+import sys
+import numpy as np
+from fmpy import read_model_description, simulate_fmu
+path, dt = sys.argv[1], float(sys.argv[2])
+md = read_model_description(path)
+reals = [v.name for v in md.modelVariables if v.causality == "input" and v.type == "Real"]
+flags = [v.name for v in md.modelVariables if v.causality == "input" and v.type == "Boolean"]
+outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+rows = [(t,) + tuple(x for _ in reals) + tuple(False for _ in flags)
+        for t, x in [(0.0, 0.0), (0.02, 0.5)]]
+signals = np.array(rows, dtype=[("time", np.float64)] + [(n, np.float64) for n in reals]
+                   + [(n, np.bool_) for n in flags])
+r = simulate_fmu(path, stop_time=0.02, output_interval=dt, validate=True, input=signals,
+                 output=outputs)
+# The points k dt before the stop time, then the stop time (a shorter last step).
+want = [k * dt for k in range(round(0.02 / dt) + 1) if k * dt < 0.02 - 1e-12] + [0.02]
+assert len(r) == len(want), (len(r), list(r["time"]))
+assert np.allclose(r["time"], want, rtol=0, atol=1e-12), list(r["time"])
+for name in outputs:
+    assert np.all(np.isfinite(r[name].astype(np.float64))), name
+print(len(r), r["time"][-1])
+"#;
+    for model in ["PidController", "ImpedanceController", "ClutchScheduler"] {
+        let path = exported_fmu(model);
+        for dt in ["0.0015", "0.0025"] {
+            let out = run_python(script, &[&path.display().to_string(), dt]);
+            assert!(!out.trim().is_empty(), "{model} at {dt}: {out}");
+        }
     }
 }

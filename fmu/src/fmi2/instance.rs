@@ -7,8 +7,8 @@
 //! changes nothing, so the importer loses nothing and may correct the call. So does a model
 //! error that left the model unchanged: parameters that do not fit together (found when the
 //! outputs are computed before a get, or at a step: parameters are set one at a time, so an
-//! inconsistent set in between is legitimate), rejected inputs, a step off the sample grid
-//! ([`crate::model::ErrorKind::Refused`]). A failure of the model's own computation after it
+//! inconsistent set in between is legitimate), rejected inputs, a step outside a sample grid's
+//! exact range ([`crate::model::ErrorKind::Refused`]). A failure of the model's own computation after it
 //! changed its state answers `fmi2Error` and moves the instance to the error state.
 
 use std::ffi::CString;

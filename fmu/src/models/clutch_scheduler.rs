@@ -28,14 +28,16 @@
 //! always false (the controller keeps acting against the locked side).
 //!
 //! ## Sampling and feedthrough
-//! As for `PidController`: the samples in `[t, t + h)` run with the inputs held; a step must
-//! span whole sample periods from the grid or stay inside one period, else `fmi2Error`; at a
-//! sample instant the outputs are the decision of that sample from the inputs just set (direct
-//! feedthrough from `gaitPhase` and `velocityReference`); between instants they are held. The
-//! plant samples `clutchEngage` at the start of its step, so a Gauss-Seidel master that steps
-//! the reference first gives the clutch the decision for the same instant. Times (delay,
-//! dwell, `timeInState`) are counted in whole samples: a duration is reached at the first
-//! sample at least that long after its start.
+//! As for `PidController` (the same sample clock): the samples in `[t, t + h)` run with the
+//! inputs held over the step (FMI 2.0's inputs are constant over a step); any step is
+//! accepted, also one that crosses instants and ends between two (the clock then waits there
+//! for the next instant); at a sample instant the outputs are the decision of that sample from
+//! the inputs just set (direct feedthrough from `gaitPhase` and `velocityReference`); between
+//! instants they are those of the last executed sample. The plant samples `clutchEngage` at
+//! the start of its step, so a Gauss-Seidel master that steps the reference first gives the
+//! clutch the decision for the same instant. Times (delay, dwell, `timeInState`) are counted in
+//! whole samples: a duration is reached at the first sample at least that long after its
+//! start.
 
 use crate::release::Lazy;
 
@@ -298,7 +300,7 @@ static VARIABLES: Lazy<Vec<Variable<ClutchScheduler>>> = unsafe {
             .unit("s")
             .display("ms")
             .range(1e-6, 10.0)
-            .describe("Sample period; communication steps must nest with it"),
+            .describe("Sample period; a communication step executes the sample instants it reaches, inputs held over the step"),
         V::real("gaitPhase", vr::GAIT_PHASE, |m| m.gait_phase, |m, v| m.gait_phase = v)
             .input(Real(0.0))
             .describe("Phase of the gait cycle in [0, 1) (GaitReference.gaitPhase); other values are wrapped"),
@@ -580,7 +582,9 @@ mod tests {
         let mut n = fresh_model::<ClutchScheduler>();
         n.load_internal(&mut StateReader::new(&w.bytes)).unwrap();
         assert_eq!((n.state, n.clock, n.held), (m.state, m.clock, m.held));
-        assert!(m.do_step(0.1, 1.5e-3).is_err());
+        // A step across an instant ending between two runs its samples (at 100 and 101 ms).
+        m.do_step(0.1, 1.5e-3).unwrap();
+        assert_eq!(m.clock.next, 102);
         m.engage_start = 0.4;
         m.engage_end = 0.4;
         assert!(m.settings().is_err());

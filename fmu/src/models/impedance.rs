@@ -45,9 +45,11 @@
 //! (it publishes none for the impedance controller).
 //!
 //! Sampling, communication steps, direct feedthrough and the FMU-state contents are as for
-//! `PidController`: the samples in `[t, t + h)` run with the inputs held; steps must span whole
-//! sample periods from the grid or stay inside one period, else `fmi2Error`; at a sample
-//! instant the outputs are computed from the inputs just set; between instants they are held.
+//! `PidController` (the same sample clock): the samples in `[t, t + h)` run with the inputs
+//! held over the step (FMI 2.0's inputs are constant over a step); any step is accepted, also
+//! one that crosses instants and ends between two (the clock then waits there for the next
+//! instant); at a sample instant the outputs are computed from the inputs just set; between
+//! instants they are those of the last executed sample.
 
 use crate::release::Lazy;
 
@@ -341,7 +343,7 @@ static VARIABLES: Lazy<Vec<Variable<ImpedanceController>>> = unsafe {
             .unit("s")
             .display("ms")
             .range(1e-6, 10.0)
-            .describe("Sample period Ts; communication steps must nest with it"),
+            .describe("Sample period Ts; a communication step executes the sample instants it reaches, inputs held over the step"),
         V::enumeration("antiWindup", vr::ANTI_WINDUP, "AntiWindup", |m| m.anti_windup, |m, v| m.anti_windup = v)
             .tunable(Integer(AntiWindup::Clamping as i32))
             .describe("Anti-windup scheme of the torque loop"),
@@ -717,9 +719,16 @@ mod tests {
     }
 
     #[test]
-    fn steps_that_do_not_nest_are_refused() {
+    fn a_step_off_the_grid_runs_its_samples_and_bad_settings_are_refused() {
         let mut m = model();
-        assert!(m.do_step(0.0, 1.5e-3).is_err());
+        m.inputs.angle_reference = 0.01;
+        // The samples at 0 and 1 ms, with the inputs held.
+        m.do_step(0.0, 1.5e-3).unwrap();
+        assert_eq!(m.clock.next, 2);
+        let mut n = model();
+        n.inputs.angle_reference = 0.01;
+        n.do_step(0.0, 2e-3).unwrap();
+        assert_eq!((m.state, m.held), (n.state, n.held));
         m.virtual_damping = -1.0;
         assert!(m.settings().is_err());
     }

@@ -55,17 +55,25 @@
 //! ## Sampling, communication steps and direct feedthrough
 //! Sample instants are `t_n = startTime + n Ts`. `fmi2DoStep(t, h)` executes every sample
 //! instant in `[t, t + h)` (an instant within 1e-6 Ts of `t + h` belongs to the next step),
-//! each with the inputs held at their values of `t`. A step is accepted when
+//! each with the inputs held at their values of `t`. Any step is accepted, whatever its size
+//! and wherever it starts and ends: whole periods from an instant, shorter than Ts (e.g. a plant
+//! stepped at 0.5 ms), or across instants ending between two (1.5 ms or 2.5 ms with Ts = 1 ms,
+//! e.g. fmpy's `simulate_fmu` with such an `output_interval`). A step that ends between two
+//! instants leaves the clock there: the next instant is executed by the step that reaches it.
+//! Holding the inputs over the step is FMI 2.0's co-simulation semantics
+//! (`canInterpolateInputs="false"`: an input is constant from one communication point to the
+//! next), and it is how a step of several whole periods was already executed; a step that
+//! ends off the grid runs its samples the same way, so it is not refused (earlier versions
+//! refused a step crossing an instant and ending between two, and fmpy's `simulate_fmu` failed
+//! at its first step). A run with 1.5 ms steps gives, at its communication points, bit for bit
+//! the outputs of a run with shorter steps whose inputs are held over the same 1.5 ms (the
+//! same samples from the same inputs). As with any step longer than Ts, the samples inside a
+//! step see inputs that are up to one step old: a master that wants each sample from fresh
+//! inputs steps on the grid.
 //!
-//! * it spans whole sample periods from the sample grid (`t` and `t + h` on the grid, any
-//!   number of samples: variable steps are fine as long as they are multiples of Ts), or
-//! * it stays inside one sample period (no sample instant strictly between `t` and `t + h`):
-//!   communication steps shorter than Ts, e.g. a plant stepped at 0.5 ms.
-//!
-//! Any other step (for instance 1.5 ms with Ts = 1 ms, or 0.3 ms steps that eventually straddle
-//! an instant) would run a sample with inputs stale by a fraction of a period and drift off the
-//! communication grid: it is refused with `fmi2Error` and a message naming Ts, t and h, before
-//! anything changes (the instance stays at `t`, usable for a step that fits).
+//! Refused with `fmi2Error` and a log line, before anything changes (the instance stays at
+//! `t`): a step whose grid position is not finite, lies before sample 0 or beyond 2^52 periods
+//! (where the grid's f64 positions no longer count instants exactly).
 //!
 //! The output changes at sample instants only (zero-order hold between them). At a
 //! communication point that **is** a sample instant not executed yet, the outputs are

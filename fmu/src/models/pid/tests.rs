@@ -354,27 +354,6 @@ fn presets_are_the_published_gain_sets() {
 }
 
 #[test]
-fn sample_clock_accepts_nesting_steps_and_refuses_others() {
-    let c = SampleClock::new(1e-3, 0.0);
-    assert_eq!(c.samples_in_step(0.0, 1e-3).unwrap(), 1);
-    assert_eq!(c.samples_in_step(0.0, 5e-3).unwrap(), 5);
-    // Sub-steps: the first half executes the instant at its start, the second none.
-    assert_eq!(c.samples_in_step(0.0, 0.5e-3).unwrap(), 1);
-    let c1 = SampleClock { next: 1, ..c };
-    assert_eq!(c1.samples_in_step(0.5e-3, 0.5e-3).unwrap(), 0);
-    // 1.5 ms from a sample instant crosses 1 ms and ends off the grid.
-    let e = c.samples_in_step(0.0, 1.5e-3).unwrap_err();
-    assert!(e.message.contains("does not fit the sample period"), "{e}");
-    // Found before anything changes: the glue keeps the instance usable.
-    assert!(e.is_refused());
-    // From off the grid across an instant.
-    assert!(c1.samples_in_step(0.5e-3, 1e-3).is_err());
-    // Decimal times count as on the grid.
-    let c3 = SampleClock { next: 3, ..c };
-    assert_eq!(c3.samples_in_step(0.003, 0.002).unwrap(), 2);
-}
-
-#[test]
 fn a_parameter_set_through_the_variable_table_takes_effect_at_once() {
     use crate::model::Access;
     let set = |m: &mut PidController, name: &str, value: f64| {
@@ -475,8 +454,92 @@ fn model_steps_samples_and_holds_between_them() {
     assert_eq!(m.signals.output, 3.0, "feedthrough at the next instant");
     m.do_step(1e-3, 2e-3).unwrap();
     assert_eq!(m.clock.next, 3);
-    let e = m.do_step(3e-3, 1.5e-3).unwrap_err();
-    assert!(e.message.contains("Ts = 0.001"), "{e}");
+    // A step across an instant ending between two: the samples at 3 and 4 ms from the inputs
+    // of 3 ms, the output of the one at 4 ms held at 4.5 ms.
+    m.inputs.setpoint = 5.0;
+    m.do_step(3e-3, 1.5e-3).unwrap();
+    assert_eq!(m.clock.next, 5);
+    assert_eq!(m.signals.output, 5.0);
+    m.inputs.setpoint = 6.0;
+    m.calculate(4.5e-3).unwrap();
+    assert_eq!(m.signals.output, 5.0, "held between instants");
+    m.do_step(4.5e-3, 0.5e-3).unwrap();
+    m.calculate(5e-3).unwrap();
+    assert_eq!(m.signals.output, 6.0, "feedthrough at the next instant");
+}
+
+/// The inputs held over the `k`-th interval of 1.5 ms.
+fn interval_inputs(k: usize) -> PidInputs {
+    let x = k as f64;
+    PidInputs {
+        setpoint: 2.0 * (0.7 * x).sin(),
+        measurement: (0.31 * x).cos(),
+        feed_forward: 0.1 * (0.5 * x).sin(),
+        auxiliary: [0.01 * x, (0.2 * x).sin(), 0.3 * (0.9 * x).cos()],
+        hold: k % 17 == 5,
+    }
+}
+
+/// A PID with every part of the law active (P, I with back-calculation, filtered D,
+/// saturation, feed-forward, auxiliary weights), initialized at 0.
+fn busy_pid() -> PidController {
+    let mut m = fresh_model::<PidController>();
+    m.kp = 3.0;
+    m.ki = 40.0;
+    m.kd = 0.02;
+    m.derivative_filter_time = 3e-3;
+    m.output_min = -2.0;
+    m.output_max = 2.0;
+    m.anti_windup = AntiWindup::BackCalculation as i32;
+    m.tracking_time = 0.05;
+    m.setpoint_weights = [0.5, 0.2, 0.0];
+    m.feed_forward_weights = [0.1, 0.0, 0.3];
+    m.initialize(0.0).unwrap();
+    m
+}
+
+/// A run with steps of 1.5 ms (each crossing a sample instant, every other one ending between
+/// two) gives, at every one of its communication points, bit for bit the outputs, state and
+/// clock of a run with 0.5 ms steps whose inputs are held over the same 1.5 ms: the same
+/// samples from the same inputs. At 0, 3, 6 ms, ... (sample instants) the outputs are the
+/// fresh sample from the inputs just set, at 1.5, 4.5 ms, ... the last executed sample's.
+#[test]
+fn steps_off_the_grid_equal_shorter_steps_with_the_inputs_held_over_them() {
+    const H: f64 = 1.5e-3;
+    const SUB: f64 = 0.5e-3;
+    let (mut a, mut b) = (busy_pid(), busy_pid());
+    let (mut saturated, mut held) = (0, 0);
+    for k in 0..400 {
+        let t = k as f64 * H;
+        a.inputs = interval_inputs(k);
+        b.inputs = interval_inputs(k);
+        a.calculate(t).unwrap();
+        b.calculate(t).unwrap();
+        assert_eq!(
+            a.signals, b.signals,
+            "outputs at {t} s, the inputs just set"
+        );
+        a.do_step(t, H).unwrap();
+        for j in 0..3 {
+            let tj = t + j as f64 * SUB;
+            b.calculate(tj).unwrap();
+            b.do_step(tj, SUB).unwrap();
+        }
+        assert_eq!(
+            a.signals, b.signals,
+            "outputs at the end of the step from {t} s"
+        );
+        assert_eq!(
+            (a.state, a.clock.next),
+            (b.state, b.clock.next),
+            "from {t} s"
+        );
+        saturated += usize::from(a.signals.saturated);
+        held += usize::from(a.inputs.hold);
+    }
+    // 400 steps of 1.5 periods: 600 samples; the run saturates and holds at times.
+    assert_eq!(a.clock.next, 600);
+    assert!(saturated > 10 && held > 10, "{saturated} {held}");
 }
 
 #[test]

@@ -154,7 +154,7 @@ pub(super) static VARIABLES: Lazy<Vec<Variable<PidController>>> = unsafe {
             .unit("s")
             .display("ms")
             .range(1e-6, 10.0)
-            .describe("Sample period Ts (the myRIO's control period); communication steps must nest with it"),
+            .describe("Sample period Ts (the myRIO's control period); a communication step executes the sample instants it reaches, inputs held over the step"),
         setting!(real, "outputMin", vr::OUTPUT_MIN, output_min)
             .tunable(Real(-15.0))
             .describe("Lower output limit (default: the test driver's -15 A)"),
