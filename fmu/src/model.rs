@@ -255,6 +255,15 @@ pub trait Model: Default + Clone + Send + 'static {
     const MAX_OUTPUT_DERIVATIVE_ORDER: u32 = 0;
     /// The `DefaultExperiment`: (start, stop, step size).
     const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 10.0, 1e-3);
+    /// `canGetAndSetFMUstate`: whether `fmi2GetFMUstate`, `fmi2SetFMUstate` and
+    /// `fmi2FreeFMUstate` are provided. When false the glue answers them with fmi2Error and a
+    /// log line naming the flag (a call the model description says is unsupported).
+    const CAN_GET_AND_SET_FMU_STATE: bool = true;
+    /// `canSerializeFMUstate`: whether `fmi2SerializedFMUstateSize`, `fmi2SerializeFMUstate`
+    /// and `fmi2DeSerializeFMUstate` are provided (false answered as for
+    /// [`Model::CAN_GET_AND_SET_FMU_STATE`]). Serializing needs states to serialize: true
+    /// requires [`Model::CAN_GET_AND_SET_FMU_STATE`] (a compile-time check of the model).
+    const CAN_SERIALIZE_FMU_STATE: bool = true;
 
     /// The one declaration of the model's variables.
     fn variables() -> &'static [Variable<Self>];
@@ -383,8 +392,17 @@ pub struct Variable<M> {
     /// `declaredType` for enumerations.
     pub declared_type: Option<&'static str>,
     /// For outputs: the inputs and parameters this variable depends on, by name; `None` means
-    /// "all knowns" (the attribute is then omitted).
+    /// "all knowns" (the attribute is then omitted). `ModelStructure/Outputs` lists the inputs
+    /// among them; `InitialUnknowns` the inputs and exact parameters, unless
+    /// [`Variable::initial_on_all_knowns`] was set.
     pub depends_on: Option<&'static [&'static str]>,
+    /// The initial value (in initialization mode) depends on every known: its
+    /// `InitialUnknowns` entry omits `dependencies` (FMI 2.0 section 2.2.8: absent means all
+    /// knowns), whatever [`Variable::depends_on`] says of communication points.
+    pub initial_on_all_knowns: bool,
+    /// A `Real` that only takes whole numbers: `fmi2SetReal` (and a restored FMU state) refuses
+    /// a fraction, and the description says "an integer" (FMI 2.0 has no attribute for it).
+    pub integer_valued: bool,
     /// Read/write access.
     pub access: Access<M>,
 }
@@ -405,6 +423,8 @@ impl<M> Variable<M> {
             max: None,
             declared_type: None,
             depends_on: None,
+            initial_on_all_knowns: false,
+            integer_valued: false,
             access,
         }
     }
@@ -486,6 +506,22 @@ impl<M> Variable<M> {
         };
         self.initial = Some(Initial::Calculated);
         self.depends_on = Some(depends_on);
+        self
+    }
+    /// An output whose initial value depends on every known of initialization mode (a state
+    /// built from the parameters: initial positions, calibrations, supply voltages), while at
+    /// communication points it depends only on what [`Variable::output`] names: its
+    /// `InitialUnknowns` entry omits `dependencies`, which FMI 2.0 reads as "all knowns"
+    /// (conservative, and true without a second list of what the model computes from what).
+    pub fn initial_on_all_knowns(mut self) -> Self {
+        self.initial_on_all_knowns = true;
+        self
+    }
+    /// A `Real` that only takes whole numbers (a count kept as a Real so parameter files that
+    /// write `2000.0` keep working): `fmi2SetReal` refuses a fraction with fmi2Error, keeping the
+    /// value, and the description ends with "; an integer".
+    pub fn integer_valued(mut self) -> Self {
+        self.integer_valued = true;
         self
     }
     /// A constant, local to the model: visible to importers, never settable.
@@ -709,7 +745,31 @@ fn with_item_list(description: &str, e: &EnumerationType) -> String {
     }
 }
 
+/// The description of `v` in the model description and the documentation: its own text, with
+/// the items of a mode listed, or "; an integer" after an integer-valued Real's.
+fn full_description<M: Model>(v: &Variable<M>) -> Option<String> {
+    match &v.access {
+        Access::Enumeration(..) => Some(with_item_list(v.description, enumeration_of::<M>(v))),
+        Access::Real(..) if v.integer_valued => Some(if v.description.is_empty() {
+            INTEGER_NOTE.trim_start_matches("; ").to_string()
+        } else {
+            format!("{}{INTEGER_NOTE}", v.description)
+        }),
+        _ => (!v.description.is_empty()).then(|| v.description.to_string()),
+    }
+}
+
+/// What the description of an integer-valued Real ([`Variable::integer_valued`]) ends with.
+pub const INTEGER_NOTE: &str = "; an integer";
+
 fn description_without_guid<M: Model>() -> md::ModelDescription {
+    // Checked when the model is compiled: serializing needs states to serialize.
+    const {
+        assert!(
+            M::CAN_GET_AND_SET_FMU_STATE || !M::CAN_SERIALIZE_FMU_STATE,
+            "canSerializeFMUstate needs canGetAndSetFMUstate"
+        )
+    };
     let vars = M::variables();
     let index_of = |name: &str| -> u32 {
         vars.iter()
@@ -777,10 +837,7 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
                 },
             },
         };
-        let description = match &v.access {
-            Access::Enumeration(..) => Some(with_item_list(v.description, enumeration_of::<M>(v))),
-            _ => (!v.description.is_empty()).then(|| v.description.to_string()),
-        };
+        let description = full_description(v);
         model_variables.push(md::ScalarVariable {
             name: v.name.to_string(),
             value_reference: v.value_reference,
@@ -829,10 +886,15 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
             && matches!(v.initial, Some(Initial::Calculated) | Some(Initial::Approx)))
             || v.causality == Causality::CalculatedParameter;
         if is_initial_unknown {
-            let d = only(&|k| {
-                k.causality == Causality::Input
-                    || (k.causality == Causality::Parameter && k.initial == Some(Initial::Exact))
-            });
+            let d = if v.initial_on_all_knowns {
+                None
+            } else {
+                only(&|k| {
+                    k.causality == Causality::Input
+                        || (k.causality == Causality::Parameter
+                            && k.initial == Some(Initial::Exact))
+                })
+            };
             initial_unknowns.push(md::Unknown {
                 index,
                 dependencies_kind: kinds(&d),
@@ -865,8 +927,8 @@ fn description_without_guid<M: Model>() -> md::ModelDescription {
             can_run_asynchronuously: Some(false),
             can_be_instantiated_only_once_per_process: Some(false),
             can_not_use_memory_management_functions: Some(true),
-            can_get_and_set_fmu_state: Some(true),
-            can_serialize_fmu_state: Some(true),
+            can_get_and_set_fmu_state: Some(M::CAN_GET_AND_SET_FMU_STATE),
+            can_serialize_fmu_state: Some(M::CAN_SERIALIZE_FMU_STATE),
             provides_directional_derivative: Some(false),
             source_files: Vec::new(),
         }),
@@ -974,7 +1036,7 @@ pub fn documentation_html<M: Model>() -> String {
             start,
             v.unit.unwrap_or(""),
             range,
-            escape_html(v.description)
+            escape_html(&full_description(v).unwrap_or_default())
         );
     }
     html.push_str("</table>\n");
@@ -1000,10 +1062,17 @@ pub fn documentation_html<M: Model>() -> String {
         }
         html.push_str("</ul>\n");
     }
+    let fmu_state = match (M::CAN_GET_AND_SET_FMU_STATE, M::CAN_SERIALIZE_FMU_STATE) {
+        (true, true) => "get/set and serialize FMU state",
+        (true, false) => "get/set FMU state (not serialized)",
+        _ => {
+            "no FMU state (canGetAndSetFMUstate and canSerializeFMUstate false: the FMU state functions answer fmi2Error)"
+        }
+    };
     let _ = write!(
         html,
         "<h2>Interface facts</h2>\n<ul>\n<li>GUID: <code>{}</code></li>\n<li>FMI 2.0 co-simulation; variable communication step size; \
-         get/set and serialize FMU state; output derivatives up to order {}.</li>\n<li>Generated by {}; license {}.</li>\n</ul>\n</body>\n</html>\n",
+         {fmu_state}; output derivatives up to order {}.</li>\n<li>Generated by {}; license {}.</li>\n</ul>\n</body>\n</html>\n",
         desc.guid,
         M::MAX_OUTPUT_DERIVATIVE_ORDER,
         GENERATION_TOOL,

@@ -165,6 +165,17 @@ pub enum FmuError {
     /// The binary does not export an optional function this call needs.
     #[error("the FMU does not export {0}")]
     Unsupported(&'static str),
+    /// The model description does not promise the capability of this optional function
+    /// (e.g. `canGetAndSetFMUstate` is not `true`): the call is not made.
+    #[error(
+        "the FMU does not provide {function}: its model description does not declare {flag}=\"true\""
+    )]
+    NotPromised {
+        /// The FMI function.
+        function: &'static str,
+        /// The capability flag of the model description that would promise it.
+        flag: &'static str,
+    },
     /// The instance is unusable after an earlier `fmi2Fatal`.
     #[error("instance '{0}' returned fmi2Fatal earlier; no further call is allowed")]
     AfterFatal(String),
@@ -685,6 +696,33 @@ impl Instance {
         }
     }
 
+    /// Checks that the model description promises the FMU-state function `name`: with
+    /// `serialize` its `canSerializeFMUstate`, else its `canGetAndSetFMUstate` (an FMU that
+    /// declares the flag false or leaves it out is not asked; kneebench's `BenchHardware`
+    /// declares both false).
+    fn promises_state(&self, name: &'static str, serialize: bool) -> Result<(), FmuError> {
+        let cs = self.fmu.md.co_simulation.as_ref();
+        let (promised, flag) = if serialize {
+            (
+                cs.and_then(|c| c.can_serialize_fmu_state),
+                "canSerializeFMUstate",
+            )
+        } else {
+            (
+                cs.and_then(|c| c.can_get_and_set_fmu_state),
+                "canGetAndSetFMUstate",
+            )
+        };
+        if promised == Some(true) {
+            Ok(())
+        } else {
+            Err(FmuError::NotPromised {
+                function: name,
+                flag,
+            })
+        }
+    }
+
     /// `fmi2SetDebugLogging` with the given categories (empty: all).
     pub fn set_debug_logging(&mut self, on: bool, categories: &[&str]) -> Result<Status, FmuError> {
         self.alive()?;
@@ -1117,6 +1155,7 @@ impl Instance {
         const NAME: &str = "fmi2GetFMUstate";
         self.alive()?;
         self.has(NAME)?;
+        self.promises_state(NAME, false)?;
         let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.get_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
@@ -1150,6 +1189,7 @@ impl Instance {
         const NAME: &str = "fmi2SetFMUstate";
         self.alive()?;
         self.has(NAME)?;
+        self.promises_state(NAME, false)?;
         let s = dispatch!(self, &NAME,
             l => {
                 let f = l.f.set_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
@@ -1166,6 +1206,7 @@ impl Instance {
         const NAME: &str = "fmi2FreeFMUstate";
         self.alive()?;
         self.has(NAME)?;
+        self.promises_state(NAME, false)?;
         let mut ptr = state.ptr;
         let s = dispatch!(self, &NAME,
             l => {
@@ -1183,6 +1224,7 @@ impl Instance {
         self.alive()?;
         self.has("fmi2SerializedFMUstateSize")?;
         self.has("fmi2SerializeFMUstate")?;
+        self.promises_state("fmi2SerializeFMUstate", true)?;
         let (s, buf, name) = dispatch!(self, &"fmi2SerializeFMUstate",
             l => {
                 let size_f = l
@@ -1227,6 +1269,7 @@ impl Instance {
         const NAME: &str = "fmi2DeSerializeFMUstate";
         self.alive()?;
         self.has(NAME)?;
+        self.promises_state(NAME, true)?;
         let (s, ptr) = dispatch!(self, &NAME,
             l => {
                 let f = l.f.deserialize_fmu_state.ok_or(FmuError::Unsupported(NAME))?;

@@ -44,8 +44,8 @@ fn a_step_whose_closed_loop_trips_says_why_and_exits_3() {
 }
 
 /// A run that fails before its first row (the bench FMU refuses its parameters while starting:
-/// each value is inside its declared range, the FMU's own consistency check refuses a fractional
-/// encoder count) says so: the message said "the run failed at t = None".
+/// the value is inside its declared range, and `fmi2SetReal` refuses a fractional encoder count,
+/// an integer-valued Real) says so: the message said "the run failed at t = None".
 #[test]
 fn a_run_that_fails_while_starting_says_so_without_none() {
     let dir = tempfile::tempdir().unwrap();
@@ -61,7 +61,7 @@ fn a_run_that_fails_while_starting_says_so_without_none() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains("the run failed before its first row")
-            && stderr.contains("encoder counts per revolution"),
+            && stderr.contains("encoderCountsPerRevolution = 2000.5 refused: must be an integer"),
         "{stderr}"
     );
     assert!(!stderr.contains("None"), "{stderr}");

@@ -1,5 +1,7 @@
 //! FMU state: get/set and serialization continue bit-identically in the same instance, a fresh
-//! instance and a fresh process; foreign, truncated and corrupted states are refused.
+//! instance and a fresh process; foreign, truncated and corrupted states are refused. Every
+//! model but `BenchHardware` declares and provides FMU state; `BenchHardware` declares none,
+//! refuses every FMU-state call, and the harness does not make those calls.
 
 use std::process::Command;
 
@@ -179,4 +181,195 @@ fn foreign_truncated_and_corrupted_states_are_refused() {
         assert_eq!((f.serialize)(i.c, st, buf.as_mut_ptr(), 4), fmi2Error);
         assert_eq!((f.free_fmu_state)(i.c, &mut st), fmi2OK);
     }
+}
+
+/// The model description of `identifier` (the binary's own, as exported).
+fn description(identifier: &str) -> &'static model_description::ModelDescription {
+    &kneebench_fmu::registry::find_by_identifier(identifier)
+        .expect("model exists")
+        .info()
+        .description
+}
+
+/// `BenchHardware` declares no FMU state (the physical bench cannot be rewound): both flags
+/// false in its model description, and every FMU-state function answers fmi2Error with a log
+/// line naming the flag, changing nothing (the instance initializes and steps afterwards).
+#[test]
+fn bench_hardware_declares_no_fmu_state_and_refuses_every_state_call() {
+    let cs = description("BenchHardware").co_simulation.clone().unwrap();
+    assert_eq!(cs.can_get_and_set_fmu_state, Some(false));
+    assert_eq!(cs.can_serialize_fmu_state, Some(false));
+    let f = Raw::load(&fmu_library());
+    // A real state of another model of the same binary, so that a call that were not refused
+    // would still be handed a valid state (and refuse it as foreign).
+    let mut gait = RawInstance::new(&f, "gait", &guid_of("GaitReference"));
+    gait.initialize(0.0, None);
+    let gait_bytes = gait.serialized_state();
+    let mut i = RawInstance::new(&f, "hardware", &guid_of("BenchHardware"));
+    assert!(!i.c.is_null(), "{}", i.log_text());
+    // SAFETY: valid components, buffers and out-pointers; the gait's state is freed by it.
+    unsafe {
+        let mut gait_state: fmi2FMUstate = std::ptr::null_mut();
+        assert_eq!((f.get_fmu_state)(gait.c, &mut gait_state), fmi2OK);
+        let mut state: fmi2FMUstate = std::ptr::null_mut();
+        assert_eq!((f.get_fmu_state)(i.c, &mut state), fmi2Error);
+        assert!(state.is_null());
+        assert_eq!((f.set_fmu_state)(i.c, gait_state), fmi2Error);
+        assert_eq!((f.free_fmu_state)(i.c, &mut state), fmi2Error);
+        let get_and_set = i.log_text();
+        let mut size = 0usize;
+        assert_eq!((f.serialized_size)(i.c, gait_state, &mut size), fmi2Error);
+        assert_eq!(size, 0);
+        let mut buf = vec![0u8; gait_bytes.len()];
+        assert_eq!(
+            (f.serialize)(i.c, gait_state, buf.as_mut_ptr().cast(), buf.len()),
+            fmi2Error
+        );
+        assert_eq!(
+            (f.deserialize)(
+                i.c,
+                gait_bytes.as_ptr().cast(),
+                gait_bytes.len(),
+                &mut state
+            ),
+            fmi2Error
+        );
+        assert!(state.is_null());
+        assert_eq!((f.free_fmu_state)(gait.c, &mut gait_state), fmi2OK);
+        for function in ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] {
+            let line = format!(
+                "{function}: not provided: the model description declares canGetAndSetFMUstate=\"false\""
+            );
+            assert!(get_and_set.contains(&line), "{get_and_set}");
+        }
+        let log = i.log_text();
+        for function in [
+            "fmi2SerializedFMUstateSize",
+            "fmi2SerializeFMUstate",
+            "fmi2DeSerializeFMUstate",
+        ] {
+            let line = format!(
+                "{function}: not provided: the model description declares canSerializeFMUstate=\"false\""
+            );
+            assert!(log.contains(&line), "{log}");
+        }
+    }
+    // Refused, nothing changed: the instance initializes and steps (simulated backend).
+    i.initialize(0.0, None);
+    assert_eq!(i.step(0.0, H), fmi2OK, "{}", i.log_text());
+}
+
+/// Every other model declares both flags true, and its state round-trips: saved, serialized,
+/// deserialized into a fresh instance and restored, the run continues bit for bit.
+#[test]
+fn the_other_five_declare_fmu_state_and_round_trip_it() {
+    let f = Raw::load(&fmu_library());
+    let models = [
+        "GaitReference",
+        "BenchPlant",
+        "PidController",
+        "ImpedanceController",
+        "ClutchScheduler",
+    ];
+    assert_eq!(models.len() + 1, kneebench_fmu::MODELS.len());
+    for model in models {
+        let d = description(model);
+        let cs = d.co_simulation.clone().unwrap();
+        assert_eq!(cs.can_get_and_set_fmu_state, Some(true), "{model}");
+        assert_eq!(cs.can_serialize_fmu_state, Some(true), "{model}");
+        let outputs: Vec<u32> = d
+            .model_variables
+            .iter()
+            .filter(|v| {
+                v.causality == Some(model_description::Causality::Output)
+                    && matches!(v.kind, model_description::VariableKind::Real { .. })
+            })
+            .map(|v| v.value_reference)
+            .collect();
+        let run = |i: &mut RawInstance, k0: u64, n: u64| {
+            let mut bits = Vec::new();
+            for k in k0..k0 + n {
+                assert_eq!(i.step(k as f64 * H, H), fmi2OK, "{model}: {}", i.log_text());
+                bits.extend(i.reals(&outputs).iter().map(|v| v.to_bits()));
+            }
+            bits
+        };
+        let mut i = RawInstance::new(&f, "state", &guid_of(model));
+        i.initialize(0.0, None);
+        run(&mut i, 0, 20);
+        let saved = i.serialized_state();
+        let first = run(&mut i, 20, 30);
+        assert_eq!(i.restore(&saved), fmi2OK, "{model}: {}", i.log_text());
+        assert_eq!(run(&mut i, 20, 30), first, "{model}");
+        let mut fresh = RawInstance::new(&f, "fresh", &guid_of(model));
+        assert_eq!(
+            fresh.restore(&saved),
+            fmi2OK,
+            "{model}: {}",
+            fresh.log_text()
+        );
+        assert_eq!(run(&mut fresh, 20, 30), first, "{model}");
+    }
+}
+
+/// The harness reads the flags from the model description and does not call an FMU-state
+/// function that is not promised: `BenchHardware`'s are refused before any call (its log
+/// stays free of the FMU's refusal), another model's work as before.
+#[test]
+fn the_harness_does_not_call_state_functions_the_description_does_not_promise() {
+    use kneebench_harness::{Fmu, FmuError, InstanceOptions, LoadOptions, LogMessage};
+    use std::sync::{Arc, Mutex};
+    let log: Arc<Mutex<Vec<String>>> = Arc::default();
+    let sink = Arc::clone(&log);
+    let options = InstanceOptions {
+        log_handler: Some(Arc::new(move |m: &LogMessage| {
+            sink.lock().unwrap().push(m.message.clone())
+        })),
+        ..InstanceOptions::default()
+    };
+    let fmu = Fmu::load(exported_fmu("BenchHardware"), &LoadOptions::default()).unwrap();
+    let mut i = fmu.instantiate("hardware", &options).unwrap();
+    let e = i.get_fmu_state().unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FmuError::NotPromised {
+                function: "fmi2GetFMUstate",
+                flag: "canGetAndSetFMUstate"
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("canGetAndSetFMUstate"), "{e}");
+    let e = i.deserialize_fmu_state(&[0; 16]).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FmuError::NotPromised {
+                function: "fmi2DeSerializeFMUstate",
+                flag: "canSerializeFMUstate"
+            }
+        ),
+        "{e:?}"
+    );
+    let logged = log.lock().unwrap().join("\n");
+    assert!(!logged.contains("FMUstate"), "the FMU was called: {logged}");
+    i.setup_experiment(None, 0.0, None).unwrap();
+    i.enter_initialization_mode().unwrap();
+    i.exit_initialization_mode().unwrap();
+    i.do_step(0.0, H).unwrap();
+
+    let fmu = Fmu::load(exported_fmu("GaitReference"), &LoadOptions::default()).unwrap();
+    let mut g = fmu
+        .instantiate("gait", &InstanceOptions::default())
+        .unwrap();
+    g.setup_experiment(None, 0.0, None).unwrap();
+    g.enter_initialization_mode().unwrap();
+    g.exit_initialization_mode().unwrap();
+    let s = g.get_fmu_state().unwrap();
+    let bytes = g.serialize_fmu_state(&s).unwrap();
+    let copy = g.deserialize_fmu_state(&bytes).unwrap();
+    g.set_fmu_state(&copy).unwrap();
+    g.free_fmu_state(copy).unwrap();
+    g.free_fmu_state(s).unwrap();
 }

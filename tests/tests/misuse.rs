@@ -337,6 +337,39 @@ fn wrong_guid_and_model_exchange_are_refused_with_a_log_line() {
     assert!(i.log_text().contains("instanceName"), "{}", i.log_text());
 }
 
+/// The GUID selects the model; the binary serves any of the six whatever its file name (README
+/// "FMI behaviour, documented"): the harness loads one byte-identical binary once for every FMU
+/// that carries it, and instantiates each component through it with that FMU's GUID. So a
+/// copy named `PidController.so` instantiated with `BenchPlant`'s GUID is a `BenchPlant`.
+#[test]
+fn the_guid_selects_the_model_whatever_the_binary_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("PidController.so");
+    std::fs::copy(fmu_library(), &copy).unwrap();
+    let f = Raw::load(&copy);
+    let mut plant = RawInstance::new(&f, "plant", &guid_of("BenchPlant"));
+    assert!(!plant.c.is_null(), "{}", plant.log_text());
+    // The plant's encoderCountsPerRevolution (VR 52; the PID has no Real 52).
+    // SAFETY: valid component.
+    unsafe {
+        assert_eq!((f.setup_experiment)(plant.c, 0, 0.0, 0.0, 0, 0.0), fmi2OK);
+        assert_eq!((f.enter_initialization_mode)(plant.c), fmi2OK);
+    }
+    assert_eq!(plant.reals(&[52]), [2000.0]);
+    let pid = RawInstance::new(&f, "pid", &guid_of("PidController"));
+    assert!(!pid.c.is_null(), "{}", pid.log_text());
+    let mut out = [0.0];
+    // SAFETY: valid component and arrays.
+    unsafe {
+        assert_eq!((f.setup_experiment)(pid.c, 0, 0.0, 0.0, 0, 0.0), fmi2OK);
+        assert_eq!((f.enter_initialization_mode)(pid.c), fmi2OK);
+        assert_eq!(
+            (f.get_real)(pid.c, [52u32].as_ptr(), 1, out.as_mut_ptr()),
+            fmi2Error
+        );
+    }
+}
+
 #[test]
 fn bad_values_are_refused_and_change_nothing() {
     let f = raw();

@@ -176,3 +176,71 @@ fn tunable_parameter_takes_effect_at_the_next_step() {
     assert_eq!(set_reals(&b, &[LOAD_DAMPING], &[-1.0]), fmi2Error);
     assert!(b.log_text().contains("outside"), "{}", b.log_text());
 }
+
+/// `encoderCountsPerRevolution` is a Real that must be a whole number (kept a Real for users'
+/// parameter files and SSPs): `fmi2SetReal` refuses a fraction at once, with fmi2Error, a log
+/// line naming the rule and the value kept, in the plant and in the hardware FMU; the
+/// description says so.
+#[test]
+fn a_fractional_encoder_count_is_refused_by_fmi2_set_real() {
+    const ENCODER_COUNTS: u32 = 52;
+    let f = Raw::load(&fmu_library());
+    for model in ["BenchPlant", "BenchHardware"] {
+        let d = &kneebench_fmu::registry::find_by_identifier(model)
+            .unwrap()
+            .info()
+            .description;
+        let v = d.variable_by_name("encoderCountsPerRevolution").unwrap();
+        assert_eq!(v.value_reference, ENCODER_COUNTS);
+        assert!(
+            v.description.as_deref().unwrap().ends_with("; an integer"),
+            "{model}: {:?}",
+            v.description
+        );
+        let mut i = RawInstance::new(&f, "encoder", &guid_of(model));
+        assert!(!i.c.is_null(), "{}", i.log_text());
+        // SAFETY: valid component.
+        unsafe {
+            assert_eq!((f.setup_experiment)(i.c, 0, 0.0, 0.0, 0, 0.0), fmi2OK);
+            assert_eq!((f.enter_initialization_mode)(i.c), fmi2OK);
+        }
+        for bad in [2740.37, 2000.5, 1.0 + f64::EPSILON] {
+            assert_eq!(
+                set_reals(&i, &[ENCODER_COUNTS], &[bad]),
+                fmi2Error,
+                "{model}"
+            );
+            // Refused in a batch too, the other values with it (all or nothing).
+            assert_eq!(
+                set_reals(&i, &[LOAD_DAMPING, ENCODER_COUNTS], &[0.5, bad]),
+                fmi2Error,
+                "{model}"
+            );
+        }
+        assert!(
+            i.log_text()
+                .contains("encoderCountsPerRevolution = 2740.37 refused: must be an integer"),
+            "{model}: {}",
+            i.log_text()
+        );
+        let kept = i.reals(&[ENCODER_COUNTS, LOAD_DAMPING]);
+        assert_eq!(kept[0], 2000.0, "{model}");
+        assert_ne!(kept[1], 0.5, "{model}");
+        // A whole number is taken, written with a fraction part of zero or not.
+        assert_eq!(
+            set_reals(&i, &[ENCODER_COUNTS], &[2048.0]),
+            fmi2OK,
+            "{model}"
+        );
+        assert_eq!(i.reals(&[ENCODER_COUNTS])[0], 2048.0, "{model}");
+        // SAFETY: valid component.
+        unsafe {
+            assert_eq!(
+                (f.exit_initialization_mode)(i.c),
+                fmi2OK,
+                "{model}: {}",
+                i.log_text()
+            );
+        }
+    }
+}

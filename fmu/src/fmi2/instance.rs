@@ -238,6 +238,12 @@ pub trait FmiInstance: Send {
     }
     /// Moves the instance to the error state (after a panic inside a call).
     fn poison(&mut self);
+    /// The model's `canGetAndSetFMUstate` ([`Model::CAN_GET_AND_SET_FMU_STATE`]): whether
+    /// `fmi2GetFMUstate`, `fmi2SetFMUstate` and `fmi2FreeFMUstate` are provided.
+    fn can_get_and_set_fmu_state(&self) -> bool;
+    /// The model's `canSerializeFMUstate` ([`Model::CAN_SERIALIZE_FMU_STATE`]): whether the
+    /// serialization functions are provided.
+    fn can_serialize_fmu_state(&self) -> bool;
 }
 
 /// The generic instance of model `M`.
@@ -532,10 +538,17 @@ impl<M: Model> Instance<M> {
 }
 
 /// Why `fmi2SetReal`/`fmi2SetInteger` refuses value `x` for `v` (not finite, outside its
-/// min/max), or `None`.
+/// min/max, a fraction for an integer-valued Real), or `None`.
 fn range_problem<M>(v: &Variable<M>, x: f64) -> Option<String> {
     if !x.is_finite() {
         return Some(format!("{} = {x} refused: values must be finite", v.name));
+    }
+    if v.integer_valued && x.fract() != 0.0 {
+        return Some(format!(
+            "{} = {} refused: must be an integer (a Real that takes whole numbers only)",
+            v.name,
+            num(x)
+        ));
     }
     if v.min.is_some_and(|lo| x < lo) || v.max.is_some_and(|hi| x > hi) {
         return Some(format!(
@@ -658,6 +671,8 @@ struct RealSetter<M> {
     phases: [bool; 3],
     min: f64,
     max: f64,
+    /// Only whole numbers ([`Variable::integer_valued`]).
+    integer_valued: bool,
 }
 
 /// Index of `phase` in the `phases` of a setter table entry.
@@ -682,7 +697,11 @@ fn settable_phases<M>(v: &Variable<M>) -> [bool; 3] {
 impl<M> RealSetter<M> {
     #[inline]
     fn accepts(&self, phase: Phase, x: f64) -> bool {
-        self.phases[phase_index(phase)] && x.is_finite() && x >= self.min && x <= self.max
+        self.phases[phase_index(phase)]
+            && x.is_finite()
+            && x >= self.min
+            && x <= self.max
+            && (!self.integer_valued || x.fract() == 0.0)
     }
 }
 
@@ -712,6 +731,7 @@ fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
             phases: settable_phases(v),
             min: v.min.unwrap_or(f64::NEG_INFINITY),
             max: v.max.unwrap_or(f64::INFINITY),
+            integer_valued: v.integer_valued,
         }),
         _ => None,
     })
@@ -1289,6 +1309,14 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn poison(&mut self) {
         self.state = State::Error;
+    }
+
+    fn can_get_and_set_fmu_state(&self) -> bool {
+        M::CAN_GET_AND_SET_FMU_STATE
+    }
+
+    fn can_serialize_fmu_state(&self) -> bool {
+        M::CAN_SERIALIZE_FMU_STATE
     }
 }
 

@@ -6,4 +6,6 @@ pub mod instance;
 pub mod logging;
 #[cfg(test)]
 mod refusal_tests;
+#[cfg(test)]
+mod structure_tests;
 pub mod types;

@@ -96,6 +96,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
+            .initial_on_all_knowns()
             .describe($desc)
         };
         ($name:literal, $vr:expr, $field:ident, $unit:literal, $desc:literal) => {
@@ -106,6 +107,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
+            .initial_on_all_knowns()
             .unit($unit)
             .describe($desc)
         };
@@ -119,6 +121,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
+            .initial_on_all_knowns()
             .describe($desc)
         };
     }
@@ -131,6 +134,7 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
                 |m, v| m.signals_mut().$field = v,
             )
             .output(&[])
+            .initial_on_all_knowns()
             .describe($desc)
         };
     }
@@ -858,6 +862,23 @@ pub(crate) static ENUMERATIONS: &[EnumerationType] = &[
     },
 ];
 
+/// The min/max of bench parameter `field` ([`BenchParameters::PARAMETER_LIMITS`]) and, for one
+/// of [`BenchParameters::INTEGER_PARAMETERS`], whole numbers only: the declaration the plant and
+/// the hardware FMU give each bench parameter, from the one list `validate` checks.
+pub(crate) fn with_limits<M>(v: Variable<M>, field: &str) -> Variable<M> {
+    let (lo, hi) = BenchParameters::PARAMETER_LIMITS
+        .iter()
+        .find(|(n, _, _)| *n == field)
+        .map(|&(_, lo, hi)| (lo, hi))
+        .unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+    let v = v.range(lo, hi);
+    if BenchParameters::INTEGER_PARAMETERS.contains(&field) {
+        v.integer_valued()
+    } else {
+        v
+    }
+}
+
 /// Sets the unit of a variable when one is given (the parameter list writes `None` for
 /// dimensionless parameters).
 pub(crate) fn with_unit<M>(v: Variable<M>, unit: Option<&'static str>) -> Variable<M> {
@@ -950,18 +971,10 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
     Lazy::new(|| {
         type V = Variable<BenchPlantModel>;
         let d = BenchParameters::default();
-        let range = |field: &str| {
-            BenchParameters::PARAMETER_LIMITS
-                .iter()
-                .find(|(n, _, _)| *n == field)
-                .map(|&(_, lo, hi)| (lo, hi))
-                .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
-        };
         let mut v: Vec<V> = Vec::new();
         // A tunable parameter of the plant: a change reaches the physics at the next step.
         macro_rules! param {
             ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {{
-                let (lo, hi) = range(stringify!($field));
                 let var = V::real(
                     $name,
                     $vr,
@@ -972,9 +985,11 @@ static VARIABLES: Lazy<Vec<Variable<BenchPlantModel>>> = unsafe {
                     },
                 )
                 .tunable(Start::Real(d.$field))
-                .range(lo, hi)
                 .describe($desc);
-                v.push(with_unit(var, unit_of!($unit)));
+                v.push(with_unit(
+                    with_limits(var, stringify!($field)),
+                    unit_of!($unit),
+                ));
             }};
         }
         v.extend([

@@ -26,6 +26,14 @@ pub enum ParameterError {
         /// Largest admissible value.
         max: f64,
     },
+    /// A count kept as a Real ([`BenchParameters::INTEGER_PARAMETERS`]) is not a whole number.
+    #[error("parameter `{name}` = {value} must be an integer")]
+    NotInteger {
+        /// Field name.
+        name: &'static str,
+        /// Offending value.
+        value: f64,
+    },
     /// Two values contradict each other.
     #[error("inconsistent parameters: {0}")]
     Inconsistent(&'static str),
@@ -315,6 +323,11 @@ impl BenchParameters {
         ("max_internal_step", 1e-7, 1.0),
     ];
 
+    /// The real-valued fields that only take whole numbers (counts kept as Reals, so that
+    /// parameter files writing `2000.0` keep working): `validate` refuses a fraction, and the FMUs
+    /// declare them integer-valued (`fmi2SetReal` refuses a fraction at once).
+    pub const INTEGER_PARAMETERS: &'static [&'static str] = &["encoder_counts_per_revolution"];
+
     /// Value of a real-valued field by name (the names of [`Self::PARAMETER_LIMITS`]).
     pub fn real(&self, name: &str) -> Option<f64> {
         self.real_fields()
@@ -439,8 +452,8 @@ impl BenchParameters {
     }
 
     /// Checks every value is finite and inside [`Self::PARAMETER_LIMITS`], and that the
-    /// parameters are consistent (sensor gains of at least `MIN_SENSOR_GAIN`, 1e-6 V, integral
-    /// encoder counts).
+    /// parameters are consistent (sensor gains of at least `MIN_SENSOR_GAIN`, 1e-6 V, whole
+    /// numbers for [`Self::INTEGER_PARAMETERS`]).
     pub fn validate(&self) -> Result<(), ParameterError> {
         let fields = self.real_fields();
         debug_assert_eq!(fields.len(), Self::PARAMETER_LIMITS.len());
@@ -481,10 +494,10 @@ impl BenchParameters {
                 "sensor calibration gains must be at least 1e-6 V in magnitude",
             ));
         }
-        if self.encoder_counts_per_revolution.fract() != 0.0 {
-            return Err(ParameterError::Inconsistent(
-                "encoder counts per revolution must be an integer",
-            ));
+        for (name, value) in fields {
+            if Self::INTEGER_PARAMETERS.contains(&name) && value.fract() != 0.0 {
+                return Err(ParameterError::NotInteger { name, value });
+            }
         }
         if self.hd_surface_min_load_torque >= self.hd_surface_max_load_torque {
             return Err(ParameterError::Inconsistent(
@@ -554,7 +567,13 @@ mod tests {
             encoder_counts_per_revolution: 2000.5,
             ..BenchParameters::default()
         };
-        assert!(matches!(q.validate(), Err(ParameterError::Inconsistent(_))));
+        assert!(matches!(
+            q.validate(),
+            Err(ParameterError::NotInteger {
+                name: "encoder_counts_per_revolution",
+                ..
+            })
+        ));
         for gain in [0.0, -0.0, 5e-324, f64::MIN_POSITIVE, -9.9e-7] {
             for transducer in [false, true] {
                 let mut g = BenchParameters::default();

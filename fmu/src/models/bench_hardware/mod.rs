@@ -193,8 +193,12 @@
 //! frames in `rejectedFrames` and late replies in `staleReplies`.
 //!
 //! ## FMU state
-//! `fmi2GetFMUstate` works; restoring a state saved after initialization is refused: the
-//! physical bench cannot be rewound.
+//! None: the model description declares `canGetAndSetFMUstate="false"` and
+//! `canSerializeFMUstate="false"`, and `fmi2GetFMUstate`, `fmi2SetFMUstate`,
+//! `fmi2FreeFMUstate` and the serialization functions answer fmi2Error with a log line naming
+//! the flag. The physical bench cannot be rewound: a state saved after initialization could
+//! never be restored, and one saved before it holds nothing that setting the parameters again
+//! does not.
 
 mod measure;
 mod session;
@@ -344,6 +348,10 @@ impl Model for BenchHardwareModel {
     const IDENTIFIER: &'static str = "BenchHardware";
     const DESCRIPTION: &'static str = "The knee-actuator test bench itself: the plant's signal interface over bench I/O (simulated in process, or a UDP real-time I/O server), with calibration, tare, plausibility checks, real-time pacing and latched safety interlocks";
     const DEFAULT_EXPERIMENT: (f64, f64, f64) = (0.0, 5.0, 1e-3);
+    /// The physical bench cannot be rewound (module docs, "FMU state").
+    const CAN_GET_AND_SET_FMU_STATE: bool = false;
+    /// No states to serialize.
+    const CAN_SERIALIZE_FMU_STATE: bool = false;
 
     fn variables() -> &'static [Variable<Self>] {
         &VARIABLES
@@ -384,6 +392,9 @@ impl Model for BenchHardwareModel {
         w.bool(self.runtime.0.is_some());
     }
 
+    /// Unreachable through the C API (the FMU-state functions are refused, module docs "FMU
+    /// state"); kept as a second line for a state that reaches the instance another way (the
+    /// glue's unit tests restore states directly).
     fn load_internal(&mut self, r: &mut StateReader<'_>) -> Result<(), StateError> {
         self.start_time = r.f64()?;
         if r.bool()? {

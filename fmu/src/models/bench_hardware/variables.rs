@@ -9,7 +9,9 @@ use crate::hardware::consistency::ConsistencyCheck;
 use crate::hardware::protocol::AnalogChannel;
 use crate::model::{EnumerationType, Start, Variable};
 use crate::models::bench::BenchParameters;
-use crate::models::bench_plant::{for_each_bench_parameter, io_variables, unit_of, with_unit};
+use crate::models::bench_plant::{
+    for_each_bench_parameter, io_variables, unit_of, with_limits, with_unit,
+};
 
 // SAFETY: a static (Lazy registers its address for the release at unload).
 pub(super) static ENUMERATIONS: Lazy<Vec<EnumerationType>> = unsafe {
@@ -92,13 +94,6 @@ pub(super) static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
     Lazy::new(|| {
         type V = Variable<BenchHardwareModel>;
         let d = BenchParameters::default();
-        let range = |field: &str| {
-            BenchParameters::PARAMETER_LIMITS
-                .iter()
-                .find(|(n, _, _)| *n == field)
-                .map(|&(_, lo, hi)| (lo, hi))
-                .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
-        };
         macro_rules! window {
             ($name:literal, $vr:expr, $ch:expr, $end:tt, $desc:literal) => {
                 V::real(
@@ -304,12 +299,13 @@ pub(super) static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
         macro_rules! param {
             ($name:literal, $vr:expr, $field:ident, $unit:tt, $desc:literal) => {
                 if SHARED_PARAMETERS.contains(&$name) {
-                    let (lo, hi) = range(stringify!($field));
                     let var = V::real($name, $vr, |m| m.params.$field, |m, x| m.params.$field = x)
                         .parameter(Start::Real(d.$field))
-                        .range(lo, hi)
                         .describe($desc);
-                    v.push(with_unit(var, unit_of!($unit)));
+                    v.push(with_unit(
+                        with_limits(var, stringify!($field)),
+                        unit_of!($unit),
+                    ));
                 }
             };
         }
