@@ -58,7 +58,7 @@ pub struct ModelError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ErrorKind {
     /// The model refused the call before changing anything (parameters that do not fit
-    /// together, rejected inputs, a step off the sample grid): the glue answers `fmi2Error`
+    /// together, rejected inputs, a step size the model cannot take): the glue answers `fmi2Error`
     /// and keeps the instance's state, so the importer may correct the call and go on.
     Refused,
     /// The computation failed after the model may have changed, or the hardware behind it
