@@ -287,6 +287,14 @@ fn summary(s: &EmulatorStats) -> String {
             "handshakes refused: bench setup",
             s.setup_refusals.to_string(),
         ),
+        (
+            "HELLOs replayed (not answered)",
+            s.replayed_hellos.to_string(),
+        ),
+        (
+            "HELLOs dropped (table or budget)",
+            s.handshakes_dropped.to_string(),
+        ),
         ("version refusals sent", s.version_refusals.to_string()),
         ("latches acknowledged", s.acknowledgements.to_string()),
         (
@@ -521,6 +529,8 @@ mod tests {
             fault_frames_refused: 121,
             heartbeats_seen: 122,
             link_faults_applied: 123,
+            replayed_hellos: 124,
+            handshakes_dropped: 125,
             rejected: Counters {
                 accepted: 201,
                 truncated: 202,
@@ -539,7 +549,7 @@ mod tests {
         };
         let text = summary(&s);
         assert!(!text.contains('{') && !text.contains("Counters"), "{text}");
-        for n in (101..=123).chain(201..=209) {
+        for n in (101..=125).chain(201..=209) {
             assert_eq!(
                 text.lines()
                     .filter(|l| l.split_whitespace().last() == Some(&n.to_string()))
