@@ -369,18 +369,23 @@ pub fn run(
     server.serve(stop, stats)
 }
 
-/// Checks that serving on `bind` without a key is allowed: only on a loopback address.
-pub fn check_bind(bind: &str, has_key: bool) -> Result<(), EmulatorError> {
-    if has_key {
+/// Checks that serving on `bind` with `key` is allowed: without a key, or with one that is
+/// no secret ([`Key::weakness`]: the public loopback key, say), only on a loopback address.
+pub fn check_bind(bind: &str, key: Option<&Key>) -> Result<(), EmulatorError> {
+    if key.is_some_and(|k| k.weakness().is_none()) {
         return Ok(());
     }
+    let what = match key.and_then(Key::weakness) {
+        Some(why) => format!("with a key that is no secret ({why})"),
+        None => "without a key".to_string(),
+    };
     let addrs: Vec<SocketAddr> = bind
         .to_socket_addrs()
         .map_err(|e| EmulatorError::Config(format!("bind address `{bind}`: {e}")))?
         .collect();
     if let Some(a) = addrs.iter().find(|a| !a.ip().is_loopback()) {
         return Err(EmulatorError::Config(format!(
-            "refusing to serve on {a} without a key: every host that reaches it could drive the bench; give a key file (--key FILE, or --new-key FILE to make one) or bind a loopback address"
+            "refusing to serve on {a} {what}: every host that reaches it could drive the bench; give a key file (--key FILE, or --new-key FILE to make one) or bind a loopback address"
         )));
     }
     Ok(())
@@ -467,7 +472,7 @@ struct Server {
 
 impl Server {
     fn new(config: EmulatorConfig) -> Result<Self, EmulatorError> {
-        check_bind(&config.bind, config.key.is_some())?;
+        check_bind(&config.bind, config.key.as_ref())?;
         let fmu = Fmu::load(&config.fmu, &LoadOptions::default())?;
         // The emulator drives the plant's own interface: another model would be driven through
         // value references it does not have.

@@ -290,9 +290,10 @@ impl UdpBench {
             )));
         }
         let key = match &setup.key {
-            Some(k) => k.clone(),
+            Some(k) if k.weakness().is_none() || server.ip().is_loopback() => k.clone(),
             None if server.ip().is_loopback() => Key::loopback(),
-            None => {
+            // A key that is no secret (the loopback key, say) authenticates nothing: as none.
+            Some(_) | None => {
                 return Err(IoError::Setup(format!(
                     "server {server} is not on this machine: a key file is needed (`kneebench key new FILE` on the bench; keyFile)"
                 )));
@@ -844,6 +845,15 @@ mod tests {
         };
         let e = UdpBench::connect(&setup).unwrap_err().to_string();
         assert!(e.contains("a key file is needed"), "{e}");
+        // Nor with a key that is no secret.
+        for key in [Key::loopback(), Key::from_bytes([0; 32])] {
+            let setup = UdpSetup {
+                key: Some(key),
+                ..setup.clone()
+            };
+            let e = UdpBench::connect(&setup).unwrap_err().to_string();
+            assert!(e.contains("a key file is needed"), "{e}");
+        }
     }
 
     #[test]
