@@ -89,11 +89,24 @@ mod vr {
     pub const LOAD_DRIVER_MODE: u32 = 4;
 }
 
-/// Handshakes answered but not yet completed that the server remembers (the oldest is
-/// forgotten first).
-const MAX_PENDING: usize = 8;
+/// Handshakes answered but not yet completed (half-open) that the server remembers. A
+/// half-open handshake is never evicted before [`PENDING_LIFETIME`]: with the table full, a
+/// new HELLO is not answered (counted in [`EmulatorStats::handshakes_dropped`]; its client
+/// sends it again).
+const MAX_PENDING: usize = 64;
+/// Half-open handshakes of one source IP address at most (the rest of the table stays for
+/// the other addresses).
+const MAX_PENDING_PER_SOURCE: usize = 16;
 /// How long an answered handshake waits for its first session frame.
 const PENDING_LIFETIME: Duration = Duration::from_secs(1);
+/// Handshake answers (WELCOME, REFUSE) sent to one source IP address: a burst of this many,
+/// refilled at this many a second. A master's handshake takes one to eleven (a HELLO every
+/// 20 ms for 0.2 s); the limit keeps a replayed or spoofed HELLO from making the server a
+/// reflector.
+const HANDSHAKE_ANSWERS_PER_SOURCE: f64 = 64.0;
+/// Source addresses whose answer budget the server tracks at most (idle ones are forgotten
+/// first; past this, the oldest budgets are dropped, which can only grant answers).
+const MAX_ANSWER_BUDGETS: usize = 1024;
 /// Version refusals sent at most per second (they are unauthenticated: never a reflector).
 const VERSION_REFUSALS_PER_SECOND: u64 = 10;
 /// The receive buffer the server asks for \[bytes\] (granted up to the system's limit, or
@@ -217,6 +230,12 @@ pub struct EmulatorStats {
     pub foreign_frames: u64,
     /// Handshakes refused because another master's session was live.
     pub busy_refusals: u64,
+    /// HELLOs (authentic, so replays) of a handshake already half-open from another source
+    /// address: not answered, and the half-open handshake is left as it is.
+    pub replayed_hellos: u64,
+    /// HELLOs not answered because the half-open handshakes' table (or the source address's
+    /// share of it) was full, or the source address's answer budget spent.
+    pub handshakes_dropped: u64,
     /// Handshakes refused because the master's bench setup differs.
     pub setup_refusals: u64,
     /// Frames of another protocol version answered with a version refusal.
@@ -350,18 +369,23 @@ pub fn run(
     server.serve(stop, stats)
 }
 
-/// Checks that serving on `bind` without a key is allowed: only on a loopback address.
-pub fn check_bind(bind: &str, has_key: bool) -> Result<(), EmulatorError> {
-    if has_key {
+/// Checks that serving on `bind` with `key` is allowed: without a key, or with one that is
+/// no secret ([`Key::weakness`]: the public loopback key, say), only on a loopback address.
+pub fn check_bind(bind: &str, key: Option<&Key>) -> Result<(), EmulatorError> {
+    if key.is_some_and(|k| k.weakness().is_none()) {
         return Ok(());
     }
+    let what = match key.and_then(Key::weakness) {
+        Some(why) => format!("with a key that is no secret ({why})"),
+        None => "without a key".to_string(),
+    };
     let addrs: Vec<SocketAddr> = bind
         .to_socket_addrs()
         .map_err(|e| EmulatorError::Config(format!("bind address `{bind}`: {e}")))?
         .collect();
     if let Some(a) = addrs.iter().find(|a| !a.ip().is_loopback()) {
         return Err(EmulatorError::Config(format!(
-            "refusing to serve on {a} without a key: every host that reaches it could drive the bench; give a key file (--key FILE, or --new-key FILE to make one) or bind a loopback address"
+            "refusing to serve on {a} {what}: every host that reaches it could drive the bench; give a key file (--key FILE, or --new-key FILE to make one) or bind a loopback address"
         )));
     }
     Ok(())
@@ -440,13 +464,15 @@ struct Server {
     log: (Option<Instant>, u64),
     /// (start of the current second, version refusals sent in it)
     version_budget: (Instant, u64),
+    /// Handshake answers each source IP address may still get: (last refill, tokens).
+    answer_budgets: std::collections::HashMap<std::net::IpAddr, (Instant, f64)>,
     /// Datagrams to send once the frame at hand is handled and the statistics published.
     outbox: Vec<(Vec<u8>, SocketAddr)>,
 }
 
 impl Server {
     fn new(config: EmulatorConfig) -> Result<Self, EmulatorError> {
-        check_bind(&config.bind, config.key.is_some())?;
+        check_bind(&config.bind, config.key.as_ref())?;
         let fmu = Fmu::load(&config.fmu, &LoadOptions::default())?;
         // The emulator drives the plant's own interface: another model would be driven through
         // value references it does not have.
@@ -501,6 +527,7 @@ impl Server {
             persisted: (None, false),
             log: (None, 0),
             version_budget: (Instant::now(), 0),
+            answer_budgets: std::collections::HashMap::new(),
             outbox: Vec::new(),
             config,
         };
@@ -1121,6 +1148,35 @@ impl Server {
         }
     }
 
+    /// Whether a handshake answer may go to `to` now (and counts it): a token bucket per
+    /// source IP address ([`HANDSHAKE_ANSWERS_PER_SOURCE`]). A HELLO over budget is dropped
+    /// and counted in [`EmulatorStats::handshakes_dropped`].
+    fn answer_allowed(&mut self, to: SocketAddr) -> bool {
+        let now = Instant::now();
+        let budgets = &mut self.answer_budgets;
+        if budgets.len() >= MAX_ANSWER_BUDGETS && !budgets.contains_key(&to.ip()) {
+            // Forget the budgets that have refilled (idle for a second), else all of them
+            // (failing open: a flood from many addresses must not lock out a new master).
+            budgets.retain(|_, (t, _)| now.duration_since(*t) < Duration::from_secs(1));
+            if budgets.len() >= MAX_ANSWER_BUDGETS {
+                budgets.clear();
+            }
+        }
+        let (last, tokens) = budgets
+            .entry(to.ip())
+            .or_insert((now, HANDSHAKE_ANSWERS_PER_SOURCE));
+        *tokens = (*tokens
+            + now.duration_since(*last).as_secs_f64() * HANDSHAKE_ANSWERS_PER_SOURCE)
+            .min(HANDSHAKE_ANSWERS_PER_SOURCE);
+        *last = now;
+        if *tokens < 1.0 {
+            self.stats.handshakes_dropped += 1;
+            return false;
+        }
+        *tokens -= 1.0;
+        true
+    }
+
     fn send_handshake(&mut self, session: u32, payload: Payload, to: SocketAddr) {
         let (_, bytes) = Sender::new(session.max(1), self.handshake.clone()).frame(payload);
         self.outbox.push((bytes, to));
@@ -1198,11 +1254,34 @@ impl Server {
         let Payload::Hello(hello) = frame.payload else {
             return;
         };
-        // The same HELLO again (our WELCOME was lost): the same WELCOME.
-        if let Some(p) = self.pending.iter().find(|p| {
-            p.session == header.session && p.client_nonce == hello.nonce && p.peer == from
-        }) {
-            self.outbox.push((p.welcome.clone(), from));
+        let now = Instant::now();
+        self.pending
+            .retain(|p| now.duration_since(p.created) < PENDING_LIFETIME);
+        // A HELLO is not fresh (it carries no time): an authentic one may be a replay, of a
+        // handshake in progress or of an old one, from any address. None may evict or
+        // disturb a half-open handshake (protocol §6.3).
+        if let Some(p) = self
+            .pending
+            .iter()
+            .find(|p| p.session == header.session && p.client_nonce == hello.nonce)
+        {
+            if p.peer == from {
+                // The same HELLO again (our WELCOME was lost): the same WELCOME.
+                let welcome = p.welcome.clone();
+                if self.answer_allowed(from) {
+                    self.outbox.push((welcome, from));
+                }
+            } else {
+                self.stats.replayed_hellos += 1;
+                self.log_refusal(
+                    &"handshake: a HELLO already answered to another address (a replay)",
+                    from,
+                );
+            }
+            return;
+        }
+        if !self.answer_allowed(from) {
+            self.log_refusal(&"handshake: answer budget of the address spent", from);
             return;
         }
         if let Some(diff) = self.setup.difference(&hello.setup) {
@@ -1236,11 +1315,17 @@ impl Server {
                 server_nonce,
                 latched: self.latch.unwrap_or(reason::NONE),
             }));
-        let now = Instant::now();
-        self.pending
-            .retain(|p| now.duration_since(p.created) < PENDING_LIFETIME);
-        while self.pending.len() >= MAX_PENDING {
-            self.pending.pop_front();
+        let of_source = self
+            .pending
+            .iter()
+            .filter(|p| p.peer.ip() == from.ip())
+            .count();
+        if self.pending.len() >= MAX_PENDING || of_source >= MAX_PENDING_PER_SOURCE {
+            // Never evict a half-open handshake: the new one waits for room (its client
+            // sends its HELLO again).
+            self.stats.handshakes_dropped += 1;
+            self.log_refusal(&"handshake: too many half-open handshakes", from);
+            return;
         }
         self.outbox.push((welcome.clone(), from));
         self.pending.push_back(Pending {
@@ -1280,16 +1365,18 @@ impl Server {
                     return Ok(());
                 }
             }
-        } else if let Some(i) = self
-            .pending
-            .iter()
-            .position(|p| p.session == header.session)
-        {
-            if from != self.pending[i].peer {
+        } else if self.pending.iter().any(|p| p.session == header.session) {
+            // Half-open handshakes are told apart by session number and source address (a
+            // replayed HELLO may have made one of the same number for another address).
+            let Some(i) = self
+                .pending
+                .iter()
+                .position(|p| p.session == header.session && p.peer == from)
+            else {
                 self.stats.foreign_frames += 1;
                 self.log_refusal(&"a frame of a handshake from another address", from);
                 return Ok(());
-            }
+            };
             let frame = match Frame::decode(bytes, &self.pending[i].keys.client_to_server) {
                 Ok(f) => f,
                 Err(e) => {

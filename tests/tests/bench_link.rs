@@ -415,6 +415,110 @@ fn an_old_protocol_version_is_refused_with_a_clear_message() {
     assert_eq!(st.sessions, 0);
 }
 
+/// Runs the handshake with `hs` from `socket` up to the WELCOME (no session frame yet).
+fn half_open(emu: &EmulatorHandle, socket: UdpSocket, hs: &mut ClientHandshake) -> Master {
+    socket.send_to(hs.hello(), emu.addr()).unwrap();
+    let mut buf = [0u8; 256];
+    loop {
+        let n = socket.recv(&mut buf).expect("an answer to the HELLO");
+        if let Ok(HandshakeReply::Welcome(session)) = hs.receive(&buf[..n]) {
+            return Master {
+                socket,
+                server: emu.addr(),
+                session: *session,
+            };
+        }
+    }
+}
+
+/// The reviewer's `evict_demo.py`: HELLOs replayed by someone without the key, from other
+/// source ports, between a master's WELCOME and its first session frame (the server kept 8
+/// half-open handshakes, evicted the oldest, and so dropped the master's). No replay may
+/// evict or disturb a half-open handshake (protocol §6.3).
+#[test]
+fn replayed_hellos_never_evict_a_handshake_in_progress() {
+    let _rt = one_real_time_test_at_a_time();
+    let emu = emulator_with(|_| {});
+    // Captured earlier: the HELLO of a master that has since released the bench, and the
+    // HELLOs of 8 more masters' handshakes (never completed).
+    let mut old_hs = ClientHandshake::new(&key(), SETUP).unwrap();
+    let old_hello = old_hs.hello().to_vec();
+    let mut old = half_open(&emu, socket(), &mut old_hs);
+    old.heartbeat();
+    old.send(Payload::SafeState(
+        kneebench_harness::bench_protocol::SafeStateRequest {
+            reason: reason::SESSION_END,
+        },
+    ));
+    let others: Vec<Vec<u8>> = (0..8)
+        .map(|_| {
+            ClientHandshake::new(&key(), SETUP)
+                .unwrap()
+                .hello()
+                .to_vec()
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(10));
+
+    for round in 0..2 {
+        let mut hs = ClientHandshake::new(&key(), SETUP).unwrap();
+        let mut master = half_open(&emu, socket(), &mut hs);
+        let attackers: Vec<UdpSocket> = (0..12).map(|_| socket()).collect();
+        // The old HELLO from 12 new source ports, the master's own HELLO (captured on the
+        // path) from 4 of them, and the 8 other HELLOs, twice each.
+        for _ in 0..2 {
+            for a in &attackers {
+                a.send_to(&old_hello, emu.addr()).unwrap();
+            }
+            for a in &attackers[..4] {
+                a.send_to(hs.hello(), emu.addr()).unwrap();
+            }
+            for (i, h) in others.iter().enumerate() {
+                attackers[i % attackers.len()]
+                    .send_to(h, emu.addr())
+                    .unwrap();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+        // The master's first frame opens its session, and it drives the bench.
+        let (seq, _) = master.send(Payload::Command(DRIVE));
+        let s = master.heartbeat();
+        assert_eq!(s.last_command_sequence, seq, "round {round}");
+        let st = emu.stats();
+        assert_eq!(st.sessions, 2 + round, "{st:?}");
+        assert!(outputs_driven(&st), "{st:?}");
+        // Released before the watchdog's 0.1 s.
+        master.send(Payload::SafeState(
+            kneebench_harness::bench_protocol::SafeStateRequest {
+                reason: reason::SESSION_END,
+            },
+        ));
+        // The replays of one HELLO from other addresses were not answered: the old HELLO
+        // (and each other one) answered to one address only (twice: sent twice), the
+        // master's to none. In the second round every one of them is a replay.
+        let welcomes: Vec<usize> = attackers
+            .iter()
+            .map(|a| {
+                a.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+                let mut buf = [0u8; 256];
+                let mut n = 0;
+                while let Ok(len) = a.recv(&mut buf) {
+                    n += usize::from(len > 5 && buf[5] == 8);
+                }
+                n
+            })
+            .collect();
+        let answered = if round == 0 {
+            2 * (1 + others.len())
+        } else {
+            0
+        };
+        assert_eq!(welcomes.iter().sum::<usize>(), answered, "{welcomes:?}");
+        assert!(st.replayed_hellos >= (round + 1) * (22 + 8), "{st:?}");
+        assert_eq!(st.handshakes_dropped, 0, "{st:?}");
+    }
+}
+
 /// CRC-32/ISO-HDLC, the trailer of protocol version 1.
 fn crc32(bytes: &[u8]) -> u32 {
     let mut crc = 0xFFFF_FFFFu32;

@@ -290,9 +290,10 @@ impl UdpBench {
             )));
         }
         let key = match &setup.key {
-            Some(k) => k.clone(),
+            Some(k) if k.weakness().is_none() || server.ip().is_loopback() => k.clone(),
             None if server.ip().is_loopback() => Key::loopback(),
-            None => {
+            // A key that is no secret (the loopback key, say) authenticates nothing: as none.
+            Some(_) | None => {
                 return Err(IoError::Setup(format!(
                     "server {server} is not on this machine: a key file is needed (`kneebench key new FILE` on the bench; keyFile)"
                 )));
@@ -315,9 +316,21 @@ impl UdpBench {
         let mut buf = [0u8; 2048];
         let end = now_ns() + duration_ns(setup.handshake_timeout);
         let mut busy: Option<String> = None;
+        let mut last_send_error: Option<String> = None;
         while now_ns() < end {
-            // A refused send (ICMP port unreachable: no server yet) is retried until the end.
-            let _ = socket.send(hs.hello());
+            // An error an ICMP message may have caused (port unreachable: no server yet) is
+            // a lost HELLO, sent again until the end; a local error fails at once.
+            match socket.send(hs.hello()) {
+                Ok(_) => {}
+                Err(e) if icmp_caused(&e) || e.kind() == std::io::ErrorKind::Interrupted => {
+                    last_send_error = Some(e.to_string());
+                }
+                Err(e) => {
+                    return Err(IoError::Setup(format!(
+                        "sending the handshake to {server}: {e}"
+                    )));
+                }
+            }
             let until = (now_ns() + duration_ns(HELLO_RESEND)).min(end);
             while let Some(n) = recv_until(&socket, &mut buf, until, spin_ns)? {
                 match hs.receive(&buf[..n]) {
@@ -352,9 +365,12 @@ impl UdpBench {
                 setup.handshake_timeout
             )),
             None => IoError::Setup(format!(
-                "no answer to the handshake from {server} within {:?}: the server is not running or not reachable, holds another key, or speaks another protocol version (this client speaks version {VERSION}); {} frames rejected",
+                "no answer to the handshake from {server} within {:?}: the server is not running or not reachable, holds another key, or speaks another protocol version (this client speaks version {VERSION}); {} frames rejected{}",
                 setup.handshake_timeout,
-                hs.counters().rejected()
+                hs.counters().rejected(),
+                last_send_error
+                    .map(|e| format!("; last network error: {e}"))
+                    .unwrap_or_default()
             )),
         })
     }
@@ -369,8 +385,10 @@ impl UdpBench {
     /// to it.
     fn exchange(&mut self, payload: Payload, expect: FrameType) -> Result<Sample, IoError> {
         let (sequence, bytes) = self.session.tx.frame(payload);
-        self.socket.send(&bytes)?;
         let deadline = now_ns() + duration_ns(self.reply_timeout);
+        // A request lost to an ICMP-reported error is as lost on the network: only the
+        // reply timeout below ends the wait.
+        send_datagram(&self.socket, &bytes)?;
         loop {
             let Some(n) = recv_until(&self.socket, &mut self.buf, deadline, self.spin_ns)? else {
                 return Err(IoError::Timeout(self.reply_timeout));
@@ -403,12 +421,76 @@ fn duration_ns(d: Duration) -> u64 {
     u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
 }
 
+/// How many times a datagram is sent while each send fails with an error that an ICMP
+/// message may have caused ([`icmp_caused`]). Each such error is reported once and consumed by
+/// the call that reports it (without sending the datagram), so the second attempt normally
+/// sends it; more attempts only cover ICMP messages arriving between the attempts.
+const SEND_ATTEMPTS: usize = 4;
+
+/// Whether a socket error on the connected UDP socket may have been caused by an ICMP (or
+/// ICMPv6) error message rather than by this machine's configuration. Linux reports such a
+/// message (a "hard" error: `udp_err`, `icmp_err_convert`, `icmpv6_err_convert`) to the next
+/// send or receive on a connected socket, and anyone who can send IP packets to the client can
+/// forge one (it needs only the addresses and ports): it proves nothing about the link. The
+/// bench link therefore counts it as a lost datagram, never as a link failure by itself; the
+/// reply timeout (the link watchdog) decides. The values:
+///
+/// * `ECONNREFUSED`: port unreachable (also: no server listening yet);
+/// * `EHOSTUNREACH`: host unreachable, administratively prohibited, filtered, precedence,
+///   ICMPv6 address unreachable, beyond scope, time exceeded;
+/// * `ENETUNREACH`: network unknown or prohibited, ICMPv6 no route;
+/// * `EHOSTDOWN`: host unknown; `ENONET`: host isolated; `ENOPROTOOPT`: protocol
+///   unreachable; `EPROTO`: parameter problem;
+/// * `EMSGSIZE`: fragmentation needed / packet too big (a frame of at most 116 bytes never
+///   exceeds a link's MTU by itself);
+/// * `EACCES`: ICMPv6 administratively prohibited, policy failure, reject route (a connected
+///   socket got its local `EACCES`, broadcast without `SO_BROADCAST`, from `connect`).
+///
+/// `EHOSTUNREACH` and `ENETUNREACH` are also what a send gets locally when the route to the
+/// server is gone; every datagram is then lost, and the reply timeout trips the link within
+/// the period as it would for a cut cable. Every other error fails at once: they are local
+/// (`ENETDOWN` an interface down, `EPERM` a firewall rule, `EADDRNOTAVAIL` the local address
+/// gone, `ENOBUFS`, `EBADF`, `EINVAL`, ...) and no ICMP message produces them.
+pub fn icmp_caused(e: &std::io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(
+            libc::ECONNREFUSED
+                | libc::EHOSTUNREACH
+                | libc::ENETUNREACH
+                | libc::EHOSTDOWN
+                | libc::ENONET
+                | libc::ENOPROTOOPT
+                | libc::EPROTO
+                | libc::EMSGSIZE
+                | libc::EACCES
+        )
+    )
+}
+
+/// Sends `bytes` on the connected `socket`. An error an ICMP message may have caused
+/// ([`icmp_caused`]) is consumed by the failing call, which did not send the datagram: the
+/// send is tried again, up to [`SEND_ATTEMPTS`] times. `Ok(true)`: sent; `Ok(false)`: lost
+/// (every attempt failed so); `Err`: a local error.
+pub fn send_datagram(socket: &UdpSocket, bytes: &[u8]) -> Result<bool, IoError> {
+    for _ in 0..SEND_ATTEMPTS {
+        match socket.send(bytes) {
+            Ok(_) => return Ok(true),
+            Err(e) if icmp_caused(&e) || e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(false)
+}
+
 /// Receives one datagram from the connected `socket` if one is there before the monotonic
 /// clock reads `deadline_ns`: waits in `ppoll` until `spin_ns` before the deadline, then spins
 /// (polling without waiting). A datagram already queued is read before the deadline is
 /// checked, so one that arrived while a descheduled thread was not running is still read
 /// (the slack is the thread's scheduling latency, not the kernel's tick); while the thread
-/// runs, nothing that arrives after the deadline is read. `Ok(None)`: the deadline passed.
+/// runs, nothing that arrives after the deadline is read. An error an ICMP message may have
+/// caused ([`icmp_caused`], e.g. a forged port unreachable) is no reply: the wait goes on.
+/// `Ok(None)`: the deadline passed.
 pub fn recv_until(
     socket: &UdpSocket,
     buf: &mut [u8],
@@ -433,9 +515,8 @@ pub fn recv_until(
                         e.kind(),
                         std::io::ErrorKind::WouldBlock
                             | std::io::ErrorKind::TimedOut
-                            // ICMP port unreachable (the server is not there): as no reply.
-                            | std::io::ErrorKind::ConnectionRefused
-                    ) => {}
+                            | std::io::ErrorKind::Interrupted
+                    ) || icmp_caused(&e) => {}
                 Err(e) => return Err(e.into()),
             }
         }
@@ -452,7 +533,9 @@ pub fn recv_until(
 impl BenchIo for UdpBench {
     fn write(&mut self, _t: f64, command: &Command) -> Result<u32, IoError> {
         let (sequence, bytes) = self.session.tx.frame(Payload::Command(*command));
-        self.socket.send(&bytes)?;
+        // A command lost to an ICMP-reported error is as lost on the network: the sample of
+        // the period does not confirm it, and that trips the link.
+        send_datagram(&self.socket, &bytes)?;
         Ok(sequence)
     }
 
@@ -574,6 +657,178 @@ mod tests {
         ));
     }
 
+    /// A minimal bench server on loopback for the client's tests: answers the HELLO, applies
+    /// COMMANDs (confirmed by the samples), answers HEARTBEAT and SAFE_STATE, ends at the
+    /// release or after 2 s of silence.
+    fn serve_one_session(key: Key) -> (SocketAddr, std::thread::JoinHandle<u64>) {
+        use super::super::protocol::{Frame, Receiver, Sender, Welcome};
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        socket
+            .set_read_timeout(Some(Duration::from_secs(2)))
+            .unwrap();
+        let address = socket.local_addr().unwrap();
+        let handle = std::thread::spawn(move || {
+            let mut buf = [0u8; 2048];
+            let hk = key.handshake();
+            let (n, peer) = socket.recv_from(&mut buf).unwrap();
+            let hello = Frame::decode(&buf[..n], &hk).unwrap();
+            let Payload::Hello(h) = hello.payload else {
+                panic!("not a HELLO")
+            };
+            let ns = [7u8; 16];
+            let (_, welcome) = Sender::new(hello.session, hk).frame(Payload::Welcome(Welcome {
+                client_nonce: h.nonce,
+                server_nonce: ns,
+                latched: reason::NONE,
+            }));
+            socket.send_to(&welcome, peer).unwrap();
+            let keys = key.session(hello.session, &h.nonce, &ns);
+            let mut tx = Sender::new(hello.session, keys.server_to_client);
+            tx.sequence = 1;
+            let mut rx = Receiver::new(hello.session, keys.client_to_server);
+            rx.last_sequence = 1;
+            let mut last_command = 0;
+            let mut answered = 0;
+            while let Ok((n, from)) = socket.recv_from(&mut buf) {
+                let Ok(f) = rx.accept(&buf[..n]) else {
+                    continue;
+                };
+                let sample = |request_sequence| Sample {
+                    request_sequence,
+                    last_command_sequence: last_command,
+                    ..Sample::default()
+                };
+                let reply = match f.payload {
+                    Payload::Command(_) => {
+                        last_command = f.sequence;
+                        continue;
+                    }
+                    Payload::Heartbeat => Payload::Sample(sample(f.sequence)),
+                    Payload::SafeState(r) if r.reason == reason::SESSION_END => break,
+                    Payload::SafeState(_) => Payload::SafeStateAck(sample(f.sequence)),
+                    _ => continue,
+                };
+                socket.send_to(&tx.frame(reply).1, from).unwrap();
+                answered += 1;
+            }
+            answered
+        });
+        (address, handle)
+    }
+
+    /// Leaves a real ICMP error pending on the client's connected socket: the socket is
+    /// connected for a moment to a closed loopback port and sends there, so that the kernel
+    /// answers with an ICMP port unreachable, reported (`ECONNREFUSED`) to the next call on the
+    /// socket, and is connected back to `server`. A forged ICMP message has the same effect.
+    fn plant_port_unreachable(socket: &UdpSocket, server: SocketAddr) {
+        let closed = UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap();
+        socket.connect(closed).unwrap();
+        socket.send(b"?").unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+        socket.connect(server).unwrap();
+    }
+
+    #[test]
+    fn an_icmp_error_is_a_lost_datagram_not_a_link_failure() {
+        let key = Key::generate().unwrap();
+        let (server, handle) = serve_one_session(key.clone());
+        let mut bench = UdpBench::connect(&UdpSetup {
+            address: server.to_string(),
+            key: Some(key),
+            setup: BenchSetup {
+                configuration: 1,
+                test_kind: SetValueKind::Current,
+                load_kind: SetValueKind::Current,
+            },
+            handshake_timeout: Duration::from_secs(2),
+            reply_timeout: Duration::from_millis(500),
+            spin: Duration::ZERO,
+        })
+        .unwrap();
+        let command = Command::safe(SetValueKind::Current, SetValueKind::Current);
+        // The planted error is the kind a forged ICMP port unreachable leaves.
+        plant_port_unreachable(&bench.socket, server);
+        let e = bench
+            .socket
+            .take_error()
+            .unwrap()
+            .expect("an ICMP error pending");
+        assert_eq!(e.kind(), std::io::ErrorKind::ConnectionRefused, "{e}");
+        // One period after another as `BenchHardware`'s step runs them, with an ICMP error
+        // reported to the command's send, to the heartbeat's send, to both: every write and
+        // read succeeds and every sample confirms the period's command (no link trip).
+        for period in 0..30 {
+            if period % 3 != 1 {
+                plant_port_unreachable(&bench.socket, server);
+            }
+            let seq = bench.write(0.0, &command).expect("write");
+            if period % 3 != 0 {
+                plant_port_unreachable(&bench.socket, server);
+            }
+            let sample = bench.read(0.0).expect("read");
+            assert_eq!(sample.last_command_sequence, seq, "period {period}");
+        }
+        plant_port_unreachable(&bench.socket, server);
+        let ack = bench
+            .enter_safe_state(0.0, reason::CLIENT_REQUEST, Duration::from_secs(1))
+            .unwrap();
+        assert!(ack.request_sequence > 0);
+        drop(bench);
+        assert_eq!(handle.join().unwrap(), 31);
+    }
+
+    #[test]
+    fn errors_of_icmp_messages_are_told_from_local_ones() {
+        use std::io::Error;
+        for e in [
+            libc::ECONNREFUSED,
+            libc::EHOSTUNREACH,
+            libc::ENETUNREACH,
+            libc::EHOSTDOWN,
+            libc::ENONET,
+            libc::ENOPROTOOPT,
+            libc::EPROTO,
+            libc::EMSGSIZE,
+            libc::EACCES,
+        ] {
+            assert!(icmp_caused(&Error::from_raw_os_error(e)), "{e}");
+        }
+        for e in [
+            libc::ENETDOWN,
+            libc::EPERM,
+            libc::EADDRNOTAVAIL,
+            libc::ENOBUFS,
+            libc::EBADF,
+            libc::EINVAL,
+            libc::ENOTCONN,
+        ] {
+            assert!(!icmp_caused(&Error::from_raw_os_error(e)), "{e}");
+        }
+        assert!(!icmp_caused(&Error::other("not an OS error")));
+    }
+
+    #[test]
+    fn an_icmp_error_while_waiting_for_the_reply_is_no_reply() {
+        let quiet = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let server = quiet.local_addr().unwrap();
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        socket.connect(server).unwrap();
+        plant_port_unreachable(&socket, server);
+        let mut buf = [0u8; 64];
+        let deadline = now_ns() + 20_000_000;
+        assert_eq!(recv_until(&socket, &mut buf, deadline, 0), Ok(None));
+        // A datagram after the error is still read.
+        plant_port_unreachable(&socket, server);
+        quiet
+            .send_to(b"reply", socket.local_addr().unwrap())
+            .unwrap();
+        let deadline = now_ns() + 1_000_000_000;
+        assert_eq!(recv_until(&socket, &mut buf, deadline, 0), Ok(Some(5)));
+    }
+
     #[test]
     fn keyless_sessions_are_refused_towards_another_machine() {
         let setup = UdpSetup {
@@ -590,6 +845,15 @@ mod tests {
         };
         let e = UdpBench::connect(&setup).unwrap_err().to_string();
         assert!(e.contains("a key file is needed"), "{e}");
+        // Nor with a key that is no secret.
+        for key in [Key::loopback(), Key::from_bytes([0; 32])] {
+            let setup = UdpSetup {
+                key: Some(key),
+                ..setup.clone()
+            };
+            let e = UdpBench::connect(&setup).unwrap_err().to_string();
+            assert!(e.contains("a key file is needed"), "{e}");
+        }
     }
 
     #[test]

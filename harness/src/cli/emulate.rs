@@ -314,6 +314,14 @@ fn summary(s: &EmulatorStats) -> String {
             "handshakes refused: bench setup",
             s.setup_refusals.to_string(),
         ),
+        (
+            "HELLOs replayed (not answered)",
+            s.replayed_hellos.to_string(),
+        ),
+        (
+            "HELLOs dropped (table or budget)",
+            s.handshakes_dropped.to_string(),
+        ),
         ("version refusals sent", s.version_refusals.to_string()),
         ("latches acknowledged", s.acknowledgements.to_string()),
         (
@@ -399,7 +407,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         }
         (None, None) => None,
     };
-    emulator::check_bind(&args.bind, config.key.is_some())?;
+    emulator::check_bind(&args.bind, config.key.as_ref())?;
     for f in &args.faults {
         config.faults.push(parse_fault(f)?);
     }
@@ -513,6 +521,38 @@ mod tests {
             .to_string();
             assert!(e.contains("chmod 600"), "{e}");
         }
+        // A key file holding the public loopback key or 64 zeros is refused, saying why.
+        for (name, text, says) in [
+            (
+                "loopback.key",
+                Key::loopback().to_hex(),
+                "public loopback development key",
+            ),
+            ("zero.key", "0".repeat(64), "all its 32 bytes are 0x00"),
+        ] {
+            let path = dir.path().join(name);
+            std::fs::write(&path, format!("{text}\n")).unwrap();
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+            }
+            let e = run(args(&[
+                "--bind",
+                "0.0.0.0:0",
+                "--key",
+                path.to_str().unwrap(),
+            ]))
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        // Nor is a key that is no secret, given in code, a key off loopback.
+        let e = kneebench_harness::emulator::check_bind("0.0.0.0:0", Some(&Key::loopback()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("with a key that is no secret"), "{e}");
+        kneebench_harness::emulator::check_bind("127.0.0.1:0", Some(&Key::loopback())).unwrap();
         assert!(
             Cli::try_parse_from(["emulate", "--key", "a", "--new-key", "b"]).is_err(),
             "--key and --new-key together"
@@ -548,6 +588,8 @@ mod tests {
             fault_frames_refused: 121,
             heartbeats_seen: 122,
             link_faults_applied: 123,
+            replayed_hellos: 124,
+            handshakes_dropped: 125,
             rejected: Counters {
                 accepted: 201,
                 truncated: 202,
@@ -566,7 +608,7 @@ mod tests {
         };
         let text = summary(&s);
         assert!(!text.contains('{') && !text.contains("Counters"), "{text}");
-        for n in (101..=123).chain(201..=209) {
+        for n in (101..=125).chain(201..=209) {
             assert_eq!(
                 text.lines()
                     .filter(|l| l.split_whitespace().last() == Some(&n.to_string()))

@@ -12,8 +12,9 @@ Examples:
   kneebench key new lab-bench.key      # 32 random bytes as hex, mode 0600
   kneebench key check lab-bench.key
 The bench server uses it (kneebench emulate --key FILE); the same file goes to every master
-(the BenchHardware parameter keyFile). A key file that its group or others may read is
-refused.")]
+(the BenchHardware parameter keyFile). A key file that its group or others may read,
+that another user owns or could replace (its directory), or that holds a key that is no
+secret (the public loopback key, 64 zeros) is refused.")]
 pub struct Args {
     /// What to do.
     #[command(subcommand)]
@@ -28,7 +29,8 @@ pub enum Action {
         /// The key file to create.
         file: PathBuf,
     },
-    /// Check that FILE holds a key and only its owner may read it.
+    /// Check that FILE holds a secret key, is owned by this user, only they may read it, and
+    /// no other user can replace it; says what is wrong otherwise.
     Check {
         /// The key file.
         file: PathBuf,

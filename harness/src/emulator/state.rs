@@ -2,7 +2,7 @@
 //! live, so that a restart keeps the latch and one under a live session latches
 //! (`docs/bench-protocol.md` §10).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use super::EmulatorError;
 use crate::bench_protocol::reason;
@@ -48,20 +48,29 @@ pub(super) fn read_state(path: &Path) -> Result<(Option<u8>, bool), EmulatorErro
     Ok((latch, live))
 }
 
-/// Writes the state atomically (a temporary file renamed over it, synced).
+/// Writes the state atomically: a new temporary file in the same directory, created
+/// exclusively (`O_EXCL`: never through an existing file or symbolic link) with a random name
+/// and mode 0600, renamed over `path`.
 pub(super) fn write_state(path: &Path, latch: Option<u8>, live: bool) -> std::io::Result<()> {
     use std::io::Write;
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let mut f = std::fs::File::create(&tmp)?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut prefix = std::ffi::OsString::from(".");
+    prefix.push(path.file_name().unwrap_or_default());
+    prefix.push(".");
+    let mut f = tempfile::Builder::new()
+        .prefix(&prefix)
+        .suffix(".tmp")
+        .tempfile_in(dir)?;
     writeln!(f, "latch {}", latch.unwrap_or(reason::NONE))?;
     writeln!(f, "live {}", u8::from(live))?;
     // Not synced: the rename makes the file whole for a process that dies (the page cache
     // outlives it), and a sync would stall the serving loop by milliseconds on a busy disk.
     // A bench controller that must survive a power cut syncs (protocol §10).
-    drop(f);
-    std::fs::rename(&tmp, path)
+    f.persist(path).map_err(|e| e.error)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -91,5 +100,35 @@ mod tests {
             let e = read_state(&path).unwrap_err().to_string();
             assert!(e.contains("unreadable line"), "{bad}: {e}");
         }
+    }
+
+    /// The temporary file was `<path>.tmp`, made by `File::create`: it followed a symbolic
+    /// link planted there (writing, as the emulator's user, wherever it pointed) and was
+    /// created 0644.
+    #[cfg(unix)]
+    #[test]
+    fn the_state_is_written_through_a_new_private_file_never_through_a_planted_link() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bench.state");
+        let victim = dir.path().join("victim");
+        std::fs::write(&victim, "precious\n").unwrap();
+        std::os::unix::fs::symlink(&victim, dir.path().join("bench.state.tmp")).unwrap();
+        write_state(&path, Some(reason::CLIENT_REQUEST), false).unwrap();
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious\n");
+        assert_eq!(
+            read_state(&path).unwrap(),
+            (Some(reason::CLIENT_REQUEST), false)
+        );
+        let meta = std::fs::symlink_metadata(&path).unwrap();
+        assert!(meta.file_type().is_file());
+        assert_eq!(meta.permissions().mode() & 0o777, 0o600);
+        // Nothing left beside it but the planted link and its target.
+        let mut names: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["bench.state", "bench.state.tmp", "victim"]);
     }
 }

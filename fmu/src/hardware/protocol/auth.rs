@@ -47,6 +47,39 @@ pub enum KeyError {
     /// fail, block or never end.
     #[error("key file {0} is not a regular file; give the file written by `kneebench key new`")]
     NotAFile(String),
+    /// The key file holds a key that is no secret (the public loopback key, the fuzz key, a
+    /// byte repeated).
+    #[error("key file {path}: {why}; make a secret key with `kneebench key new FILE`")]
+    NotSecret {
+        /// The file.
+        path: String,
+        /// What is wrong with the key.
+        why: WeakKey,
+    },
+    /// The key file is owned by another user than the one running this program: that user
+    /// (or whoever it is) can change the key.
+    #[error(
+        "key file {path} is owned by user {owner}, not by the user running this (user {user}); the key must be the user's own: `chown {user} {path}` (or run as its owner)"
+    )]
+    Owner {
+        /// The file.
+        path: String,
+        /// The file's owner (uid).
+        owner: u32,
+        /// The effective user (uid) of this process.
+        user: u32,
+    },
+    /// The key file's directory lets others replace the file: writable by its group or by
+    /// others without the sticky bit, or owned by another user than this one or root.
+    #[error("key file {path}: its directory {dir} {why}: others could replace the key")]
+    Directory {
+        /// The file.
+        path: String,
+        /// The directory.
+        dir: String,
+        /// What is wrong with it (with the command that mends it).
+        why: String,
+    },
     /// The key file does not hold 64 hexadecimal digits.
     #[error(
         "key file {0}: expected one line of 64 hexadecimal digits (a key from `kneebench key new`)"
@@ -58,6 +91,23 @@ pub enum KeyError {
     /// The operating system's random number generator failed.
     #[error("random number generator: {0}")]
     Random(String),
+}
+
+/// Why a key of the right form is no secret (refused in a key file, `docs/bench-protocol.md`
+/// §6.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum WeakKey {
+    /// The public loopback development key ([`Key::loopback`]).
+    #[error(
+        "it is the public loopback development key (docs/bench-protocol.md §6.1), which everyone can compute"
+    )]
+    Loopback,
+    /// The published key of the fuzz targets (`fuzzing::fuzz_key`).
+    #[error("it is the published key of the protocol's fuzz targets")]
+    Fuzz,
+    /// All 32 bytes equal (64 zeros, say): no random key.
+    #[error("all its 32 bytes are 0x{0:02x}: not a random key")]
+    Repeated(u8),
 }
 
 /// Fills `buf` from the operating system's random number generator.
@@ -114,8 +164,10 @@ impl Key {
         self.0.iter().map(|b| format!("{b:02x}")).collect()
     }
 
-    /// A key from 64 hexadecimal digits (surrounding white space ignored).
-    pub fn from_hex(text: &str) -> Option<Self> {
+    /// A key from 64 hexadecimal digits (surrounding white space ignored), as a key file holds
+    /// it: `None` if the text is not 64 hexadecimal digits, `Some(Err)` for a key that is no
+    /// secret ([`Key::weakness`]), which a key file must not hold.
+    pub fn from_hex(text: &str) -> Option<Result<Self, WeakKey>> {
         let t = text.trim();
         if t.len() != 2 * KEY_LEN || !t.is_ascii() {
             return None;
@@ -124,7 +176,26 @@ impl Key {
         for (i, b) in k.iter_mut().enumerate() {
             *b = u8::from_str_radix(&t[2 * i..2 * i + 2], 16).ok()?;
         }
-        Some(Self(k))
+        let key = Self(k);
+        Some(match key.weakness() {
+            Some(why) => Err(why),
+            None => Ok(key),
+        })
+    }
+
+    /// Why this key is no secret: the public loopback key, the fuzz targets' key, or one byte
+    /// repeated (`None`: none of these; a key from [`Key::generate`] is none of them but with
+    /// a probability of 2^-248).
+    pub fn weakness(&self) -> Option<WeakKey> {
+        if *self == Self::loopback() {
+            Some(WeakKey::Loopback)
+        } else if *self == super::fuzzing::fuzz_key() {
+            Some(WeakKey::Fuzz)
+        } else if self.0.iter().all(|&b| b == self.0[0]) {
+            Some(WeakKey::Repeated(self.0[0]))
+        } else {
+            None
+        }
     }
 
     /// Writes a new random key to `path`, readable and writable by its owner only (mode 0600,
@@ -156,8 +227,10 @@ impl Key {
         Ok(key)
     }
 
-    /// Reads the key file at `path`; refuses a file that its group or others may read or
-    /// write (on Unix), or that is not a regular file.
+    /// Reads the key file at `path`; refuses a file that is not a regular file, and on Unix
+    /// one that its group or others may read or write, that another user owns, or whose
+    /// directory others may write to ([`check_key_directory`]); refuses a key that is no
+    /// secret ([`Key::weakness`]).
     pub fn load_file(path: &Path) -> Result<Self, KeyError> {
         let name = path.display().to_string();
         let io = |source| KeyError::Io {
@@ -170,18 +243,32 @@ impl Key {
         }
         #[cfg(unix)]
         {
+            use std::os::unix::fs::MetadataExt;
             use std::os::unix::fs::PermissionsExt;
             let mode = meta.permissions().mode() & 0o777;
             if mode & 0o077 != 0 {
                 return Err(KeyError::Permissions { path: name, mode });
             }
+            let user = effective_uid().map_err(io)?;
+            if meta.uid() != user {
+                return Err(KeyError::Owner {
+                    path: name,
+                    owner: meta.uid(),
+                    user,
+                });
+            }
+            check_key_directory(path, user)?;
         }
         // A key file is one short line; do not read an arbitrarily large file.
         if meta.len() > 256 {
             return Err(KeyError::Format(name));
         }
         let text = std::fs::read_to_string(path).map_err(io)?;
-        Self::from_hex(&text).ok_or(KeyError::Format(name))
+        match Self::from_hex(&text) {
+            Some(Ok(key)) => Ok(key),
+            Some(Err(why)) => Err(KeyError::NotSecret { path: name, why }),
+            None => Err(KeyError::Format(name)),
+        }
     }
 
     fn derive(&self, parts: &[&[u8]]) -> TagKey {
@@ -271,6 +358,68 @@ impl TagKey {
     }
 }
 
+/// The effective user id of this process, read from `/proc/self/status` (its second `Uid:`
+/// field: what `geteuid` returns; without `unsafe`, which this module does not use).
+#[cfg(unix)]
+fn effective_uid() -> Result<u32, std::io::Error> {
+    let status = std::fs::read_to_string("/proc/self/status")?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("Uid:"))
+        .and_then(|ids| ids.split_whitespace().nth(1))
+        .and_then(|id| id.parse().ok())
+        .ok_or_else(|| {
+            std::io::Error::other("cannot tell the effective user from /proc/self/status")
+        })
+}
+
+/// Checks that no other user can replace the key file at `path`: its directory (that of the
+/// path as given and, through symbolic links, that of the file itself) must be owned by
+/// `user` or root and not writable by its group or others, unless sticky (like `/tmp`, where
+/// only a file's owner may remove or rename it).
+#[cfg(unix)]
+pub fn check_key_directory(path: &Path, user: u32) -> Result<(), KeyError> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let name = path.display().to_string();
+    let parent = |p: &Path| match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => Path::new(".").to_path_buf(),
+    };
+    let mut dirs = vec![parent(path)];
+    if let Ok(real) = std::fs::canonicalize(path) {
+        dirs.push(parent(&real));
+    }
+    for dir in dirs {
+        let meta = std::fs::metadata(&dir).map_err(|source| KeyError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let mode = meta.permissions().mode();
+        let d = dir.display().to_string();
+        let why = if meta.uid() != user && meta.uid() != 0 {
+            Some(format!(
+                "is owned by user {} (neither this user {user} nor root); keep the key in a directory of your own",
+                meta.uid()
+            ))
+        } else if mode & 0o022 != 0 && mode & 0o1000 == 0 {
+            Some(format!(
+                "is writable by its group or others (mode {:03o}) and not sticky; `chmod go-w {d}`",
+                mode & 0o777
+            ))
+        } else {
+            None
+        };
+        if let Some(why) = why {
+            return Err(KeyError::Directory {
+                path: name,
+                dir: d,
+                why,
+            });
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,10 +505,106 @@ mod tests {
     #[test]
     fn hex_round_trips() {
         let k = Key::generate().unwrap();
-        assert_eq!(Key::from_hex(&k.to_hex()), Some(k.clone()));
-        assert_eq!(Key::from_hex(&format!(" {}\n", k.to_hex())), Some(k));
+        assert_eq!(Key::from_hex(&k.to_hex()), Some(Ok(k.clone())));
+        assert_eq!(Key::from_hex(&format!(" {}\n", k.to_hex())), Some(Ok(k)));
         assert_eq!(Key::from_hex("00"), None);
         assert_eq!(Key::from_hex(&"g".repeat(64)), None);
         assert_ne!(Key::loopback(), Key::from_bytes([0; KEY_LEN]));
+    }
+
+    /// Writes `text` as a key file of mode 0600 in `dir`.
+    fn key_file(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+        }
+        path
+    }
+
+    #[test]
+    fn keys_that_are_no_secret_are_refused_in_key_files() {
+        let dir = tempfile::tempdir().unwrap();
+        for (key, why, says) in [
+            (
+                Key::loopback(),
+                WeakKey::Loopback,
+                "public loopback development key",
+            ),
+            (
+                super::super::fuzzing::fuzz_key(),
+                WeakKey::Fuzz,
+                "fuzz targets",
+            ),
+            (
+                Key::from_bytes([0; KEY_LEN]),
+                WeakKey::Repeated(0),
+                "all its 32 bytes are 0x00",
+            ),
+            (
+                Key::from_bytes([0xff; KEY_LEN]),
+                WeakKey::Repeated(0xff),
+                "all its 32 bytes are 0xff",
+            ),
+        ] {
+            assert_eq!(key.weakness(), Some(why));
+            assert_eq!(Key::from_hex(&key.to_hex()), Some(Err(why)));
+            let path = key_file(dir.path(), "weak.key", &format!("{}\n", key.to_hex()));
+            let e = Key::load_file(&path).unwrap_err();
+            assert!(matches!(e, KeyError::NotSecret { .. }), "{e}");
+            let text = e.to_string();
+            assert!(
+                text.contains(says) && text.contains("kneebench key new"),
+                "{text}"
+            );
+        }
+        // One byte off a repeated key is no longer refused (nor is a random key).
+        let mut bytes = [0u8; KEY_LEN];
+        bytes[31] = 1;
+        assert_eq!(Key::from_bytes(bytes).weakness(), None);
+        assert_eq!(Key::generate().unwrap().weakness(), None);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn key_files_of_another_user_or_in_a_directory_others_can_write_are_refused() {
+        use std::os::unix::fs::{MetadataExt, PermissionsExt};
+        let dir = tempfile::tempdir().unwrap();
+        let user = effective_uid().unwrap();
+        assert_eq!(user, std::fs::metadata(dir.path()).unwrap().uid());
+        let key = Key::generate().unwrap();
+        let path = key_file(dir.path(), "bench.key", &key.to_hex());
+        assert_eq!(Key::load_file(&path).unwrap(), key);
+        // The directory writable by its group or others, unless sticky.
+        for (mode, refused) in [
+            (0o770, true),
+            (0o707, true),
+            (0o777, true),
+            (0o1777, false),
+            (0o755, false),
+        ] {
+            std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(mode)).unwrap();
+            let r = Key::load_file(&path);
+            assert_eq!(r.is_err(), refused, "{mode:o}: {r:?}");
+            if let Err(e) = r {
+                assert!(matches!(e, KeyError::Directory { .. }), "{e}");
+                assert!(e.to_string().contains("chmod go-w"), "{e}");
+            }
+        }
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+        // A file owned by another user: only root can make one to try.
+        if user == 0 {
+            std::os::unix::fs::chown(&path, Some(65534), None).unwrap();
+            let e = Key::load_file(&path).unwrap_err();
+            assert!(matches!(e, KeyError::Owner { owner: 65534, .. }), "{e}");
+            assert!(e.to_string().contains("owned by user 65534"), "{e}");
+            std::os::unix::fs::chown(&path, Some(0), None).unwrap();
+            std::os::unix::fs::chown(dir.path(), Some(65534), None).unwrap();
+            let e = Key::load_file(&path).unwrap_err();
+            assert!(matches!(e, KeyError::Directory { .. }), "{e}");
+            assert!(e.to_string().contains("owned by user 65534"), "{e}");
+        }
     }
 }
