@@ -259,6 +259,10 @@ pub struct EmulatorStats {
     pub heartbeats_seen: u64,
     /// [`Self::heartbeats_seen`] when the last fault was applied.
     pub heartbeats_at_fault: u64,
+    /// [`Self::heartbeats_seen`] when the first drive command was applied (since the start):
+    /// where a master's run began on the campaign's clock, taken by the serving thread itself
+    /// (an observer polling the statistics sees it late when it is descheduled).
+    pub heartbeats_at_first_drive: Option<u64>,
     /// [`Self::heartbeats_seen`] when the first SAFE_STATE datagram (any session) after the
     /// last fault (or the start) arrived: a client's trip is `this - heartbeats_at_fault`
     /// control periods after the fault.
@@ -1442,6 +1446,9 @@ impl Server {
                     self.stats.commands_applied_total += 1;
                     if c.drives() {
                         self.stats.drive_commands_applied_total += 1;
+                        if self.stats.heartbeats_at_first_drive.is_none() {
+                            self.stats.heartbeats_at_first_drive = Some(self.stats.heartbeats_seen);
+                        }
                     }
                 }
             }

@@ -725,7 +725,11 @@ fn wait_for_period(emu: &EmulatorHandle, at: u64, patience: Duration) -> Option<
             return None;
         }
         match start {
-            None if s.drive_commands_applied_total > 0 => start = Some(s.heartbeats_seen),
+            // Where the run began as the serving thread recorded it: this thread may see the
+            // first drive command periods late on a loaded machine.
+            None if s.drive_commands_applied_total > 0 => {
+                start = Some(s.heartbeats_at_first_drive.unwrap_or(s.heartbeats_seen))
+            }
             Some(h0) if s.heartbeats_seen >= h0 + at => return Some((h0, s.heartbeats_seen)),
             _ => {}
         }
@@ -1148,6 +1152,21 @@ fn inject(bench: &Bench, case: &Case, emu: &Mutex<Option<EmulatorHandle>>, state
     }
 }
 
+/// The emulator's count of heartbeats once it has stopped changing (the master is gone; at
+/// most a second).
+fn settled_heartbeats(emu: &EmulatorHandle) -> u64 {
+    let end = Instant::now() + Duration::from_secs(1);
+    let mut last = emu.stats().heartbeats_seen;
+    loop {
+        std::thread::sleep(Duration::from_millis(20));
+        let now = emu.stats().heartbeats_seen;
+        if now == last || Instant::now() > end {
+            return now;
+        }
+        last = now;
+    }
+}
+
 /// The SIGKILL case: the master is a child process, killed `case.at` periods into its run.
 fn run_killed(
     bench: &Bench,
@@ -1190,7 +1209,9 @@ fn run_killed(
         return;
     };
     // The rows the master had made: one a period, from the row at 0 to the last heartbeat.
-    let made = e.stats().heartbeats_seen.saturating_sub(h0) + 1;
+    // The emulator publishes its statistics after answering, so the master may have recorded
+    // a row whose heartbeat is not counted yet: read them once they have stopped changing.
+    let made = settled_heartbeats(e).saturating_sub(h0) + 1;
     obs.rows_run = Some(made);
     obs.detail = format!("killed after about {made} rows");
     let partial = partial_path(output);
