@@ -470,7 +470,7 @@ pub fn icmp_caused(e: &std::io::Error) -> bool {
 
 /// Sends `bytes` on the connected `socket`. An error an ICMP message may have caused
 /// ([`icmp_caused`]) is consumed by the failing call, which did not send the datagram: the
-/// send is tried again, up to [`SEND_ATTEMPTS`] times. `Ok(true)`: sent; `Ok(false)`: lost
+/// send is tried again, up to `SEND_ATTEMPTS` (4) times. `Ok(true)`: sent; `Ok(false)`: lost
 /// (every attempt failed so); `Err`: a local error.
 pub fn send_datagram(socket: &UdpSocket, bytes: &[u8]) -> Result<bool, IoError> {
     for _ in 0..SEND_ATTEMPTS {
