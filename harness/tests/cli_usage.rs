@@ -579,6 +579,24 @@ fn emulate_checks_param_names_and_values_before_starting() {
         assert_usage(param, &o, needles);
         assert!(!key.exists(), "{param}: wrote {}", key.display());
     }
+    // A fault that does not parse is a usage error too, read before the new key is written
+    // (it was exit code 1, after the key file).
+    for (fault, needle) in [
+        ("stuck", "--fault fault `stuck`: missing field 1"),
+        ("nope:1", "--fault unknown fault `nope`"),
+    ] {
+        let o = kneebench()
+            .args(["emulate", "--bind", "127.0.0.1:0", "--duration", "5"])
+            .arg("--fmu")
+            .arg(&plant)
+            .arg("--new-key")
+            .arg(&key)
+            .args(["--fault", fault])
+            .output()
+            .unwrap();
+        assert_usage(fault, &o, &[needle]);
+        assert!(!key.exists(), "{fault}: wrote {}", key.display());
+    }
     // A mode by its item's name: the emulator starts with it.
     let o = emulate("frictionModel=HdLossSurface", "0.2");
     let e = String::from_utf8_lossy(&o.stderr);

@@ -395,6 +395,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         bail!("--heartbeat-timeout {}: {e}", args.heartbeat_timeout);
     }
     config.heartbeat_timeout = std::time::Duration::from_secs_f64(args.heartbeat_timeout);
+    // Faults are read before a new key file is written: a bad one is a usage error (exit code
+    // 2) that leaves nothing behind.
+    for f in &args.faults {
+        match parse_fault(f) {
+            Ok(fault) => config.faults.push(fault),
+            Err(e) => return Err(super::Usage(format!("--fault {e:#}")).into()),
+        }
+    }
     config.key = match (&args.key, &args.new_key) {
         (Some(path), _) => Some(Key::load_file(path)?),
         (None, Some(path)) => {
@@ -408,9 +416,6 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         (None, None) => None,
     };
     emulator::check_bind(&args.bind, config.key.as_ref())?;
-    for f in &args.faults {
-        config.faults.push(parse_fault(f)?);
-    }
     config.realtime_priority = args.realtime_priority;
     config.refuse_fault_frames = args.no_faults;
     config.state_file = args.state.clone();
