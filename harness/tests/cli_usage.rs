@@ -597,6 +597,20 @@ fn emulate_checks_param_names_and_values_before_starting() {
         assert_usage(fault, &o, &[needle]);
         assert!(!key.exists(), "{fault}: wrote {}", key.display());
     }
+    // Serving off loopback without a key: a usage error naming the remedy (it was exit 1).
+    let o = kneebench()
+        .args(["emulate", "--bind", "0.0.0.0:0", "--duration", "5", "--fmu"])
+        .arg(&plant)
+        .output()
+        .unwrap();
+    assert_usage(
+        "--bind 0.0.0.0:0",
+        &o,
+        &[
+            "--bind 0.0.0.0:0: refusing to serve on 0.0.0.0:0 without a key",
+            "--key FILE",
+        ],
+    );
     // A mode by its item's name: the emulator starts with it.
     let o = emulate("frictionModel=HdLossSurface", "0.2");
     let e = String::from_utf8_lossy(&o.stderr);

@@ -415,7 +415,11 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         }
         (None, None) => None,
     };
-    emulator::check_bind(&args.bind, config.key.as_ref())?;
+    // Serving off loopback without a key is an argument problem (exit code 2), as is a bind
+    // address that does not resolve.
+    if let Err(e) = emulator::check_bind(&args.bind, config.key.as_ref()) {
+        return Err(super::Usage(format!("--bind {}: {e}", args.bind)).into());
+    }
     config.realtime_priority = args.realtime_priority;
     config.refuse_fault_frames = args.no_faults;
     config.state_file = args.state.clone();
