@@ -490,34 +490,6 @@ pub unsafe extern "C" fn fmi2SetString(
 /// The bytes behind an `fmi2FMUstate`.
 type SavedState = Vec<u8>;
 
-/// Which capability flag an FMU-state function belongs to.
-#[derive(Clone, Copy)]
-enum StateCapability {
-    /// `canGetAndSetFMUstate`: get, set, free.
-    GetAndSet,
-    /// `canSerializeFMUstate`: size, serialize, deserialize.
-    Serialize,
-}
-
-/// Refuses `function` (fmi2Error and a log line naming the flag) when the model's description
-/// declares its capability false: a call the model description says is unsupported.
-fn unsupported_state_call(
-    inst: &dyn FmiInstance,
-    function: &str,
-    capability: StateCapability,
-) -> Option<fmi2Status> {
-    let (provided, flag) = match capability {
-        StateCapability::GetAndSet => (inst.can_get_and_set_fmu_state(), "canGetAndSetFMUstate"),
-        StateCapability::Serialize => (inst.can_serialize_fmu_state(), "canSerializeFMUstate"),
-    };
-    (!provided).then(|| {
-        inst.refuse(
-            function,
-            &format!("not provided: the model description declares {flag}=\"false\""),
-        )
-    })
-}
-
 /// The FMI 2.0 function `fmi2GetFMUstate`: see the module documentation.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn fmi2GetFMUstate(
@@ -526,9 +498,6 @@ pub unsafe extern "C" fn fmi2GetFMUstate(
 ) -> fmi2Status {
     let f = "fmi2GetFMUstate";
     with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::GetAndSet) {
-            return refused;
-        }
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
@@ -552,9 +521,6 @@ pub unsafe extern "C" fn fmi2GetFMUstate(
 pub unsafe extern "C" fn fmi2SetFMUstate(c: fmi2Component, FMUstate: fmi2FMUstate) -> fmi2Status {
     let f = "fmi2SetFMUstate";
     with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::GetAndSet) {
-            return refused;
-        }
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
@@ -575,9 +541,6 @@ pub unsafe extern "C" fn fmi2FreeFMUstate(
 ) -> fmi2Status {
     let f = "fmi2FreeFMUstate";
     with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::GetAndSet) {
-            return refused;
-        }
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
@@ -601,10 +564,7 @@ pub unsafe extern "C" fn fmi2SerializedFMUstateSize(
     size: *mut usize,
 ) -> fmi2Status {
     let f = "fmi2SerializedFMUstateSize";
-    with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::Serialize) {
-            return refused;
-        }
+    with_instance(c, f, Some(Func::SerializeFmuState), |inst| {
         if FMUstate.is_null() || size.is_null() {
             return null_arg(inst, f, "FMUstate or size");
         }
@@ -623,10 +583,7 @@ pub unsafe extern "C" fn fmi2SerializeFMUstate(
     size: usize,
 ) -> fmi2Status {
     let f = "fmi2SerializeFMUstate";
-    with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::Serialize) {
-            return refused;
-        }
+    with_instance(c, f, Some(Func::SerializeFmuState), |inst| {
         if FMUstate.is_null() || serializedState.is_null() {
             return null_arg(inst, f, "FMUstate or serializedState");
         }
@@ -658,10 +615,7 @@ pub unsafe extern "C" fn fmi2DeSerializeFMUstate(
     FMUstate: *mut fmi2FMUstate,
 ) -> fmi2Status {
     let f = "fmi2DeSerializeFMUstate";
-    with_instance(c, f, Some(Func::FmuState), |inst| {
-        if let Some(refused) = unsupported_state_call(inst, f, StateCapability::Serialize) {
-            return refused;
-        }
+    with_instance(c, f, Some(Func::SerializeFmuState), |inst| {
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }

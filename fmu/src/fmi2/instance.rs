@@ -88,8 +88,12 @@ pub enum Func {
     Get,
     /// `fmi2Set{Real,Integer,Boolean,String}`.
     Set,
-    /// `fmi2{Get,Set,Free}FMUstate`, serialization.
+    /// `fmi2{Get,Set,Free}FMUstate` (provided when the model declares
+    /// `canGetAndSetFMUstate`).
     FmuState,
+    /// `fmi2SerializedFMUstateSize`, `fmi2SerializeFMUstate`, `fmi2DeSerializeFMUstate`
+    /// (provided when the model declares `canSerializeFMUstate`).
+    SerializeFmuState,
     /// `fmi2GetDirectionalDerivative`.
     GetDirectionalDerivative,
     /// `fmi2SetRealInputDerivatives`.
@@ -108,7 +112,7 @@ impl Func {
     /// States in which the function may be called.
     pub fn allowed(self) -> u16 {
         match self {
-            Func::SetDebugLogging | Func::Reset | Func::FmuState => {
+            Func::SetDebugLogging | Func::Reset | Func::FmuState | Func::SerializeFmuState => {
                 INST | INIT | DONE | FAIL | CANC | TERM | ERR
             }
             Func::SetupExperiment | Func::EnterInitializationMode => INST,
@@ -176,7 +180,8 @@ fn same_time(a: f64, b: f64) -> bool {
 pub trait FmiInstance: Send {
     /// The logger (for messages the export layer produces itself).
     fn logger(&self) -> &Logger;
-    /// Checks that `func` (named `name`) may be called now; logs "expected vs actual" if not.
+    /// Checks that `func` (named `name`) may be called now: provided (the model description
+    /// declares its capability) and allowed in this state; logs why not.
     fn allow(&self, func: Func, name: &str) -> bool;
     /// `fmi2SetDebugLogging`.
     fn set_debug_logging(&mut self, on: bool, categories: &[&str]) -> fmi2Status;
@@ -238,12 +243,6 @@ pub trait FmiInstance: Send {
     }
     /// Moves the instance to the error state (after a panic inside a call).
     fn poison(&mut self);
-    /// The model's `canGetAndSetFMUstate` ([`Model::CAN_GET_AND_SET_FMU_STATE`]): whether
-    /// `fmi2GetFMUstate`, `fmi2SetFMUstate` and `fmi2FreeFMUstate` are provided.
-    fn can_get_and_set_fmu_state(&self) -> bool;
-    /// The model's `canSerializeFMUstate` ([`Model::CAN_SERIALIZE_FMU_STATE`]): whether the
-    /// serialization functions are provided.
-    fn can_serialize_fmu_state(&self) -> bool;
 }
 
 /// The generic instance of model `M`.
@@ -839,6 +838,19 @@ impl<M: Model> FmiInstance for Instance<M> {
     // check is then one bit test; logging and refusing stay out of line.
     #[inline]
     fn allow(&self, func: Func, name: &str) -> bool {
+        // A function the model description declares unsupported is refused in every state.
+        let undeclared = match func {
+            Func::FmuState if !M::CAN_GET_AND_SET_FMU_STATE => Some("canGetAndSetFMUstate"),
+            Func::SerializeFmuState if !M::CAN_SERIALIZE_FMU_STATE => Some("canSerializeFMUstate"),
+            _ => None,
+        };
+        if let Some(flag) = undeclared {
+            self.refuse(
+                name,
+                &format!("not provided: the model description declares {flag}=\"false\""),
+            );
+            return false;
+        }
         if func.allowed() & self.state.bit() != 0 {
             if self.logger.enabled(Category::Calls) {
                 self.log_call(name);
@@ -1309,14 +1321,6 @@ impl<M: Model> FmiInstance for Instance<M> {
 
     fn poison(&mut self) {
         self.state = State::Error;
-    }
-
-    fn can_get_and_set_fmu_state(&self) -> bool {
-        M::CAN_GET_AND_SET_FMU_STATE
-    }
-
-    fn can_serialize_fmu_state(&self) -> bool {
-        M::CAN_SERIALIZE_FMU_STATE
     }
 }
 

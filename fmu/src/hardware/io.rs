@@ -322,7 +322,7 @@ impl UdpBench {
             // a lost HELLO, sent again until the end; a local error fails at once.
             match socket.send(hs.hello()) {
                 Ok(_) => {}
-                Err(e) if icmp_caused(&e) || e.kind() == std::io::ErrorKind::Interrupted => {
+                Err(e) if datagram_lost(&e) => {
                     last_send_error = Some(e.to_string());
                 }
                 Err(e) => {
@@ -468,6 +468,12 @@ pub fn icmp_caused(e: &std::io::Error) -> bool {
     )
 }
 
+/// Whether a failed send or receive lost only the datagram at hand: an error an ICMP message
+/// may have caused ([`icmp_caused`]), or a signal that interrupted the call.
+fn datagram_lost(e: &std::io::Error) -> bool {
+    icmp_caused(e) || e.kind() == std::io::ErrorKind::Interrupted
+}
+
 /// Sends `bytes` on the connected `socket`. An error an ICMP message may have caused
 /// ([`icmp_caused`]) is consumed by the failing call, which did not send the datagram: the
 /// send is tried again, up to `SEND_ATTEMPTS` (4) times. `Ok(true)`: sent; `Ok(false)`: lost
@@ -476,7 +482,7 @@ pub fn send_datagram(socket: &UdpSocket, bytes: &[u8]) -> Result<bool, IoError> 
     for _ in 0..SEND_ATTEMPTS {
         match socket.send(bytes) {
             Ok(_) => return Ok(true),
-            Err(e) if icmp_caused(&e) || e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) if datagram_lost(&e) => {}
             Err(e) => return Err(e.into()),
         }
     }
@@ -513,10 +519,8 @@ pub fn recv_until(
                 Err(e)
                     if matches!(
                         e.kind(),
-                        std::io::ErrorKind::WouldBlock
-                            | std::io::ErrorKind::TimedOut
-                            | std::io::ErrorKind::Interrupted
-                    ) || icmp_caused(&e) => {}
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) || datagram_lost(&e) => {}
                 Err(e) => return Err(e.into()),
             }
         }
