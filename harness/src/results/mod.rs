@@ -29,6 +29,7 @@ pub enum ColumnKind {
 }
 
 mod background;
+mod column_buffer;
 pub mod csv;
 pub mod parquet;
 mod parquet_dictionary;

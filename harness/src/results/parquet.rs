@@ -2,7 +2,8 @@
 //! `time` column (Integer and Boolean signals as whole numbers), with key-value metadata (the
 //! system, its parameters, the kneebench version, the FMUs' GUIDs).
 //!
-//! Rows are buffered per column as they come (one buffer holding every column of the row group)
+//! Rows are buffered per column as they come (one buffer holding every column of the row group,
+//! on huge pages when it is big: `column_buffer`)
 //! and written in row groups of [`ROW_GROUP_ROWS`] rows: plain encoding, uncompressed (the
 //! values of a recording are mostly full-precision doubles: Snappy saved a fifth of the bytes
 //! and no time in the writers bench), one data page per column chunk. A chunk whose values
@@ -61,6 +62,7 @@ use parquet::schema::types::{ColumnDescPtr, ColumnPath, SchemaDescPtr, SchemaDes
 
 pub use super::background::EncodeOn;
 use super::background::{Background, BlockEncoder, closed_error};
+use super::column_buffer::ColumnBuffer;
 use super::csv::{check_output_path, partial_path};
 use super::parquet_dictionary::{Dictionary, dictionary_of};
 use super::{ColumnKind, ResultSink, ResultsError};
@@ -82,7 +84,7 @@ pub const ROW_GROUP_ROWS: usize = 8192;
 /// (callgrind, the writers bench), on the simulation's thread.
 struct Group {
     /// `width` columns of [`COLUMN_STRIDE`] slots, of which the first `rows` are filled.
-    values: Vec<f64>,
+    values: ColumnBuffer,
     width: usize,
     rows: usize,
 }
@@ -93,10 +95,11 @@ struct Group {
 const COLUMN_STRIDE: usize = ROW_GROUP_ROWS + 8;
 
 impl Group {
-    /// An empty group of `width` columns (`time` included), its buffer allocated in full.
+    /// An empty group of `width` columns (`time` included), its buffer allocated in full (on
+    /// huge pages when it is big: [`ColumnBuffer`]).
     fn new(width: usize) -> Group {
         Group {
-            values: vec![0.0; width * COLUMN_STRIDE],
+            values: ColumnBuffer::zeroed(width * COLUMN_STRIDE),
             width,
             rows: 0,
         }
@@ -125,7 +128,7 @@ impl Default for Group {
     /// A group of no column (before [`begin`](ResultSink::begin), and once closed).
     fn default() -> Group {
         Group {
-            values: Vec::new(),
+            values: ColumnBuffer::default(),
             width: 0,
             rows: 0,
         }
@@ -169,7 +172,7 @@ impl Write for FileSink {
 /// A row group's buffer lent to its pages: the bytes of its columns as they are in memory,
 /// which on a little-endian machine are the plain encoding of the doubles (Parquet's is
 /// little endian).
-struct GroupBytes(Arc<Vec<f64>>);
+struct GroupBytes(Arc<ColumnBuffer>);
 
 impl AsRef<[u8]> for GroupBytes {
     fn as_ref(&self) -> &[u8] {
@@ -249,13 +252,18 @@ impl Encoder {
         // the page writer keeps none of them, so the buffer is never shared by then.
         let buffer = Arc::new(std::mem::take(&mut group.values));
         let written = self.write_row_group(&buffer, rows);
-        group.values = Arc::try_unwrap(buffer).unwrap_or_else(|shared| shared.to_vec());
+        group.values =
+            Arc::try_unwrap(buffer).unwrap_or_else(|shared| ColumnBuffer::on_heap(shared.to_vec()));
         written.map_err(|e| io_error(&self.partial, e))?;
         self.start_writeback()
     }
 
     /// Writes the first `rows` of each column of `buffer` as the next row group.
-    fn write_row_group(&mut self, buffer: &Arc<Vec<f64>>, rows: usize) -> Result<(), ParquetError> {
+    fn write_row_group(
+        &mut self,
+        buffer: &Arc<ColumnBuffer>,
+        rows: usize,
+    ) -> Result<(), ParquetError> {
         let ordinal = i32::try_from(self.row_groups.len())
             .map_err(|_| ParquetError::General("too many row groups".into()))?;
         let file_offset = self.sink()?.bytes_written() as i64;
@@ -955,6 +963,10 @@ mod thread_tests {
     /// plain path's bytes: the crate's own file and column writers.
     #[test]
     fn the_fast_paths_write_the_plain_bytes() {
+        // 101 signals take a buffer mapped on huge pages (the fast path), the 3 of
+        // `the_writer_thread_keeps_every_bit` one on the heap.
+        #[cfg(target_os = "linux")]
+        assert!(Group::new(102).values.is_mapped() && !Group::new(4).values.is_mapped());
         let dir = tempfile::tempdir().unwrap();
         for rows in [2 * ROW_GROUP_ROWS + 1000, 7] {
             let plain = dir.path().join("plain.parquet");
