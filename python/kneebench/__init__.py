@@ -166,7 +166,9 @@ def run(
         _fmu_host(),
         _libpython(),
     )
-    df = pd.DataFrame(_columns(r["names"], r["columns"]))
+    # ``values`` holds one row per column (time first) in the buffer the run filled: its
+    # transpose is the frame's one block of floats, taken without a copy.
+    df = pd.DataFrame(r["values"].T, columns=r["names"], copy=False)
     df.attrs["units"] = dict(zip(r["names"], r["units"]))
     df.attrs["status"] = r["status"]
     df.attrs["message"] = r["message"]

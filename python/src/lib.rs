@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::{Outcome, RunConfig, RunControl, System};
+use kneebench_harness::results::columns::{ColumnMajor, Columns};
 use kneebench_harness::study::{
     Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
 };
@@ -25,8 +26,9 @@ use kneebench_harness::sweep::{
     JournaledOptimization, JournaledSweep, Optimization, Optimizer, Prepared, Row, RunStatus,
     SweepError, SweepOptions, SweepSpec,
 };
-use kneebench_harness::{Fmu, Isolation, LoadOptions, Results, conformance, ssp};
+use kneebench_harness::{Fmu, Isolation, LoadOptions, conformance, ssp};
 use model_description::VariableKind;
+use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
@@ -113,27 +115,6 @@ fn interruptible<T: Send>(
             }
         }
     })
-}
-
-/// Column `j` of `results` (0: time) as little-endian float64 bytes, the room for them asked
-/// of the allocator fallibly: an error naming the rows and columns when it is refused (not the
-/// abort of an infallible allocation).
-fn column_bytes(results: &Results, j: usize) -> Result<Vec<u8>, String> {
-    let rows = results.len();
-    let mut bytes = Vec::new();
-    bytes
-        .try_reserve_exact(rows.saturating_mul(8))
-        .map_err(|_| {
-            format!(
-                "out of memory: no room for a copy of the results' columns ({rows} rows of {} \
-             columns, time included); record fewer variables or a shorter run",
-                results.names().len() + 1
-            )
-        })?;
-    for r in results.rows() {
-        bytes.extend_from_slice(&r[j].to_le_bytes());
-    }
-    Ok(bytes)
 }
 
 fn f64_bytes(values: &[f64]) -> Vec<u8> {
@@ -228,7 +209,8 @@ fn unit_of(system: &System, single: bool, column: &str) -> String {
 
 struct RunResult {
     names: Vec<String>,
-    columns: Vec<Vec<u8>>,
+    /// `time`'s values, then each named column's (`rows` each).
+    columns: ColumnMajor,
     units: Vec<String>,
     status: &'static str,
     message: String,
@@ -297,7 +279,8 @@ fn run_inner(
     if let Some(h) = step {
         config.step_size = h;
     }
-    let mut results = Results::with_capacity(Vec::new(), Vec::new(), 0);
+    // Column by column: the layout of the data frame, handed over without a copy.
+    let mut results = Columns::new();
     let summary = sys
         .run_into(&config, &mut results)
         .map_err(|e| e.to_string())?;
@@ -318,23 +301,22 @@ fn run_inner(
         Outcome::Failed(e) => return Err(e.to_string()),
     };
     let mut names = vec!["time".to_string()];
-    let mut columns = vec![column_bytes(&results, 0)?];
     let mut units = vec!["s".to_string()];
-    for (k, n) in results.names().iter().enumerate() {
-        columns.push(column_bytes(&results, k + 1)?);
+    for n in results.names() {
         units.push(unit_of(&sys, single, n));
         names.push(n.clone());
     }
     Ok(RunResult {
         names,
-        columns,
+        columns: results.into_column_major(),
         units,
         status,
         message,
     })
 }
 
-/// Runs an FMU or SSP system; returns `{"names", "columns" (float64 bytes), "units",
+/// Runs an FMU or SSP system; returns `{"names", "values" (a float64 array of one row per
+/// name, `time` first: column-major, the frame's block), "units",
 /// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
 /// unless `force`. Ctrl-C stops the run at its next communication point and raises
 /// `KeyboardInterrupt` ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs'
@@ -368,8 +350,11 @@ fn run<'py>(
     .map_err(err)?;
     let d = PyDict::new(py);
     d.set_item("names", r.names)?;
-    let cols: Vec<Bound<'py, PyBytes>> = r.columns.iter().map(|c| PyBytes::new(py, c)).collect();
-    d.set_item("columns", PyList::new(py, cols)?)?;
+    // One array of `columns x rows` owning the run's buffer (no copy): its transpose is the
+    // frame's one block of floats.
+    let (width, rows) = (r.columns.names.len() + 1, r.columns.rows);
+    let values = PyArray1::from_vec(py, r.columns.values).reshape([width, rows])?;
+    d.set_item("values", values)?;
     d.set_item("units", r.units)?;
     d.set_item("status", r.status)?;
     d.set_item("message", r.message)?;

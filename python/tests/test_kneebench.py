@@ -84,6 +84,30 @@ def test_run_returns_float64_columns_with_units_equal_to_the_cli(fmus: Path, tmp
     assert list(sub.columns) == ["time", "kneeAngleReference"]
 
 
+def test_a_run_an_interlock_ends_keeps_every_row_bit_identical_to_the_cli(
+    fmus: Path, tmp_path: Path
+):
+    # The run announces 2001 rows and ends after 44: the columns, filled in a buffer of 2001
+    # slots each, are closed up without a gap (and the frame is the caller's to change).
+    plant = fmus / "BenchPlant.fmu"
+    params = {"testCurrentCommand": 3.0, "springDeflectionLimit": 0.01}
+    df = kneebench.run(plant, params=params, stop_time=2.0)
+    assert df.attrs["status"] == "terminated"
+    assert "spring deflection above limit" in df.attrs["message"]
+    assert 10 < len(df) < 2001
+    csv = tmp_path / "tripped.csv"
+    done = subprocess.run(
+        [kneebench_bin(), "run", plant, "--stop-time", "2", "--output", csv, "-q"]
+        + [a for k, v in params.items() for a in ("--param", f"{k}={v}")],
+        capture_output=True,
+    )
+    assert done.returncode == 3, done.stderr
+    assert_bit_identical(df, pd.read_csv(csv).astype(np.float64))
+    df.iloc[0, 0] = -1.0
+    assert df.iloc[0, 0] == -1.0
+    assert kneebench.run(plant, params=params, stop_time=2.0)["time"].iloc[0] == 0.0
+
+
 def test_run_raises_with_the_rust_message(fmus: Path):
     gait = fmus / "GaitReference.fmu"
     with pytest.raises(kneebench.KneebenchError, match="has no variable 'nope'"):

@@ -3,7 +3,8 @@
 //!
 //! The master hands each recorded row to a [`ResultSink`]: time first, then one value per
 //! column (`Integer` columns as whole numbers, `Boolean` ones as 0 or 1). [`Results`] keeps the
-//! rows in one `Vec<f64>`; [`csv::CsvWriter`] formats them as they come into a buffered
+//! rows in one `Vec<f64>`, [`columns::Columns`] column by column (for data frames);
+//! [`csv::CsvWriter`] formats them as they come into a buffered
 //! writer; [`csv::CsvFile`] streams them into `<output>.partial` next to the output and renames
 //! that file into place when the run is accepted. A columnar writer (Parquet, for example)
 //! implements the same trait: [`ResultSink::begin`] gives the schema, [`ResultSink::push_row`]
@@ -30,6 +31,7 @@ pub enum ColumnKind {
 
 mod background;
 mod column_buffer;
+pub mod columns;
 pub mod csv;
 pub mod parquet;
 mod parquet_dictionary;
