@@ -10,7 +10,9 @@
 //! Linux a buffer of [`MAPPED_FROM`] bytes or more is therefore mapped on its own, aligned to
 //! 2 MiB and advised `MADV_HUGEPAGE`: the kernel then faults it in 2 MiB at a time (5 faults
 //! instead of 1,620) where transparent huge pages are enabled (`madvise` or `always`), and in
-//! 4 KiB pages as before where they are not. Smaller buffers, other systems and a failed
+//! 4 KiB pages as before where they are not; and it is faulted in when it is allocated
+//! (`MADV_POPULATE_WRITE`), so that the run's rows do not stop for it. Smaller buffers, other
+//! systems and a failed
 //! mapping use a `Vec`. Either way the buffer is the same zeroed `[f64]`, so the file's bytes
 //! cannot depend on it (tested in `parquet`'s byte-identity tests, which use both).
 
@@ -54,6 +56,16 @@ impl ColumnBuffer {
     #[cfg(test)]
     pub(super) fn is_mapped(&self) -> bool {
         !matches!(self.0, Storage::Heap(_))
+    }
+
+    /// Whether the buffer's pages were faulted in when it was made.
+    #[cfg(test)]
+    pub(super) fn is_populated(&self) -> bool {
+        match &self.0 {
+            Storage::Heap(_) => false,
+            #[cfg(target_os = "linux")]
+            Storage::Mapped(mapping) => mapping.populated,
+        }
     }
 }
 
@@ -100,6 +112,8 @@ mod mapped {
         /// The mapping as `mmap` returned it (unmapped whole on drop).
         base: NonNull<libc::c_void>,
         mapped_len: usize,
+        /// Whether the kernel faulted the pages in when it was made (Linux 5.14 and later).
+        pub(super) populated: bool,
     }
 
     // SAFETY: the mapping is owned by this value alone (no other pointer to it escapes except
@@ -142,11 +156,20 @@ mod mapped {
             // and the buffer is faulted in 4 KiB pages, as any other memory.
             // SAFETY: the range lies inside this process's own mapping (above).
             unsafe { libc::madvise(values.cast(), used, libc::MADV_HUGEPAGE) };
+            // Faulted in now, before the run, rather than by the run's first row (a row
+            // touches every column, so every page of the buffer at once: milliseconds of
+            // zeroing, and of compaction where the kernel must make a huge page, in the
+            // middle of a run that may be pacing the real bench). Before Linux 5.14 this is
+            // EINVAL and the first row faults the pages in.
+            // SAFETY: as above; the pages are this mapping's, writable, and zeroed.
+            let populated =
+                unsafe { libc::madvise(values.cast(), used, libc::MADV_POPULATE_WRITE) };
             Some(Mapping {
                 values: NonNull::new(values.cast::<f64>())?,
                 len,
                 base,
                 mapped_len,
+                populated: populated == 0,
             })
         }
 
