@@ -6,6 +6,21 @@
 //! The gets, sets and `fmi2DoStep` leave the sequence check to the instance (see
 //! [`FmiInstance`]), which makes it after the arguments are converted.
 //! This is the only module with `unsafe` pointer handling.
+//!
+//! # Freed and foreign component pointers
+//!
+//! `fmi2Instantiate` records each instance it returns in a registry of live instances, and
+//! `fmi2FreeInstance` frees a component only if it removes it from there. Freeing an instance
+//! a second time, or freeing a non-NULL pointer this binary never returned, is therefore
+//! harmless: the call returns without touching the pointer (so does NULL). Of two concurrent
+//! frees of one instance exactly one frees it.
+//!
+//! Nothing else is guarded. Every other function trusts its (non-NULL) component pointer
+//! without a look-up, so that the gets, sets and `fmi2DoStep`, the per-step path, pay no lock:
+//! calling any function but `fmi2FreeInstance` on a freed instance (or on a pointer that was
+//! never an instance) remains the importer's undefined behaviour, as in the FMI standard. Nor
+//! can a pointer freed twice be told from a new instance that the allocator placed at the same
+//! address: its second free frees that instance.
 
 #![allow(non_snake_case, clippy::missing_safety_doc)]
 
@@ -14,6 +29,7 @@ use std::ffi::{CStr, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::instance::{FmiInstance, Func};
+use super::live;
 use super::logging::{Category, Logger};
 use super::types::*;
 use crate::registry;
@@ -319,7 +335,9 @@ pub unsafe extern "C" fn fmi2Instantiate(
             ));
         };
         let component: Box<Component> = Box::new(entry.instantiate(logger));
-        Box::into_raw(component).cast()
+        let c: fmi2Component = Box::into_raw(component).cast();
+        live::register(c as usize);
+        c
     });
     result.unwrap_or(std::ptr::null_mut())
 }
@@ -331,9 +349,13 @@ pub unsafe extern "C" fn fmi2FreeInstance(c: fmi2Component) {
         return;
     }
     let _ = catch_unwind(|| {
-        // SAFETY: c came from Box::into_raw in fmi2Instantiate and is freed exactly once
-        // (the importer must not use it afterwards).
-        drop(unsafe { Box::from_raw(c.cast::<Component>()) });
+        // Only the one call that removes a live instance frees it: a pointer freed already, or
+        // never returned by fmi2Instantiate, is not dereferenced.
+        if live::unregister(c as usize) {
+            // SAFETY: c was live, so it came from Box::into_raw in fmi2Instantiate, and only
+            // this call removed it from the registry (the importer must not use it afterwards).
+            drop(unsafe { Box::from_raw(c.cast::<Component>()) });
+        }
     });
 }
 

@@ -2,7 +2,10 @@
 //! and logging. Models never see anything in here.
 
 pub mod export;
+#[cfg(test)]
+mod free_tests;
 pub mod instance;
+mod live;
 pub mod logging;
 #[cfg(test)]
 mod refusal_tests;

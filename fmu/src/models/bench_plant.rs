@@ -709,7 +709,10 @@ pub struct BenchPlantModel {
     commands: BenchCommands,
     /// Output values; the groups whose bit is set in `fresh` are those of the current state.
     outputs: RefCell<BenchOutputs>,
-    /// [`SignalGroup::bit`]s of the groups of `outputs` computed since the last step.
+    /// The outputs' first derivatives, those of the current state if `fresh` has [`RATES`].
+    rates: RefCell<OutputRates>,
+    /// [`SignalGroup::bit`]s of the groups of `outputs` computed since the last step, and
+    /// [`RATES`] once `rates` is.
     fresh: Cell<u8>,
     start_time: f64,
     /// The physics, built at initialization (and on demand for outputs before it).
@@ -743,7 +746,7 @@ impl BenchSignals for BenchPlantModel {
 /// own field, its derivative instead of its value. Value and derivative of an output thus share
 /// its one declaration (name, value reference, field); no second table maps value references
 /// to derivatives.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 struct OutputRates {
     /// Unused (the view has no inputs); required by [`BenchSignals`].
     commands: BenchCommands,
@@ -766,26 +769,55 @@ impl BenchSignals for OutputRates {
     }
 }
 
+/// The bit of `BenchPlantModel::fresh` that marks the derivatives computed: beside the
+/// output groups' bits, so that whatever makes the outputs stale makes them stale too.
+const RATES: u8 = 1 << 7;
+const _: () = {
+    let mut k = 0;
+    while k < SignalGroup::ALL.len() {
+        assert!(SignalGroup::ALL[k].bit() & RATES == 0);
+        k += 1;
+    }
+};
+
+/// A reader of one output's derivative.
+type RateReader = fn(&OutputRates) -> f64;
+
+/// The derivative reader of each Real output, indexed by value reference (`None` for every
+/// other value reference): the getters of [`io_variables`] instantiated for [`OutputRates`].
+fn rate_readers() -> Vec<Option<RateReader>> {
+    let mut readers = Vec::new();
+    for v in io_variables::<OutputRates>() {
+        if let (crate::model::Causality::Output, Access::Real(get, _)) = (v.causality, v.access) {
+            let i = v.value_reference as usize;
+            if readers.len() <= i {
+                readers.resize(i + 1, None);
+            }
+            readers[i] = Some(get);
+        }
+    }
+    readers
+}
+
 // SAFETY: a static (Lazy registers its address for the release at unload).
-static RATE_READERS: Lazy<Vec<Variable<OutputRates>>> =
-    unsafe { Lazy::new(io_variables::<OutputRates>) };
+static RATE_READERS: Lazy<Vec<Option<RateReader>>> = unsafe { Lazy::new(rate_readers) };
 
 impl BenchPlantModel {
     /// The first time derivative of the Real output `value_reference` at the communication
     /// point (`None` for any other variable, or before the plant exists): read by the output's
-    /// own getter from [`super::bench::BenchPlant::output_derivatives`].
+    /// own getter from [`super::bench::BenchPlant::output_derivatives`], evaluated once per
+    /// communication point.
     fn rate_of(&self, value_reference: u32) -> Option<f64> {
-        let variable = RATE_READERS.iter().find(|v| {
-            v.value_reference == value_reference && v.causality == crate::model::Causality::Output
-        })?;
-        let Access::Real(get, _) = variable.access else {
-            return None;
-        };
-        let rates = self.plant.as_ref()?.output_derivatives();
-        Some(get(&OutputRates {
-            commands: BenchCommands::default(),
-            rates,
-        }))
+        let get = RATE_READERS
+            .get(value_reference as usize)
+            .copied()
+            .flatten()?;
+        let plant = self.plant.as_ref()?;
+        if self.fresh.get() & RATES == 0 {
+            self.rates.borrow_mut().rates = plant.output_derivatives();
+            self.fresh.set(self.fresh.get() | RATES);
+        }
+        Some(get(&self.rates.borrow()))
     }
 
     /// Computes the outputs of `group` (once per group and step: out of line, so that a read
@@ -1126,7 +1158,8 @@ impl BenchPlantModel {
         Ok(())
     }
 
-    /// The plant's state changed: every output is recomputed on its next read.
+    /// The plant's state changed: every output, and the derivatives, are recomputed on their
+    /// next read.
     fn outputs_changed(&mut self) {
         self.fresh.set(0);
     }
@@ -1368,6 +1401,60 @@ mod lazy_output_tests {
         let after = m.read_signal(SignalGroup::Motion, |o| o.actuation_angle);
         assert_ne!(before, after);
         assert_eq!(after, m.plant.as_ref().unwrap().outputs().actuation_angle);
+    }
+
+    /// Every Real output's derivative as `fmi2GetRealOutputDerivatives` reads it.
+    fn derivatives(m: &BenchPlantModel) -> Vec<f64> {
+        real_output_references()
+            .map(|vr| m.output_derivative(vr, 1).unwrap())
+            .collect()
+    }
+
+    /// Every Real output's derivative computed afresh from the plant's current state.
+    fn current_derivatives(m: &BenchPlantModel) -> Vec<f64> {
+        let rates = OutputRates {
+            commands: BenchCommands::default(),
+            rates: m.plant.as_ref().unwrap().output_derivatives(),
+        };
+        real_output_references()
+            .map(|vr| RATE_READERS[vr as usize].unwrap()(&rates))
+            .collect()
+    }
+
+    fn real_output_references() -> impl Iterator<Item = u32> {
+        BenchPlantModel::variables().iter().filter_map(|v| {
+            match (v.causality == Causality::Output, &v.access) {
+                (true, Access::Real(..)) => Some(v.value_reference),
+                _ => None,
+            }
+        })
+    }
+
+    /// The derivatives are evaluated once per communication point: read after a new input and a
+    /// step, or after an FMU state is restored, they are those of the new state, not the ones
+    /// read before.
+    #[test]
+    fn derivatives_read_again_after_a_step_or_a_restore_are_those_of_the_new_state() {
+        let mut m = running();
+        let saved = {
+            let mut w = StateWriter::default();
+            m.save_internal(&mut w);
+            w.bytes
+        };
+        let before = derivatives(&m);
+        assert_eq!(before.len(), 67);
+        assert_eq!(before, current_derivatives(&m));
+        assert_eq!(derivatives(&m), before, "read twice at one point");
+
+        m.commands.test_current = -4.0;
+        m.do_step(0.3, 1e-3).unwrap();
+        let after = derivatives(&m);
+        assert_eq!(after, current_derivatives(&m));
+        let changed = before.iter().zip(&after).filter(|(b, a)| b != a).count();
+        assert!(changed > 30, "{changed} derivatives changed over the step");
+
+        m.load_internal(&mut StateReader::new(&saved)).unwrap();
+        assert_eq!(derivatives(&m), before, "after the restore");
     }
 }
 

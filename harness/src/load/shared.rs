@@ -36,6 +36,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, Weak};
 
 use super::{ArchiveSource, LoadError, LocalBinary};
+use crate::bench_protocol::user::effective_uid;
 
 /// Whether the entry at relative path `rel` is extracted for a run: the model description and
 /// the resources.
@@ -287,8 +288,7 @@ fn usable_cache(dir: &Path) -> bool {
         .mode(0o700)
         .create(dir);
     match fs::symlink_metadata(dir) {
-        // SAFETY: geteuid has no preconditions.
-        Ok(m) => m.is_dir() && m.uid() == unsafe { libc::geteuid() } && m.mode() & 0o022 == 0,
+        Ok(m) => m.is_dir() && m.uid() == effective_uid() && m.mode() & 0o022 == 0,
         Err(_) => false,
     }
 }
@@ -316,8 +316,7 @@ fn verified(path: &Path, key: &Key) -> bool {
     let Ok(meta) = file.metadata() else {
         return false;
     };
-    // SAFETY: geteuid has no preconditions.
-    if !meta.is_file() || meta.uid() != unsafe { libc::geteuid() } || meta.len() != key.size {
+    if !meta.is_file() || meta.uid() != effective_uid() || meta.len() != key.size {
         return false;
     }
     let mut bytes = Vec::with_capacity(key.size as usize);

@@ -15,6 +15,9 @@ use std::path::Path;
 use hmac::{Hmac, KeyInit, Mac};
 use sha2::Sha256;
 
+#[cfg(unix)]
+use super::user::effective_uid;
+
 /// Bytes of the bench key.
 pub const KEY_LEN: usize = 32;
 /// Bytes of a frame's tag: HMAC-SHA256 truncated to its first 128 bits.
@@ -249,7 +252,7 @@ impl Key {
             if mode & 0o077 != 0 {
                 return Err(KeyError::Permissions { path: name, mode });
             }
-            let user = effective_uid().map_err(io)?;
+            let user = effective_uid();
             if meta.uid() != user {
                 return Err(KeyError::Owner {
                     path: name,
@@ -356,21 +359,6 @@ impl TagKey {
         mac.update(bytes);
         mac.verify_truncated_left(tag).is_ok()
     }
-}
-
-/// The effective user id of this process, read from `/proc/self/status` (its second `Uid:`
-/// field: what `geteuid` returns; without `unsafe`, which this module does not use).
-#[cfg(unix)]
-fn effective_uid() -> Result<u32, std::io::Error> {
-    let status = std::fs::read_to_string("/proc/self/status")?;
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("Uid:"))
-        .and_then(|ids| ids.split_whitespace().nth(1))
-        .and_then(|id| id.parse().ok())
-        .ok_or_else(|| {
-            std::io::Error::other("cannot tell the effective user from /proc/self/status")
-        })
 }
 
 /// Checks that no other user can replace the key file at `path`: its directory (that of the
@@ -572,7 +560,7 @@ mod tests {
     fn key_files_of_another_user_or_in_a_directory_others_can_write_are_refused() {
         use std::os::unix::fs::{MetadataExt, PermissionsExt};
         let dir = tempfile::tempdir().unwrap();
-        let user = effective_uid().unwrap();
+        let user = effective_uid();
         assert_eq!(user, std::fs::metadata(dir.path()).unwrap().uid());
         let key = Key::generate().unwrap();
         let path = key_file(dir.path(), "bench.key", &key.to_hex());

@@ -4,7 +4,7 @@
 //!
 //! The normative description is `docs/bench-protocol.md`; this module implements it for both
 //! ends: the hardware FMU (client) and the emulator (`kneebench emulate`, server). It depends on
-//! `std`, `thiserror` and the RustCrypto `hmac`/`sha2` and `getrandom` crates only, so the
+//! `std`, `thiserror`, `libc` and the RustCrypto `hmac`/`sha2` and `getrandom` crates only, so the
 //! harness includes this very directory with `#[path]` (it never links the models) and both
 //! ends share one codec.
 //!
@@ -22,6 +22,7 @@
 pub mod auth;
 pub mod fuzzing;
 pub mod handshake;
+pub mod user;
 
 use std::time::Duration;
 

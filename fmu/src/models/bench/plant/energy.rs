@@ -285,20 +285,6 @@ impl BenchPlant {
             let mut wi = [[0.0; 2]; 2 * PIECE_TERMS];
             square_lanes(&series[..n], &mut squares_of);
             product_lanes(&series[..n], &mut wi);
-            let lane = |p: &[[f64; 4]], l: usize| -> f64 {
-                p[..degree]
-                    .iter()
-                    .zip(weights.iter())
-                    .map(|(c, w)| c[l] * w)
-                    .sum::<f64>()
-            };
-            let wi_lane = |l: usize| -> f64 {
-                wi[..degree]
-                    .iter()
-                    .zip(weights.iter())
-                    .map(|(c, w)| c[l] * w)
-                    .sum::<f64>()
-            };
             let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
             for k in 0..degree {
                 let linear = |j: usize| if k < n { series[k][2 + j] } else { 0.0 };
@@ -320,9 +306,9 @@ impl BenchPlant {
                 positive[k] += piece.len * positive_part(p, s_end, part);
             }
             for j in 0..2 {
-                squares[j] += piece.len * lane(&squares_of, j);
-                copper[j] += piece.len * lane(&squares_of, 2 + j);
-                emf[j] += piece.len * wi_lane(j);
+                squares[j] += piece.len * lane_integral(&squares_of[..degree], &weights, j);
+                copper[j] += piece.len * lane_integral(&squares_of[..degree], &weights, 2 + j);
+                emf[j] += piece.len * lane_integral(&wi[..degree], &weights, j);
             }
         }
         let z0 = segment.state_at(0.0);
@@ -341,6 +327,16 @@ impl BenchPlant {
             (r - gain, ke, gain * held.reference[n])
         }
     }
+}
+
+/// The integral of lane `l` of the polynomials `p` (lane `l` of `p[k]` is the coefficient of
+/// `s^k`) given `weights[k]`, the integral of `s^k`: the weighted coefficients summed in order.
+#[inline(always)]
+fn lane_integral<const LANES: usize>(p: &[[f64; LANES]], weights: &[f64], l: usize) -> f64 {
+    p.iter()
+        .zip(weights.iter())
+        .map(|(c, w)| c[l] * w)
+        .sum::<f64>()
 }
 
 /// Positive part of a power that changes sign inside a regular sub-step of length `h`, from a
