@@ -493,6 +493,35 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
             assert!(!out.exists() && !out_csv.exists(), "{name} {args:?}");
         }
     }
+    // `run SYSTEM --params COMPONENT=SET.ssv` naming a component the system does not have
+    // (it was a run error, exit code 1), and the set's values refused for a component it has.
+    let system = plant_system(dir.path());
+    let good = set("good", "");
+    for (spec, needle) in [
+        (
+            format!("nope={}", good.display()),
+            format!(
+                "--params nope={}: {} has no component 'nope' (its components: plant)",
+                good.display(),
+                system.display()
+            ),
+        ),
+        (
+            format!("plant={}", cases[0].0.display()),
+            format!("--params {}:5: {}", cases[0].0.display(), cases[0].1),
+        ),
+    ] {
+        let o = kneebench()
+            .arg("run")
+            .arg(&system)
+            .args(["--stop-time", "0.01", "--output"])
+            .arg(&out_csv)
+            .args(["--params", &spec])
+            .output()
+            .unwrap();
+        assert_usage(&spec, &o, &[&needle]);
+        assert!(!out_csv.exists(), "{spec}");
+    }
 }
 
 /// A fraction for a Real that takes whole numbers only (its description ends with "; an

@@ -60,6 +60,18 @@ pub enum ParamsError {
         /// What is wrong.
         problem: String,
     },
+    /// `COMPONENT=SET.ssv` names a component the system does not have.
+    #[error("{spec}: {system} has no component '{component}' (its components: {})", .components.join(", "))]
+    NoComponent {
+        /// The option's value as given.
+        spec: String,
+        /// The system (its file).
+        system: String,
+        /// The component named.
+        component: String,
+        /// The system's components.
+        components: Vec<String>,
+    },
     /// The FMU or system the set is applied to could not be read, or refused a value.
     #[error("{0}")]
     Target(String),
