@@ -746,6 +746,46 @@ fn emulate_checks_param_names_and_values_before_starting() {
         assert_usage(fault, &o, &[needle]);
         assert!(!key.exists(), "{fault}: wrote {}", key.display());
     }
+    // A --key file the emulator refuses (readable by others, a key that is no secret, no
+    // file at all): a usage error naming the option and why, before anything starts (it was
+    // exit 1).
+    let loose = dir.path().join("loose.key");
+    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
+    let zeros = dir.path().join("zeros.key");
+    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
+        std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
+    }
+    let missing = dir.path().join("missing.key");
+    for (file, needle) in [
+        (&loose, "accessible to its group or to others (mode 644)"),
+        (&zeros, "all its 32 bytes are 0x00: not a random key"),
+        (&missing, "No such file"),
+    ] {
+        let o = kneebench()
+            .args([
+                "emulate",
+                "--bind",
+                "127.0.0.1:0",
+                "--duration",
+                "5",
+                "--fmu",
+            ])
+            .arg(&plant)
+            .arg("--key")
+            .arg(file)
+            .output()
+            .unwrap();
+        assert_usage(
+            needle,
+            &o,
+            &[&format!("--key key file {}", file.display()), needle],
+        );
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!e.contains("serving"), "{e}");
+    }
     // Serving off loopback without a key: a usage error naming the remedy (it was exit 1).
     let o = kneebench()
         .args(["emulate", "--bind", "0.0.0.0:0", "--duration", "5", "--fmu"])
