@@ -291,12 +291,7 @@ fn run_inner(
         let refs: Vec<&str> = refs.iter().map(String::as_str).collect();
         sys.record(&refs).map_err(|e| format!("variables: {e}"))?;
     }
-    if let Some(t) = stop_time {
-        config.stop_time = t;
-    }
-    if let Some(h) = step {
-        config.step_size = h;
-    }
+    let config = config.with_times(None, stop_time, step);
     let mut results = Results::with_capacity(Vec::new(), Vec::new(), 0);
     let summary = sys
         .run_into(&config, &mut results)

@@ -236,7 +236,8 @@ impl Default for RunConfig {
 
 impl RunConfig {
     /// This configuration with the times of a default experiment (an FMU's or an SSP's
-    /// `DefaultExperiment`): each of `start_time`, `stop_time` and `step_size` that is given
+    /// `DefaultExperiment`) or of a run's own settings (`kneebench run --stop-time`, a sweep
+    /// spec's `stop_time`): each of `start_time`, `stop_time` and `step_size` that is given
     /// replaces this configuration's, the others are kept.
     pub fn with_times(
         mut self,

@@ -289,10 +289,8 @@ pub fn parameter_set(scenario: &Scenario) -> (Vec<String>, String) {
         .flat_map(|c| {
             c.parameters.iter().map(move |(name, value)| {
                 let value = match value {
-                    Value::Real(v) => format!("{v:?}"),
-                    Value::Integer(v) => v.to_string(),
-                    Value::Boolean(v) => v.to_string(),
                     Value::String(v) => format!("{v:?}"),
+                    v => v.to_text(),
                 };
                 format!("{}.{name} = {value}", c.name)
             })
