@@ -189,10 +189,8 @@ fn load(path: &Path, options: &LoadOptions) -> Result<(System, RunConfig, bool),
                 .add_component(&name, fmu)
                 .map_err(|e| e.to_string())?;
             system.set_column_prefix(false);
-            let config = match &md.default_experiment {
-                Some(d) => RunConfig::default().with_times(d.start_time, d.stop_time, d.step_size),
-                None => RunConfig::default(),
-            };
+            // The default experiment's times and tolerance, as `kneebench run` takes them.
+            let config = RunConfig::of_fmu(&md);
             Ok((system, config, true))
         }
         "ssp" | "ssd" => {

@@ -541,11 +541,7 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
     let mut system = System::new();
     system.add_component(&name, fmu)?;
     system.set_column_prefix(false);
-    let mut config = RunConfig::default();
-    if let Some(d) = &md.default_experiment {
-        config = config.with_times(d.start_time, d.stop_time, d.step_size);
-        config.tolerance = d.tolerance;
-    }
+    let config = RunConfig::of_fmu(&md);
     if let Some(path) = &a.inputs {
         let csv = match Results::read_file(path).and_then(|c| {
             c.check_series(path)?;

@@ -256,6 +256,21 @@ impl RunConfig {
         }
         self
     }
+
+    /// The configuration of a run of the FMU that `md` describes by itself, as `kneebench run
+    /// FMU` and the Python package's `run` make it: its `DefaultExperiment`'s times
+    /// ([`with_times`](Self::with_times)) and tolerance (passed to `fmi2SetupExperiment`),
+    /// the defaults for what it leaves out.
+    pub fn of_fmu(md: &ModelDescription) -> RunConfig {
+        let config = RunConfig::default();
+        match &md.default_experiment {
+            Some(d) => RunConfig {
+                tolerance: d.tolerance,
+                ..config.with_times(d.start_time, d.stop_time, d.step_size)
+            },
+            None => config,
+        }
+    }
 }
 
 impl fmt::Debug for RunConfig {
