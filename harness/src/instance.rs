@@ -176,6 +176,20 @@ pub enum FmuError {
         /// The capability flag of the model description that would promise it.
         flag: &'static str,
     },
+    /// `fmi2GetRealOutputDerivatives` asked for an order the model description's
+    /// `maxOutputDerivativeOrder` (absent: 0) does not reach, or an order below 1: the call is
+    /// not made.
+    #[error(
+        "the FMU does not provide {function} of order {order}: its model description declares maxOutputDerivativeOrder=\"{max}\""
+    )]
+    DerivativeOrderNotPromised {
+        /// The FMI function.
+        function: &'static str,
+        /// The order asked for (the first one refused).
+        order: i32,
+        /// The model description's `maxOutputDerivativeOrder` (0 when absent).
+        max: u32,
+    },
     /// The instance is unusable after an earlier `fmi2Fatal`.
     #[error("instance '{0}' returned fmi2Fatal earlier; no further call is allowed")]
     AfterFatal(String),
@@ -696,30 +710,58 @@ impl Instance {
         }
     }
 
-    /// Checks that the model description promises the FMU-state function `name`: with
-    /// `serialize` its `canSerializeFMUstate`, else its `canGetAndSetFMUstate` (an FMU that
-    /// declares the flag false or leaves it out is not asked; kneebench's `BenchHardware`
-    /// declares both false).
-    fn promises_state(&self, name: &'static str, serialize: bool) -> Result<(), FmuError> {
-        let cs = self.fmu.md.co_simulation.as_ref();
-        let (promised, flag) = if serialize {
-            (
-                cs.and_then(|c| c.can_serialize_fmu_state),
-                "canSerializeFMUstate",
-            )
-        } else {
-            (
-                cs.and_then(|c| c.can_get_and_set_fmu_state),
-                "canGetAndSetFMUstate",
-            )
-        };
-        if promised == Some(true) {
-            Ok(())
-        } else {
-            Err(FmuError::NotPromised {
+    /// Checks that the model description promises the optional function `name` through the
+    /// capability flag `flag`, which `promised` reads from its `CoSimulation` element (an FMU
+    /// that declares the flag false or leaves it out is not asked: [`FmuError::NotPromised`]).
+    fn promises(
+        &self,
+        name: &'static str,
+        flag: &'static str,
+        promised: impl FnOnce(&model_description::CoSimulation) -> Option<bool>,
+    ) -> Result<(), FmuError> {
+        match self.fmu.md.co_simulation.as_ref().and_then(promised) {
+            Some(true) => Ok(()),
+            _ => Err(FmuError::NotPromised {
                 function: name,
                 flag,
+            }),
+        }
+    }
+
+    /// Checks that the model description promises the FMU-state function `name`: with
+    /// `serialize` its `canSerializeFMUstate`, else its `canGetAndSetFMUstate` (kneebench's
+    /// `BenchHardware` declares both false).
+    fn promises_state(&self, name: &'static str, serialize: bool) -> Result<(), FmuError> {
+        if serialize {
+            self.promises(name, "canSerializeFMUstate", |c| c.can_serialize_fmu_state)
+        } else {
+            self.promises(name, "canGetAndSetFMUstate", |c| {
+                c.can_get_and_set_fmu_state
             })
+        }
+    }
+
+    /// Checks that the model description promises asynchronous steps (`canRunAsynchronuously`),
+    /// which `fmi2CancelStep` and the status of a pending step (`fmi2DoStepStatus`,
+    /// `fmi2PendingStatus`) are for; `function` names the call refused.
+    fn promises_asynchronous(&self, function: &'static str) -> Result<(), FmuError> {
+        self.promises(function, "canRunAsynchronuously", |c| {
+            c.can_run_asynchronuously
+        })
+    }
+
+    /// Checks a status query of `kind`: one about a pending step needs
+    /// [`promises_asynchronous`](Self::promises_asynchronous); `names` are the function's
+    /// name with `fmi2DoStepStatus` and with `fmi2PendingStatus`.
+    fn promises_status(
+        &self,
+        kind: fmi2StatusKind,
+        names: [&'static str; 2],
+    ) -> Result<(), FmuError> {
+        match kind {
+            fmi2StatusKind::fmi2DoStepStatus => self.promises_asynchronous(names[0]),
+            fmi2StatusKind::fmi2PendingStatus => self.promises_asynchronous(names[1]),
+            _ => Ok(()),
         }
     }
 
@@ -848,8 +890,10 @@ impl Instance {
         self.check("fmi2DoStep", s)
     }
 
-    /// `fmi2CancelStep`.
+    /// `fmi2CancelStep`: only for an FMU whose model description declares
+    /// `canRunAsynchronuously="true"` ([`FmuError::NotPromised`] otherwise, the call not made).
     pub fn cancel_step(&mut self) -> Result<Status, FmuError> {
+        self.promises_asynchronous("fmi2CancelStep")?;
         self.component_only(CALL_CANCEL_STEP, &"fmi2CancelStep", |f| f.cancel_step)
     }
 
@@ -1089,7 +1133,9 @@ impl Instance {
         self.check("fmi2SetString", s)
     }
 
-    /// `fmi2GetRealOutputDerivatives`: derivatives of the given `orders` of outputs `vrs`.
+    /// `fmi2GetRealOutputDerivatives`: derivatives of the given `orders` of outputs `vrs`;
+    /// every order from 1 to the model description's `maxOutputDerivativeOrder`
+    /// ([`FmuError::DerivativeOrderNotPromised`] otherwise, the call not made).
     pub fn get_real_output_derivatives(
         &mut self,
         vrs: &[u32],
@@ -1100,6 +1146,23 @@ impl Instance {
         self.has(NAME)?;
         if vrs.len() != values.len() || vrs.len() != orders.len() {
             return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
+        }
+        let max = self
+            .fmu
+            .md
+            .co_simulation
+            .as_ref()
+            .and_then(|c| c.max_output_derivative_order)
+            .unwrap_or(0);
+        if let Some(&order) = orders
+            .iter()
+            .find(|&&o| o < 1 || u32::try_from(o).is_ok_and(|o| o > max))
+        {
+            return Err(FmuError::DerivativeOrderNotPromised {
+                function: NAME,
+                order,
+                max,
+            });
         }
         let s = dispatch!(self, &NAME,
             l => {
@@ -1123,7 +1186,8 @@ impl Instance {
         self.check(NAME, s)
     }
 
-    /// `fmi2SetRealInputDerivatives`.
+    /// `fmi2SetRealInputDerivatives`: only for an FMU whose model description declares
+    /// `canInterpolateInputs="true"` ([`FmuError::NotPromised`] otherwise, the call not made).
     pub fn set_real_input_derivatives(
         &mut self,
         vrs: &[u32],
@@ -1132,6 +1196,7 @@ impl Instance {
     ) -> Result<Status, FmuError> {
         const NAME: &str = "fmi2SetRealInputDerivatives";
         self.has(NAME)?;
+        self.promises(NAME, "canInterpolateInputs", |c| c.can_interpolate_inputs)?;
         if vrs.len() != values.len() || vrs.len() != orders.len() {
             return Err(mismatch(NAME, vrs.len(), values.len().min(orders.len())));
         }
@@ -1304,8 +1369,17 @@ impl Instance {
         ))
     }
 
-    /// `fmi2GetStatus(fmi2DoStepStatus)`.
+    /// `fmi2GetStatus`: of a pending step (`fmi2DoStepStatus`, `fmi2PendingStatus`) only for an
+    /// FMU whose model description declares `canRunAsynchronuously="true"`
+    /// ([`FmuError::NotPromised`] otherwise, the call not made).
     pub fn get_status(&mut self, kind: fmi2StatusKind) -> Result<fmi2Status, FmuError> {
+        self.promises_status(
+            kind,
+            [
+                "fmi2GetStatus(fmi2DoStepStatus)",
+                "fmi2GetStatus(fmi2PendingStatus)",
+            ],
+        )?;
         let (s, v) = self.status_query(
             &"fmi2GetStatus",
             CALL_GET_STATUS,
@@ -1387,8 +1461,17 @@ impl Instance {
         }
     }
 
-    /// `fmi2GetStringStatus`.
+    /// `fmi2GetStringStatus`: of a pending step (`fmi2PendingStatus`) only for an FMU whose
+    /// model description declares `canRunAsynchronuously="true"` ([`FmuError::NotPromised`]
+    /// otherwise, the call not made).
     pub fn get_string_status(&mut self, kind: fmi2StatusKind) -> Result<String, FmuError> {
+        self.promises_status(
+            kind,
+            [
+                "fmi2GetStringStatus(fmi2DoStepStatus)",
+                "fmi2GetStringStatus(fmi2PendingStatus)",
+            ],
+        )?;
         let (s, v) = self.status_query(
             &"fmi2GetStringStatus",
             CALL_GET_STRING_STATUS,

@@ -254,10 +254,8 @@ fn reference_run(
     let fmu = crate::Fmu::load(fmu_path, &crate::LoadOptions::default())
         .map_err(|e| fail(e.to_string()))?;
     let md = fmu.model_description().clone();
-    let experiment = md.default_experiment.clone().unwrap_or_default();
-    let start = experiment.start_time.unwrap_or(0.0);
-    let stop = experiment.stop_time.unwrap_or(1.0);
-    let step = experiment.step_size.unwrap_or(1e-3);
+    let config = RunConfig::of_fmu(&md);
+    let (start, stop, step) = (config.start_time, config.stop_time, config.step_size);
     let mut system = System::new();
     system.set_column_prefix(false);
     system
@@ -295,12 +293,6 @@ fn reference_run(
         .collect();
     let refs: Vec<&str> = outputs.iter().map(String::as_str).collect();
     system.record(&refs).map_err(|e| fail(e.to_string()))?;
-    let config = RunConfig {
-        start_time: start,
-        stop_time: stop,
-        step_size: step,
-        ..RunConfig::default()
-    };
     let output = system.run(&config).map_err(|e| fail(e.to_string()))?;
     if let crate::Outcome::Failed(e) = &output.outcome {
         return Err(fail(e.to_string()));

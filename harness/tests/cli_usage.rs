@@ -23,6 +23,27 @@ fn fmus() -> &'static Path {
     .1
 }
 
+/// A bare SSD in `dir` of one component, `plant`, the bench's `BenchPlant.fmu` (copied next
+/// to it).
+fn plant_system(dir: &Path) -> PathBuf {
+    std::fs::copy(fmus().join("BenchPlant.fmu"), dir.join("BenchPlant.fmu")).unwrap();
+    let ssd = dir.join("plant.ssd");
+    std::fs::write(
+        &ssd,
+        r#"<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription" version="1.0" name="plant">
+  <ssd:System name="plant">
+    <ssd:Elements>
+      <ssd:Component name="plant" source="BenchPlant.fmu" type="application/x-fmu-sharedlibrary"/>
+    </ssd:Elements>
+  </ssd:System>
+</ssd:SystemStructureDescription>
+"#,
+    )
+    .unwrap();
+    ssd
+}
+
 /// Asserts `out` is a usage error whose message contains every one of `needles`.
 fn assert_usage(what: &str, out: &Output, needles: &[&str]) {
     let e = String::from_utf8_lossy(&out.stderr);
@@ -408,6 +429,13 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
             ),
             "parameter 'actuationInertia': NaN is not finite",
         ),
+        (
+            set(
+                "fraction",
+                r#"<ssv:Parameter name="encoderCountsPerRevolution"><ssv:Real value="1000.5"/></ssv:Parameter>"#,
+            ),
+            "parameter 'encoderCountsPerRevolution': 1000.5 is not an integer",
+        ),
     ];
     let out = dir.path().join("out");
     let out_csv = dir.path().join("out.csv");
@@ -465,6 +493,127 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
             assert!(!out.exists() && !out_csv.exists(), "{name} {args:?}");
         }
     }
+    // `run SYSTEM --params COMPONENT=SET.ssv` naming a component the system does not have
+    // (it was a run error, exit code 1), and the set's values refused for a component it has.
+    let system = plant_system(dir.path());
+    let good = set("good", "");
+    for (spec, needle) in [
+        (
+            format!("nope={}", good.display()),
+            format!(
+                "--params nope={}: {} has no component 'nope' (its components: plant)",
+                good.display(),
+                system.display()
+            ),
+        ),
+        (
+            format!("plant={}", cases[0].0.display()),
+            format!("--params {}:5: {}", cases[0].0.display(), cases[0].1),
+        ),
+    ] {
+        let o = kneebench()
+            .arg("run")
+            .arg(&system)
+            .args(["--stop-time", "0.01", "--output"])
+            .arg(&out_csv)
+            .args(["--params", &spec])
+            .output()
+            .unwrap();
+        assert_usage(&spec, &o, &[&needle]);
+        assert!(!out_csv.exists(), "{spec}");
+    }
+}
+
+/// A fraction for a Real that takes whole numbers only (its description ends with "; an
+/// integer": the plant's `encoderCountsPerRevolution`) is a usage error of `run`, `study` and
+/// `emulate --param`, naming the option and the parameter, before anything runs or is
+/// written: the check of bounds let it through, and the FMU refused it in `fmi2SetReal` as
+/// the run started (exit code 1).
+#[test]
+fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let out = dir.path().join("out");
+    let key = dir.path().join("new.key");
+    let o = kneebench()
+        .arg("run")
+        .arg(&plant)
+        .args(["--stop-time", "0.01", "--param"])
+        .arg("encoderCountsPerRevolution=1000.5")
+        .arg("--output")
+        .arg(dir.path().join("r.csv"))
+        .output()
+        .unwrap();
+    assert_usage(
+        "run",
+        &o,
+        &[
+            "--param 'encoderCountsPerRevolution=1000.5'",
+            "1000.5 is not an integer",
+        ],
+    );
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
+    let system = plant_system(dir.path());
+    let o = kneebench()
+        .arg("run")
+        .arg(&system)
+        .args(["--stop-time", "0.01", "--param"])
+        .arg("plant.encoderCountsPerRevolution=1000.5")
+        .arg("--output")
+        .arg(dir.path().join("r.csv"))
+        .output()
+        .unwrap();
+    assert_usage(
+        "run (system)",
+        &o,
+        &[
+            "--param 'plant.encoderCountsPerRevolution=1000.5'",
+            "1000.5 is not an integer",
+        ],
+    );
+    assert!(!dir.path().join("r.csv").exists());
+    assert!(!dir.path().join("r.csv.partial").exists());
+    let o = kneebench()
+        .args(["study", "--cycles", "1", "--actuators", "sea", "--fmus"])
+        .arg(fmus())
+        .args([
+            "--param",
+            "plant.encoderCountsPerRevolution=1000.5",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_usage(
+        "study",
+        &o,
+        &[
+            "--param 'plant.encoderCountsPerRevolution'",
+            "1000.5 is not an integer",
+        ],
+    );
+    assert!(!out.exists());
+    let o = kneebench()
+        .args([
+            "emulate",
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "5",
+            "--fmu",
+        ])
+        .arg(&plant)
+        .arg("--new-key")
+        .arg(&key)
+        .args(["--param", "encoderCountsPerRevolution=1000.5"])
+        .output()
+        .unwrap();
+    assert_usage(
+        "emulate",
+        &o,
+        &["--param encoderCountsPerRevolution = '1000.5': 1000.5 is not an integer"],
+    );
+    assert!(!key.exists());
 }
 
 /// `study --bench-param` values that `BenchHardware` would refuse (outside its `[min, max]`,
@@ -596,6 +745,46 @@ fn emulate_checks_param_names_and_values_before_starting() {
             .unwrap();
         assert_usage(fault, &o, &[needle]);
         assert!(!key.exists(), "{fault}: wrote {}", key.display());
+    }
+    // A --key file the emulator refuses (readable by others, a key that is no secret, no
+    // file at all): a usage error naming the option and why, before anything starts (it was
+    // exit 1).
+    let loose = dir.path().join("loose.key");
+    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
+    let zeros = dir.path().join("zeros.key");
+    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
+        std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
+    }
+    let missing = dir.path().join("missing.key");
+    for (file, needle) in [
+        (&loose, "accessible to its group or to others (mode 644)"),
+        (&zeros, "all its 32 bytes are 0x00: not a random key"),
+        (&missing, "No such file"),
+    ] {
+        let o = kneebench()
+            .args([
+                "emulate",
+                "--bind",
+                "127.0.0.1:0",
+                "--duration",
+                "5",
+                "--fmu",
+            ])
+            .arg(&plant)
+            .arg("--key")
+            .arg(file)
+            .output()
+            .unwrap();
+        assert_usage(
+            needle,
+            &o,
+            &[&format!("--key key file {}", file.display()), needle],
+        );
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!e.contains("serving"), "{e}");
     }
     // Serving off loopback without a key: a usage error naming the remedy (it was exit 1).
     let o = kneebench()

@@ -6,6 +6,7 @@
 //! - [`read`]: [`ModelDescription::from_xml`] reads descriptions from any exporter: unknown
 //!   attributes and vendor annotations are tolerated, malformed documents are refused with an
 //!   error that says where and why.
+//! - [`integer_valued`]: Reals that take whole numbers only (a description convention).
 //! - [`items`]: the named values of `Integer` types (modes declared as `Integer` for importers
 //!   without `Enumeration` support), kept in a vendor annotation.
 //! - [`check`]: semantic checks beyond the schema (unique names and value references, a
@@ -16,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod check;
+pub mod integer_valued;
 pub mod items;
 pub mod num;
 pub mod read;
@@ -23,6 +25,7 @@ pub mod types;
 pub mod write;
 
 pub use check::{BaseType, Problem};
+pub use integer_valued::INTEGER_NOTE;
 pub use items::{ITEMS_TOOL, IntegerItems};
 pub use read::ParseError;
 pub use types::*;

@@ -127,7 +127,9 @@ def run(
     ``params`` (a mapping, name to value) sets parameters or start values before
     initialisation (``variable`` for an FMU, ``component.variable`` for a system);
     ``variables`` (a list of names; a single ``str`` or an empty list raises) chooses the
-    recorded columns (default, ``None``: every output). The DataFrame has a ``time`` column
+    recorded columns (default, ``None``: every output). ``stop_time`` and ``step`` default to
+    the FMU's or the system's DefaultExperiment (an FMU's tolerance is passed to
+    ``fmi2SetupExperiment``, as ``kneebench run`` does). The DataFrame has a ``time`` column
     [s] and one float64 column per signal; ``df.attrs["units"]`` maps each column to its unit
     (``""`` when it has none), ``df.attrs["status"]`` is ``"completed"`` or ``"terminated"``
     (an FMU ended the run, e.g. an interlock; ``df.attrs["message"]`` says why). A failed run

@@ -170,10 +170,8 @@ fn load(path: &Path, options: &LoadOptions) -> Result<(System, RunConfig, bool),
                 .add_component(&name, fmu)
                 .map_err(|e| e.to_string())?;
             system.set_column_prefix(false);
-            let config = match &md.default_experiment {
-                Some(d) => RunConfig::default().with_times(d.start_time, d.stop_time, d.step_size),
-                None => RunConfig::default(),
-            };
+            // The default experiment's times and tolerance, as `kneebench run` takes them.
+            let config = RunConfig::of_fmu(&md);
             Ok((system, config, true))
         }
         "ssp" | "ssd" => {
@@ -273,12 +271,7 @@ fn run_inner(
         let refs: Vec<&str> = refs.iter().map(String::as_str).collect();
         sys.record(&refs).map_err(|e| format!("variables: {e}"))?;
     }
-    if let Some(t) = stop_time {
-        config.stop_time = t;
-    }
-    if let Some(h) = step {
-        config.step_size = h;
-    }
+    let config = config.with_times(None, stop_time, step);
     // Column by column: the layout of the data frame, handed over without a copy.
     let mut results = Columns::new();
     let summary = sys

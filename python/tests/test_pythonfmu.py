@@ -7,8 +7,10 @@ The lag's step is Python code, so the same recurrence computed here gives the sa
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
+import sysconfig
 import threading
 from pathlib import Path
 
@@ -218,3 +220,53 @@ def test_isolate_is_checked_before_anything_runs(lag_fmu: Path):
     with pytest.raises(ValueError, match="isolate must be 'auto', 'always' or 'never'"):
         kneebench.run(lag_fmu, stop_time=STOP, force=True, isolate="sometimes")
 
+
+
+TOLERANCE = """
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Slave, Real
+
+
+class Tolerance(Fmi2Slave):
+    author = "kneebench tests"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.01, step_size=0.001, tolerance=2.5e-5)
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.tol = -1.0
+        self.register_variable(Real("tol", causality=Fmi2Causality.output))
+
+    def setup_experiment(self, start_time, stop_time, tolerance):
+        self.tol = -1.0 if tolerance is None else tolerance
+
+    def do_step(self, current_time, step_size):
+        return True
+"""
+
+
+def test_run_passes_the_default_experiments_tolerance_as_the_cli_does(tmp_path: Path):
+    # An export that outputs the tolerance fmi2SetupExperiment gave it (-1 for none): the
+    # package's run passed none where `kneebench run` passes the DefaultExperiment's.
+    from conftest import kneebench_bin
+
+    (tmp_path / "Tolerance.py").write_text(TOLERANCE)
+    subprocess.run(
+        [sys.executable, "-m", "pythonfmu", "build", "-f", tmp_path / "Tolerance.py", "--dest", tmp_path],
+        check=True,
+        capture_output=True,
+    )
+    fmu = tmp_path / "Tolerance.fmu"
+    csv = tmp_path / "tol.csv"
+    # The export leaves libpython's symbols to its host: the CLI preloads this Python's.
+    libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
+    r = subprocess.run(
+        [kneebench_bin(), "run", fmu, "--force", "--preload", libpython, "--output", csv, "-q"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONHOME": sys.base_prefix},
+    )
+    assert r.returncode == 0, r.stderr
+    cli = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert cli[-1, 1] == 2.5e-5, cli
+    df = kneebench.run(fmu, force=True)
+    assert df.attrs["status"] == "completed"
+    assert list(df["tol"]) == list(cli[:, 1])

@@ -404,7 +404,11 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         }
     }
     config.key = match (&args.key, &args.new_key) {
-        (Some(path), _) => Some(Key::load_file(path)?),
+        // A key file refused (weak key, readable by others, another user's, no such file) is
+        // an argument problem, found before anything starts.
+        (Some(path), _) => {
+            Some(Key::load_file(path).map_err(|e| super::Usage(format!("--key {e}")))?)
+        }
         (None, Some(path)) => {
             let key = Key::create_file(path)?;
             eprintln!(

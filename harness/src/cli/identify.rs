@@ -18,13 +18,15 @@ pub fn read_set_for(path: Option<&Path>, fmu: &Path) -> anyhow::Result<Option<Pa
 /// A `--params SET.ssv` refused as a usage error (exit code 2) naming the option, the file and
 /// the line: a file that cannot be read or is malformed, a value that is not finite, a name
 /// the FMU has no parameter for, a unit other than the declared one, a value outside the
-/// declared `[min, max]` or none of the items ([`ParameterSet::check`]). Other errors (the FMU
-/// or system it is applied to could not be read, [`ParamsError::Target`]) as they are.
+/// declared `[min, max]` or none of the items ([`ParameterSet::check`]), a component the
+/// system does not have ([`ParamsError::NoComponent`]). Other errors (the system refused a
+/// value, [`ParamsError::Target`]) as they are.
 pub fn set_error(e: ParamsError) -> anyhow::Error {
     match e {
-        e @ (ParamsError::Io { .. } | ParamsError::Syntax { .. } | ParamsError::Invalid { .. }) => {
-            super::Usage(format!("--params {e}")).into()
-        }
+        e @ (ParamsError::Io { .. }
+        | ParamsError::Syntax { .. }
+        | ParamsError::Invalid { .. }
+        | ParamsError::NoComponent { .. }) => super::Usage(format!("--params {e}")).into(),
         e => e.into(),
     }
 }

@@ -257,7 +257,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     // or, with --timeout, never returns is reported (exit code 1 or 4) instead of ending
     // kneebench silently; disarmed when this function returns.
     let mut armed = super::last_resort::arm(&partial_path(&a.output));
-    let (mut system, mut config) = match ext.as_str() {
+    let (mut system, config) = match ext.as_str() {
         "fmu" => {
             let fmu = Fmu::load(&a.system, &load)?;
             match single_fmu(&a, fmu)? {
@@ -351,15 +351,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             return usage(format_args!("--variables: {e}"));
         }
     }
-    if let Some(t) = a.start_time {
-        config.start_time = t;
-    }
-    if let Some(t) = a.stop_time {
-        config.stop_time = t;
-    }
-    if let Some(h) = a.step {
-        config.step_size = h;
-    }
+    let mut config = config.with_times(a.start_time, a.stop_time, a.step);
     if let Some(alg) = a.algorithm {
         config.algorithm = match alg {
             AlgorithmArg::GaussSeidel => Algorithm::GaussSeidel,
@@ -549,11 +541,7 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
     let mut system = System::new();
     system.add_component(&name, fmu)?;
     system.set_column_prefix(false);
-    let mut config = RunConfig::default();
-    if let Some(d) = &md.default_experiment {
-        config = config.with_times(d.start_time, d.stop_time, d.step_size);
-        config.tolerance = d.tolerance;
-    }
+    let config = RunConfig::of_fmu(&md);
     if let Some(path) = &a.inputs {
         let csv = match Results::read_file(path).and_then(|c| {
             c.check_series(path)?;

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use kneebench_harness::master::Value;
 use kneebench_harness::params::ParamsError;
 use kneebench_harness::study::{
-    Actuator, BenchLink, ScenarioSection, StudyConfig, StudyError, StudyScenario, checked_settings,
-    plot_study, run_study, runs_markdown, write_report,
+    Actuator, BenchLink, CheckedStudy, ScenarioSection, StudyConfig, StudyError, StudyScenario,
+    plot_study, run_checked, runs_markdown, write_report,
 };
 
 /// Arguments of `kneebench study`.
@@ -82,7 +82,7 @@ pub struct Args {
 /// Reads `--param component.name=value`: an Integer, a Real or a Boolean by its text, any other
 /// text as a String (an item's name, e.g. `plant.frictionModel=HdLossSurface`). The value is
 /// checked against the scenario's FMUs, and converted to the variable's type, before anything
-/// runs ([`checked_settings`]).
+/// runs ([`CheckedStudy::new`]).
 fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     let (name, value) = super::name_value(text)?;
     let value = value.as_str();
@@ -187,9 +187,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     // Every scenario's settings (one actuator on a bench, the --params set, the --param and
     // --bench-param values) are checked before the first run (a later scenario's were found
     // only after the earlier ones had run; a bench study of several actuators, a set's values
-    // only as its first run began, a --bench-param's when the bench refused it).
+    // only as its first run began, a --bench-param's when the bench refused it). Each is run
+    // as checked here, not checked again.
+    let mut checked = Vec::new();
     for config in &configs {
-        checked_settings(config).map_err(|e| match e {
+        checked.push(CheckedStudy::new(config).map_err(|e| match e {
             StudyError::BenchActuators { .. } => super::Usage(format!("--bench: {e}")).into(),
             StudyError::Parameter(m) => super::Usage(format!("--param {m}")).into(),
             StudyError::ParameterSet(ParamsError::Invalid { line, problem, .. }) => {
@@ -198,13 +200,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             }
             StudyError::BenchParameter(m) => super::Usage(format!("--bench-param {m}")).into(),
             e => anyhow::Error::from(e),
-        })?;
+        })?);
     }
     let mut all = Vec::new();
-    for config in &configs {
-        let runs = run_study(config)?;
+    for study in &checked {
+        let runs = run_checked(study, None)?;
         let figures = plot_study(&runs, &a.out)?;
-        all.push((config.scenario, runs, figures));
+        all.push((study.config().scenario, runs, figures));
     }
     let sections: Vec<ScenarioSection<'_>> = all
         .iter()

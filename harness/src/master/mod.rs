@@ -236,7 +236,8 @@ impl Default for RunConfig {
 
 impl RunConfig {
     /// This configuration with the times of a default experiment (an FMU's or an SSP's
-    /// `DefaultExperiment`): each of `start_time`, `stop_time` and `step_size` that is given
+    /// `DefaultExperiment`) or of a run's own settings (`kneebench run --stop-time`, a sweep
+    /// spec's `stop_time`): each of `start_time`, `stop_time` and `step_size` that is given
     /// replaces this configuration's, the others are kept.
     pub fn with_times(
         mut self,
@@ -254,6 +255,21 @@ impl RunConfig {
             self.step_size = h;
         }
         self
+    }
+
+    /// The configuration of a run of the FMU that `md` describes by itself, as `kneebench run
+    /// FMU` and the Python package's `run` make it: its `DefaultExperiment`'s times
+    /// ([`with_times`](Self::with_times)) and tolerance (passed to `fmi2SetupExperiment`),
+    /// the defaults for what it leaves out.
+    pub fn of_fmu(md: &ModelDescription) -> RunConfig {
+        let config = RunConfig::default();
+        match &md.default_experiment {
+            Some(d) => RunConfig {
+                tolerance: d.tolerance,
+                ..config.with_times(d.start_time, d.stop_time, d.step_size)
+            },
+            None => config,
+        }
     }
 }
 

@@ -523,3 +523,28 @@ fn a_value_as_text_reads_back_as_itself() {
         assert_eq!(Value::parse(ty, &v.to_text()), Some(v.clone()), "{v:?}");
     }
 }
+
+/// `RunConfig::of_fmu` (a single FMU's run, the CLI's and the Python package's): the default
+/// experiment's times and its tolerance, the defaults for what it leaves out.
+#[test]
+fn a_single_fmus_run_takes_its_default_experiments_times_and_tolerance() {
+    use super::RunConfig;
+    use model_description::{DefaultExperiment, ModelDescription};
+    let mut md = ModelDescription::new("m", "{g}");
+    let c = RunConfig::of_fmu(&md);
+    assert_eq!(
+        (c.start_time, c.stop_time, c.step_size, c.tolerance),
+        (0.0, 1.0, 1e-3, None)
+    );
+    md.default_experiment = Some(DefaultExperiment {
+        start_time: None,
+        stop_time: Some(2.0),
+        tolerance: Some(1e-5),
+        step_size: Some(0.01),
+    });
+    let c = RunConfig::of_fmu(&md);
+    assert_eq!(
+        (c.start_time, c.stop_time, c.step_size, c.tolerance),
+        (0.0, 2.0, 0.01, Some(1e-5))
+    );
+}

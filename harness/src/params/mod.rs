@@ -60,6 +60,18 @@ pub enum ParamsError {
         /// What is wrong.
         problem: String,
     },
+    /// `COMPONENT=SET.ssv` names a component the system does not have.
+    #[error("{spec}: {system} has no component '{component}' (its components: {})", .components.join(", "))]
+    NoComponent {
+        /// The option's value as given.
+        spec: String,
+        /// The system (its file).
+        system: String,
+        /// The component named.
+        component: String,
+        /// The system's components.
+        components: Vec<String>,
+    },
     /// The FMU or system the set is applied to could not be read, or refused a value.
     #[error("{0}")]
     Target(String),
@@ -510,8 +522,9 @@ fn not_an_item(md: &ModelDescription, v: &ScalarVariable, x: i32) -> Option<Stri
 }
 
 /// Why `value` cannot be the value of `v` (a value of `v`'s type): a Real that is not finite,
-/// a number outside the declared `[min, max]`, an integer that is no item of `v`'s named
-/// values; `None` when it can.
+/// a fraction for a Real that takes whole numbers only
+/// ([`ScalarVariable::is_integer_valued`]), a number outside the declared `[min, max]`, an
+/// integer that is no item of `v`'s named values; `None` when it can.
 fn value_problem(md: &ModelDescription, v: &ScalarVariable, value: &Value) -> Option<String> {
     match (&v.kind, value) {
         (VariableKind::Real { attributes, .. }, Value::Real(x)) => {
@@ -519,6 +532,11 @@ fn value_problem(md: &ModelDescription, v: &ScalarVariable, value: &Value) -> Op
             let max = attributes.max.unwrap_or(f64::INFINITY);
             if !x.is_finite() {
                 Some(format!("{} is not a finite number", Num(*x)))
+            } else if v.is_integer_valued() && x.fract() != 0.0 {
+                Some(format!(
+                    "{} is not an integer (a Real that takes whole numbers only)",
+                    Num(*x)
+                ))
             } else if !(min..=max).contains(x) {
                 Some(format!(
                     "{} is outside [{}, {}]",

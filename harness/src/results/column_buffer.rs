@@ -113,6 +113,7 @@ mod mapped {
         base: NonNull<libc::c_void>,
         mapped_len: usize,
         /// Whether the kernel faulted the pages in when it was made (Linux 5.14 and later).
+        #[cfg_attr(not(test), allow(dead_code, reason = "read by the tests"))]
         pub(super) populated: bool,
     }
 

@@ -929,7 +929,7 @@ mod thread_tests {
         let dir = tempfile::tempdir().unwrap();
         let mut f = ParquetFile::create(&dir.path().join("t.parquet")).unwrap();
         let names: Vec<String> = (0..101).map(|c| format!("c{c}")).collect();
-        f.begin(&names, &vec![ColumnKind::Real; 101]).unwrap();
+        f.begin(&names, &[ColumnKind::Real; 101]).unwrap();
         let rows = 2 * ROW_GROUP_ROWS + 100;
         f.expect_rows(rows as u64);
         let row = vec![1.5; 101];

@@ -793,15 +793,11 @@ fn set_component_values(
         let reference = format!("{}.{}", c.name, p.name);
         // Integer parameters may be written for Real variables (and vice versa) by other
         // tools: convert through text.
-        let text = match &p.value {
-            Value::Real(v) => format!("{v:?}"),
-            Value::Integer(v) => v.to_string(),
-            Value::Boolean(v) => v.to_string(),
-            Value::String(v) => v.clone(),
-        };
         match system.set_value(&reference, p.value.clone()) {
             Ok(()) => {}
-            Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
+            Err(MasterError::BadValue { .. }) => {
+                system.set_value_str(&reference, &p.value.to_text())?
+            }
             Err(e) => return Err(e.into()),
         }
     }

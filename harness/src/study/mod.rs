@@ -289,10 +289,8 @@ pub fn parameter_set(scenario: &Scenario) -> (Vec<String>, String) {
         .flat_map(|c| {
             c.parameters.iter().map(move |(name, value)| {
                 let value = match value {
-                    Value::Real(v) => format!("{v:?}"),
-                    Value::Integer(v) => v.to_string(),
-                    Value::Boolean(v) => v.to_string(),
                     Value::String(v) => format!("{v:?}"),
+                    v => v.to_text(),
                 };
                 format!("{}.{name} = {value}", c.name)
             })
@@ -392,7 +390,17 @@ pub fn run_study_with(
     control: Option<&crate::master::RunControl>,
 ) -> Result<Vec<StudyRun>, StudyError> {
     // Checked before anything is written or run (a bad value failed every run at t = 0).
-    let overrides = checked_settings(config)?;
+    run_checked(&CheckedStudy::new(config)?, control)
+}
+
+/// [`run_study_with`] of a configuration checked already ([`CheckedStudy::new`]: the CLI
+/// checks every scenario's before the first one runs), not checked again.
+pub fn run_checked(
+    study: &CheckedStudy<'_>,
+    control: Option<&crate::master::RunControl>,
+) -> Result<Vec<StudyRun>, StudyError> {
+    let config = study.config();
+    let overrides = study.overrides();
     let scenarios = config.out_dir.join("scenarios");
     std::fs::create_dir_all(&scenarios).map_err(|e| StudyError::Fmu {
         path: scenarios.clone(),
@@ -429,8 +437,8 @@ pub fn run_study_with(
                     .retain(|(n, _)| !set.parameters.iter().any(|p| &p.name == n));
             }
         }
-        apply_overrides(&mut effective, &overrides)?;
-        apply_overrides(&mut scenario, &overrides)?;
+        apply_overrides(&mut effective, overrides)?;
+        apply_overrides(&mut scenario, overrides)?;
         let stem = config.scenario.file_stem(actuator);
         scenario.name = stem.clone();
         effective.name = stem.clone();

@@ -311,15 +311,11 @@ fn fresh_system(loaded: &LoadedSystem) -> Result<System, MasterError> {
         }
         for p in &c.parameters {
             let reference = format!("{}.{}", c.name, p.name);
-            let text = match &p.value {
-                Value::Real(v) => format!("{v:?}"),
-                Value::Integer(v) => v.to_string(),
-                Value::Boolean(v) => v.to_string(),
-                Value::String(v) => v.clone(),
-            };
             match system.set_value(&reference, p.value.clone()) {
                 Ok(()) => {}
-                Err(MasterError::BadValue { .. }) => system.set_value_str(&reference, &text)?,
+                Err(MasterError::BadValue { .. }) => {
+                    system.set_value_str(&reference, &p.value.to_text())?
+                }
                 Err(e) => return Err(e),
             }
         }
@@ -471,14 +467,11 @@ impl Prepared {
                 ),
             ));
         }
-        let mut config = loaded.config.clone();
+        let mut config = loaded
+            .config
+            .clone()
+            .with_times(None, spec.stop_time, spec.step);
         config.progress = None;
-        if let Some(t) = spec.stop_time {
-            config.stop_time = t;
-        }
-        if let Some(h) = spec.step {
-            config.step_size = h;
-        }
         match probe.check_config(&config) {
             Err(e) => problems.push(spec.problem(0, format!("stop_time and step: {e}"))),
             // The bound on a run's recorded values (the spec checked it where it tells the
