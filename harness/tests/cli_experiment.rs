@@ -44,8 +44,9 @@ fn a_step_whose_closed_loop_trips_says_why_and_exits_3() {
 }
 
 /// A run that fails before its first row (the bench FMU refuses its parameters while starting:
-/// the value is inside its declared range, and `fmi2SetReal` refuses a fractional encoder count,
-/// an integer-valued Real) says so: the message said "the run failed at t = None".
+/// the value is inside its declared range, and the plant refuses a transducer gain under a
+/// microvolt, which no calibration could give) says so: the message said "the run
+/// failed at t = None".
 #[test]
 fn a_run_that_fails_while_starting_says_so_without_none() {
     let dir = tempfile::tempdir().unwrap();
@@ -53,7 +54,7 @@ fn a_run_that_fails_while_starting_says_so_without_none() {
     let out = Command::new(env!("CARGO_BIN_EXE_kneebench"))
         .args(["experiment", "step", "--fmu"])
         .arg(fmus.join("BenchPlant.fmu"))
-        .args(["--param", "encoderCountsPerRevolution=2000.5", "--out"])
+        .args(["--param", "transducerGain=1e-9", "--out"])
         .arg(dir.path().join("step"))
         .output()
         .unwrap();
@@ -61,7 +62,7 @@ fn a_run_that_fails_while_starting_says_so_without_none() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains("the run failed before its first row")
-            && stderr.contains("encoderCountsPerRevolution = 2000.5 refused: must be an integer"),
+            && stderr.contains("sensor calibration gains must be at least 1e-6 V in magnitude"),
         "{stderr}"
     );
     assert!(!stderr.contains("None"), "{stderr}");
