@@ -4,7 +4,8 @@
 //! `maxOutputDerivativeOrder`, `fmi2CancelStep` and the status of a pending step
 //! (`fmi2DoStepStatus`, `fmi2PendingStatus`) `canRunAsynchronuously`. Each is refused before
 //! the call ([`FmuError::NotPromised`], [`FmuError::DerivativeOrderNotPromised`]); the FMU's
-//! log stays free of it. (The FMU-state functions: `fmu_state.rs`.) kneebench's FMUs declare
+//! log stays free of it; and so are the FMU-state functions without `canGetAndSetFMUstate`
+//! and `canSerializeFMUstate` (`BenchHardware` declares both false). kneebench's FMUs declare
 //! `canInterpolateInputs` and `canRunAsynchronuously` false, `maxOutputDerivativeOrder` 0 but
 //! for `GaitReference` and `BenchPlant` (1).
 
@@ -172,4 +173,45 @@ fn the_status_of_a_pending_step_needs_can_run_asynchronuously() {
         !i.get_boolean_status(fmi2StatusKind::fmi2Terminated)
             .unwrap()
     );
+}
+
+/// The FMU-state functions need `canGetAndSetFMUstate` and `canSerializeFMUstate`:
+/// `BenchHardware`'s are refused before any call (its log stays free of the FMU's refusal),
+/// another model's work as before.
+#[test]
+fn fmu_state_functions_need_their_flags() {
+    let (mut i, log, _) = initialized("BenchHardware", "testCurrentCommand");
+    let e = i.get_fmu_state().unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FmuError::NotPromised {
+                function: "fmi2GetFMUstate",
+                flag: "canGetAndSetFMUstate"
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("canGetAndSetFMUstate"), "{e}");
+    let e = i.deserialize_fmu_state(&[0; 16]).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            FmuError::NotPromised {
+                function: "fmi2DeSerializeFMUstate",
+                flag: "canSerializeFMUstate"
+            }
+        ),
+        "{e:?}"
+    );
+    not_called(&log, "FMUstate");
+    i.do_step(0.0, 0.001).unwrap();
+
+    let (mut g, _, _) = initialized("GaitReference", "gaitPeriod");
+    let s = g.get_fmu_state().unwrap();
+    let bytes = g.serialize_fmu_state(&s).unwrap();
+    let copy = g.deserialize_fmu_state(&bytes).unwrap();
+    g.set_fmu_state(&copy).unwrap();
+    g.free_fmu_state(copy).unwrap();
+    g.free_fmu_state(s).unwrap();
 }
