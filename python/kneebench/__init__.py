@@ -276,12 +276,19 @@ def study(
     ``scenario`` is ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg,
     SEA/CSEA under impedance control: it has no DA). ``actuators`` is a list of the
     scenario's actuators (default, ``None``: all of the scenario's; a single ``str``, an
-    empty list or an actuator the scenario lacks raises). ``df.attrs["units"]`` maps each
+    empty list or an actuator the scenario lacks raises). ``cycles`` is the gait cycles per
+    run, at least 2: the first, the start-up (the gait fades in), is not analysed, the
+    metrics are per cycle over the others. ``df.attrs["units"]`` maps each
     column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
     run at its next communication point and raises KeyboardInterrupt."""
     # None: the scenario's own actuators (the harness knows them).
     names = _names("actuators", actuators)
     cycles = _at_least_one("cycles", cycles)
+    if cycles is not None and cycles < 2:
+        raise ValueError(
+            f"cycles must be >= 2 (given: {cycles}): the first gait cycle, the start-up, is not "
+            "analysed"
+        )
     if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, numbers.Real):
         raise TypeError(f"scale must be a real number, not {type(scale).__name__}")
     reports = _native.study(
@@ -448,11 +455,11 @@ def sweep(
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
-    _cluster_arguments(client, workers, batch_size)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
         raise KneebenchError("resume needs output: the journal is next to it")
+    _cluster_arguments(client, workers, batch_size)
     if client is None:
         return _frame(_native.sweep(path, workers, out, resume))
     info = _native.sweep_info(path)
@@ -582,7 +589,6 @@ def optimize(
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
-    _cluster_arguments(client, workers, batch_size)
     if on_generation is not None and not callable(on_generation):
         raise TypeError(
             f"on_generation must be callable (or None), not {type(on_generation).__name__}"
@@ -591,6 +597,7 @@ def optimize(
     out = None if output is None else os.fspath(output)
     if resume and out is None:
         raise KneebenchError("resume needs output: the journal is next to it")
+    _cluster_arguments(client, workers, batch_size)
     if client is None:
         report = None
         if on_generation is not None:

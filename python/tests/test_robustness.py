@@ -51,7 +51,7 @@ def _interrupted_after(call: str, delay: float, timeout: float = 120) -> float:
 @pytest.fixture(scope="module")
 def sea_ssp(fmus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sea-study")
-    kneebench.study(fmus, out, actuators=["SEA"], cycles=1)
+    kneebench.study(fmus, out, actuators=["SEA"], cycles=2)
     (ssp,) = (out / "scenarios").glob("*.ssp")
     return ssp
 
@@ -95,7 +95,7 @@ def test_ctrl_c_stops_an_optimisation_and_its_journal_resumes(
 ):
     spec = optimize_spec()
     # 12 runs of 200 gait cycles on two threads: about six seconds.
-    text = spec.read_text().replace("cycles = 1", "cycles = 200").replace(
+    text = spec.read_text().replace("cycles = 2", "cycles = 200").replace(
         "generations = 3", "generations = 1"
     )
     spec.write_text(text)
@@ -126,11 +126,15 @@ def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Pat
     with pytest.raises(ValueError, match="variables is empty"):
         kneebench.run(gait, variables=[], stop_time=0.01)
     with pytest.raises(TypeError, match="actuators must be a list of names, not a str"):
-        kneebench.study(fmus, tmp_path, actuators="SEA", cycles=1)
+        kneebench.study(fmus, tmp_path, actuators="SEA", cycles=2)
     with pytest.raises(ValueError, match="actuators is empty"):
-        kneebench.study(fmus, tmp_path, actuators=[], cycles=1)
+        kneebench.study(fmus, tmp_path, actuators=[], cycles=2)
     with pytest.raises(ValueError, match="cycles must be >= 1"):
         kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=-1)
+    # One cycle is the start-up alone, which is not analysed (it was, silently).
+    with pytest.raises(ValueError, match="cycles must be >= 2 .given: 1.: the first gait cycle, "
+                                         "the start-up, is not analysed"):
+        kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=1)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         kneebench.sweep(sweep_spec(4), workers=-1)
 
@@ -158,23 +162,23 @@ def test_on_generation_must_be_callable_before_anything_runs(optimize_spec, tmp_
 
 def test_the_default_actuators_are_the_scenarios_own(fmus: Path, tmp_path: Path):
     """Without ``actuators`` the harness picks the scenario's (the package keeps no copy)."""
-    df = kneebench.study(fmus, tmp_path, cycles=1, scenario="bench-clutch")
+    df = kneebench.study(fmus, tmp_path, cycles=2, scenario="bench-clutch")
     assert list(df.index) == ["SEA", "CSEA"]
 
 
 def test_the_clutch_scenario_has_no_da(fmus: Path, tmp_path: Path):
     with pytest.raises(KneebenchError, match="bench-clutch scenario has no DA"):
-        kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=1, scenario="bench-clutch")
+        kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=2, scenario="bench-clutch")
 
 
 def test_a_failed_study_run_is_not_a_trip(fmus: Path, tmp_path: Path):
     # Ten times the gait's amplitude: the gait FMU refuses the knee angle.
-    df = kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=1, scale=10.0)
+    df = kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=2, scale=10.0)
     row = df.loc["SEA"]
     assert row["status"] == "failed"
     assert "run failed" in row["message"] and "kneeAngleAmplitude" in row["message"]
     assert row["trip"] is None and np.isnan(row["trip_time"])
-    ok = kneebench.study(fmus, tmp_path / "ok", actuators=["SEA"], cycles=1)
+    ok = kneebench.study(fmus, tmp_path / "ok", actuators=["SEA"], cycles=2)
     assert ok.loc["SEA", "status"] == "ok" and ok.loc["SEA", "message"] == ""
 
 
@@ -228,7 +232,7 @@ def test_a_window_after_the_runs_end_is_refused(fmus: Path, tmp_path: Path):
     spec.write_text(textwrap.dedent(f"""\
         system = "SEA"
         fmus = "{fmus}"
-        cycles = 1
+        cycles = 2
         [design]
         kind = "grid"
         [[parameters]]

@@ -8,7 +8,8 @@ use model_description::ModelDescription;
 use super::{HARDWARE_FMU, PLANT_FMU, Scenario, StudyConfig, StudyError, gait_scenario};
 use crate::master::Value;
 
-/// Every setting of `config` that can be checked before anything runs, in this order: a study
+/// Every setting of `config` that can be checked before anything runs, in this order: at least
+/// two cycles per run ([`StudyError::Cycles`]: the first is the start-up, not analysed), a study
 /// on a bench names one actuator ([`StudyError::BenchActuators`]), the plant's parameter set
 /// is one the plant FMU takes ([`ParameterSet::check`](crate::params::ParameterSet::check):
 /// [`StudyError::ParameterSet`]), the overrides ([`checked_overrides`], returned typed) and
@@ -17,6 +18,9 @@ use crate::master::Value;
 /// [`run_study`](super::run_study) checks first, and what the CLI checks for every scenario
 /// before the first one runs.
 pub fn checked_settings(config: &StudyConfig) -> Result<Vec<(String, Value)>, StudyError> {
+    if config.cycles < 2 {
+        return Err(StudyError::Cycles(config.cycles));
+    }
     check_bench_actuators(config)?;
     if let Some(set) = &config.parameter_set {
         let md = model_description(&config.fmu_dir, PLANT_FMU)?;
