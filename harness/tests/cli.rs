@@ -204,7 +204,7 @@ fn a_failed_study_run_is_reported_as_failed_not_as_a_trip() {
             "--actuators",
             "da",
             "--cycles",
-            "1",
+            "2",
             "--param",
             "torque.outputMin=100",
             "--fmus",

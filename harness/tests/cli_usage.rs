@@ -287,7 +287,7 @@ fn sweep_and_optimize_refuse_more_workers_than_the_bound() {
     std::fs::write(
         &spec,
         format!(
-            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n\n[design]\nkind = \"grid\"\n\n\
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 2\n\n[design]\nkind = \"grid\"\n\n\
              [[parameters]]\nname = \"plant.springStiffness\"\nvalues = [340.54]\n",
             fmus().display()
         ),
@@ -369,7 +369,7 @@ fn study_checks_param_names_and_values_against_the_fmus_before_running() {
         ("nodot=1", &["'nodot': not component.name"]),
     ] {
         let o = kneebench()
-            .args(["study", "--cycles", "1", "--param", param, "--fmus"])
+            .args(["study", "--cycles", "2", "--param", param, "--fmus"])
             .arg(fmus())
             .arg("--out")
             .arg(&out)
@@ -378,6 +378,21 @@ fn study_checks_param_names_and_values_against_the_fmus_before_running() {
         assert_usage(param, &o, needles);
         assert!(!out.exists(), "{param}: wrote {}", out.display());
     }
+    // One cycle is the start-up alone, never analysed: refused before anything runs (it was
+    // analysed silently).
+    let o = kneebench()
+        .args(["study", "--cycles", "1", "--fmus"])
+        .arg(fmus())
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_usage(
+        "--cycles 1",
+        &o,
+        &["--cycles: cycles must be at least 2 (given: 1): the first gait cycle, the start-up"],
+    );
+    assert!(!out.exists(), "--cycles 1: wrote {}", out.display());
 }
 
 /// A parameter set's values the FMU would refuse (outside the declared `[min, max]`, none of
@@ -457,7 +472,7 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
                 "--fmus",
                 fmus_dir,
                 "--cycles",
-                "1",
+                "2",
                 "--actuators",
                 "sea",
                 "--scenario",
@@ -659,7 +674,7 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
                 "--fmus",
                 fmus_dir,
                 "--cycles",
-                "1",
+                "2",
                 "--actuators",
                 "sea",
             ])

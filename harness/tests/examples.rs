@@ -347,3 +347,80 @@ fn the_example_parsers_see_what_they_should() {
     assert!(!sets_variables("$K experiment step"));
     assert!(!sets_variables("kneebench x=1"));
 }
+
+/// The repository's source paths that `text` cites: each run of path characters starting at
+/// one of the top-level directories (`harness/src/study/mod.rs`, `examples/stiffness-sweep`),
+/// not inside a longer path or word, without a trailing `.` or `/`.
+fn cited_paths(text: &str) -> Vec<String> {
+    const ROOTS: [&str; 9] = [
+        "harness/",
+        "fmu/",
+        "python/",
+        "tests/",
+        "scripts/",
+        "examples/",
+        "docs/",
+        "modelDescription/",
+        "fuzz/",
+    ];
+    let path_char = |c: char| c.is_ascii_alphanumeric() || "_./-".contains(c);
+    let mut out = Vec::new();
+    for (i, _) in text.char_indices() {
+        let before = text[..i].chars().next_back();
+        if before.is_some_and(path_char) || !ROOTS.iter().any(|r| text[i..].starts_with(r)) {
+            continue;
+        }
+        let end = text[i..]
+            .find(|c: char| !path_char(c))
+            .map_or(text.len(), |n| i + n);
+        let path = text[i..end].trim_end_matches(['.', '/', '-']);
+        if !out.iter().any(|p| p == path) {
+            out.push(path.to_string());
+        }
+    }
+    out
+}
+
+/// Every source path that the README, `docs/` and the examples' READMEs cite exists (a file
+/// moved into a module directory, `harness/src/study.rs` -> `harness/src/study/mod.rs`, left
+/// the examples' README pointing at nothing).
+#[test]
+fn every_source_path_the_docs_cite_exists() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut docs = vec![root.join("README.md")];
+    for dir in ["docs", "examples"] {
+        for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+            let p = entry.unwrap().path();
+            if p.extension().is_some_and(|e| e == "md") {
+                docs.push(p);
+            } else if p.join("README.md").is_file() {
+                docs.push(p.join("README.md"));
+            }
+        }
+    }
+    let mut missing = Vec::new();
+    let mut cited = 0;
+    for doc in &docs {
+        let text = std::fs::read_to_string(doc).unwrap();
+        for path in cited_paths(&text) {
+            cited += 1;
+            if !root.join(&path).exists() {
+                missing.push(format!("{}: {path}", doc.display()));
+            }
+        }
+    }
+    assert!(cited > 40, "only {cited} paths found: the scan is broken");
+    assert!(
+        missing.is_empty(),
+        "cited paths that do not exist:\n{}",
+        missing.join("\n")
+    );
+    assert_eq!(
+        cited_paths("see `harness/src/study/mod.rs`, tests/tests/sweep.rs. and examples/x/"),
+        [
+            "harness/src/study/mod.rs",
+            "tests/tests/sweep.rs",
+            "examples/x"
+        ]
+    );
+}

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SPEC = """\
 system = "SEA"
 fmus = "{fmus}"
-cycles = 1
+cycles = 2
 [design]
 kind = "latin-hypercube"
 points = {points}
@@ -83,7 +83,7 @@ def main() -> None:
         per_task = (m["batch1"] - m["batchN"]) * 2 / (tasks1 - tasksN)
         per_run = m["runs"] / POINTS
         print(
-            f"{POINTS} runs of one gait cycle: alone, one thread {m['runs'] * 1e3:.0f} ms "
+            f"{POINTS} runs of two gait cycles: alone, one thread {m['runs'] * 1e3:.0f} ms "
             f"({per_run * 1e3:.2f} ms per run); 2 Dask workers, 1 point per task "
             f"{m['batch1'] * 1e3:.0f} ms; Dask, {POINTS // 2} points per task "
             f"{m['batchN'] * 1e3:.0f} ms; per-task overhead {per_task * 1e3:.1f} ms "

@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import atexit
 import math
+import numbers
 import os
 import sysconfig
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from . import _native
 from ._native import KneebenchError, SpecError
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 __all__ = [
     "KneebenchError",
@@ -63,11 +67,36 @@ atexit.register(_native.clear_cache)
 
 
 def _text(value: Any) -> str:
-    if isinstance(value, bool):
+    """A parameter value as the text the harness reads (``kneebench run --param`` reads the
+    same): a bool (``numpy.bool_`` too) as ``true``/``false``; an integer (any
+    ``numbers.Integral``: ``int``, ``numpy.int64``) in decimal; any other real number
+    (``numbers.Real``: ``float``, ``numpy.float64``, ``numpy.float32``, ``Fraction``) as the
+    shortest text of its value as a float, a whole number without a fraction (``1.0`` ->
+    ``1``, which an Integer or Enumeration variable takes and a Real reads as the same value;
+    ``1.5`` stays ``1.5``, which an Integer refuses); anything else (a ``str``) as ``str()``
+    gives it."""
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        x = float(value)
+        # Below 2**53 every whole float is an exact int; "-0" keeps the sign of -0.0 for a Real.
+        if x.is_integer() and abs(x) < 2**53:
+            return str(int(x)) if math.copysign(1.0, x) > 0 else f"-{int(-x)}"
+        return repr(x)
     return str(value)
+
+
+def _pyarrow() -> Any:
+    """The ``pyarrow`` module, or an ImportError saying what needs it."""
+    try:
+        import pyarrow
+    except ImportError as e:
+        raise ImportError(
+            "as_arrow=True needs pyarrow: pip install pyarrow (or kneebench[arrow])"
+        ) from e
+    return pyarrow
 
 
 def _columns(names: Sequence[str], columns: Sequence[bytes]) -> dict[str, np.ndarray]:
@@ -90,25 +119,60 @@ def _names(what: str, names: Iterable[str] | None) -> list[str] | None:
     return out
 
 
-def _at_least_one(what: str, value: int | None) -> None:
-    """Refuses an ``int`` argument below 1 (``None`` passes) with a ValueError naming it."""
+def _at_least_one(what: str, value: int | None) -> int | None:
+    """``value`` as an ``int`` (any ``numbers.Integral``, a ``numpy.int64`` too; ``None`` passes):
+    another type raises TypeError, a value below 1 ValueError, each naming ``what``."""
     if value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int):
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{what} must be an int, not {type(value).__name__}")
     if value < 1:
         raise ValueError(f"{what} must be >= 1 (given: {value})")
+    return int(value)
 
 
-def _workers(workers: int | None) -> None:
+def _workers(workers: int | None) -> int | None:
     """Refuses ``workers`` below 1 (as :func:`_at_least_one`) and above the harness's bound
     (``_native.MAX_WORKERS``, 1024: each is a thread loading its own copy of the system), both
     with a ValueError (a bad argument, as every other), before anything runs."""
-    _at_least_one("workers", workers)
+    workers = _at_least_one("workers", workers)
     if workers is not None and workers > _native.MAX_WORKERS:
         raise ValueError(
             f"{workers} worker threads: a sweep or an optimisation runs on 1 to "
             f"{_native.MAX_WORKERS}"
+        )
+    return workers
+
+
+def _cluster_arguments(client: Any, workers: int | None, batch_size: int | None) -> None:
+    """Refuses what a sweep or an optimisation would silently ignore: ``workers`` (local
+    threads) with a ``client``, ``batch_size`` (batches sent to a cluster) without one (both
+    ValueError), and a ``client`` that is not a ``dask.distributed.Client`` (TypeError: an
+    address string is refused, connect with ``Client(address)`` first)."""
+    if client is None:
+        if batch_size is not None:
+            raise ValueError(
+                "batch_size is for a Dask client's batches: a local run (client=None) has none"
+            )
+        return
+    if workers is not None:
+        raise ValueError(
+            "workers is for a local run (client=None): on a Dask cluster its own workers "
+            "run the points (leave workers out)"
+        )
+    try:
+        from distributed import Client
+    except ImportError:
+        Client = None
+    if Client is None or not isinstance(client, Client):
+        hint = (
+            f" (connect first: client=distributed.Client({client!r}))"
+            if isinstance(client, str)
+            else ""
+        )
+        raise TypeError(
+            f"client must be a dask.distributed.Client (or None for local threads), not "
+            f"{type(client).__name__}{hint}"
         )
 
 
@@ -121,18 +185,26 @@ def run(
     *,
     force: bool = False,
     isolate: str = "auto",
-) -> pd.DataFrame:
+    as_arrow: bool = False,
+) -> pd.DataFrame | pa.Table:
     """Run an FMU (``.fmu``) or an SSP system (``.ssp``/``.ssd``) and return its results.
 
     ``params`` (a mapping, name to value) sets parameters or start values before
-    initialisation (``variable`` for an FMU, ``component.variable`` for a system);
-    ``variables`` (a list of names; a single ``str`` or an empty list raises) chooses the
-    recorded columns (default, ``None``: every output). ``stop_time`` and ``step`` default to
-    the FMU's or the system's DefaultExperiment (an FMU's tolerance is passed to
-    ``fmi2SetupExperiment``, as ``kneebench run`` does). The DataFrame has a ``time`` column
-    [s] and one float64 column per signal; ``df.attrs["units"]`` maps each column to its unit
-    (``""`` when it has none), ``df.attrs["status"]`` is ``"completed"`` or ``"terminated"``
-    (an FMU ended the run, e.g. an interlock; ``df.attrs["message"]`` says why). A failed run
+    initialisation (``variable`` for an FMU, ``component.variable`` for a system). A value
+    is a number, a bool or a str (an item's name for an Enumeration); numpy scalars are
+    numbers too (``numpy.float64``, ``numpy.int64``, ``numpy.bool_``), and a whole-number
+    float is taken by an Integer or Enumeration variable (``1.0``, as a sweep table's Integer
+    column holds it; ``1.5`` raises KneebenchError). ``variables`` (a list of names; a single
+    ``str``, an empty list or a name given twice raises) chooses the recorded columns
+    (default, ``None``: every output). ``stop_time`` and ``step`` default to the FMU's or the
+    system's DefaultExperiment (an FMU's tolerance is passed to ``fmi2SetupExperiment``, as
+    ``kneebench run`` does). The DataFrame has a ``time`` column [s] and one float64
+    column per signal; ``df.attrs["units"]`` maps each column to its unit (``""`` when it has
+    none), ``df.attrs["status"]`` is ``"completed"`` or ``"terminated"`` (an FMU ended the
+    run, e.g. an interlock; ``df.attrs["message"]`` says why). With ``as_arrow=True`` the
+    same columns come as a ``pyarrow.Table`` (pyarrow needed: ``pip install pyarrow``) whose
+    fields carry their unit as metadata (``table.field(name).metadata[b"unit"]``) and whose
+    schema metadata holds ``kneebench.status`` and ``kneebench.message``. A failed run
     raises KneebenchError, and so does an FMU with a problem ``kneebench validate`` reports (a
     variable name that is not unique, say) unless ``force=True`` (``kneebench run --force``).
     Ctrl-C (SIGINT) stops the run at its next communication point and raises
@@ -156,6 +228,12 @@ def run(
             f"params must be a mapping of names to values (a dict), not {type(params).__name__}"
         )
     names = _names("variables", variables)
+    if names is not None:
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"variables names {', '.join(map(repr, twice))} more than once")
+    if as_arrow:
+        pa = _pyarrow()
     p = [(k, _text(v)) for k, v in (params or {}).items()]
     r = _native.run(
         os.fspath(system),
@@ -168,8 +246,17 @@ def run(
         _fmu_host(),
         _libpython(),
     )
-    # ``values`` holds one row per column (time first) in the buffer the run filled: its
-    # transpose is the frame's one block of floats, taken without a copy.
+    # ``values`` holds one row per column (time first) in the buffer the run filled: each row
+    # is a column of the table, and the transpose is the frame's one block of floats, both
+    # taken without a copy.
+    if as_arrow:
+        fields = [
+            pa.field(n, pa.float64(), metadata={"unit": u})
+            for n, u in zip(r["names"], r["units"])
+        ]
+        meta = {"kneebench.status": r["status"], "kneebench.message": r["message"]}
+        arrays = [pa.array(column) for column in r["values"]]
+        return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=meta))
     df = pd.DataFrame(r["values"].T, columns=r["names"], copy=False)
     df.attrs["units"] = dict(zip(r["names"], r["units"]))
     df.attrs["status"] = r["status"]
@@ -194,13 +281,24 @@ def study(
     ``scenario`` is ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg,
     SEA/CSEA under impedance control: it has no DA). ``actuators`` is a list of the
     scenario's actuators (default, ``None``: all of the scenario's; a single ``str``, an
-    empty list or an actuator the scenario lacks raises). ``df.attrs["units"]`` maps each
+    empty list or an actuator the scenario lacks raises). ``cycles`` is the gait cycles per
+    run, at least 2: the first, the start-up (the gait fades in), is not analysed, the
+    metrics are per cycle over the others. ``df.attrs["units"]`` maps each
     column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
     run at its next communication point and raises KeyboardInterrupt."""
     # None: the scenario's own actuators (the harness knows them).
     names = _names("actuators", actuators)
-    _at_least_one("cycles", cycles)
-    reports = _native.study(os.fspath(fmus), os.fspath(out), names, cycles, scale, scenario)
+    cycles = _at_least_one("cycles", cycles)
+    if cycles is not None and cycles < 2:
+        raise ValueError(
+            f"cycles must be >= 2 (given: {cycles}): the first gait cycle, the start-up, is not "
+            "analysed"
+        )
+    if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, numbers.Real):
+        raise TypeError(f"scale must be a real number, not {type(scale).__name__}")
+    reports = _native.study(
+        os.fspath(fmus), os.fspath(out), names, cycles, float(scale), scenario
+    )
     df = pd.DataFrame(reports).set_index("actuator")
     df.attrs["units"] = {**_native.STUDY_METRIC_UNITS, "trip": "", "status": "", "message": ""}
     return df
@@ -305,11 +403,15 @@ def ship(client: Any, spec: str | os.PathLike[str]) -> list[str]:
     """Send a sweep's (or an optimisation's) input files to the workers of ``client`` (a
     ``dask.distributed.Client``) for clusters without a shared file system: every worker,
     present and future, writes them at the same absolute paths as on this machine
-    (:class:`kneebench.shipping.ShipFiles`). Returns the paths.
+    (:class:`kneebench.shipping.ShipFiles`). Returns the paths. Another ``client`` (``None``,
+    an address string) raises TypeError.
     Call it before :func:`sweep` or :func:`optimize`; the paths must be writable on the
     workers."""
     from .shipping import ShipFiles
 
+    if client is None:
+        raise TypeError("ship needs a dask.distributed.Client, not None")
+    _cluster_arguments(client, None, None)
     plugin = ShipFiles.from_spec(spec)
     client.register_plugin(plugin, name=ShipFiles.name)
     return sorted(plugin.files)
@@ -351,14 +453,18 @@ def sweep(
     ("another sweep is running into this output") before running anything; the journal's lock
     goes with that sweep's end, a killed process's included. Locally, Ctrl-C (SIGINT) stops the running points at their next communication point and
     raises KeyboardInterrupt, the journal keeping the rows finished before it. ``workers`` and
-    ``batch_size`` must be at least 1 and ``workers`` at most 1024 (ValueError).
+    ``batch_size`` must be at least 1 and ``workers`` at most 1024 (ValueError); ``workers``
+    is for a local run and ``batch_size`` for a cluster's: either with the other raises
+    ValueError, and a ``client`` that is not a ``dask.distributed.Client`` (an address
+    string, say: connect with ``Client(address)`` first) TypeError.
     """
-    _workers(workers)
-    _at_least_one("batch_size", batch_size)
+    workers = _workers(workers)
+    batch_size = _at_least_one("batch_size", batch_size)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
         raise KneebenchError("resume needs output: the journal is next to it")
+    _cluster_arguments(client, workers, batch_size)
     if client is None:
         return _frame(_native.sweep(path, workers, out, resume))
     info = _native.sweep_info(path)
@@ -480,12 +586,14 @@ def optimize(
     that another sweep or optimisation is writing to raises KneebenchError before anything
     runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
-    journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1
-    (ValueError), ``workers`` at most 1024 (KneebenchError), and ``on_generation`` callable
-    (TypeError), checked before anything runs.
+    journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1 and
+    ``workers`` at most 1024 (ValueError), ``workers`` is for a local run and ``batch_size``
+    for a cluster's (either with the other: ValueError), ``client`` a
+    ``dask.distributed.Client`` and ``on_generation`` callable (TypeError), all checked
+    before anything runs.
     """
-    _workers(workers)
-    _at_least_one("batch_size", batch_size)
+    workers = _workers(workers)
+    batch_size = _at_least_one("batch_size", batch_size)
     if on_generation is not None and not callable(on_generation):
         raise TypeError(
             f"on_generation must be callable (or None), not {type(on_generation).__name__}"
@@ -494,6 +602,7 @@ def optimize(
     out = None if output is None else os.fspath(output)
     if resume and out is None:
         raise KneebenchError("resume needs output: the journal is next to it")
+    _cluster_arguments(client, workers, batch_size)
     if client is None:
         report = None
         if on_generation is not None:

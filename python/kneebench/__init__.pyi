@@ -5,6 +5,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import pandas as pd
+import pyarrow as pa
 
 __version__: str
 
@@ -23,7 +24,8 @@ def run(
     *,
     force: bool = False,
     isolate: str = "auto",
-) -> pd.DataFrame: ...
+    as_arrow: bool = False,
+) -> pd.DataFrame | pa.Table: ...
 def study(
     fmus: str | os.PathLike[str],
     out: str | os.PathLike[str],

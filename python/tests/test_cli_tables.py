@@ -5,6 +5,7 @@ their metadata."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -166,7 +167,8 @@ def test_sweep_and_run_parquet_read_by_pyarrow_and_polars(sweep_spec, fmus: Path
     arrow = pq.read_table(run)
     meta = {k.decode(): v.decode() for k, v in arrow.schema.metadata.items()}
     assert meta["kneebench.system"].endswith("GaitReference.fmu")
-    assert meta["kneebench.parameters"] == "gaitPeriod=1.25"
+    # A JSON object, name to the value's text (a String value may hold any character).
+    assert json.loads(meta["kneebench.parameters"]) == {"gaitPeriod": "1.25"}
     assert meta["kneebench.version"]
     assert any(k.startswith("kneebench.guid.") and v.startswith("{") for k, v in meta.items())
     df = pl.read_parquet(run)

@@ -51,7 +51,7 @@ def _interrupted_after(call: str, delay: float, timeout: float = 120) -> float:
 @pytest.fixture(scope="module")
 def sea_ssp(fmus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sea-study")
-    kneebench.study(fmus, out, actuators=["SEA"], cycles=1)
+    kneebench.study(fmus, out, actuators=["SEA"], cycles=2)
     (ssp,) = (out / "scenarios").glob("*.ssp")
     return ssp
 
@@ -95,7 +95,7 @@ def test_ctrl_c_stops_an_optimisation_and_its_journal_resumes(
 ):
     spec = optimize_spec()
     # 12 runs of 200 gait cycles on two threads: about six seconds.
-    text = spec.read_text().replace("cycles = 1", "cycles = 200").replace(
+    text = spec.read_text().replace("cycles = 2", "cycles = 200").replace(
         "generations = 3", "generations = 1"
     )
     spec.write_text(text)
@@ -126,11 +126,15 @@ def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Pat
     with pytest.raises(ValueError, match="variables is empty"):
         kneebench.run(gait, variables=[], stop_time=0.01)
     with pytest.raises(TypeError, match="actuators must be a list of names, not a str"):
-        kneebench.study(fmus, tmp_path, actuators="SEA", cycles=1)
+        kneebench.study(fmus, tmp_path, actuators="SEA", cycles=2)
     with pytest.raises(ValueError, match="actuators is empty"):
-        kneebench.study(fmus, tmp_path, actuators=[], cycles=1)
+        kneebench.study(fmus, tmp_path, actuators=[], cycles=2)
     with pytest.raises(ValueError, match="cycles must be >= 1"):
         kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=-1)
+    # One cycle is the start-up alone, which is not analysed (it was, silently).
+    with pytest.raises(ValueError, match="cycles must be >= 2 .given: 1.: the first gait cycle, "
+                                         "the start-up, is not analysed"):
+        kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=1)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         kneebench.sweep(sweep_spec(4), workers=-1)
 
@@ -158,23 +162,23 @@ def test_on_generation_must_be_callable_before_anything_runs(optimize_spec, tmp_
 
 def test_the_default_actuators_are_the_scenarios_own(fmus: Path, tmp_path: Path):
     """Without ``actuators`` the harness picks the scenario's (the package keeps no copy)."""
-    df = kneebench.study(fmus, tmp_path, cycles=1, scenario="bench-clutch")
+    df = kneebench.study(fmus, tmp_path, cycles=2, scenario="bench-clutch")
     assert list(df.index) == ["SEA", "CSEA"]
 
 
 def test_the_clutch_scenario_has_no_da(fmus: Path, tmp_path: Path):
     with pytest.raises(KneebenchError, match="bench-clutch scenario has no DA"):
-        kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=1, scenario="bench-clutch")
+        kneebench.study(fmus, tmp_path, actuators=["DA"], cycles=2, scenario="bench-clutch")
 
 
 def test_a_failed_study_run_is_not_a_trip(fmus: Path, tmp_path: Path):
     # Ten times the gait's amplitude: the gait FMU refuses the knee angle.
-    df = kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=1, scale=10.0)
+    df = kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=2, scale=10.0)
     row = df.loc["SEA"]
     assert row["status"] == "failed"
     assert "run failed" in row["message"] and "kneeAngleAmplitude" in row["message"]
     assert row["trip"] is None and np.isnan(row["trip_time"])
-    ok = kneebench.study(fmus, tmp_path / "ok", actuators=["SEA"], cycles=1)
+    ok = kneebench.study(fmus, tmp_path / "ok", actuators=["SEA"], cycles=2)
     assert ok.loc["SEA", "status"] == "ok" and ok.loc["SEA", "message"] == ""
 
 
@@ -228,7 +232,7 @@ def test_a_window_after_the_runs_end_is_refused(fmus: Path, tmp_path: Path):
     spec.write_text(textwrap.dedent(f"""\
         system = "SEA"
         fmus = "{fmus}"
-        cycles = 1
+        cycles = 2
         [design]
         kind = "grid"
         [[parameters]]
@@ -291,3 +295,131 @@ def test_a_thread_that_cannot_start_raises_instead_of_panicking(fmus: Path):
     )
     assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
     assert r.stdout.startswith("raised cannot start a thread for the run"), r.stdout
+
+
+def test_parameter_values_are_read_as_numbers_whatever_their_python_type():
+    """numpy scalars are numbers (numpy 2's repr, ``np.float64(300.0)``, was passed as the
+    text), a whole-number float is written without a fraction (an Integer takes it), every
+    other real as the shortest text of its float value."""
+    from fractions import Fraction
+
+    text = kneebench._text
+    assert text(np.linspace(100, 500, 3)[1]) == "300"
+    assert text(np.float64(0.1)) == "0.1" == text(0.1)
+    assert text(np.float32(0.1)) == repr(float(np.float32(0.1))) == "0.10000000149011612"
+    assert text(1.0) == "1" and text(np.float64(-2.0)) == "-2"
+    assert text(-0.0) == "-0" and text(0.0) == "0"
+    assert text(1.5) == "1.5" and text(2.0**60) == "1.152921504606847e+18"
+    assert text(float("nan")) == "nan" and text(float("-inf")) == "-inf"
+    assert text(np.int64(3)) == "3" == text(3)
+    assert text(Fraction(1, 4)) == "0.25"
+    assert text(np.True_) == "true" and text(False) == "false"
+    assert text("Exponential") == "Exponential"
+
+
+def test_run_takes_numpy_floats_and_whole_floats_for_integer_variables(fmus: Path):
+    plant = fmus / "BenchPlant.fmu"
+    stiffness = np.linspace(100, 500, 3)[1]  # np.float64(300.0)
+    for params in ({"springStiffness": stiffness}, {"frictionModel": 2.0},
+                   {"frictionModel": np.float64(0.0), "springStiffness": np.float32(250.5)},
+                   {"frictionModel": np.int64(3)}):
+        df = kneebench.run(plant, params=params, stop_time=0.01)
+        assert df.attrs["status"] == "completed", params
+    with pytest.raises(KneebenchError, match="'1.5'"):
+        kneebench.run(plant, params={"frictionModel": 1.5}, stop_time=0.01)
+
+
+def test_run_refuses_a_variable_named_twice(fmus: Path):
+    gait = fmus / "GaitReference.fmu"
+    with pytest.raises(ValueError, match="'gaitPhase' more than once"):
+        kneebench.run(gait, variables=["gaitPhase", "kneeAngleReference", "gaitPhase"],
+                      stop_time=0.01)
+
+
+def test_run_as_arrow_gives_the_same_columns_units_and_status(fmus: Path):
+    pa = pytest.importorskip("pyarrow")
+    gait = fmus / "GaitReference.fmu"
+    args = dict(params={"gaitPeriod": 1.25}, stop_time=0.5, step=0.01)
+    df = kneebench.run(gait, **args)
+    table = kneebench.run(gait, **args, as_arrow=True)
+    assert isinstance(table, pa.Table)
+    assert table.column_names == list(df.columns)
+    for name in df.columns:
+        field = table.schema.field(name)
+        assert field.type == pa.float64()
+        assert field.metadata[b"unit"].decode() == df.attrs["units"][name]
+        assert np.array_equal(table[name].to_numpy().view(np.int64),
+                              df[name].to_numpy().view(np.int64)), name
+    meta = table.schema.metadata
+    assert meta[b"kneebench.status"].decode() == df.attrs["status"] == "completed"
+    assert meta[b"kneebench.message"].decode() == df.attrs["message"]
+
+
+def test_cluster_arguments_are_refused_where_they_would_be_ignored(
+    sweep_spec, optimize_spec, tmp_path: Path
+):
+    """``client`` must be a Client (an address string raised AttributeError deep inside),
+    ``workers`` is for a local run (it was ignored with a client), ``batch_size`` for a
+    cluster's (it was ignored without one); nothing runs or is written."""
+    distributed = pytest.importorskip("distributed")
+    spec, opt = sweep_spec(4), optimize_spec()
+    out = tmp_path / "t.parquet"
+    for call in (kneebench.sweep, kneebench.optimize):
+        s = spec if call is kneebench.sweep else opt
+        with pytest.raises(TypeError, match=r"client must be a dask\.distributed\.Client .*, not "
+                                            r"str \(connect first: client=distributed\.Client"):
+            call(s, "tcp://127.0.0.1:8786", output=out)
+        with pytest.raises(ValueError, match="batch_size is for a Dask client's batches"):
+            call(s, batch_size=2, output=out)
+        # A Client that is never connected: the check comes before any use of it.
+        client = distributed.Client.__new__(distributed.Client)
+        with pytest.raises(ValueError, match="workers is for a local run"):
+            call(s, client, workers=4, output=out)
+    with pytest.raises(TypeError, match="ship needs a dask.distributed.Client"):
+        kneebench.ship(None, spec)
+    with pytest.raises(TypeError, match="client must be a dask.distributed.Client"):
+        kneebench.ship("tcp://127.0.0.1:8786", spec)
+    assert not out.exists() and not Path(str(out) + ".journal").exists()
+
+
+def test_int_arguments_take_numpy_integers():
+    assert kneebench._at_least_one("workers", np.int64(3)) == 3
+    assert type(kneebench._at_least_one("workers", np.int64(3))) is int
+    with pytest.raises(TypeError, match="cycles must be an int, not float"):
+        kneebench._at_least_one("cycles", 2.0)
+    with pytest.raises(TypeError, match="cycles must be an int, not bool"):
+        kneebench._at_least_one("cycles", np.True_)
+
+
+def test_the_stubs_declare_the_runtime_signatures():
+    """Every public function of ``__init__.pyi`` has the runtime's parameters: names, kinds and
+    defaults, in order (and every public name of ``__all__`` is in the stub)."""
+    import ast
+    import inspect
+
+    stub = Path(kneebench.__file__).with_name("__init__.pyi")
+    tree = ast.parse(stub.read_text())
+    defs = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    declared = set(defs) | {n.name for n in tree.body if isinstance(n, ast.ClassDef)} | {
+        n.target.id for n in tree.body if isinstance(n, ast.AnnAssign)
+    }
+    assert set(kneebench.__all__) <= declared, set(kneebench.__all__) - declared
+    for name, node in defs.items():
+        runtime = inspect.signature(getattr(kneebench, name))
+        a = node.args
+        positional = a.posonlyargs + a.args
+        defaults = [inspect.Parameter.empty] * (len(positional) - len(a.defaults)) + [
+            ast.literal_eval(d) for d in a.defaults
+        ]
+        kw_defaults = [
+            inspect.Parameter.empty if d is None else ast.literal_eval(d) for d in a.kw_defaults
+        ]
+        in_stub = [(p.arg, "positional", d) for p, d in zip(positional, defaults)] + [
+            (p.arg, "keyword", d) for p, d in zip(a.kwonlyargs, kw_defaults)
+        ]
+        kind = {inspect.Parameter.KEYWORD_ONLY: "keyword"}
+        at_runtime = [
+            (p.name, kind.get(p.kind, "positional"), p.default)
+            for p in runtime.parameters.values()
+        ]
+        assert in_stub == at_runtime, name

@@ -5,15 +5,15 @@
 //! figures of a shared machine mean little without it).
 //!
 //! - **throughput**: [`THROUGHPUT_POINTS`] points of a Latin hypercube over the SEA scenario
-//!   (spring stiffness x harmonic-drive ratio, one gait cycle of 2.5 s at 1 kHz per run, the
-//!   study metrics), run by `Prepared::run_points` with 1 and with 2 worker threads; runs per
+//!   (spring stiffness x harmonic-drive ratio, two gait cycles of 2.5 s at 1 kHz per run: the
+//!   start-up and one analysed; the study metrics), run by `Prepared::run_points` with 1 and with 2 worker threads; runs per
 //!   second and their ratio. Each call includes every worker's loading of the system (once
 //!   per call, as `kneebench sweep` does).
 //! - **per-point overhead of the sweep machinery**: a whole sweep as `kneebench sweep` runs it
 //!   on one worker (the spec parsed and checked against the FMUs, the design, the scenario
 //!   written and loaded, the points scheduled, each run's study metrics, its journal line,
 //!   the Parquet table written through its partial file) against the bare closed loop: the
-//!   same scenario `.ssp` loaded once, then per point its two values set and one gait cycle of
+//!   same scenario `.ssp` loaded once, then per point its two values set and two gait cycles of
 //!   `System::run` recording the same signals. Both are timed at [`SMALL`] and [`LARGE`]
 //!   points: the slope (seconds per added point) is each one's per-point cost, the sweep's
 //!   overhead is the ratio of the slopes less one; the intercepts are the fixed costs (for the
@@ -76,10 +76,10 @@ fn load_average() -> String {
         .unwrap_or_else(|_| "unknown".into())
 }
 
-/// The spec text: SEA, one gait cycle, `points` Latin-hypercube points.
+/// The spec text: SEA, two gait cycles (the first, the start-up, is not analysed), `points` Latin-hypercube points.
 fn spec_text(fmus: &Path, points: usize) -> String {
     format!(
-        "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n[design]\nkind = \"latin-hypercube\"\npoints = {points}\nseed = 1\n\
+        "system = \"SEA\"\nfmus = \"{}\"\ncycles = 2\n[design]\nkind = \"latin-hypercube\"\npoints = {points}\nseed = 1\n\
          [[parameters]]\nname = \"plant.springStiffness\"\nmin = 250.0\nmax = 450.0\n\
          [[parameters]]\nname = \"plant.harmonicDriveRatio\"\nmin = 140.0\nmax = 180.0\n",
         fmus.display()
@@ -190,7 +190,7 @@ fn optimize(dir: &Path, fmus: &Path) {
     }
     let [[o1, o2], [s1, s2]] = rate.map(|r| r.map(median));
     println!(
-        "optimisation ({POPULATION} x {} generations = {runs} runs of one gait cycle) vs a sweep \
+        "optimisation ({POPULATION} x {} generations = {runs} runs of two gait cycles) vs a sweep \
          of {runs} points: 1 worker {o1:.1} vs {s1:.1} runs/s (cost per run {:+.1} %), 2 workers \
          {o2:.1} vs {s2:.1} runs/s ({:+.1} %); 2 workers over 1: optimisation {:.2}x, sweep {:.2}x",
         GENERATIONS + 1,
@@ -213,7 +213,7 @@ fn throughput(p: &Prepared) {
     }
     let (r1, r2) = (median(rate[0].clone()), median(rate[1].clone()));
     println!(
-        "throughput ({THROUGHPUT_POINTS} runs of one 2.5 s gait cycle): 1 worker {r1:.1} runs/s \
+        "throughput ({THROUGHPUT_POINTS} runs of two 2.5 s gait cycles): 1 worker {r1:.1} runs/s \
          ({:.2} ms per run), 2 workers {r2:.1} runs/s, ratio {:.2}",
         1e3 / r1,
         r2 / r1
@@ -240,7 +240,7 @@ fn overhead(dir: &Path, fmus: &Path) {
         b_small - b_slope * SMALL as f64,
     );
     println!(
-        "per point: sweep machinery {:.3} ms, bare System::run {:.3} ms (one gait cycle), \
+        "per point: sweep machinery {:.3} ms, bare System::run {:.3} ms (two gait cycles), \
          overhead {:+.1} %; fixed costs: sweep {:.1} ms (spec, scenario, loading), bare {:.1} ms \
          (loading), i.e. {:+.1} % per point at {LARGE} points; sweeps of {SMALL}/{LARGE} points \
          {:.1}/{:.1} ms, bare {:.1}/{:.1} ms",

@@ -51,7 +51,10 @@ fn run_results_round_trip_through_pyarrow_with_metadata() {
     let mut file = ParquetFile::create(&out).unwrap();
     file.set_metadata(vec![
         ("kneebench.system".into(), "GaitReference.fmu".into()),
-        ("kneebench.parameters".into(), "gaitPeriod=1.25".into()),
+        (
+            "kneebench.parameters".into(),
+            r#"{"gaitPeriod":"1.25"}"#.into(),
+        ),
         ("kneebench.guid.gait".into(), guid.clone()),
     ]);
     let mut sink = Tee(file, Results::with_capacity(Vec::new(), Vec::new(), 0));
@@ -85,7 +88,7 @@ fn run_results_round_trip_through_pyarrow_with_metadata() {
     for m in [
         format!("meta kneebench.version {}", env!("CARGO_PKG_VERSION")),
         "meta kneebench.system GaitReference.fmu".to_string(),
-        "meta kneebench.parameters gaitPeriod=1.25".to_string(),
+        r#"meta kneebench.parameters {"gaitPeriod":"1.25"}"#.to_string(),
         format!("meta kneebench.guid.gait {guid}"),
     ] {
         assert!(lines.contains(&m.as_str()), "missing {m}:\n{text}");

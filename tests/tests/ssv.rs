@@ -291,7 +291,7 @@ fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
         fmu_dir: fmus().to_path_buf(),
         out_dir: out.path().to_path_buf(),
         scenario: StudyScenario::BenchFull,
-        cycles: 1,
+        cycles: 2,
         scale: 1.0,
         gains: None,
         actuators: vec![Actuator::Sea],

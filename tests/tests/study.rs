@@ -465,3 +465,31 @@ fn the_report_links_resolve_and_embeds_png_figures() {
     );
     assert!(text.contains("Table 15") && text.contains("Units and sign conventions"));
 }
+
+/// `--param gait.gaitPeriod=4` is the period the study runs, fades in and analyses: its runs
+/// lasted `cycles x 2.5 s` (the default period's), so that two cycles of 4 s ended at 5 s and
+/// the start-up cycle was analysed as the only one.
+#[test]
+fn an_overridden_gait_period_sets_the_runs_length_fade_in_and_analysis() {
+    let out = tempfile::tempdir().unwrap();
+    let mut c = config(out.path(), vec![Actuator::Sea], 3, 1.0);
+    c.overrides = vec![("gait.gaitPeriod".into(), Value::Real(4.0))];
+    let runs = run_study(&c).unwrap();
+    let run = &runs[0];
+    assert!(
+        matches!(run.outcome, Outcome::Completed { .. }),
+        "{:?}",
+        run.outcome
+    );
+    assert_eq!(run.results.last_time(), Some(12.0));
+    assert_eq!(run.gait.period, 4.0);
+    assert_eq!(run.report.cycles, 2);
+    assert_eq!(run.report.trip, None);
+    for p in ["gait.gaitPeriod = 4.0", "gait.fadeInTime = 2.0"] {
+        assert!(
+            run.parameters.contains(&p.to_string()),
+            "{p}: {:?}",
+            run.parameters
+        );
+    }
+}

@@ -40,7 +40,7 @@ fn refusal(text: &str) -> Vec<String> {
     }
 }
 
-const HEAD: &str = "system = \"SEA\"\nfmus = \"FMUS\"\ncycles = 1\n";
+const HEAD: &str = "system = \"SEA\"\nfmus = \"FMUS\"\ncycles = 2\n";
 
 #[test]
 fn bad_specs_are_refused_naming_the_line() {
@@ -463,4 +463,70 @@ fn a_second_sweep_into_the_same_output_is_refused_while_the_first_runs() {
     assert_eq!(table.rows[0].message, "from the first sweep");
     assert!(table.rows[1..].iter().all(|r| r.message.is_empty()));
     assert!(!journal_path(&out).exists());
+}
+
+/// A scenario sweeping the gait's period runs `cycles` of each point's own period and analyses
+/// every cycle but the first, the start-up: runs were `cycles x 2.5 s` whatever the point's
+/// period, so that a 4 or 6 s period analysed the start-up cycle alone (or read as `tripped`,
+/// "ended before one cycle", with no interlock tripped). A run that
+/// ends before its second cycle (a system file's stop time here) is `failed`, its message
+/// saying why: `tripped` is for an interlock.
+#[test]
+fn a_swept_gait_period_sets_the_runs_and_the_start_up_is_never_analysed() {
+    use kneebench_harness::study::{Actuator, StudyScenario, gait_scenario, write_ssp};
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(
+        "system = \"SEA\"\nfmus = \"FMUS\"\ncycles = 3\n[design]\nkind = \"grid\"\n\
+         [[parameters]]\nname = \"gait.gaitPeriod\"\nvalues = [2.0, 4.0, 6.0]\n",
+        dir.path(),
+    )
+    .unwrap();
+    let cycles = p.metric_names.iter().position(|n| n == "cycles").unwrap();
+    let t = run_sweep(&p, None, &options(2)).unwrap();
+    for r in &t.rows {
+        assert_eq!(r.status, RunStatus::Ok, "{r:?}");
+        assert_eq!(r.metrics[cycles], 2.0, "{r:?}");
+    }
+    // A system file of the scenario (2 x 2.5 s) stopped at 3 s: one cycle, the start-up.
+    let bench = StudyScenario::BenchFull;
+    let scenario = gait_scenario(Actuator::Sea, bench.gait(), bench.gains(Actuator::Sea), 2);
+    let ssp = dir.path().join("SEA.ssp");
+    write_ssp(&scenario, fmus(), &ssp).unwrap();
+    let text = format!(
+        "system = \"{}\"\nstop_time = 3.0\n[design]\nkind = \"grid\"\n[[parameters]]\n\
+         name = \"plant.springStiffness\"\nvalues = [300.0]\n[metrics]\nstudy = true\n",
+        ssp.display()
+    );
+    let t = run_sweep(&prepared(&text, dir.path()).unwrap(), None, &options(1)).unwrap();
+    let r = &t.rows[0];
+    assert_eq!(r.status, RunStatus::Failed, "{r:?}");
+    assert_eq!(
+        r.message,
+        "no gait cycle to analyse: the run ended at 3 s, before the end of its second gait cycle \
+         at 5 s (period 2.5 s; the first cycle, the start-up, is not analysed)"
+    );
+    assert!(r.metrics[cycles].is_nan(), "{r:?}");
+    // A csv design's periods are only known once it is read: its longest run is within the
+    // bound on a run's values, or the spec is refused at the line of cycles.
+    std::fs::write(dir.path().join("points.csv"), "gait.gaitPeriod\n2.5\n300\n").unwrap();
+    let csv = |c: u32| {
+        format!(
+            "system = \"SEA\"\nfmus = \"FMUS\"\ncycles = {c}\n[design]\nkind = \"csv\"\n\
+             file = \"points.csv\"\n[[parameters]]\nname = \"gait.gaitPeriod\"\n"
+        )
+    };
+    prepared(&csv(2), dir.path()).unwrap();
+    match prepared(&csv(3), dir.path()) {
+        Err(SweepError::Invalid(p)) => {
+            assert_eq!(p.len(), 1, "{p:?}");
+            assert_eq!(p[0].line, 3);
+            assert!(
+                p[0].message
+                    .starts_with("each run would record 900001 rows"),
+                "{}",
+                p[0].message
+            );
+        }
+        other => panic!("{other:?}"),
+    }
 }

@@ -405,7 +405,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         a.system.display().to_string(),
     )];
     meta.push(("kneebench.parameter_sets".into(), set_labels.join(";")));
-    meta.push(("kneebench.parameters".into(), a.params.join(";")));
+    meta.push(("kneebench.parameters".into(), parameters_json(&a.params)));
     for (name, fmu) in system.components() {
         meta.push((
             format!("kneebench.guid.{name}"),
@@ -587,6 +587,49 @@ fn single_fmu(a: &Args, fmu: Fmu) -> anyhow::Result<Result<(System, RunConfig), 
     Ok(Ok((system, config)))
 }
 
+/// The `--param NAME=VALUE` list as the Parquet metadata's `kneebench.parameters`: a JSON
+/// object of each name to its value's text as given, trimmed (`{"gaitPeriod":"1.25"}`; `{}`
+/// without any), in the order given; a name given twice keeps its place and its last value, the one
+/// the run applied. A value may hold any character (`;`, `=`, quotes): JSON escapes it.
+fn parameters_json(params: &[String]) -> String {
+    let mut pairs: Vec<(String, String)> = Vec::new();
+    for p in params {
+        // The run refused a malformed item before the metadata is written.
+        let Ok((name, value)) = super::name_value(p) else {
+            continue;
+        };
+        match pairs.iter_mut().find(|(n, _)| *n == name) {
+            Some(slot) => slot.1 = value,
+            None => pairs.push((name, value)),
+        }
+    }
+    let body: Vec<String> = pairs
+        .iter()
+        .map(|(n, v)| format!("{}:{}", json_string(n), json_string(v)))
+        .collect();
+    format!("{{{}}}", body.join(","))
+}
+
+/// `s` as a JSON string literal (RFC 8259: `"` and `\` escaped, control characters as
+/// `\u00XX` or their short escapes).
+fn json_string(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            '\r' => out.push_str("\\r"),
+            '\t' => out.push_str("\\t"),
+            c if u32::from(c) < 0x20 => out.push_str(&format!("\\u{:04x}", u32::from(c))),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use clap::{CommandFactory, Parser};
@@ -638,5 +681,28 @@ mod tests {
             );
         }
         assert_eq!(Isolation::names_text(), "'auto', 'always' or 'never'");
+    }
+
+    /// Values holding the old separator (`;`), `=`, quotes, backslashes and control
+    /// characters come back as given from the JSON object; a repeated name keeps its last
+    /// value (the one applied).
+    #[test]
+    fn parameters_are_an_unambiguous_json_object() {
+        use super::parameters_json;
+        let params: Vec<String> = [
+            "label=a;b=c",
+            "path=C:\\x\"y\"",
+            "gaitPeriod=1.25",
+            "tab=x\ty\u{1}",
+            "gaitPeriod=2",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        assert_eq!(
+            parameters_json(&params),
+            r#"{"label":"a;b=c","path":"C:\\x\"y\"","gaitPeriod":"2","tab":"x\ty\u0001"}"#
+        );
+        assert_eq!(parameters_json(&[]), "{}");
     }
 }

@@ -47,7 +47,7 @@ pub struct Args {
     /// Scenarios to run (comma-separated: bench-full, bench-clutch).
     #[arg(long, value_delimiter = ',', default_value = "bench-full,bench-clutch")]
     pub scenario: Vec<String>,
-    /// Gait cycles per run.
+    /// Gait cycles per run, at least 2 (the first, the start-up, is not analysed).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
     pub cycles: u32,
     /// Multiplies the gait's angle and torque amplitudes.
@@ -193,6 +193,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     for config in &configs {
         checked.push(CheckedStudy::new(config).map_err(|e| match e {
             StudyError::BenchActuators { .. } => super::Usage(format!("--bench: {e}")).into(),
+            StudyError::Cycles(_) => super::Usage(format!("--cycles: {e}")).into(),
             StudyError::Parameter(m) => super::Usage(format!("--param {m}")).into(),
             StudyError::ParameterSet(ParamsError::Invalid { line, problem, .. }) => {
                 let file = a.parameter_set.as_deref().unwrap_or(Path::new("SET.ssv"));

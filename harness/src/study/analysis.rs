@@ -171,8 +171,9 @@ pub struct EnergyTerms {
 pub struct ActuatorReport {
     /// Actuator name.
     pub name: String,
-    /// Complete cycles analysed (the first cycle is the start-up and is skipped when there
-    /// are more).
+    /// Complete cycles analysed: every complete cycle but the first, the start-up, which is
+    /// never analysed (0 when an interlock ended the run before the second cycle completed:
+    /// the metrics are then NaN).
     pub cycles: usize,
     /// RMS error of the actuation-side angle against the reference \[rad\].
     pub rms_error_actuation: f64,
@@ -224,29 +225,12 @@ pub fn interlock_name(code: i64) -> &'static str {
     }
 }
 
-/// Analyses one run with gait period `period`.
-pub fn analyse(
-    name: &str,
-    results: &Results,
-    period: f64,
-    columns: &Columns,
-) -> Result<ActuatorReport, StudyError> {
-    let col = |n: &str| {
-        results
-            .column(n)
-            .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
-    };
-    let times = results.times();
-    let end = times.last().copied().unwrap_or(0.0);
-    let complete = ((end + 1e-9) / period).floor() as usize;
-    let trip = col(&columns.trip_code)?
-        .iter()
-        .zip(&times)
-        .find(|(c, _)| **c != 0.0)
-        .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
-    if complete == 0 {
+impl ActuatorReport {
+    /// The report of a run with no cycle to analyse: no cycle, every metric NaN, `trip` as
+    /// given.
+    pub fn unanalysed(name: &str, trip: Option<(String, f64)>) -> ActuatorReport {
         let nan = f64::NAN;
-        return Ok(ActuatorReport {
+        ActuatorReport {
             name: name.to_string(),
             cycles: 0,
             rms_error_actuation: nan,
@@ -274,10 +258,44 @@ pub fn analyse(
                 potential_stored: nan,
                 balance_residual: nan,
             },
-            trip: trip.or(Some(("ended before one cycle".into(), end))),
-        });
+            trip,
+        }
     }
-    let first = usize::from(complete > 1);
+}
+
+/// Analyses one run with gait period `period`: every complete cycle after the first, which is
+/// the start-up (the gait's fade-in) and is never analysed. A run whose second cycle did not
+/// complete has nothing to analyse: with a trip code in its results (an interlock) its report
+/// is [`ActuatorReport::unanalysed`] naming the trip; without one it is
+/// [`StudyError::NoCycle`] (the run was too short: the caller knows whether it failed or was
+/// ended by an interlock the results do not show).
+pub fn analyse(
+    name: &str,
+    results: &Results,
+    period: f64,
+    columns: &Columns,
+) -> Result<ActuatorReport, StudyError> {
+    let col = |n: &str| {
+        results
+            .column(n)
+            .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
+    };
+    let times = results.times();
+    let end = times.last().copied().unwrap_or(0.0);
+    let complete = ((end + 1e-9) / period).floor() as usize;
+    let trip = col(&columns.trip_code)?
+        .iter()
+        .zip(&times)
+        .find(|(c, _)| **c != 0.0)
+        .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
+    // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
+    if complete < 2 {
+        return match trip {
+            Some(trip) => Ok(ActuatorReport::unanalysed(name, Some(trip))),
+            None => Err(StudyError::NoCycle { period, end }),
+        };
+    }
+    let first = 1;
     let (t0, t1) = (first as f64 * period, complete as f64 * period);
     let tol = 1e-9 * t1.max(1.0);
     let rows: Vec<usize> = (0..times.len())
@@ -492,5 +510,75 @@ mod tests {
             (stored - expected).abs() < 1e-5 * expected,
             "{stored} vs {expected}"
         );
+    }
+
+    /// Synthetic results of `end` seconds at 10 ms with gait period 1 s: the reference is 0,
+    /// the knee angle 1 rad off during the first cycle (the start-up) and 0.5 rad after it;
+    /// the test motor's mechanical energy grows by 3 J per cycle after the start-up's 10 J;
+    /// the trip code turns to `trip` (nonzero) from `trip_at` on.
+    fn results(end: f64, trip: f64, trip_at: f64) -> Results {
+        let columns = Columns::default();
+        let names = columns.names();
+        let kinds = vec![crate::results::ColumnKind::Real; names.len()];
+        let mut r = Results::with_capacity(names.clone(), kinds, 0);
+        let steps = (end / 0.01).round() as usize;
+        for k in 0..=steps {
+            let t = k as f64 * 0.01;
+            let row: Vec<f64> = names
+                .iter()
+                .map(|n| {
+                    let start_up = t < 1.0;
+                    if *n == columns.load_angle || *n == columns.actuation_angle {
+                        if start_up { 1.0 } else { 0.5 }
+                    } else if *n == columns.test_mechanical_energy {
+                        if start_up {
+                            10.0 * t
+                        } else {
+                            10.0 + 3.0 * (t - 1.0)
+                        }
+                    } else if *n == columns.trip_code && t >= trip_at {
+                        trip
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            r.push_row(t, &row);
+        }
+        r
+    }
+
+    /// The first cycle, the start-up, is never analysed: with three complete cycles the
+    /// errors and energies are those of the last two; with one (a run of `cycles = 1`, or a
+    /// period longer than the run's) there is nothing to analyse, an error naming why (the
+    /// start-up was analysed silently), unless an interlock ended the run (its report names it,
+    /// every metric NaN).
+    #[test]
+    fn the_start_up_cycle_is_never_analysed() {
+        let columns = Columns::default();
+        let r = analyse("x", &results(3.0, 0.0, f64::INFINITY), 1.0, &columns).unwrap();
+        assert_eq!(r.cycles, 2);
+        assert_eq!((r.rms_error_knee, r.max_error_knee), (0.5, 0.5));
+        assert!(
+            (r.energy.test_mechanical - 3.0).abs() < 1e-12,
+            "{}",
+            r.energy.test_mechanical
+        );
+        assert_eq!(r.trip, None);
+        for end in [1.0, 1.5, 1.99] {
+            match analyse("x", &results(end, 0.0, f64::INFINITY), 1.0, &columns) {
+                Err(e @ StudyError::NoCycle { .. }) => assert!(
+                    e.to_string().contains(&format!(
+                        "the run ended at {end} s, before the end of its second gait cycle at 2 s"
+                    )),
+                    "{e}"
+                ),
+                other => panic!("{end}: {other:?}"),
+            }
+        }
+        let r = analyse("x", &results(1.5, 2.0, 1.2), 1.0, &columns).unwrap();
+        assert_eq!(r.cycles, 0);
+        assert_eq!(r.trip, Some(("test motor torque".to_string(), 1.2)));
+        assert!(r.rms_error_knee.is_nan() && r.energy.test_mechanical.is_nan());
     }
 }

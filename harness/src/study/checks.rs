@@ -22,7 +22,8 @@ pub struct CheckedStudy<'a> {
 
 impl<'a> CheckedStudy<'a> {
     /// Checks every setting of `config` that can be checked before anything runs, in this
-    /// order: a study on a bench names one actuator ([`StudyError::BenchActuators`]), the
+    /// order: at least two cycles per run ([`StudyError::Cycles`]: the first is the start-up,
+    /// not analysed), a study on a bench names one actuator ([`StudyError::BenchActuators`]), the
     /// plant's parameter set is one the plant FMU takes
     /// ([`ParameterSet::check`](crate::params::ParameterSet::check):
     /// [`StudyError::ParameterSet`]), the overrides ([`checked_overrides`], kept typed) and the
@@ -31,6 +32,9 @@ impl<'a> CheckedStudy<'a> {
     /// FMU's model description is read once. What [`run_study`](super::run_study) checks
     /// first, and what the CLI checks for every scenario before the first one runs.
     pub fn new(config: &'a StudyConfig) -> Result<CheckedStudy<'a>, StudyError> {
+        if config.cycles < 2 {
+            return Err(StudyError::Cycles(config.cycles));
+        }
         check_bench_actuators(config)?;
         let mut descriptions = Descriptions::new(&config.fmu_dir);
         if let Some(set) = &config.parameter_set {

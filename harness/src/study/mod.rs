@@ -148,8 +148,13 @@ pub enum StudyError {
     /// A column the analysis needs is missing from the results.
     #[error("the results lack column '{0}'")]
     MissingColumn(String),
-    /// The run is shorter than one gait cycle.
-    #[error("the run covers no complete gait cycle of {period} s (it ended at {end} s)")]
+    /// The run has no gait cycle to analyse: it ended before its second cycle completed (the
+    /// first, the start-up, is never analysed).
+    #[error(
+        "no gait cycle to analyse: the run ended at {end} s, before the end of its second gait \
+         cycle at {} s (period {period} s; the first cycle, the start-up, is not analysed)",
+        2.0 * .period
+    )]
     NoCycle {
         /// The gait period.
         period: f64,
@@ -175,6 +180,12 @@ pub enum StudyError {
     /// value it refuses.
     #[error("bench parameter {0}")]
     BenchParameter(String),
+    /// Fewer than two gait cycles per run ([`StudyConfig::cycles`]): the first, the start-up,
+    /// is not analysed, so one cycle leaves nothing to analyse.
+    #[error(
+        "cycles must be at least 2 (given: {0}): the first gait cycle, the start-up, is not analysed"
+    )]
+    Cycles(u32),
     /// Plotting failed.
     #[error(transparent)]
     Results(#[from] crate::results::ResultsError),
@@ -335,6 +346,10 @@ fn apply_overrides(
     Ok(())
 }
 
+/// The gait's period in the scenarios (`component.name`): an override of it sets the period
+/// the study runs and analyses.
+pub const GAIT_PERIOD: &str = "gait.gaitPeriod";
+
 /// The component of the scenarios that a `--params` set applies to.
 const PLANT: &str = "plant";
 /// The FMU of [`PLANT`], which a `--params` set is checked against.
@@ -417,6 +432,14 @@ pub fn run_checked(
         let mut gait = config.scenario.gait();
         gait.angle_amplitude *= config.scale;
         gait.torque_amplitude *= config.scale;
+        // An override of the gait's period is the gait's period: the run's length (cycles of
+        // it), the fade-in (half of it, inside the start-up cycle) and the analysis follow it.
+        if let Some(period) = overrides.iter().find_map(|(r, v)| match v {
+            Value::Real(p) if r == GAIT_PERIOD => Some(*p),
+            _ => None,
+        }) {
+            gait.period = period;
+        }
         let gains = config
             .gains
             .unwrap_or_else(|| config.scenario.gains(actuator));
@@ -469,12 +492,20 @@ pub fn run_checked(
         {
             return Err(StudyError::Stopped(*reason));
         }
-        let mut report = analyse(
+        let mut report = match analyse(
             actuator.name(),
             &output.results,
             gait.period,
             &Columns::default(),
-        )?;
+        ) {
+            // Ended early, by an interlock or a failure (below): nothing to analyse.
+            Err(StudyError::NoCycle { .. })
+                if !matches!(output.outcome, crate::master::Outcome::Completed { .. }) =>
+            {
+                ActuatorReport::unanalysed(actuator.name(), None)
+            }
+            r => r?,
+        };
         match &output.outcome {
             crate::master::Outcome::Terminated {
                 component,
@@ -527,7 +558,7 @@ mod tests {
             fmu_dir: PathBuf::from("/nowhere"),
             out_dir: out.path().to_path_buf(),
             scenario: StudyScenario::BenchFull,
-            cycles: 1,
+            cycles: 2,
             scale: 1.0,
             gains: None,
             actuators: Vec::new(),

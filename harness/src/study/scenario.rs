@@ -488,6 +488,28 @@ fn connect(from: &str, to: &str) -> (String, String) {
     (from.to_string(), to.to_string())
 }
 
+/// The gait scenario's fade-in \[s\] for the gait period `period`: half of it, so that the
+/// soft start lies inside the first cycle, the start-up, which the analysis skips.
+pub fn gait_fade_in(period: f64) -> f64 {
+    period / 2.0
+}
+
+/// The stop time \[s\] of a gait run of `cycles` periods `period` on base step `step`:
+/// `cycles x period`, rounded up to the next step when it falls between steps (a gait period
+/// that is no multiple of the step; the master refuses a stop time off its step grid).
+pub fn gait_stop_time(period: f64, cycles: u32, step: f64) -> f64 {
+    let stop = period * f64::from(cycles);
+    let steps = stop / step;
+    if (steps - steps.round()).abs() <= 1e-9 * steps.max(1.0) {
+        stop
+    } else {
+        steps.ceil() * step
+    }
+}
+
+/// The gait component's fade-in in the scenarios, `component.name` ([`gait_fade_in`]).
+pub const GAIT_FADE_IN: &str = "gait.fadeInTime";
+
 /// The base step \[s\] of every [`gait_scenario`] (the sweep spec's bound on a run's recorded
 /// values assumes it when the spec gives no `step`).
 pub const GAIT_SCENARIO_STEP: f64 = 1e-3;
@@ -510,7 +532,7 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
             real("kneeTorqueAmplitude", gait.torque_amplitude),
             // The bench starts at rest at 0 rad, the gait at ~7.5 deg: a soft start inside
             // the first (not analysed) cycle avoids a start-up step.
-            real("fadeInTime", gait.period / 2.0),
+            real("fadeInTime", gait_fade_in(gait.period)),
         ],
     }];
     let mut connections = Vec::new();
@@ -674,7 +696,7 @@ pub fn gait_scenario(actuator: Actuator, gait: Gait, gains: StudyGains, cycles: 
         name: actuator.name().into(),
         components,
         connections,
-        stop_time: gait.period * f64::from(cycles),
+        stop_time: gait_stop_time(gait.period, cycles, GAIT_SCENARIO_STEP),
         step_size: GAIT_SCENARIO_STEP,
     }
 }

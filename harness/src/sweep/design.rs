@@ -438,7 +438,7 @@ mod tests {
     }
 
     fn csv_spec() -> SweepSpec {
-        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 1\n[design]\nkind = \"csv\"\n\
+        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 2\n[design]\nkind = \"csv\"\n\
                     file = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n";
         SweepSpec::parse(text, Path::new("/nowhere/s.toml"), Path::new("/nowhere")).unwrap()
     }

@@ -127,8 +127,9 @@ pub fn study_metric_values(r: &study::ActuatorReport) -> [f64; STUDY_METRICS.len
 }
 
 /// The gait reference's period parameter (`gait.gaitPeriod`): when swept, each point's study
-/// metrics use its value.
-pub const GAIT_PERIOD: &str = "gait.gaitPeriod";
+/// metrics use its value, and in a scenario its run lasts `cycles` of it and fades in over
+/// half of it.
+pub const GAIT_PERIOD: &str = study::GAIT_PERIOD;
 
 /// The most worker threads a sweep or an optimisation runs on ([`SweepOptions::workers`]):
 /// each worker is a thread with its own loaded copy of the system, so a count without a bound
@@ -509,6 +510,26 @@ impl Prepared {
                 return Err(SweepError::Invalid(problems));
             }
         }
+        // A scenario sweeping the gait's period runs each point for `cycles` of its own period
+        // (`run_values`): the longest run, a csv design's too, within the bound on its values.
+        if let (SystemSource::Scenario { cycles, .. }, None, Some(i)) = (
+            &spec.system,
+            spec.stop_time,
+            spec.parameters.iter().position(|p| p.name == GAIT_PERIOD),
+        ) {
+            let longest = design.points.iter().map(|v| v[i]).fold(0.0, f64::max);
+            let stop = study::gait_stop_time(longest, *cycles, config.step_size);
+            let rows = run_rows(
+                stop - config.start_time,
+                config.step_size,
+                config.record_every,
+            );
+            if let Err((_, message)) = check_run_values(rows, None, recorded.len()) {
+                return Err(SweepError::Invalid(vec![
+                    spec.problem(spec.length_line, message),
+                ]));
+            }
+        }
         let guids: Vec<(String, String)> = loaded
             .system
             .components()
@@ -809,11 +830,37 @@ impl Prepared {
                 return fail(row, e.to_string());
             }
         }
+        // A scenario's run follows the point's gait period as the study's runs follow theirs
+        // (`study::gait_scenario`): `cycles` periods, the fade-in over half the first.
+        let mut config = std::borrow::Cow::Borrowed(&self.config);
+        if let (SystemSource::Scenario { cycles, .. }, Some(i)) = (
+            &self.spec.system,
+            self.spec
+                .parameters
+                .iter()
+                .position(|p| p.name == GAIT_PERIOD),
+        ) {
+            let period = values[i];
+            if self.spec.stop_time.is_none() {
+                let h = config.step_size;
+                config.to_mut().stop_time = study::gait_stop_time(period, *cycles, h);
+            }
+            let fade_in = Value::Real(study::gait_fade_in(period));
+            if !self
+                .spec
+                .parameters
+                .iter()
+                .any(|p| p.name == study::GAIT_FADE_IN)
+                && let Err(e) = system.set_value(study::GAIT_FADE_IN, fade_in)
+            {
+                return fail(row, e.to_string());
+            }
+        }
         let refs: Vec<&str> = self.recorded.iter().map(String::as_str).collect();
         if let Err(e) = system.record(&refs) {
             return fail(row, e.to_string());
         }
-        let output = match system.run(&self.config) {
+        let output = match system.run(&config) {
             Ok(o) => o,
             Err(e) => return fail(row, e.to_string()),
         };

@@ -954,17 +954,56 @@ impl SweepSpec {
             .and_then(|m| m.study)
             .unwrap_or(matches!(system, SystemSource::Scenario { .. }));
         let period = positive(&mut p, &metrics.and_then(|m| m.period.clone()), "period");
-        // The study's metrics are per gait cycle: a run shorter than one has none, and its
-        // rows read as tripped though no interlock tripped.
-        let gait_period = period.or(match &system {
+        // A scenario that sweeps the gait's period runs each point for `cycles` of its own
+        // period (`Prepared::run_values`): the runs' longest stop time is that of the longest
+        // period, where the spec tells it (a csv design's values are only read later).
+        let swept = parameters
+            .iter()
+            .find(|q| q.name == crate::study::GAIT_PERIOD);
+        let longest = swept.and_then(|q| {
+            q.values
+                .as_ref()
+                .map(|v| v.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+                .or(q.max)
+        });
+        let scenario_cycles = match &system {
+            SystemSource::Scenario { cycles, .. } => Some(*cycles),
+            SystemSource::File(_) => None,
+        };
+        let known_stop = match (stop_time, scenario_cycles, swept) {
+            (None, Some(cycles), Some(_)) => longest.map(|t| {
+                crate::study::gait_stop_time(
+                    t,
+                    cycles,
+                    step.unwrap_or(crate::study::GAIT_SCENARIO_STEP),
+                )
+            }),
+            _ => known_stop,
+        };
+        // The study's metrics are per gait cycle after the first, the start-up: a run shorter
+        // than two cycles has none to analyse (its rows would fail).
+        let gait_period = longest.or(period).or(match &system {
             SystemSource::Scenario { .. } => {
                 Some(crate::study::StudyScenario::BenchFull.gait().period)
             }
             SystemSource::File(_) => None,
         });
         if study_metrics
+            && stop_time.is_none()
+            && let (Some(cycles), Some(at)) = (scenario_cycles.filter(|c| *c < 2), &raw.cycles)
+            // (0 is refused as a count.)
+            && *at.get_ref() == i64::from(cycles)
+        {
+            p.at(
+                at.span(),
+                format!(
+                    "cycles = {cycles}: the study's metrics need at least 2 gait cycles per run \
+                     (the first, the start-up, is not analysed); set study = false or run longer"
+                ),
+            );
+        } else if study_metrics
             && let (Some(stop), Some(cycle)) = (known_stop, gait_period)
-            && stop < cycle
+            && stop < 2.0 * cycle
         {
             let span = raw
                 .stop_time
@@ -975,8 +1014,9 @@ impl SweepSpec {
                 p.at(
                     span,
                     format!(
-                        "the study's metrics need a whole gait cycle: the runs end at {stop} s, \
-                         before one period ({cycle} s); set study = false or run longer"
+                        "the study's metrics need a gait cycle after the start-up one: the runs \
+                         end at {stop} s, before two periods ({cycle} s each); set study = false \
+                         or run longer"
                     ),
                 );
             }
@@ -1118,7 +1158,7 @@ mod tests {
 
     const SPEC: &str = r#"system = "SEA"
 fmus = "/nowhere"
-cycles = 1
+cycles = 2
 [design]
 kind = "grid"
 [[parameters]]
@@ -1134,31 +1174,87 @@ from = FROM
         SweepSpec::parse(text, Path::new("/nowhere/s.toml"), Path::new("/nowhere"))
     }
 
-    /// The study's metrics of runs shorter than one gait cycle are refused at `stop_time`'s
-    /// line (their rows read as tripped); with `study = false`, or a whole cycle, accepted.
+    /// The study's metrics of runs shorter than two gait cycles (the first, the start-up, is not
+    /// analysed) are refused at the line that makes them short, `stop_time` or `cycles`: their
+    /// one cycle, the start-up, was analysed silently (or, shorter than one, the rows read as
+    /// tripped); with `study = false`, or a cycle after the start-up, accepted.
     #[test]
-    fn study_metrics_of_runs_shorter_than_a_cycle_are_refused() {
-        let spec = SPEC
-            .replace("from = FROM\n", "")
-            .replace("cycles = 1", "cycles = 1\nstop_time = 0.2");
-        match parse(&spec) {
-            Err(SweepError::Invalid(problems)) => {
-                assert_eq!(problems.len(), 1, "{problems:?}");
-                assert_eq!(problems[0].line, 4);
-                assert!(
-                    problems[0].message.contains("need a whole gait cycle"),
-                    "{}",
-                    problems[0].message
-                );
-            }
-            other => panic!("{other:?}"),
+    fn study_metrics_of_runs_shorter_than_two_cycles_are_refused() {
+        let spec = SPEC.replace("from = FROM\n", "");
+        let no_study = |s: &str| {
+            s.replace(
+                "[[metrics.signals]]",
+                "[metrics]\nstudy = false\n\n[[metrics.signals]]",
+            )
+        };
+        for (short, line, needle) in [
+            (
+                "cycles = 2\nstop_time = 0.2",
+                4,
+                "end at 0.2 s, before two periods",
+            ),
+            (
+                "cycles = 2\nstop_time = 2.5",
+                4,
+                "end at 2.5 s, before two periods",
+            ),
+            (
+                "cycles = 1",
+                3,
+                "cycles = 1: the study's metrics need at least 2 gait cycles",
+            ),
+        ] {
+            let text = spec.replace("cycles = 2", short);
+            let p = refused(&text);
+            assert_eq!(p.len(), 1, "{short}: {p:?}");
+            assert_eq!(p[0].0, line, "{short}");
+            assert!(p[0].1.contains(needle), "{short}: {}", p[0].1);
+            parse(&no_study(&text)).unwrap();
         }
-        parse(&spec.replace(
-            "[[metrics.signals]]",
-            "[metrics]\nstudy = false\n\n[[metrics.signals]]",
-        ))
-        .unwrap();
-        parse(&spec.replace("stop_time = 0.2", "stop_time = 2.5")).unwrap();
+        parse(&spec.replace("cycles = 2", "cycles = 2\nstop_time = 5.0")).unwrap();
+        parse(&spec).unwrap();
+    }
+
+    /// A scenario sweeping the gait's period runs `cycles` of each point's period: the runs'
+    /// longest stop time, for the window and the bound on a run's values, is that of the
+    /// longest period (`values` or `max`); the default 2.5 s period was assumed.
+    #[test]
+    fn a_swept_gait_period_sets_the_runs_length() {
+        let spec = SPEC
+            .replace("plant.springStiffness", "gait.gaitPeriod")
+            .replace("values = [300.0, 400.0]", "values = [2.0, 6.0]");
+        // Two cycles of 6 s: a window from 11 s holds rows, one from 12.5 s none.
+        parse(&spec.replace("FROM", "11.0")).unwrap();
+        let p = refused(&spec.replace("FROM", "12.5"));
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert!(
+            p[0].1.contains("starts after the run ends at 12 s"),
+            "{}",
+            p[0].1
+        );
+        let ranged = spec
+            .replace("kind = \"grid\"", "kind = \"random\"\npoints = 3")
+            .replace("values = [2.0, 6.0]", "min = 2.0\nmax = 6.0");
+        parse(&ranged.replace("FROM", "11.0")).unwrap();
+        assert!(
+            refused(&ranged.replace("FROM", "12.5"))[0]
+                .1
+                .contains("ends at 12 s")
+        );
+        // 100 cycles of 2.5 s fit the bound on a run's values, 100 of 10 s do not: refused at
+        // cycles' line.
+        let long = spec
+            .replace("from = FROM\n", "")
+            .replace("cycles = 2", "cycles = 100");
+        parse(&long).unwrap();
+        let p = refused(&long.replace("values = [2.0, 6.0]", "values = [2.0, 10.0]"));
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 3);
+        assert!(
+            p[0].1.starts_with("each run would record 1000001 rows"),
+            "{}",
+            p[0].1
+        );
     }
 
     /// The problems of a refused spec as (line, message).
@@ -1180,8 +1276,8 @@ from = FROM
         let spec = SPEC.replace("from = FROM\n", "");
         // The study's 20 signals, plant.springDeflection and the time: 22 values a row, 2500
         // rows a gait cycle at 1 ms; 300 cycles fit in 2^24 values, 400 do not.
-        parse(&spec.replace("cycles = 1", "cycles = 300")).unwrap();
-        let p = refused(&spec.replace("cycles = 1", "cycles = 400"));
+        parse(&spec.replace("cycles = 2", "cycles = 300")).unwrap();
+        let p = refused(&spec.replace("cycles = 2", "cycles = 400"));
         assert_eq!(p.len(), 1, "{p:?}");
         assert_eq!(p[0].0, 3);
         assert!(
@@ -1196,7 +1292,7 @@ from = FROM
             p[0].1
         );
         // A cycle count that wrapped in the scenario's u32 (2^32 + 1 ran one cycle).
-        let p = refused(&spec.replace("cycles = 1", "cycles = 4294967297"));
+        let p = refused(&spec.replace("cycles = 2", "cycles = 4294967297"));
         assert_eq!(
             p,
             [(
@@ -1205,16 +1301,16 @@ from = FROM
             )]
         );
         // stop_time sets the length.
-        let p = refused(&spec.replace("cycles = 1", "cycles = 1\nstop_time = 1e6"));
+        let p = refused(&spec.replace("cycles = 2", "cycles = 2\nstop_time = 1e6"));
         assert_eq!(p.len(), 1, "{p:?}");
         assert_eq!(p[0].0, 4);
         assert!(p[0].1.contains("shorten the runs"), "{}", p[0].1);
         // A step far below the scenario's 1 ms: its line.
-        let p = refused(&spec.replace("cycles = 1", "cycles = 1\nstep = 1e-7"));
+        let p = refused(&spec.replace("cycles = 2", "cycles = 2\nstep = 1e-7"));
         assert_eq!(p.len(), 1, "{p:?}");
         assert_eq!(p[0].0, 4);
         // Fewer signals record less: without the study's, 400 cycles fit.
-        parse(&spec.replace("cycles = 1", "cycles = 400").replace(
+        parse(&spec.replace("cycles = 2", "cycles = 400").replace(
             "[[metrics.signals]]",
             "[metrics]\nstudy = false\n\n[[metrics.signals]]",
         ))
@@ -1291,7 +1387,7 @@ from = FROM
     #[test]
     fn a_window_after_the_run_is_refused_where_the_stop_time_is_known() {
         let period = crate::study::StudyScenario::BenchFull.gait().period;
-        let after = SPEC.replace("FROM", &format!("{}", period + 0.5));
+        let after = SPEC.replace("FROM", &format!("{}", 2.0 * period + 0.5));
         match parse(&after) {
             Err(SweepError::Invalid(problems)) => {
                 assert_eq!(problems.len(), 1, "{problems:?}");
@@ -1306,8 +1402,8 @@ from = FROM
         }
         // Within the run, or the run made longer: accepted.
         parse(&SPEC.replace("FROM", &format!("{}", period - 0.5))).unwrap();
-        parse(&after.replace("cycles = 1", "cycles = 2")).unwrap();
-        let stopped = after.replace("cycles = 1", "cycles = 4\nstop_time = 1.0");
+        parse(&after.replace("cycles = 2", "cycles = 3")).unwrap();
+        let stopped = after.replace("cycles = 2", "cycles = 4\nstop_time = 1.0");
         assert!(matches!(parse(&stopped), Err(SweepError::Invalid(_))));
         // A system file's stop time is not known before it is loaded.
         let file = after
