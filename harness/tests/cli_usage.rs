@@ -589,7 +589,7 @@ fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
     assert!(!dir.path().join("r.csv").exists());
     assert!(!dir.path().join("r.csv.partial").exists());
     let o = kneebench()
-        .args(["study", "--cycles", "1", "--actuators", "sea", "--fmus"])
+        .args(["study", "--cycles", "2", "--actuators", "sea", "--fmus"])
         .arg(fmus())
         .args([
             "--param",
