@@ -141,7 +141,7 @@ fn bad_specs_are_refused_naming_the_line() {
     assert_eq!(
         m,
         [
-            "spec.toml, line 6: 'plant.loadAngle' is a Output variable; only parameters and inputs can be set"
+            "spec.toml, line 6: 'plant.loadAngle' is an output variable; only parameters and inputs can be set"
         ]
     );
     // Unknown design kind, unknown statistic, unknown signal.
@@ -404,7 +404,11 @@ fn resume_runs_only_the_points_the_journal_lacks() {
         "point 0: a second row that differs from the first"
     );
     // A journal of another sweep is refused.
-    std::fs::write(journal_path(&out), "kneebench-sweep-journal 1 0123\n").unwrap();
+    std::fs::write(
+        journal_path(&out),
+        "kneebench-sweep-journal 1 0123\n0\tok\t\t\n",
+    )
+    .unwrap();
     let e = run_sweep(
         &p,
         Some(&out),
@@ -463,4 +467,37 @@ fn a_second_sweep_into_the_same_output_is_refused_while_the_first_runs() {
     assert_eq!(table.rows[0].message, "from the first sweep");
     assert!(table.rows[1..].iter().all(|r| r.message.is_empty()));
     assert!(!journal_path(&out).exists());
+}
+
+/// A sweep that ended before its first row (an error, a kill) leaves a journal of its header
+/// alone: it holds nothing to resume, so the next run, with or without --resume, starts
+/// afresh instead of being refused ("an unfinished sweep's journal exists").
+#[test]
+fn a_journal_without_a_row_does_not_block_the_next_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(DETERMINISM, dir.path()).unwrap();
+    let out = dir.path().join("table.parquet");
+    let started =
+        kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1)).unwrap();
+    drop(started);
+    let journal = std::fs::read_to_string(journal_path(&out)).unwrap();
+    assert_eq!(journal, p.journal_header());
+    // A torn first row is no row either.
+    std::fs::write(journal_path(&out), format!("{journal}0\tok")).unwrap();
+    let mut again = kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(again.pending().len(), 6);
+    let mut rows = Vec::new();
+    p.run_points(&[0], 1, &mut |row| {
+        rows.push(row);
+        Ok(())
+    })
+    .unwrap();
+    again.record(rows.pop().unwrap()).unwrap();
+    drop(again);
+    // A journal with a row is still refused without --resume.
+    match kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1)) {
+        Err(e) => assert!(e.to_string().contains("pass --resume"), "{e}"),
+        Ok(_) => panic!("a journal with a row was overwritten"),
+    }
 }

@@ -177,7 +177,17 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                     ),
                 )]));
             }
-            let seed = (*seed ^ (*seed >> 32)) as u32;
+            // The spec refuses a seed beyond 32 bits (the scramble's); folding it made seeds
+            // 0 and 2^32 + 1 the same design.
+            let Ok(seed) = u32::try_from(*seed) else {
+                return Err(SweepError::Invalid(vec![spec.problem(
+                    0,
+                    format!(
+                        "the Sobol design's seed is at most {}, not {seed}",
+                        u32::MAX
+                    ),
+                )]));
+            };
             (0..*points)
                 .map(|i| {
                     bounds
@@ -285,10 +295,17 @@ fn read_csv_from(
         )]));
     }
     let header = std::mem::take(&mut buf);
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    // A UTF-8 byte order mark (Excel writes one) is not part of the first column's name.
+    let header_text = header.strip_prefix('\u{feff}').unwrap_or(&header);
+    let columns: Vec<&str> = header_text.split(',').map(str::trim).collect();
     let mut index = Vec::new();
-    for c in &columns {
+    for (k, c) in columns.iter().enumerate() {
         match spec.parameters.iter().position(|p| p.name == *c) {
+            // A parameter named twice: the point would have a value too many (the sweep
+            // failed at its first run, without a line).
+            Some(_) if columns[..k].contains(c) => {
+                problems.push(problem(1, format!("column '{c}' is given twice")))
+            }
             Some(i) => index.push(i),
             None => problems.push(problem(
                 1,
@@ -486,6 +503,29 @@ mod tests {
             "{} bytes read",
             served.get()
         );
+    }
+
+    /// A design CSV naming a parameter twice is refused at line 1 (it passed the check, then
+    /// every point had a value too many); a UTF-8 byte order mark before the header is not
+    /// part of the first column's name.
+    #[test]
+    fn a_csv_column_given_twice_is_refused_at_line_one_and_a_bom_is_stripped() {
+        let spec = csv_spec();
+        let path = Path::new("/nowhere/points.csv");
+        let csv = "plant.springStiffness, plant.springStiffness\n300,400\n";
+        match read_csv_from(&spec, path, csv.as_bytes(), 5) {
+            Err(SweepError::Invalid(problems)) => {
+                let e: Vec<String> = problems.iter().map(ToString::to_string).collect();
+                assert_eq!(
+                    e,
+                    ["/nowhere/points.csv, line 1: column 'plant.springStiffness' is given twice"]
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        let csv = "\u{feff}plant.springStiffness\r\n300\r\n";
+        let points = read_csv_from(&spec, path, csv.as_bytes(), 5).unwrap();
+        assert_eq!(points, [[300.0]]);
     }
 
     #[test]

@@ -82,6 +82,16 @@ pub fn journal_line(row: &Row) -> String {
     )
 }
 
+/// A float written by [`journal_line`]: exactly 16 hex digits (its 64-bit pattern). Anything
+/// else (`3ff`, a sign, a `0x`) is not a journal's value: `u64::from_str_radix` alone took
+/// `3ff` as the bits 0x3ff, a denormal 5e-321 read back as the metric.
+fn parse_bits(h: &str) -> Option<f64> {
+    if h.len() != 16 || !h.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    u64::from_str_radix(h, 16).ok().map(f64::from_bits)
+}
+
 /// A journal line's row, its parameters left empty (the caller knows them from the point's
 /// id); `None` if the line is not a row with `metrics` metrics.
 fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
@@ -95,7 +105,7 @@ fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
     } else {
         metrics_text
             .split(',')
-            .map(|h| u64::from_str_radix(h, 16).ok().map(f64::from_bits))
+            .map(parse_bits)
             .collect::<Option<_>>()?
     };
     if values.len() != metrics {
@@ -232,7 +242,8 @@ pub(crate) struct Journal {
 
 impl Journal {
     /// Starts the journal of `prepared` for `output`. An existing journal is refused without
-    /// `resume`; with it, its rows are returned (their parameters empty, each id accepted by
+    /// `resume` (one without a complete row, from a sweep that ended before its first row, is
+    /// taken as none); with it, its rows are returned (their parameters empty, each id accepted by
     /// `known`, else the line is refused) and the journal is rewritten with the complete rows
     /// only (a torn last line, from a kill while it was written, is dropped: that point runs
     /// again). A journal of another fingerprint is refused. With `resume` and no journal, a
@@ -280,7 +291,18 @@ impl Journal {
         };
         let header = prepared.journal_header();
         let mut rows = BTreeMap::new();
+        let mut text = String::new();
         if existed {
+            file.read_to_string(&mut text).map_err(io)?;
+        }
+        // A journal without a complete row (a sweep that failed or was killed before its
+        // first row ended) holds nothing to resume: it is taken as none, so that it does not
+        // block the next run (which had to be told --resume, or to remove it, for nothing).
+        let holds_rows = text
+            .split_inclusive('\n')
+            .skip(1)
+            .any(|l| l.ends_with('\n'));
+        if existed && holds_rows {
             if !resume {
                 return Err(bad(
                     "an unfinished sweep's journal exists: pass --resume (resume=True in \
@@ -288,8 +310,6 @@ impl Journal {
                         .into(),
                 ));
             }
-            let mut text = String::new();
-            file.read_to_string(&mut text).map_err(io)?;
             let mut lines = text.split_inclusive('\n');
             if lines.next().unwrap_or("").trim_end() != header.trim_end() {
                 return Err(bad(
@@ -317,7 +337,7 @@ impl Journal {
         } else if resume && output.exists() {
             rows = finished_rows(output, prepared, known)?;
         }
-        let mut text = header;
+        text = header;
         for r in rows.values() {
             text.push_str(&journal_line(r));
         }
@@ -433,5 +453,44 @@ impl Finished {
             Some(j) => j.remove(),
             None => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A journal row's metrics are 16 hex digits each, as `journal_line` writes them; a
+    /// shorter or longer field, a sign or a `0x` is not a row (was: `3ff` read as 5e-321).
+    #[test]
+    fn journal_metrics_must_be_sixteen_hex_digits() {
+        let row = Row {
+            point: 3,
+            parameters: Vec::new(),
+            metrics: vec![1.0, f64::NAN, -0.0],
+            status: RunStatus::Tripped,
+            message: "a\tb\nc".into(),
+        };
+        let line = journal_line(&row);
+        let back = parse_journal_line(line.trim_end_matches('\n'), 3).unwrap();
+        assert!(back.same_outcome(&row), "{back:?}");
+        for bad in [
+            "3ff",
+            "+3ff0000000000000",
+            "0x3ff00000000000",
+            "3ff00000000000000",
+            "",
+        ] {
+            assert!(
+                parse_journal_line(&format!("0\tok\t{bad}\t"), 1).is_none(),
+                "{bad} accepted"
+            );
+        }
+        assert_eq!(
+            parse_journal_line("0\tok\t3FF0000000000000\t", 1)
+                .unwrap()
+                .metrics,
+            [1.0]
+        );
     }
 }

@@ -240,8 +240,14 @@ fn variable_problems(
         };
         let causality = v.causality.unwrap_or(Causality::Local);
         if !matches!(causality, Causality::Parameter | Causality::Input) {
+            let what = match causality {
+                Causality::Output => "an output variable",
+                Causality::Independent => "the independent variable",
+                Causality::CalculatedParameter => "a calculated parameter",
+                _ => "a local variable",
+            };
             problems.push(at(format!(
-                "'{}' is a {causality:?} variable; only parameters and inputs can be set",
+                "'{}' is {what}; only parameters and inputs can be set",
                 p.name
             )));
         }

@@ -11,8 +11,8 @@
 //! [design]
 //! kind = "latin-hypercube"  # grid, latin-hypercube, sobol, random, csv
 //! points = 20               # all but grid and csv
-//! seed = 7                  # latin-hypercube, sobol, random
-//! # file = "points.csv"     # csv: a header naming the parameters, one row per point
+//! seed = 7                  # latin-hypercube, random; sobol: at most 2^32 - 1
+//! # file = "points.csv"     # csv: a header naming each parameter once, one row per point
 //!
 //! [[parameters]]
 //! name = "plant.springStiffness"
@@ -748,6 +748,21 @@ impl SweepSpec {
             },
             "sobol" => {
                 let n = points(&mut p);
+                // The Sobol scramble takes a 32-bit seed: a larger one was folded into 32 bits,
+                // so seeds 0 and 2^32 + 1 gave the same points.
+                if let Some(s) = &d.seed
+                    && *s.get_ref() > i64::from(u32::MAX)
+                {
+                    p.at(
+                        s.span(),
+                        format!(
+                            "the Sobol design's seed is at most {} (its scramble takes 32 bits), \
+                             not {}",
+                            u32::MAX,
+                            s.get_ref()
+                        ),
+                    );
+                }
                 if n > SOBOL_MAX_POINTS
                     && let Some(at) = &d.points
                 {
@@ -1284,6 +1299,34 @@ from = FROM
                 "points must be at most 10000000, not 20000000".to_string()
             )]
         );
+    }
+
+    /// A Sobol seed beyond 32 bits is refused at its line: it was folded into 32 bits, so
+    /// seeds 0 and 2^32 + 1 gave the same design. Other designs take any 64-bit seed.
+    #[test]
+    fn a_sobol_seed_beyond_32_bits_is_refused_at_its_line() {
+        let spec = SPEC.replace("from = FROM\n", "").replace(
+            "kind = \"grid\"",
+            "kind = \"sobol\"\npoints = 4\nseed = SEED",
+        );
+        let spec = spec.replace("values = [300.0, 400.0]", "min = 300.0\nmax = 400.0");
+        parse(&spec.replace("SEED", "4294967295")).unwrap();
+        let p = refused(&spec.replace("SEED", "4294967297"));
+        assert_eq!(
+            p,
+            [(
+                7,
+                "the Sobol design's seed is at most 4294967295 (its scramble takes 32 bits), \
+                 not 4294967297"
+                    .to_string()
+            )]
+        );
+        parse(
+            &spec
+                .replace("SEED", "4294967297")
+                .replace("\"sobol\"", "\"random\""),
+        )
+        .unwrap();
     }
 
     /// A window that starts after the runs end (a scenario's cycles of the gait, or the
