@@ -347,6 +347,49 @@ fn an_output_that_is_an_input_is_refused() {
     );
 }
 
+/// `kneebench sweep` refuses an output that is one of the sweep's inputs besides its spec (the
+/// design CSV, a scenario's FMU), with exit code 2, and leaves it as it was: the table
+/// replaced it before (only the spec was checked).
+#[test]
+fn a_sweep_output_that_is_its_design_or_an_fmu_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(
+        std::path::Path::new(env!("CARGO_BIN_EXE_kneebench")),
+        d.path(),
+    );
+    let csv = d.path().join("points.csv");
+    std::fs::write(&csv, "plant.springStiffness\n300\n").unwrap();
+    let spec = d.path().join("s.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n[design]\nkind = \"csv\"\n\
+             file = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n",
+            fmus.display()
+        ),
+    )
+    .unwrap();
+    let plant = fmus.join("BenchPlant.fmu");
+    let fmu_before = std::fs::read(&plant).unwrap();
+    for output in [&csv, &plant] {
+        let out = kneebench()
+            .arg("sweep")
+            .arg(&spec)
+            .arg("--output")
+            .arg(output)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains("the results would replace it"), "{stderr}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(&csv).unwrap(),
+        "plant.springStiffness\n300\n"
+    );
+    assert_eq!(std::fs::read(&plant).unwrap(), fmu_before);
+}
+
 /// `identify --name` names the file OUT/NAME.ssv: a name with a path in it (which wrote
 /// outside OUT) is refused before anything is read, with exit code 2.
 #[test]

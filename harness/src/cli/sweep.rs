@@ -227,9 +227,15 @@ pub(crate) fn run_on_dask(
 }
 
 /// Reads and checks a spec against its system: `Ok(Err(exit code))` when it is refused (every
-/// problem printed with its line), and when `optimization` differs from whether it has an
-/// `[optimize]` table (`kneebench sweep` runs designs, `kneebench optimize` optimisations).
-pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<Prepared, i32>> {
+/// problem printed with its line), when `optimization` differs from whether it has an
+/// `[optimize]` table (`kneebench sweep` runs designs, `kneebench optimize` optimisations), and
+/// when `output` is one of the sweep's inputs ([`Prepared::check_output`]: the system file, the
+/// design CSV, an FMU).
+pub(crate) fn prepare(
+    spec: &Path,
+    output: &Path,
+    optimization: bool,
+) -> anyhow::Result<Result<Prepared, i32>> {
     let refused = |problems: &[SpecProblem]| {
         for p in problems {
             eprintln!("error: {p}");
@@ -255,10 +261,14 @@ pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<
             _ => None,
         })
     };
-    match mismatch {
-        Some(problem) => refused(&[problem]),
-        None => Ok(Ok(prepared)),
+    if let Some(problem) = mismatch {
+        return refused(&[problem]);
     }
+    if let Err(e) = prepared.check_output(output) {
+        eprintln!("error: {e}");
+        return Ok(Err(super::EXIT_USAGE));
+    }
+    Ok(Ok(prepared))
 }
 
 /// Runs `kneebench sweep`.
@@ -268,7 +278,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("error: {message}");
         return Ok(super::EXIT_USAGE);
     }
-    let prepared = match prepare(&a.spec, false)? {
+    let prepared = match prepare(&a.spec, &a.output, false)? {
         Ok(p) => p,
         Err(code) => return Ok(code),
     };

@@ -1,8 +1,9 @@
 //! The journal of a sweep or an optimisation, and `--resume`.
 //!
 //! Every finished row is appended to `<output>.journal` (first line: the sweep's
-//! [`fingerprint`](super::runner::fingerprint): the spec text but for an optimisation's
-//! `generations`, every point's bits, the FMUs' GUIDs; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
+//! [`fingerprint`](super::runner::fingerprint): the version, the spec text but for an
+//! optimisation's `generations`, every point's bits, the FMUs' GUIDs, the digests of the
+//! system's files; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
 //! sweep reads the journal, refuses it if the fingerprint differs, skips the points it holds
 //! and runs the rest; a torn last line (the process was killed while writing it) is ignored.
 //! The journal is removed once the table is written. `--resume` with no journal continues a
@@ -165,8 +166,8 @@ fn finished_rows(
         Some(f) if f != prepared.fingerprint => {
             return Err(bad(
                 "the finished table belongs to another sweep (the spec but for an \
-                 optimisation's generations, its points or the FMUs changed, or an older \
-                 kneebench wrote it): leave out --resume to run afresh"
+                 optimisation's generations, its points, the system file or the FMUs changed, \
+                 or another kneebench wrote it): leave out --resume to run afresh"
                     .into(),
             ));
         }
@@ -313,8 +314,8 @@ impl Journal {
             let mut lines = text.split_inclusive('\n');
             if lines.next().unwrap_or("").trim_end() != header.trim_end() {
                 return Err(bad(
-                    "belongs to another sweep (the spec or its points changed); \
-                     remove it to start afresh"
+                    "belongs to another sweep (the spec, its points, the system file or the \
+                     FMUs changed, or another kneebench wrote it); remove it to start afresh"
                         .into(),
                 ));
             }
@@ -407,6 +408,7 @@ impl Finished {
     ) -> Result<Finished, SweepError> {
         let (journal, rows) = match output {
             Some(out) => {
+                prepared.check_output(out)?;
                 super::table::check_table_path(out)?;
                 let (j, rows) = Journal::open(out, options.resume, prepared, known)?;
                 (Some(j), rows)

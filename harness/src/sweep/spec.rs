@@ -125,7 +125,7 @@ struct RawParameter {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawMetrics {
-    study: Option<bool>,
+    study: Option<Spanned<bool>>,
     period: Option<Spanned<f64>>,
     #[serde(default)]
     signals: Vec<Spanned<RawSignalMetric>>,
@@ -333,7 +333,8 @@ impl Stat {
 pub struct SignalMetric {
     /// `component.variable`.
     pub signal: String,
-    /// The statistics, each a column `<stat>(<signal>)`.
+    /// The statistics, each a column `<stat>(<signal>)` (with the window when the signal has
+    /// entries of other windows: [`signal_columns`]).
     pub stats: Vec<Stat>,
     /// Window start \[s\] (default: the run's start).
     pub from: Option<f64>,
@@ -375,6 +376,14 @@ pub struct SweepSpec {
     /// 1-based line of `step`, if the spec gives one: a run over [`MAX_RUN_VALUES`] that the
     /// system's own step would have kept within it is refused there.
     pub step_line: Option<usize>,
+    /// 1-based line of `system` (a system file that does not exist is refused there).
+    pub system_line: usize,
+    /// 1-based line of `fmus`, if the spec gives it (a scenario's FMU directory that does not
+    /// exist, or lacks an FMU, is refused there, else at [`system_line`](Self::system_line)).
+    pub fmus_line: Option<usize>,
+    /// 1-based line of `[metrics] study`, if the spec gives it (the study metrics without a
+    /// gait period are refused there, else at [`system_line`](Self::system_line)).
+    pub study_line: Option<usize>,
     /// The spec's text (its fingerprint identifies a sweep's journal).
     pub text: String,
 }
@@ -617,6 +626,34 @@ fn optimize_spec(
         constraints,
         line: line_of(p.text, raw.span().start),
     }
+}
+
+/// The metric columns of `signals[k]`, one per statistic: `<stat>(<signal>)`, and when the
+/// same signal has entries of other windows, `<stat>(<signal>)[<from>:<to>]` (a bound left
+/// out is empty: `[:2.5]`, `[2.5:]`, `[:]` for the whole run), so that two windows of a signal
+/// are two columns of their own.
+pub fn signal_columns(signals: &[SignalMetric], k: usize) -> Vec<String> {
+    let s = &signals[k];
+    let windowed = signals
+        .iter()
+        .any(|o| o.signal == s.signal && (o.from, o.to) != (s.from, s.to));
+    let bound = |b: Option<f64>| b.map_or(String::new(), |x| x.to_string());
+    s.stats
+        .iter()
+        .map(|st| {
+            if windowed {
+                format!(
+                    "{}({})[{}:{}]",
+                    st.name(),
+                    s.signal,
+                    bound(s.from),
+                    bound(s.to)
+                )
+            } else {
+                format!("{}({})", st.name(), s.signal)
+            }
+        })
+        .collect()
 }
 
 impl SweepSpec {
@@ -966,7 +1003,7 @@ impl SweepSpec {
 
         let metrics = raw.metrics.as_ref();
         let study_metrics = metrics
-            .and_then(|m| m.study)
+            .and_then(|m| m.study.as_ref().map(|s| *s.get_ref()))
             .unwrap_or(matches!(system, SystemSource::Scenario { .. }));
         let period = positive(&mut p, &metrics.and_then(|m| m.period.clone()), "period");
         // The study's metrics are per gait cycle: a run shorter than one has none, and its
@@ -997,6 +1034,7 @@ impl SweepSpec {
             }
         }
         let mut signals = Vec::new();
+        let mut stats_lines = Vec::new();
         for s in metrics.map(|m| m.signals.as_slice()).unwrap_or_default() {
             let r = s.get_ref();
             let mut stats = Vec::new();
@@ -1040,6 +1078,7 @@ impl SweepSpec {
                     format!("window from {a} s is after its end {b} s"),
                 );
             }
+            stats_lines.push(line_of(text, r.stats.span().start));
             signals.push(SignalMetric {
                 signal: r.signal.get_ref().trim().to_string(),
                 stats,
@@ -1047,6 +1086,29 @@ impl SweepSpec {
                 to,
                 line: line_of(text, s.span().start),
             });
+        }
+        // Every metric column once: a statistic given twice for a signal and window (in one
+        // `stats`, or in two entries of the same window) made columns of the same name, which
+        // pyarrow cannot read and pandas keeps one of.
+        let mut seen: Vec<(String, usize)> = Vec::new();
+        for (k, s) in signals.iter().enumerate() {
+            for name in signal_columns(&signals, k) {
+                match seen.iter().find(|(n, _)| *n == name) {
+                    Some((_, first)) => p.list.push(SpecProblem {
+                        file: file.to_path_buf(),
+                        line: stats_lines[k],
+                        message: if *first == s.line {
+                            format!("column '{name}' is given twice in these stats")
+                        } else {
+                            format!(
+                                "column '{name}' is given twice: the signal, statistic and \
+                                 window of line {first}"
+                            )
+                        },
+                    }),
+                    None => seen.push((name, s.line)),
+                }
+            }
         }
         // The runs' recorded values, where the spec tells their length and step (a system
         // file's experiment is checked once it is loaded, in `Prepared::new`): at most
@@ -1113,6 +1175,11 @@ impl SweepSpec {
             optimize,
             length_line,
             step_line,
+            system_line: line_of(text, raw.system.span().start),
+            fmus_line: raw.fmus.as_ref().map(|f| line_of(text, f.span().start)),
+            study_line: metrics
+                .and_then(|m| m.study.as_ref())
+                .map(|s| line_of(text, s.span().start)),
             text: text.to_string(),
         })
     }
@@ -1298,6 +1365,48 @@ from = FROM
                 6,
                 "points must be at most 10000000, not 20000000".to_string()
             )]
+        );
+    }
+
+    /// A metric column given twice (a statistic twice in one `stats`, or two entries of a
+    /// signal with the same window) is refused at the `stats` line; entries of other windows
+    /// are columns named with their window. Before, each made columns of one name.
+    #[test]
+    fn a_metric_column_given_twice_is_refused_at_its_stats_line() {
+        let base = SPEC.replace("from = FROM\n", "");
+        let p = refused(&base.replace("stats = [\"max\"]", "stats = [\"max\", \"max\"]"));
+        assert_eq!(
+            p,
+            [(
+                11,
+                "column 'max(plant.springDeflection)' is given twice in these stats".to_string()
+            )]
+        );
+        let twice = format!(
+            "{base}[[metrics.signals]]\nsignal = \"plant.springDeflection\"\n\
+             stats = [\"mean\", \"max\"]\n"
+        );
+        let p = refused(&twice);
+        assert_eq!(
+            p,
+            [(
+                14,
+                "column 'max(plant.springDeflection)' is given twice: the signal, statistic \
+                 and window of line 9"
+                    .to_string()
+            )]
+        );
+        let s = parse(&format!("{twice}from = 1.0\n")).unwrap();
+        assert_eq!(
+            signal_columns(&s.signals, 0),
+            ["max(plant.springDeflection)[:]"]
+        );
+        assert_eq!(
+            signal_columns(&s.signals, 1),
+            [
+                "mean(plant.springDeflection)[1:]",
+                "max(plant.springDeflection)[1:]"
+            ]
         );
     }
 
