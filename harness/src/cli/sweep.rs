@@ -3,6 +3,8 @@
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
+use kneebench_harness::control::{RunControl, StopReason};
+use kneebench_harness::sweep::journal::journal_path;
 use kneebench_harness::sweep::{
     Prepared, SpecProblem, SweepError, SweepOptions, SweepSpec, run_sweep,
 };
@@ -19,7 +21,9 @@ The spec (TOML) names the system (DA, SEA, CSEA or an .ssp/.ssd), the parameters
 (grid, latin-hypercube, sobol, random, csv) and the metrics; see the README. It is checked
 against the system's FMUs before anything runs; every problem is printed with its line (exit
 code 2). Every point is a row: a run that trips an interlock or fails has its status and
-message. Finished rows are journaled to OUTPUT.journal; after an interruption, --resume runs
+message, and the exit code is 0 once the table is written, whatever the rows' status. Finished
+rows are journaled to OUTPUT.journal; Ctrl-C stops the runs (exit code 130, the journal kept and
+the points done counted); after an interruption, --resume runs
 only the points the journal lacks (with no journal, a finished Parquet table of the same sweep
 is taken as done; a finished CSV table is refused: it has no fingerprint). The table is
 identical whatever the number of workers.
@@ -278,7 +282,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("error: {message}");
         return Ok(super::EXIT_USAGE);
     }
-    let prepared = match prepare(&a.spec, &a.output, false)? {
+    let mut prepared = match prepare(&a.spec, &a.output, false)? {
         Ok(p) => p,
         Err(code) => return Ok(code),
     };
@@ -310,8 +314,33 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if let Some(w) = a.workers {
         options.workers = w;
     }
+    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the runs at their next step: the rows before it
+    // stay journaled, the scenario's directory is removed, and the exit code is 128 + the
+    // signal (130 for Ctrl-C) with the hint to resume. A second Ctrl-C ends the process at once.
+    let control = RunControl::new();
+    control.stop_on_signals()?;
+    prepared.config.control = Some(control.clone());
     let started = std::time::Instant::now();
-    let table = run_sweep(&prepared, Some(&a.output), &options)?;
+    let table = match run_sweep(&prepared, Some(&a.output), &options) {
+        Ok(t) => t,
+        Err(e) => {
+            let Some(reason) = control.stop_reason() else {
+                return Err(e.into());
+            };
+            let journal = journal_path(&a.output);
+            let done = std::fs::read_to_string(&journal)
+                .map_or(0, |j| j.matches('\n').count().saturating_sub(1));
+            eprintln!(
+                "{reason}: {done} of {} points done (journaled in {}); run again with --resume",
+                prepared.design.points.len(),
+                journal.display()
+            );
+            return Ok(match reason {
+                StopReason::Signal(n) => 128 + n,
+                _ => super::EXIT_ERROR,
+            });
+        }
+    };
     let (ok, tripped, failed) = kneebench_harness::sweep::runner::status_counts(&table);
     eprintln!(
         "wrote {} rows to {} ({ok} ok, {tripped} tripped, {failed} failed; {} workers, {:.3} s wall time)",
