@@ -72,6 +72,18 @@ def test_cli_dask_writes_the_local_table(sweep_spec, tmp_path: Path):
     assert r.returncode == 2 and "cannot be used with" in r.stderr, r.stderr
 
 
+def test_cli_dask_fails_at_once_when_the_scheduler_refuses_the_connection(sweep_spec, tmp_path):
+    """Nothing listens at the address: the connection is refused, and --dask says so at once
+    instead of waiting out the Client's 30 s timeout and reporting a TimeoutError."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "t.parquet"
+    r = cli("sweep", sweep_spec(2), "--dask", "tcp://127.0.0.1:1", "--output", out,
+            check=False, env=env_with(KNEEBENCH_PYTHON=sys.executable))
+    assert r.returncode == 1, r.stderr
+    assert "ConnectionRefusedError: no Dask scheduler at tcp://127.0.0.1:1" in r.stderr, r.stderr
+    assert not out.exists()
+
+
 def test_cli_dask_names_what_is_missing(sweep_spec, tmp_path: Path):
     spec = sweep_spec(2)
     out = tmp_path / "t.parquet"

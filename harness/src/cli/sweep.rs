@@ -75,7 +75,9 @@ pub(crate) fn workers(text: &str) -> Result<usize, String> {
 
 /// The script `--dask` runs in the Python interpreter, around a [`DaskCall`]'s source: exit
 /// status 3 when `kneebench` or `distributed` cannot be imported (its stderr names which), 1
-/// on an error of the call. It reports on stdout, one line per `emit`, each line
+/// on an error of the call, and at once when the scheduler's `tcp://` address refuses the
+/// connection (nothing listens; the Client's 30 s timeout stays for a scheduler slow to
+/// answer). It reports on stdout, one line per `emit`, each line
 /// [`DASK_TAG`] and words: the call's own, then `rows ROWS OK TRIPPED FAILED`.
 const DASK_SCRIPT: [&str; 2] = [
     r#"
@@ -92,8 +94,27 @@ spec, address, output, batch, resume, tag = sys.argv[1:7]
 
 def emit(*words):
     print(tag, *words, flush=True)
+
+def refused(address):
+    """The error of a TCP connection to a tcp:// scheduler address that is refused (nothing
+    listens: fail at once), else None (the Client's 30 s timeout is for a slow scheduler)."""
+    import socket, urllib.parse
+    u = urllib.parse.urlsplit(address if "://" in address else "tcp://" + address)
+    try:
+        if u.scheme != "tcp" or not u.hostname:
+            return None
+        socket.create_connection((u.hostname, u.port or 8786), timeout=10).close()
+    except ConnectionRefusedError as e:
+        return e
+    except (OSError, ValueError):
+        return None
+    return None
 "#,
     r#"
+e = refused(address)
+if e is not None:
+    sys.stderr.write(f"ConnectionRefusedError: no Dask scheduler at {address}: {e}\n")
+    sys.exit(1)
 try:
     with Client(address, timeout="30s") as client:
         table = call(client, spec, output, int(batch) or None, resume == "1")
