@@ -705,11 +705,9 @@ fn a_window_without_a_recorded_row_is_refused_at_its_line() {
     }
 }
 
-/// A system file or an FMU directory that does not exist, and a stop time off the step grid,
-/// are refused at their line (the system file was always "line 1", the stop time had no line,
-/// a missing FMU directory was an I/O error: exit 1 instead of 2).
+/// A system file that does not exist is refused at `system`'s line (it was always "line 1").
 #[test]
-fn missing_files_and_a_stop_time_off_the_grid_are_refused_at_their_line() {
+fn a_missing_system_file_is_refused_at_its_line() {
     // A missing system file at its line (3), not line 1.
     let m = refusal(&format!(
         "# my sweep\n\n{}",
@@ -717,6 +715,11 @@ fn missing_files_and_a_stop_time_off_the_grid_are_refused_at_their_line() {
     ));
     assert_eq!(m.len(), 1, "{m:?}");
     assert!(m[0].starts_with("spec.toml, line 3: system file "), "{m:?}");
+}
+
+/// A stop time off the step grid is refused at `stop_time`'s line (it had no line).
+#[test]
+fn a_stop_time_off_the_grid_is_refused_at_its_line() {
     // A stop time off the 1 ms grid: at stop_time's line.
     let m = refusal(&format!(
         "{}stop_time = 2.5005\n[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n",
@@ -727,6 +730,12 @@ fn missing_files_and_a_stop_time_off_the_grid_are_refused_at_their_line() {
         m[0].starts_with("spec.toml, line 4: stop_time and step: "),
         "{m:?}"
     );
+}
+
+/// A scenario's FMU directory that does not exist is refused at `fmus` (a refusal, exit 2),
+/// not a raw I/O error of writing the scenario (exit 1, no line).
+#[test]
+fn a_missing_fmu_directory_is_refused_at_fmus() {
     // A missing FMU directory: at `fmus`, a refusal (exit 2), not an I/O error.
     let m = refusal(
         &format!("{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n")
@@ -768,4 +777,30 @@ fn two_windows_of_a_signal_are_columns_of_their_own() {
     let t = run_sweep(&p, None, &options(1)).unwrap();
     assert!(t.rows[0].metrics.iter().all(|m| m.is_finite()), "{t:?}");
     assert_eq!(p.column_units().len(), 5);
+}
+
+/// The study metrics of a system file without the gait period (no `gait.gaitPeriod` binding,
+/// no `[metrics] period`, not swept) are refused at `study`'s line (they had no line).
+#[test]
+fn study_metrics_without_a_gait_period_are_refused_at_study() {
+    let dir = tempfile::tempdir().unwrap();
+    sea_ssp(&dir.path().join("SEA.ssp"), 1, |s| {
+        for c in &mut s.components {
+            c.parameters.retain(|(n, _)| n != "gaitPeriod");
+        }
+    });
+    let text = ssp_spec("").replace("study = false", "study = true");
+    match prepared(&text, dir.path()) {
+        Err(SweepError::Invalid(p)) => {
+            assert_eq!(p.len(), 1, "{p:?}");
+            assert_eq!(p[0].line, 8, "{p:?}");
+            assert!(p[0].message.contains("need the gait period"), "{p:?}");
+        }
+        other => panic!("{other:?}"),
+    }
+    prepared(
+        &text.replace("study = true", "study = true\nperiod = 2.5"),
+        dir.path(),
+    )
+    .unwrap();
 }
