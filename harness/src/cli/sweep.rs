@@ -23,10 +23,11 @@ against the system's FMUs before anything runs; every problem is printed with it
 code 2). Every point is a row: a run that trips an interlock or fails has its status and
 message, and the exit code is 0 once the table is written, whatever the rows' status. Finished
 rows are journaled to OUTPUT.journal; Ctrl-C stops the runs (exit code 130, the journal kept and
-the points done counted); after an interruption, --resume runs
-only the points the journal lacks (with no journal, a finished Parquet table of the same sweep
-is taken as done; a finished CSV table is refused: it has no fingerprint). The table is
-identical whatever the number of workers.
+the points done counted); after an interruption, --resume runs only the points the journal
+lacks (with no journal, a finished Parquet table of the same sweep is taken as done; a finished
+CSV table is refused: it has no fingerprint). The table is identical whatever the number of
+workers. OUTPUT may not be one of the sweep's inputs (the spec, the system file, the design
+CSV, an FMU): refused with exit code 2.
 
 --dask ADDRESS sends the points in batches to a Dask cluster's workers through the kneebench
 Python package: the interpreter named by KNEEBENCH_PYTHON (default: python3 on PATH) must
