@@ -347,6 +347,127 @@ fn an_output_that_is_an_input_is_refused() {
     );
 }
 
+/// `kneebench sweep` refuses an output that is one of the sweep's inputs besides its spec (the
+/// design CSV, a scenario's FMU), with exit code 2, and leaves it as it was: the table
+/// replaced it before (only the spec was checked).
+#[test]
+fn a_sweep_output_that_is_its_design_or_an_fmu_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(
+        std::path::Path::new(env!("CARGO_BIN_EXE_kneebench")),
+        d.path(),
+    );
+    let csv = d.path().join("points.csv");
+    std::fs::write(&csv, "plant.springStiffness\n300\n").unwrap();
+    let spec = d.path().join("s.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n[design]\nkind = \"csv\"\n\
+             file = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n",
+            fmus.display()
+        ),
+    )
+    .unwrap();
+    let plant = fmus.join("BenchPlant.fmu");
+    let fmu_before = std::fs::read(&plant).unwrap();
+    for output in [&csv, &plant] {
+        let out = kneebench()
+            .arg("sweep")
+            .arg(&spec)
+            .arg("--output")
+            .arg(output)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains("the results would replace it"), "{stderr}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(&csv).unwrap(),
+        "plant.springStiffness\n300\n"
+    );
+    assert_eq!(std::fs::read(&plant).unwrap(), fmu_before);
+}
+
+/// Ctrl-C during `kneebench sweep` stops it with exit code 130 and says how many points are
+/// done and that `--resume` continues; the journal keeps those rows, and `--resume` finishes
+/// the table. Before, the process died of the signal without a word.
+#[test]
+fn an_interrupted_sweep_says_how_far_it_got_and_resumes() {
+    let d = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(
+        std::path::Path::new(env!("CARGO_BIN_EXE_kneebench")),
+        d.path(),
+    );
+    let spec = d.path().join("s.toml");
+    let values: Vec<String> = (0..40).map(|k| format!("{}.0", 250 + k)).collect();
+    std::fs::write(
+        &spec,
+        format!(
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 4\n[design]\nkind = \"grid\"\n\
+             [[parameters]]\nname = \"plant.springStiffness\"\nvalues = [{}]\n",
+            fmus.display(),
+            values.join(", ")
+        ),
+    )
+    .unwrap();
+    let out = d.path().join("t.parquet");
+    let journal = d.path().join("t.parquet.journal");
+    let child = kneebench()
+        .arg("sweep")
+        .arg(&spec)
+        .args(["--workers", "1", "--output"])
+        .arg(&out)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the journal holds a row (the header and one line), or the sweep ends.
+    let mut child = child;
+    loop {
+        let rows = std::fs::read_to_string(&journal).map_or(0, |j| j.matches('\n').count());
+        if rows >= 2 || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the sweep ended before it was interrupted"
+    );
+    // SAFETY: kill(2) on the child's pid, which has not been waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{stderr}");
+    let done = std::fs::read_to_string(&journal)
+        .unwrap()
+        .matches('\n')
+        .count()
+        - 1;
+    assert!((1..40).contains(&done), "{done}");
+    assert!(
+        stderr.contains(&format!(
+            "interrupted (SIGINT): {done} of 40 points done (journaled in {}); run again with \
+             --resume",
+            journal.display()
+        )),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+    let r = kneebench()
+        .arg("sweep")
+        .arg(&spec)
+        .args(["--workers", "2", "--resume", "--output"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{stderr}");
+    assert!(stderr.contains("wrote 40 rows"), "{stderr}");
+    assert!(!journal.exists());
+}
+
 /// `identify --name` names the file OUT/NAME.ssv: a name with a path in it (which wrote
 /// outside OUT) is refused before anything is read, with exit code 2.
 #[test]

@@ -73,6 +73,18 @@ def test_cli_dask_writes_the_local_table(sweep_spec, tmp_path: Path):
     assert r.returncode == 2 and "cannot be used with" in r.stderr, r.stderr
 
 
+def test_cli_dask_fails_at_once_when_the_scheduler_refuses_the_connection(sweep_spec, tmp_path):
+    """Nothing listens at the address: the connection is refused, and --dask says so at once
+    instead of waiting out the Client's 30 s timeout and reporting a TimeoutError."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "t.parquet"
+    r = cli("sweep", sweep_spec(2), "--dask", "tcp://127.0.0.1:1", "--output", out,
+            check=False, env=env_with(KNEEBENCH_PYTHON=sys.executable))
+    assert r.returncode == 1, r.stderr
+    assert "ConnectionRefusedError: no Dask scheduler at tcp://127.0.0.1:1" in r.stderr, r.stderr
+    assert not out.exists()
+
+
 def test_cli_dask_names_what_is_missing(sweep_spec, tmp_path: Path):
     spec = sweep_spec(2)
     out = tmp_path / "t.parquet"
@@ -119,18 +131,17 @@ def test_resume_after_sigint_gives_the_uninterrupted_table(sweep_spec, tmp_path:
         time.sleep(0.01)
     assert p.poll() is None, f"the sweep ended before it was interrupted: {p.stderr.read()}"
     p.send_signal(signal.SIGINT)
-    assert p.wait(timeout=120) != 0
+    assert p.wait(timeout=120) == 130
     lines = journal.read_text().count("\n")
     assert 4 <= lines < 31, lines  # the header and some rows, not all of them
+    stderr = p.stderr.read()
+    assert f"{lines - 1} of 30 points done" in stderr and "run again with --resume" in stderr, stderr
     assert not out.exists()
-    # The killed process's scenario directory is left behind ...
-    stale = [d.name for d in tmp.iterdir() if d.name.startswith(f"kneebench-sweep-{p.pid}-")]
-    assert stale, list(tmp.iterdir())
+    # The interrupted sweep removed its scenario directory.
+    assert not any(d.name.startswith(f"kneebench-sweep-{p.pid}-") for d in tmp.iterdir())
     r = cli("sweep", spec, "--output", out, check=False, env=env)
     assert r.returncode == 1 and "pass --resume" in r.stderr, r.stderr
     cli("sweep", spec, "--output", out, "--workers", "2", "--resume", env=env)
-    # ... and removed by the next kneebench.
-    assert not any(d.name.startswith(f"kneebench-sweep-{p.pid}-") for d in tmp.iterdir())
     assert not journal.exists()
     same_parquet(tmp_path / "whole.parquet", out)
 

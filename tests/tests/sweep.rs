@@ -141,7 +141,7 @@ fn bad_specs_are_refused_naming_the_line() {
     assert_eq!(
         m,
         [
-            "spec.toml, line 6: 'plant.loadAngle' is a Output variable; only parameters and inputs can be set"
+            "spec.toml, line 6: 'plant.loadAngle' is an output variable; only parameters and inputs can be set"
         ]
     );
     // Unknown design kind, unknown statistic, unknown signal.
@@ -213,20 +213,27 @@ fn the_fingerprint_covers_spec_points_and_the_fmus_guids() {
     let dir = tempfile::tempdir().unwrap();
     let p = prepared(DETERMINISM, dir.path()).unwrap();
     assert_eq!(p.guids.len(), 4, "{:?}", p.guids);
+    let digests: Vec<String> = p.file_digests.iter().map(|(_, d)| d.clone()).collect();
     assert_eq!(
         p.fingerprint,
-        fingerprint(&p.spec.text, &p.design, &p.guids),
+        fingerprint(&p.spec.text, &p.design, &p.guids, &digests),
         "the sweep's fingerprint is the documented function of its inputs"
     );
     // Another GUID of one FMU (a rebuilt plant, say) is another sweep.
     let mut guids = p.guids.clone();
     guids[1].1.push('x');
-    assert_ne!(fingerprint(&p.spec.text, &p.design, &guids), p.fingerprint);
+    assert_ne!(
+        fingerprint(&p.spec.text, &p.design, &guids, &digests),
+        p.fingerprint
+    );
     let mut design = p.design.clone();
     design.points[5][0] = f64::from_bits(design.points[5][0].to_bits() + 1);
-    assert_ne!(fingerprint(&p.spec.text, &design, &p.guids), p.fingerprint);
     assert_ne!(
-        fingerprint(&format!("{} ", p.spec.text), &p.design, &p.guids),
+        fingerprint(&p.spec.text, &design, &p.guids, &digests),
+        p.fingerprint
+    );
+    assert_ne!(
+        fingerprint(&format!("{} ", p.spec.text), &p.design, &p.guids, &digests),
         p.fingerprint
     );
     // The units of the columns: the variables' and the signals'.
@@ -404,7 +411,11 @@ fn resume_runs_only_the_points_the_journal_lacks() {
         "point 0: a second row that differs from the first"
     );
     // A journal of another sweep is refused.
-    std::fs::write(journal_path(&out), "kneebench-sweep-journal 1 0123\n").unwrap();
+    std::fs::write(
+        journal_path(&out),
+        "kneebench-sweep-journal 1 0123\n0\tok\t\t\n",
+    )
+    .unwrap();
     let e = run_sweep(
         &p,
         Some(&out),
@@ -529,4 +540,333 @@ fn a_swept_gait_period_sets_the_runs_and_the_start_up_is_never_analysed() {
         }
         other => panic!("{other:?}"),
     }
+}
+
+/// A sweep that ended before its first row (an error, a kill) leaves a journal of its header
+/// alone: it holds nothing to resume, so the next run, with or without --resume, starts
+/// afresh instead of being refused ("an unfinished sweep's journal exists").
+#[test]
+fn a_journal_without_a_row_does_not_block_the_next_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(DETERMINISM, dir.path()).unwrap();
+    let out = dir.path().join("table.parquet");
+    let started =
+        kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1)).unwrap();
+    drop(started);
+    let journal = std::fs::read_to_string(journal_path(&out)).unwrap();
+    assert_eq!(journal, p.journal_header());
+    // A torn first row is no row either.
+    std::fs::write(journal_path(&out), format!("{journal}0\tok")).unwrap();
+    let mut again = kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(again.pending().len(), 6);
+    let mut rows = Vec::new();
+    p.run_points(&[0], 1, &mut |row| {
+        rows.push(row);
+        Ok(())
+    })
+    .unwrap();
+    again.record(rows.pop().unwrap()).unwrap();
+    drop(again);
+    // A journal with a row is still refused without --resume.
+    match kneebench_harness::sweep::JournaledSweep::start(&p, Some(&out), &options(1)) {
+        Err(e) => assert!(e.to_string().contains("pass --resume"), "{e}"),
+        Ok(_) => panic!("a journal with a row was overwritten"),
+    }
+}
+
+/// The study's SEA scenario of `cycles` gait cycles as an `.ssp` at `path`, `edit` applied to
+/// it first.
+fn sea_ssp(path: &Path, cycles: u32, edit: impl FnOnce(&mut kneebench_harness::study::Scenario)) {
+    use kneebench_harness::study::{Actuator, StudyScenario, gait_scenario, write_ssp};
+    let bench = StudyScenario::BenchFull;
+    let mut s = gait_scenario(
+        Actuator::Sea,
+        bench.gait(),
+        bench.gains(Actuator::Sea),
+        cycles,
+    );
+    edit(&mut s);
+    write_ssp(&s, fmus(), path).unwrap();
+}
+
+/// A spec of the SEA system file `SEA.ssp` beside it, one signal metric of `window`.
+fn ssp_spec(window: &str) -> String {
+    format!(
+        "system = \"SEA.ssp\"\n[design]\nkind = \"grid\"\n[[parameters]]\n\
+         name = \"plant.springStiffness\"\nvalues = [300.0, 400.0]\n[metrics]\nstudy = false\n\
+         [[metrics.signals]]\nsignal = \"plant.springDeflection\"\nstats = [\"max\"]\n{window}"
+    )
+}
+
+/// The fingerprint covers the bytes of the system file (and of a scenario's FMUs, which a
+/// rebuild changes while keeping their GUIDs) and the version: an SSP whose bindings were
+/// edited (the torque loop's kp) is another sweep, so `--resume` refuses its journal instead
+/// of keeping the stale rows, and a Dask worker that sees another SSP at the same path is
+/// refused. Before, the fingerprint hashed only the spec text, points and GUIDs.
+#[test]
+fn the_fingerprint_covers_the_system_file_and_the_fmus_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let ssp = dir.path().join("SEA.ssp");
+    sea_ssp(&ssp, 2, |_| {});
+    let text = ssp_spec("");
+    let p = prepared(&text, dir.path()).unwrap();
+    assert_eq!(p.file_digests.len(), 1, "{:?}", p.file_digests);
+    assert_eq!(p.file_digests[0].0, ssp);
+    let out = dir.path().join("t.parquet");
+    run_sweep(&p, Some(&out), &options(1)).unwrap();
+    sea_ssp(&ssp, 2, |s| {
+        let torque = s
+            .components
+            .iter_mut()
+            .find(|c| c.name == "torque")
+            .unwrap();
+        let kp = torque
+            .parameters
+            .iter_mut()
+            .find(|(n, _)| n == "kp")
+            .unwrap();
+        kp.1 = kneebench_harness::master::Value::Real(0.05);
+    });
+    let edited = prepared(&text, dir.path()).unwrap();
+    assert_ne!(edited.fingerprint, p.fingerprint);
+    let e = run_sweep(
+        &edited,
+        Some(&out),
+        &SweepOptions {
+            resume: true,
+            ..options(1)
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("belongs to another sweep"), "{e}");
+    // A scenario's FMUs are digested, in the order the input files list them.
+    let s = prepared(DETERMINISM, dir.path()).unwrap();
+    let files: Vec<_> = s.file_digests.iter().map(|(f, _)| f.clone()).collect();
+    assert_eq!(files, s.input_files[1..]);
+    let mut digests: Vec<String> = s.file_digests.iter().map(|(_, d)| d.clone()).collect();
+    assert_eq!(
+        fingerprint(&s.spec.text, &s.design, &s.guids, &digests),
+        s.fingerprint
+    );
+    let first = if digests[0].starts_with('0') {
+        "1"
+    } else {
+        "0"
+    };
+    digests[0].replace_range(0..1, first);
+    assert_ne!(
+        fingerprint(&s.spec.text, &s.design, &s.guids, &digests),
+        s.fingerprint
+    );
+}
+
+/// A sweep's output that is one of its inputs (however spelled) is refused when the sweep
+/// starts, whatever the entry point (the library's start, which the CLI, Python and Dask
+/// paths all go through), and the input is left as it was: the system file, the design CSV,
+/// the spec, a scenario's FMU. Before, only the CLI checked, and only the spec.
+#[test]
+fn an_output_that_is_one_of_the_sweeps_inputs_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let ssp = dir.path().join("SEA.ssp");
+    sea_ssp(&ssp, 1, |_| {});
+    let csv = dir.path().join("points.csv");
+    std::fs::write(&csv, "plant.springStiffness\n300\n").unwrap();
+    let spec_file = dir.path().join("s.toml");
+    std::fs::write(
+        &spec_file,
+        ssp_spec("")
+            .replace("kind = \"grid\"", "kind = \"csv\"\nfile = \"points.csv\"")
+            .replace("values = [300.0, 400.0]\n", ""),
+    )
+    .unwrap();
+    let p = SweepSpec::from_file(&spec_file)
+        .and_then(Prepared::new)
+        .unwrap();
+    let before: Vec<Vec<u8>> = [&ssp, &csv, &spec_file]
+        .iter()
+        .map(|f| std::fs::read(f).unwrap())
+        .collect();
+    let spelled = dir.path().join(".").join("points.csv");
+    for output in [&ssp, &csv, &spec_file, &spelled] {
+        match kneebench_harness::sweep::JournaledSweep::start(&p, Some(output), &options(1)) {
+            Err(e @ SweepError::OutputIsInput { .. }) => {
+                assert!(
+                    e.to_string().contains("the results would replace it"),
+                    "{e}"
+                );
+            }
+            Err(e) => panic!("{}: another error: {e}", output.display()),
+            Ok(_) => panic!("{}: accepted as the output", output.display()),
+        }
+        assert!(!journal_path(output).exists());
+    }
+    let after: Vec<Vec<u8>> = [&ssp, &csv, &spec_file]
+        .iter()
+        .map(|f| std::fs::read(f).unwrap())
+        .collect();
+    assert_eq!(before, after);
+    // A scenario's FMU.
+    let s = prepared(DETERMINISM, dir.path()).unwrap();
+    let plant = fmus().join("BenchPlant.fmu");
+    let e = run_sweep(&s, Some(&plant), &options(1)).unwrap_err();
+    assert!(matches!(e, SweepError::OutputIsInput { .. }), "{e}");
+    assert!(plant.is_file());
+}
+
+/// An input that a connection drives is refused at its line, naming the connection:
+/// sweeping it had no effect (every row the same, status ok).
+#[test]
+fn an_input_driven_by_a_connection_is_refused_at_its_line() {
+    // Driven by the position loop's output.
+    let m = refusal(&format!(
+        "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.testCurrentCommand\"\nvalues = [0.0, 5.0]\n"
+    ));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with(
+            "spec.toml, line 6: 'plant.testCurrentCommand' is an input driven by the connection from position.u:"
+        ),
+        "{m:?}"
+    );
+}
+
+/// A metric window that holds no recorded row is refused at its line, where the runs' times
+/// are known (a system file's once it is loaded): it gave NaN with status ok.
+#[test]
+fn a_window_without_a_recorded_row_is_refused_at_its_line() {
+    // Windows without a row: before the start, between two samples (1 ms steps).
+    let signals = "[[metrics.signals]]\nsignal = \"plant.springDeflection\"\nstats = [\"max\"]\n";
+    let head = format!(
+        "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n"
+    );
+    let m = refusal(&format!("{head}{signals}to = -1.0\n"));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with("spec.toml, line 9: the window [start, -1] s of 'plant.springDeflection' holds no recorded row"),
+        "{m:?}"
+    );
+    let m = refusal(&format!("{head}{signals}from = 1.0005\nto = 1.0008\n"));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with("spec.toml, line 9: the window [1.0005, 1.0008] s"),
+        "{m:?}"
+    );
+    // One sample is enough.
+    prepared(
+        &format!("{head}{signals}from = 1.0005\nto = 1.001\n"),
+        tempfile::tempdir().unwrap().path(),
+    )
+    .unwrap();
+    // A system file's stop time is known once it is loaded (1 cycle: 2.5 s).
+    let dir = tempfile::tempdir().unwrap();
+    sea_ssp(&dir.path().join("SEA.ssp"), 1, |_| {});
+    match prepared(&ssp_spec("from = 20.0\n"), dir.path()) {
+        Err(SweepError::Invalid(p)) => {
+            assert_eq!(p.len(), 1, "{p:?}");
+            assert_eq!(p[0].line, 9, "{p:?}");
+            assert!(p[0].message.contains("to 2.5 s every 0.001 s"), "{p:?}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A system file that does not exist is refused at `system`'s line (it was always "line 1").
+#[test]
+fn a_missing_system_file_is_refused_at_its_line() {
+    // A missing system file at its line (3), not line 1.
+    let m = refusal(&format!(
+        "# my sweep\n\n{}",
+        ssp_spec("").replace("SEA.ssp", "missing.ssp")
+    ));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(m[0].starts_with("spec.toml, line 3: system file "), "{m:?}");
+}
+
+/// A stop time off the step grid is refused at `stop_time`'s line (it had no line).
+#[test]
+fn a_stop_time_off_the_grid_is_refused_at_its_line() {
+    // A stop time off the 1 ms grid: at stop_time's line.
+    let m = refusal(&format!(
+        "{}stop_time = 2.5005\n[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n",
+        HEAD
+    ));
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with("spec.toml, line 4: stop_time and step: "),
+        "{m:?}"
+    );
+}
+
+/// A scenario's FMU directory that does not exist is refused at `fmus` (a refusal, exit 2),
+/// not a raw I/O error of writing the scenario (exit 1, no line).
+#[test]
+fn a_missing_fmu_directory_is_refused_at_fmus() {
+    // A missing FMU directory: at `fmus`, a refusal (exit 2), not an I/O error.
+    let m = refusal(
+        &format!("{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n")
+            .replace("FMUS", "/nonexistent/fmus"),
+    );
+    assert_eq!(m.len(), 1, "{m:?}");
+    assert!(
+        m[0].starts_with("spec.toml, line 2: the FMU directory /nonexistent/fmus does not exist"),
+        "{m:?}"
+    );
+}
+
+/// Two windows of one signal are two columns, each named with its window; the same
+/// statistic of the same signal and window twice is refused (it gave columns of one name:
+/// pyarrow could not read the table).
+#[test]
+fn two_windows_of_a_signal_are_columns_of_their_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(
+        &format!(
+            "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n\
+             [metrics]\nstudy = false\n\
+             [[metrics.signals]]\nsignal = \"plant.springDeflection\"\nstats = [\"max\", \"min\"]\nto = 1.25\n\
+             [[metrics.signals]]\nsignal = \"plant.springDeflection\"\nstats = [\"max\"]\nfrom = 1.25\n\
+             [[metrics.signals]]\nsignal = \"plant.loadOutputTorque\"\nstats = [\"max\"]\n"
+        ),
+        dir.path(),
+    )
+    .unwrap();
+    assert_eq!(
+        p.metric_names,
+        [
+            "max(plant.springDeflection)[:1.25]",
+            "min(plant.springDeflection)[:1.25]",
+            "max(plant.springDeflection)[1.25:]",
+            "max(plant.loadOutputTorque)",
+        ]
+    );
+    let t = run_sweep(&p, None, &options(1)).unwrap();
+    assert!(t.rows[0].metrics.iter().all(|m| m.is_finite()), "{t:?}");
+    assert_eq!(p.column_units().len(), 5);
+}
+
+/// The study metrics of a system file without the gait period (no `gait.gaitPeriod` binding,
+/// no `[metrics] period`, not swept) are refused at `study`'s line (they had no line).
+#[test]
+fn study_metrics_without_a_gait_period_are_refused_at_study() {
+    let dir = tempfile::tempdir().unwrap();
+    sea_ssp(&dir.path().join("SEA.ssp"), 1, |s| {
+        for c in &mut s.components {
+            c.parameters.retain(|(n, _)| n != "gaitPeriod");
+        }
+    });
+    let text = ssp_spec("").replace("study = false", "study = true");
+    match prepared(&text, dir.path()) {
+        Err(SweepError::Invalid(p)) => {
+            assert_eq!(p.len(), 1, "{p:?}");
+            assert_eq!(p[0].line, 8, "{p:?}");
+            assert!(p[0].message.contains("need the gait period"), "{p:?}");
+        }
+        other => panic!("{other:?}"),
+    }
+    prepared(
+        &text.replace("study = true", "study = true\nperiod = 2.5"),
+        dir.path(),
+    )
+    .unwrap();
 }

@@ -246,7 +246,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("error: {message}");
         return Ok(super::EXIT_USAGE);
     }
-    let prepared = match super::sweep::prepare(&a.spec, true)? {
+    let prepared = match super::sweep::prepare(&a.spec, &a.output, true)? {
         Ok(p) => p,
         Err(code) => return Ok(code),
     };

@@ -3,6 +3,8 @@
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
+use kneebench_harness::control::{RunControl, StopReason};
+use kneebench_harness::sweep::journal::journal_path;
 use kneebench_harness::sweep::{
     Prepared, SpecProblem, SweepError, SweepOptions, SweepSpec, run_sweep,
 };
@@ -19,10 +21,13 @@ The spec (TOML) names the system (DA, SEA, CSEA or an .ssp/.ssd), the parameters
 (grid, latin-hypercube, sobol, random, csv) and the metrics; see the README. It is checked
 against the system's FMUs before anything runs; every problem is printed with its line (exit
 code 2). Every point is a row: a run that trips an interlock or fails has its status and
-message. Finished rows are journaled to OUTPUT.journal; after an interruption, --resume runs
-only the points the journal lacks (with no journal, a finished Parquet table of the same sweep
-is taken as done; a finished CSV table is refused: it has no fingerprint). The table is
-identical whatever the number of workers.
+message, and the exit code is 0 once the table is written, whatever the rows' status. Finished
+rows are journaled to OUTPUT.journal; Ctrl-C stops the runs (exit code 130, the journal kept and
+the points done counted); after an interruption, --resume runs only the points the journal
+lacks (with no journal, a finished Parquet table of the same sweep is taken as done; a finished
+CSV table is refused: it has no fingerprint). The table is identical whatever the number of
+workers. OUTPUT may not be one of the sweep's inputs (the spec, the system file, the design
+CSV, an FMU): refused with exit code 2.
 
 --dask ADDRESS sends the points in batches to a Dask cluster's workers through the kneebench
 Python package: the interpreter named by KNEEBENCH_PYTHON (default: python3 on PATH) must
@@ -71,7 +76,9 @@ pub(crate) fn workers(text: &str) -> Result<usize, String> {
 
 /// The script `--dask` runs in the Python interpreter, around a [`DaskCall`]'s source: exit
 /// status 3 when `kneebench` or `distributed` cannot be imported (its stderr names which), 1
-/// on an error of the call. It reports on stdout, one line per `emit`, each line
+/// on an error of the call, and at once when the scheduler's `tcp://` address refuses the
+/// connection (nothing listens; the Client's 30 s timeout stays for a scheduler slow to
+/// answer). It reports on stdout, one line per `emit`, each line
 /// [`DASK_TAG`] and words: the call's own, then `rows ROWS OK TRIPPED FAILED`.
 const DASK_SCRIPT: [&str; 2] = [
     r#"
@@ -88,8 +95,27 @@ spec, address, output, batch, resume, tag = sys.argv[1:7]
 
 def emit(*words):
     print(tag, *words, flush=True)
+
+def refused(address):
+    """The error of a TCP connection to a tcp:// scheduler address that is refused (nothing
+    listens: fail at once), else None (the Client's 30 s timeout is for a slow scheduler)."""
+    import socket, urllib.parse
+    u = urllib.parse.urlsplit(address if "://" in address else "tcp://" + address)
+    try:
+        if u.scheme != "tcp" or not u.hostname:
+            return None
+        socket.create_connection((u.hostname, u.port or 8786), timeout=10).close()
+    except ConnectionRefusedError as e:
+        return e
+    except (OSError, ValueError):
+        return None
+    return None
 "#,
     r#"
+e = refused(address)
+if e is not None:
+    sys.stderr.write(f"ConnectionRefusedError: no Dask scheduler at {address}: {e}\n")
+    sys.exit(1)
 try:
     with Client(address, timeout="30s") as client:
         table = call(client, spec, output, int(batch) or None, resume == "1")
@@ -227,9 +253,15 @@ pub(crate) fn run_on_dask(
 }
 
 /// Reads and checks a spec against its system: `Ok(Err(exit code))` when it is refused (every
-/// problem printed with its line), and when `optimization` differs from whether it has an
-/// `[optimize]` table (`kneebench sweep` runs designs, `kneebench optimize` optimisations).
-pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<Prepared, i32>> {
+/// problem printed with its line), when `optimization` differs from whether it has an
+/// `[optimize]` table (`kneebench sweep` runs designs, `kneebench optimize` optimisations), and
+/// when `output` is one of the sweep's inputs ([`Prepared::check_output`]: the system file, the
+/// design CSV, an FMU).
+pub(crate) fn prepare(
+    spec: &Path,
+    output: &Path,
+    optimization: bool,
+) -> anyhow::Result<Result<Prepared, i32>> {
     let refused = |problems: &[SpecProblem]| {
         for p in problems {
             eprintln!("error: {p}");
@@ -255,10 +287,14 @@ pub(crate) fn prepare(spec: &Path, optimization: bool) -> anyhow::Result<Result<
             _ => None,
         })
     };
-    match mismatch {
-        Some(problem) => refused(&[problem]),
-        None => Ok(Ok(prepared)),
+    if let Some(problem) = mismatch {
+        return refused(&[problem]);
     }
+    if let Err(e) = prepared.check_output(output) {
+        eprintln!("error: {e}");
+        return Ok(Err(super::EXIT_USAGE));
+    }
+    Ok(Ok(prepared))
 }
 
 /// Runs `kneebench sweep`.
@@ -268,7 +304,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("error: {message}");
         return Ok(super::EXIT_USAGE);
     }
-    let prepared = match prepare(&a.spec, false)? {
+    let mut prepared = match prepare(&a.spec, &a.output, false)? {
         Ok(p) => p,
         Err(code) => return Ok(code),
     };
@@ -300,8 +336,33 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if let Some(w) = a.workers {
         options.workers = w;
     }
+    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the runs at their next step: the rows before it
+    // stay journaled, the scenario's directory is removed, and the exit code is 128 + the
+    // signal (130 for Ctrl-C) with the hint to resume. A second Ctrl-C ends the process at once.
+    let control = RunControl::new();
+    control.stop_on_signals()?;
+    prepared.config.control = Some(control.clone());
     let started = std::time::Instant::now();
-    let table = run_sweep(&prepared, Some(&a.output), &options)?;
+    let table = match run_sweep(&prepared, Some(&a.output), &options) {
+        Ok(t) => t,
+        Err(e) => {
+            let Some(reason) = control.stop_reason() else {
+                return Err(e.into());
+            };
+            let journal = journal_path(&a.output);
+            let done = std::fs::read_to_string(&journal)
+                .map_or(0, |j| j.matches('\n').count().saturating_sub(1));
+            eprintln!(
+                "{reason}: {done} of {} points done (journaled in {}); run again with --resume",
+                prepared.design.points.len(),
+                journal.display()
+            );
+            return Ok(match reason {
+                StopReason::Signal(n) => 128 + n,
+                _ => super::EXIT_ERROR,
+            });
+        }
+    };
     let (ok, tripped, failed) = kneebench_harness::sweep::runner::status_counts(&table);
     eprintln!(
         "wrote {} rows to {} ({ok} ok, {tripped} tripped, {failed} failed; {} workers, {:.3} s wall time)",

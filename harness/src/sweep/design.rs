@@ -5,7 +5,11 @@
 //! any run, in one thread. Random numbers come from SplitMix64 (a fixed, documented generator,
 //! not a library's default one whose stream may change between versions); Sobol points from
 //! `sobol_burley` (Owen-scrambled, single precision in [0, 1) before scaling to [min, max]).
-//! `Integer` variables take the nearest whole value.
+//! `Integer` variables of the Latin hypercube, Sobol and random designs take the whole value of
+//! `[min, max]` split into `max - min + 1` equal bins (`min + floor(u (max - min + 1))`,
+//! clamped): each value equally likely, a hypercube's strata whole values when there are as many
+//! points as values (rounding the scaled value gave the ends half the weight and made
+//! duplicates). A grid's levels of an `Integer` variable take the nearest whole value.
 
 use std::path::Path;
 
@@ -62,6 +66,16 @@ fn scale(u: f64, lo: f64, hi: f64) -> f64 {
     lo + (hi - lo) * u
 }
 
+/// The value of a parameter of type `ty` at `u` in [0, 1): [`scale`]d for a Real; for an
+/// Integer, the whole value of equal-width bin `floor(u (hi - lo + 1))` (see the module
+/// documentation).
+fn place(u: f64, lo: f64, hi: f64, ty: ParameterType) -> f64 {
+    match ty {
+        ParameterType::Real => scale(u, lo, hi),
+        ParameterType::Integer => (lo + (u * (hi - lo + 1.0)).floor()).clamp(lo, hi),
+    }
+}
+
 /// `n` evenly spaced values from `lo` to `hi` (both included; `lo` alone for one level).
 pub fn levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if n == 1 {
@@ -82,10 +96,10 @@ pub fn levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
 /// parameters' types).
 pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
     let dims = spec.parameters.len();
-    let bounds: Vec<(f64, f64)> = spec
+    let bounds: Vec<(f64, f64, ParameterType)> = spec
         .parameters
         .iter()
-        .map(|p| (p.min.unwrap_or(0.0), p.max.unwrap_or(0.0)))
+        .map(|p| (p.min.unwrap_or(0.0), p.max.unwrap_or(0.0), p.ty))
         .collect();
     let mut points: Vec<Vec<f64>> = match &spec.design {
         DesignKind::Grid => {
@@ -112,7 +126,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                         format!("the grid has {n} points, more than {MAX_POINTS}"),
                     )]));
                 }
-                Some(_) => {}
+                Some(n) => check_count(spec, n)?,
             }
             let mut out = vec![Vec::new()];
             for axis in &axes {
@@ -136,7 +150,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                 .map(|_| {
                     bounds
                         .iter()
-                        .map(|&(lo, hi)| scale(rng.next_f64(), lo, hi))
+                        .map(|&(lo, hi, ty)| place(rng.next_f64(), lo, hi, ty))
                         .collect()
                 })
                 .collect()
@@ -146,7 +160,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
             let n = *points;
             let mut rng = SplitMix64::new(*seed);
             let mut out = vec![vec![0.0; dims]; n];
-            for (d, &(lo, hi)) in bounds.iter().enumerate() {
+            for (d, &(lo, hi, ty)) in bounds.iter().enumerate() {
                 // A random permutation of the strata (Fisher-Yates), a random place in each.
                 let mut strata: Vec<usize> = (0..n).collect();
                 for i in (1..n).rev() {
@@ -155,7 +169,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                 }
                 for (i, point) in out.iter_mut().enumerate() {
                     let u = (strata[i] as f64 + rng.next_f64()) / n as f64;
-                    point[d] = scale(u, lo, hi);
+                    point[d] = place(u, lo, hi, ty);
                 }
             }
             out
@@ -177,15 +191,25 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                     ),
                 )]));
             }
-            let seed = (*seed ^ (*seed >> 32)) as u32;
+            // The spec refuses a seed beyond 32 bits (the scramble's); folding it made seeds
+            // 0 and 2^32 + 1 the same design.
+            let Ok(seed) = u32::try_from(*seed) else {
+                return Err(SweepError::Invalid(vec![spec.problem(
+                    0,
+                    format!(
+                        "the Sobol design's seed is at most {}, not {seed}",
+                        u32::MAX
+                    ),
+                )]));
+            };
             (0..*points)
                 .map(|i| {
                     bounds
                         .iter()
                         .enumerate()
-                        .map(|(d, &(lo, hi))| {
+                        .map(|(d, &(lo, hi, ty))| {
                             let u = sobol_burley::sample(i as u32, d as u32, seed);
-                            scale(f64::from(u), lo, hi)
+                            place(f64::from(u), lo, hi, ty)
                         })
                         .collect()
                 })
@@ -193,6 +217,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
         }
         DesignKind::Csv(path) => read_csv(spec, path)?,
     };
+    // A grid's levels of an Integer variable (a CSV's values are refused unless whole).
     for (d, p) in spec.parameters.iter().enumerate() {
         if p.ty == ParameterType::Integer {
             for point in &mut points {
@@ -209,11 +234,30 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
 /// The largest design accepted (ids, journal and table stay manageable).
 pub const MAX_POINTS: usize = 10_000_000;
 
+/// The most values of a design, points x parameters: 2^25, 256 MiB of floats. The whole design
+/// is made before the first run (and each row keeps its point's values), so [`MAX_POINTS`]
+/// alone let 10,000,000 points of 20 parameters take 4.3 GB first. At this bound, 10,000,000
+/// points have at most 3 parameters, 1,000,000 points 33. Refused at the spec's `points` line
+/// (or a grid's `kind`, a CSV's line of the point beyond it).
+pub const MAX_DESIGN_VALUES: usize = 1 << 25;
+
+/// The most points of a design of `parameters` parameters: [`MAX_POINTS`], and
+/// [`MAX_DESIGN_VALUES`] values.
+pub fn max_points(parameters: usize) -> usize {
+    MAX_POINTS.min(MAX_DESIGN_VALUES / parameters.max(1))
+}
+
 fn check_count(spec: &SweepSpec, n: usize) -> Result<(), SweepError> {
-    if n > MAX_POINTS {
-        return Err(SweepError::Invalid(vec![
-            spec.problem(0, format!("{n} points, more than {MAX_POINTS}")),
-        ]));
+    let dims = spec.parameters.len();
+    if n > max_points(dims) {
+        return Err(SweepError::Invalid(vec![spec.problem(
+            0,
+            format!(
+                "{n} points of {dims} parameters, more than {} (at most {MAX_POINTS} points \
+                 and {MAX_DESIGN_VALUES} values)",
+                max_points(dims)
+            ),
+        )]));
     }
     Ok(())
 }
@@ -227,7 +271,12 @@ fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> 
         path: path.to_path_buf(),
         source,
     })?;
-    read_csv_from(spec, path, std::io::BufReader::new(f), MAX_POINTS)
+    read_csv_from(
+        spec,
+        path,
+        std::io::BufReader::new(f),
+        max_points(spec.parameters.len()),
+    )
 }
 
 /// Reads the design CSV `path` from `r` line by line: a header of parameter names, then one
@@ -285,10 +334,17 @@ fn read_csv_from(
         )]));
     }
     let header = std::mem::take(&mut buf);
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    // A UTF-8 byte order mark (Excel writes one) is not part of the first column's name.
+    let header_text = header.strip_prefix('\u{feff}').unwrap_or(&header);
+    let columns: Vec<&str> = header_text.split(',').map(str::trim).collect();
     let mut index = Vec::new();
-    for c in &columns {
+    for (k, c) in columns.iter().enumerate() {
         match spec.parameters.iter().position(|p| p.name == *c) {
+            // A parameter named twice: the point would have a value too many (the sweep
+            // failed at its first run, without a line).
+            Some(_) if columns[..k].contains(c) => {
+                problems.push(problem(1, format!("column '{c}' is given twice")))
+            }
             Some(i) => index.push(i),
             None => problems.push(problem(
                 1,
@@ -311,7 +367,10 @@ fn read_csv_from(
         if rows > max_points {
             problems.push(problem(
                 line,
-                format!("more than {max_points} points: the design is refused at this line"),
+                format!(
+                    "more than {max_points} points: the design is refused at this line (at most \
+                     {MAX_POINTS} points and {MAX_DESIGN_VALUES} values, points x parameters)"
+                ),
             ));
             return Err(SweepError::Invalid(problems));
         }
@@ -486,6 +545,75 @@ mod tests {
             "{} bytes read",
             served.get()
         );
+    }
+
+    /// A design CSV naming a parameter twice is refused at line 1 (it passed the check, then
+    /// every point had a value too many); a UTF-8 byte order mark before the header is not
+    /// part of the first column's name.
+    #[test]
+    fn a_csv_column_given_twice_is_refused_at_line_one_and_a_bom_is_stripped() {
+        let spec = csv_spec();
+        let path = Path::new("/nowhere/points.csv");
+        let csv = "plant.springStiffness, plant.springStiffness\n300,400\n";
+        match read_csv_from(&spec, path, csv.as_bytes(), 5) {
+            Err(SweepError::Invalid(problems)) => {
+                let e: Vec<String> = problems.iter().map(ToString::to_string).collect();
+                assert_eq!(
+                    e,
+                    ["/nowhere/points.csv, line 1: column 'plant.springStiffness' is given twice"]
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        let csv = "\u{feff}plant.springStiffness\r\n300\r\n";
+        let points = read_csv_from(&spec, path, csv.as_bytes(), 5).unwrap();
+        assert_eq!(points, [[300.0]]);
+    }
+
+    /// Integer parameters of the random designs take equal-width bins of `[min, max]`: each
+    /// whole value equally likely, and a Latin hypercube of as many points as values takes each
+    /// once. Rounding the scaled value gave the ends half the weight and made duplicates.
+    #[test]
+    fn integer_parameters_take_equal_width_bins() {
+        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 1\n[design]\n\
+                    kind = \"KIND\"\npoints = N\nseed = SEED\n[[parameters]]\n\
+                    name = \"plant.configuration\"\nmin = 0.0\nmax = 2.0\n";
+        let design = |kind: &str, n: usize, seed: u64| {
+            let text = text
+                .replace("KIND", kind)
+                .replace("N\n", &format!("{n}\n"))
+                .replace("SEED", &seed.to_string());
+            let mut spec =
+                SweepSpec::parse(&text, Path::new("/nowhere/s.toml"), Path::new("/nowhere"))
+                    .unwrap();
+            spec.parameters[0].ty = ParameterType::Integer;
+            let d = generate(&spec).unwrap();
+            d.points.iter().map(|p| p[0]).collect::<Vec<f64>>()
+        };
+        for kind in ["random", "sobol", "latin-hypercube"] {
+            let values = design(kind, 3000, 1);
+            for v in [0.0, 1.0, 2.0] {
+                let n = values.iter().filter(|&&x| x == v).count();
+                assert!((900..=1100).contains(&n), "{kind}: {n} of 3000 are {v}");
+            }
+        }
+        for seed in 0..20 {
+            let mut values = design("latin-hypercube", 3, seed);
+            values.sort_by(f64::total_cmp);
+            assert_eq!(values, [0.0, 1.0, 2.0], "seed {seed}");
+        }
+    }
+
+    /// A design of more values (points x parameters) than MAX_DESIGN_VALUES is refused, with
+    /// the bound: 10,000,000 random points of 20 parameters took 4.3 GB before the first run.
+    #[test]
+    fn the_design_is_bounded_by_its_values() {
+        assert_eq!(max_points(1), MAX_POINTS);
+        assert_eq!(max_points(20), MAX_DESIGN_VALUES / 20);
+        let spec = csv_spec();
+        let (r, _) = rows("plant.springStiffness\n", "310\n", 10);
+        let e = read_csv_from(&spec, Path::new("p.csv"), r, 5).unwrap_err();
+        assert!(e.to_string().contains("33554432 values"), "{e}");
     }
 
     #[test]

@@ -1,8 +1,9 @@
 //! The journal of a sweep or an optimisation, and `--resume`.
 //!
 //! Every finished row is appended to `<output>.journal` (first line: the sweep's
-//! [`fingerprint`](super::runner::fingerprint): the spec text but for an optimisation's
-//! `generations`, every point's bits, the FMUs' GUIDs; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
+//! [`fingerprint`](super::runner::fingerprint): the version, the spec text but for an
+//! optimisation's `generations`, every point's bits, the FMUs' GUIDs, the digests of the
+//! system's files; then one line per row, floats as their 64-bit patterns in hex) and flushed. A resumed
 //! sweep reads the journal, refuses it if the fingerprint differs, skips the points it holds
 //! and runs the rest; a torn last line (the process was killed while writing it) is ignored.
 //! The journal is removed once the table is written. `--resume` with no journal continues a
@@ -82,6 +83,16 @@ pub fn journal_line(row: &Row) -> String {
     )
 }
 
+/// A float written by [`journal_line`]: exactly 16 hex digits (its 64-bit pattern). Anything
+/// else (`3ff`, a sign, a `0x`) is not a journal's value: `u64::from_str_radix` alone took
+/// `3ff` as the bits 0x3ff, a denormal 5e-321 read back as the metric.
+fn parse_bits(h: &str) -> Option<f64> {
+    if h.len() != 16 || !h.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    u64::from_str_radix(h, 16).ok().map(f64::from_bits)
+}
+
 /// A journal line's row, its parameters left empty (the caller knows them from the point's
 /// id); `None` if the line is not a row with `metrics` metrics.
 fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
@@ -95,7 +106,7 @@ fn parse_journal_line(line: &str, metrics: usize) -> Option<Row> {
     } else {
         metrics_text
             .split(',')
-            .map(|h| u64::from_str_radix(h, 16).ok().map(f64::from_bits))
+            .map(parse_bits)
             .collect::<Option<_>>()?
     };
     if values.len() != metrics {
@@ -155,8 +166,8 @@ fn finished_rows(
         Some(f) if f != prepared.fingerprint => {
             return Err(bad(
                 "the finished table belongs to another sweep (the spec but for an \
-                 optimisation's generations, its points or the FMUs changed, or an older \
-                 kneebench wrote it): leave out --resume to run afresh"
+                 optimisation's generations, its points, the system file or the FMUs changed, \
+                 or another kneebench wrote it): leave out --resume to run afresh"
                     .into(),
             ));
         }
@@ -232,7 +243,8 @@ pub(crate) struct Journal {
 
 impl Journal {
     /// Starts the journal of `prepared` for `output`. An existing journal is refused without
-    /// `resume`; with it, its rows are returned (their parameters empty, each id accepted by
+    /// `resume` (one without a complete row, from a sweep that ended before its first row, is
+    /// taken as none); with it, its rows are returned (their parameters empty, each id accepted by
     /// `known`, else the line is refused) and the journal is rewritten with the complete rows
     /// only (a torn last line, from a kill while it was written, is dropped: that point runs
     /// again). A journal of another fingerprint is refused. With `resume` and no journal, a
@@ -280,7 +292,18 @@ impl Journal {
         };
         let header = prepared.journal_header();
         let mut rows = BTreeMap::new();
+        let mut text = String::new();
         if existed {
+            file.read_to_string(&mut text).map_err(io)?;
+        }
+        // A journal without a complete row (a sweep that failed or was killed before its
+        // first row ended) holds nothing to resume: it is taken as none, so that it does not
+        // block the next run (which had to be told --resume, or to remove it, for nothing).
+        let holds_rows = text
+            .split_inclusive('\n')
+            .skip(1)
+            .any(|l| l.ends_with('\n'));
+        if existed && holds_rows {
             if !resume {
                 return Err(bad(
                     "an unfinished sweep's journal exists: pass --resume (resume=True in \
@@ -288,13 +311,11 @@ impl Journal {
                         .into(),
                 ));
             }
-            let mut text = String::new();
-            file.read_to_string(&mut text).map_err(io)?;
             let mut lines = text.split_inclusive('\n');
             if lines.next().unwrap_or("").trim_end() != header.trim_end() {
                 return Err(bad(
-                    "belongs to another sweep (the spec or its points changed); \
-                     remove it to start afresh"
+                    "belongs to another sweep (the spec, its points, the system file or the \
+                     FMUs changed, or another kneebench wrote it); remove it to start afresh"
                         .into(),
                 ));
             }
@@ -317,7 +338,7 @@ impl Journal {
         } else if resume && output.exists() {
             rows = finished_rows(output, prepared, known)?;
         }
-        let mut text = header;
+        text = header;
         for r in rows.values() {
             text.push_str(&journal_line(r));
         }
@@ -387,6 +408,7 @@ impl Finished {
     ) -> Result<Finished, SweepError> {
         let (journal, rows) = match output {
             Some(out) => {
+                prepared.check_output(out)?;
                 super::table::check_table_path(out)?;
                 let (j, rows) = Journal::open(out, options.resume, prepared, known)?;
                 (Some(j), rows)
@@ -433,5 +455,44 @@ impl Finished {
             Some(j) => j.remove(),
             None => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A journal row's metrics are 16 hex digits each, as `journal_line` writes them; a
+    /// shorter or longer field, a sign or a `0x` is not a row (was: `3ff` read as 5e-321).
+    #[test]
+    fn journal_metrics_must_be_sixteen_hex_digits() {
+        let row = Row {
+            point: 3,
+            parameters: Vec::new(),
+            metrics: vec![1.0, f64::NAN, -0.0],
+            status: RunStatus::Tripped,
+            message: "a\tb\nc".into(),
+        };
+        let line = journal_line(&row);
+        let back = parse_journal_line(line.trim_end_matches('\n'), 3).unwrap();
+        assert!(back.same_outcome(&row), "{back:?}");
+        for bad in [
+            "3ff",
+            "+3ff0000000000000",
+            "0x3ff00000000000",
+            "3ff00000000000000",
+            "",
+        ] {
+            assert!(
+                parse_journal_line(&format!("0\tok\t{bad}\t"), 1).is_none(),
+                "{bad} accepted"
+            );
+        }
+        assert_eq!(
+            parse_journal_line("0\tok\t3FF0000000000000\t", 1)
+                .unwrap()
+                .metrics,
+            [1.0]
+        );
     }
 }

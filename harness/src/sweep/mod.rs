@@ -77,6 +77,19 @@ pub enum SweepError {
     /// A number of worker threads outside `1..=`[`MAX_WORKERS`].
     #[error("{0} worker threads: a sweep or an optimisation runs on 1 to {MAX_WORKERS}")]
     Workers(usize),
+    /// The output (or its journal) is one of the sweep's inputs ([`Prepared::check_output`]):
+    /// the table would replace it. Refused before anything is written.
+    #[error(
+        "the output {} is the input {}: the results would replace it",
+        output.display(),
+        input.display()
+    )]
+    OutputIsInput {
+        /// The output (or its journal) as given.
+        output: PathBuf,
+        /// The input it is.
+        input: PathBuf,
+    },
     /// A worker ended without returning every point it took.
     #[error("points without a row: {0:?}")]
     Missing(Vec<u64>),

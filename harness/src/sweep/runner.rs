@@ -66,14 +66,23 @@ pub const STUDY_METRIC_UNITS: [&str; STUDY_METRICS.len()] = [
     "J", "J", "J", "J", "J", "J", "J", "J", "s",
 ];
 
-/// The sweep's fingerprint: a SHA-256 (hex) of the spec text (as
+/// The sweep's fingerprint: a SHA-256 (hex) of the kneebench version, the spec text (as
 /// [`SweepSpec::fingerprint_text`] gives it: an optimisation's `generations` left out), the
-/// parameter names, every
-/// point's bits and every component's FMU GUID (`component`, GUID). A journal, or a Dask
-/// worker's batch, with another fingerprint belongs to another sweep: the spec, its points or
-/// the FMUs differ.
-pub fn fingerprint(text: &str, design: &Design, guids: &[(String, String)]) -> String {
+/// parameter names, every point's bits, every component's FMU GUID (`component`, GUID) and the
+/// digests of the files the system is made of (`digests`: those of
+/// [`Prepared::file_digests`], in order), so that an edited SSP binding or a rebuilt FMU, which
+/// keeps its GUID, is another sweep. A journal, or a Dask worker's batch, with another
+/// fingerprint belongs to another sweep: the spec, its points, the system's files or kneebench
+/// differ.
+pub fn fingerprint(
+    text: &str,
+    design: &Design,
+    guids: &[(String, String)],
+    digests: &[String],
+) -> String {
     let mut h = Sha256::new();
+    h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    h.update([0]);
     h.update(text.as_bytes());
     for n in &design.names {
         h.update(n.as_bytes());
@@ -90,7 +99,36 @@ pub fn fingerprint(text: &str, design: &Design, guids: &[(String, String)]) -> S
         h.update(guid.as_bytes());
         h.update([0]);
     }
-    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    for d in digests {
+        h.update(d.as_bytes());
+        h.update([0]);
+    }
+    hex(&h.finalize())
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The SHA-256 (hex) of the bytes of the file at `path`, read in blocks.
+pub fn file_digest(path: &Path) -> Result<String, SweepError> {
+    let io = |source| SweepError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        match f.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => h.update(&buf[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(io(e)),
+        }
+    }
+    Ok(hex(&h.finalize()))
 }
 
 /// The values of [`STUDY_METRICS`] for one analysed run, in that order.
@@ -196,8 +234,12 @@ pub struct Prepared {
     pub input_files: Vec<PathBuf>,
     /// The GUID of every component's FMU (`component` -> GUID).
     pub guids: Vec<(String, String)>,
-    /// The sweep's fingerprint ([`fingerprint`]: the spec text but for an optimisation's
-    /// `generations`, the points, the FMUs' GUIDs).
+    /// The files the system is made of, each with the SHA-256 (hex) of its bytes: a system
+    /// file (and, for a bare `.ssd`, the FMUs and parameter files it references), or a
+    /// scenario's FMUs. The fingerprint covers them, and the output may not be one of them.
+    pub file_digests: Vec<(PathBuf, String)>,
+    /// The sweep's fingerprint ([`fingerprint`]: the version, the spec text but for an
+    /// optimisation's `generations`, the points, the FMUs' GUIDs, the system's files' digests).
     pub fingerprint: String,
     /// Loaded systems not in use: the one loaded to check the spec (one loading of every FMU
     /// less per sweep), then those the workers of a batch give back when it ends, so that the
@@ -213,6 +255,7 @@ fn system_error(e: impl std::fmt::Display) -> SweepError {
 fn variable_problems(
     spec: &mut SweepSpec,
     component_md: &dyn Fn(&str) -> Option<ModelDescription>,
+    connections: &[ssp::SspConnection],
 ) -> Vec<SpecProblem> {
     let mut problems = Vec::new();
     let file = spec.file.clone();
@@ -241,13 +284,36 @@ fn variable_problems(
         };
         let causality = v.causality.unwrap_or(Causality::Local);
         if !matches!(causality, Causality::Parameter | Causality::Input) {
+            let what = match causality {
+                Causality::Output => "an output variable",
+                Causality::Independent => "the independent variable",
+                Causality::CalculatedParameter => "a calculated parameter",
+                _ => "a local variable",
+            };
             problems.push(at(format!(
-                "'{}' is a {causality:?} variable; only parameters and inputs can be set",
+                "'{}' is {what}; only parameters and inputs can be set",
                 p.name
             )));
         }
         if v.variability == Some(Variability::Constant) {
             problems.push(at(format!("'{}' is a constant", p.name)));
+        }
+        // A connection sets the input at every step: the point's value would have no effect
+        // (every row the same, status ok).
+        if causality == Causality::Input
+            && let Some(c) = connections
+                .iter()
+                .find(|c| c.end_element.as_deref() == Some(comp) && c.end_connector == var)
+        {
+            let from = match &c.start_element {
+                Some(e) => format!("{e}.{}", c.start_connector),
+                None => format!("the system's connector {}", c.start_connector),
+            };
+            problems.push(at(format!(
+                "'{}' is an input driven by the connection from {from}: the connection sets it \
+                 at every step, so a swept value would have no effect",
+                p.name
+            )));
         }
         let (ty, lo, hi) = match &v.kind {
             VariableKind::Real { attributes, .. } => {
@@ -365,6 +431,46 @@ fn ssd_parameter(loaded: &LoadedSystem, reference: &str) -> Option<f64> {
         })
 }
 
+/// The spec's signal windows that hold no recorded row of a run on `grid` keeping every
+/// `every`-th step (the rows at `grid.time(k * every)`, as the master records them): each
+/// would give NaN with status ok. Refused at the signal's line.
+fn window_problems(spec: &SweepSpec, grid: &crate::time::Grid, every: u64) -> Vec<SpecProblem> {
+    let last = grid.n_steps / every;
+    let time = |k: u64| grid.time(k * every);
+    let mut problems = Vec::new();
+    for s in &spec.signals {
+        let from = s.from.unwrap_or(f64::NEG_INFINITY);
+        let to = s.to.unwrap_or(f64::INFINITY);
+        // The first recorded row at or after `from` (times increase with k).
+        let (mut lo, mut hi) = (0u64, last + 1);
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if time(mid) >= from {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        if lo > last || time(lo) > to {
+            let bound = |b: Option<f64>, open: &str| b.map_or(open.to_string(), |x| format!("{x}"));
+            problems.push(spec.problem(
+                s.line,
+                format!(
+                    "the window [{}, {}] s of '{}' holds no recorded row: the runs record from \
+                     {} s to {} s every {} s",
+                    bound(s.from, "start"),
+                    bound(s.to, "end"),
+                    s.signal,
+                    time(0),
+                    time(last),
+                    grid.step() * every as f64
+                ),
+            ));
+        }
+    }
+    problems
+}
+
 impl Prepared {
     /// An error once the runs' control (`config.control`, the Python package's Ctrl-C) has
     /// stopped: a row that comes after the stop (its run stopped, or it just ended) is not
@@ -389,7 +495,7 @@ impl Prepared {
                 input_files.push(p.clone());
                 if !p.is_file() {
                     return Err(SweepError::Invalid(vec![spec.problem(
-                        1,
+                        spec.system_line,
                         format!("system file {} does not exist", p.display()),
                     )]));
                 }
@@ -408,14 +514,43 @@ impl Prepared {
                 let bench = study::StudyScenario::BenchFull;
                 let scenario =
                     study::gait_scenario(*actuator, bench.gait(), bench.gains(*actuator), *cycles);
-                let path = dir.path().join(format!("{}.ssp", actuator.name()));
-                study::write_ssp(&scenario, fmu_dir, &path).map_err(system_error)?;
+                // A missing directory or FMU is the spec's `fmus` (a usage error at its line),
+                // not an I/O error of writing the scenario.
+                let fmus_line = spec.fmus_line.unwrap_or(spec.system_line);
+                if !fmu_dir.is_dir() {
+                    return Err(SweepError::Invalid(vec![spec.problem(
+                        fmus_line,
+                        format!(
+                            "the FMU directory {} does not exist (export the FMUs with \
+                             `kneebench export --out DIR`)",
+                            fmu_dir.display()
+                        ),
+                    )]));
+                }
+                let mut missing = Vec::new();
                 for c in &scenario.components {
                     let fmu = fmu_dir.join(&c.fmu);
-                    if !input_files.contains(&fmu) {
+                    if !fmu.is_file() {
+                        missing.push(spec.problem(
+                            fmus_line,
+                            format!(
+                                "{} has no {} (the {} scenario's {})",
+                                fmu_dir.display(),
+                                c.fmu,
+                                actuator.name(),
+                                c.name
+                            ),
+                        ));
+                    } else if !input_files.contains(&fmu) {
                         input_files.push(fmu);
                     }
                 }
+                if !missing.is_empty() {
+                    missing.dedup();
+                    return Err(SweepError::Invalid(missing));
+                }
+                let path = dir.path().join(format!("{}.ssp", actuator.name()));
+                study::write_ssp(&scenario, fmu_dir, &path).map_err(system_error)?;
                 (path, Some(dir))
             }
         };
@@ -426,7 +561,11 @@ impl Prepared {
             .components()
             .map(|(n, f)| (n.to_string(), f.model_description().clone()))
             .collect();
-        let mut problems = variable_problems(&mut spec, &|c| descriptions.get(c).cloned());
+        let mut problems = variable_problems(
+            &mut spec,
+            &|c| descriptions.get(c).cloned(),
+            &loaded.ssd.system.connections,
+        );
 
         let mut recorded: Vec<String> = Vec::new();
         let mut metric_names: Vec<String> = Vec::new();
@@ -434,13 +573,11 @@ impl Prepared {
             recorded.extend(Columns::default().names());
             metric_names.extend(STUDY_METRICS.iter().map(|s| s.to_string()));
         }
-        for s in &spec.signals {
+        for (k, s) in spec.signals.iter().enumerate() {
             if !recorded.contains(&s.signal) {
                 recorded.push(s.signal.clone());
             }
-            for st in &s.stats {
-                metric_names.push(format!("{}({})", st.name(), s.signal));
-            }
+            metric_names.extend(super::spec::signal_columns(&spec.signals, k));
         }
         let mut probe = fresh_system(&loaded).map_err(system_error)?;
         for r in &recorded {
@@ -462,7 +599,7 @@ impl Prepared {
         let period = spec.period.or_else(|| ssd_parameter(&loaded, GAIT_PERIOD));
         if spec.study_metrics && period.is_none() && !swept_period {
             problems.push(spec.problem(
-                0,
+                spec.study_line.unwrap_or(spec.system_line),
                 format!(
                     "the study metrics need the gait period: set [metrics] period or {GAIT_PERIOD}"
                 ),
@@ -474,7 +611,14 @@ impl Prepared {
             .with_times(None, spec.stop_time, spec.step);
         config.progress = None;
         match probe.check_config(&config) {
-            Err(e) => problems.push(spec.problem(0, format!("stop_time and step: {e}"))),
+            // The spec's stop_time (or what sets the length) when it gives one, else its step.
+            Err(e) => problems.push(spec.problem(
+                match (spec.stop_time, spec.step_line) {
+                    (None, Some(step)) => step,
+                    _ => spec.length_line,
+                },
+                format!("stop_time and step: {e}"),
+            )),
             // The bound on a run's recorded values (the spec checked it where it tells the
             // length and the step; a system file's experiment is only known here).
             Ok(grid) => {
@@ -495,6 +639,7 @@ impl Prepared {
                     };
                     problems.push(spec.problem(line, message));
                 }
+                problems.extend(window_problems(&spec, &grid, every));
             }
         }
         if !problems.is_empty() {
@@ -535,7 +680,34 @@ impl Prepared {
             .components()
             .map(|(n, f)| (n.to_string(), f.model_description().guid.clone()))
             .collect();
-        let fingerprint = fingerprint(&spec.fingerprint_text(), &design, &guids);
+        let mut files: Vec<PathBuf> = Vec::new();
+        match &spec.system {
+            SystemSource::File(p) => {
+                files.push(p.clone());
+                // A bare .ssd's FMUs and parameter files are beside it (an archive holds its
+                // own, and its bytes are the system file's).
+                if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ssd")) {
+                    let base = p.parent().map(Path::to_path_buf).unwrap_or_default();
+                    for c in &loaded.ssd.system.components {
+                        for r in std::iter::once(&c.source).chain(&c.parameter_sources) {
+                            let f = base.join(r.strip_prefix("./").unwrap_or(r));
+                            if f.is_file() && !files.contains(&f) {
+                                files.push(f);
+                            }
+                        }
+                    }
+                }
+            }
+            SystemSource::Scenario { .. } => {
+                files.extend(input_files.iter().skip(1).cloned());
+            }
+        }
+        let file_digests = files
+            .into_iter()
+            .map(|f| file_digest(&f).map(|d| (f, d)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let digests: Vec<String> = file_digests.iter().map(|(_, d)| d.clone()).collect();
+        let fingerprint = fingerprint(&spec.fingerprint_text(), &design, &guids, &digests);
         let mut metric_units: Vec<String> = Vec::new();
         if spec.study_metrics {
             metric_units.extend(STUDY_METRIC_UNITS.iter().map(|u| u.to_string()));
@@ -555,10 +727,39 @@ impl Prepared {
             metric_units,
             input_files,
             guids,
+            file_digests,
             fingerprint,
             idle: std::sync::Mutex::new(vec![loaded]),
             _dir: dir,
         })
+    }
+
+    /// Refuses an `output` that is one of the sweep's inputs, however spelled: the spec, its
+    /// design CSV, the system file or the scenario's FMUs ([`input_files`](Self::input_files)),
+    /// an `.ssd`'s FMUs and parameter files ([`file_digests`](Self::file_digests)); and so is
+    /// an output whose journal (`<output>.journal`, written first) is one. Every sweep and
+    /// optimisation into a file is checked when it starts (`JournaledSweep::start`, the
+    /// optimisation's start), whatever its entry point: the command line, Python, Dask.
+    pub fn check_output(&self, output: &Path) -> Result<(), SweepError> {
+        let inputs = self
+            .input_files
+            .iter()
+            .chain(self.file_digests.iter().map(|(f, _)| f));
+        let canonical: Vec<(PathBuf, &PathBuf)> = inputs
+            .filter_map(|i| std::fs::canonicalize(i).ok().map(|c| (c, i)))
+            .collect();
+        for out in [output.to_path_buf(), super::journal::journal_path(output)] {
+            let Ok(c) = std::fs::canonicalize(&out) else {
+                continue;
+            };
+            if let Some((_, input)) = canonical.iter().find(|(i, _)| *i == c) {
+                return Err(SweepError::OutputIsInput {
+                    output: out,
+                    input: (*input).clone(),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The table's metadata: the sweep's fingerprint, system, version and FMU GUIDs.
@@ -924,6 +1125,7 @@ impl Prepared {
             }
         }
         let times = results.times();
+        let mut empty = None;
         for s in &self.spec.signals {
             let col = results
                 .column(&s.signal)
@@ -936,6 +1138,12 @@ impl Prepared {
                 .filter(|(t, _)| **t >= from && **t <= to)
                 .map(|(_, v)| *v)
                 .collect();
+            if window.is_empty() && empty.is_none() {
+                empty = Some(format!(
+                    "the window of '{}' (spec line {}) holds no recorded row",
+                    s.signal, s.line
+                ));
+            }
             for st in &s.stats {
                 row.metrics[k] = if window.is_empty() {
                     f64::NAN
@@ -951,7 +1159,9 @@ impl Prepared {
                 k += 1;
             }
         }
-        Ok(())
+        // Checked before the runs (`window_problems`); a run that ended early (tripped) keeps
+        // its own status and message.
+        empty.map_or(Ok(()), Err)
     }
 }
 

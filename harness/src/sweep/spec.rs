@@ -11,8 +11,8 @@
 //! [design]
 //! kind = "latin-hypercube"  # grid, latin-hypercube, sobol, random, csv
 //! points = 20               # all but grid and csv
-//! seed = 7                  # latin-hypercube, sobol, random
-//! # file = "points.csv"     # csv: a header naming the parameters, one row per point
+//! seed = 7                  # latin-hypercube, random; sobol: at most 2^32 - 1
+//! # file = "points.csv"     # csv: a header naming each parameter once, one row per point
 //!
 //! [[parameters]]
 //! name = "plant.springStiffness"
@@ -125,7 +125,7 @@ struct RawParameter {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawMetrics {
-    study: Option<bool>,
+    study: Option<Spanned<bool>>,
     period: Option<Spanned<f64>>,
     #[serde(default)]
     signals: Vec<Spanned<RawSignalMetric>>,
@@ -333,7 +333,8 @@ impl Stat {
 pub struct SignalMetric {
     /// `component.variable`.
     pub signal: String,
-    /// The statistics, each a column `<stat>(<signal>)`.
+    /// The statistics, each a column `<stat>(<signal>)` (with the window when the signal has
+    /// entries of other windows: [`signal_columns`]).
     pub stats: Vec<Stat>,
     /// Window start \[s\] (default: the run's start).
     pub from: Option<f64>,
@@ -375,6 +376,14 @@ pub struct SweepSpec {
     /// 1-based line of `step`, if the spec gives one: a run over [`MAX_RUN_VALUES`] that the
     /// system's own step would have kept within it is refused there.
     pub step_line: Option<usize>,
+    /// 1-based line of `system` (a system file that does not exist is refused there).
+    pub system_line: usize,
+    /// 1-based line of `fmus`, if the spec gives it (a scenario's FMU directory that does not
+    /// exist, or lacks an FMU, is refused there, else at [`system_line`](Self::system_line)).
+    pub fmus_line: Option<usize>,
+    /// 1-based line of `[metrics] study`, if the spec gives it (the study metrics without a
+    /// gait period are refused there, else at [`system_line`](Self::system_line)).
+    pub study_line: Option<usize>,
     /// The spec's text (its fingerprint identifies a sweep's journal).
     pub text: String,
 }
@@ -619,6 +628,34 @@ fn optimize_spec(
     }
 }
 
+/// The metric columns of `signals[k]`, one per statistic: `<stat>(<signal>)`, and when the
+/// same signal has entries of other windows, `<stat>(<signal>)[<from>:<to>]` (a bound left
+/// out is empty: `[:2.5]`, `[2.5:]`, `[:]` for the whole run), so that two windows of a signal
+/// are two columns of their own.
+pub fn signal_columns(signals: &[SignalMetric], k: usize) -> Vec<String> {
+    let s = &signals[k];
+    let windowed = signals
+        .iter()
+        .any(|o| o.signal == s.signal && (o.from, o.to) != (s.from, s.to));
+    let bound = |b: Option<f64>| b.map_or(String::new(), |x| x.to_string());
+    s.stats
+        .iter()
+        .map(|st| {
+            if windowed {
+                format!(
+                    "{}({})[{}:{}]",
+                    st.name(),
+                    s.signal,
+                    bound(s.from),
+                    bound(s.to)
+                )
+            } else {
+                format!("{}({})", st.name(), s.signal)
+            }
+        })
+        .collect()
+}
+
 impl SweepSpec {
     /// The text the sweep's fingerprint covers: the spec's text, with an optimisation's
     /// `generations` value replaced by `*`. The first `g` generations of an optimisation do not
@@ -748,6 +785,21 @@ impl SweepSpec {
             },
             "sobol" => {
                 let n = points(&mut p);
+                // The Sobol scramble takes a 32-bit seed: a larger one was folded into 32 bits,
+                // so seeds 0 and 2^32 + 1 gave the same points.
+                if let Some(s) = &d.seed
+                    && *s.get_ref() > i64::from(u32::MAX)
+                {
+                    p.at(
+                        s.span(),
+                        format!(
+                            "the Sobol design's seed is at most {} (its scramble takes 32 bits), \
+                             not {}",
+                            u32::MAX,
+                            s.get_ref()
+                        ),
+                    );
+                }
                 if n > SOBOL_MAX_POINTS
                     && let Some(at) = &d.points
                 {
@@ -951,7 +1003,7 @@ impl SweepSpec {
 
         let metrics = raw.metrics.as_ref();
         let study_metrics = metrics
-            .and_then(|m| m.study)
+            .and_then(|m| m.study.as_ref().map(|s| *s.get_ref()))
             .unwrap_or(matches!(system, SystemSource::Scenario { .. }));
         let period = positive(&mut p, &metrics.and_then(|m| m.period.clone()), "period");
         // A scenario that sweeps the gait's period runs each point for `cycles` of its own
@@ -1022,6 +1074,7 @@ impl SweepSpec {
             }
         }
         let mut signals = Vec::new();
+        let mut stats_lines = Vec::new();
         for s in metrics.map(|m| m.signals.as_slice()).unwrap_or_default() {
             let r = s.get_ref();
             let mut stats = Vec::new();
@@ -1065,6 +1118,7 @@ impl SweepSpec {
                     format!("window from {a} s is after its end {b} s"),
                 );
             }
+            stats_lines.push(line_of(text, r.stats.span().start));
             signals.push(SignalMetric {
                 signal: r.signal.get_ref().trim().to_string(),
                 stats,
@@ -1072,6 +1126,29 @@ impl SweepSpec {
                 to,
                 line: line_of(text, s.span().start),
             });
+        }
+        // Every metric column once: a statistic given twice for a signal and window (in one
+        // `stats`, or in two entries of the same window) made columns of the same name, which
+        // pyarrow cannot read and pandas keeps one of.
+        let mut seen: Vec<(String, usize)> = Vec::new();
+        for (k, s) in signals.iter().enumerate() {
+            for name in signal_columns(&signals, k) {
+                match seen.iter().find(|(n, _)| *n == name) {
+                    Some((_, first)) => p.list.push(SpecProblem {
+                        file: file.to_path_buf(),
+                        line: stats_lines[k],
+                        message: if *first == s.line {
+                            format!("column '{name}' is given twice in these stats")
+                        } else {
+                            format!(
+                                "column '{name}' is given twice: the signal, statistic and \
+                                 window of line {first}"
+                            )
+                        },
+                    }),
+                    None => seen.push((name, s.line)),
+                }
+            }
         }
         // The runs' recorded values, where the spec tells their length and step (a system
         // file's experiment is checked once it is loaded, in `Prepared::new`): at most
@@ -1112,6 +1189,29 @@ impl SweepSpec {
                 p.at(span, message);
             }
         }
+        // The design's values (points x parameters) within MAX_DESIGN_VALUES, refused at
+        // `points` (the design is made whole before the first run).
+        let max = super::design::max_points(parameters.len());
+        if let (
+            Some(n),
+            DesignKind::LatinHypercube { points, .. }
+            | DesignKind::Sobol { points, .. }
+            | DesignKind::Random { points, .. },
+        ) = (&d.points, &design)
+            && *points > max
+        {
+            p.at(
+                n.span(),
+                format!(
+                    "{points} points of {} parameters are {} values, more than {} (points x \
+                     parameters): at most {max} points of {} parameters",
+                    parameters.len(),
+                    *points as u128 * parameters.len() as u128,
+                    super::design::MAX_DESIGN_VALUES,
+                    parameters.len()
+                ),
+            );
+        }
         let optimize = raw
             .optimize
             .as_ref()
@@ -1138,6 +1238,11 @@ impl SweepSpec {
             optimize,
             length_line,
             step_line,
+            system_line: line_of(text, raw.system.span().start),
+            fmus_line: raw.fmus.as_ref().map(|f| line_of(text, f.span().start)),
+            study_line: metrics
+                .and_then(|m| m.study.as_ref())
+                .map(|s| line_of(text, s.span().start)),
             text: text.to_string(),
         })
     }
@@ -1380,6 +1485,102 @@ from = FROM
                 "points must be at most 10000000, not 20000000".to_string()
             )]
         );
+    }
+
+    /// A metric column given twice (a statistic twice in one `stats`, or two entries of a
+    /// signal with the same window) is refused at the `stats` line; entries of other windows
+    /// are columns named with their window. Before, each made columns of one name.
+    #[test]
+    fn a_metric_column_given_twice_is_refused_at_its_stats_line() {
+        let base = SPEC.replace("from = FROM\n", "");
+        let p = refused(&base.replace("stats = [\"max\"]", "stats = [\"max\", \"max\"]"));
+        assert_eq!(
+            p,
+            [(
+                11,
+                "column 'max(plant.springDeflection)' is given twice in these stats".to_string()
+            )]
+        );
+        let twice = format!(
+            "{base}[[metrics.signals]]\nsignal = \"plant.springDeflection\"\n\
+             stats = [\"mean\", \"max\"]\n"
+        );
+        let p = refused(&twice);
+        assert_eq!(
+            p,
+            [(
+                14,
+                "column 'max(plant.springDeflection)' is given twice: the signal, statistic \
+                 and window of line 9"
+                    .to_string()
+            )]
+        );
+        let s = parse(&format!("{twice}from = 1.0\n")).unwrap();
+        assert_eq!(
+            signal_columns(&s.signals, 0),
+            ["max(plant.springDeflection)[:]"]
+        );
+        assert_eq!(
+            signal_columns(&s.signals, 1),
+            [
+                "mean(plant.springDeflection)[1:]",
+                "max(plant.springDeflection)[1:]"
+            ]
+        );
+    }
+
+    /// A random design's points x parameters beyond MAX_DESIGN_VALUES are refused at `points`,
+    /// naming the bound (10,000,000 points of 20 parameters took 4.3 GB before the first run).
+    #[test]
+    fn a_design_of_too_many_values_is_refused_at_points() {
+        let mut spec = SPEC
+            .replace("from = FROM\n", "")
+            .replace("kind = \"grid\"", "kind = \"random\"\npoints = 10000000");
+        spec = spec.replace("values = [300.0, 400.0]", "min = 300.0\nmax = 400.0");
+        parse(&spec).unwrap();
+        for k in 0..19 {
+            spec.push_str(&format!(
+                "[[parameters]]\nname = \"plant.p{k}\"\nmin = 1.0\nmax = 2.0\n"
+            ));
+        }
+        let p = refused(&spec);
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 6);
+        assert!(
+            p[0].1.starts_with(
+                "10000000 points of 20 parameters are 200000000 values, more than 33554432"
+            ),
+            "{}",
+            p[0].1
+        );
+    }
+
+    /// A Sobol seed beyond 32 bits is refused at its line: it was folded into 32 bits, so
+    /// seeds 0 and 2^32 + 1 gave the same design. Other designs take any 64-bit seed.
+    #[test]
+    fn a_sobol_seed_beyond_32_bits_is_refused_at_its_line() {
+        let spec = SPEC.replace("from = FROM\n", "").replace(
+            "kind = \"grid\"",
+            "kind = \"sobol\"\npoints = 4\nseed = SEED",
+        );
+        let spec = spec.replace("values = [300.0, 400.0]", "min = 300.0\nmax = 400.0");
+        parse(&spec.replace("SEED", "4294967295")).unwrap();
+        let p = refused(&spec.replace("SEED", "4294967297"));
+        assert_eq!(
+            p,
+            [(
+                7,
+                "the Sobol design's seed is at most 4294967295 (its scramble takes 32 bits), \
+                 not 4294967297"
+                    .to_string()
+            )]
+        );
+        parse(
+            &spec
+                .replace("SEED", "4294967297")
+                .replace("\"sobol\"", "\"random\""),
+        )
+        .unwrap();
     }
 
     /// A window that starts after the runs end (a scenario's cycles of the gait, or the
