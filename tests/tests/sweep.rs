@@ -788,7 +788,7 @@ fn a_missing_system_file_is_refused_at_its_line() {
 fn a_stop_time_off_the_grid_is_refused_at_its_line() {
     // A stop time off the 1 ms grid: at stop_time's line.
     let m = refusal(&format!(
-        "{}stop_time = 2.5005\n[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n",
+        "{}stop_time = 5.0005\n[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0]\n",
         HEAD
     ));
     assert_eq!(m.len(), 1, "{m:?}");
