@@ -363,7 +363,7 @@ fn a_sweep_output_that_is_its_design_or_an_fmu_is_refused() {
     std::fs::write(
         &spec,
         format!(
-            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 1\n[design]\nkind = \"csv\"\n\
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 2\n[design]\nkind = \"csv\"\n\
              file = \"points.csv\"\n[[parameters]]\nname = \"plant.springStiffness\"\n",
             fmus.display()
         ),

@@ -575,7 +575,7 @@ mod tests {
     /// once. Rounding the scaled value gave the ends half the weight and made duplicates.
     #[test]
     fn integer_parameters_take_equal_width_bins() {
-        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 1\n[design]\n\
+        let text = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 2\n[design]\n\
                     kind = \"KIND\"\npoints = N\nseed = SEED\n[[parameters]]\n\
                     name = \"plant.configuration\"\nmin = 0.0\nmax = 2.0\n";
         let design = |kind: &str, n: usize, seed: u64| {
