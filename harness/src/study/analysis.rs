@@ -263,6 +263,41 @@ impl ActuatorReport {
     }
 }
 
+/// One column of a run's rows, read in place: the analysis reads most columns at a few rows (an
+/// energy at the window's two ends), so copying every column out of the rows (a strided pass
+/// over all of them each) was most of a sweep point's cost beyond its run.
+struct ColumnOf<'a> {
+    results: &'a Results,
+    /// The column's index in a row (0: time).
+    index: usize,
+}
+
+impl<'a> ColumnOf<'a> {
+    /// The column `name` of `results`, if it has one.
+    fn new(results: &'a Results, name: &str) -> Option<ColumnOf<'a>> {
+        let index = results.names().iter().position(|n| n == name)? + 1;
+        Some(ColumnOf { results, index })
+    }
+
+    /// Every row's value, in order.
+    fn values(&self) -> impl Iterator<Item = f64> + '_ {
+        self.results.rows().map(|r| r[self.index])
+    }
+
+    /// The values of rows `i0..=i1`.
+    fn window(&self, i0: usize, i1: usize) -> Vec<f64> {
+        (i0..=i1).map(|i| self[i]).collect()
+    }
+}
+
+impl std::ops::Index<usize> for ColumnOf<'_> {
+    type Output = f64;
+
+    fn index(&self, row: usize) -> &f64 {
+        &self.results.row(row)[self.index]
+    }
+}
+
 /// Analyses one run with gait period `period`: every complete cycle after the first, which is
 /// the start-up (the gait's fade-in) and is never analysed. A run whose second cycle did not
 /// complete has nothing to analyse: with a trip code in its results (an interlock) its report
@@ -275,19 +310,16 @@ pub fn analyse(
     period: f64,
     columns: &Columns,
 ) -> Result<ActuatorReport, StudyError> {
-    let col = |n: &str| {
-        results
-            .column(n)
-            .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
-    };
+    let col =
+        |n: &str| ColumnOf::new(results, n).ok_or_else(|| StudyError::MissingColumn(n.to_string()));
     let times = results.times();
     let end = times.last().copied().unwrap_or(0.0);
     let complete = ((end + 1e-9) / period).floor() as usize;
     let trip = col(&columns.trip_code)?
-        .iter()
+        .values()
         .zip(&times)
-        .find(|(c, _)| **c != 0.0)
-        .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
+        .find(|(c, _)| *c != 0.0)
+        .map(|(c, t)| (interlock_name(c as i64).to_string(), *t));
     // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
     if complete < 2 {
         return match trip {
@@ -303,14 +335,14 @@ pub fn analyse(
         .collect();
     let (i0, i1) = (rows[0], rows[rows.len() - 1]);
     let reference = col(&columns.reference)?;
-    let errors = |angle: &[f64]| {
+    let errors = |angle: &ColumnOf| {
         let e: Vec<f64> = rows.iter().map(|&i| reference[i] - angle[i]).collect();
         let rms = (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
         (rms, e.iter().fold(0.0f64, |m, x| m.max(x.abs())))
     };
     let (rms_a, max_a) = errors(&col(&columns.actuation_angle)?);
     let (rms_k, max_k) = errors(&col(&columns.load_angle)?);
-    let peak = |c: &[f64]| rows.iter().fold(0.0f64, |m, &i| m.max(c[i].abs()));
+    let peak = |c: &ColumnOf| rows.iter().fold(0.0f64, |m, &i| m.max(c[i].abs()));
     let n = (complete - first) as f64;
     let per_cycle = |name: &str| -> Result<f64, StudyError> {
         let c = col(name)?;
@@ -346,8 +378,8 @@ pub fn analyse(
         all_electrical: per_cycle(&columns.electrical_energy)?,
         kinetic_change,
         potential_change,
-        kinetic_stored: stored_energy(&kinetic, i0, i1) / n,
-        potential_stored: stored_energy(&potential, i0, i1) / n,
+        kinetic_stored: stored_energy(&kinetic.window(i0, i1), 0, i1 - i0) / n,
+        potential_stored: stored_energy(&potential.window(i0, i1), 0, i1 - i0) / n,
         balance_residual: test_mechanical + load_mechanical + drive_loss + load_loss
             - kinetic_change
             - potential_change,
