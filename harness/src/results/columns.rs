@@ -94,7 +94,9 @@ impl Columns {
         };
         let len = width.checked_mul(stride).ok_or_else(out_of_memory)?;
         let mut values = zeroed(len).ok_or_else(out_of_memory)?;
-        for j in 0..width.min(self.values.len() / self.stride.max(1)) {
+        // Before `begin` has sized it there is nothing to move.
+        let filled = if self.stride == 0 { 0 } else { width };
+        for j in 0..filled {
             let from = j * self.stride;
             values[j * stride..j * stride + self.rows]
                 .copy_from_slice(&self.values[from..from + self.rows]);

@@ -443,12 +443,17 @@ impl Results {
 
     /// A column by name (`"time"` gives the time column).
     pub fn column(&self, name: &str) -> Option<Vec<f64>> {
-        let j = if name == "time" {
-            0
-        } else {
-            self.names.iter().position(|n| n == name)? + 1
-        };
+        let j = self.column_index(name)?;
         Some(self.rows().map(|r| r[j]).collect())
+    }
+
+    /// The index of column `name` in a [`row`](Self::row) (0: `time`), to read it in place.
+    pub fn column_index(&self, name: &str) -> Option<usize> {
+        if name == "time" {
+            Some(0)
+        } else {
+            Some(self.names.iter().position(|n| n == name)? + 1)
+        }
     }
 
     /// Keeps only the named columns, in the given order.

@@ -275,7 +275,7 @@ struct ColumnOf<'a> {
 impl<'a> ColumnOf<'a> {
     /// The column `name` of `results`, if it has one.
     fn new(results: &'a Results, name: &str) -> Option<ColumnOf<'a>> {
-        let index = results.names().iter().position(|n| n == name)? + 1;
+        let index = results.column_index(name)?;
         Some(ColumnOf { results, index })
     }
 
