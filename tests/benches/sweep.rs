@@ -420,8 +420,10 @@ fn writers(dir: &Path, p: &Prepared) {
     );
 }
 
+/// Pushes `results` into `sink` as `System::run` does: begun, the rows announced, each row.
 fn write(results: &Results, sink: &mut dyn ResultSink) {
     sink.begin(results.names(), results.kinds()).unwrap();
+    sink.expect_rows(results.len() as u64);
     for row in results.rows() {
         sink.push_row(row[0], &row[1..]).unwrap();
     }

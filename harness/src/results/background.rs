@@ -68,8 +68,15 @@ pub(super) struct Background<E: BlockEncoder> {
 
 impl<E: BlockEncoder> Background<E> {
     /// Starts the thread `name` with `encoder`; the encoder comes back if the thread cannot
-    /// start (the caller may then do the work itself).
-    pub(super) fn spawn(encoder: E, name: &str) -> Result<Background<E>, (E, io::Error)> {
+    /// start (the caller may then do the work itself). `prepare`, if given, makes an empty
+    /// block on the thread before anything else, returned as a written one would be
+    /// ([`spare`](Self::spare)): the memory's first touch (zeroing, page faults) is then the
+    /// thread's, while the caller fills its own block.
+    pub(super) fn spawn(
+        encoder: E,
+        name: &str,
+        prepare: Option<Box<dyn FnOnce() -> E::Block + Send>>,
+    ) -> Result<Background<E>, (E, io::Error)> {
         // Rendezvous: a handover waits until the thread takes the block.
         let (jobs, job_rx) = sync_channel::<Job<E::Block>>(0);
         let (spare_tx, spare) = channel();
@@ -82,6 +89,9 @@ impl<E: BlockEncoder> Background<E> {
                 let Ok(mut encoder) = encoder_rx.recv() else {
                     return Ok(());
                 };
+                if let Some(make) = prepare {
+                    spare_tx.send(make()).ok();
+                }
                 for job in job_rx {
                     match job {
                         Job::Block(mut b) => {
@@ -126,7 +136,7 @@ impl<E: BlockEncoder> Background<E> {
             .is_some_and(|jobs| jobs.send(Job::Block(block)).is_ok())
     }
 
-    /// A block the thread has written and emptied, if one is back.
+    /// A block the thread has written and emptied (or prepared), if one is back.
     pub(super) fn spare(&self) -> Option<E::Block> {
         self.spare.try_recv().ok()
     }

@@ -22,7 +22,12 @@
 //! (on two cores the simulation and the writer overlap); [`EncodeOn::Caller`] encodes in the
 //! [`push_row`](ResultSink::push_row) that fills a group. Both write the same bytes (tested).
 //! The handover waits until the thread takes the group (at most one group encoding while one
-//! fills: the memory of two groups), and the emptied buffers come back for the next group. An
+//! fills: the memory of two groups), and the emptied buffers come back for the next group.
+//! The thread starts when it is first needed: a run that announces more rows than a group
+//! holds ([`expect_rows`](ResultSink::expect_rows)) starts it before its first row, and it
+//! makes and faults in the second group's buffer while the run fills the first; otherwise
+//! the first full group starts it; a file closed before its first group is full is encoded by
+//! the caller, with no thread (and should a thread fail to start, the caller encodes). An
 //! error of the thread (a full disk) is returned by the next handover, and by
 //! [`commit`](ParquetFile::commit) or [`keep_partial`](ParquetFile::keep_partial): never
 //! lost; a panic of the thread is an error too.
@@ -82,34 +87,83 @@ pub const ROW_GROUP_ROWS: usize = 8192;
 /// encoder reads each column as one contiguous slice. Growing one `Vec` per column instead
 /// cost a length and capacity check per value: 12.6 instructions per value against about 4
 /// (callgrind, the writers bench), on the simulation's thread.
+///
+/// A group takes [`ROW_GROUP_ROWS`] rows, or fewer when the run has announced fewer rows than
+/// that still to come ([`group_rows`]): a short run's buffer, and the last group's, take the
+/// memory (and the kernel's zeroing) of the rows they will hold. Where the groups end depends
+/// on the rows announced and pushed alone, never on which buffer is reused, so the writer
+/// thread and the caller write the same groups.
 struct Group {
-    /// `width` columns of [`COLUMN_STRIDE`] slots, of which the first `rows` are filled.
+    /// `width` columns of [`stride`](Self::stride) slots, of which the first `rows` are filled.
     values: ColumnBuffer,
     width: usize,
+    /// Rows a column of the buffer holds (none before it is made).
+    capacity: usize,
+    /// Rows this group takes (at most `capacity`): it is full at this many.
+    limit: usize,
     rows: usize,
 }
 
-/// Slots per column in a [`Group`]'s buffer: a column's capacity and a cache line more, so
-/// that the columns do not start 64 KiB apart, where the stores of one row would all fall in
+/// The rows a group begun once `pushed` rows are in takes: [`ROW_GROUP_ROWS`], or fewer if
+/// the run `announced` fewer still to come (past the announced rows, a full group again).
+fn group_rows(announced: Option<u64>, pushed: u64) -> usize {
+    match announced {
+        Some(rows) if rows > pushed => (rows - pushed).min(ROW_GROUP_ROWS as u64) as usize,
+        _ => ROW_GROUP_ROWS,
+    }
+}
+
+/// Slots past a column's capacity in a [`Group`]'s buffer, a cache line: so that the columns
+/// of a full group do not start 64 KiB apart, where the stores of one row would all fall in
 /// the same cache set and evict each other.
-const COLUMN_STRIDE: usize = ROW_GROUP_ROWS + 8;
+const COLUMN_PADDING: usize = 8;
 
 impl Group {
-    /// An empty group of `width` columns (`time` included), its buffer allocated in full (on
-    /// huge pages when it is big: [`ColumnBuffer`]).
-    fn new(width: usize) -> Group {
+    /// An empty group of `width` columns (`time` included) of `capacity` rows, its buffer
+    /// allocated in full (on huge pages when it is big: [`ColumnBuffer`]).
+    fn new(width: usize, capacity: usize) -> Group {
         Group {
-            values: ColumnBuffer::zeroed(width * COLUMN_STRIDE),
+            values: ColumnBuffer::zeroed(width * (capacity + COLUMN_PADDING)),
             width,
+            capacity,
+            limit: capacity,
             rows: 0,
         }
     }
 
-    /// Stores a row (`values.len() + 1 == width`, checked by the caller) in the next slot.
+    /// An empty group of `width` columns taking `limit` rows: `reuse`'s buffer if it is one
+    /// of as many columns and holds as many rows, else a new one.
+    fn begun(reuse: Option<Group>, width: usize, limit: usize) -> Group {
+        match reuse {
+            Some(mut group) if group.width == width && group.capacity >= limit => {
+                group.limit = limit;
+                group.rows = 0;
+                group
+            }
+            _ => Group::new(width, limit),
+        }
+    }
+
+    /// A group of `width` columns whose buffer is not made yet (full at once).
+    fn unmade(width: usize) -> Group {
+        Group {
+            width,
+            ..Group::default()
+        }
+    }
+
+    /// Slots per column in the buffer.
+    fn stride(&self) -> usize {
+        self.capacity + COLUMN_PADDING
+    }
+
+    /// Stores a row (`values.len() + 1 == width`, checked by the caller) in the next slot
+    /// (the group is not full, checked by the caller).
     #[inline]
     fn push(&mut self, time: f64, values: &[f64]) {
         let row = self.rows;
-        let mut columns = self.values.chunks_exact_mut(COLUMN_STRIDE);
+        let stride = self.stride();
+        let mut columns = self.values.chunks_exact_mut(stride);
         if let Some(time_column) = columns.next() {
             time_column[row] = time;
         }
@@ -120,7 +174,7 @@ impl Group {
     }
 
     fn is_full(&self) -> bool {
-        self.rows >= ROW_GROUP_ROWS
+        self.rows >= self.limit
     }
 }
 
@@ -130,6 +184,8 @@ impl Default for Group {
         Group {
             values: ColumnBuffer::default(),
             width: 0,
+            capacity: 0,
+            limit: 0,
             rows: 0,
         }
     }
@@ -251,17 +307,19 @@ impl Encoder {
         // The buffer is lent to the pages (no copy) and taken back once they are written;
         // the page writer keeps none of them, so the buffer is never shared by then.
         let buffer = Arc::new(std::mem::take(&mut group.values));
-        let written = self.write_row_group(&buffer, rows);
+        let written = self.write_row_group(&buffer, group.stride(), rows);
         group.values =
             Arc::try_unwrap(buffer).unwrap_or_else(|shared| ColumnBuffer::on_heap(shared.to_vec()));
         written.map_err(|e| io_error(&self.partial, e))?;
         self.start_writeback()
     }
 
-    /// Writes the first `rows` of each column of `buffer` as the next row group.
+    /// Writes the first `rows` of each column of `buffer` (`stride` slots per column) as the
+    /// next row group.
     fn write_row_group(
         &mut self,
         buffer: &Arc<ColumnBuffer>,
+        stride: usize,
         rows: usize,
     ) -> Result<(), ParquetError> {
         let ordinal = i32::try_from(self.row_groups.len())
@@ -271,7 +329,7 @@ impl Encoder {
         let schema = Arc::clone(&self.schema);
         let mut closed = Vec::with_capacity(schema.num_columns());
         for (i, descr) in schema.columns().iter().enumerate() {
-            let start = i * COLUMN_STRIDE;
+            let start = i * stride;
             let values = &buffer[start..start + rows];
             closed.push(if i > 0 && cfg!(target_endian = "little") {
                 match dictionary_of(values) {
@@ -552,7 +610,9 @@ impl BlockEncoder for Encoder {
 enum Writer {
     /// [`EncodeOn::Caller`] (boxed: the crate's writer is large, and the file moves).
     Caller(Box<Encoder>),
-    /// [`EncodeOn::Thread`].
+    /// [`EncodeOn::Thread`] before its thread is started (see the module documentation).
+    Idle(Box<Encoder>),
+    /// [`EncodeOn::Thread`], started.
     Thread(Background<Encoder>),
     /// Closed, or failed: the error was returned once; later calls get this message.
     Done(Option<String>),
@@ -568,10 +628,8 @@ pub struct ParquetFile {
     writer: Option<Writer>,
     /// The row group being filled: `time`, then one buffer per column.
     columns: Group,
-    /// The second group's buffer, made before the run when it announces more rows than one
-    /// group holds ([`expect_rows`](ResultSink::expect_rows)), so that the first handover
-    /// to the writer thread allocates nothing.
-    spare: Option<Group>,
+    /// The rows the run announced ([`expect_rows`](ResultSink::expect_rows)), if it did.
+    announced: Option<u64>,
     metadata: Vec<(String, String)>,
     rows: u64,
 }
@@ -611,7 +669,7 @@ impl ParquetFile {
             file: Some(file),
             writer: None,
             columns: Group::default(),
-            spare: None,
+            announced: None,
             metadata: Vec::new(),
             rows: 0,
         })
@@ -632,36 +690,46 @@ impl ParquetFile {
         self.rows
     }
 
+    /// The rows the group begun now takes ([`group_rows`]).
+    fn next_group_rows(&self) -> usize {
+        group_rows(self.announced, self.rows)
+    }
+
     fn err(&self, e: impl std::error::Error + Send + Sync + 'static) -> ResultsError {
         io_error(&self.partial, e)
     }
 
     /// Writes the row group filled so far (a full one, in [`push_row`](ResultSink::push_row)).
     fn write_group(&mut self) -> Result<(), ResultsError> {
+        self.start_thread(None);
+        let (width, limit) = (self.columns.width, self.next_group_rows());
         match self.writer.as_mut() {
             Some(Writer::Caller(encoder)) => {
                 let result = encoder.write_group(&mut self.columns);
-                if let Err(e) = &result {
+                match &result {
                     // The group is lost either way (the file is unusable past a failed
                     // write): its buffers are emptied as the thread's path leaves them.
-                    self.columns.rows = 0;
-                    self.writer = Some(Writer::Done(Some(e.to_string())));
+                    Err(e) => {
+                        self.columns.rows = 0;
+                        self.writer = Some(Writer::Done(Some(e.to_string())));
+                    }
+                    Ok(()) => {
+                        let written = std::mem::take(&mut self.columns);
+                        self.columns = Group::begun(Some(written), width, limit);
+                    }
                 }
                 result
             }
             Some(Writer::Thread(background)) => {
                 // A written group's buffers, else new ones.
-                let width = self.columns.width;
                 if background.send(std::mem::take(&mut self.columns)) {
-                    // The thread has taken the group: the one before is back (or this is
-                    // the first), so two groups are all the memory there is.
-                    self.columns = background
-                        .spare()
-                        .or_else(|| self.spare.take())
-                        .unwrap_or_else(|| Group::new(width));
+                    // The thread has taken the group: the one before is back (or the one it
+                    // made, or none: this is the first), so two groups are all the memory
+                    // there is.
+                    self.columns = Group::begun(background.spare(), width, limit);
                     return Ok(());
                 }
-                self.columns = Group::new(width);
+                self.columns = Group::unmade(width);
                 // The thread ended: its error.
                 let Some(Writer::Thread(background)) = self.writer.take() else {
                     unreachable!("matched above")
@@ -673,7 +741,36 @@ impl ParquetFile {
             Some(Writer::Done(error)) => {
                 Err(closed_error(&self.partial, "Parquet", error.as_deref()))
             }
+            Some(Writer::Idle(_)) => unreachable!("started above"),
             None => Ok(()),
+        }
+    }
+
+    /// Starts the writer thread of an [`Writer::Idle`] file, which first makes the group
+    /// `prepare` gives, if any. A thread that cannot start leaves the caller encoding.
+    fn start_thread(&mut self, prepare: Option<Box<dyn FnOnce() -> Group + Send>>) {
+        if !matches!(self.writer, Some(Writer::Idle(_))) {
+            return;
+        }
+        let Some(Writer::Idle(encoder)) = self.writer.take() else {
+            unreachable!("matched above")
+        };
+        self.writer = Some(
+            match Background::spawn(*encoder, "parquet-writer", prepare) {
+                Ok(background) => Writer::Thread(background),
+                Err((encoder, _)) => Writer::Caller(Box::new(encoder)),
+            },
+        );
+    }
+
+    /// Room for the next row in a full group: the group's buffer made if it is not yet, else
+    /// the group written and a new one begun.
+    fn make_room(&mut self) -> Result<(), ResultsError> {
+        if self.columns.capacity == 0 {
+            self.columns = Group::new(self.columns.width, self.next_group_rows());
+            Ok(())
+        } else {
+            self.write_group()
         }
     }
 
@@ -685,7 +782,7 @@ impl ParquetFile {
         }
         let last = std::mem::take(&mut self.columns);
         match self.writer.replace(Writer::Done(None)) {
-            Some(Writer::Caller(mut encoder)) => {
+            Some(Writer::Caller(mut encoder) | Writer::Idle(mut encoder)) => {
                 let mut last = last;
                 encoder.write_group(&mut last)?;
                 encoder.finish()
@@ -789,15 +886,10 @@ impl ResultSink for ParquetFile {
         )?;
         self.writer = Some(match self.encode_on {
             EncodeOn::Caller => Writer::Caller(Box::new(encoder)),
-            EncodeOn::Thread => Writer::Thread(
-                Background::spawn(encoder, "parquet-writer").map_err(|(_, e)| {
-                    self.err(io::Error::other(format!(
-                        "starting the Parquet writer thread: {e}"
-                    )))
-                })?,
-            ),
+            EncodeOn::Thread => Writer::Idle(Box::new(encoder)),
         });
-        self.columns = Group::new(names.len() + 1);
+        // Made for the rows the run announces, or at its first row.
+        self.columns = Group::unmade(names.len() + 1);
         Ok(())
     }
 
@@ -809,11 +901,11 @@ impl ResultSink for ParquetFile {
                 got: values.len(),
             });
         }
+        if self.columns.is_full() {
+            self.make_room()?;
+        }
         self.columns.push(time, values);
         self.rows += 1;
-        if self.columns.is_full() {
-            self.write_group()?;
-        }
         Ok(())
     }
 
@@ -821,15 +913,26 @@ impl ResultSink for ParquetFile {
         Ok(())
     }
 
-    /// A run of more rows than one group holds gets the writer thread's second buffer now,
-    /// before its first step, so that handing the first group over allocates nothing.
+    /// A run of more rows than one group holds starts the writer thread now, before its
+    /// first step, and the thread makes and faults in the second group's buffer while the
+    /// run fills the first: handing the first group over then allocates nothing, and the
+    /// run's thread never waits for the kernel to zero it.
+    ///
+    /// The groups are made for the rows announced: a run of fewer rows than a group holds,
+    /// and its last group, take the memory of their rows alone.
     fn expect_rows(&mut self, rows: u64) {
-        if rows > ROW_GROUP_ROWS as u64
-            && self.encode_on == EncodeOn::Thread
-            && self.spare.is_none()
-            && self.columns.width > 0
-        {
-            self.spare = Some(Group::new(self.columns.width));
+        let width = self.columns.width;
+        if width == 0 || self.announced.is_some() {
+            return;
+        }
+        self.announced = Some(rows.saturating_add(self.rows));
+        if self.columns.capacity == 0 {
+            self.columns = Group::new(width, self.next_group_rows());
+        }
+        let second = self.rows + self.columns.limit as u64;
+        if self.announced > Some(second) {
+            let rows = group_rows(self.announced, second);
+            self.start_thread(Some(Box::new(move || Group::new(width, rows))));
         }
     }
 }
@@ -882,17 +985,32 @@ mod thread_tests {
     use crate::results::test_rows::row;
 
     fn write(path: &Path, encode_on: EncodeOn, rows: usize, columns: usize, commit: bool) {
+        write_announced(path, encode_on, rows, columns, commit, true);
+    }
+
+    /// [`write`], the rows announced first as the master does (`announce`) or not (a
+    /// library caller may not).
+    fn write_announced(
+        path: &Path,
+        encode_on: EncodeOn,
+        rows: usize,
+        columns: usize,
+        commit: bool,
+        announce: bool,
+    ) {
         let mut f = ParquetFile::create_encoding_on(path, encode_on).unwrap();
         f.set_metadata(vec![("kneebench.system".into(), "test".into())]);
         let names: Vec<String> = (0..columns).map(|c| format!("c{c}")).collect();
         f.begin(&names, &vec![ColumnKind::Real; columns]).unwrap();
-        // As the master announces them: a run of more than a group takes the thread's
-        // second buffer now.
-        f.expect_rows(rows as u64);
+        if announce {
+            // A run of more than a group starts the writer thread now, which makes the
+            // second buffer.
+            f.expect_rows(rows as u64);
+        }
         assert_eq!(
-            f.spare.is_some(),
-            encode_on == EncodeOn::Thread && rows > ROW_GROUP_ROWS,
-            "{rows} rows, {encode_on:?}"
+            matches!(f.writer, Some(Writer::Thread(_))),
+            announce && encode_on == EncodeOn::Thread && rows > ROW_GROUP_ROWS,
+            "{rows} rows, {encode_on:?}, announced {announce}"
         );
         for k in 0..rows {
             let (t, v) = row(k, columns);
@@ -902,6 +1020,63 @@ mod thread_tests {
             f.commit().unwrap();
         } else {
             f.keep_partial().unwrap();
+        }
+    }
+
+    /// The groups are made for the rows announced (a short run's group and the last group
+    /// take the memory of their rows alone), and a run going on past the rows it announced
+    /// still writes every row, in full groups again.
+    #[test]
+    fn groups_are_made_for_the_rows_announced() {
+        use parquet::file::reader::{FileReader, SerializedFileReader};
+        use parquet::record::RowAccessor;
+        let dir = tempfile::tempdir().unwrap();
+        let begun = |encode_on, announced: u64| {
+            let name = format!("{encode_on:?}-{announced}.parquet");
+            let mut f = ParquetFile::create_encoding_on(&dir.path().join(name), encode_on).unwrap();
+            f.begin(&["x".to_string()], &[ColumnKind::Real]).unwrap();
+            f.expect_rows(announced);
+            f
+        };
+        for encode_on in [EncodeOn::Thread, EncodeOn::Caller] {
+            let f = begun(encode_on, 100);
+            assert_eq!((f.columns.capacity, f.columns.limit), (100, 100));
+            assert_eq!(f.columns.values.len(), 2 * (100 + COLUMN_PADDING));
+
+            let mut f = begun(encode_on, ROW_GROUP_ROWS as u64 + 17);
+            assert_eq!(f.columns.capacity, ROW_GROUP_ROWS);
+            for k in 0..=ROW_GROUP_ROWS {
+                f.push_row(k as f64, &[1.0]).unwrap();
+            }
+            // The caller reuses its buffer; the thread made one for the last group's rows.
+            let capacity = if encode_on == EncodeOn::Thread {
+                17
+            } else {
+                ROW_GROUP_ROWS
+            };
+            assert_eq!((f.columns.capacity, f.columns.limit), (capacity, 17));
+
+            // 10 announced, 25 pushed: groups of 10 then a full one.
+            let mut f = begun(encode_on, 10);
+            for k in 0..25 {
+                f.push_row(k as f64, &[k as f64]).unwrap();
+            }
+            assert_eq!(f.columns.limit, ROW_GROUP_ROWS, "{encode_on:?}");
+            let path = f.commit().unwrap();
+            let file = SerializedFileReader::new(File::open(&path).unwrap()).unwrap();
+            let groups: Vec<i64> = file
+                .metadata()
+                .row_groups()
+                .iter()
+                .map(RowGroupMetaData::num_rows)
+                .collect();
+            assert_eq!(groups, [10, 15], "{encode_on:?}");
+            let read: Vec<f64> = file
+                .get_row_iter(None)
+                .unwrap()
+                .map(|r| r.unwrap().get_double(1).unwrap())
+                .collect();
+            assert_eq!(read, (0..25).map(f64::from).collect::<Vec<_>>());
         }
     }
 
@@ -922,7 +1097,7 @@ mod thread_tests {
             );
             usage.ru_minflt
         };
-        if !Group::new(102).values.is_populated() {
+        if !Group::new(102, ROW_GROUP_ROWS).values.is_populated() {
             eprintln!("skipped: this kernel does not populate a mapping on request");
             return;
         }
@@ -945,19 +1120,25 @@ mod thread_tests {
 
     /// The writer thread's file equals the caller's encoding of the same rows byte for byte
     /// (so every value reads back with the same bits), committed or kept partial, for full row
-    /// groups, a short last one, and no row at all.
+    /// groups, a short last one, and no row at all; the thread started before the first row
+    /// (the rows announced) or by the first full group (not announced), or never (fewer
+    /// rows than a group).
     #[test]
     fn the_writer_thread_writes_the_callers_bytes() {
         let dir = tempfile::tempdir().unwrap();
-        for (rows, commit) in [
-            (3 * ROW_GROUP_ROWS + 17, true),
-            (2 * ROW_GROUP_ROWS, false),
-            (5, true),
-            (0, true),
+        for (rows, commit, announce) in [
+            (3 * ROW_GROUP_ROWS + 17, true, true),
+            (3 * ROW_GROUP_ROWS + 17, true, false),
+            (2 * ROW_GROUP_ROWS, false, true),
+            (2 * ROW_GROUP_ROWS, false, false),
+            (ROW_GROUP_ROWS, true, true),
+            (ROW_GROUP_ROWS + 17, true, true),
+            (5, true, true),
+            (0, true, true),
         ] {
             let thread = dir.path().join("thread.parquet");
             let caller = dir.path().join("caller.parquet");
-            write(&thread, EncodeOn::Thread, rows, 13, commit);
+            write_announced(&thread, EncodeOn::Thread, rows, 13, commit, announce);
             write(&caller, EncodeOn::Caller, rows, 13, commit);
             let read = |p: &Path| {
                 let p = if commit {
@@ -968,7 +1149,10 @@ mod thread_tests {
                 std::fs::read(p).unwrap()
             };
             let (a, b) = (read(&thread), read(&caller));
-            assert!(a.len() > 8 && a == b, "{rows} rows, commit {commit}");
+            assert!(
+                a.len() > 8 && a == b,
+                "{rows} rows, commit {commit}, announced {announce}"
+            );
         }
     }
 
@@ -1032,7 +1216,10 @@ mod thread_tests {
         // 101 signals take a buffer mapped on huge pages (the fast path), the 3 of
         // `the_writer_thread_keeps_every_bit` one on the heap.
         #[cfg(target_os = "linux")]
-        assert!(Group::new(102).values.is_mapped() && !Group::new(4).values.is_mapped());
+        assert!(
+            Group::new(102, ROW_GROUP_ROWS).values.is_mapped()
+                && !Group::new(4, ROW_GROUP_ROWS).values.is_mapped()
+        );
         let dir = tempfile::tempdir().unwrap();
         for rows in [2 * ROW_GROUP_ROWS + 1000, 7] {
             let plain = dir.path().join("plain.parquet");
@@ -1200,14 +1387,15 @@ mod thread_tests {
 
     /// A write that fails on the writer thread is returned by the handover of the next row
     /// group (the first group's write fails; the caller learns it when it hands over the
-    /// second), in the caller's thread by the push that fills the first; then every later
-    /// call, the commit included, is an error too: never an Ok over lost rows.
+    /// second), in the caller's thread by the push of the row after the first group's last
+    /// (a full group is written when the next row needs its room); then the commit is an
+    /// error too: never an Ok over lost rows.
     #[test]
     fn a_failed_write_is_returned_never_lost() {
         let dir = tempfile::tempdir().unwrap();
         for (encode_on, failing_group) in [(EncodeOn::Thread, 2), (EncodeOn::Caller, 1)] {
             let mut f = full_disk(dir.path(), encode_on, 3);
-            let failing_row = failing_group * ROW_GROUP_ROWS - 1;
+            let failing_row = failing_group * ROW_GROUP_ROWS;
             for k in 0..failing_row {
                 f.push_row(k as f64, &[1.0, 2.0, 3.0]).unwrap();
             }
