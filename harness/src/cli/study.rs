@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use kneebench_harness::bench_protocol::Key;
 use kneebench_harness::master::Value;
 use kneebench_harness::params::ParamsError;
 use kneebench_harness::study::{
@@ -202,6 +203,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             StudyError::BenchParameter(m) => super::Usage(format!("--bench-param {m}")).into(),
             e => anyhow::Error::from(e),
         })?);
+    }
+    // The bench's key file, read as the bench link will read it: a file it would refuse (one
+    // others may read, a key that is no secret, none at all) is a usage error, as for `emulate
+    // --key`, before anything runs (each run failed on it, exit code 1, after the scenario
+    // and its report were written).
+    if let Some(key) = a.bench.as_ref().and(a.key.as_ref()) {
+        Key::load_file(key).map_err(|e| super::Usage(format!("--key {e}")))?;
     }
     let mut all = Vec::new();
     for study in &checked {
