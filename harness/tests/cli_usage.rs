@@ -924,6 +924,22 @@ fn unknown_names_and_missing_inputs_are_usage_errors() {
             &["study", "--fmus", missing, "--actuators", "foo"],
             &["unknown actuator 'foo' (da, sea, csea)"],
         ),
+        // An actuator or a scenario given twice (however spelled): the actuator was run once,
+        // the scenario twice, without a word.
+        (
+            &["study", "--fmus", missing, "--actuators", "SEA,csea,sea"],
+            &["--actuators: SEA is given twice"],
+        ),
+        (
+            &[
+                "study",
+                "--fmus",
+                missing,
+                "--scenario",
+                "bench-full,Bench-Full",
+            ],
+            &["--scenario: bench-full is given twice"],
+        ),
         // The one scenario chosen has none of the actuators (it wrote an empty section).
         (
             &[

@@ -281,13 +281,18 @@ def study(
     ``scenario`` is ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg,
     SEA/CSEA under impedance control: it has no DA). ``actuators`` is a list of the
     scenario's actuators (default, ``None``: all of the scenario's; a single ``str``, an
-    empty list or an actuator the scenario lacks raises). ``cycles`` is the gait cycles per
-    run, at least 2: the first, the start-up (the gait fades in), is not analysed, the
-    metrics are per cycle over the others. ``df.attrs["units"]`` maps each
-    column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
-    run at its next communication point and raises KeyboardInterrupt."""
+    empty list, an actuator the scenario lacks or one named twice, however spelled, raises).
+    ``cycles`` is the gait cycles per run, at least 2: the first, the start-up (the gait fades
+    in), is not analysed, the metrics are per cycle over the others. ``df.attrs["units"]``
+    maps each column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the
+    running run at its next communication point and raises KeyboardInterrupt."""
     # None: the scenario's own actuators (the harness knows them).
     names = _names("actuators", actuators)
+    if names is not None:
+        folded = [n.casefold() for n in names]
+        twice = [n for k, n in enumerate(names) if n.casefold() in folded[:k]]
+        if twice:
+            raise ValueError(f"actuators names {twice[0]!r} more than once (each runs once)")
     cycles = _at_least_one("cycles", cycles)
     if cycles is not None and cycles < 2:
         raise ValueError(

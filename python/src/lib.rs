@@ -433,6 +433,9 @@ fn study<'py>(
             .into_iter()
             .find(|x| x.name().eq_ignore_ascii_case(a))
             .ok_or_else(|| err(format!("unknown actuator '{a}' (DA, SEA, CSEA)")))?;
+        if list.contains(&found) {
+            return Err(err(format!("actuator {} given twice", found.name())));
+        }
         if !study_scenario.actuators().contains(&found) {
             return Err(err(format!(
                 "the {scenario} scenario has no {} (its actuators: {})",

@@ -129,6 +129,11 @@ def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Pat
         kneebench.study(fmus, tmp_path, actuators="SEA", cycles=2)
     with pytest.raises(ValueError, match="actuators is empty"):
         kneebench.study(fmus, tmp_path, actuators=[], cycles=2)
+    # Named twice, however spelled: it ran once, without a word.
+    with pytest.raises(ValueError, match="actuators names 'sea' more than once"):
+        kneebench.study(fmus, tmp_path, actuators=["SEA", "CSEA", "sea"], cycles=2)
+    with pytest.raises(KneebenchError, match="actuator SEA given twice"):
+        kneebench._native.study(fmus, tmp_path, ["SEA", "sea"], 2, 1.0, "bench-full")
     with pytest.raises(ValueError, match="cycles must be >= 1"):
         kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=-1)
     # One cycle is the start-up alone, which is not analysed (it was, silently).
