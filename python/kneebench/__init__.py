@@ -194,8 +194,10 @@ def run(
     is a number, a bool or a str (an item's name for an Enumeration); numpy scalars are
     numbers too (``numpy.float64``, ``numpy.int64``, ``numpy.bool_``), and a whole-number
     float is taken by an Integer or Enumeration variable (``1.0``, as a sweep table's Integer
-    column holds it; ``1.5`` raises KneebenchError). ``variables`` (a list of names; a single
-    ``str``, an empty list or a name given twice raises) chooses the recorded columns
+    column holds it; ``1.5`` raises KneebenchError). A String variable takes a ``str`` only:
+    a number or a bool for one raises KneebenchError (``1.0`` was set as the text ``"1"``).
+    ``variables`` (a list of names; a single ``str``, an empty list or a name given twice
+    raises) chooses the recorded columns
     (default, ``None``: every output). ``stop_time`` and ``step`` default to the FMU's or the
     system's DefaultExperiment (an FMU's tolerance is passed to ``fmi2SetupExperiment``, as
     ``kneebench run`` does). The DataFrame has a ``time`` column [s] and one float64
@@ -234,7 +236,12 @@ def run(
             raise ValueError(f"variables names {', '.join(map(repr, twice))} more than once")
     if as_arrow:
         pa = _pyarrow()
-    p = [(k, _text(v)) for k, v in (params or {}).items()]
+    # Each value's text, and whether it was a number or a bool (a String variable refuses one:
+    # 1.0 would be set as the text "1").
+    p = [
+        (k, _text(v), isinstance(v, (bool, np.bool_, numbers.Real)))
+        for k, v in (params or {}).items()
+    ]
     r = _native.run(
         os.fspath(system),
         p,

@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 
-use kneebench_harness::master::{Outcome, RunConfig, RunControl, System};
+use kneebench_harness::master::{Outcome, RunConfig, RunControl, System, Value};
 use kneebench_harness::results::columns::{ColumnMajor, Columns};
 use kneebench_harness::study::{
     Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
@@ -225,7 +225,7 @@ fn fmu_problems(fmu: &Fmu) -> Vec<String> {
 #[allow(clippy::too_many_arguments)]
 fn run_inner(
     system: PathBuf,
-    params: Vec<(String, String)>,
+    params: Vec<(String, String, bool)>,
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,
@@ -262,8 +262,19 @@ fn run_inner(
             n.to_string()
         }
     };
-    for (name, value) in &params {
-        sys.set_value_str(&prefix(name), value)
+    for (name, value, number) in &params {
+        let reference = prefix(name);
+        let parsed = sys
+            .parse_value_str(&reference, value)
+            .map_err(|e| format!("params['{name}']: {e}"))?;
+        // A number (or bool) would be set as its text ("1" for 1.0): a String takes a str.
+        if *number && matches!(parsed, Value::String(_)) {
+            return Err(format!(
+                "params['{name}']: {value} is a number (or bool) and '{reference}' is a String \
+                 variable: give its value as a str"
+            ));
+        }
+        sys.set_value(&reference, parsed)
             .map_err(|e| format!("params['{name}']: {e}"))?;
     }
     if !variables.is_empty() {
@@ -310,10 +321,12 @@ fn run_inner(
 
 /// Runs an FMU or SSP system; returns `{"names", "values" (a float64 array of one row per
 /// name, `time` first: column-major, the frame's block), "units",
-/// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
-/// unless `force`. Ctrl-C stops the run at its next communication point and raises
-/// `KeyboardInterrupt` ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs'
-/// binaries run ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
+/// "status", "message"}`. `params` are `(name, text, number)`: `number` when the caller gave
+/// a number or a bool (its text as the package's `_text` writes it), which a String variable
+/// refuses. An FMU with problems `kneebench validate` reports is refused unless `force`.
+/// Ctrl-C stops the run at its next communication point and raises `KeyboardInterrupt`
+/// ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs' binaries run
+/// ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
 #[pyfunction]
 #[pyo3(signature = (
     system, params, variables, stop_time=None, step=None, force=false, isolate="never",
@@ -323,7 +336,7 @@ fn run_inner(
 fn run<'py>(
     py: Python<'py>,
     system: PathBuf,
-    params: Vec<(String, String)>,
+    params: Vec<(String, String, bool)>,
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,

@@ -428,3 +428,19 @@ def test_the_stubs_declare_the_runtime_signatures():
             for p in runtime.parameters.values()
         ]
         assert in_stub == at_runtime, name
+
+
+def test_a_number_for_a_string_variable_is_refused(fmus: Path):
+    """A number or a bool for a String variable raises: ``1.0`` was set as the text ``"1"``
+    (the text a whole float is written as, for an Integer), ``True`` as ``"true"``. A str is
+    set as it is."""
+    hardware = fmus / "BenchHardware.fmu"
+    for value in (1.0, 1, 1.5, np.float64(2.0), True):
+        with pytest.raises(
+            KneebenchError,
+            match=r"params\['serverAddress'\]: .* is a number \(or bool\) and "
+            r"'[^']*serverAddress' is a String variable: give its value as a str",
+        ):
+            kneebench.run(hardware, params={"serverAddress": value}, stop_time=0.01)
+    df = kneebench.run(hardware, params={"serverAddress": "1"}, stop_time=0.01)
+    assert df.attrs["status"] == "completed"
