@@ -144,6 +144,23 @@ def _workers(workers: int | None) -> int | None:
     return workers
 
 
+# The most times a batch whose task raised is run again on a cluster: each retry reruns the whole
+# batch, and a batch that failed this often fails for good (its worker cannot load an FMU, say).
+_MAX_RETRIES = 100
+
+
+def _retries(retries: int) -> int:
+    """``retries`` as an ``int`` (any ``numbers.Integral``), from 0 to ``_MAX_RETRIES``:
+    another type raises TypeError, a value outside the range ValueError, before anything
+    runs (with or without a client). Dask took any value: a negative one, a float or a str
+    failed (or not) only once the batches were sent."""
+    if isinstance(retries, (bool, np.bool_)) or not isinstance(retries, numbers.Integral):
+        raise TypeError(f"retries must be an int, not {type(retries).__name__}")
+    if not 0 <= retries <= _MAX_RETRIES:
+        raise ValueError(f"retries must be 0 to {_MAX_RETRIES} (given: {retries})")
+    return int(retries)
+
+
 def _cluster_arguments(client: Any, workers: int | None, batch_size: int | None) -> None:
     """Refuses what a sweep or an optimisation would silently ignore: ``workers`` (local
     threads) with a ``client``, ``batch_size`` (batches sent to a cluster) without one (both
@@ -449,8 +466,9 @@ def sweep(
     are sent in batches (``batch_size``, default: about four batches per worker) to the
     cluster's workers; the spec and the FMUs must be at the same absolute paths there (a
     shared file system, or :func:`ship` first). ``retries`` is how many times Dask reruns a
-    batch whose task raised an exception (a worker that cannot load an FMU, say); a batch whose
-    worker died is rescheduled by the scheduler, up to its
+    batch whose task raised an exception (a worker that cannot load an FMU, say), an int from 0
+    to 100 (another type raises TypeError, another value ValueError, with or without a
+    client); a batch whose worker died is rescheduled by the scheduler, up to its
     ``distributed.scheduler.allowed-failures`` setting (default 3), whatever ``retries`` says.
     Points still without a row raise KneebenchError naming them. The table equals the local
     one bit for bit. A spec with an ``[optimize]`` table raises SpecError: run it with
@@ -472,6 +490,7 @@ def sweep(
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
+    retries = _retries(retries)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
@@ -599,13 +618,15 @@ def optimize(
     runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
     journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1 and
-    ``workers`` at most 1024 (ValueError), ``workers`` is for a local run and ``batch_size``
-    for a cluster's (either with the other: ValueError), ``client`` a
+    ``workers`` at most 1024 (ValueError), ``retries`` 0 to 100 (as for :func:`sweep`),
+    ``workers`` is for a local run and ``batch_size`` for a cluster's (either with the other:
+    ValueError), ``client`` a
     ``dask.distributed.Client`` and ``on_generation`` callable (TypeError), all checked
     before anything runs.
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
+    retries = _retries(retries)
     if on_generation is not None and not callable(on_generation):
         raise TypeError(
             f"on_generation must be callable (or None), not {type(on_generation).__name__}"

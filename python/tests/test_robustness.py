@@ -430,6 +430,31 @@ def test_the_stubs_declare_the_runtime_signatures():
         assert in_stub == at_runtime, name
 
 
+@pytest.mark.parametrize(
+    "retries, error, message",
+    [
+        (-1, ValueError, r"retries must be 0 to 100 \(given: -1\)"),
+        (101, ValueError, r"retries must be 0 to 100 \(given: 101\)"),
+        (10**30, ValueError, r"retries must be 0 to 100"),
+        (1.5, TypeError, "retries must be an int, not float"),
+        ("2", TypeError, "retries must be an int, not str"),
+        (True, TypeError, "retries must be an int, not bool"),
+    ],
+)
+def test_retries_outside_0_to_100_or_not_an_int_raise_before_anything_runs(
+    sweep_spec, optimize_spec, tmp_path: Path, retries, error, message
+):
+    """``retries`` (how often Dask reruns a batch that raised) was handed to Dask as given;
+    with or without a client, a bad one raises before anything runs or is written."""
+    out = tmp_path / "t.parquet"
+    with pytest.raises(error, match=message):
+        kneebench.sweep(sweep_spec(4), retries=retries, output=out)
+    with pytest.raises(error, match=message):
+        kneebench.optimize(optimize_spec(), retries=retries, output=out)
+    assert not out.exists() and not Path(str(out) + ".journal").exists()
+    assert kneebench._retries(np.int64(0)) == 0 and kneebench._retries(100) == 100
+
+
 def test_a_number_for_a_string_variable_is_refused(fmus: Path):
     """A number or a bool for a String variable raises: ``1.0`` was set as the text ``"1"``
     (the text a whole float is written as, for an Integer), ``True`` as ``"true"``. A str is
