@@ -1028,7 +1028,8 @@ impl PyOptimizer {
 }
 
 /// What identifies a prepared sweep in [`CACHE`]: the spec's path and text, and the size and
-/// modification time of every file it reads. Another text, or a rewritten FMU, prepares anew.
+/// modification time of every file it reads ([`watched_files`]). Another text, or a rewritten
+/// FMU, prepares anew.
 #[derive(Debug, Clone, PartialEq)]
 struct CacheKey {
     spec: PathBuf,
@@ -1051,6 +1052,21 @@ impl CacheKey {
     }
 }
 
+/// The files a prepared sweep was made of, which a change of prepares it anew: those it names
+/// ([`Prepared::input_files`]: the spec, its design CSV, the system file or the scenario's FMUs)
+/// and those its fingerprint covers ([`Prepared::file_digests`]: also a bare `.ssd`'s own FMUs
+/// and parameter files, which the input files leave out: a rebuilt FMU next to an `.ssd` was
+/// run from the cached sweep).
+fn watched_files(p: &Prepared) -> Vec<PathBuf> {
+    let mut files = p.input_files.clone();
+    for (f, _) in &p.file_digests {
+        if !files.contains(f) {
+            files.push(f.clone());
+        }
+    }
+    files
+}
+
 /// The last sweep (or optimisation) prepared by `sweep_points` or `optimize_points` in this
 /// process: the batches of a Dask sweep (or of every generation of an optimisation) that land
 /// on one worker prepare the spec (parse it, write the scenario, load the FMUs) once, not once
@@ -1071,7 +1087,7 @@ fn prepared_for_batch(
     let hit = {
         let cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
         cache.as_ref().and_then(|c| {
-            (CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key))
+            (CacheKey::of(spec, &watched_files(&c.prepared)).as_ref() == Some(&c.key))
                 .then(|| c.prepared.clone())
         })
     };
@@ -1079,7 +1095,7 @@ fn prepared_for_batch(
         Some(p) => p,
         None => {
             let p = std::sync::Arc::new(prepare(spec)?);
-            if let Some(key) = CacheKey::of(spec, &p.input_files) {
+            if let Some(key) = CacheKey::of(spec, &watched_files(&p)) {
                 *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
                     key,
                     prepared: p.clone(),

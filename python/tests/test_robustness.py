@@ -4,6 +4,7 @@ runs, the study's scenarios and failed runs, FMUs that `kneebench validate` refu
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -469,3 +470,56 @@ def test_a_number_for_a_string_variable_is_refused(fmus: Path):
             kneebench.run(hardware, params={"serverAddress": value}, stop_time=0.01)
     df = kneebench.run(hardware, params={"serverAddress": "1"}, stop_time=0.01)
     assert df.attrs["status"] == "completed"
+
+
+GAIT_SSD = """<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription" version="1.0" name="Gait">
+  <ssd:System name="Gait">
+    <ssd:Elements>
+      <ssd:Component name="gait" source="Gait.fmu" type="application/x-fmu-sharedlibrary"/>
+    </ssd:Elements>
+  </ssd:System>
+</ssd:SystemStructureDescription>
+"""
+
+GAIT_SWEEP = """\
+system = "gait.ssd"
+stop_time = 0.05
+step = 0.01
+
+[design]
+kind = "grid"
+
+[[parameters]]
+name = "gait.kneeAngleAmplitude"
+values = [0.5, 1.0]
+
+[[metrics.signals]]
+signal = "gait.kneeAngleReference"
+stats = ["max"]
+"""
+
+
+def test_a_rebuilt_fmu_beside_an_ssd_is_not_served_from_the_batch_cache(
+    fmus: Path, tmp_path: Path
+):
+    """A worker keeps the sweep it prepared for the next batch while the spec and its files are
+    unchanged: an .ssd's own FMUs are among those files (the cache watched only the spec, its
+    CSV and the system file, so a rebuilt FMU next to an .ssd kept being run from the old
+    prepared sweep, fingerprint and all)."""
+    fmu = tmp_path / "Gait.fmu"
+    shutil.copy(fmus / "GaitReference.fmu", fmu)
+    (tmp_path / "gait.ssd").write_text(GAIT_SSD)
+    spec = tmp_path / "sweep.toml"
+    spec.write_text(GAIT_SWEEP)
+    kneebench._native.clear_cache()
+    first = kneebench._native.sweep_points(str(spec), [0])
+    assert first["fingerprint"] == kneebench._native.sweep_info(str(spec))["fingerprint"]
+    # The FMU rebuilt: the same model, its archive other bytes (one more file).
+    with zipfile.ZipFile(fmu, "a") as z:
+        z.writestr("documentation/rebuilt.txt", "rebuilt")
+    rebuilt = kneebench._native.sweep_info(str(spec))["fingerprint"]
+    assert rebuilt != first["fingerprint"]
+    again = kneebench._native.sweep_points(str(spec), [0])
+    assert again["fingerprint"] == rebuilt
+    kneebench._native.clear_cache()
