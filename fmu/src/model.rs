@@ -759,8 +759,9 @@ fn full_description<M: Model>(v: &Variable<M>) -> Option<String> {
     }
 }
 
-/// What the description of an integer-valued Real ([`Variable::integer_valued`]) ends with.
-pub const INTEGER_NOTE: &str = "; an integer";
+/// What the description of an integer-valued Real ([`Variable::integer_valued`]) ends with:
+/// the model-description crate's note, by which the harness reads it back, so the two are one.
+pub use md::INTEGER_NOTE;
 
 fn description_without_guid<M: Model>() -> md::ModelDescription {
     // Checked when the model is compiled: serializing needs states to serialize.

@@ -468,6 +468,87 @@ fn an_interrupted_sweep_says_how_far_it_got_and_resumes() {
     assert!(!journal.exists());
 }
 
+/// Ctrl-C during `kneebench optimize` stops it as it stops `sweep`: exit code 130, how many
+/// runs are done and that `--resume` continues, the journal keeping those rows and no table
+/// written; `--resume` finishes the table. Before, the process died of the signal without a
+/// word.
+#[test]
+fn an_interrupted_optimisation_says_how_far_it_got_and_resumes() {
+    let d = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(
+        std::path::Path::new(env!("CARGO_BIN_EXE_kneebench")),
+        d.path(),
+    );
+    let spec = d.path().join("o.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "system = \"SEA\"\nfmus = \"{}\"\ncycles = 4\n[design]\nkind = \"random\"\n\
+             points = 4\nseed = 1\n[[parameters]]\nname = \"plant.springStiffness\"\n\
+             min = 250.0\nmax = 450.0\n[metrics]\nstudy = true\n[optimize]\n\
+             objective = \"all_electrical_energy\"\ndirection = \"minimize\"\n\
+             generations = 9\nseed = 2\n",
+            fmus.display(),
+        ),
+    )
+    .unwrap();
+    let out = d.path().join("t.parquet");
+    let journal = d.path().join("t.parquet.journal");
+    let mut child = kneebench()
+        .arg("optimize")
+        .arg(&spec)
+        .args(["--workers", "1", "--quiet", "--output"])
+        .arg(&out)
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the journal holds a row (the header and one line), or the optimisation ends.
+    loop {
+        let rows = std::fs::read_to_string(&journal).map_or(0, |j| j.matches('\n').count());
+        if rows >= 2 || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the optimisation ended before it was interrupted"
+    );
+    // SAFETY: kill(2) on the child's pid, which has not been waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{stderr}");
+    let done = std::fs::read_to_string(&journal)
+        .unwrap()
+        .matches('\n')
+        .count()
+        - 1;
+    assert!((1..40).contains(&done), "{done}");
+    assert!(
+        stderr.contains(&format!(
+            "interrupted (SIGINT): {done} of 40 runs done (journaled in {}); run again with \
+             --resume",
+            journal.display()
+        )),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+    let r = kneebench()
+        .arg("optimize")
+        .arg(&spec)
+        .args(["--workers", "2", "--quiet", "--resume", "--output"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{stderr}");
+    assert!(stderr.contains("wrote 40 rows"), "{stderr}");
+    assert!(String::from_utf8_lossy(&r.stdout).starts_with("best: point "));
+    assert!(!journal.exists());
+}
+
 /// `identify --name` names the file OUT/NAME.ssv: a name with a path in it (which wrote
 /// outside OUT) is refused before anything is read, with exit code 2.
 #[test]

@@ -689,6 +689,56 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
     }
 }
 
+/// `study --bench --key FILE` with a key file the bench link would refuse (readable by others,
+/// a key that is no secret, no file at all): a usage error naming the option and why, before
+/// anything runs or is written, as `emulate --key` refuses it.
+#[test]
+fn a_refused_study_key_file_is_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus_dir = fmus().to_str().unwrap();
+    let out = dir.path().join("out");
+    let loose = dir.path().join("loose.key");
+    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
+    let zeros = dir.path().join("zeros.key");
+    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
+        std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
+    }
+    let missing = dir.path().join("missing.key");
+    for (file, needle) in [
+        (&loose, "accessible to its group or to others (mode 644)"),
+        (&zeros, "all its 32 bytes are 0x00: not a random key"),
+        (&missing, "No such file"),
+    ] {
+        let o = kneebench()
+            .args([
+                "study",
+                "--fmus",
+                fmus_dir,
+                "--cycles",
+                "2",
+                "--actuators",
+                "sea",
+                "--scenario",
+                "bench-full",
+            ])
+            .args(["--bench", "127.0.0.1:9", "--key"])
+            .arg(file)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_usage(
+            needle,
+            &o,
+            &[&format!("--key key file {}", file.display()), needle],
+        );
+        assert!(!out.exists(), "{needle}: wrote {}", out.display());
+    }
+}
+
 /// `emulate --param` names and values are checked against the plant FMU before the emulator
 /// starts or anything is written (here a new key file): a value the FMU refuses, a name that
 /// is no parameter, an item that is none of the mode's, each a usage error naming the
@@ -873,6 +923,22 @@ fn unknown_names_and_missing_inputs_are_usage_errors() {
         (
             &["study", "--fmus", missing, "--actuators", "foo"],
             &["unknown actuator 'foo' (da, sea, csea)"],
+        ),
+        // An actuator or a scenario given twice (however spelled): the actuator was run once,
+        // the scenario twice, without a word.
+        (
+            &["study", "--fmus", missing, "--actuators", "SEA,csea,sea"],
+            &["--actuators: SEA is given twice"],
+        ),
+        (
+            &[
+                "study",
+                "--fmus",
+                missing,
+                "--scenario",
+                "bench-full,Bench-Full",
+            ],
+            &["--scenario: bench-full is given twice"],
         ),
         // The one scenario chosen has none of the actuators (it wrote an empty section).
         (

@@ -521,3 +521,46 @@ fn parallel_follows_every_connection_and_equals_sequential() {
     let ax = gs.results.column("a.x").unwrap();
     assert_eq!([ax[1], bx[1], ax[2], bx[2]], [1.0, 1.0, 2.0, 3.0]);
 }
+
+/// Connections and signals with the wrong end name the variable's causality as the model
+/// description spells it, with its article ("not an input variable"); a value that does not
+/// parse names the variable's type likewise ("not an Integer"). They read "not a Input
+/// variable" and "not a Integer".
+#[test]
+fn wrong_ends_and_values_are_named_with_their_article() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.add_component("b", fmu).unwrap();
+    for (result, needle) in [
+        (
+            s.connect("a.u", "b.u"),
+            "a connection starts at an output, not an input variable",
+        ),
+        (
+            s.connect("a.y", "b.y"),
+            "a connection ends at an input, not an output variable",
+        ),
+        (
+            s.connect("a.y", "b.k"),
+            "a connection ends at an input, not a parameter variable",
+        ),
+        (
+            s.add_signal(
+                "a.x",
+                Signal {
+                    times: vec![0.0],
+                    values: vec![1.0],
+                    interpolate: false,
+                },
+            ),
+            "a signal feeds an input, not an output variable",
+        ),
+        (s.set_value_str("a.i_in", "1.5"), "'1.5' is not an Integer"),
+        (s.set_value_str("a.k", "x"), "'x' is not a Real"),
+        (s.set_value_str("a.b_in", "yes"), "'yes' is not a Boolean"),
+    ] {
+        let e = result.unwrap_err().to_string();
+        assert!(e.contains(needle), "{e}");
+    }
+}

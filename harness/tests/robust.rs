@@ -378,6 +378,11 @@ fn refusals_name_the_problem_with_the_documented_exit_code() {
             "bad value for 'kbtest.k': 'abc' is not a Real",
         ),
         (
+            &["--param", "i_in=1.5"],
+            2,
+            "bad value for 'kbtest.i_in': '1.5' is not an Integer",
+        ),
+        (
             &["--variables", "nothing"],
             2,
             "component 'kbtest' has no variable 'nothing'",

@@ -631,8 +631,13 @@ impl ModelDescription {
                 );
                 if !matches {
                     p.push(Problem::new(format!(
-                        "variable \"{}\": declaredType \"{type_name}\" is not a {} type",
+                        "variable \"{}\": declaredType \"{type_name}\" is not {} {} type",
                         v.name,
+                        if v.kind.base_type_name().starts_with(['E', 'I']) {
+                            "an"
+                        } else {
+                            "a"
+                        },
                         v.kind.base_type_name()
                     )));
                 }

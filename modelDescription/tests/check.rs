@@ -302,12 +302,12 @@ fn declared_type() {
     if let VariableKind::Integer { declared_type, .. } = &mut var_mut(&mut md, "n").kind {
         *declared_type = Some("Angle".into());
     }
-    assert_only_problem(&md, "declaredType \"Angle\" is not a Integer type");
+    assert_only_problem(&md, "declaredType \"Angle\" is not an Integer type");
     let mut md = full();
     if let VariableKind::Enumeration { declared_type, .. } = &mut var_mut(&mut md, "mode").kind {
         *declared_type = "Count".into();
     }
-    assert_only_problem(&md, "declaredType \"Count\" is not a Enumeration type");
+    assert_only_problem(&md, "declaredType \"Count\" is not an Enumeration type");
 }
 
 #[test]

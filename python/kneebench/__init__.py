@@ -144,6 +144,23 @@ def _workers(workers: int | None) -> int | None:
     return workers
 
 
+# The most times a batch whose task raised is run again on a cluster: each retry reruns the whole
+# batch, and a batch that failed this often fails for good (its worker cannot load an FMU, say).
+_MAX_RETRIES = 100
+
+
+def _retries(retries: int) -> int:
+    """``retries`` as an ``int`` (any ``numbers.Integral``), from 0 to ``_MAX_RETRIES``:
+    another type raises TypeError, a value outside the range ValueError, before anything
+    runs (with or without a client). Dask took any value: a negative one, a float or a str
+    failed (or not) only once the batches were sent."""
+    if isinstance(retries, (bool, np.bool_)) or not isinstance(retries, numbers.Integral):
+        raise TypeError(f"retries must be an int, not {type(retries).__name__}")
+    if not 0 <= retries <= _MAX_RETRIES:
+        raise ValueError(f"retries must be 0 to {_MAX_RETRIES} (given: {retries})")
+    return int(retries)
+
+
 def _cluster_arguments(client: Any, workers: int | None, batch_size: int | None) -> None:
     """Refuses what a sweep or an optimisation would silently ignore: ``workers`` (local
     threads) with a ``client``, ``batch_size`` (batches sent to a cluster) without one (both
@@ -194,8 +211,10 @@ def run(
     is a number, a bool or a str (an item's name for an Enumeration); numpy scalars are
     numbers too (``numpy.float64``, ``numpy.int64``, ``numpy.bool_``), and a whole-number
     float is taken by an Integer or Enumeration variable (``1.0``, as a sweep table's Integer
-    column holds it; ``1.5`` raises KneebenchError). ``variables`` (a list of names; a single
-    ``str``, an empty list or a name given twice raises) chooses the recorded columns
+    column holds it; ``1.5`` raises KneebenchError). A String variable takes a ``str`` only:
+    a number or a bool for one raises KneebenchError (``1.0`` was set as the text ``"1"``).
+    ``variables`` (a list of names; a single ``str``, an empty list or a name given twice
+    raises) chooses the recorded columns
     (default, ``None``: every output). ``stop_time`` and ``step`` default to the FMU's or the
     system's DefaultExperiment (an FMU's tolerance is passed to ``fmi2SetupExperiment``, as
     ``kneebench run`` does). The DataFrame has a ``time`` column [s] and one float64
@@ -234,7 +253,12 @@ def run(
             raise ValueError(f"variables names {', '.join(map(repr, twice))} more than once")
     if as_arrow:
         pa = _pyarrow()
-    p = [(k, _text(v)) for k, v in (params or {}).items()]
+    # Each value's text, and whether it was a number or a bool (a String variable refuses one:
+    # 1.0 would be set as the text "1").
+    p = [
+        (k, _text(v), isinstance(v, (bool, np.bool_, numbers.Real)))
+        for k, v in (params or {}).items()
+    ]
     r = _native.run(
         os.fspath(system),
         p,
@@ -281,13 +305,18 @@ def study(
     ``scenario`` is ``bench-full`` (the 60 deg gait, DA/SEA/CSEA) or ``bench-clutch`` (50 deg,
     SEA/CSEA under impedance control: it has no DA). ``actuators`` is a list of the
     scenario's actuators (default, ``None``: all of the scenario's; a single ``str``, an
-    empty list or an actuator the scenario lacks raises). ``cycles`` is the gait cycles per
-    run, at least 2: the first, the start-up (the gait fades in), is not analysed, the
-    metrics are per cycle over the others. ``df.attrs["units"]`` maps each
-    column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the running
-    run at its next communication point and raises KeyboardInterrupt."""
+    empty list, an actuator the scenario lacks or one named twice, however spelled, raises).
+    ``cycles`` is the gait cycles per run, at least 2: the first, the start-up (the gait fades
+    in), is not analysed, the metrics are per cycle over the others. ``df.attrs["units"]``
+    maps each column to its unit (``1`` for a count or a fraction). Ctrl-C (SIGINT) stops the
+    running run at its next communication point and raises KeyboardInterrupt."""
     # None: the scenario's own actuators (the harness knows them).
     names = _names("actuators", actuators)
+    if names is not None:
+        folded = [n.casefold() for n in names]
+        twice = [n for k, n in enumerate(names) if n.casefold() in folded[:k]]
+        if twice:
+            raise ValueError(f"actuators names {twice[0]!r} more than once (each runs once)")
     cycles = _at_least_one("cycles", cycles)
     if cycles is not None and cycles < 2:
         raise ValueError(
@@ -437,8 +466,9 @@ def sweep(
     are sent in batches (``batch_size``, default: about four batches per worker) to the
     cluster's workers; the spec and the FMUs must be at the same absolute paths there (a
     shared file system, or :func:`ship` first). ``retries`` is how many times Dask reruns a
-    batch whose task raised an exception (a worker that cannot load an FMU, say); a batch whose
-    worker died is rescheduled by the scheduler, up to its
+    batch whose task raised an exception (a worker that cannot load an FMU, say), an int from 0
+    to 100 (another type raises TypeError, another value ValueError, with or without a
+    client); a batch whose worker died is rescheduled by the scheduler, up to its
     ``distributed.scheduler.allowed-failures`` setting (default 3), whatever ``retries`` says.
     Points still without a row raise KneebenchError naming them. The table equals the local
     one bit for bit. A spec with an ``[optimize]`` table raises SpecError: run it with
@@ -460,6 +490,7 @@ def sweep(
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
+    retries = _retries(retries)
     path = os.path.abspath(os.fspath(spec))
     out = None if output is None else os.fspath(output)
     if resume and out is None:
@@ -587,13 +618,15 @@ def optimize(
     runs. Locally, Ctrl-C (SIGINT) stops the
     running points at their next communication point and raises KeyboardInterrupt, the
     journal kept for ``resume``. ``workers`` and ``batch_size`` must be at least 1 and
-    ``workers`` at most 1024 (ValueError), ``workers`` is for a local run and ``batch_size``
-    for a cluster's (either with the other: ValueError), ``client`` a
+    ``workers`` at most 1024 (ValueError), ``retries`` 0 to 100 (as for :func:`sweep`),
+    ``workers`` is for a local run and ``batch_size`` for a cluster's (either with the other:
+    ValueError), ``client`` a
     ``dask.distributed.Client`` and ``on_generation`` callable (TypeError), all checked
     before anything runs.
     """
     workers = _workers(workers)
     batch_size = _at_least_one("batch_size", batch_size)
+    retries = _retries(retries)
     if on_generation is not None and not callable(on_generation):
         raise TypeError(
             f"on_generation must be callable (or None), not {type(on_generation).__name__}"

@@ -11,7 +11,7 @@ class SpecError(KneebenchError): ...
 
 def run(
     system: str,
-    params: list[tuple[str, str]],
+    params: list[tuple[str, str, bool]],
     variables: list[str],
     stop_time: float | None = None,
     step: float | None = None,

@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 
-use kneebench_harness::master::{Outcome, RunConfig, RunControl, System};
+use kneebench_harness::master::{Outcome, RunConfig, RunControl, System, Value};
 use kneebench_harness::results::columns::{ColumnMajor, Columns};
 use kneebench_harness::study::{
     Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
@@ -225,7 +225,7 @@ fn fmu_problems(fmu: &Fmu) -> Vec<String> {
 #[allow(clippy::too_many_arguments)]
 fn run_inner(
     system: PathBuf,
-    params: Vec<(String, String)>,
+    params: Vec<(String, String, bool)>,
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,
@@ -262,8 +262,19 @@ fn run_inner(
             n.to_string()
         }
     };
-    for (name, value) in &params {
-        sys.set_value_str(&prefix(name), value)
+    for (name, value, number) in &params {
+        let reference = prefix(name);
+        let parsed = sys
+            .parse_value_str(&reference, value)
+            .map_err(|e| format!("params['{name}']: {e}"))?;
+        // A number (or bool) would be set as its text ("1" for 1.0): a String takes a str.
+        if *number && matches!(parsed, Value::String(_)) {
+            return Err(format!(
+                "params['{name}']: {value} is a number (or bool) and '{reference}' is a String \
+                 variable: give its value as a str"
+            ));
+        }
+        sys.set_value(&reference, parsed)
             .map_err(|e| format!("params['{name}']: {e}"))?;
     }
     if !variables.is_empty() {
@@ -310,10 +321,12 @@ fn run_inner(
 
 /// Runs an FMU or SSP system; returns `{"names", "values" (a float64 array of one row per
 /// name, `time` first: column-major, the frame's block), "units",
-/// "status", "message"}`. An FMU with problems `kneebench validate` reports is refused
-/// unless `force`. Ctrl-C stops the run at its next communication point and raises
-/// `KeyboardInterrupt` ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs'
-/// binaries run ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
+/// "status", "message"}`. `params` are `(name, text, number)`: `number` when the caller gave
+/// a number or a bool (its text as the package's `_text` writes it), which a String variable
+/// refuses. An FMU with problems `kneebench validate` reports is refused unless `force`.
+/// Ctrl-C stops the run at its next communication point and raises `KeyboardInterrupt`
+/// ([`interruptible`]). `isolate`, `host` and `preload`: where the FMUs' binaries run
+/// ([`load_options`]); a crash of an isolated one is a `KneebenchError`.
 #[pyfunction]
 #[pyo3(signature = (
     system, params, variables, stop_time=None, step=None, force=false, isolate="never",
@@ -323,7 +336,7 @@ fn run_inner(
 fn run<'py>(
     py: Python<'py>,
     system: PathBuf,
-    params: Vec<(String, String)>,
+    params: Vec<(String, String, bool)>,
     variables: Vec<String>,
     stop_time: Option<f64>,
     step: Option<f64>,
@@ -433,6 +446,9 @@ fn study<'py>(
             .into_iter()
             .find(|x| x.name().eq_ignore_ascii_case(a))
             .ok_or_else(|| err(format!("unknown actuator '{a}' (DA, SEA, CSEA)")))?;
+        if list.contains(&found) {
+            return Err(err(format!("actuator {} given twice", found.name())));
+        }
         if !study_scenario.actuators().contains(&found) {
             return Err(err(format!(
                 "the {scenario} scenario has no {} (its actuators: {})",
@@ -1012,7 +1028,8 @@ impl PyOptimizer {
 }
 
 /// What identifies a prepared sweep in [`CACHE`]: the spec's path and text, and the size and
-/// modification time of every file it reads. Another text, or a rewritten FMU, prepares anew.
+/// modification time of every file it reads ([`watched_files`]). Another text, or a rewritten
+/// FMU, prepares anew.
 #[derive(Debug, Clone, PartialEq)]
 struct CacheKey {
     spec: PathBuf,
@@ -1035,6 +1052,21 @@ impl CacheKey {
     }
 }
 
+/// The files a prepared sweep was made of, which a change of prepares it anew: those it names
+/// ([`Prepared::input_files`]: the spec, its design CSV, the system file or the scenario's FMUs)
+/// and those its fingerprint covers ([`Prepared::file_digests`]: also a bare `.ssd`'s own FMUs
+/// and parameter files, which the input files leave out: a rebuilt FMU next to an `.ssd` was
+/// run from the cached sweep).
+fn watched_files(p: &Prepared) -> Vec<PathBuf> {
+    let mut files = p.input_files.clone();
+    for (f, _) in &p.file_digests {
+        if !files.contains(f) {
+            files.push(f.clone());
+        }
+    }
+    files
+}
+
 /// The last sweep (or optimisation) prepared by `sweep_points` or `optimize_points` in this
 /// process: the batches of a Dask sweep (or of every generation of an optimisation) that land
 /// on one worker prepare the spec (parse it, write the scenario, load the FMUs) once, not once
@@ -1055,7 +1087,7 @@ fn prepared_for_batch(
     let hit = {
         let cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
         cache.as_ref().and_then(|c| {
-            (CacheKey::of(spec, &c.prepared.input_files).as_ref() == Some(&c.key))
+            (CacheKey::of(spec, &watched_files(&c.prepared)).as_ref() == Some(&c.key))
                 .then(|| c.prepared.clone())
         })
     };
@@ -1063,7 +1095,7 @@ fn prepared_for_batch(
         Some(p) => p,
         None => {
             let p = std::sync::Arc::new(prepare(spec)?);
-            if let Some(key) = CacheKey::of(spec, &p.input_files) {
+            if let Some(key) = CacheKey::of(spec, &watched_files(&p)) {
                 *CACHE.lock().unwrap_or_else(|e| e.into_inner()) = Some(Cached {
                     key,
                     prepared: p.clone(),

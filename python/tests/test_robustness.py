@@ -4,6 +4,7 @@ runs, the study's scenarios and failed runs, FMUs that `kneebench validate` refu
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -129,6 +130,11 @@ def test_arguments_are_checked_with_errors_naming_them(fmus: Path, tmp_path: Pat
         kneebench.study(fmus, tmp_path, actuators="SEA", cycles=2)
     with pytest.raises(ValueError, match="actuators is empty"):
         kneebench.study(fmus, tmp_path, actuators=[], cycles=2)
+    # Named twice, however spelled: it ran once, without a word.
+    with pytest.raises(ValueError, match="actuators names 'sea' more than once"):
+        kneebench.study(fmus, tmp_path, actuators=["SEA", "CSEA", "sea"], cycles=2)
+    with pytest.raises(KneebenchError, match="actuator SEA given twice"):
+        kneebench._native.study(fmus, tmp_path, ["SEA", "sea"], 2, 1.0, "bench-full")
     with pytest.raises(ValueError, match="cycles must be >= 1"):
         kneebench.study(fmus, tmp_path, actuators=["SEA"], cycles=-1)
     # One cycle is the start-up alone, which is not analysed (it was, silently).
@@ -423,3 +429,97 @@ def test_the_stubs_declare_the_runtime_signatures():
             for p in runtime.parameters.values()
         ]
         assert in_stub == at_runtime, name
+
+
+@pytest.mark.parametrize(
+    "retries, error, message",
+    [
+        (-1, ValueError, r"retries must be 0 to 100 \(given: -1\)"),
+        (101, ValueError, r"retries must be 0 to 100 \(given: 101\)"),
+        (10**30, ValueError, r"retries must be 0 to 100"),
+        (1.5, TypeError, "retries must be an int, not float"),
+        ("2", TypeError, "retries must be an int, not str"),
+        (True, TypeError, "retries must be an int, not bool"),
+    ],
+)
+def test_retries_outside_0_to_100_or_not_an_int_raise_before_anything_runs(
+    sweep_spec, optimize_spec, tmp_path: Path, retries, error, message
+):
+    """``retries`` (how often Dask reruns a batch that raised) was handed to Dask as given;
+    with or without a client, a bad one raises before anything runs or is written."""
+    out = tmp_path / "t.parquet"
+    with pytest.raises(error, match=message):
+        kneebench.sweep(sweep_spec(4), retries=retries, output=out)
+    with pytest.raises(error, match=message):
+        kneebench.optimize(optimize_spec(), retries=retries, output=out)
+    assert not out.exists() and not Path(str(out) + ".journal").exists()
+    assert kneebench._retries(np.int64(0)) == 0 and kneebench._retries(100) == 100
+
+
+def test_a_number_for_a_string_variable_is_refused(fmus: Path):
+    """A number or a bool for a String variable raises: ``1.0`` was set as the text ``"1"``
+    (the text a whole float is written as, for an Integer), ``True`` as ``"true"``. A str is
+    set as it is."""
+    hardware = fmus / "BenchHardware.fmu"
+    for value in (1.0, 1, 1.5, np.float64(2.0), True):
+        with pytest.raises(
+            KneebenchError,
+            match=r"params\['serverAddress'\]: .* is a number \(or bool\) and "
+            r"'[^']*serverAddress' is a String variable: give its value as a str",
+        ):
+            kneebench.run(hardware, params={"serverAddress": value}, stop_time=0.01)
+    df = kneebench.run(hardware, params={"serverAddress": "1"}, stop_time=0.01)
+    assert df.attrs["status"] == "completed"
+
+
+GAIT_SSD = """<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription" version="1.0" name="Gait">
+  <ssd:System name="Gait">
+    <ssd:Elements>
+      <ssd:Component name="gait" source="Gait.fmu" type="application/x-fmu-sharedlibrary"/>
+    </ssd:Elements>
+  </ssd:System>
+</ssd:SystemStructureDescription>
+"""
+
+GAIT_SWEEP = """\
+system = "gait.ssd"
+stop_time = 0.05
+step = 0.01
+
+[design]
+kind = "grid"
+
+[[parameters]]
+name = "gait.kneeAngleAmplitude"
+values = [0.5, 1.0]
+
+[[metrics.signals]]
+signal = "gait.kneeAngleReference"
+stats = ["max"]
+"""
+
+
+def test_a_rebuilt_fmu_beside_an_ssd_is_not_served_from_the_batch_cache(
+    fmus: Path, tmp_path: Path
+):
+    """A worker keeps the sweep it prepared for the next batch while the spec and its files are
+    unchanged: an .ssd's own FMUs are among those files (the cache watched only the spec, its
+    CSV and the system file, so a rebuilt FMU next to an .ssd kept being run from the old
+    prepared sweep, fingerprint and all)."""
+    fmu = tmp_path / "Gait.fmu"
+    shutil.copy(fmus / "GaitReference.fmu", fmu)
+    (tmp_path / "gait.ssd").write_text(GAIT_SSD)
+    spec = tmp_path / "sweep.toml"
+    spec.write_text(GAIT_SWEEP)
+    kneebench._native.clear_cache()
+    first = kneebench._native.sweep_points(str(spec), [0])
+    assert first["fingerprint"] == kneebench._native.sweep_info(str(spec))["fingerprint"]
+    # The FMU rebuilt: the same model, its archive other bytes (one more file).
+    with zipfile.ZipFile(fmu, "a") as z:
+        z.writestr("documentation/rebuilt.txt", "rebuilt")
+    rebuilt = kneebench._native.sweep_info(str(spec))["fingerprint"]
+    assert rebuilt != first["fingerprint"]
+    again = kneebench._native.sweep_points(str(spec), [0])
+    assert again["fingerprint"] == rebuilt
+    kneebench._native.clear_cache()

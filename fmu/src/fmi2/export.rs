@@ -21,6 +21,25 @@
 //! never an instance) remains the importer's undefined behaviour, as in the FMI standard. Nor
 //! can a pointer freed twice be told from a new instance that the allocator placed at the same
 //! address: its second free frees that instance.
+//!
+//! # Freed and foreign FMU states
+//!
+//! FMU states have a registry of their own: `fmi2GetFMUstate` and `fmi2DeSerializeFMUstate`
+//! record each state they make, `fmi2FreeFMUstate` frees a state only if it removes it from
+//! there, and every state function (get and deserialize overwriting an existing state, set,
+//! the serialized size, serialize, free) refuses a non-NULL state that is not live with
+//! `fmi2Error` and a log line, without dereferencing it. A state freed a second time (through
+//! a copy of its pointer), or a pointer this binary never made, is therefore harmless. The
+//! states are not the per-step path, so the lock costs nothing that matters.
+//!
+//! What stays undefined: a freed state's address that the allocator gave to a new state is that
+//! new state (a stale copy of the old pointer reaches it); a state is not bound to the instance
+//! that made it (a state of another instance of the same model is restored if its bytes check
+//! out, one of another model is refused by the GUID in its bytes); the out-pointer itself
+//! (`FMUstate` of the get, free and deserialize functions) must be valid memory; and a state
+//! used from two threads at once is a data race, as for an instance. States the importer never
+//! frees stay allocated (and registered) until the process ends: freeing an instance does not
+//! free its states.
 
 #![allow(non_snake_case, clippy::missing_safety_doc)]
 
@@ -336,7 +355,7 @@ pub unsafe extern "C" fn fmi2Instantiate(
         };
         let component: Box<Component> = Box::new(entry.instantiate(logger));
         let c: fmi2Component = Box::into_raw(component).cast();
-        live::register(c as usize);
+        live::INSTANCES.register(c as usize);
         c
     });
     result.unwrap_or(std::ptr::null_mut())
@@ -351,7 +370,7 @@ pub unsafe extern "C" fn fmi2FreeInstance(c: fmi2Component) {
     let _ = catch_unwind(|| {
         // Only the one call that removes a live instance frees it: a pointer freed already, or
         // never returned by fmi2Instantiate, is not dereferenced.
-        if live::unregister(c as usize) {
+        if live::INSTANCES.unregister(c as usize) {
             // SAFETY: c was live, so it came from Box::into_raw in fmi2Instantiate, and only
             // this call removed it from the registry (the importer must not use it afterwards).
             drop(unsafe { Box::from_raw(c.cast::<Component>()) });
@@ -512,6 +531,40 @@ pub unsafe extern "C" fn fmi2SetString(
 /// The bytes behind an `fmi2FMUstate`.
 type SavedState = Vec<u8>;
 
+/// Why `state` is refused: freed already, or never made by this binary.
+fn not_a_state(state: fmi2FMUstate) -> String {
+    format!(
+        "FMUstate {state:p} is not a live state of this FMU (freed already, or never made by it)"
+    )
+}
+
+/// Whether `state` may be read: a live state of this binary (or NULL, where `null_ok`, which
+/// asks for a new one). The pointer is only compared, never dereferenced.
+fn check_live_state(state: fmi2FMUstate, null_ok: bool) -> Result<(), String> {
+    if (null_ok && state.is_null()) || live::STATES.contains(state as usize) {
+        Ok(())
+    } else {
+        Err(not_a_state(state))
+    }
+}
+
+/// Stores `bytes` in `existing` (a live state) or, when it is NULL, in a new state, registered
+/// and written to `out`.
+///
+/// # Safety
+/// `out` is a valid out-pointer; `existing` is NULL or a live state ([`check_live_state`]).
+unsafe fn store_state(out: *mut fmi2FMUstate, existing: fmi2FMUstate, bytes: SavedState) {
+    if existing.is_null() {
+        let state: fmi2FMUstate = Box::into_raw(Box::new(bytes)).cast();
+        live::STATES.register(state as usize);
+        // SAFETY: a valid out-pointer (the caller's contract).
+        unsafe { *out = state };
+    } else {
+        // SAFETY: a live state: a SavedState made by this function (the caller's contract).
+        unsafe { *existing.cast::<SavedState>() = bytes };
+    }
+}
+
 /// The FMI 2.0 function `fmi2GetFMUstate`: see the module documentation.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn fmi2GetFMUstate(
@@ -523,17 +576,14 @@ pub unsafe extern "C" fn fmi2GetFMUstate(
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
-        let bytes = inst.save_state();
-        // SAFETY: FMUstate is a valid out-pointer. If it already holds a state of ours, the
-        // standard says to overwrite that state in place.
-        unsafe {
-            let existing = *FMUstate;
-            if existing.is_null() {
-                *FMUstate = Box::into_raw(Box::new(bytes)).cast();
-            } else {
-                *existing.cast::<SavedState>() = bytes;
-            }
+        // SAFETY: FMUstate is a valid out-pointer (the importer's variable).
+        let existing = unsafe { *FMUstate };
+        if let Err(why) = check_live_state(existing, true) {
+            return inst.refuse(f, &why);
         }
+        // A non-NULL state is overwritten in place, as the standard says; NULL asks for a new one.
+        // SAFETY: `existing` is NULL or a live state (checked), FMUstate a valid out-pointer.
+        unsafe { store_state(FMUstate, existing, inst.save_state()) };
         fmi2OK
     })
 }
@@ -546,7 +596,10 @@ pub unsafe extern "C" fn fmi2SetFMUstate(c: fmi2Component, FMUstate: fmi2FMUstat
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
-        // SAFETY: a non-NULL FMUstate was made by fmi2GetFMUstate or fmi2DeSerializeFMUstate.
+        if let Err(why) = check_live_state(FMUstate, false) {
+            return inst.refuse(f, &why);
+        }
+        // SAFETY: a live state (checked), made by fmi2GetFMUstate or fmi2DeSerializeFMUstate.
         let bytes: &SavedState = unsafe { &*FMUstate.cast::<SavedState>() };
         match inst.restore_state(bytes) {
             Ok(()) => fmi2OK,
@@ -566,13 +619,21 @@ pub unsafe extern "C" fn fmi2FreeFMUstate(
         if FMUstate.is_null() {
             return null_arg(inst, f, "FMUstate");
         }
-        // SAFETY: *FMUstate is NULL or a state made by us, freed exactly once here.
+        // SAFETY: FMUstate is a valid out-pointer (the importer's variable).
+        let state = unsafe { *FMUstate };
+        if state.is_null() {
+            return fmi2OK;
+        }
+        // Only the call that removes a live state frees it: one freed already (through a copy
+        // of its pointer), or never made by this binary, is refused without being touched.
+        if !live::STATES.unregister(state as usize) {
+            return inst.refuse(f, &not_a_state(state));
+        }
+        // SAFETY: the state was live, so it came from Box::into_raw in store_state, and only
+        // this call removed it from the registry; FMUstate is a valid out-pointer.
         unsafe {
-            let state = *FMUstate;
-            if !state.is_null() {
-                drop(Box::from_raw(state.cast::<SavedState>()));
-                *FMUstate = std::ptr::null_mut();
-            }
+            drop(Box::from_raw(state.cast::<SavedState>()));
+            *FMUstate = std::ptr::null_mut();
         }
         fmi2OK
     })
@@ -590,7 +651,10 @@ pub unsafe extern "C" fn fmi2SerializedFMUstateSize(
         if FMUstate.is_null() || size.is_null() {
             return null_arg(inst, f, "FMUstate or size");
         }
-        // SAFETY: FMUstate was made by us; size is a valid out-pointer.
+        if let Err(why) = check_live_state(FMUstate, false) {
+            return inst.refuse(f, &why);
+        }
+        // SAFETY: a live state of ours (checked); size is a valid out-pointer.
         unsafe { *size = (*FMUstate.cast::<SavedState>()).len() };
         fmi2OK
     })
@@ -609,7 +673,10 @@ pub unsafe extern "C" fn fmi2SerializeFMUstate(
         if FMUstate.is_null() || serializedState.is_null() {
             return null_arg(inst, f, "FMUstate or serializedState");
         }
-        // SAFETY: FMUstate was made by us.
+        if let Err(why) = check_live_state(FMUstate, false) {
+            return inst.refuse(f, &why);
+        }
+        // SAFETY: a live state of ours (checked).
         let bytes: &SavedState = unsafe { &*FMUstate.cast::<SavedState>() };
         if size < bytes.len() {
             return inst.refuse(
@@ -648,15 +715,13 @@ pub unsafe extern "C" fn fmi2DeSerializeFMUstate(
         if let Err(e) = inst.check_state(bytes) {
             return inst.refuse(f, &e.to_string());
         }
-        // SAFETY: FMUstate is a valid out-pointer; an existing state of ours is overwritten.
-        unsafe {
-            let existing = *FMUstate;
-            if existing.is_null() {
-                *FMUstate = Box::into_raw(Box::new(bytes.to_vec())).cast();
-            } else {
-                *existing.cast::<SavedState>() = bytes.to_vec();
-            }
+        // SAFETY: FMUstate is a valid out-pointer (the importer's variable).
+        let existing = unsafe { *FMUstate };
+        if let Err(why) = check_live_state(existing, true) {
+            return inst.refuse(f, &why);
         }
+        // SAFETY: `existing` is NULL or a live state (checked), FMUstate a valid out-pointer.
+        unsafe { store_state(FMUstate, existing, bytes.to_vec()) };
         fmi2OK
     })
 }

@@ -42,8 +42,8 @@ Exit codes:
        up to and including its last successful time. `study`: an interlock ended a run
   4    `run`: the --timeout passed; the rows so far are in OUTPUT.partial
   129  `run` stopped by SIGHUP, 130 by SIGINT, 143 by SIGTERM; the rows so far are in
-       OUTPUT.partial. `sweep` stopped by a signal (the same codes): the rows so far are in
-       OUTPUT.journal for --resume. `sweep` exits 0 when its rows tripped or failed (each is
+       OUTPUT.partial. `sweep` and `optimize` stopped by a signal (the same codes): the rows so
+       far are in OUTPUT.journal for --resume. `sweep` exits 0 when its rows tripped or failed (each is
        a row with its status)";
 
 /// kneebench: a co-simulation harness for FMI 2.0 FMUs and SSP 1.0 systems.

@@ -3,6 +3,7 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
+use kneebench_harness::control::RunControl;
 use kneebench_harness::sweep::optimize::GenerationBest;
 use kneebench_harness::sweep::spec::OptimizeSpec;
 use kneebench_harness::sweep::{Row, RunStatus, SweepOptions, run_optimization};
@@ -24,7 +25,8 @@ one trial per member and generation within the parameters' [min, max]. A run tha
 interlock or fails, or breaks a constraint, loses against one that does not. Every run is a
 row of the table (generation = point / population); the best run is printed and named in the
 table's metadata (kneebench.optimize.best_point). Finished rows are journaled to
-OUTPUT.journal; --resume replays them and runs the rest. --resume with no journal continues a
+OUTPUT.journal; Ctrl-C stops the runs (exit code 130, the journal kept, no table written, the
+runs done counted); --resume replays them and runs the rest. --resume with no journal continues a
 finished Parquet table: raise the spec's generations (nothing else) and only the new
 generations run; the result equals a run with that many generations from the start. The
 result is identical whatever the number of workers.
@@ -246,7 +248,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         eprintln!("error: {message}");
         return Ok(super::EXIT_USAGE);
     }
-    let prepared = match super::sweep::prepare(&a.spec, &a.output, true)? {
+    let mut prepared = match super::sweep::prepare(&a.spec, &a.output, true)? {
         Ok(p) => p,
         Err(code) => return Ok(code),
     };
@@ -272,7 +274,20 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         }
         Ok(())
     };
-    let result = run_optimization(&prepared, Some(&a.output), &options, &mut on_generation)?;
+    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the runs at their next step, as in `sweep`: the
+    // rows before it stay journaled, no table is written, and the exit code is 128 + the
+    // signal (130 for Ctrl-C) with the hint to resume. A second Ctrl-C ends the process at once.
+    let control = RunControl::new();
+    control.stop_on_signals()?;
+    prepared.config.control = Some(control.clone());
+    let total = (prepared.design.points.len() * (settings.generations + 1)) as u64;
+    let result = match run_optimization(&prepared, Some(&a.output), &options, &mut on_generation) {
+        Ok(r) => r,
+        Err(e) => {
+            return super::sweep::stopped(&control, &a.output, total, "runs")
+                .ok_or_else(|| e.into());
+        }
+    };
     eprintln!(
         "wrote {} rows to {} ({} workers, {:.3} s wall time)",
         result.table.rows.len(),

@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use kneebench_harness::bench_protocol::Key;
 use kneebench_harness::master::Value;
 use kneebench_harness::params::ParamsError;
 use kneebench_harness::study::{
@@ -44,7 +45,7 @@ pub struct Args {
     /// Output directory.
     #[arg(long, default_value = "out/study")]
     pub out: PathBuf,
-    /// Scenarios to run (comma-separated: bench-full, bench-clutch).
+    /// Scenarios to run (comma-separated: bench-full, bench-clutch, each at most once).
     #[arg(long, value_delimiter = ',', default_value = "bench-full,bench-clutch")]
     pub scenario: Vec<String>,
     /// Gait cycles per run, at least 2 (the first, the start-up, is not analysed).
@@ -53,8 +54,8 @@ pub struct Args {
     /// Multiplies the gait's angle and torque amplitudes.
     #[arg(long, default_value_t = 1.0, value_parser = super::values::positive)]
     pub scale: f64,
-    /// Actuators to run (comma-separated: da, sea, csea; default: each scenario's); a scenario
-    /// with none of them is left out, with a note.
+    /// Actuators to run (comma-separated: da, sea, csea, each at most once; default: each
+    /// scenario's); a scenario with none of them is left out, with a note.
     #[arg(long, value_delimiter = ',')]
     pub actuators: Vec<String>,
     /// Set a scenario parameter, `component.name=value` (repeatable; a mode by its item name),
@@ -98,6 +99,14 @@ fn parse_override(text: &str) -> anyhow::Result<(String, Value)> {
     Ok((name, parsed))
 }
 
+/// The first item of `list` that an earlier one equals.
+fn first_repeated<T: PartialEq>(list: &[T]) -> Option<&T> {
+    list.iter()
+        .enumerate()
+        .find(|(k, x)| list[..*k].contains(x))
+        .map(|(_, x)| x)
+}
+
 /// Runs `kneebench study`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     let actuators = a
@@ -112,6 +121,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             ))),
         })
         .collect::<Result<Vec<_>, _>>()?;
+    // One given twice would be merged (an actuator run once) or run twice (a scenario into the
+    // same files): refused, as a list of names given twice is elsewhere.
+    if let Some(twice) = first_repeated(&actuators) {
+        return Err(super::Usage(format!("--actuators: {} is given twice", twice.name())).into());
+    }
     let scenarios = a
         .scenario
         .iter()
@@ -123,6 +137,9 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             })
         })
         .collect::<Result<Vec<_>, _>>()?;
+    if let Some(twice) = first_repeated(&scenarios) {
+        return Err(super::Usage(format!("--scenario: {} is given twice", twice.name())).into());
+    }
     let overrides = a
         .params
         .iter()
@@ -202,6 +219,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             StudyError::BenchParameter(m) => super::Usage(format!("--bench-param {m}")).into(),
             e => anyhow::Error::from(e),
         })?);
+    }
+    // The bench's key file, read as the bench link will read it: a file it would refuse (one
+    // others may read, a key that is no secret, none at all) is a usage error, as for `emulate
+    // --key`, before anything runs (each run failed on it, exit code 1, after the scenario
+    // and its report were written).
+    if let Some(key) = a.bench.as_ref().and(a.key.as_ref()) {
+        Key::load_file(key).map_err(|e| super::Usage(format!("--key {e}")))?;
     }
     let mut all = Vec::new();
     for study in &checked {

@@ -297,6 +297,25 @@ pub(crate) fn prepare(
     Ok(Ok(prepared))
 }
 
+/// The exit code of a sweep or optimisation that ended with an error, if `control` stopped it
+/// (Ctrl-C, SIGTERM, SIGHUP): 128 + the signal (130 for Ctrl-C), after saying how many of the
+/// `total` `what` (points, runs) the journal of `output` keeps and that `--resume` continues.
+/// `None` for an error of its own.
+pub(super) fn stopped(control: &RunControl, output: &Path, total: u64, what: &str) -> Option<i32> {
+    let reason = control.stop_reason()?;
+    let journal = journal_path(output);
+    let done =
+        std::fs::read_to_string(&journal).map_or(0, |j| j.matches('\n').count().saturating_sub(1));
+    eprintln!(
+        "{reason}: {done} of {total} {what} done (journaled in {}); run again with --resume",
+        journal.display()
+    );
+    Some(match reason {
+        StopReason::Signal(n) => 128 + n,
+        _ => super::EXIT_ERROR,
+    })
+}
+
 /// Runs `kneebench sweep`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     kneebench_harness::tempdirs::remove_stale();
@@ -346,21 +365,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let table = match run_sweep(&prepared, Some(&a.output), &options) {
         Ok(t) => t,
         Err(e) => {
-            let Some(reason) = control.stop_reason() else {
-                return Err(e.into());
-            };
-            let journal = journal_path(&a.output);
-            let done = std::fs::read_to_string(&journal)
-                .map_or(0, |j| j.matches('\n').count().saturating_sub(1));
-            eprintln!(
-                "{reason}: {done} of {} points done (journaled in {}); run again with --resume",
-                prepared.design.points.len(),
-                journal.display()
-            );
-            return Ok(match reason {
-                StopReason::Signal(n) => 128 + n,
-                _ => super::EXIT_ERROR,
-            });
+            let total = prepared.design.points.len() as u64;
+            return stopped(&control, &a.output, total, "points").ok_or_else(|| e.into());
         }
     };
     let (ok, tripped, failed) = kneebench_harness::sweep::runner::status_counts(&table);

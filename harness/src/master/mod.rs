@@ -112,6 +112,16 @@ pub enum VarType {
 }
 
 impl VarType {
+    /// The type's name with its article, for messages: "a Real", "an Integer".
+    pub fn with_article(self) -> &'static str {
+        match self {
+            VarType::Real => "a Real",
+            VarType::Integer => "an Integer",
+            VarType::Boolean => "a Boolean",
+            VarType::String => "a String",
+        }
+    }
+
     /// The type of a model-description variable.
     pub fn of(v: &ScalarVariable) -> VarType {
         match v.kind {
@@ -120,6 +130,19 @@ impl VarType {
             VariableKind::Boolean { .. } => VarType::Boolean,
             VariableKind::String { .. } => VarType::String,
         }
+    }
+}
+
+/// A causality as the model description spells it, with its article, for messages: "an
+/// input", "a parameter".
+fn causality_with_article(c: Causality) -> &'static str {
+    match c {
+        Causality::Parameter => "a parameter",
+        Causality::CalculatedParameter => "a calculatedParameter",
+        Causality::Input => "an input",
+        Causality::Output => "an output",
+        Causality::Local => "a local",
+        Causality::Independent => "an independent",
     }
 }
 
@@ -686,13 +709,19 @@ impl System {
         if src_c != Causality::Output {
             return Err(MasterError::BadEndpoint {
                 reference: from.to_string(),
-                problem: format!("a connection starts at an output, not a {src_c:?} variable"),
+                problem: format!(
+                    "a connection starts at an output, not {} variable",
+                    causality_with_article(src_c)
+                ),
             });
         }
         if dst_c != Causality::Input {
             return Err(MasterError::BadEndpoint {
                 reference: to.to_string(),
-                problem: format!("a connection ends at an input, not a {dst_c:?} variable"),
+                problem: format!(
+                    "a connection ends at an input, not {} variable",
+                    causality_with_article(dst_c)
+                ),
             });
         }
         if src.ty != dst.ty {
@@ -761,7 +790,7 @@ impl System {
                 .item_value(reference, text)?
                 .ok_or_else(|| MasterError::BadValue {
                     reference: reference.to_string(),
-                    problem: format!("'{text}' is not a {:?}", r.ty),
+                    problem: format!("'{text}' is not {}", r.ty.with_article()),
                 }),
         }
     }
@@ -801,7 +830,10 @@ impl System {
         if c != Causality::Input {
             return Err(MasterError::BadEndpoint {
                 reference: to.to_string(),
-                problem: format!("a signal feeds an input, not a {c:?} variable"),
+                problem: format!(
+                    "a signal feeds an input, not {} variable",
+                    causality_with_article(c)
+                ),
             });
         }
         if dst.ty == VarType::String {

@@ -1212,6 +1212,38 @@ impl SweepSpec {
                 ),
             );
         }
+        // A grid's points (the product of its axes) likewise, refused at `kind` (no line gives
+        // the count): only when every axis is known, a parameter without one is refused above.
+        let axes: Option<Vec<usize>> = parameters
+            .iter()
+            .map(|q| q.values.as_ref().map(Vec::len).or(q.levels))
+            .collect();
+        if matches!(design, DesignKind::Grid)
+            && let Some(axes) = axes
+        {
+            let points = axes
+                .iter()
+                .try_fold(1u128, |n, &a| n.checked_mul(a as u128));
+            if points.is_none_or(|n| n > max as u128) {
+                let dims = parameters.len();
+                let count = match points {
+                    Some(n) => format!(
+                        "{n} points of {dims} parameters, {} values",
+                        n.saturating_mul(dims as u128)
+                    ),
+                    None => format!("more than 2^128 points of {dims} parameters"),
+                };
+                p.at(
+                    d.kind.span(),
+                    format!(
+                        "the grid has {count}: more than {max} points (at most {} points and \
+                         {} values, points x parameters)",
+                        super::design::MAX_POINTS,
+                        super::design::MAX_DESIGN_VALUES,
+                    ),
+                );
+            }
+        }
         let optimize = raw
             .optimize
             .as_ref()
@@ -1550,6 +1582,60 @@ from = FROM
             p[0].1.starts_with(
                 "10000000 points of 20 parameters are 200000000 values, more than 33554432"
             ),
+            "{}",
+            p[0].1
+        );
+    }
+
+    /// A grid of more points than MAX_POINTS, or of more values (points x parameters) than
+    /// MAX_DESIGN_VALUES, is refused at the design's `kind` line while the spec is read, naming
+    /// the bounds. Before, it passed the reading and was refused when the design was made,
+    /// without a line.
+    #[test]
+    fn a_grid_of_too_many_values_is_refused_at_its_kind_line() {
+        let base = SPEC.replace("from = FROM\n", "").replace(
+            "values = [300.0, 400.0]",
+            "values = [300.0, 350.0, 400.0, 450.0]",
+        );
+        // 19 more parameters of 2 levels: 4 x 2^19 = 2097152 points of 20 parameters, more
+        // than the 1677721 points of 20 parameters that MAX_DESIGN_VALUES allows.
+        let mut spec = base.clone();
+        for k in 0..19 {
+            spec.push_str(&format!(
+                "[[parameters]]\nname = \"plant.p{k}\"\nmin = 1.0\nmax = 2.0\nlevels = 2\n"
+            ));
+        }
+        let p = refused(&spec);
+        assert_eq!(
+            p,
+            [(
+                5,
+                "the grid has 2097152 points of 20 parameters, 41943040 values: more than \
+                 1677721 points (at most 10000000 points and 33554432 values, points x \
+                 parameters)"
+                    .to_string()
+            )]
+        );
+        // One point fewer per axis fits: 2^20 points.
+        parse(&spec.replacen(
+            "values = [300.0, 350.0, 400.0, 450.0]",
+            "values = [300.0, 400.0]",
+            1,
+        ))
+        .unwrap();
+        // Beyond MAX_POINTS, and beyond 64 bits when multiplied: still at `kind`.
+        let mut spec = base;
+        for k in 0..3 {
+            spec.push_str(&format!(
+                "[[parameters]]\nname = \"plant.p{k}\"\nmin = 1.0\nmax = 2.0\nlevels = 10000000\n"
+            ));
+        }
+        let p = refused(&spec);
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, 5);
+        assert!(
+            p[0].1
+                .starts_with("the grid has 4000000000000000000000 points of 4 parameters"),
             "{}",
             p[0].1
         );
