@@ -442,10 +442,17 @@ impl Discretization {
         // set do not wait for the other's, which halves the add-latency chain of the loop.
         let mut even = [0.0f64; 6];
         let mut odd = [0.0f64; 6];
-        for (g, x) in self.reduced_columns.chunks_exact(2).zip(x.chunks_exact(2)) {
+        // Index loops over the fixed arrays (a zip of two `chunks_exact` cost an out-of-line
+        // iterator constructor per call).
+        for k in 0..NREDUCED_PACK_PADDED / 2 {
+            let (g0, g1) = (
+                &self.reduced_columns[2 * k],
+                &self.reduced_columns[2 * k + 1],
+            );
+            let (x0, x1) = (x[2 * k], x[2 * k + 1]);
             for q in 0..6 {
-                even[q] += g[0][q] * x[0];
-                odd[q] += g[1][q] * x[1];
+                even[q] += g0[q] * x0;
+                odd[q] += g1[q] * x1;
             }
         }
         let mut sums = [0.0; 6];
