@@ -255,6 +255,16 @@ impl BenchPlant {
         let mut emf = [0.0; 2];
         let constant = self.constant_power(held);
         let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
+        // The pieces' working arrays, zeroed once per segment, not per piece (~7 KB): a piece
+        // writes every entry it reads (its `n` terms, its `2 n - 1` products and powers) before
+        // reading it, so what an earlier piece left beyond them is never read.
+        let mut weights = [0.0; 2 * PIECE_TERMS];
+        let mut series = [[0.0; 4]; PIECE_TERMS];
+        let mut speeds = [[0.0; PIECE_TERMS]; 2];
+        let mut currents = [[0.0; PIECE_TERMS]; 2];
+        let mut squares_of = [[0.0; 4]; 2 * PIECE_TERMS];
+        let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
+        let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
         for piece in segment.pieces() {
             if piece.start >= stop {
                 break;
@@ -263,7 +273,6 @@ impl BenchPlant {
             let n = piece.terms;
             let degree = 2 * n - 1;
             // weights[k] = integral_0^s_end s^k ds
-            let mut weights = [0.0; 2 * PIECE_TERMS];
             let mut power = s_end;
             for (k, weight) in weights[..degree].iter_mut().enumerate() {
                 *weight = power / (k + 1) as f64;
@@ -271,7 +280,7 @@ impl BenchPlant {
             }
             let integral = |p: &[f64]| -> f64 {
                 p.iter()
-                    .zip(weights.iter())
+                    .zip(weights[..degree].iter())
                     .map(|(c, w)| c * w)
                     .sum::<f64>()
             };
@@ -280,9 +289,6 @@ impl BenchPlant {
             // from its own two series, one after the other (`product_into`: for a current
             // coefficient, a run of consecutive outputs gains it times the speed series, four
             // at a time).
-            let mut series = [[0.0; 4]; PIECE_TERMS];
-            let mut speeds = [[0.0; PIECE_TERMS]; 2];
-            let mut currents = [[0.0; PIECE_TERMS]; 2];
             for (k, c) in piece.coefficients[..n].iter().enumerate() {
                 series[k] = [c[OMEGA1], c[OMEGA2], c[CURRENT1], c[CURRENT2]];
                 speeds[0][k] = c[OMEGA1];
@@ -290,13 +296,10 @@ impl BenchPlant {
                 currents[0][k] = c[CURRENT1];
                 currents[1][k] = c[CURRENT2];
             }
-            let mut squares_of = [[0.0; 4]; 2 * PIECE_TERMS];
-            let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
             square_lanes(&series[..n], &mut squares_of);
             for j in 0..2 {
                 product_into(&currents[j][..n], &speeds[j][..n], &mut wi[j]);
             }
-            let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
             for k in 0..degree {
                 let linear = |j: usize| if k < n { series[k][2 + j] } else { 0.0 };
                 let [_, _, ii0, ii1] = squares_of[k];
@@ -317,8 +320,10 @@ impl BenchPlant {
                 positive[k] += piece.len * positive_part(p, s_end, part);
             }
             for j in 0..2 {
-                squares[j] += piece.len * lane_integral(&squares_of[..degree], &weights, j);
-                copper[j] += piece.len * lane_integral(&squares_of[..degree], &weights, 2 + j);
+                squares[j] +=
+                    piece.len * lane_integral(&squares_of[..degree], &weights[..degree], j);
+                copper[j] +=
+                    piece.len * lane_integral(&squares_of[..degree], &weights[..degree], 2 + j);
                 emf[j] += piece.len * integral(&wi[j][..degree]);
             }
         }
