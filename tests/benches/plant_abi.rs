@@ -10,9 +10,19 @@
 //! commit's `kneebench export`; its own GUID is used, so a build whose model description
 //! changed still serves), or its `libkneebench_fmu.so` (this build's GUID: only while the
 //! description is unchanged), that build runs too, interleaved, and must give the same angles
-//! bit for bit; "speed-up" is its wall time over this build's.
+//! bit for bit; "speed-up" is its wall time over this build's. One more, untimed cycle of each
+//! build then reads every Real output after every step, and those must be the same bit for bit
+//! too.
 //!
 //! Run: `cargo bench -p kneebench-tests --bench plant_abi`
+//!
+//! Instructions per step (repeatable on a noisy machine): `KNEEBENCH_PLANT_ABI_PROFILE=SEA:3
+//! valgrind --tool=callgrind --toggle-collect='*plant_abi*profiled*' <bench binary>` runs one
+//! cycle of the configuration (DA, SEA or CSEA) to warm up, then 3 cycles through the C ABI
+//! inside `profiled` (the function callgrind is told to count: the steps and their four FMI
+//! calls, instantiation and initialization included; a cycle is 2,500 steps). With
+//! `KNEEBENCH_PLANT_ABI_BASELINE` set, the baseline build is the one profiled. Build the FMU
+//! library with `CARGO_PROFILE_RELEASE_STRIP=none` for the plant's function names.
 
 use std::path::Path;
 use std::time::Instant;
@@ -55,6 +65,19 @@ fn run_cycle(
     internal_step: f64,
     inputs: &[(f64, f64, bool)],
 ) -> (f64, Vec<f64>) {
+    run_cycle_reading(f, guid, configuration, internal_step, inputs, &[300, 301])
+}
+
+/// [`run_cycle`] reading the Real outputs `vrs_out` after every step (the angles, value
+/// references 300 and 301, in [`run_cycle`]).
+fn run_cycle_reading(
+    f: &Raw,
+    guid: &str,
+    configuration: i32,
+    internal_step: f64,
+    inputs: &[(f64, f64, bool)],
+    vrs_out: &[u32],
+) -> (f64, Vec<f64>) {
     let mut i = RawInstance::new(f, "bench", guid);
     // SAFETY: valid component and arrays.
     unsafe {
@@ -69,11 +92,10 @@ fn run_cycle(
     }
     i.initialize(0.0, None);
     let clutch = configuration == 2;
-    let mut angles = Vec::with_capacity(2 * STEPS as usize);
+    let mut angles = Vec::with_capacity(vrs_out.len() * STEPS as usize);
     let vrs_in = [201u32, 203];
     let vr_clutch = [206u32];
-    let vrs_out = [300u32, 301];
-    let mut out = [0.0; 2];
+    let mut out = vec![0.0; vrs_out.len()];
     let t0 = Instant::now();
     for (k, &(test, load, stance)) in inputs.iter().enumerate() {
         // SAFETY: valid component and arrays.
@@ -87,7 +109,8 @@ fn run_cycle(
             );
             let s = (f.do_step)(i.c, k as f64 * H, H, 1);
             assert_eq!(s, fmi2Status::fmi2OK, "{}", i.log_text());
-            (f.get_real)(i.c, vrs_out.as_ptr(), 2, out.as_mut_ptr());
+            let s = (f.get_real)(i.c, vrs_out.as_ptr(), vrs_out.len(), out.as_mut_ptr());
+            assert_eq!(s, fmi2Status::fmi2OK, "{}", i.log_text());
         }
         angles.extend_from_slice(&out);
     }
@@ -169,6 +192,15 @@ fn same_bits(a: &[f64], b: &[f64]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
+/// `runs` cycles of `configuration` through the C ABI: what callgrind counts in profile mode
+/// (see the header).
+#[inline(never)]
+fn profiled(raw: &Raw, guid: &str, configuration: i32, inputs: &[(f64, f64, bool)], runs: usize) {
+    for _ in 0..runs {
+        std::hint::black_box(run_cycle(raw, guid, configuration, 1e-3, inputs));
+    }
+}
+
 fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus = kneebench_harness::package::export_all(&fmu_library(), dir.path()).unwrap();
@@ -178,6 +210,37 @@ fn main() {
     let guid = fmu.model_description().guid.clone();
     let baseline = std::env::var_os(BASELINE_VAR).map(|path| Baseline::load(Path::new(&path)));
     let inputs = recorded_inputs();
+    // Every Real output's value reference (for the baseline's bit-for-bit check of them all).
+    let real_outputs: Vec<u32> = fmu
+        .model_description()
+        .model_variables
+        .iter()
+        .filter(|v| {
+            v.causality == Some(model_description::Causality::Output)
+                && matches!(v.kind, model_description::VariableKind::Real { .. })
+        })
+        .map(|v| v.value_reference)
+        .collect();
+    if let Ok(profile) = std::env::var("KNEEBENCH_PLANT_ABI_PROFILE") {
+        let (name, runs) = profile
+            .split_once(':')
+            .expect("KNEEBENCH_PLANT_ABI_PROFILE is CONFIGURATION:RUNS, e.g. SEA:3");
+        let code = match name {
+            "DA" => Configuration::Da,
+            "SEA" => Configuration::Sea,
+            "CSEA" => Configuration::Csea,
+            other => panic!("KNEEBENCH_PLANT_ABI_PROFILE: no configuration {other}"),
+        }
+        .as_i32();
+        let runs: usize = runs.parse().expect("KNEEBENCH_PLANT_ABI_PROFILE: runs");
+        let (raw, guid) = match &baseline {
+            Some(b) => (&b.raw, b.guid.as_str()),
+            None => (&raw, guid.as_str()),
+        };
+        run_cycle(raw, guid, code, 1e-3, &inputs);
+        profiled(raw, guid, code, &inputs, runs);
+        return;
+    }
     println!(
         "BenchPlant, one 2.5 s gait cycle, 1 ms steps, recorded inputs, C ABI (median of {REPEATS}, interleaved)"
     );
@@ -214,6 +277,27 @@ fn main() {
                 assert!(
                     same_bits(&angles, &a),
                     "{name}: this build and the baseline differ"
+                );
+            }
+        }
+        if let Some(baseline) = &baseline {
+            // Every Real output, not only the angles, bit for bit (one untimed cycle each).
+            let (_, ours) = run_cycle_reading(&raw, &guid, code, 1e-3, &inputs, &real_outputs);
+            let (_, theirs) = run_cycle_reading(
+                &baseline.raw,
+                &baseline.guid,
+                code,
+                1e-3,
+                &inputs,
+                &real_outputs,
+            );
+            if let Some(k) = (0..ours.len()).find(|&k| ours[k].to_bits() != theirs[k].to_bits()) {
+                panic!(
+                    "{name}: this build and the baseline differ at step {} in output {}: {} vs {}",
+                    k / real_outputs.len(),
+                    real_outputs[k % real_outputs.len()],
+                    ours[k],
+                    theirs[k]
                 );
             }
         }

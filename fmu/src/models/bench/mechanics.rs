@@ -161,8 +161,15 @@ pub(crate) struct Discretization {
     columns: [[f64; 8]; NZ],
     /// Reduced packed Gramians by packed index `k` of the reduced state `y` (see
     /// [`reduced_state`]): `integral z_a z_b dt = sum_k g[k][ab] y_i y_j` over `i <= j`, six
-    /// products of [`PRODUCTS`] per entry.
+    /// products of [`PRODUCTS`] per entry (kept for the tests; the step reads
+    /// [`Self::reduced_blocks`]).
+    #[cfg(test)]
     reduced_columns: [[f64; 6]; NREDUCED_PACK_PADDED],
+    /// [`Self::reduced_columns`] two products at a time, as [`Self::quadratic_integrals`]
+    /// reads them: block `k` holds the six entries of product `2 k` then the six of product
+    /// `2 k + 1`, in three runs of four (so that the sums run on three 4-wide registers, each
+    /// lane one entry's own sum).
+    reduced_blocks: [[[f64; 4]; 3]; NREDUCED_PACK_PADDED / 2],
     /// The full packed Gramians over `z` (for the tests that check them).
     #[cfg(test)]
     full_gramians: [[f64; NPACK]; 6],
@@ -357,11 +364,22 @@ impl Discretization {
                 k += 1;
             }
         }
+        let mut reduced_blocks = [[[0.0; 4]; 3]; NREDUCED_PACK_PADDED / 2];
+        for (k, block) in reduced_blocks.iter_mut().enumerate() {
+            let (g0, g1) = (reduced_columns[2 * k], reduced_columns[2 * k + 1]);
+            *block = [
+                [g0[0], g0[1], g0[2], g0[3]],
+                [g0[4], g0[5], g1[0], g1[1]],
+                [g1[2], g1[3], g1[4], g1[5]],
+            ];
+        }
         Self {
             key,
             step,
             columns,
+            #[cfg(test)]
             reduced_columns,
+            reduced_blocks,
             #[cfg(test)]
             full_gramians: gramians,
         }
@@ -426,9 +444,10 @@ impl Discretization {
         (out, [applied[6], applied[7]])
     }
 
-    /// Integrals over the step of the six products of [`PRODUCTS`], starting at `z`.
+    /// Integrals over the step of the six products of [`PRODUCTS`], starting at `z`; `WIDE`
+    /// in the AVX2 build of the step only ([`super::BenchPlant::step`]: the CPU has AVX2).
     #[inline(always)]
-    pub(crate) fn quadratic_integrals(&self, z: &AugVector) -> [f64; 6] {
+    pub(crate) fn quadratic_integrals<const WIDE: bool>(&self, z: &AugVector) -> [f64; 6] {
         let y = reduced_state(z);
         let mut x = [0.0; NREDUCED_PACK_PADDED];
         let mut k = 0;
@@ -439,15 +458,18 @@ impl Discretization {
             }
         }
         // Two independent sets of six running sums (even and odd products): the adds of one
-        // set do not wait for the other's, which halves the add-latency chain of the loop.
-        let mut even = [0.0f64; 6];
-        let mut odd = [0.0f64; 6];
-        for (g, x) in self.reduced_columns.chunks_exact(2).zip(x.chunks_exact(2)) {
-            for q in 0..6 {
-                even[q] += g[0][q] * x[0];
-                odd[q] += g[1][q] * x[1];
-            }
-        }
+        // set do not wait for the other's, which halves the add-latency chain of the loop. The
+        // twelve sums sit in three runs of four, beside the blocks of `reduced_blocks`: one
+        // multiply and one add per run and pair of products, no shuffles of the entries.
+        // Each lane is `even[q] += g[2 k][q] x[2 k]` (or the odd one) in the order of `k`, the
+        // sum [`Self::quadratic_integrals_plain`] takes (tested bit for bit).
+        let acc = self.blocked_sums::<WIDE>(&x);
+        let even = [
+            acc[0][0], acc[0][1], acc[0][2], acc[0][3], acc[1][0], acc[1][1],
+        ];
+        let odd = [
+            acc[1][2], acc[1][3], acc[2][0], acc[2][1], acc[2][2], acc[2][3],
+        ];
         let mut sums = [0.0; 6];
         for q in 0..6 {
             sums[q] = even[q] + odd[q];
@@ -455,12 +477,106 @@ impl Discretization {
         sums
     }
 
+    /// The three runs of four sums of [`Self::quadratic_integrals`]: with `WIDE` (the AVX2
+    /// build) on three 4-wide registers written out ([`Self::blocked_sums_avx2`]: the compiler
+    /// otherwise regroups the lanes into 2- and 4-wide halves with shuffles, ~20 instructions
+    /// per pair of products instead of ~11), else in plain Rust. The same multiplies and adds in
+    /// the same order per lane either way (tested).
+    #[inline(always)]
+    fn blocked_sums<const WIDE: bool>(&self, x: &[f64; NREDUCED_PACK_PADDED]) -> [[f64; 4]; 3] {
+        #[cfg(target_arch = "x86_64")]
+        if WIDE {
+            // SAFETY: `WIDE` is set only by the AVX2 build of the step, which runs only where
+            // the CPU reports AVX2 (`BenchPlant::step`), the feature this function needs.
+            return unsafe { self.blocked_sums_avx2(x) };
+        }
+        let mut acc = [[0.0f64; 4]; 3];
+        for (k, block) in self.reduced_blocks.iter().enumerate() {
+            let (x0, x1) = (x[2 * k], x[2 * k + 1]);
+            let factors = [[x0; 4], [x0, x0, x1, x1], [x1; 4]];
+            for v in 0..3 {
+                for l in 0..4 {
+                    acc[v][l] += block[v][l] * factors[v][l];
+                }
+            }
+        }
+        acc
+    }
+
+    /// [`Self::blocked_sums`] on AVX2 registers: per pair of products three multiplies (the
+    /// block's runs by `x[2 k]`, by `(x[2 k], x[2 k], x[2 k + 1], x[2 k + 1])` and by
+    /// `x[2 k + 1]`) and three adds, lane by lane the plain form's operations (no fused
+    /// multiply-add).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn blocked_sums_avx2(&self, x: &[f64; NREDUCED_PACK_PADDED]) -> [[f64; 4]; 3] {
+        use std::arch::x86_64::{
+            _mm256_add_pd, _mm256_blend_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_set1_pd,
+            _mm256_setzero_pd, _mm256_storeu_pd,
+        };
+        let (mut a0, mut a1, mut a2) = (
+            _mm256_setzero_pd(),
+            _mm256_setzero_pd(),
+            _mm256_setzero_pd(),
+        );
+        for (k, block) in self.reduced_blocks.iter().enumerate() {
+            let x0 = _mm256_set1_pd(x[2 * k]);
+            let x1 = _mm256_set1_pd(x[2 * k + 1]);
+            // Lanes 0 and 1 from x0, 2 and 3 from x1.
+            let mixed = _mm256_blend_pd::<0b1100>(x0, x1);
+            // SAFETY: each run is four consecutive f64 of `block` (unaligned loads).
+            let (g0, g1, g2) = unsafe {
+                (
+                    _mm256_loadu_pd(block[0].as_ptr()),
+                    _mm256_loadu_pd(block[1].as_ptr()),
+                    _mm256_loadu_pd(block[2].as_ptr()),
+                )
+            };
+            a0 = _mm256_add_pd(a0, _mm256_mul_pd(g0, x0));
+            a1 = _mm256_add_pd(a1, _mm256_mul_pd(g1, mixed));
+            a2 = _mm256_add_pd(a2, _mm256_mul_pd(g2, x1));
+        }
+        let mut acc = [[0.0f64; 4]; 3];
+        // SAFETY: each run of `acc` holds four f64 (unaligned stores).
+        unsafe {
+            _mm256_storeu_pd(acc[0].as_mut_ptr(), a0);
+            _mm256_storeu_pd(acc[1].as_mut_ptr(), a1);
+            _mm256_storeu_pd(acc[2].as_mut_ptr(), a2);
+        }
+        acc
+    }
+
+    /// [`Self::quadratic_integrals`] in its plain form: the even and the odd products' six
+    /// sums each, entry by entry from `reduced_columns`.
+    #[cfg(test)]
+    pub(crate) fn quadratic_integrals_plain(&self, z: &AugVector) -> [f64; 6] {
+        let y = reduced_state(z);
+        let mut x = [0.0; NREDUCED_PACK_PADDED];
+        let mut k = 0;
+        for i in 0..NREDUCED {
+            for j in i..NREDUCED {
+                x[k] = y[i] * y[j];
+                k += 1;
+            }
+        }
+        let mut even = [0.0f64; 6];
+        let mut odd = [0.0f64; 6];
+        for k in 0..NREDUCED_PACK_PADDED / 2 {
+            for q in 0..6 {
+                even[q] += self.reduced_columns[2 * k][q] * x[2 * k];
+                odd[q] += self.reduced_columns[2 * k + 1][q] * x[2 * k + 1];
+            }
+        }
+        std::array::from_fn(|q| even[q] + odd[q])
+    }
+
     /// Integrals over the step starting at `z`.
     #[cfg(test)]
     pub(crate) fn integrals(&self, z: &AugVector) -> SegmentIntegrals {
         let (_, currents) = self.advance_with_currents(z);
         SegmentIntegrals {
-            products: self.quadratic_integrals(z),
+            products: self.quadratic_integrals::<false>(z),
             current1: currents[0],
             current2: currents[1],
         }
@@ -929,6 +1045,57 @@ mod tests {
         for k in 0..NZ {
             assert!((exact[k] - reference[k]).abs() < 1e-12 * (1.0 + exact[k].abs()));
         }
+    }
+
+    /// The blocked sums of the quadratic integrals (three 4-wide runs per pair of products)
+    /// are the plain even/odd sums over the reduced Gramians bit for bit: every mode of DA and
+    /// SEA, three step sizes, states with zeros, negative zeros, mixed signs and magnitudes.
+    #[test]
+    fn blocked_quadratic_integrals_are_the_plain_sums_bit_for_bit() {
+        let states: [AugVector; 4] = [
+            [0.1, -0.05, 0.3, -0.2, 2.0, -1.0, 12.0, 0.5, -5.0, 0.35],
+            [0.0, -0.0, 0.0, 1e-7, -0.0, 3.5, 0.0, -24.0, 0.0, 0.0],
+            [-3.0, 2.9, -150.0, 80.0, -14.0, 5.5, -24.0, 48.0, 2.5, -1.3],
+            [
+                1e-12, 2e-12, -1e-9, 1e-9, 1e-6, -1e-6, 1e-3, -1e-3, 1e-2, -1e-2,
+            ],
+        ];
+        let mut checked = 0;
+        for configuration in [
+            crate::models::bench::Configuration::Da,
+            crate::models::bench::Configuration::Sea,
+        ] {
+            let p = BenchParameters {
+                configuration,
+                ..BenchParameters::default()
+            };
+            for key in 0..16u8 {
+                let m = system_matrix(&p, LinearMode::from_key(key));
+                for h in [1e-5, 1e-3, 0.1] {
+                    let d = Discretization::new(&m, key, h);
+                    for z in &states {
+                        let plain = d.quadratic_integrals_plain(z);
+                        let mut builds = vec![d.quadratic_integrals::<false>(z)];
+                        if crate::models::bench::plant::cpu_has_wide_vectors() {
+                            builds.push(d.quadratic_integrals::<true>(z));
+                        }
+                        for q in 0..6 {
+                            for fast in &builds {
+                                assert_eq!(
+                                    fast[q].to_bits(),
+                                    plain[q].to_bits(),
+                                    "{configuration:?} mode {key} h {h} product {q}: {} vs {}",
+                                    fast[q],
+                                    plain[q]
+                                );
+                            }
+                            checked += usize::from(plain[q] != 0.0);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 1000, "{checked}");
     }
 
     #[test]

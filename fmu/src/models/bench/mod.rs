@@ -117,9 +117,9 @@
 //! event in the new mode. The electrical time constants (0.2-0.8 ms) are therefore no stability
 //! or accuracy issue at 1 ms or 0.1 s steps.
 //!
-//! Outputs are computed when read, by group (read off the state; the sensors' readings; those
-//! that need the held mode, such as voltages, powers and accelerations): an importer that reads
-//! a few signals after each step pays for their group only.
+//! Outputs are computed when read, by group (read off the state; the energies; the sensors'
+//! readings; those that need the held mode, such as voltages, powers and accelerations): an
+//! importer that reads a few signals after each step pays for their group only.
 //!
 //! ## Interlocks ([`Interlock`])
 //! Each trips when its quantity strictly exceeds the threshold, located inside the step; the

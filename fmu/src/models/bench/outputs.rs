@@ -165,8 +165,10 @@ pub struct BenchOutputs {
 /// signals after a step pays only for their part (see [`BenchPlant::fill_outputs`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SignalGroup {
-    /// Read off the state: angles, velocities, currents, torques, flags, energies.
+    /// Read off the state: angles, velocities, currents, torques, flags.
     Motion,
+    /// The energies: integrals since the start, stored kinetic and potential energy.
+    Energy,
     /// The sensors' readings: encoders, load cell, transducer, sense voltages.
     Sensors,
     /// Needing the held mode (friction, driver saturation, voltages): accelerations, voltages,
@@ -176,8 +178,12 @@ pub enum SignalGroup {
 
 impl SignalGroup {
     /// Every group.
-    pub const ALL: [SignalGroup; 3] =
-        [SignalGroup::Motion, SignalGroup::Sensors, SignalGroup::Mode];
+    pub const ALL: [SignalGroup; 4] = [
+        SignalGroup::Motion,
+        SignalGroup::Energy,
+        SignalGroup::Sensors,
+        SignalGroup::Mode,
+    ];
 
     /// A distinct bit per group (for freshness masks).
     pub const fn bit(self) -> u8 {
@@ -185,6 +191,7 @@ impl SignalGroup {
             SignalGroup::Motion => 1,
             SignalGroup::Sensors => 2,
             SignalGroup::Mode => 4,
+            SignalGroup::Energy => 8,
         }
     }
 }
@@ -203,6 +210,34 @@ const SENSOR_FIELDS: &[&str] = &[
     "load_supply_sense_voltage",
     "test_current_sense_voltage",
     "load_current_sense_voltage",
+];
+
+/// Fields of [`BenchOutputs`] filled by [`SignalGroup::Energy`] (a group of their own: an
+/// importer reading the angles, the motion group, copies none of these 23 values).
+const ENERGY_FIELDS: &[&str] = &[
+    "kinetic_energy",
+    "potential_energy",
+    "test_mechanical_energy",
+    "test_mechanical_energy_consumed",
+    "load_mechanical_energy",
+    "load_mechanical_energy_consumed",
+    "loss_energy",
+    "actuation_loss_energy",
+    "load_loss_energy",
+    "kinetic_energy_change",
+    "potential_energy_change",
+    "test_electrical_energy",
+    "test_electrical_energy_consumed",
+    "load_electrical_energy",
+    "load_electrical_energy_consumed",
+    "clutch_energy",
+    "offset_energy",
+    "total_electrical_energy",
+    "total_electrical_energy_consumed",
+    "test_copper_loss_energy",
+    "load_copper_loss_energy",
+    "test_back_emf_energy",
+    "load_back_emf_energy",
 ];
 
 /// Fields of [`BenchOutputs`] filled by [`SignalGroup::Mode`].
@@ -259,6 +294,8 @@ pub const fn signal_group(field: &str) -> SignalGroup {
         SignalGroup::Sensors
     } else if listed(field, MODE_FIELDS) {
         SignalGroup::Mode
+    } else if listed(field, ENERGY_FIELDS) {
+        SignalGroup::Energy
     } else {
         SignalGroup::Motion
     }
@@ -297,6 +334,7 @@ impl BenchPlant {
     fn fill_outputs_inline(&self, group: SignalGroup, out: &mut BenchOutputs) {
         match group {
             SignalGroup::Motion => self.fill_motion(out),
+            SignalGroup::Energy => self.fill_energy(out),
             SignalGroup::Sensors => self.fill_sensors(out),
             SignalGroup::Mode => self.fill_mode(out),
         }
@@ -308,10 +346,6 @@ impl BenchPlant {
         let z = &self.state.z;
         let tpa = self.output_torque_per_ampere();
         let deflection = z[THETA1] - z[THETA2];
-        let e = &self.state.energy;
-        let kinetic =
-            0.5 * (p.actuation_inertia * z[OMEGA1].powi(2) + p.load_inertia * z[OMEGA2].powi(2));
-        let potential = 0.5 * p.coupling_stiffness() * deflection * deflection;
         o.actuation_angle = z[THETA1];
         o.load_angle = z[THETA2];
         o.actuation_velocity = z[OMEGA1];
@@ -335,6 +369,20 @@ impl BenchPlant {
             0.0
         };
         o.offset_power = p.hardware_offset_power;
+        o.hd_surface_clamp_count = self.state.clamp_count as f64;
+        o.hd_surface_clamped = self.state.last_clamped;
+        o.trip_code = self.state.trip.map_or(0, |(i, _)| i.code());
+    }
+
+    #[inline(always)]
+    fn fill_energy(&self, o: &mut BenchOutputs) {
+        let p = &self.params;
+        let z = &self.state.z;
+        let deflection = z[THETA1] - z[THETA2];
+        let e = &self.state.energy;
+        let kinetic =
+            0.5 * (p.actuation_inertia * z[OMEGA1].powi(2) + p.load_inertia * z[OMEGA2].powi(2));
+        let potential = 0.5 * p.coupling_stiffness() * deflection * deflection;
         o.kinetic_energy = kinetic;
         o.potential_energy = potential;
         o.test_mechanical_energy = e.test_mechanical;
@@ -358,9 +406,6 @@ impl BenchPlant {
         o.load_copper_loss_energy = e.load_copper_loss;
         o.test_back_emf_energy = e.test_back_emf;
         o.load_back_emf_energy = e.load_back_emf;
-        o.hd_surface_clamp_count = self.state.clamp_count as f64;
-        o.hd_surface_clamped = self.state.last_clamped;
-        o.trip_code = self.state.trip.map_or(0, |(i, _)| i.code());
     }
 
     #[inline(always)]

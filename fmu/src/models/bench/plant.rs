@@ -312,7 +312,7 @@ impl BenchPlant {
             // (`cpu_has_wide_vectors`), the one feature `step_wide` is compiled for.
             return unsafe { self.step_wide(inputs, h) };
         }
-        self.step_inline(inputs, h)
+        self.step_inline::<false>(inputs, h)
     }
 
     /// [`Self::step`] compiled for AVX2: the same operations in the same order (no fused
@@ -321,11 +321,13 @@ impl BenchPlant {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn step_wide(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
-        self.step_inline(inputs, h)
+        self.step_inline::<true>(inputs, h)
     }
 
+    /// The step; `WIDE` in its AVX2 build (see [`Self::step_wide`]), where the regular
+    /// sub-step's energy sums run on AVX2 registers written out.
     #[inline(always)]
-    fn step_inline(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
+    fn step_inline<const WIDE: bool>(&mut self, inputs: &BenchInputs, h: f64) -> StepOutcome {
         if let Some((interlock, time)) = self.state.trip {
             return StepOutcome::Tripped { interlock, time };
         }
@@ -352,7 +354,7 @@ impl BenchPlant {
         let sub_h = if substeps == 1.0 { h } else { h / substeps };
         let n = substeps as u64;
         for k in 0..n {
-            if let Err((interlock, time)) = self.substep(sub_h) {
+            if let Err((interlock, time)) = self.substep::<WIDE>(sub_h) {
                 return self.latch(interlock, time);
             }
             if k + 1 < n {
@@ -664,7 +666,7 @@ impl BenchPlant {
     /// event inside the sub-step) uses the cached exact discretisation; a sub-step with an event
     /// goes to [`Self::event_substep`], kept out of line so the common path stays small.
     #[inline(always)]
-    fn substep(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
+    fn substep<const WIDE: bool>(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
         let start_time = self.state.time;
         let mut held = self.resolve()?;
         let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
@@ -693,7 +695,7 @@ impl BenchPlant {
             None
         };
         let integrals = SegmentIntegrals {
-            products: self.cache[index].quadratic_integrals(&z0),
+            products: self.cache[index].quadratic_integrals::<WIDE>(&z0),
             current1: currents[0],
             current2: currents[1],
         };

@@ -255,6 +255,16 @@ impl BenchPlant {
         let mut emf = [0.0; 2];
         let constant = self.constant_power(held);
         let law = [self.voltage_law(held, 0), self.voltage_law(held, 1)];
+        // The pieces' working arrays, zeroed once per segment, not per piece (~7 KB): a piece
+        // writes every entry it reads (its `n` terms, its `2 n - 1` products and powers) before
+        // reading it, so what an earlier piece left beyond them is never read.
+        let mut weights = [0.0; 2 * PIECE_TERMS];
+        let mut series = [[0.0; 4]; PIECE_TERMS];
+        let mut speeds = [[0.0; PIECE_TERMS]; 2];
+        let mut currents = [[0.0; PIECE_TERMS]; 2];
+        let mut squares_of = [[0.0; 4]; 2 * PIECE_TERMS];
+        let mut wi = [[0.0; 2 * PIECE_TERMS]; 2];
+        let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
         for piece in segment.pieces() {
             if piece.start >= stop {
                 break;
@@ -263,7 +273,6 @@ impl BenchPlant {
             let n = piece.terms;
             let degree = 2 * n - 1;
             // weights[k] = integral_0^s_end s^k ds
-            let mut weights = [0.0; 2 * PIECE_TERMS];
             let mut power = s_end;
             for (k, weight) in weights[..degree].iter_mut().enumerate() {
                 *weight = power / (k + 1) as f64;
@@ -271,25 +280,30 @@ impl BenchPlant {
             }
             let integral = |p: &[f64]| -> f64 {
                 p.iter()
-                    .zip(weights.iter())
+                    .zip(weights[..degree].iter())
                     .map(|(c, w)| c * w)
                     .sum::<f64>()
             };
-            // The four series (w1, w2, i1, i2) side by side, and their products as lanes:
-            // `squares_of[k]` = (w1^2, w2^2, i1^2, i2^2)_k, `wi[k]` = (i1 w1, i2 w2)_k.
-            let mut series = [[0.0; 4]; PIECE_TERMS];
-            for (s, c) in series.iter_mut().zip(&piece.coefficients[..n]) {
-                *s = [c[OMEGA1], c[OMEGA2], c[CURRENT1], c[CURRENT2]];
+            // The four series (w1, w2, i1, i2) side by side, and their squares as lanes:
+            // `squares_of[k]` = (w1^2, w2^2, i1^2, i2^2)_k. The products `wi[j]` = i_j w_j each
+            // from its own two series, one after the other (`product_into`: for a current
+            // coefficient, a run of consecutive outputs gains it times the speed series, four
+            // at a time).
+            for (k, c) in piece.coefficients[..n].iter().enumerate() {
+                series[k] = [c[OMEGA1], c[OMEGA2], c[CURRENT1], c[CURRENT2]];
+                speeds[0][k] = c[OMEGA1];
+                speeds[1][k] = c[OMEGA2];
+                currents[0][k] = c[CURRENT1];
+                currents[1][k] = c[CURRENT2];
             }
-            let mut squares_of = [[0.0; 4]; 2 * PIECE_TERMS];
-            let mut wi = [[0.0; 2]; 2 * PIECE_TERMS];
             square_lanes(&series[..n], &mut squares_of);
-            product_lanes(&series[..n], &mut wi);
-            let mut powers = [[0.0; 2 * PIECE_TERMS]; 5];
+            for j in 0..2 {
+                product_into(&currents[j][..n], &speeds[j][..n], &mut wi[j]);
+            }
             for k in 0..degree {
                 let linear = |j: usize| if k < n { series[k][2 + j] } else { 0.0 };
                 let [_, _, ii0, ii1] = squares_of[k];
-                let [wi0, wi1] = wi[k];
+                let (wi0, wi1) = (wi[0][k], wi[1][k]);
                 let el0 = law[0].0 * ii0 + law[0].1 * wi0 + law[0].2 * linear(0);
                 let el1 = law[1].0 * ii1 + law[1].1 * wi1 + law[1].2 * linear(1);
                 powers[0][k] = tpa[0] * wi0;
@@ -306,9 +320,11 @@ impl BenchPlant {
                 positive[k] += piece.len * positive_part(p, s_end, part);
             }
             for j in 0..2 {
-                squares[j] += piece.len * lane_integral(&squares_of[..degree], &weights, j);
-                copper[j] += piece.len * lane_integral(&squares_of[..degree], &weights, 2 + j);
-                emf[j] += piece.len * lane_integral(&wi[..degree], &weights, j);
+                squares[j] +=
+                    piece.len * lane_integral(&squares_of[..degree], &weights[..degree], j);
+                copper[j] +=
+                    piece.len * lane_integral(&squares_of[..degree], &weights[..degree], 2 + j);
+                emf[j] += piece.len * integral(&wi[j][..degree]);
             }
         }
         let z0 = segment.state_at(0.0);
@@ -405,21 +421,6 @@ fn square_lanes(series: &[[f64; 4]], out: &mut [[f64; 4]]) {
     }
 }
 
-/// The products `i1 w1` and `i2 w2` of `series`' lanes (w1, w2, i1, i2), lane by lane, into
-/// `out[..2 series.len() - 1]`, each bit for bit [`product_into`]`(i, w)`.
-#[inline(always)]
-fn product_lanes(series: &[[f64; 4]], out: &mut [[f64; 2]]) {
-    let n = series.len();
-    out[..2 * n - 1].fill([0.0; 2]);
-    for (k, x) in series.iter().enumerate() {
-        let current = [x[2], x[3]];
-        for (o, y) in out[k..k + n].iter_mut().zip(series) {
-            o[0] += current[0] * y[0];
-            o[1] += current[1] * y[1];
-        }
-    }
-}
-
 /// `out[..2 a.len() - 1] = a * a` (polynomial square: each cross term once, doubled): the
 /// plain form of one lane of [`square_lanes`].
 #[cfg(test)]
@@ -435,9 +436,9 @@ fn square_into(a: &[f64], out: &mut [f64]) {
     }
 }
 
-/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product): the plain form of one lane of
-/// [`product_lanes`].
-#[cfg(test)]
+/// `out[..a.len() + b.len() - 1] = a * b` (polynomial product): each output the sum of its
+/// terms in the order of `a`'s coefficients.
+#[inline(always)]
 fn product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
     out[..a.len() + b.len() - 1].fill(0.0);
     for (k, x) in a.iter().enumerate() {
@@ -539,9 +540,9 @@ mod tests {
         assert_eq!(square[8], 1e-18);
     }
 
-    /// Each lane of the four-lane square and of the two-lane product is the plain square or
-    /// product of that lane's polynomial bit for bit: zeros (a stuck body's speed series),
-    /// negative zeros, mixed magnitudes, every length a piece can have.
+    /// Each lane of the four-lane square is the plain square of that lane's polynomial bit for
+    /// bit: zeros (a stuck body's speed series), negative zeros, mixed magnitudes, every length
+    /// a piece can have. (The products `i w` are the plain `product_into` itself.)
     #[test]
     #[allow(clippy::needless_range_loop)] // a lane index names the lane in the assertions
     fn the_lanes_are_the_plain_products_bit_for_bit() {
@@ -560,9 +561,7 @@ mod tests {
                 .map(|k| std::array::from_fn(|l| value(k, l)))
                 .collect();
             let mut squares = [[f64::NAN; 4]; 2 * PIECE_TERMS];
-            let mut products = [[f64::NAN; 2]; 2 * PIECE_TERMS];
             square_lanes(&series, &mut squares);
-            product_lanes(&series, &mut products);
             let lane = |l: usize| series.iter().map(|s| s[l]).collect::<Vec<f64>>();
             for l in 0..4 {
                 let mut plain = vec![f64::NAN; 2 * n - 1];
@@ -572,17 +571,6 @@ mod tests {
                         squares[k][l].to_bits(),
                         p.to_bits(),
                         "square n {n} lane {l} k {k}"
-                    );
-                }
-            }
-            for j in 0..2 {
-                let mut plain = vec![f64::NAN; 2 * n - 1];
-                product_into(&lane(2 + j), &lane(j), &mut plain);
-                for (k, p) in plain.iter().enumerate() {
-                    assert_eq!(
-                        products[k][j].to_bits(),
-                        p.to_bits(),
-                        "product n {n} lane {j} k {k}"
                     );
                 }
             }

@@ -74,15 +74,61 @@ impl BenchPlant {
 
     /// Whether any trip or any of the `active` switching events is positive at `z`. The trips
     /// are checked with constant arguments, so their dispatch folds away.
+    ///
+    /// Straight-line code, no iterator: every trip is evaluated (a branch-free `|`), and the
+    /// active set's bits are walked with each event function inlined with its constant
+    /// arguments ([`Self::switching_value`]). The answer is [`Self::any_positive_listed`]'s,
+    /// the plain form over [`Self::event_list`] (tested).
     #[inline(always)]
     pub(super) fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
         let demand = self.demands(held, z);
-        Interlock::CHECKED
-            .into_iter()
-            .any(|i| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0)
-            || active
-                .iter()
-                .any(|e| self.event_value_with(held, e, z, &demand) > 0.0)
+        let trip = |i: Interlock| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0;
+        if trip(Interlock::SpringDeflection)
+            | trip(Interlock::TestMotorTorque)
+            | trip(Interlock::LoadMotorTorque)
+            | trip(Interlock::TestCurrent)
+            | trip(Interlock::LoadCurrent)
+            | trip(Interlock::RegenPower)
+        {
+            return true;
+        }
+        let mut bits = active.0;
+        while bits != 0 {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            if self.switching_value(held, k, z, &demand) > 0.0 {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// [`Self::any_positive`] in its plain form: any event of [`Self::event_list`] positive.
+    #[cfg(test)]
+    pub(super) fn any_positive_listed(
+        &self,
+        held: &Held,
+        active: ActiveEvents,
+        z: &AugVector,
+    ) -> bool {
+        let demand = self.demands(held, z);
+        Self::event_list(active).any(|e| self.event_value_with(held, e, z, &demand) > 0.0)
+    }
+
+    /// The event function of `SWITCHING_EVENTS[k]` at `z`, each arm with its event as a
+    /// constant (so that the dispatch of [`Self::event_value_with`] folds away).
+    #[inline(always)]
+    fn switching_value(&self, held: &Held, k: usize, z: &AugVector, demand: &[f64; 2]) -> f64 {
+        macro_rules! arms {
+            ($($k:literal),*) => {
+                match k {
+                    $($k => self.event_value_with(held, SWITCHING_EVENTS[$k], z, demand),)*
+                    // No such bit (an active set uses bits 0..12): never positive.
+                    _ => f64::NEG_INFINITY,
+                }
+            };
+        }
+        arms!(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11)
     }
 
     /// The event function `event` at `z`, given the voltage demands there.
@@ -419,6 +465,61 @@ mod tests {
             }
         }
         list
+    }
+
+    /// The straight-line check of the events at a sub-step's end answers as the plain one over
+    /// the event list, for every active set, in states where no event, one trip or one
+    /// switching event is positive (both saturation signs, stuck and sliding bodies).
+    #[test]
+    fn any_positive_is_the_plain_check_over_the_event_list() {
+        let mut plant = BenchPlant::new(BenchParameters::default()).unwrap();
+        let base = plant.hold();
+        let states: Vec<AugVector> = vec![
+            [0.0; 10],
+            [0.01, 0.0, 0.5, -0.2, 1.0, -0.5, 1.0, -0.5, -0.3, 0.2],
+            [0.2, 0.0, 0.5, -0.2, 1.0, -0.5, 1.0, -0.5, -0.3, 0.2],
+            [0.0, 0.0, -3.0, 2.0, 14.0, 5.0, 14.0, 5.0, 0.3, -0.2],
+            [0.0, 0.0, 30.0, -20.0, 1.0, -0.5, 1.0, -0.5, 0.3, -0.2],
+            [0.0, 0.0, 0.0, 0.0, 16.0, 0.0, 16.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 0.0, -7.0, 0.0, -7.0, 0.0, 0.0],
+            // The load motor driven back at speed: regenerating past its limit, nothing else.
+            [0.0, 0.0, 0.0, 20.0, 0.0, -0.5, 0.0, -0.5, 0.0, 0.0],
+            [0.05, -0.04, 1e-3, -1e-3, 3.0, 2.0, 3.0, 2.0, 0.0, 0.0],
+        ];
+        let (mut positive, mut negative) = (0, 0);
+        for case in 0..16u32 {
+            let mut held = base;
+            for n in 0..2 {
+                plant.state.direction[n] = if case >> n & 1 == 1 { 1.0 } else { -1.0 };
+                plant.state.saturation[n] = match case >> (2 + n) & 1 {
+                    0 => 0.0,
+                    _ => plant.state.direction[n],
+                };
+                held.mode.voltage_row[n] = plant.state.saturation[n] != 0.0;
+                held.drive[n] = 2.0 * plant.state.direction[n];
+                held.reference[n] = -plant.state.direction[n];
+            }
+            for z in &states {
+                for bits in 0..(1u16 << 12) {
+                    let active = ActiveEvents(bits);
+                    let fast = plant.any_positive(&held, active, z);
+                    assert_eq!(
+                        fast,
+                        plant.any_positive_listed(&held, active, z),
+                        "case {case} bits {bits:#b} z {z:?}"
+                    );
+                    if fast {
+                        positive += 1;
+                    } else {
+                        negative += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            positive > 1000 && negative > 1000,
+            "{positive} / {negative}"
+        );
     }
 
     /// The active set lists the same events in the same order (the order decides which of two
