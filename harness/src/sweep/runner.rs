@@ -1109,7 +1109,7 @@ impl Prepared {
                 .map(|i| values[i])
                 .or(self.period)
                 .unwrap_or(f64::NAN);
-            if results.times().is_empty() {
+            if results.is_empty() {
                 return Err("no rows recorded".into());
             }
             let r = study::analyse("run", results, period, &Columns::default())
@@ -1124,36 +1124,37 @@ impl Prepared {
                 row.message = format!("{name} at t = {}", model_description::num::Num(*t));
             }
         }
-        let times = results.times();
         let mut empty = None;
         for s in &self.spec.signals {
             let col = results
-                .column(&s.signal)
+                .column_index(&s.signal)
                 .ok_or_else(|| format!("no column '{}'", s.signal))?;
             let from = s.from.unwrap_or(f64::NEG_INFINITY);
             let to = s.to.unwrap_or(f64::INFINITY);
-            let window: Vec<f64> = times
-                .iter()
-                .zip(&col)
-                .filter(|(t, _)| **t >= from && **t <= to)
-                .map(|(_, v)| *v)
-                .collect();
-            if window.is_empty() && empty.is_none() {
+            // The window's values, read in place.
+            let window = || {
+                results
+                    .rows()
+                    .filter(move |r| r[0] >= from && r[0] <= to)
+                    .map(move |r| r[col])
+            };
+            let n = window().count();
+            if n == 0 && empty.is_none() {
                 empty = Some(format!(
                     "the window of '{}' (spec line {}) holds no recorded row",
                     s.signal, s.line
                 ));
             }
             for st in &s.stats {
-                row.metrics[k] = if window.is_empty() {
+                row.metrics[k] = if n == 0 {
                     f64::NAN
                 } else {
-                    let n = window.len() as f64;
+                    let n = n as f64;
                     match st {
-                        Stat::Min => window.iter().copied().fold(f64::INFINITY, f64::min),
-                        Stat::Max => window.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                        Stat::Mean => window.iter().sum::<f64>() / n,
-                        Stat::Rms => (window.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+                        Stat::Min => window().fold(f64::INFINITY, f64::min),
+                        Stat::Max => window().fold(f64::NEG_INFINITY, f64::max),
+                        Stat::Mean => window().sum::<f64>() / n,
+                        Stat::Rms => (window().map(|x| x * x).sum::<f64>() / n).sqrt(),
                     }
                 };
                 k += 1;
