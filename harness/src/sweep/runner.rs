@@ -2,9 +2,9 @@
 //! run on worker threads ([`Prepared::run_points`]), and the whole sweep with its journal
 //! ([`run_sweep`], [`JournaledSweep`]; the journal and `--resume`: [`super::journal`]).
 //!
-//! Each worker loads the system once (its own extracted FMUs) and builds a fresh [`System`]
-//! per point from that: the SSP's parameter values, then the point's. A point's row depends
-//! on the point alone.
+//! Each worker loads the system once (its own extracted FMUs) and runs each point on a copy of
+//! the loaded [`System`] (components, step multiples, the SSP's parameter values, connections)
+//! with the point's values set after the SSP's. A point's row depends on the point alone.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -22,11 +22,11 @@ use super::spec::{
     check_run_values, run_rows,
 };
 use super::table::{Row, RunStatus, SweepTable, same_bits};
-use crate::master::{MasterError, Outcome, RunConfig, System, Value};
+use crate::LoadOptions;
+use crate::master::{Outcome, RunConfig, Value};
 use crate::results::Results;
 use crate::ssp::{self, LoadedSystem};
 use crate::study::{self, Columns};
-use crate::{Fmu, LoadOptions};
 
 /// The study metrics' column names, in table order: [`study::ActuatorReport`] and its
 /// [`study::EnergyTerms`] (angles in rad, torques in N m, energies in J per gait cycle, the
@@ -363,41 +363,6 @@ fn variable_problems(
     problems
 }
 
-/// A fresh system from a loaded SSP: components (the loaded FMUs, shared), step multiples,
-/// the SSP's parameter values and its connections, as [`ssp::load_system`] builds it.
-fn fresh_system(loaded: &LoadedSystem) -> Result<System, MasterError> {
-    let fmus: HashMap<&str, &Fmu> = loaded.system.components().collect();
-    let mut system = System::new();
-    for c in &loaded.ssd.system.components {
-        let fmu = fmus
-            .get(c.name.as_str())
-            .ok_or_else(|| MasterError::UnknownComponent(c.name.clone()))?;
-        system.add_component(&c.name, (*fmu).clone())?;
-        if let Some(m) = c.step_multiple {
-            system.set_step_multiple(&c.name, m)?;
-        }
-        for p in &c.parameters {
-            let reference = format!("{}.{}", c.name, p.name);
-            match system.set_value(&reference, p.value.clone()) {
-                Ok(()) => {}
-                Err(MasterError::BadValue { .. }) => {
-                    system.set_value_str(&reference, &p.value.to_text())?
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    }
-    for c in &loaded.ssd.system.connections {
-        if let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) {
-            system.connect(
-                &format!("{se}.{}", c.start_connector),
-                &format!("{ee}.{}", c.end_connector),
-            )?;
-        }
-    }
-    Ok(system)
-}
-
 /// The unit of `component.variable` in the FMUs' descriptions (empty when it has none).
 fn signal_unit(descriptions: &HashMap<String, ModelDescription>, reference: &str) -> String {
     reference
@@ -579,7 +544,7 @@ impl Prepared {
             }
             metric_names.extend(super::spec::signal_columns(&spec.signals, k));
         }
-        let mut probe = fresh_system(&loaded).map_err(system_error)?;
+        let mut probe = loaded.system.clone();
         for r in &recorded {
             if let Err(e) = probe.record(&[r.as_str()]) {
                 let line = spec
@@ -968,8 +933,8 @@ impl Prepared {
     }
 
     /// Gives a worker's loaded system back for the next batch (see
-    /// [`worker_system`](Self::worker_system)); every point builds a fresh system from it,
-    /// so nothing of one batch's runs is left in it.
+    /// [`worker_system`](Self::worker_system)); every point runs on a copy of its system and
+    /// leaves it as it was, so nothing of one batch's runs is left in it.
     pub fn give_back(&self, loaded: LoadedSystem) {
         if let Ok(mut idle) = self.idle.lock() {
             idle.push(loaded);
@@ -994,9 +959,10 @@ impl Prepared {
         }
     }
 
-    /// Runs the parameter values `values` (in spec order) as point `id` on a loaded system:
-    /// its row, whatever happens (values of another number than the parameters' give a failed
-    /// row).
+    /// Runs the parameter values `values` (in spec order) as point `id` on a copy of the loaded
+    /// system (`loaded.system`, as the SSP built it; left as it was), the values set after the
+    /// SSP's: its row, whatever happens (values of another number than the parameters' give a
+    /// failed row).
     pub fn run_values(&self, loaded: &LoadedSystem, id: u64, values: &[f64]) -> Row {
         let mut row = Row {
             point: id,
@@ -1018,10 +984,9 @@ impl Prepared {
             );
             return fail(row, message);
         }
-        let mut system = match fresh_system(loaded) {
-            Ok(s) => s,
-            Err(e) => return fail(row, e.to_string()),
-        };
+        // The system as the SSP built it (components, step multiples, its parameter values,
+        // connections), copied: nothing of one point's values is left for the next.
+        let mut system = loaded.system.clone();
         for (p, &v) in self.spec.parameters.iter().zip(values) {
             let value = match p.ty {
                 ParameterType::Real => Value::Real(v),
