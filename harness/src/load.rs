@@ -963,10 +963,10 @@ pub fn extract_and_parse_within(
 
 /// The model description of the FMU archive at `path`, without extracting the rest: every entry
 /// is checked as [`extract_and_parse`] checks it (names, links, duplicates, sizes, `limits`),
-/// only `modelDescription.xml` is written out and parsed. The description is
-/// [`extract_and_parse`]'s (the test `model_descriptions_read_alone_are_those_of_the_whole_
-/// archives` in `tests/tests/sweep.rs`); a scenario's SSP needs no more of its FMUs (their binaries, megabytes, were extracted and
-/// removed again).
+/// only `modelDescription.xml` is written out and parsed, and the description is
+/// [`extract_and_parse`]'s (tested in `tests/tests/sweep.rs`,
+/// `model_descriptions_read_alone_are_those_of_the_whole_archives`). What a scenario's SSD
+/// needs of its FMUs: their binaries, megabytes, were extracted for it and removed again.
 pub fn read_model_description(
     path: &Path,
     limits: &ArchiveLimits,

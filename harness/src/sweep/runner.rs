@@ -3,7 +3,7 @@
 //! ([`run_sweep`], [`JournaledSweep`]; the journal and `--resume`: [`super::journal`]).
 //!
 //! Each worker loads the system once (its own extracted FMUs) and runs each point on a copy of
-//! the loaded [`System`] (components, step multiples, the SSP's parameter values, connections)
+//! the loaded [`System`](crate::master::System) (components, step multiples, the SSP's parameter values, connections)
 //! with the point's values set after the SSP's. A point's row depends on the point alone.
 
 use std::collections::HashMap;
@@ -817,7 +817,7 @@ impl Prepared {
     }
 
     /// Runs `points` (an id and the parameters' values, in spec order, each) on `workers`
-    /// threads (one: the calling thread, [`run_on_caller`](Self::run_on_caller)), handing each
+    /// threads (one: the calling thread, without a thread of its own), handing each
     /// row to `on_row` as it comes (in completion order): the design's
     /// points ([`run_points`](Self::run_points)) or an optimiser's (see
     /// [`optimize`](super::optimize)). Every point gets a row; a point whose number of values
