@@ -961,6 +961,25 @@ pub fn extract_and_parse_within(
     Ok((dir, md))
 }
 
+/// The model description of the FMU archive at `path`, without extracting the rest: every entry
+/// is checked as [`extract_and_parse`] checks it (names, links, duplicates, sizes, `limits`),
+/// only `modelDescription.xml` is written out and parsed, and the description is
+/// [`extract_and_parse`]'s (tested in `tests/tests/sweep.rs`,
+/// `model_descriptions_read_alone_are_those_of_the_whole_archives`). What a scenario's SSD
+/// needs of its FMUs: their binaries, megabytes, were extracted for it and removed again.
+pub fn read_model_description(
+    path: &Path,
+    limits: &ArchiveLimits,
+) -> Result<ModelDescription, LoadError> {
+    let budget = ArchiveBudget::new(*limits);
+    let source = ArchiveSource::File(path.to_path_buf());
+    let mut zip = open_archive(&source, &budget)?;
+    let description = Path::new("modelDescription.xml");
+    let (_dir, md, _) =
+        extract_and_parse_selected(&mut zip, path, &budget, &|rel| rel == description)?;
+    Ok(md)
+}
+
 /// Extracts the entries `wanted` accepts into a fresh private directory and parses the model
 /// description (which `wanted` must accept); also returns what was left in the archive.
 pub(crate) fn extract_and_parse_selected<R: Read + io::Seek>(

@@ -37,6 +37,10 @@
 //!   the wait at each generation's end for the slower worker).
 //!
 //! `KNEEBENCH_SWEEP_BENCH_ONLY=throughput|overhead|writers|optimize` runs one part alone.
+//! `KNEEBENCH_OVERHEAD_PROFILE=sweep:N|bare:N` runs one sweep (as the overhead part times it)
+//! or one bare closed loop of `N` points and stops, for instruction counts under callgrind
+//! (`valgrind --tool=callgrind <bench binary>`): the per-point count of each is the difference
+//! of two `N` over the difference of the `N`s, the machinery's the sweep's less the bare one's.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -130,6 +134,10 @@ fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus: PathBuf = dir.path().join("fmus");
     export_all(&fmu_library(), &fmus).unwrap();
+    if let Ok(profile) = std::env::var("KNEEBENCH_OVERHEAD_PROFILE") {
+        overhead_profile(dir.path(), &fmus, &profile);
+        return;
+    }
     println!("load average before: {}", load_average());
     let only = std::env::var("KNEEBENCH_SWEEP_BENCH_ONLY")
         .ok()
@@ -218,6 +226,23 @@ fn throughput(p: &Prepared) {
         1e3 / r1,
         r2 / r1
     );
+}
+
+/// One sweep or one bare closed loop of `sweep:N` or `bare:N` points (see the module
+/// documentation), for instruction counts.
+fn overhead_profile(dir: &Path, fmus: &Path, profile: &str) {
+    let parsed = profile
+        .split_once(':')
+        .and_then(|(what, n)| Some((what, n.parse::<usize>().ok()?)));
+    match parsed {
+        Some(("sweep", n)) => {
+            timed_sweep(dir, fmus, n);
+        }
+        Some(("bare", n)) => {
+            timed_bare(&prepare(dir, fmus, n), n);
+        }
+        _ => panic!("KNEEBENCH_OVERHEAD_PROFILE={profile}: expected sweep:N or bare:N"),
+    }
 }
 
 fn overhead(dir: &Path, fmus: &Path) {

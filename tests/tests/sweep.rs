@@ -870,3 +870,43 @@ fn study_metrics_without_a_gait_period_are_refused_at_study() {
     )
     .unwrap();
 }
+
+/// A scenario's SSP (a sweep's, the study's) reads only each FMU's model description
+/// (`load::read_model_description`): the description is the one the whole archive, extracted,
+/// gives, for every exported FMU, and an archive refused whole is refused as well.
+#[test]
+fn model_descriptions_read_alone_are_those_of_the_whole_archives() {
+    use kneebench_harness::load::{ArchiveLimits, extract_and_parse, read_model_description};
+    let limits = ArchiveLimits::default();
+    let mut fmus: Vec<_> = std::fs::read_dir(fmus())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "fmu"))
+        .collect();
+    fmus.sort();
+    assert!(fmus.len() >= 6, "{fmus:?}");
+    for fmu in &fmus {
+        let alone = read_model_description(fmu, &limits).unwrap();
+        let (_dir, whole) = extract_and_parse(fmu, &limits).unwrap();
+        assert_eq!(alone, whole, "{}", fmu.display());
+    }
+    // Refused alike: an archive with more entries than allowed, and one that is no archive.
+    let few = ArchiveLimits {
+        max_entries: 2,
+        ..limits
+    };
+    let (a, b) = (
+        read_model_description(&fmus[0], &few).unwrap_err(),
+        extract_and_parse(&fmus[0], &few).unwrap_err(),
+    );
+    assert_eq!(a.to_string(), b.to_string());
+    let dir = tempfile::tempdir().unwrap();
+    let junk = dir.path().join("junk.fmu");
+    std::fs::write(&junk, b"not a zip").unwrap();
+    assert_eq!(
+        read_model_description(&junk, &limits)
+            .unwrap_err()
+            .to_string(),
+        extract_and_parse(&junk, &limits).unwrap_err().to_string()
+    );
+}

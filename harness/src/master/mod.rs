@@ -558,6 +558,7 @@ impl Signal {
     }
 }
 
+#[derive(Clone)]
 struct ComponentSpec {
     name: String,
     fmu: Fmu,
@@ -566,7 +567,10 @@ struct ComponentSpec {
 }
 
 /// A system: named components (instances of loaded FMUs), connections, parameter values,
-/// input signals and the variables to record.
+/// input signals and the variables to record. A clone shares the loaded FMUs (each run
+/// instantiates its own instances) and copies the rest: a sweep runs each point on a clone of
+/// the loaded system with the point's values set.
+#[derive(Clone)]
 pub struct System {
     components: Vec<ComponentSpec>,
     connections: Vec<(VarRef, VarRef)>,

@@ -263,39 +263,10 @@ impl ActuatorReport {
     }
 }
 
-/// One column of a run's rows, read in place: the analysis reads most columns at a few rows (an
-/// energy at the window's two ends), so copying every column out of the rows (a strided pass
-/// over all of them each) was most of a sweep point's cost beyond its run.
-struct ColumnOf<'a> {
-    results: &'a Results,
-    /// The column's index in a row (0: time).
-    index: usize,
-}
-
-impl<'a> ColumnOf<'a> {
-    /// The column `name` of `results`, if it has one.
-    fn new(results: &'a Results, name: &str) -> Option<ColumnOf<'a>> {
-        let index = results.column_index(name)?;
-        Some(ColumnOf { results, index })
-    }
-
-    /// Every row's value, in order.
-    fn values(&self) -> impl Iterator<Item = f64> + '_ {
-        self.results.rows().map(|r| r[self.index])
-    }
-
-    /// The values of rows `i0..=i1`.
-    fn window(&self, i0: usize, i1: usize) -> Vec<f64> {
-        (i0..=i1).map(|i| self[i]).collect()
-    }
-}
-
-impl std::ops::Index<usize> for ColumnOf<'_> {
-    type Output = f64;
-
-    fn index(&self, row: usize) -> &f64 {
-        &self.results.row(row)[self.index]
-    }
+/// The sum of no terms, as `Iterator::sum` gives it for `f64` (the analysis's running sums start
+/// from it, so that each equals the `sum` of its terms in the same order, bit for bit).
+fn empty_sum() -> f64 {
+    std::iter::empty::<f64>().sum()
 }
 
 /// Analyses one run with gait period `period`: every complete cycle after the first, which is
@@ -303,23 +274,31 @@ impl std::ops::Index<usize> for ColumnOf<'_> {
 /// complete has nothing to analyse: with a trip code in its results (an interlock) its report
 /// is [`ActuatorReport::unanalysed`] naming the trip; without one it is
 /// [`StudyError::NoCycle`] (the run was too short: the caller knows whether it failed or was
-/// ended by an interlock the results do not show).
+/// ended by an interlock the results do not show). Cycles that hold no recorded row (a run
+/// recorded more sparsely than once per cycle) are [`StudyError::NoRows`].
+///
+/// The rows are read in place, the analysed ones in one pass (each row's columns lie side by
+/// side), every running sum and extreme taken over the same rows in the same order as the
+/// definitions (a `sum`, a `fold`) would: the report is theirs bit for bit (the test
+/// `one_pass_analysis_equals_the_definitions_bit_for_bit`).
 pub fn analyse(
     name: &str,
     results: &Results,
     period: f64,
     columns: &Columns,
 ) -> Result<ActuatorReport, StudyError> {
-    let col =
-        |n: &str| ColumnOf::new(results, n).ok_or_else(|| StudyError::MissingColumn(n.to_string()));
-    let times = results.times();
-    let end = times.last().copied().unwrap_or(0.0);
+    let col = |n: &str| {
+        results
+            .column_index(n)
+            .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
+    };
+    let end = results.last_time().unwrap_or(0.0);
     let complete = ((end + 1e-9) / period).floor() as usize;
-    let trip = col(&columns.trip_code)?
-        .values()
-        .zip(&times)
-        .find(|(c, _)| *c != 0.0)
-        .map(|(c, t)| (interlock_name(c as i64).to_string(), *t));
+    let trip_code = col(&columns.trip_code)?;
+    let trip = results
+        .rows()
+        .find(|r| r[trip_code] != 0.0)
+        .map(|r| (interlock_name(r[trip_code] as i64).to_string(), r[0]));
     // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
     if complete < 2 {
         return match trip {
@@ -330,56 +309,123 @@ pub fn analyse(
     let first = 1;
     let (t0, t1) = (first as f64 * period, complete as f64 * period);
     let tol = 1e-9 * t1.max(1.0);
-    let rows: Vec<usize> = (0..times.len())
-        .filter(|&i| times[i] >= t0 - tol && times[i] <= t1 + tol)
-        .collect();
-    let (i0, i1) = (rows[0], rows[rows.len() - 1]);
+    let analysed = |t: f64| t >= t0 - tol && t <= t1 + tol;
+    // The analysed rows: those whose time is in the window (all rows from the first to the
+    // last of them when the times increase, as a run's do).
+    let (mut i0, mut i1, mut count) = (None, 0, 0usize);
+    for (i, r) in results.rows().enumerate() {
+        if analysed(r[0]) {
+            i0.get_or_insert(i);
+            i1 = i;
+            count += 1;
+        }
+    }
+    let Some(i0) = i0 else {
+        return Err(StudyError::NoRows {
+            period,
+            from: t0,
+            to: t1,
+        });
+    };
+    // Looked up in the order the report was first defined in (the first missing one named).
     let reference = col(&columns.reference)?;
-    let errors = |angle: &ColumnOf| {
-        let e: Vec<f64> = rows.iter().map(|&i| reference[i] - angle[i]).collect();
-        let rms = (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
-        (rms, e.iter().fold(0.0f64, |m, x| m.max(x.abs())))
-    };
-    let (rms_a, max_a) = errors(&col(&columns.actuation_angle)?);
-    let (rms_k, max_k) = errors(&col(&columns.load_angle)?);
-    let peak = |c: &ColumnOf| rows.iter().fold(0.0f64, |m, &i| m.max(c[i].abs()));
-    let n = (complete - first) as f64;
-    let per_cycle = |name: &str| -> Result<f64, StudyError> {
-        let c = col(name)?;
-        Ok((c[i1] - c[i0]) / n)
-    };
-    let test_mechanical = per_cycle(&columns.test_mechanical_energy)?;
-    let test_electrical = per_cycle(&columns.test_electrical_energy)?;
-    let clutch = per_cycle(&columns.clutch_energy)?;
-    let drive_loss = per_cycle(&columns.actuation_loss_energy)?;
-    let load_mechanical = per_cycle(&columns.load_mechanical_energy)?;
-    let load_loss = per_cycle(&columns.load_loss_energy)?;
+    let actuation_angle = col(&columns.actuation_angle)?;
+    let load_angle = col(&columns.load_angle)?;
+    let test_mechanical_energy = col(&columns.test_mechanical_energy)?;
+    let test_electrical_energy = col(&columns.test_electrical_energy)?;
+    let clutch_energy = col(&columns.clutch_energy)?;
+    let actuation_loss_energy = col(&columns.actuation_loss_energy)?;
+    let load_mechanical_energy = col(&columns.load_mechanical_energy)?;
+    let load_loss_energy = col(&columns.load_loss_energy)?;
     let kinetic = col(&columns.kinetic_energy)?;
     let potential = col(&columns.potential_energy)?;
-    let kinetic_change = (kinetic[i1] - kinetic[i0]) / n;
-    let potential_change = (potential[i1] - potential[i0]) / n;
     let engaged = col(&columns.clutch_engaged)?;
-    // Each row stands for the step that follows it; the last row closes the window.
-    let engaged_rows = rows[..rows.len() - 1]
-        .iter()
-        .filter(|&&i| engaged[i] != 0.0)
-        .count();
+    let test_mechanical_energy_consumed = col(&columns.test_mechanical_energy_consumed)?;
+    let offset_energy = col(&columns.offset_energy)?;
+    let load_electrical_energy = col(&columns.load_electrical_energy)?;
+    let electrical_energy = col(&columns.electrical_energy)?;
+    let test_torque = col(&columns.test_torque)?;
+    let shaft_torque = col(&columns.shaft_torque)?;
+    let load_torque = col(&columns.load_torque)?;
+
+    // One pass over rows i0..=i1. Over the analysed rows: the tracking errors' squares (summed)
+    // and magnitudes (their maximum), the torques' peaks, the rows with the clutch engaged
+    // (each row stands for the step that follows it, so the last analysed row, which closes
+    // the window, is not counted); over every pair of consecutive rows: the energies' rises.
+    let (mut square_a, mut square_k) = (empty_sum(), empty_sum());
+    let (mut max_a, mut max_k) = (0.0f64, 0.0f64);
+    let (mut peak_test, mut peak_shaft, mut peak_load) = (0.0f64, 0.0f64, 0.0f64);
+    let mut engaged_rows = 0usize;
+    let (mut kinetic_rise, mut potential_rise) = (empty_sum(), empty_sum());
+    let mut previous: Option<&[f64]> = None;
+    // Every index is within a row (`column_index` gives them so): said once here, so that the
+    // compiler drops the check of each read below (a fifth of the pass's instructions).
+    let width = results.names().len() + 1;
+    let read = [
+        reference,
+        actuation_angle,
+        load_angle,
+        test_torque,
+        shaft_torque,
+        load_torque,
+        engaged,
+        kinetic,
+        potential,
+    ];
+    if let Some(c) = read.iter().find(|&&c| c >= width) {
+        return Err(StudyError::MissingColumn(format!(
+            "#{c} (a row holds {width} values)"
+        )));
+    }
+    for (i, r) in results.rows().enumerate().skip(i0).take(i1 - i0 + 1) {
+        if analysed(r[0]) {
+            let e = r[reference] - r[actuation_angle];
+            square_a += e * e;
+            max_a = max_a.max(e.abs());
+            let e = r[reference] - r[load_angle];
+            square_k += e * e;
+            max_k = max_k.max(e.abs());
+            peak_test = peak_test.max(r[test_torque].abs());
+            peak_shaft = peak_shaft.max(r[shaft_torque].abs());
+            peak_load = peak_load.max(r[load_torque].abs());
+            if i != i1 && r[engaged] != 0.0 {
+                engaged_rows += 1;
+            }
+        }
+        if let Some(p) = previous {
+            kinetic_rise += (r[kinetic] - p[kinetic]).max(0.0);
+            potential_rise += (r[potential] - p[potential]).max(0.0);
+        }
+        previous = Some(r);
+    }
+    let rms = |square: f64| (square / count as f64).sqrt();
+    let (row0, row1) = (results.row(i0), results.row(i1));
+    let n = (complete - first) as f64;
+    let per_cycle = |c: usize| (row1[c] - row0[c]) / n;
+    let test_mechanical = per_cycle(test_mechanical_energy);
+    let test_electrical = per_cycle(test_electrical_energy);
+    let clutch = per_cycle(clutch_energy);
+    let drive_loss = per_cycle(actuation_loss_energy);
+    let load_mechanical = per_cycle(load_mechanical_energy);
+    let load_loss = per_cycle(load_loss_energy);
+    let kinetic_change = per_cycle(kinetic);
+    let potential_change = per_cycle(potential);
     let energy = EnergyTerms {
         test_mechanical,
-        test_mechanical_consumed: per_cycle(&columns.test_mechanical_energy_consumed)?,
+        test_mechanical_consumed: per_cycle(test_mechanical_energy_consumed),
         test_electrical,
-        bench_electrical: test_electrical + per_cycle(&columns.offset_energy)? + clutch,
+        bench_electrical: test_electrical + per_cycle(offset_energy) + clutch,
         clutch,
-        clutch_engaged_fraction: engaged_rows as f64 / (rows.len() - 1).max(1) as f64,
+        clutch_engaged_fraction: engaged_rows as f64 / (count - 1).max(1) as f64,
         drive_loss,
         load_mechanical,
-        load_electrical: per_cycle(&columns.load_electrical_energy)?,
+        load_electrical: per_cycle(load_electrical_energy),
         load_loss,
-        all_electrical: per_cycle(&columns.electrical_energy)?,
+        all_electrical: per_cycle(electrical_energy),
         kinetic_change,
         potential_change,
-        kinetic_stored: stored_energy(&kinetic.window(i0, i1), 0, i1 - i0) / n,
-        potential_stored: stored_energy(&potential.window(i0, i1), 0, i1 - i0) / n,
+        kinetic_stored: kinetic_rise / n,
+        potential_stored: potential_rise / n,
         balance_residual: test_mechanical + load_mechanical + drive_loss + load_loss
             - kinetic_change
             - potential_change,
@@ -387,13 +433,13 @@ pub fn analyse(
     Ok(ActuatorReport {
         name: name.to_string(),
         cycles: complete - first,
-        rms_error_actuation: rms_a,
+        rms_error_actuation: rms(square_a),
         max_error_actuation: max_a,
-        rms_error_knee: rms_k,
+        rms_error_knee: rms(square_k),
         max_error_knee: max_k,
-        peak_test_torque: peak(&col(&columns.test_torque)?),
-        peak_shaft_torque: peak(&col(&columns.shaft_torque)?),
-        peak_load_torque: peak(&col(&columns.load_torque)?),
+        peak_test_torque: peak_test,
+        peak_shaft_torque: peak_shaft,
+        peak_load_torque: peak_load,
         energy,
         trip,
     })
@@ -612,5 +658,252 @@ mod tests {
         assert_eq!(r.cycles, 0);
         assert_eq!(r.trip, Some(("test motor torque".to_string(), 1.2)));
         assert!(r.rms_error_knee.is_nan() && r.energy.test_mechanical.is_nan());
+    }
+
+    /// The analysis as first defined: every column copied out of the rows, the analysed rows
+    /// listed, each metric a `sum` or a `fold` of its own (the reference of the one-pass
+    /// [`analyse`]).
+    fn analyse_by_definition(
+        name: &str,
+        results: &Results,
+        period: f64,
+        columns: &Columns,
+    ) -> Result<ActuatorReport, StudyError> {
+        let col = |n: &str| {
+            results
+                .column(n)
+                .ok_or_else(|| StudyError::MissingColumn(n.to_string()))
+        };
+        let times = results.times();
+        let end = times.last().copied().unwrap_or(0.0);
+        let complete = ((end + 1e-9) / period).floor() as usize;
+        let trip = col(&columns.trip_code)?
+            .iter()
+            .zip(&times)
+            .find(|(c, _)| **c != 0.0)
+            .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
+        if complete < 2 {
+            return match trip {
+                Some(trip) => Ok(ActuatorReport::unanalysed(name, Some(trip))),
+                None => Err(StudyError::NoCycle { period, end }),
+            };
+        }
+        let first = 1;
+        let (t0, t1) = (first as f64 * period, complete as f64 * period);
+        let tol = 1e-9 * t1.max(1.0);
+        let rows: Vec<usize> = (0..times.len())
+            .filter(|&i| times[i] >= t0 - tol && times[i] <= t1 + tol)
+            .collect();
+        let (i0, i1) = (rows[0], rows[rows.len() - 1]);
+        let reference = col(&columns.reference)?;
+        let errors = |angle: &[f64]| {
+            let e: Vec<f64> = rows.iter().map(|&i| reference[i] - angle[i]).collect();
+            let rms = (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
+            (rms, e.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+        };
+        let (rms_a, max_a) = errors(&col(&columns.actuation_angle)?);
+        let (rms_k, max_k) = errors(&col(&columns.load_angle)?);
+        let peak = |c: &[f64]| rows.iter().fold(0.0f64, |m, &i| m.max(c[i].abs()));
+        let n = (complete - first) as f64;
+        let per_cycle = |name: &str| -> Result<f64, StudyError> {
+            let c = col(name)?;
+            Ok((c[i1] - c[i0]) / n)
+        };
+        let test_mechanical = per_cycle(&columns.test_mechanical_energy)?;
+        let test_electrical = per_cycle(&columns.test_electrical_energy)?;
+        let clutch = per_cycle(&columns.clutch_energy)?;
+        let drive_loss = per_cycle(&columns.actuation_loss_energy)?;
+        let load_mechanical = per_cycle(&columns.load_mechanical_energy)?;
+        let load_loss = per_cycle(&columns.load_loss_energy)?;
+        let kinetic = col(&columns.kinetic_energy)?;
+        let potential = col(&columns.potential_energy)?;
+        let kinetic_change = (kinetic[i1] - kinetic[i0]) / n;
+        let potential_change = (potential[i1] - potential[i0]) / n;
+        let engaged = col(&columns.clutch_engaged)?;
+        let engaged_rows = rows[..rows.len() - 1]
+            .iter()
+            .filter(|&&i| engaged[i] != 0.0)
+            .count();
+        let energy = EnergyTerms {
+            test_mechanical,
+            test_mechanical_consumed: per_cycle(&columns.test_mechanical_energy_consumed)?,
+            test_electrical,
+            bench_electrical: test_electrical + per_cycle(&columns.offset_energy)? + clutch,
+            clutch,
+            clutch_engaged_fraction: engaged_rows as f64 / (rows.len() - 1).max(1) as f64,
+            drive_loss,
+            load_mechanical,
+            load_electrical: per_cycle(&columns.load_electrical_energy)?,
+            load_loss,
+            all_electrical: per_cycle(&columns.electrical_energy)?,
+            kinetic_change,
+            potential_change,
+            kinetic_stored: stored_energy(&kinetic, i0, i1) / n,
+            potential_stored: stored_energy(&potential, i0, i1) / n,
+            balance_residual: test_mechanical + load_mechanical + drive_loss + load_loss
+                - kinetic_change
+                - potential_change,
+        };
+        Ok(ActuatorReport {
+            name: name.to_string(),
+            cycles: complete - first,
+            rms_error_actuation: rms_a,
+            max_error_actuation: max_a,
+            rms_error_knee: rms_k,
+            max_error_knee: max_k,
+            peak_test_torque: peak(&col(&columns.test_torque)?),
+            peak_shaft_torque: peak(&col(&columns.shaft_torque)?),
+            peak_load_torque: peak(&col(&columns.load_torque)?),
+            energy,
+            trip,
+        })
+    }
+
+    /// Every number of a report as bits (NaN compares by its bits), with its cycles and trip.
+    fn bits(r: &ActuatorReport) -> (usize, Vec<u64>, Option<(String, u64)>) {
+        let e = &r.energy;
+        let values = [
+            r.rms_error_actuation,
+            r.max_error_actuation,
+            r.rms_error_knee,
+            r.max_error_knee,
+            r.peak_test_torque,
+            r.peak_shaft_torque,
+            r.peak_load_torque,
+            e.test_mechanical,
+            e.test_mechanical_consumed,
+            e.test_electrical,
+            e.bench_electrical,
+            e.clutch,
+            e.clutch_engaged_fraction,
+            e.drive_loss,
+            e.load_mechanical,
+            e.load_electrical,
+            e.load_loss,
+            e.all_electrical,
+            e.kinetic_change,
+            e.potential_change,
+            e.kinetic_stored,
+            e.potential_stored,
+            e.balance_residual,
+        ];
+        (
+            r.cycles,
+            values.iter().map(|v| v.to_bits()).collect(),
+            r.trip.as_ref().map(|(n, t)| (n.clone(), t.to_bits())),
+        )
+    }
+
+    /// Rows of every analysed column with values that exercise each metric: signed zeros,
+    /// flat stretches, the clutch switching, pseudo-random wiggles; `times` gives each row's
+    /// time (a run's increase; these need not).
+    fn wiggly(times: &[f64], nan_at: Option<usize>, trip_at: Option<usize>) -> Results {
+        let names = Columns::default().names();
+        let kinds = vec![crate::results::ColumnKind::Real; names.len()];
+        let mut r = Results::with_capacity(names.clone(), kinds, times.len());
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for (k, &t) in times.iter().enumerate() {
+            let row: Vec<f64> = (0..names.len())
+                .map(|j| {
+                    state = state
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1_442_695_040_888_963_407);
+                    let noise = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                    let v = match names[j].as_str() {
+                        "plant.tripCode" => match trip_at {
+                            Some(at) if k >= at => 2.0,
+                            _ => 0.0,
+                        },
+                        "plant.clutchEngaged" => f64::from(u8::from(noise > 0.1)),
+                        // Flat stretches and signed zeros: rises of +-0.
+                        "plant.potentialEnergy" if k % 7 < 3 => -0.0,
+                        _ => (t * (j + 1) as f64).sin() * 3.0 + noise,
+                    };
+                    if nan_at == Some(k) && j == 2 {
+                        f64::NAN
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            r.push_row(t, &row);
+        }
+        r
+    }
+
+    /// The one-pass analysis gives the definitions' report bit for bit (and their errors): on
+    /// runs of several lengths and periods, with a trip, with a NaN, with times that do not
+    /// increase, and with a column missing.
+    #[test]
+    fn one_pass_analysis_equals_the_definitions_bit_for_bit() {
+        let columns = Columns::default();
+        let grid = |end: f64, h: f64| -> Vec<f64> {
+            (0..=(end / h).round() as usize)
+                .map(|k| k as f64 * h)
+                .collect()
+        };
+        let mut cases: Vec<(Results, f64)> = Vec::new();
+        for (end, h, period) in [
+            (5.0, 0.001, 2.5),
+            (5.0, 0.001, 1.25),
+            (7.3, 0.01, 2.5),
+            (2.0, 0.5, 1.0),
+            (3.0, 1.0, 1.0),
+            (1.9, 0.01, 1.0),
+        ] {
+            cases.push((wiggly(&grid(end, h), None, None), period));
+            cases.push((wiggly(&grid(end, h), Some(1200), Some(3000)), period));
+            cases.push((wiggly(&grid(end, h), None, Some(1)), period));
+        }
+        // Times out of order: the analysed rows are not one run of rows.
+        let mut shuffled = grid(4.0, 0.01);
+        shuffled.swap(150, 20);
+        shuffled.swap(300, 390);
+        shuffled.swap(120, 250);
+        cases.push((wiggly(&shuffled, None, None), 1.0));
+        let mut checked = 0;
+        for (results, period) in &cases {
+            let one = analyse("x", results, *period, &columns);
+            let defined = analyse_by_definition("x", results, *period, &columns);
+            match (&one, &defined) {
+                (Ok(a), Ok(b)) => {
+                    assert_eq!(bits(a), bits(b), "period {period}");
+                    checked += 1;
+                }
+                (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                _ => panic!("{one:?} vs {defined:?}"),
+            }
+        }
+        assert!(checked >= 15, "{checked}");
+        // A missing column: the same one named.
+        let mut fewer = columns.clone();
+        fewer.offset_energy = "plant.nothing".into();
+        fewer.potential_energy = "plant.nothingEither".into();
+        let results = &cases[0].0;
+        assert_eq!(
+            analyse("x", results, 2.5, &fewer).unwrap_err().to_string(),
+            analyse_by_definition("x", results, 2.5, &fewer)
+                .unwrap_err()
+                .to_string()
+        );
+    }
+
+    /// Analysed cycles without a recorded row (a run recorded once every 1.5 periods) are an
+    /// error naming them (was: a panic indexing the empty list of analysed rows).
+    #[test]
+    fn cycles_without_a_recorded_row_are_an_error() {
+        let results = results(0.0, 0.0, f64::INFINITY);
+        let mut sparse =
+            Results::with_capacity(results.names().to_vec(), results.kinds().to_vec(), 3);
+        let zeros = vec![0.0; results.names().len()];
+        for t in [0.0, 0.75, 2.25] {
+            sparse.push_row(t, &zeros);
+        }
+        let e = analyse("x", &sparse, 1.0, &Columns::default()).unwrap_err();
+        assert!(
+            matches!(e, StudyError::NoRows { .. })
+                && e.to_string().contains("from 1 s to 2 s (period 1 s)"),
+            "{e}"
+        );
     }
 }

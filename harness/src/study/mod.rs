@@ -161,6 +161,20 @@ pub enum StudyError {
         /// The last recorded time.
         end: f64,
     },
+    /// The cycles to analyse hold no recorded row (the run recorded fewer rows than one per
+    /// gait cycle).
+    #[error(
+        "no recorded row in the analysed gait cycles, from {from} s to {to} s (period \
+         {period} s): the run records too sparsely to analyse"
+    )]
+    NoRows {
+        /// The gait period.
+        period: f64,
+        /// The analysed cycles' start.
+        from: f64,
+        /// Their end.
+        to: f64,
+    },
     /// A parameter override names no parameter of the scenario.
     #[error("parameter override {0}")]
     Parameter(String),

@@ -46,8 +46,8 @@ impl Scenario {
         let mut components = Vec::new();
         for c in &self.components {
             let path = fmu_dir.join(&c.fmu);
-            let (_dir, md) =
-                crate::load::extract_and_parse(&path, &crate::load::ArchiveLimits::default())
+            let md =
+                crate::load::read_model_description(&path, &crate::load::ArchiveLimits::default())
                     .map_err(|e| StudyError::Fmu {
                         path: path.clone(),
                         message: e.to_string(),

@@ -2,9 +2,9 @@
 //! run on worker threads ([`Prepared::run_points`]), and the whole sweep with its journal
 //! ([`run_sweep`], [`JournaledSweep`]; the journal and `--resume`: [`super::journal`]).
 //!
-//! Each worker loads the system once (its own extracted FMUs) and builds a fresh [`System`]
-//! per point from that: the SSP's parameter values, then the point's. A point's row depends
-//! on the point alone.
+//! Each worker loads the system once (its own extracted FMUs) and runs each point on a copy of
+//! the loaded [`System`](crate::master::System) (components, step multiples, the SSP's parameter values, connections)
+//! with the point's values set after the SSP's. A point's row depends on the point alone.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -22,11 +22,11 @@ use super::spec::{
     check_run_values, run_rows,
 };
 use super::table::{Row, RunStatus, SweepTable, same_bits};
-use crate::master::{MasterError, Outcome, RunConfig, System, Value};
+use crate::LoadOptions;
+use crate::master::{Outcome, RunConfig, Value};
 use crate::results::Results;
 use crate::ssp::{self, LoadedSystem};
 use crate::study::{self, Columns};
-use crate::{Fmu, LoadOptions};
 
 /// The study metrics' column names, in table order: [`study::ActuatorReport`] and its
 /// [`study::EnergyTerms`] (angles in rad, torques in N m, energies in J per gait cycle, the
@@ -363,41 +363,6 @@ fn variable_problems(
     problems
 }
 
-/// A fresh system from a loaded SSP: components (the loaded FMUs, shared), step multiples,
-/// the SSP's parameter values and its connections, as [`ssp::load_system`] builds it.
-fn fresh_system(loaded: &LoadedSystem) -> Result<System, MasterError> {
-    let fmus: HashMap<&str, &Fmu> = loaded.system.components().collect();
-    let mut system = System::new();
-    for c in &loaded.ssd.system.components {
-        let fmu = fmus
-            .get(c.name.as_str())
-            .ok_or_else(|| MasterError::UnknownComponent(c.name.clone()))?;
-        system.add_component(&c.name, (*fmu).clone())?;
-        if let Some(m) = c.step_multiple {
-            system.set_step_multiple(&c.name, m)?;
-        }
-        for p in &c.parameters {
-            let reference = format!("{}.{}", c.name, p.name);
-            match system.set_value(&reference, p.value.clone()) {
-                Ok(()) => {}
-                Err(MasterError::BadValue { .. }) => {
-                    system.set_value_str(&reference, &p.value.to_text())?
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    }
-    for c in &loaded.ssd.system.connections {
-        if let (Some(se), Some(ee)) = (&c.start_element, &c.end_element) {
-            system.connect(
-                &format!("{se}.{}", c.start_connector),
-                &format!("{ee}.{}", c.end_connector),
-            )?;
-        }
-    }
-    Ok(system)
-}
-
 /// The unit of `component.variable` in the FMUs' descriptions (empty when it has none).
 fn signal_unit(descriptions: &HashMap<String, ModelDescription>, reference: &str) -> String {
     reference
@@ -579,7 +544,7 @@ impl Prepared {
             }
             metric_names.extend(super::spec::signal_columns(&spec.signals, k));
         }
-        let mut probe = fresh_system(&loaded).map_err(system_error)?;
+        let mut probe = loaded.system.clone();
         for r in &recorded {
             if let Err(e) = probe.record(&[r.as_str()]) {
                 let line = spec
@@ -829,8 +794,8 @@ impl Prepared {
         }
     }
 
-    /// Runs the points `ids` of the design on `workers` threads, handing each row to `on_row`
-    /// as it comes (in completion order). Every id gets a row; an id outside the design is an
+    /// Runs the points `ids` of the design on `workers` threads (one: the calling thread),
+    /// handing each row to `on_row` as it comes (in completion order). Every id gets a row; an id outside the design is an
     /// error.
     pub fn run_points(
         &self,
@@ -852,7 +817,8 @@ impl Prepared {
     }
 
     /// Runs `points` (an id and the parameters' values, in spec order, each) on `workers`
-    /// threads, handing each row to `on_row` as it comes (in completion order): the design's
+    /// threads (one: the calling thread, without a thread of its own), handing each
+    /// row to `on_row` as it comes (in completion order): the design's
     /// points ([`run_points`](Self::run_points)) or an optimiser's (see
     /// [`optimize`](super::optimize)). Every point gets a row; a point whose number of values
     /// is not the number of parameters is an error, and so is a number of workers outside
@@ -875,6 +841,9 @@ impl Prepared {
         }
         check_workers(workers)?;
         let workers = workers.min(points.len().max(1));
+        if workers == 1 {
+            return self.run_on_caller(points, on_row);
+        }
         let next = AtomicUsize::new(0);
         let (tx, rx) = mpsc::channel::<Result<Row, SweepError>>();
         let mut done = vec![false; points.len()];
@@ -954,6 +923,30 @@ impl Prepared {
         Ok(())
     }
 
+    /// [`run_batch`](Self::run_batch) on one worker: the points run on the calling thread, in
+    /// order, each row handed to `on_row` as it ends. The rows are those of a worker thread (a
+    /// thread and a channel's hand-over per row saved: most of a point's cost beyond its run,
+    /// context switches); the test `tables_are_bit_identical_whatever_the_workers_and_the_order`
+    /// compares the tables of one worker with those of two and four threads bit for bit. An
+    /// error of `on_row` stops the batch at once.
+    fn run_on_caller(
+        &self,
+        points: &[(u64, Vec<f64>)],
+        on_row: &mut dyn FnMut(Row) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
+        let loaded = self.worker_system()?;
+        let mut outcome = Ok(());
+        for (id, values) in points {
+            let row = self.run_values(&loaded, *id, values);
+            if let Err(e) = on_row(row) {
+                outcome = Err(e);
+                break;
+            }
+        }
+        self.give_back(loaded);
+        outcome
+    }
+
     /// A loaded system for a worker: an idle one (the one loaded to check the spec, or one a
     /// finished batch gave back) if there is one, else a fresh loading of
     /// [`system_file`](Self::system_file).
@@ -968,8 +961,8 @@ impl Prepared {
     }
 
     /// Gives a worker's loaded system back for the next batch (see
-    /// [`worker_system`](Self::worker_system)); every point builds a fresh system from it,
-    /// so nothing of one batch's runs is left in it.
+    /// [`worker_system`](Self::worker_system)); every point runs on a copy of its system and
+    /// leaves it as it was, so nothing of one batch's runs is left in it.
     pub fn give_back(&self, loaded: LoadedSystem) {
         if let Ok(mut idle) = self.idle.lock() {
             idle.push(loaded);
@@ -994,9 +987,10 @@ impl Prepared {
         }
     }
 
-    /// Runs the parameter values `values` (in spec order) as point `id` on a loaded system:
-    /// its row, whatever happens (values of another number than the parameters' give a failed
-    /// row).
+    /// Runs the parameter values `values` (in spec order) as point `id` on a copy of the loaded
+    /// system (`loaded.system`, as the SSP built it; left as it was), the values set after the
+    /// SSP's: its row, whatever happens (values of another number than the parameters' give a
+    /// failed row).
     pub fn run_values(&self, loaded: &LoadedSystem, id: u64, values: &[f64]) -> Row {
         let mut row = Row {
             point: id,
@@ -1018,10 +1012,9 @@ impl Prepared {
             );
             return fail(row, message);
         }
-        let mut system = match fresh_system(loaded) {
-            Ok(s) => s,
-            Err(e) => return fail(row, e.to_string()),
-        };
+        // The system as the SSP built it (components, step multiples, its parameter values,
+        // connections), copied: nothing of one point's values is left for the next.
+        let mut system = loaded.system.clone();
         for (p, &v) in self.spec.parameters.iter().zip(values) {
             let value = match p.ty {
                 ParameterType::Real => Value::Real(v),
@@ -1109,7 +1102,7 @@ impl Prepared {
                 .map(|i| values[i])
                 .or(self.period)
                 .unwrap_or(f64::NAN);
-            if results.times().is_empty() {
+            if results.is_empty() {
                 return Err("no rows recorded".into());
             }
             let r = study::analyse("run", results, period, &Columns::default())
@@ -1124,36 +1117,37 @@ impl Prepared {
                 row.message = format!("{name} at t = {}", model_description::num::Num(*t));
             }
         }
-        let times = results.times();
         let mut empty = None;
         for s in &self.spec.signals {
             let col = results
-                .column(&s.signal)
+                .column_index(&s.signal)
                 .ok_or_else(|| format!("no column '{}'", s.signal))?;
             let from = s.from.unwrap_or(f64::NEG_INFINITY);
             let to = s.to.unwrap_or(f64::INFINITY);
-            let window: Vec<f64> = times
-                .iter()
-                .zip(&col)
-                .filter(|(t, _)| **t >= from && **t <= to)
-                .map(|(_, v)| *v)
-                .collect();
-            if window.is_empty() && empty.is_none() {
+            // The window's values, read in place.
+            let window = || {
+                results
+                    .rows()
+                    .filter(move |r| r[0] >= from && r[0] <= to)
+                    .map(move |r| r[col])
+            };
+            let n = window().count();
+            if n == 0 && empty.is_none() {
                 empty = Some(format!(
                     "the window of '{}' (spec line {}) holds no recorded row",
                     s.signal, s.line
                 ));
             }
             for st in &s.stats {
-                row.metrics[k] = if window.is_empty() {
+                row.metrics[k] = if n == 0 {
                     f64::NAN
                 } else {
-                    let n = window.len() as f64;
+                    let n = n as f64;
                     match st {
-                        Stat::Min => window.iter().copied().fold(f64::INFINITY, f64::min),
-                        Stat::Max => window.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                        Stat::Mean => window.iter().sum::<f64>() / n,
-                        Stat::Rms => (window.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+                        Stat::Min => window().fold(f64::INFINITY, f64::min),
+                        Stat::Max => window().fold(f64::NEG_INFINITY, f64::max),
+                        Stat::Mean => window().sum::<f64>() / n,
+                        Stat::Rms => (window().map(|x| x * x).sum::<f64>() / n).sqrt(),
                     }
                 };
                 k += 1;
