@@ -13,8 +13,8 @@
 //!   on one worker (the spec parsed and checked against the FMUs, the design, the scenario
 //!   written and loaded, the points scheduled, each run's study metrics, its journal line,
 //!   the Parquet table written through its partial file) against the bare closed loop: the
-//!   same scenario `.ssp` loaded once, then per point its two values set and two gait cycles of
-//!   `System::run` recording the same signals. Both are timed at [`SMALL`] and [`LARGE`]
+//!   same scenario `.ssp` loaded once, then per point a clone of it, its two values set and
+//!   two gait cycles of `System::run` recording the same signals. Both are timed at [`SMALL`] and [`LARGE`]
 //!   points: the slope (seconds per added point) is each one's per-point cost, the sweep's
 //!   overhead is the ratio of the slopes less one; the intercepts are the fixed costs (for the
 //!   sweep: spec, scenario, loading), reported with what they add per point at [`LARGE`].
@@ -113,18 +113,21 @@ fn timed_sweep(dir: &Path, fmus: &Path, points: usize) -> f64 {
     s
 }
 
-/// The bare closed loop over the same points: the scenario loaded once, then per point its
-/// values set and `System::run`: seconds.
+/// The bare closed loop over the same points: the scenario loaded once, then per point a
+/// clone of it, its values set and `System::run`: seconds.
 fn timed_bare(p: &Prepared, points: usize) -> f64 {
     let t = Instant::now();
     let mut loaded = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
     let refs: Vec<&str> = p.recorded.iter().map(String::as_str).collect();
     loaded.system.record(&refs).unwrap();
     for point in &p.design.points[..points] {
+        // A clone per point: `set_value` adds to the values a system applies, so setting
+        // them on the one system would have each run apply every earlier point's too.
+        let mut system = loaded.system.clone();
         for (name, v) in p.design.names.iter().zip(point) {
-            loaded.system.set_value(name, Value::Real(*v)).unwrap();
+            system.set_value(name, Value::Real(*v)).unwrap();
         }
-        let out = loaded.system.run(&p.config).unwrap();
+        let out = system.run(&p.config).unwrap();
         assert!(out.results.len() > 2000);
     }
     t.elapsed().as_secs_f64()
