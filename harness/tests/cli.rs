@@ -422,38 +422,7 @@ fn an_interrupted_sweep_says_how_far_it_got_and_resumes() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    // Until the journal holds a row (the header and one line), or the sweep ends.
-    let mut child = child;
-    loop {
-        let rows = std::fs::read_to_string(&journal).map_or(0, |j| j.matches('\n').count());
-        if rows >= 2 || child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
-    assert!(
-        child.try_wait().unwrap().is_none(),
-        "the sweep ended before it was interrupted"
-    );
-    // SAFETY: kill(2) on the child's pid, which has not been waited for.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
-    let o = child.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(130), "{stderr}");
-    let done = std::fs::read_to_string(&journal)
-        .unwrap()
-        .matches('\n')
-        .count()
-        - 1;
-    assert!((1..40).contains(&done), "{done}");
-    assert!(
-        stderr.contains(&format!(
-            "interrupted (SIGINT): {done} of 40 points done (journaled in {}); run again with \
-             --resume",
-            journal.display()
-        )),
-        "{stderr}"
-    );
+    interrupt_once_journaled(child, &journal, "sweep", "points");
     assert!(!out.exists());
     let r = kneebench()
         .arg("sweep")
@@ -466,6 +435,48 @@ fn an_interrupted_sweep_says_how_far_it_got_and_resumes() {
     assert_eq!(r.status.code(), Some(0), "{stderr}");
     assert!(stderr.contains("wrote 40 rows"), "{stderr}");
     assert!(!journal.exists());
+}
+
+/// Sends SIGINT to `child` (a sweep or an optimisation, `what`, of 40 `unit`) once its
+/// journal holds a row, and checks how it stops: exit code 130, how many are done (journaled,
+/// between 1 and 39) and that `--resume` continues.
+fn interrupt_once_journaled(
+    mut child: std::process::Child,
+    journal: &std::path::Path,
+    what: &str,
+    unit: &str,
+) {
+    // Until the journal holds a row (the header and one line), or the child ends.
+    loop {
+        let rows = std::fs::read_to_string(journal).map_or(0, |j| j.matches('\n').count());
+        if rows >= 2 || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the {what} ended before it was interrupted"
+    );
+    // SAFETY: kill(2) on the child's pid, which has not been waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{stderr}");
+    let done = std::fs::read_to_string(journal)
+        .unwrap()
+        .matches('\n')
+        .count()
+        - 1;
+    assert!((1..40).contains(&done), "{done}");
+    assert!(
+        stderr.contains(&format!(
+            "interrupted (SIGINT): {done} of 40 {unit} done (journaled in {}); run again with \
+             --resume",
+            journal.display()
+        )),
+        "{stderr}"
+    );
 }
 
 /// Ctrl-C during `kneebench optimize` stops it as it stops `sweep`: exit code 130, how many
@@ -494,7 +505,7 @@ fn an_interrupted_optimisation_says_how_far_it_got_and_resumes() {
     .unwrap();
     let out = d.path().join("t.parquet");
     let journal = d.path().join("t.parquet.journal");
-    let mut child = kneebench()
+    let child = kneebench()
         .arg("optimize")
         .arg(&spec)
         .args(["--workers", "1", "--quiet", "--output"])
@@ -503,37 +514,7 @@ fn an_interrupted_optimisation_says_how_far_it_got_and_resumes() {
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    // Until the journal holds a row (the header and one line), or the optimisation ends.
-    loop {
-        let rows = std::fs::read_to_string(&journal).map_or(0, |j| j.matches('\n').count());
-        if rows >= 2 || child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
-    assert!(
-        child.try_wait().unwrap().is_none(),
-        "the optimisation ended before it was interrupted"
-    );
-    // SAFETY: kill(2) on the child's pid, which has not been waited for.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
-    let o = child.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(130), "{stderr}");
-    let done = std::fs::read_to_string(&journal)
-        .unwrap()
-        .matches('\n')
-        .count()
-        - 1;
-    assert!((1..40).contains(&done), "{done}");
-    assert!(
-        stderr.contains(&format!(
-            "interrupted (SIGINT): {done} of 40 runs done (journaled in {}); run again with \
-             --resume",
-            journal.display()
-        )),
-        "{stderr}"
-    );
+    interrupt_once_journaled(child, &journal, "optimisation", "runs");
     assert!(!out.exists());
     let r = kneebench()
         .arg("optimize")

@@ -759,38 +759,15 @@ mod tests {
         })
     }
 
-    /// Every number of a report as bits (NaN compares by its bits), with its cycles and trip.
-    fn bits(r: &ActuatorReport) -> (usize, Vec<u64>, Option<(String, u64)>) {
-        let e = &r.energy;
-        let values = [
-            r.rms_error_actuation,
-            r.max_error_actuation,
-            r.rms_error_knee,
-            r.max_error_knee,
-            r.peak_test_torque,
-            r.peak_shaft_torque,
-            r.peak_load_torque,
-            e.test_mechanical,
-            e.test_mechanical_consumed,
-            e.test_electrical,
-            e.bench_electrical,
-            e.clutch,
-            e.clutch_engaged_fraction,
-            e.drive_loss,
-            e.load_mechanical,
-            e.load_electrical,
-            e.load_loss,
-            e.all_electrical,
-            e.kinetic_change,
-            e.potential_change,
-            e.kinetic_stored,
-            e.potential_stored,
-            e.balance_residual,
-        ];
+    /// Every number of a report as bits (NaN compares by its bits: the sweep's columns, its
+    /// cycles and trip time included), with the trip's name.
+    fn bits(r: &ActuatorReport) -> (Vec<u64>, Option<String>) {
         (
-            r.cycles,
-            values.iter().map(|v| v.to_bits()).collect(),
-            r.trip.as_ref().map(|(n, t)| (n.clone(), t.to_bits())),
+            crate::sweep::runner::study_metric_values(r)
+                .iter()
+                .map(|v| v.to_bits())
+                .collect(),
+            r.trip.as_ref().map(|(n, _)| n.clone()),
         )
     }
 
