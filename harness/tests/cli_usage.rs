@@ -689,6 +689,23 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
     }
 }
 
+/// Key files the bench link refuses, made in `dir`, each with what its refusal says: one
+/// readable by others, one whose key is no secret, and one that does not exist.
+fn refused_key_files(dir: &Path) -> [(PathBuf, &'static str); 3] {
+    use std::os::unix::fs::PermissionsExt;
+    let loose = dir.join("loose.key");
+    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
+    std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let zeros = dir.join("zeros.key");
+    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
+    std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
+    [
+        (loose, "accessible to its group or to others (mode 644)"),
+        (zeros, "all its 32 bytes are 0x00: not a random key"),
+        (dir.join("missing.key"), "No such file"),
+    ]
+}
+
 /// `study --bench --key FILE` with a key file the bench link would refuse (readable by others,
 /// a key that is no secret, no file at all): a usage error naming the option and why, before
 /// anything runs or is written, as `emulate --key` refuses it.
@@ -697,21 +714,7 @@ fn a_refused_study_key_file_is_a_usage_error() {
     let dir = tempfile::tempdir().unwrap();
     let fmus_dir = fmus().to_str().unwrap();
     let out = dir.path().join("out");
-    let loose = dir.path().join("loose.key");
-    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
-    let zeros = dir.path().join("zeros.key");
-    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
-        std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
-    }
-    let missing = dir.path().join("missing.key");
-    for (file, needle) in [
-        (&loose, "accessible to its group or to others (mode 644)"),
-        (&zeros, "all its 32 bytes are 0x00: not a random key"),
-        (&missing, "No such file"),
-    ] {
+    for (file, needle) in refused_key_files(dir.path()) {
         let o = kneebench()
             .args([
                 "study",
@@ -725,7 +728,7 @@ fn a_refused_study_key_file_is_a_usage_error() {
                 "bench-full",
             ])
             .args(["--bench", "127.0.0.1:9", "--key"])
-            .arg(file)
+            .arg(&file)
             .arg("--out")
             .arg(&out)
             .output()
@@ -814,21 +817,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
     // A --key file the emulator refuses (readable by others, a key that is no secret, no
     // file at all): a usage error naming the option and why, before anything starts (it was
     // exit 1).
-    let loose = dir.path().join("loose.key");
-    std::fs::write(&loose, format!("{}\n", "5a".repeat(32))).unwrap();
-    let zeros = dir.path().join("zeros.key");
-    std::fs::write(&zeros, format!("{}\n", "0".repeat(64))).unwrap();
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
-        std::fs::set_permissions(&zeros, std::fs::Permissions::from_mode(0o600)).unwrap();
-    }
-    let missing = dir.path().join("missing.key");
-    for (file, needle) in [
-        (&loose, "accessible to its group or to others (mode 644)"),
-        (&zeros, "all its 32 bytes are 0x00: not a random key"),
-        (&missing, "No such file"),
-    ] {
+    for (file, needle) in refused_key_files(dir.path()) {
         let o = kneebench()
             .args([
                 "emulate",
@@ -840,7 +829,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
             ])
             .arg(&plant)
             .arg("--key")
-            .arg(file)
+            .arg(&file)
             .output()
             .unwrap();
         assert_usage(

@@ -195,6 +195,22 @@ fn reduced_state(z: &AugVector) -> [f64; NREDUCED] {
     y
 }
 
+/// The products `y_i y_j` (`i <= j`) of the reduced state of `z`, packed in the order of
+/// the Gramian's entries, padded with zeros.
+#[inline(always)]
+fn packed_products(z: &AugVector) -> [f64; NREDUCED_PACK_PADDED] {
+    let y = reduced_state(z);
+    let mut x = [0.0; NREDUCED_PACK_PADDED];
+    let mut k = 0;
+    for i in 0..NREDUCED {
+        for j in i..NREDUCED {
+            x[k] = y[i] * y[j];
+            k += 1;
+        }
+    }
+    x
+}
+
 /// Index in `z` of reduced index `m` (`0` stands for the deflection, carried by `theta1`).
 fn full_index(m: usize) -> usize {
     if m == 0 { THETA1 } else { m + 1 }
@@ -448,15 +464,7 @@ impl Discretization {
     /// in the AVX2 build of the step only ([`super::BenchPlant::step`]: the CPU has AVX2).
     #[inline(always)]
     pub(crate) fn quadratic_integrals<const WIDE: bool>(&self, z: &AugVector) -> [f64; 6] {
-        let y = reduced_state(z);
-        let mut x = [0.0; NREDUCED_PACK_PADDED];
-        let mut k = 0;
-        for i in 0..NREDUCED {
-            for j in i..NREDUCED {
-                x[k] = y[i] * y[j];
-                k += 1;
-            }
-        }
+        let x = packed_products(z);
         // Two independent sets of six running sums (even and odd products): the adds of one
         // set do not wait for the other's, which halves the add-latency chain of the loop. The
         // twelve sums sit in three runs of four, beside the blocks of `reduced_blocks`: one
@@ -551,15 +559,7 @@ impl Discretization {
     /// sums each, entry by entry from `reduced_columns`.
     #[cfg(test)]
     pub(crate) fn quadratic_integrals_plain(&self, z: &AugVector) -> [f64; 6] {
-        let y = reduced_state(z);
-        let mut x = [0.0; NREDUCED_PACK_PADDED];
-        let mut k = 0;
-        for i in 0..NREDUCED {
-            for j in i..NREDUCED {
-                x[k] = y[i] * y[j];
-                k += 1;
-            }
-        }
+        let x = packed_products(z);
         let mut even = [0.0f64; 6];
         let mut odd = [0.0f64; 6];
         for k in 0..NREDUCED_PACK_PADDED / 2 {
