@@ -22,7 +22,8 @@
 //!   1 kHz, run once into memory; then the same rows written by the streamed CSV writer and by
 //!   the Parquet writer (each encoding on its own thread, the default, and in the caller's),
 //!   and by both writers as they were before their speed work (kept in
-//!   `sweep/baseline_writers.rs`), each to its partial file, synced and renamed into place;
+//!   `sweep/baseline_writers.rs`), each to its partial file, synced and renamed into place (a new file in each repeat:
+//!   the previous repeat's is removed before the clock starts, as for the bytes' I/O alone);
 //!   wall time (the durable write a user waits for) and the process's CPU time, user and
 //!   system (the writer thread's included; without the wait for the disk), each writer's I/O
 //!   alone (its file's bytes written at once and synced), and the ratios. `KNEEBENCH_WRITERS_PROFILE=<writer>|none` writes one file and stops, for
@@ -305,14 +306,28 @@ const WRITERS: [&str; 6] = [
     "Parquet",
 ];
 
+/// The file writer `k` of [`WRITERS`] writes in `dir`.
+fn output_of(k: usize, dir: &Path) -> PathBuf {
+    let name = [
+        "before.csv",
+        "caller.csv",
+        "w.csv",
+        "before.parquet",
+        "caller.parquet",
+        "w.parquet",
+    ];
+    dir.join(name[k])
+}
+
 /// Writes `results` through writer `k` of [`WRITERS`] into `dir` (partial file, sync, rename):
 /// the file's path.
 fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
     let names = results.names();
+    let path = output_of(k, dir);
     let rows = || results.rows().map(|r| (r[0], &r[1..]));
     match k {
         0 => {
-            let mut f = baseline_writers::CsvFile::create(&dir.join("before.csv")).unwrap();
+            let mut f = baseline_writers::CsvFile::create(&path).unwrap();
             f.begin(names, results.kinds()).unwrap();
             for (t, v) in rows() {
                 f.push_row(t, v).unwrap();
@@ -320,19 +335,19 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
             f.commit().unwrap()
         }
         1 => {
-            let mut f = CsvFile::create(&dir.join("caller.csv"))
+            let mut f = CsvFile::create(&path)
                 .unwrap()
                 .encoding_on(EncodeOn::Caller);
             write(results, &mut f);
             f.commit().unwrap()
         }
         2 => {
-            let mut f = CsvFile::create(&dir.join("w.csv")).unwrap();
+            let mut f = CsvFile::create(&path).unwrap();
             write(results, &mut f);
             f.commit().unwrap()
         }
         3 => {
-            let mut f = baseline_writers::ParquetFile::create(&dir.join("before.parquet")).unwrap();
+            let mut f = baseline_writers::ParquetFile::create(&path).unwrap();
             f.begin(names).unwrap();
             for (t, v) in rows() {
                 f.push_row(t, v).unwrap();
@@ -340,14 +355,12 @@ fn write_with(k: usize, results: &Results, dir: &Path) -> PathBuf {
             f.commit().unwrap()
         }
         4 => {
-            let mut f =
-                ParquetFile::create_encoding_on(&dir.join("caller.parquet"), EncodeOn::Caller)
-                    .unwrap();
+            let mut f = ParquetFile::create_encoding_on(&path, EncodeOn::Caller).unwrap();
             write(results, &mut f);
             f.commit().unwrap()
         }
         _ => {
-            let mut f = ParquetFile::create(&dir.join("w.parquet")).unwrap();
+            let mut f = ParquetFile::create(&path).unwrap();
             write(results, &mut f);
             f.commit().unwrap()
         }
@@ -384,6 +397,11 @@ fn writers(dir: &Path, p: &Prepared) {
     for _ in 0..REPEATS {
         files.clear();
         for k in 0..n {
+            // Each repeat writes a new file, as a first run does: replacing the previous
+            // repeat's file would free its pages inside the timed rename (about 1 ms for the
+            // Parquet file and 2-4 ms for the CSV one on /dev/shm), a cost of the file
+            // replaced, not of the writer.
+            let _ = std::fs::remove_file(output_of(k, dir));
             let (t, (u, s)) = (Instant::now(), process_cpu());
             files.push(write_with(k, &results, dir));
             let (u2, s2) = process_cpu();
@@ -399,6 +417,7 @@ fn writers(dir: &Path, p: &Prepared) {
     for _ in 0..REPEATS {
         for (k, b) in bytes.iter().enumerate() {
             let path = dir.join(format!("io{k}"));
+            let _ = std::fs::remove_file(&path);
             let t = Instant::now();
             let mut f = std::fs::File::create(&path).unwrap();
             std::io::Write::write_all(&mut f, b).unwrap();
