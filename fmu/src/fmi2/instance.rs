@@ -268,7 +268,7 @@ pub struct Instance<M: Model> {
     /// Boolean getters by value reference.
     boolean_getters: Vec<Option<BooleanGetter<M>>>,
     /// Real setters by value reference, with what a set must satisfy.
-    real_setters: Vec<Option<RealSetter<M>>>,
+    real_setters: Vec<RealSetter<M>>,
     /// Boolean setters by value reference, with the phases they may be set in.
     boolean_setters: Vec<Option<BooleanSetter<M>>>,
 }
@@ -411,6 +411,36 @@ impl<M: Model> Instance<M> {
             None => Ok(()),
             Some(why) => Err(self.refuse(function, &why)),
         }
+    }
+
+    /// The checking path of `fmi2SetReal` (a reference that is unknown or not settable now, a
+    /// value that is not finite, out of range or a fraction where a whole number is due):
+    /// refuses the call naming the first problem, or sets every value.
+    #[cold]
+    #[inline(never)]
+    fn set_real_checked(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
+        let f = "fmi2SetReal";
+        if let Err(s) = self.check_known(f, 0, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(0, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
+            return s;
+        }
+        let vars = M::variables();
+        for (i, &x) in idx.clone().zip(values) {
+            if let Err(s) = self.check_range(f, &vars[i], x) {
+                return s;
+            }
+        }
+        for (i, &x) in idx.clone().zip(values) {
+            if let Access::Real(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
     }
 
     fn after_set(&mut self) {
@@ -663,13 +693,19 @@ fn boolean_getter_table<M: Model>() -> Vec<Option<BooleanGetter<M>>> {
     })
 }
 
-/// A Real variable's setter and the conditions of a valid set.
+/// A Real variable's setter and the conditions of a valid set: the table entry of the fast
+/// path of `fmi2SetReal`, whose verdict ([`RealSetter::accepts`]) equals the checking path's
+/// (settable in the phase, and no [`range_problem`]) for every value (test
+/// `the_real_setters_accept_what_the_checking_path_accepts`).
 struct RealSetter<M> {
     set: fn(&mut M, f64),
-    /// Settable in [instantiated, initialization, stepping].
+    /// Settable in [instantiated, initialization, stepping] (all false for a value reference
+    /// that is no Real variable: such an entry accepts nothing).
     phases: [bool; 3],
-    min: f64,
-    max: f64,
+    /// The variable's min, at least `-f64::MAX`: `low <= x` is false for NaN and -inf.
+    low: f64,
+    /// The variable's max, at most `f64::MAX`: `x <= high` is false for NaN and +inf.
+    high: f64,
     /// Only whole numbers ([`Variable::integer_valued`]).
     integer_valued: bool,
 }
@@ -694,12 +730,26 @@ fn settable_phases<M>(v: &Variable<M>) -> [bool; 3] {
 }
 
 impl<M> RealSetter<M> {
-    #[inline]
-    fn accepts(&self, phase: Phase, x: f64) -> bool {
-        self.phases[phase_index(phase)]
-            && x.is_finite()
-            && x >= self.min
-            && x <= self.max
+    /// The entry of a value reference that is no Real variable: it accepts nothing, so a set
+    /// naming it takes the checking path, which names the problem.
+    fn refusing() -> Self {
+        Self {
+            set: |_, _| {},
+            phases: [false; 3],
+            low: f64::INFINITY,
+            high: f64::NEG_INFINITY,
+            integer_valued: false,
+        }
+    }
+
+    /// Whether `x` may be set now (phase index `phase`, [`phase_index`]): finite, within the
+    /// bounds and whole if it must be (the bounds' clamping to the finite doubles makes the
+    /// two comparisons the finiteness check too).
+    #[inline(always)]
+    fn accepts(&self, phase: usize, x: f64) -> bool {
+        self.phases[phase]
+            && self.low <= x
+            && x <= self.high
             && (!self.integer_valued || is_whole(x))
     }
 }
@@ -758,6 +808,98 @@ mod whole_number_tests {
     }
 }
 
+#[cfg(test)]
+mod real_setter_tests {
+    use super::*;
+    use crate::models::{
+        bench_hardware::BenchHardwareModel, bench_plant::BenchPlantModel,
+        clutch_scheduler::ClutchScheduler, gait::GaitReference, impedance::ImpedanceController,
+        pid::PidController,
+    };
+
+    /// Values around every edge the checks have: NaN, the infinities, the largest doubles,
+    /// zeros, fractions, and each bound with its neighbours.
+    fn probes<M>(v: &Variable<M>) -> Vec<f64> {
+        let mut xs = vec![
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MAX,
+            f64::MIN,
+            0.0,
+            -0.0,
+            0.5,
+            -2.5,
+            1.0,
+            -1.0,
+            3.0,
+            1e-300,
+            1e300,
+            -1e300,
+        ];
+        for b in [v.min, v.max].into_iter().flatten() {
+            if b.is_finite() {
+                xs.extend([b, b.next_up(), b.next_down(), b + 0.5, b - 0.5]);
+            }
+        }
+        xs
+    }
+
+    /// The table's verdict is the checking path's (settable in the phase, no range problem)
+    /// for every Real variable, phase and probe; a value reference that is no Real variable
+    /// accepts nothing.
+    fn fast_path_is_the_checking_path<M: Model>() -> usize {
+        let table = real_setter_table::<M>();
+        let mut checked = 0;
+        for v in M::variables() {
+            if !matches!(v.access, Access::Real(..)) {
+                continue;
+            }
+            let e = &table[v.value_reference as usize];
+            for phase in [Phase::Instantiated, Phase::Initialization, Phase::Stepping] {
+                for x in probes(v) {
+                    let plain = v.settable(phase) && range_problem(v, x).is_none();
+                    assert_eq!(
+                        e.accepts(phase_index(phase), x),
+                        plain,
+                        "{} {} = {x:e} in {phase:?}",
+                        M::IDENTIFIER,
+                        v.name
+                    );
+                    checked += usize::from(plain);
+                }
+            }
+        }
+        let real = |vr: usize| {
+            M::variables()
+                .iter()
+                .any(|v| v.value_reference as usize == vr && matches!(v.access, Access::Real(..)))
+        };
+        for (vr, e) in table.iter().enumerate().filter(|(vr, _)| !real(*vr)) {
+            for phase in 0..3 {
+                for x in [0.0, 1.0, -1.0] {
+                    assert!(!e.accepts(phase, x), "{} vr {vr}", M::IDENTIFIER);
+                }
+            }
+        }
+        checked
+    }
+
+    #[test]
+    fn the_real_setters_accept_what_the_checking_path_accepts() {
+        let accepted = [
+            fast_path_is_the_checking_path::<GaitReference>(),
+            fast_path_is_the_checking_path::<BenchPlantModel>(),
+            fast_path_is_the_checking_path::<BenchHardwareModel>(),
+            fast_path_is_the_checking_path::<PidController>(),
+            fast_path_is_the_checking_path::<ImpedanceController>(),
+            fast_path_is_the_checking_path::<ClutchScheduler>(),
+        ];
+        // Each model has Real variables that accept some probes.
+        assert!(accepted.iter().all(|&n| n > 10), "{accepted:?}");
+    }
+}
+
 /// A Boolean variable's setter and the phases it may be set in (any value is valid).
 struct BooleanSetter<M> {
     set: fn(&mut M, bool),
@@ -776,18 +918,22 @@ fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> {
     })
 }
 
-/// The Real setters of `M` indexed by value reference.
-fn real_setter_table<M: Model>() -> Vec<Option<RealSetter<M>>> {
+/// The Real setters of `M` indexed by value reference (a [`RealSetter::refusing`] entry where
+/// a value reference is no Real variable).
+fn real_setter_table<M: Model>() -> Vec<RealSetter<M>> {
     vr_table::<M, _>(|v| match v.access {
         Access::Real(_, set) => Some(RealSetter {
             set,
             phases: settable_phases(v),
-            min: v.min.unwrap_or(f64::NEG_INFINITY),
-            max: v.max.unwrap_or(f64::INFINITY),
+            low: v.min.unwrap_or(f64::NEG_INFINITY).max(-f64::MAX),
+            high: v.max.unwrap_or(f64::INFINITY).min(f64::MAX),
             integer_valued: v.integer_valued,
         }),
         _ => None,
     })
+    .into_iter()
+    .map(|e| e.unwrap_or_else(RealSetter::refusing))
+    .collect()
 }
 
 /// First bytes of every serialized FMU state.
@@ -1079,37 +1225,20 @@ impl<M: Model> FmiInstance for Instance<M> {
             return fmi2Error;
         }
         // Fast path: every reference known, settable now, finite and in range. Anything else
-        // takes the checking path below, which names the problem.
-        let phase = self.phase();
+        // takes the checking path, which names the problem.
+        let phase = phase_index(self.phase());
+        let table = &self.real_setters;
         let ok = vrs.iter().zip(values).all(|(vr, x)| {
-            matches!(self.real_setters.get(*vr as usize), Some(Some(e)) if e.accepts(phase, *x))
+            table
+                .get(*vr as usize)
+                .is_some_and(|e| e.accepts(phase, *x))
         });
-        if ok {
-            for (vr, x) in vrs.iter().zip(values) {
-                if let Some(Some(e)) = self.real_setters.get(*vr as usize) {
-                    (e.set)(&mut self.model, *x);
-                }
-            }
-            self.after_set();
-            return fmi2OK;
+        if !ok {
+            return self.set_real_checked(vrs, values);
         }
-        if let Err(s) = self.check_known(f, 0, vrs) {
-            return s;
-        }
-        let info = self.info;
-        let idx = vrs.iter().filter_map(move |vr| info.find(0, *vr));
-        if let Err(s) = self.check_settable(f, idx.clone()) {
-            return s;
-        }
-        let vars = M::variables();
-        for (i, &x) in idx.clone().zip(values) {
-            if let Err(s) = self.check_range(f, &vars[i], x) {
-                return s;
-            }
-        }
-        for (i, &x) in idx.clone().zip(values) {
-            if let Access::Real(_, set) = vars[i].access {
-                set(&mut self.model, x);
+        for (vr, x) in vrs.iter().zip(values) {
+            if let Some(e) = self.real_setters.get(*vr as usize) {
+                (e.set)(&mut self.model, *x);
             }
         }
         self.after_set();
