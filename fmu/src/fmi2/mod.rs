@@ -12,3 +12,4 @@ mod refusal_tests;
 #[cfg(test)]
 mod structure_tests;
 pub mod types;
+mod value_tables;
