@@ -602,8 +602,10 @@ fn ssp_spec(window: &str) -> String {
 /// The fingerprint covers the bytes of the system file (and of a scenario's FMUs, which a
 /// rebuild changes while keeping their GUIDs) and the version: an SSP whose bindings were
 /// edited (the torque loop's kp) is another sweep, so `--resume` refuses its journal instead
-/// of keeping the stale rows, and a Dask worker that sees another SSP at the same path is
-/// refused. Before, the fingerprint hashed only the spec text, points and GUIDs.
+/// of keeping the stale rows, and a Dask worker that sees other files at the same path is
+/// refused (that case needs a cluster: `python/tests/test_kneebench.py`,
+/// `test_rows_of_a_worker_that_sees_other_fmus_are_refused`). Before, the fingerprint hashed
+/// only the spec text, points and GUIDs.
 #[test]
 fn the_fingerprint_covers_the_system_file_and_the_fmus_bytes() {
     let dir = tempfile::tempdir().unwrap();
