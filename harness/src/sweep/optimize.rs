@@ -131,7 +131,7 @@ impl Optimizer {
     pub fn new(prepared: &Prepared) -> Result<Optimizer, SweepError> {
         Optimizer::from_spec(
             &prepared.spec,
-            prepared.design.points.clone(),
+            prepared.design.points.to_rows(),
             &prepared.metric_names,
         )
     }

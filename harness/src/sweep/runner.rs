@@ -806,7 +806,7 @@ impl Prepared {
         let points = ids
             .iter()
             .map(|&id| match self.design.points.get(id as usize) {
-                Some(values) => Ok((id, values.clone())),
+                Some(values) => Ok((id, values.to_vec())),
                 None => Err(SweepError::System(format!(
                     "point {id} is not in the design ({} points)",
                     self.design.points.len()
@@ -1202,7 +1202,7 @@ impl<P: std::borrow::Borrow<Prepared>> JournaledSweep<P> {
             (id as usize) < points.len()
         })?;
         for row in finished.rows.values_mut() {
-            row.parameters = points[row.point as usize].clone();
+            row.parameters = points[row.point as usize].to_vec();
         }
         Ok(JournaledSweep { prepared, finished })
     }
