@@ -912,3 +912,45 @@ fn model_descriptions_read_alone_are_those_of_the_whole_archives() {
         extract_and_parse(&junk, &limits).unwrap_err().to_string()
     );
 }
+
+/// An Integer parameter's value that is not a whole number in the 32-bit range (a point that
+/// a caller hands to `run_batch`, as Python's `optimize_points` does) is a failed row naming
+/// the parameter: it was cast (1.5 ran as 1, NaN as 0, 1e10 as 2147483647) while the row showed
+/// the value given.
+#[test]
+fn an_integer_parameter_runs_only_whole_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(
+        &format!(
+            "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.frictionModel\"\n\
+             values = [1.0]\n"
+        ),
+        dir.path(),
+    )
+    .unwrap();
+    let mut rows = Vec::new();
+    let points = [
+        (0, vec![1.5]),
+        (1, vec![f64::NAN]),
+        (2, vec![1e10]),
+        (3, vec![-0.5]),
+        (4, vec![1.0]),
+    ];
+    p.run_batch(&points, 1, &mut |r| {
+        rows.push(r);
+        Ok(())
+    })
+    .unwrap();
+    rows.sort_by_key(|r| r.point);
+    for r in &rows[..4] {
+        assert_eq!(r.status, RunStatus::Failed, "{r:?}");
+        assert!(
+            r.message
+                .contains("plant.frictionModel is an Integer variable, not "),
+            "{}",
+            r.message
+        );
+        assert!(r.metrics.iter().all(|m| m.is_nan()), "{r:?}");
+    }
+    assert_eq!(rows[4].status, RunStatus::Ok, "{:?}", rows[4]);
+}
