@@ -79,6 +79,19 @@ fn bad_specs_are_refused_naming_the_line() {
         m,
         ["spec.toml, line 10: parameter 'plant.springStiffness': value 50 is outside [100, 400]"]
     );
+    // A value that is no finite number (it read "NaN is outside [-inf, inf]").
+    for x in ["nan", "inf", "-inf"] {
+        let m = refusal(&format!(
+            "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0, {x}]\n"
+        ));
+        assert_eq!(
+            m,
+            [format!(
+                "spec.toml, line 8: parameter 'plant.springStiffness': value {} is not a finite number",
+                x.replace("nan", "NaN")
+            )]
+        );
+    }
     // min above max.
     let m = refusal(&format!(
         "{HEAD}[design]\nkind = \"sobol\"\npoints = 4\n[[parameters]]\nname = \"plant.springStiffness\"\nmin = 500.0\nmax = 400.0\n"
