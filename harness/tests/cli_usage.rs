@@ -44,13 +44,16 @@ fn plant_system(dir: &Path) -> PathBuf {
     ssd
 }
 
-/// Asserts `out` is a usage error whose message contains every one of `needles`.
-fn assert_usage(what: &str, out: &Output, needles: &[&str]) {
+/// Runs `command` and asserts it is a usage error (exit code 2) whose message contains every
+/// one of `needles`; returns its output.
+fn assert_usage(what: &str, command: &mut Command, needles: &[&str]) -> Output {
+    let out = command.output().unwrap();
     let e = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{what}: {e}");
     for n in needles {
         assert!(e.contains(n), "{what}: no '{n}' in: {e}");
     }
+    out
 }
 
 #[test]
@@ -67,13 +70,14 @@ fn identify_refuses_bad_windows_and_durations() {
         (&["--refine-seconds", "nan"], "--refine-seconds"),
         (&["--refine-seconds", "inf"], "--refine-seconds"),
     ] {
-        let out = kneebench()
-            .args(["identify", "log.csv", "--fmu"])
-            .arg(&fmu)
-            .args(args)
-            .output()
-            .unwrap();
-        assert_usage(&format!("{args:?}"), &out, &[option]);
+        assert_usage(
+            &format!("{args:?}"),
+            kneebench()
+                .args(["identify", "log.csv", "--fmu"])
+                .arg(&fmu)
+                .args(args),
+            &[option],
+        );
     }
 }
 
@@ -120,8 +124,7 @@ fn identify_checks_param_names_up_front_and_lists_the_valid_ones() {
             if !refine {
                 cmd.arg("--no-refine");
             }
-            let out = cmd.output().unwrap();
-            assert_usage(&format!("{param} (refine {refine})"), &out, needles);
+            let out = assert_usage(&format!("{param} (refine {refine})"), &mut cmd, needles);
             let e = String::from_utf8_lossy(&out.stderr);
             assert!(!e.contains("missing-log.csv"), "{e}");
         }
@@ -198,22 +201,25 @@ fn experiment_refuses_bad_values_before_running() {
             &["unexpected argument '--speeds'"],
         ),
     ] {
-        let out = experiment(name, &plant, &dir.path().join("out"), args);
-        assert_usage(&format!("{name} {args:?}"), &out, needles);
+        assert_usage(
+            &format!("{name} {args:?}"),
+            &mut experiment(name, &plant, &dir.path().join("out"), args),
+            needles,
+        );
     }
     assert!(!dir.path().join("out").exists());
 }
 
 /// `kneebench experiment NAME --fmu PLANT --out OUT ARGS`.
-fn experiment(name: &str, plant: &Path, out: &Path, args: &[&str]) -> Output {
-    kneebench()
+fn experiment(name: &str, plant: &Path, out: &Path, args: &[&str]) -> Command {
+    let mut command = kneebench();
+    command
         .args(["experiment", name, "--fmu"])
         .arg(plant)
         .arg("--out")
         .arg(out)
-        .args(args)
-        .output()
-        .unwrap()
+        .args(args);
+    command
 }
 
 /// `experiment bode --stages` is bounded (its rows are kept in memory: the process grew until
@@ -242,8 +248,11 @@ fn experiment_runs_are_bounded() {
         ),
     ] {
         let started = std::time::Instant::now();
-        let out = experiment(name, &plant, &dir.path().join("out"), args);
-        assert_usage(&format!("{name} {args:?}"), &out, needles);
+        assert_usage(
+            &format!("{name} {args:?}"),
+            &mut experiment(name, &plant, &dir.path().join("out"), args),
+            needles,
+        );
         assert!(started.elapsed().as_secs() < 30, "{name} {args:?}");
     }
 }
@@ -271,8 +280,7 @@ fn tune_study_and_plot_refuse_bad_values_while_parsing() {
         (&["study", "--scale", "nan"], "--scale"),
         (&["plot", "x.csv", "--height", "0"], "--height"),
     ] {
-        let out = kneebench().args(args).output().unwrap();
-        assert_usage(&format!("{args:?}"), &out, &[option]);
+        assert_usage(&format!("{args:?}"), kneebench().args(args), &[option]);
     }
 }
 
@@ -296,15 +304,12 @@ fn sweep_and_optimize_refuse_more_workers_than_the_bound() {
     let output = dir.path().join("sweep.csv");
     for command in ["sweep", "optimize"] {
         for workers in ["1025", "100000000", "99999999999999999999999", "0"] {
-            let out = kneebench()
-                .args([command, "--workers", workers, "--output"])
-                .arg(&output)
-                .arg(&spec)
-                .output()
-                .unwrap();
             assert_usage(
                 &format!("{command} --workers {workers}"),
-                &out,
+                kneebench()
+                    .args([command, "--workers", workers, "--output"])
+                    .arg(&output)
+                    .arg(&spec),
                 &["--workers", "1 to 1024"],
             );
             assert!(!output.exists(), "{command} --workers {workers}");
@@ -368,28 +373,26 @@ fn study_checks_param_names_and_values_against_the_fmus_before_running() {
         ),
         ("nodot=1", &["'nodot': not component.name"]),
     ] {
-        let o = kneebench()
-            .args(["study", "--cycles", "2", "--param", param, "--fmus"])
-            .arg(fmus())
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert_usage(param, &o, needles);
+        assert_usage(
+            param,
+            kneebench()
+                .args(["study", "--cycles", "2", "--param", param, "--fmus"])
+                .arg(fmus())
+                .arg("--out")
+                .arg(&out),
+            needles,
+        );
         assert!(!out.exists(), "{param}: wrote {}", out.display());
     }
     // One cycle is the start-up alone, never analysed: refused before anything runs (it was
     // analysed silently).
-    let o = kneebench()
-        .args(["study", "--cycles", "1", "--fmus"])
-        .arg(fmus())
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
     assert_usage(
         "--cycles 1",
-        &o,
+        kneebench()
+            .args(["study", "--cycles", "1", "--fmus"])
+            .arg(fmus())
+            .arg("--out")
+            .arg(&out),
         &["--cycles: cycles must be at least 2 (given: 1): the first gait cycle, the start-up"],
     );
     assert!(!out.exists(), "--cycles 1: wrote {}", out.display());
@@ -499,12 +502,11 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
                 out.to_str().unwrap(),
             ],
         ] {
-            let o = kneebench()
-                .args(args)
-                .args(["--params", file])
-                .output()
-                .unwrap();
-            assert_usage(&format!("{name} {args:?}"), &o, &[&needle]);
+            assert_usage(
+                &format!("{name} {args:?}"),
+                kneebench().args(args).args(["--params", file]),
+                &[&needle],
+            );
             assert!(!out.exists() && !out_csv.exists(), "{name} {args:?}");
         }
     }
@@ -526,15 +528,16 @@ fn parameter_sets_the_fmu_would_refuse_are_usage_errors() {
             format!("--params {}:5: {}", cases[0].0.display(), cases[0].1),
         ),
     ] {
-        let o = kneebench()
-            .arg("run")
-            .arg(&system)
-            .args(["--stop-time", "0.01", "--output"])
-            .arg(&out_csv)
-            .args(["--params", &spec])
-            .output()
-            .unwrap();
-        assert_usage(&spec, &o, &[&needle]);
+        assert_usage(
+            &spec,
+            kneebench()
+                .arg("run")
+                .arg(&system)
+                .args(["--stop-time", "0.01", "--output"])
+                .arg(&out_csv)
+                .args(["--params", &spec]),
+            &[&needle],
+        );
         assert!(!out_csv.exists(), "{spec}");
     }
 }
@@ -550,18 +553,15 @@ fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
     let plant = fmus().join("BenchPlant.fmu");
     let out = dir.path().join("out");
     let key = dir.path().join("new.key");
-    let o = kneebench()
-        .arg("run")
-        .arg(&plant)
-        .args(["--stop-time", "0.01", "--param"])
-        .arg("encoderCountsPerRevolution=1000.5")
-        .arg("--output")
-        .arg(dir.path().join("r.csv"))
-        .output()
-        .unwrap();
     assert_usage(
         "run",
-        &o,
+        kneebench()
+            .arg("run")
+            .arg(&plant)
+            .args(["--stop-time", "0.01", "--param"])
+            .arg("encoderCountsPerRevolution=1000.5")
+            .arg("--output")
+            .arg(dir.path().join("r.csv")),
         &[
             "--param 'encoderCountsPerRevolution=1000.5'",
             "1000.5 is not an integer",
@@ -569,18 +569,15 @@ fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
     );
     assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
     let system = plant_system(dir.path());
-    let o = kneebench()
-        .arg("run")
-        .arg(&system)
-        .args(["--stop-time", "0.01", "--param"])
-        .arg("plant.encoderCountsPerRevolution=1000.5")
-        .arg("--output")
-        .arg(dir.path().join("r.csv"))
-        .output()
-        .unwrap();
     assert_usage(
         "run (system)",
-        &o,
+        kneebench()
+            .arg("run")
+            .arg(&system)
+            .args(["--stop-time", "0.01", "--param"])
+            .arg("plant.encoderCountsPerRevolution=1000.5")
+            .arg("--output")
+            .arg(dir.path().join("r.csv")),
         &[
             "--param 'plant.encoderCountsPerRevolution=1000.5'",
             "1000.5 is not an integer",
@@ -588,44 +585,38 @@ fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
     );
     assert!(!dir.path().join("r.csv").exists());
     assert!(!dir.path().join("r.csv.partial").exists());
-    let o = kneebench()
-        .args(["study", "--cycles", "2", "--actuators", "sea", "--fmus"])
-        .arg(fmus())
-        .args([
-            "--param",
-            "plant.encoderCountsPerRevolution=1000.5",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
     assert_usage(
         "study",
-        &o,
+        kneebench()
+            .args(["study", "--cycles", "2", "--actuators", "sea", "--fmus"])
+            .arg(fmus())
+            .args([
+                "--param",
+                "plant.encoderCountsPerRevolution=1000.5",
+                "--out",
+            ])
+            .arg(&out),
         &[
             "--param 'plant.encoderCountsPerRevolution'",
             "1000.5 is not an integer",
         ],
     );
     assert!(!out.exists());
-    let o = kneebench()
-        .args([
-            "emulate",
-            "--bind",
-            "127.0.0.1:0",
-            "--duration",
-            "5",
-            "--fmu",
-        ])
-        .arg(&plant)
-        .arg("--new-key")
-        .arg(&key)
-        .args(["--param", "encoderCountsPerRevolution=1000.5"])
-        .output()
-        .unwrap();
     assert_usage(
         "emulate",
-        &o,
+        kneebench()
+            .args([
+                "emulate",
+                "--bind",
+                "127.0.0.1:0",
+                "--duration",
+                "5",
+                "--fmu",
+            ])
+            .arg(&plant)
+            .arg("--new-key")
+            .arg(&key)
+            .args(["--param", "encoderCountsPerRevolution=1000.5"]),
         &["--param encoderCountsPerRevolution = '1000.5': 1000.5 is not an integer"],
     );
     assert!(!key.exists());
@@ -668,23 +659,24 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
             ],
         ),
     ] {
-        let o = kneebench()
-            .args([
-                "study",
-                "--fmus",
-                fmus_dir,
-                "--cycles",
-                "2",
-                "--actuators",
-                "sea",
-            ])
-            .args(["--bench", "127.0.0.1:9", "--key"])
-            .arg(&key)
-            .args(["--bench-param", param, "--out"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert_usage(param, &o, needles);
+        assert_usage(
+            param,
+            kneebench()
+                .args([
+                    "study",
+                    "--fmus",
+                    fmus_dir,
+                    "--cycles",
+                    "2",
+                    "--actuators",
+                    "sea",
+                ])
+                .args(["--bench", "127.0.0.1:9", "--key"])
+                .arg(&key)
+                .args(["--bench-param", param, "--out"])
+                .arg(&out),
+            needles,
+        );
         assert!(!out.exists(), "{param}: wrote {}", out.display());
     }
 }
@@ -715,27 +707,24 @@ fn a_refused_study_key_file_is_a_usage_error() {
     let fmus_dir = fmus().to_str().unwrap();
     let out = dir.path().join("out");
     for (file, needle) in refused_key_files(dir.path()) {
-        let o = kneebench()
-            .args([
-                "study",
-                "--fmus",
-                fmus_dir,
-                "--cycles",
-                "2",
-                "--actuators",
-                "sea",
-                "--scenario",
-                "bench-full",
-            ])
-            .args(["--bench", "127.0.0.1:9", "--key"])
-            .arg(&file)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
         assert_usage(
             needle,
-            &o,
+            kneebench()
+                .args([
+                    "study",
+                    "--fmus",
+                    fmus_dir,
+                    "--cycles",
+                    "2",
+                    "--actuators",
+                    "sea",
+                    "--scenario",
+                    "bench-full",
+                ])
+                .args(["--bench", "127.0.0.1:9", "--key"])
+                .arg(&file)
+                .arg("--out")
+                .arg(&out),
             &[&format!("--key key file {}", file.display()), needle],
         );
         assert!(!out.exists(), "{needle}: wrote {}", out.display());
@@ -753,15 +742,15 @@ fn emulate_checks_param_names_and_values_before_starting() {
     let plant = fmus().join("BenchPlant.fmu");
     let key = dir.path().join("new.key");
     let emulate = |param: &str, duration: &str| {
-        kneebench()
+        let mut command = kneebench();
+        command
             .args(["emulate", "--bind", "127.0.0.1:0", "--duration", duration])
             .arg("--fmu")
             .arg(&plant)
             .arg("--new-key")
             .arg(&key)
-            .args(["--param", param])
-            .output()
-            .unwrap()
+            .args(["--param", param]);
+        command
     };
     for (param, needles) in [
         (
@@ -792,8 +781,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
             &["--param 'configuration': expected NAME=VALUE"],
         ),
     ] {
-        let o = emulate(param, "5");
-        assert_usage(param, &o, needles);
+        assert_usage(param, &mut emulate(param, "5"), needles);
         assert!(!key.exists(), "{param}: wrote {}", key.display());
     }
     // A fault that does not parse is a usage error too, read before the new key is written
@@ -802,60 +790,57 @@ fn emulate_checks_param_names_and_values_before_starting() {
         ("stuck", "--fault fault `stuck`: missing field 1"),
         ("nope:1", "--fault unknown fault `nope`"),
     ] {
-        let o = kneebench()
-            .args(["emulate", "--bind", "127.0.0.1:0", "--duration", "5"])
-            .arg("--fmu")
-            .arg(&plant)
-            .arg("--new-key")
-            .arg(&key)
-            .args(["--fault", fault])
-            .output()
-            .unwrap();
-        assert_usage(fault, &o, &[needle]);
+        assert_usage(
+            fault,
+            kneebench()
+                .args(["emulate", "--bind", "127.0.0.1:0", "--duration", "5"])
+                .arg("--fmu")
+                .arg(&plant)
+                .arg("--new-key")
+                .arg(&key)
+                .args(["--fault", fault]),
+            &[needle],
+        );
         assert!(!key.exists(), "{fault}: wrote {}", key.display());
     }
     // A --key file the emulator refuses (readable by others, a key that is no secret, no
     // file at all): a usage error naming the option and why, before anything starts (it was
     // exit 1).
     for (file, needle) in refused_key_files(dir.path()) {
-        let o = kneebench()
-            .args([
-                "emulate",
-                "--bind",
-                "127.0.0.1:0",
-                "--duration",
-                "5",
-                "--fmu",
-            ])
-            .arg(&plant)
-            .arg("--key")
-            .arg(&file)
-            .output()
-            .unwrap();
-        assert_usage(
+        let o = assert_usage(
             needle,
-            &o,
+            kneebench()
+                .args([
+                    "emulate",
+                    "--bind",
+                    "127.0.0.1:0",
+                    "--duration",
+                    "5",
+                    "--fmu",
+                ])
+                .arg(&plant)
+                .arg("--key")
+                .arg(&file),
             &[&format!("--key key file {}", file.display()), needle],
         );
         let e = String::from_utf8_lossy(&o.stderr);
         assert!(!e.contains("serving"), "{e}");
     }
     // Serving off loopback without a key: a usage error naming the remedy (it was exit 1).
-    let o = kneebench()
-        .args(["emulate", "--bind", "0.0.0.0:0", "--duration", "5", "--fmu"])
-        .arg(&plant)
-        .output()
-        .unwrap();
     assert_usage(
         "--bind 0.0.0.0:0",
-        &o,
+        kneebench()
+            .args(["emulate", "--bind", "0.0.0.0:0", "--duration", "5", "--fmu"])
+            .arg(&plant),
         &[
             "--bind 0.0.0.0:0: refusing to serve on 0.0.0.0:0 without a key",
             "--key FILE",
         ],
     );
     // A mode by its item's name: the emulator starts with it.
-    let o = emulate("frictionModel=HdLossSurface", "0.2");
+    let o = emulate("frictionModel=HdLossSurface", "0.2")
+        .output()
+        .unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(0), "{e}");
     assert!(e.contains("serving the bench protocol"), "{e}");
@@ -1002,8 +987,7 @@ fn unknown_names_and_missing_inputs_are_usage_errors() {
             &["no column 'nope' in"],
         ),
     ] {
-        let o = kneebench().args(args).output().unwrap();
-        assert_usage(&format!("{args:?}"), &o, needles);
+        assert_usage(&format!("{args:?}"), kneebench().args(args), needles);
     }
     assert!(!Path::new(out).exists());
 }

@@ -3,8 +3,12 @@
 
 mod common;
 
+use std::path::Path;
+
 use kneebench_harness::master::Signal;
-use kneebench_harness::{Algorithm, Fmu, InstanceOptions, LoadOptions, Outcome, RunConfig, System};
+use kneebench_harness::{
+    Algorithm, Fmu, InstanceOptions, LoadOptions, Outcome, RunConfig, System, Value,
+};
 
 fn fmu() -> (tempfile::TempDir, Fmu) {
     let dir = tempfile::tempdir().unwrap();
@@ -563,4 +567,57 @@ fn wrong_ends_and_values_are_named_with_their_article() {
         let e = result.unwrap_err().to_string();
         assert!(e.contains(needle), "{e}");
     }
+}
+
+/// A later value of a variable replaces the earlier one instead of joining it: only the last
+/// is applied, so a long-lived system set again and again keeps one value per variable and a
+/// value the FMU refused is not applied again once it is replaced. (The values used to pile
+/// up, every run applying all of them in order: a refused one failed every later run.)
+#[test]
+fn a_later_value_replaces_the_earlier_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let fmus = common::exported_fmus(Path::new(env!("CARGO_BIN_EXE_kneebench")), dir.path());
+    let pid = Fmu::load(fmus.join("PidController.fmu"), &LoadOptions::default()).unwrap();
+    let mut s = System::new();
+    s.add_component("pid", pid).unwrap();
+    // u = kp (setpoint - measurement) = kp: a proportional controller, error 1.
+    for (name, value) in [("ki", 0.0), ("kd", 0.0), ("setpoint", 1.0)] {
+        s.set_value(&format!("pid.{name}"), Value::Real(value))
+            .unwrap();
+    }
+    s.record(&["pid.u"]).unwrap();
+    let config = RunConfig {
+        stop_time: 0.01,
+        step_size: 1e-3,
+        ..RunConfig::default()
+    };
+    let u = |out: &kneebench_harness::RunOutput| {
+        assert!(
+            matches!(out.outcome, Outcome::Completed { .. }),
+            "{:?}",
+            out.outcome
+        );
+        out.results.row(out.results.len() - 1)[1]
+    };
+
+    // A value the FMU refuses (not finite) fails the run at its set...
+    s.set_value("pid.kp", Value::Real(f64::NAN)).unwrap();
+    let out = s.run(&config).unwrap();
+    let Outcome::Failed(e) = &out.outcome else {
+        panic!("expected Failed, got {:?}", out.outcome)
+    };
+    assert!(e.to_string().contains("kp"), "{e}");
+    // ...and once replaced it is not applied again: the next run has only the new value.
+    s.set_value("pid.kp", Value::Real(2.0)).unwrap();
+    assert_eq!(u(&s.run(&config).unwrap()), 2.0);
+
+    // Set many times (refused values in between): one value, the last, is applied.
+    for n in 0..1000 {
+        s.set_value("pid.kp", Value::Real(f64::NAN)).unwrap();
+        s.set_value("pid.kp", Value::Real(f64::from(n % 7) + 1.0))
+            .unwrap();
+        s.set_value("pid.kp", Value::Real(f64::INFINITY)).unwrap();
+    }
+    s.set_value("pid.kp", Value::Real(3.0)).unwrap();
+    assert_eq!(u(&s.run(&config).unwrap()), 3.0);
 }

@@ -119,6 +119,16 @@ def _names(what: str, names: Iterable[str] | None) -> list[str] | None:
     return out
 
 
+def _seconds(what: str, value: float | None) -> float | None:
+    """``value`` as a ``float`` (any ``numbers.Real``, numpy's too; ``None`` passes): a bool or
+    another type raises TypeError naming ``what`` (``True`` ran as 1 s)."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{what} must be a real number, not {type(value).__name__}")
+    return float(value)
+
+
 def _at_least_one(what: str, value: int | None) -> int | None:
     """``value`` as an ``int`` (any ``numbers.Integral``, a ``numpy.int64`` too; ``None`` passes):
     another type raises TypeError, a value below 1 ValueError, each naming ``what``."""
@@ -215,7 +225,8 @@ def run(
     a number or a bool for one raises KneebenchError (``1.0`` was set as the text ``"1"``).
     ``variables`` (a list of names; a single ``str``, an empty list or a name given twice
     raises) chooses the recorded columns
-    (default, ``None``: every output). ``stop_time`` and ``step`` default to the FMU's or the
+    (default, ``None``: every output). ``stop_time`` and ``step`` (real numbers: a bool raises
+    TypeError) default to the FMU's or the
     system's DefaultExperiment (an FMU's tolerance is passed to ``fmi2SetupExperiment``, as
     ``kneebench run`` does). The DataFrame has a ``time`` column [s] and one float64
     column per signal; ``df.attrs["units"]`` maps each column to its unit (``""`` when it has
@@ -246,6 +257,11 @@ def run(
         raise TypeError(
             f"params must be a mapping of names to values (a dict), not {type(params).__name__}"
         )
+    for k in params or {}:
+        if not isinstance(k, str):
+            raise TypeError(f"params: a name must be a str, not {type(k).__name__}: {k!r}")
+    stop_time = _seconds("stop_time", stop_time)
+    step = _seconds("step", step)
     names = _names("variables", variables)
     if names is not None:
         twice = sorted({n for n in names if names.count(n) > 1})

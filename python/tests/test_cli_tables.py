@@ -93,20 +93,24 @@ def test_cli_dask_names_what_is_missing(sweep_spec, tmp_path: Path):
     assert r.returncode == 1
     assert f"'{tmp_path / 'no-python'}' could not be started" in r.stderr, r.stderr
     assert "KNEEBENCH_PYTHON" in r.stderr
-    # An interpreter without site-packages: no kneebench.
+    # An interpreter without site-packages: no kneebench. Isolated (-I: no PYTHONPATH, no
+    # user site), so that a kneebench on the test's PYTHONPATH (an unpacked wheel) is not
+    # found either.
     bare = tmp_path / "bare-python"
-    bare.write_text(f"#!/bin/sh\nexec {sys.executable} -S \"$@\"\n")
+    bare.write_text(f"#!/bin/sh\nexec {sys.executable} -I -S \"$@\"\n")
     bare.chmod(0o755)
     r = cli("sweep", spec, "--dask", "tcp://127.0.0.1:9", "--output", out, check=False,
             env=env_with(KNEEBENCH_PYTHON=bare))
     assert r.returncode == 1
     assert "cannot import kneebench: No module named 'kneebench'" in r.stderr, r.stderr
-    # kneebench without distributed.
+    # kneebench without distributed: a module that refuses to import ahead of the test's own
+    # path (which may be where kneebench is: an unpacked wheel on PYTHONPATH).
     block = tmp_path / "block"
     block.mkdir()
     (block / "distributed.py").write_text("raise ImportError('distributed is not installed')\n")
+    path = os.pathsep.join(filter(None, [str(block), os.environ.get("PYTHONPATH")]))
     r = cli("sweep", spec, "--dask", "tcp://127.0.0.1:9", "--output", out, check=False,
-            env=env_with(KNEEBENCH_PYTHON=sys.executable, PYTHONPATH=block))
+            env=env_with(KNEEBENCH_PYTHON=sys.executable, PYTHONPATH=path))
     assert r.returncode == 1
     assert "cannot import distributed: distributed is not installed" in r.stderr, r.stderr
     assert not out.exists()

@@ -181,6 +181,52 @@ def test_sweep_on_a_dask_cluster_equals_the_local_table(sweep_spec):
     assert_bit_identical(local, table)
 
 
+def test_rows_of_a_worker_that_sees_other_fmus_are_refused(
+    sweep_spec, fmus: Path, tmp_path: Path, monkeypatch
+):
+    """The sweep's fingerprint covers the FMUs' bytes (a rebuilt plant keeps its GUID): a
+    worker that prepared the sweep from another FMU at the same path gives rows of another
+    fingerprint, which the client refuses instead of mixing them into the table; so does the
+    journal that records a batch's rows. Here the plant is rebuilt (a zip comment: the same
+    model, other bytes) after the client prepared the sweep and before the worker does."""
+    distributed = pytest.importorskip("distributed")
+    import shutil
+    import zipfile
+
+    own = tmp_path / "fmus"
+    shutil.copytree(fmus, own)
+    spec = tmp_path / "sweep.toml"
+    spec.write_text(sweep_spec(2).read_text().replace(str(fmus), str(own)))
+
+    def rebuild_plant(comment: bytes) -> None:
+        with zipfile.ZipFile(own / "BenchPlant.fmu", "a") as z:
+            z.comment = comment
+
+    real_info = kneebench._native.sweep_info
+
+    def info_then_rebuild(path):
+        info = real_info(path)
+        rebuild_plant(b"rebuilt")
+        return info
+
+    monkeypatch.setattr(kneebench._native, "sweep_info", info_then_rebuild)
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        with pytest.raises(kneebench.KneebenchError, match="a worker sees another sweep"):
+            kneebench.sweep(spec, client=client, retries=0)
+    monkeypatch.undo()
+    # The journal of the sweep as it is now refuses rows of the sweep before the rebuild.
+    rows = kneebench._native.sweep_points(str(spec), [0])
+    rebuild_plant(b"rebuilt again")
+    journal = kneebench._native.SweepJournal(str(spec), str(tmp_path / "t.parquet"))
+    try:
+        with pytest.raises(kneebench.KneebenchError, match="rows of another sweep"):
+            journal.record(rows)
+    finally:
+        journal.close()
+
+
 def test_a_worker_killed_mid_sweep_still_gives_every_row(sweep_spec):
     distributed = pytest.importorskip("distributed")
 

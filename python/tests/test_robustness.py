@@ -335,6 +335,23 @@ def test_run_takes_numpy_floats_and_whole_floats_for_integer_variables(fmus: Pat
         kneebench.run(plant, params={"frictionModel": 1.5}, stop_time=0.01)
 
 
+def test_run_refuses_params_names_and_times_of_other_types(fmus: Path):
+    """A parameter's name is a str and the times are real numbers, else TypeError naming
+    the argument: a name of another type raised "'int' object is not an instance of 'str'",
+    and a bool time ran as 1 s (``step=True``)."""
+    gait = fmus / "GaitReference.fmu"
+    with pytest.raises(TypeError, match=r"params: a name must be a str, not int: 1$"):
+        kneebench.run(gait, params={1: 2.0}, stop_time=0.01)
+    for name in ("stop_time", "step"):
+        for bad in (True, np.True_, "1", [1.0]):
+            with pytest.raises(TypeError, match=f"^{name} must be a real number, not "
+                                                f"{type(bad).__name__}$"):
+                kneebench.run(gait, **{name: bad})
+    # numpy numbers are numbers.
+    df = kneebench.run(gait, stop_time=np.int64(1), step=np.float64(0.001))
+    assert len(df) == 1001
+
+
 def test_run_refuses_a_variable_named_twice(fmus: Path):
     gait = fmus / "GaitReference.fmu"
     with pytest.raises(ValueError, match="'gaitPhase' more than once"):

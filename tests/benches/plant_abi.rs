@@ -211,16 +211,7 @@ fn main() {
     let baseline = std::env::var_os(BASELINE_VAR).map(|path| Baseline::load(Path::new(&path)));
     let inputs = recorded_inputs();
     // Every Real output's value reference (for the baseline's bit-for-bit check of them all).
-    let real_outputs: Vec<u32> = fmu
-        .model_description()
-        .model_variables
-        .iter()
-        .filter(|v| {
-            v.causality == Some(model_description::Causality::Output)
-                && matches!(v.kind, model_description::VariableKind::Real { .. })
-        })
-        .map(|v| v.value_reference)
-        .collect();
+    let real_outputs = real_outputs(fmu.model_description());
     if let Ok(profile) = std::env::var("KNEEBENCH_PLANT_ABI_PROFILE") {
         let (name, runs) = profile
             .split_once(':')

@@ -121,9 +121,9 @@ fn timed_bare(p: &Prepared, points: usize) -> f64 {
     let mut loaded = ssp::load_system(&p.system_file, &LoadOptions::default()).unwrap();
     let refs: Vec<&str> = p.recorded.iter().map(String::as_str).collect();
     loaded.system.record(&refs).unwrap();
-    for point in &p.design.points[..points] {
-        // A clone per point: `set_value` adds to the values a system applies, so setting
-        // them on the one system would have each run apply every earlier point's too.
+    for point in p.design.points.iter().take(points) {
+        // A clone per point, as the sweep's runner does: each run starts from the loaded
+        // system's own values.
         let mut system = loaded.system.clone();
         for (name, v) in p.design.names.iter().zip(point) {
             system.set_value(name, Value::Real(*v)).unwrap();

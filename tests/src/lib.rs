@@ -102,6 +102,19 @@ pub fn guid_of(identifier: &str) -> String {
         .clone()
 }
 
+/// The value references of every Real output of `md`, in declaration order (what the
+/// bit-for-bit comparisons of whole steps read).
+pub fn real_outputs(md: &model_description::ModelDescription) -> Vec<u32> {
+    md.model_variables
+        .iter()
+        .filter(|v| {
+            v.causality == Some(model_description::Causality::Output)
+                && matches!(v.kind, model_description::VariableKind::Real { .. })
+        })
+        .map(|v| v.value_reference)
+        .collect()
+}
+
 /// Asserts that a child process that ran one `#[ignore]`d test of its own test binary succeeded
 /// and that the test really ran (a filter that matches nothing exits 0 as well); the failure
 /// message carries the child's stdout and stderr.

@@ -277,15 +277,7 @@ fn the_other_five_declare_fmu_state_and_round_trip_it() {
         let cs = d.co_simulation.clone().unwrap();
         assert_eq!(cs.can_get_and_set_fmu_state, Some(true), "{model}");
         assert_eq!(cs.can_serialize_fmu_state, Some(true), "{model}");
-        let outputs: Vec<u32> = d
-            .model_variables
-            .iter()
-            .filter(|v| {
-                v.causality == Some(model_description::Causality::Output)
-                    && matches!(v.kind, model_description::VariableKind::Real { .. })
-            })
-            .map(|v| v.value_reference)
-            .collect();
+        let outputs = real_outputs(d);
         let run = |i: &mut RawInstance, k0: u64, n: u64| {
             let mut bits = Vec::new();
             for k in k0..k0 + n {

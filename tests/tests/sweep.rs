@@ -79,6 +79,19 @@ fn bad_specs_are_refused_naming_the_line() {
         m,
         ["spec.toml, line 10: parameter 'plant.springStiffness': value 50 is outside [100, 400]"]
     );
+    // A value that is no finite number (it read "NaN is outside [-inf, inf]").
+    for x in ["nan", "inf", "-inf"] {
+        let m = refusal(&format!(
+            "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.springStiffness\"\nvalues = [300.0, {x}]\n"
+        ));
+        assert_eq!(
+            m,
+            [format!(
+                "spec.toml, line 8: parameter 'plant.springStiffness': value {} is not a finite number",
+                x.replace("nan", "NaN")
+            )]
+        );
+    }
     // min above max.
     let m = refusal(&format!(
         "{HEAD}[design]\nkind = \"sobol\"\npoints = 4\n[[parameters]]\nname = \"plant.springStiffness\"\nmin = 500.0\nmax = 400.0\n"
@@ -602,8 +615,10 @@ fn ssp_spec(window: &str) -> String {
 /// The fingerprint covers the bytes of the system file (and of a scenario's FMUs, which a
 /// rebuild changes while keeping their GUIDs) and the version: an SSP whose bindings were
 /// edited (the torque loop's kp) is another sweep, so `--resume` refuses its journal instead
-/// of keeping the stale rows, and a Dask worker that sees another SSP at the same path is
-/// refused. Before, the fingerprint hashed only the spec text, points and GUIDs.
+/// of keeping the stale rows, and a Dask worker that sees other files at the same path is
+/// refused (that case needs a cluster: `python/tests/test_kneebench.py`,
+/// `test_rows_of_a_worker_that_sees_other_fmus_are_refused`). Before, the fingerprint hashed
+/// only the spec text, points and GUIDs.
 #[test]
 fn the_fingerprint_covers_the_system_file_and_the_fmus_bytes() {
     let dir = tempfile::tempdir().unwrap();
@@ -909,4 +924,46 @@ fn model_descriptions_read_alone_are_those_of_the_whole_archives() {
             .to_string(),
         extract_and_parse(&junk, &limits).unwrap_err().to_string()
     );
+}
+
+/// An Integer parameter's value that is not a whole number in the 32-bit range (a point that
+/// a caller hands to `run_batch`, as Python's `optimize_points` does) is a failed row naming
+/// the parameter: it was cast (1.5 ran as 1, NaN as 0, 1e10 as 2147483647) while the row showed
+/// the value given.
+#[test]
+fn an_integer_parameter_runs_only_whole_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(
+        &format!(
+            "{HEAD}[design]\nkind = \"grid\"\n[[parameters]]\nname = \"plant.frictionModel\"\n\
+             values = [1.0]\n"
+        ),
+        dir.path(),
+    )
+    .unwrap();
+    let mut rows = Vec::new();
+    let points = [
+        (0, vec![1.5]),
+        (1, vec![f64::NAN]),
+        (2, vec![1e10]),
+        (3, vec![-0.5]),
+        (4, vec![1.0]),
+    ];
+    p.run_batch(&points, 1, &mut |r| {
+        rows.push(r);
+        Ok(())
+    })
+    .unwrap();
+    rows.sort_by_key(|r| r.point);
+    for r in &rows[..4] {
+        assert_eq!(r.status, RunStatus::Failed, "{r:?}");
+        assert!(
+            r.message
+                .contains("plant.frictionModel is an Integer variable, not "),
+            "{}",
+            r.message
+        );
+        assert!(r.metrics.iter().all(|m| m.is_nan()), "{r:?}");
+    }
+    assert_eq!(rows[4].status, RunStatus::Ok, "{:?}", rows[4]);
 }

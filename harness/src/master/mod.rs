@@ -758,6 +758,10 @@ impl System {
     }
 
     /// Sets a variable before initialization (parameters, start values of inputs).
+    ///
+    /// A later value of a variable (or of an alias: the same value reference and type)
+    /// replaces the earlier one: a run applies each variable's last value once, in the order
+    /// of those last sets (the order in which they would otherwise have been applied last).
     pub fn set_value(&mut self, reference: &str, value: Value) -> Result<(), MasterError> {
         let (r, _) = self.resolve(reference)?;
         if r.ty != value.ty() {
@@ -766,8 +770,9 @@ impl System {
                 problem: format!("the variable is {:?}, the value {:?}", r.ty, value.ty()),
             });
         }
-        let comp = r.comp;
-        self.components[comp].values.push((r, value));
+        let values = &mut self.components[r.comp].values;
+        values.retain(|(earlier, _)| earlier.vr != r.vr || earlier.ty != r.ty);
+        values.push((r, value));
         Ok(())
     }
 

@@ -22,8 +22,142 @@ pub struct Design {
     /// `component.variable` of each parameter.
     pub names: Vec<String>,
     /// The points; point `i` has id `i`.
-    pub points: Vec<Vec<f64>>,
+    pub points: Points,
 }
+
+/// Points of `width` values each, stored row-major in one buffer (one allocation for the
+/// whole design, not one per point): point `i` is `values[i * width..(i + 1) * width]`.
+/// Indexing (`points[i]`, `points[i][d]`) and [`get`](Self::get) give a point as a slice.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Points {
+    values: Vec<f64>,
+    width: usize,
+    len: usize,
+}
+
+impl Points {
+    /// No points yet, of `width` values each.
+    pub fn new(width: usize) -> Points {
+        Points {
+            values: Vec::new(),
+            width,
+            len: 0,
+        }
+    }
+
+    /// `len` points of `width` zeros each.
+    fn zeros(width: usize, len: usize) -> Points {
+        Points {
+            values: vec![0.0; width * len],
+            width,
+            len,
+        }
+    }
+
+    /// Appends a point; it must have [`width`](Self::width) values (checked: `false`, and
+    /// nothing appended, when it has not).
+    pub fn push(&mut self, point: &[f64]) -> bool {
+        if point.len() != self.width {
+            return false;
+        }
+        self.values.extend_from_slice(point);
+        self.len += 1;
+        true
+    }
+
+    /// The number of points.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// No points.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The number of values of each point.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Point `i`, or `None` past the last.
+    pub fn get(&self, i: usize) -> Option<&[f64]> {
+        (i < self.len).then(|| &self.values[i * self.width..(i + 1) * self.width])
+    }
+
+    /// The points in order.
+    pub fn iter(&self) -> PointsIter<'_> {
+        PointsIter {
+            points: self,
+            next: 0,
+        }
+    }
+
+    /// Whether one of the points is `point` (`==` value by value).
+    pub fn contains(&self, point: &[f64]) -> bool {
+        self.iter().any(|p| p == point)
+    }
+
+    /// Every point's values, point after point.
+    pub fn as_flat(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// The points as one vector each.
+    pub fn to_rows(&self) -> Vec<Vec<f64>> {
+        self.iter().map(<[f64]>::to_vec).collect()
+    }
+}
+
+impl std::ops::Index<usize> for Points {
+    type Output = [f64];
+
+    /// Point `i` (panics past the last, as a slice's index does).
+    fn index(&self, i: usize) -> &[f64] {
+        assert!(i < self.len, "point {i} of {} points", self.len);
+        &self.values[i * self.width..(i + 1) * self.width]
+    }
+}
+
+impl std::ops::IndexMut<usize> for Points {
+    fn index_mut(&mut self, i: usize) -> &mut [f64] {
+        assert!(i < self.len, "point {i} of {} points", self.len);
+        &mut self.values[i * self.width..(i + 1) * self.width]
+    }
+}
+
+impl<'a> IntoIterator for &'a Points {
+    type Item = &'a [f64];
+    type IntoIter = PointsIter<'a>;
+
+    fn into_iter(self) -> PointsIter<'a> {
+        self.iter()
+    }
+}
+
+/// The points of a [`Points`] in order ([`Points::iter`]).
+#[derive(Debug, Clone)]
+pub struct PointsIter<'a> {
+    points: &'a Points,
+    next: usize,
+}
+
+impl<'a> Iterator for PointsIter<'a> {
+    type Item = &'a [f64];
+
+    fn next(&mut self) -> Option<&'a [f64]> {
+        let p = self.points.get(self.next)?;
+        self.next += 1;
+        Some(p)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.points.len - self.next;
+        (n, Some(n))
+    }
+}
+
+impl ExactSizeIterator for PointsIter<'_> {}
 
 /// SplitMix64 (Steele, Lea and Flood 2014): a 64-bit generator whose stream is fixed by its
 /// seed.
@@ -101,7 +235,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
         .iter()
         .map(|p| (p.min.unwrap_or(0.0), p.max.unwrap_or(0.0), p.ty))
         .collect();
-    let mut points: Vec<Vec<f64>> = match &spec.design {
+    let mut points: Points = match &spec.design {
         DesignKind::Grid => {
             let axes: Vec<Vec<f64>> = spec
                 .parameters
@@ -113,7 +247,7 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                 })
                 .collect();
             let total = axes.iter().try_fold(1usize, |n, a| n.checked_mul(a.len()));
-            match total {
+            let n = match total {
                 None | Some(0) => {
                     return Err(SweepError::Invalid(vec![spec.problem(
                         0,
@@ -126,40 +260,40 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                         format!("the grid has {n} points, more than {MAX_POINTS}"),
                     )]));
                 }
-                Some(n) => check_count(spec, n)?,
-            }
-            let mut out = vec![Vec::new()];
-            for axis in &axes {
-                out = out
-                    .into_iter()
-                    .flat_map(|p| {
-                        axis.iter().map(move |&v| {
-                            let mut q = p.clone();
-                            q.push(v);
-                            q
-                        })
-                    })
-                    .collect();
+                Some(n) => {
+                    check_count(spec, n)?;
+                    n
+                }
+            };
+            // The full factorial, the first parameter's axis the slowest and the last's the
+            // fastest: point i's digits in the mixed radix of the axes' lengths.
+            let mut out = Points::zeros(dims, n);
+            for i in 0..n {
+                let point = &mut out[i];
+                let mut rest = i;
+                for (d, axis) in axes.iter().enumerate().rev() {
+                    point[d] = axis[rest % axis.len()];
+                    rest /= axis.len();
+                }
             }
             out
         }
         DesignKind::Random { points, seed } => {
             check_count(spec, *points)?;
             let mut rng = SplitMix64::new(*seed);
-            (0..*points)
-                .map(|_| {
-                    bounds
-                        .iter()
-                        .map(|&(lo, hi, ty)| place(rng.next_f64(), lo, hi, ty))
-                        .collect()
-                })
-                .collect()
+            let mut out = Points::zeros(dims, *points);
+            for i in 0..*points {
+                for (v, &(lo, hi, ty)) in out[i].iter_mut().zip(&bounds) {
+                    *v = place(rng.next_f64(), lo, hi, ty);
+                }
+            }
+            out
         }
         DesignKind::LatinHypercube { points, seed } => {
             check_count(spec, *points)?;
             let n = *points;
             let mut rng = SplitMix64::new(*seed);
-            let mut out = vec![vec![0.0; dims]; n];
+            let mut out = Points::zeros(dims, n);
             for (d, &(lo, hi, ty)) in bounds.iter().enumerate() {
                 // A random permutation of the strata (Fisher-Yates), a random place in each.
                 let mut strata: Vec<usize> = (0..n).collect();
@@ -167,9 +301,9 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                     let j = rng.below(i as u64 + 1) as usize;
                     strata.swap(i, j);
                 }
-                for (i, point) in out.iter_mut().enumerate() {
-                    let u = (strata[i] as f64 + rng.next_f64()) / n as f64;
-                    point[d] = place(u, lo, hi, ty);
+                for (i, &stratum) in strata.iter().enumerate() {
+                    let u = (stratum as f64 + rng.next_f64()) / n as f64;
+                    out[i][d] = place(u, lo, hi, ty);
                 }
             }
             out
@@ -202,26 +336,22 @@ pub fn generate(spec: &SweepSpec) -> Result<Design, SweepError> {
                     ),
                 )]));
             };
-            (0..*points)
-                .map(|i| {
-                    bounds
-                        .iter()
-                        .enumerate()
-                        .map(|(d, &(lo, hi, ty))| {
-                            let u = sobol_burley::sample(i as u32, d as u32, seed);
-                            place(f64::from(u), lo, hi, ty)
-                        })
-                        .collect()
-                })
-                .collect()
+            let mut out = Points::zeros(dims, *points);
+            for i in 0..*points {
+                for (d, &(lo, hi, ty)) in bounds.iter().enumerate() {
+                    let u = sobol_burley::sample(i as u32, d as u32, seed);
+                    out[i][d] = place(f64::from(u), lo, hi, ty);
+                }
+            }
+            out
         }
         DesignKind::Csv(path) => read_csv(spec, path)?,
     };
     // A grid's levels of an Integer variable (a CSV's values are refused unless whole).
     for (d, p) in spec.parameters.iter().enumerate() {
         if p.ty == ParameterType::Integer {
-            for point in &mut points {
-                point[d] = point[d].round();
+            for i in 0..points.len() {
+                points[i][d] = points[i][d].round();
             }
         }
     }
@@ -266,7 +396,7 @@ fn check_count(spec: &SweepSpec, n: usize) -> Result<(), SweepError> {
 /// a longer line (a file without line breaks) is refused at its line instead of being read whole.
 pub const MAX_CSV_LINE: usize = 1 << 20;
 
-fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Vec<Vec<f64>>, SweepError> {
+fn read_csv(spec: &SweepSpec, path: &Path) -> Result<Points, SweepError> {
     let f = std::fs::File::open(path).map_err(|source| SweepError::Io {
         path: path.to_path_buf(),
         source,
@@ -288,7 +418,7 @@ fn read_csv_from(
     path: &Path,
     mut r: impl std::io::BufRead,
     max_points: usize,
-) -> Result<Vec<Vec<f64>>, SweepError> {
+) -> Result<Points, SweepError> {
     use std::io::{BufRead, Read};
     let problem = |line: usize, message: String| SpecProblem {
         file: path.to_path_buf(),
@@ -360,7 +490,7 @@ fn read_csv_from(
     if !problems.is_empty() {
         return Err(SweepError::Invalid(problems));
     }
-    let mut points = Vec::new();
+    let mut points = Points::new(columns.len());
     let mut rows = 0usize;
     while let Some(line) = next_line(&mut buf)? {
         rows += 1;
@@ -425,7 +555,7 @@ fn read_csv_from(
                 )),
             }
         }
-        points.push(point);
+        points.push(&point);
     }
     if points.is_empty() && problems.is_empty() {
         problems.push(problem(0, "empty design: the CSV has no points".into()));
@@ -530,7 +660,10 @@ mod tests {
         // At the bound: every point.
         let (r, _) = rows(head, "310\r\n", 4);
         let points = read_csv_from(&spec, path, r, 5).unwrap();
-        assert_eq!(points, [[300.0], [310.0], [310.0], [310.0], [310.0]]);
+        assert_eq!(
+            points.to_rows(),
+            [[300.0], [310.0], [310.0], [310.0], [310.0]]
+        );
         // A file without line breaks is refused at its first line too long, not read whole.
         let (r, served) = rows("plant.springStiffness\n", "3", 1 << 30);
         match read_csv_from(&spec, path, r, 5) {
@@ -567,7 +700,7 @@ mod tests {
         }
         let csv = "\u{feff}plant.springStiffness\r\n300\r\n";
         let points = read_csv_from(&spec, path, csv.as_bytes(), 5).unwrap();
-        assert_eq!(points, [[300.0]]);
+        assert_eq!(points.to_rows(), [[300.0]]);
     }
 
     /// Integer parameters of the random designs take equal-width bins of `[min, max]`: each
@@ -614,6 +747,83 @@ mod tests {
         let (r, _) = rows("plant.springStiffness\n", "310\n", 10);
         let e = read_csv_from(&spec, Path::new("p.csv"), r, 5).unwrap_err();
         assert!(e.to_string().contains("33554432 values"), "{e}");
+    }
+
+    /// Every kind of design gives the points it gave when they were stored one vector per
+    /// point (their count and bits, in order, hashed and pinned): the tables' parameter
+    /// columns and the sweeps' fingerprints are unchanged by the storage. The grid's order is
+    /// the first parameter's axis slowest; Integer parameters round (grid) or take bins.
+    #[test]
+    fn the_designs_points_are_pinned() {
+        use sha2::{Digest, Sha256};
+        let head = "system = \"SEA\"\nfmus = \"/nowhere\"\ncycles = 2\n";
+        let random = "[[parameters]]\nname = \"plant.a\"\nmin = 0.25\nmax = 1.5\n\
+                      [[parameters]]\nname = \"plant.b\"\nmin = -3.0\nmax = 9.0\n\
+                      [[parameters]]\nname = \"plant.c\"\nmin = 100.0\nmax = 450.0\n";
+        let grid = "[[parameters]]\nname = \"plant.a\"\nvalues = [1.0, 2.0, 3.0]\n\
+                    [[parameters]]\nname = \"plant.b\"\nmin = 0.0\nmax = 5.0\nlevels = 3\n\
+                    [[parameters]]\nname = \"plant.c\"\nmin = 0.0\nmax = 1.0\nlevels = 4\n";
+        let digest = |design: &str, parameters: &str| {
+            let text = format!("{head}[design]\n{design}\n{parameters}");
+            let mut spec =
+                SweepSpec::parse(&text, Path::new("/nowhere/s.toml"), Path::new("/nowhere"))
+                    .unwrap();
+            spec.parameters[1].ty = ParameterType::Integer;
+            let d = generate(&spec).unwrap();
+            let mut h = Sha256::new();
+            h.update((d.points.len() as u64).to_le_bytes());
+            for p in d.points.iter() {
+                h.update((p.len() as u64).to_le_bytes());
+                for v in p.iter() {
+                    h.update(v.to_bits().to_le_bytes());
+                }
+            }
+            h.finalize()
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<String>()
+        };
+        let got = [
+            digest("kind = \"grid\"", grid),
+            digest("kind = \"random\"\npoints = 50\nseed = 7", random),
+            digest("kind = \"latin-hypercube\"\npoints = 50\nseed = 7", random),
+            digest("kind = \"sobol\"\npoints = 50\nseed = 7", random),
+        ];
+        assert_eq!(
+            got,
+            [
+                "75dea4587c64cc78b34f720793a24c8c97c67f9a97ca18c0c2c45659838ef283",
+                "0bf9f5298e9b3b04bd7ccc9ca9b65067d47c495fc187a97b346bcd6dbf932b66",
+                "866f20ee60f7ec6e38cfefa848375a8710438f38a215a4948e243b54a0ad9f5c",
+                "e6303740667de8da02307336732aff5e636ea38b99858751375ce3ace24f47c0",
+            ]
+        );
+    }
+
+    /// A point of another width is refused by `push` (nothing appended); indexing, `get`, the
+    /// iterator and `contains` see the points row by row.
+    #[test]
+    fn points_are_rows_of_one_buffer() {
+        let mut p = Points::new(2);
+        assert!(p.is_empty() && p.get(0).is_none() && p.iter().next().is_none());
+        assert!(p.push(&[1.0, 2.0]));
+        assert!(!p.push(&[3.0]));
+        assert!(!p.push(&[3.0, 4.0, 5.0]));
+        assert!(p.push(&[3.0, 4.0]));
+        assert_eq!((p.len(), p.width()), (2, 2));
+        assert_eq!(p.as_flat(), [1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(&p[1], [3.0, 4.0]);
+        assert_eq!(p.get(1), Some(&[3.0, 4.0][..]));
+        assert_eq!(p.get(2), None);
+        assert_eq!(p.iter().len(), 2);
+        assert_eq!(p.to_rows(), [[1.0, 2.0], [3.0, 4.0]]);
+        assert!(p.contains(&[3.0, 4.0]) && !p.contains(&[2.0, 3.0]));
+        p[0][1] = 7.0;
+        assert_eq!(p.as_flat(), [1.0, 7.0, 3.0, 4.0]);
+        // No values per point: points all the same, the empty slice.
+        let mut none = Points::new(0);
+        assert!(none.push(&[]) && none.push(&[]));
+        assert_eq!(none.iter().collect::<Vec<_>>(), [&[] as &[f64]; 2]);
     }
 
     #[test]

@@ -117,6 +117,7 @@ pub struct Optimizer {
     bounds: Vec<(f64, f64)>,
     integer: Vec<bool>,
     initial: Vec<Vec<f64>>,
+    metric_count: usize,
     objective: usize,
     constraints: Vec<(usize, Option<f64>, Option<f64>)>,
     members: Vec<Row>,
@@ -131,7 +132,7 @@ impl Optimizer {
     pub fn new(prepared: &Prepared) -> Result<Optimizer, SweepError> {
         Optimizer::from_spec(
             &prepared.spec,
-            prepared.design.points.clone(),
+            prepared.design.points.to_rows(),
             &prepared.metric_names,
         )
     }
@@ -154,6 +155,13 @@ impl Optimizer {
         });
         if !problems.is_empty() {
             return Err(SweepError::Invalid(problems));
+        }
+        let width = spec.parameters.len();
+        if let Some((k, point)) = initial.iter().enumerate().find(|(_, p)| p.len() != width) {
+            return Err(SweepError::System(format!(
+                "optimisation: point {k} has {} values for {width} parameters",
+                point.len()
+            )));
         }
         let column = |m: &str| metric_names.iter().position(|n| n == m);
         let objective = column(&settings.objective).unwrap_or_default();
@@ -180,6 +188,7 @@ impl Optimizer {
                 .map(|p| p.ty == ParameterType::Integer)
                 .collect(),
             initial,
+            metric_count: metric_names.len(),
             objective,
             constraints,
             members: Vec::new(),
@@ -241,6 +250,13 @@ impl Optimizer {
             if !same_bits(&row.parameters, values) {
                 return Err(SweepError::System(format!(
                     "optimisation: point {id}'s row has other parameter values than asked"
+                )));
+            }
+            if row.metrics.len() != self.metric_count {
+                return Err(SweepError::System(format!(
+                    "optimisation: point {id}'s row has {} metrics, not the spec's {}",
+                    row.metrics.len(),
+                    self.metric_count
                 )));
             }
             told.push(row);
@@ -684,6 +700,50 @@ mod tests {
             o.tell(rows).unwrap();
         }
         assert!(o.finished());
+    }
+
+    /// What the optimiser cannot use is an error, not a panic: a first generation whose
+    /// points have another number of values than the parameters (the trials indexed past
+    /// them), rows told with another number of metrics than the spec's (the generation's best
+    /// indexed its objective past them). Nothing is taken from a refused tell.
+    #[test]
+    fn points_and_rows_of_another_width_are_refused() {
+        let s = spec(2, 0.0, 1.0, "objective = \"f\"\ngenerations = 1\n");
+        let mut short = uniform(4, 2, 0.0, 1.0, 1);
+        short[2].pop();
+        let e = Optimizer::from_spec(&s, short, &names(&["f"])).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("point 2 has 1 values for 2 parameters"),
+            "{e}"
+        );
+        let mut o = Optimizer::from_spec(&s, uniform(4, 2, 0.0, 1.0, 1), &names(&["f"])).unwrap();
+        let rows = |metrics: Vec<f64>, o: &mut Optimizer| -> Vec<Row> {
+            o.ask()
+                .into_iter()
+                .map(|(point, parameters)| Row {
+                    point,
+                    parameters,
+                    metrics: metrics.clone(),
+                    status: RunStatus::Ok,
+                    message: String::new(),
+                })
+                .collect()
+        };
+        for metrics in [vec![], vec![1.0, 2.0]] {
+            let told = rows(metrics.clone(), &mut o);
+            let e = o.tell(told).unwrap_err();
+            assert!(
+                e.to_string().contains(&format!(
+                    "point 0's row has {} metrics, not the spec's 1",
+                    metrics.len()
+                )),
+                "{e}"
+            );
+        }
+        let told = rows(vec![0.5], &mut o);
+        o.tell(told).unwrap();
+        assert_eq!(o.history().len(), 1);
     }
 
     fn bowl(x: &[f64]) -> (Vec<f64>, RunStatus) {

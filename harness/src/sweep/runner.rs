@@ -106,6 +106,12 @@ pub fn fingerprint(
     hex(&h.finalize())
 }
 
+/// `v` as an `i32` when it is a whole number of that range (NaN, fractions and values beyond
+/// it: `None`).
+fn whole_i32(v: f64) -> Option<i32> {
+    (v.fract() == 0.0 && v >= f64::from(i32::MIN) && v <= f64::from(i32::MAX)).then_some(v as i32)
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -806,7 +812,7 @@ impl Prepared {
         let points = ids
             .iter()
             .map(|&id| match self.design.points.get(id as usize) {
-                Some(values) => Ok((id, values.clone())),
+                Some(values) => Ok((id, values.to_vec())),
                 None => Err(SweepError::System(format!(
                     "point {id} is not in the design ({} points)",
                     self.design.points.len()
@@ -1018,7 +1024,16 @@ impl Prepared {
         for (p, &v) in self.spec.parameters.iter().zip(values) {
             let value = match p.ty {
                 ParameterType::Real => Value::Real(v),
-                ParameterType::Integer => Value::Integer(v as i32),
+                // A whole number of the 32-bit range only: a cast ran 1.5 as 1 and NaN as 0
+                // while the row showed the value given.
+                ParameterType::Integer => match whole_i32(v) {
+                    Some(i) => Value::Integer(i),
+                    None => {
+                        let message =
+                            format!("point {id}: {} is an Integer variable, not {v}", p.name);
+                        return fail(row, message);
+                    }
+                },
             };
             if let Err(e) = system.set_value(&p.name, value) {
                 return fail(row, e.to_string());
@@ -1202,7 +1217,7 @@ impl<P: std::borrow::Borrow<Prepared>> JournaledSweep<P> {
             (id as usize) < points.len()
         })?;
         for row in finished.rows.values_mut() {
-            row.parameters = points[row.point as usize].clone();
+            row.parameters = points[row.point as usize].to_vec();
         }
         Ok(JournaledSweep { prepared, finished })
     }

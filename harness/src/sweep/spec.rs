@@ -919,9 +919,14 @@ impl SweepSpec {
                     );
                 }
                 for x in v.get_ref() {
-                    let out = !x.is_finite()
-                        || min.is_some_and(|lo| *x < lo)
-                        || max.is_some_and(|hi| *x > hi);
+                    if !x.is_finite() {
+                        p.at(
+                            v.span(),
+                            format!("parameter '{name}': value {x} is not a finite number"),
+                        );
+                        continue;
+                    }
+                    let out = min.is_some_and(|lo| *x < lo) || max.is_some_and(|hi| *x > hi);
                     if out {
                         p.at(
                             v.span(),
