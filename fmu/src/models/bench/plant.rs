@@ -8,6 +8,7 @@ mod events;
 use std::sync::Arc;
 
 pub(crate) use energy::EnergyAccount;
+use energy::PieceScratch;
 use events::Event;
 
 use super::friction::{Side, SideLaw};
@@ -128,6 +129,8 @@ pub struct BenchPlant {
     wide_vectors: bool,
     /// Storage of the Taylor segments of event sub-steps (not state: rebuilt by each use).
     segment_scratch: TaylorSegment,
+    /// Working arrays of the segments' energies (not state; see [`PieceScratch`]).
+    piece_scratch: PieceScratch,
 }
 
 /// Whether this CPU runs the plant's AVX2 build of the step.
@@ -259,6 +262,7 @@ impl BenchPlant {
             last_hit: 0,
             wide_vectors: cpu_has_wide_vectors(),
             segment_scratch: TaylorSegment::default(),
+            piece_scratch: PieceScratch::default(),
         };
         plant.settle_sticking();
         Ok(plant)
