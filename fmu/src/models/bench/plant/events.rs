@@ -279,7 +279,7 @@ impl BenchPlant {
                 None => self.resolve()?,
             };
             let speed_dependent =
-                (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
+                (0..2).any(|j| !held.mode.stuck[j] && self.law(&held, j).speed_dependent());
             let active = self.active_events(&held);
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
