@@ -66,7 +66,8 @@ impl BenchPlant {
             let speed_rate = if w == 0.0 { s } else { w.signum() } * rate[OMEGA1 + j];
             friction[j] = held.friction[j];
             friction_rate[j] =
-                held.laws[j].sliding_torque_rate(p, s, w.abs(), speed_rate, load_torque_rate);
+                self.law(&held, j)
+                    .sliding_torque_rate(p, s, w.abs(), speed_rate, load_torque_rate);
         }
         // z'' = M z', the friction inputs of z' at their own rates.
         let mut dz = rate;

@@ -8,6 +8,7 @@ mod events;
 use std::sync::Arc;
 
 pub(crate) use energy::EnergyAccount;
+use energy::PieceScratch;
 use events::Event;
 
 use super::friction::{Side, SideLaw};
@@ -90,7 +91,9 @@ pub(crate) struct Held {
     pub current_loop: [bool; 2],
     /// Friction torque applied to each body while sliding (incl. clutch) [N m].
     pub friction: [f64; 2],
-    pub laws: [SideLaw; 2],
+    /// Output-side load torque the loss-surface law reads, frozen at the segment's start (0
+    /// when no law reads it): the friction laws are [`BenchPlant::law`], not copies here.
+    pub load_torque: f64,
     /// Static capacity per body against + and - motion [N m].
     pub capacity: [[f64; 2]; 2],
     pub clutch: bool,
@@ -128,6 +131,8 @@ pub struct BenchPlant {
     wide_vectors: bool,
     /// Storage of the Taylor segments of event sub-steps (not state: rebuilt by each use).
     segment_scratch: TaylorSegment,
+    /// Working arrays of the segments' energies (not state; see [`PieceScratch`]).
+    piece_scratch: PieceScratch,
 }
 
 /// Whether this CPU runs the plant's AVX2 build of the step.
@@ -259,6 +264,7 @@ impl BenchPlant {
             last_hit: 0,
             wide_vectors: cpu_has_wide_vectors(),
             segment_scratch: TaylorSegment::default(),
+            piece_scratch: PieceScratch::default(),
         };
         plant.settle_sticking();
         Ok(plant)
@@ -444,8 +450,8 @@ impl BenchPlant {
     fn hold(&self) -> Held {
         let inputs = self.state.inputs;
         let p = &self.params;
-        let (laws, mut capacity) = match self.derived.static_laws {
-            Some(fixed) => fixed,
+        let (load_torque, mut capacity) = match &self.derived.static_laws {
+            Some((_, capacity)) => (0.0, *capacity),
             None => {
                 let load_torque = self.torque_per_ampere()[1] * self.state.z[CURRENT2];
                 let laws = [
@@ -453,7 +459,7 @@ impl BenchPlant {
                     SideLaw::of(p, Side::Load, load_torque),
                 ];
                 let capacity = laws.map(|law| [law.capacity(p, 1.0), law.capacity(p, -1.0)]);
-                (laws, capacity)
+                (load_torque, capacity)
             }
         };
         if self.state.clutch {
@@ -471,7 +477,7 @@ impl BenchPlant {
             reference: [0.0; 2],
             current_loop: [true; 2],
             friction: [0.0; 2],
-            laws,
+            load_torque,
             capacity,
             clutch: self.state.clutch,
         };
@@ -501,6 +507,21 @@ impl BenchPlant {
             }
         }
         held
+    }
+
+    /// The friction law of body `j` in force over the segment of `held`: the parameters' own
+    /// when it does not depend on the state, else the loss surface at `held`'s load torque
+    /// (as [`Self::hold`] found it).
+    #[inline(always)]
+    pub(crate) fn law(&self, held: &Held, j: usize) -> SideLaw {
+        match &self.derived.static_laws {
+            Some((laws, _)) => laws[j],
+            None => SideLaw::of(
+                &self.params,
+                if j == 0 { Side::Actuation } else { Side::Load },
+                held.load_torque,
+            ),
+        }
     }
 
     fn has_friction(held: &Held, j: usize) -> bool {
@@ -578,7 +599,7 @@ impl BenchPlant {
         }
         self.set_friction(&mut held, None);
         self.state.last_clamped = false;
-        if held.laws[0].speed_dependent() || held.laws[1].speed_dependent() {
+        if self.law(&held, 0).speed_dependent() || self.law(&held, 1).speed_dependent() {
             self.state.last_clamped = self.friction_clamped(&held);
             if self.state.last_clamped {
                 self.state.clamp_count += 1;
@@ -597,7 +618,8 @@ impl BenchPlant {
     fn friction_clamped(&self, held: &Held) -> bool {
         (0..2).any(|j| {
             !self.state.stuck[j]
-                && held.laws[j]
+                && self
+                    .law(held, j)
                     .sliding_torque(
                         &self.params,
                         self.state.direction[j],
@@ -622,7 +644,7 @@ impl BenchPlant {
                 continue;
             }
             let s = self.state.direction[j];
-            let law = held.laws[j];
+            let law = self.law(held, j);
             let start_speed = self.state.z[OMEGA1 + j].abs();
             let mut torque = law.sliding_torque(&self.params, s, start_speed).0;
             if let (Some(z1), true) = (end, law.speed_dependent()) {
@@ -669,7 +691,8 @@ impl BenchPlant {
     fn substep<const WIDE: bool>(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
         let start_time = self.state.time;
         let mut held = self.resolve()?;
-        let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
+        let speed_dependent =
+            (0..2).any(|j| !held.mode.stuck[j] && self.law(&held, j).speed_dependent());
         let active = self.active_events(&held);
         let index = self.discretization(held.mode, h);
         let mut z0 = self.input_state(&held);

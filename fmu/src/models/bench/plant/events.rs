@@ -75,10 +75,9 @@ impl BenchPlant {
     /// Whether any trip or any of the `active` switching events is positive at `z`. The trips
     /// are checked with constant arguments, so their dispatch folds away.
     ///
-    /// Straight-line code, no iterator: every trip is evaluated (a branch-free `|`), and the
-    /// active set's bits are walked with each event function inlined with its constant
-    /// arguments ([`Self::switching_value`]). The answer is [`Self::any_positive_listed`]'s,
-    /// the plain form over [`Self::event_list`] (tested).
+    /// Straight-line code, no iterator: every trip is evaluated (a branch-free `|`), then every
+    /// switching event ([`Self::positive_switching`]), masked by the active set. The answer is
+    /// [`Self::any_positive_listed`]'s, the plain form over [`Self::event_list`] (tested).
     #[inline(always)]
     pub(super) fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
         let demand = self.demands(held, z);
@@ -92,15 +91,23 @@ impl BenchPlant {
         {
             return true;
         }
-        let mut bits = active.0;
-        while bits != 0 {
-            let k = bits.trailing_zeros() as usize;
-            bits &= bits - 1;
-            if self.switching_value(held, k, z, &demand) > 0.0 {
-                return true;
-            }
+        self.positive_switching(held, z, &demand) & active.0 != 0
+    }
+
+    /// The bit set of the switching events positive at `z`, every one of the twelve evaluated
+    /// (each a few instructions with its event constant, no branch): cheaper than walking the
+    /// active set's bits with a dispatch per event, and an inactive event's value is only
+    /// masked off by the caller (the functions read the state and `held`, and change nothing).
+    #[inline(always)]
+    fn positive_switching(&self, held: &Held, z: &AugVector, demand: &[f64; 2]) -> u16 {
+        macro_rules! bits {
+            ($($k:literal),*) => {
+                0 $(| (u16::from(
+                    self.event_value_with(held, SWITCHING_EVENTS[$k], z, demand) > 0.0
+                ) << $k))*
+            };
         }
-        false
+        bits!(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11)
     }
 
     /// [`Self::any_positive`] in its plain form: any event of [`Self::event_list`] positive.
@@ -113,22 +120,6 @@ impl BenchPlant {
     ) -> bool {
         let demand = self.demands(held, z);
         Self::event_list(active).any(|e| self.event_value_with(held, e, z, &demand) > 0.0)
-    }
-
-    /// The event function of `SWITCHING_EVENTS[k]` at `z`, each arm with its event as a
-    /// constant (so that the dispatch of [`Self::event_value_with`] folds away).
-    #[inline(always)]
-    fn switching_value(&self, held: &Held, k: usize, z: &AugVector, demand: &[f64; 2]) -> f64 {
-        macro_rules! arms {
-            ($($k:literal),*) => {
-                match k {
-                    $($k => self.event_value_with(held, SWITCHING_EVENTS[$k], z, demand),)*
-                    // No such bit (an active set uses bits 0..12): never positive.
-                    _ => f64::NEG_INFINITY,
-                }
-            };
-        }
-        arms!(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11)
     }
 
     /// The event function `event` at `z`, given the voltage demands there.
@@ -288,7 +279,7 @@ impl BenchPlant {
                 None => self.resolve()?,
             };
             let speed_dependent =
-                (0..2).any(|j| !held.mode.stuck[j] && held.laws[j].speed_dependent());
+                (0..2).any(|j| !held.mode.stuck[j] && self.law(&held, j).speed_dependent());
             let active = self.active_events(&held);
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
