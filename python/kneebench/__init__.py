@@ -430,7 +430,8 @@ def _run_on_cluster(
         d = fut.result()
         if d["fingerprint"] != fingerprint:
             raise KneebenchError(
-                "a worker sees another sweep (the spec, its points or the FMUs' GUIDs differ): "
+                "a worker sees another sweep (the spec, its points, the FMUs' GUIDs or the system's "
+                "files differ): "
                 f"fingerprint {d['fingerprint']} != {fingerprint}"
             )
         if on_part is not None:

@@ -1,7 +1,9 @@
 //! The Parquet writer's row-group buffer: zeroed doubles, on transparent huge pages where the
 //! kernel gives them.
 //!
-//! A row group of the study's full recording (101 columns of 8,200 slots) is 6.6 MB. Fresh
+//! A full row group of 101 columns (8,200 slots each) is 6.6 MB; the study's full recording
+//! of 10,001 rows is two groups of about 4 MB (measured below before the groups were made
+//! even, with one group of 6.6 MB). Fresh
 //! memory is faulted in one 4 KiB page at a time as the rows fill it: 1,620 faults per buffer,
 //! which on this machine's virtual CPUs cost more than filling it (a fresh process filling one
 //! buffer: 8-20 ms against 1.6-3.5 ms on huge pages, at load 6; `kneebench run` of the SEA

@@ -36,6 +36,7 @@ pub mod csv;
 pub mod parquet;
 mod parquet_dictionary;
 pub mod parquet_read;
+mod parquet_sink;
 
 /// Rows for the writers' tests.
 #[cfg(test)]

@@ -4,7 +4,8 @@
 //!
 //! Rows are buffered per column as they come (one buffer holding every column of the row group,
 //! on huge pages when it is big: `column_buffer`)
-//! and written in row groups of [`ROW_GROUP_ROWS`] rows: plain encoding, uncompressed (the
+//! and written in row groups of at most [`ROW_GROUP_ROWS`] rows (a run's announced rows shared
+//! evenly between as few groups as hold them: `group_rows`): plain encoding, uncompressed (the
 //! values of a recording are mostly full-precision doubles: Snappy saved a fifth of the bytes
 //! and no time in the writers bench), one data page per column chunk. A chunk whose values
 //! take at most 16 distinct values (a flag, a mode, a held parameter) is dictionary-encoded
@@ -70,9 +71,10 @@ use super::background::{Background, BlockEncoder, closed_error};
 use super::column_buffer::ColumnBuffer;
 use super::csv::{check_output_path, partial_path};
 use super::parquet_dictionary::{Dictionary, dictionary_of};
+use super::parquet_sink::FileSink;
 use super::{ColumnKind, ResultSink, ResultsError};
 
-/// Rows per row group: a column's page of 8192 doubles is 64 KiB, under glibc's threshold
+/// The most rows a row group takes: a column's page of 8192 doubles is 64 KiB, under glibc's threshold
 /// for mapping an allocation on its own (128 KiB), so the column writer's buffers are taken
 /// from the heap and reused from one row group to the next instead of being mapped and
 /// faulted in afresh (the rows' own buffer, one per group, is reused as a whole):
@@ -88,9 +90,10 @@ pub const ROW_GROUP_ROWS: usize = 8192;
 /// cost a length and capacity check per value: 12.6 instructions per value against about 4
 /// (callgrind, the writers bench), on the simulation's thread.
 ///
-/// A group takes [`ROW_GROUP_ROWS`] rows, or fewer when the run has announced fewer rows than
-/// that still to come ([`group_rows`]): a short run's buffer, and the last group's, take the
-/// memory (and the kernel's zeroing) of the rows they will hold. Where the groups end depends
+/// A group takes [`ROW_GROUP_ROWS`] rows, or fewer when the run has announced its rows: they
+/// are then shared evenly between as few groups as hold them ([`group_rows`]), and each
+/// group's buffer takes the memory (and the kernel's zeroing) of the rows it will hold. Where
+/// the groups end depends
 /// on the rows announced and pushed alone, never on which buffer is reused, so the writer
 /// thread and the caller write the same groups.
 struct Group {
@@ -205,88 +208,6 @@ fn io_error(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> R
     ResultsError::Io {
         path: path.to_path_buf(),
         source: io::Error::other(e),
-    }
-}
-
-/// The partial file as the `parquet` crate's sink: writes go to the file, and the first
-/// failed write is kept. The crate's footer writer flushes its buffer when it is dropped,
-/// where a failure cannot be returned; [`Encoder::finish`] reports it from here.
-///
-/// A short write (a page header, a dictionary column's page: under [`SMALL_WRITE`] bytes) is
-/// held and goes to the file in one system call with the next long one (a plain page, which
-/// the crate's buffer passes straight through), so that a row group of 100 plain columns
-/// takes about 100 system calls instead of 200. Held bytes are written by `flush` and on
-/// drop, in order.
-struct FileSink {
-    file: Arc<File>,
-    failure: Arc<Mutex<Option<io::Error>>>,
-    /// Bytes written to the sink and not yet to the file.
-    held: Vec<u8>,
-}
-
-/// The writes [`FileSink`] holds for the next one: shorter than this many bytes.
-const SMALL_WRITE: usize = 4096;
-
-impl FileSink {
-    fn new(file: Arc<File>, failure: Arc<Mutex<Option<io::Error>>>) -> FileSink {
-        FileSink {
-            file,
-            failure,
-            held: Vec::new(),
-        }
-    }
-
-    fn remember(&self, e: &io::Error) {
-        let mut failure = self.failure.lock().unwrap_or_else(|p| p.into_inner());
-        if failure.is_none() {
-            *failure = Some(io::Error::new(e.kind(), e.to_string()));
-        }
-    }
-
-    /// Writes the held bytes and as much of `buf` as the file takes in one call once they
-    /// are out: how much of `buf` went (possibly none, if the held bytes took every call).
-    fn write_held_then(&mut self, buf: &[u8]) -> io::Result<usize> {
-        while !self.held.is_empty() {
-            let parts = [io::IoSlice::new(&self.held), io::IoSlice::new(buf)];
-            let n = (&*self.file).write_vectored(&parts)?;
-            if n == 0 {
-                return Err(io::ErrorKind::WriteZero.into());
-            }
-            if n <= self.held.len() {
-                self.held.drain(..n);
-            } else {
-                let of_buf = n - self.held.len();
-                self.held.clear();
-                return Ok(of_buf);
-            }
-        }
-        (&*self.file).write(buf)
-    }
-}
-
-impl Write for FileSink {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        if buf.len() < SMALL_WRITE && self.held.len() < SMALL_WRITE {
-            self.held.extend_from_slice(buf);
-            return Ok(buf.len());
-        }
-        self.write_held_then(buf).inspect_err(|e| self.remember(e))
-    }
-
-    fn flush(&mut self) -> io::Result<()> {
-        let written = (&*self.file).write_all(&self.held);
-        self.held.clear();
-        written.inspect_err(|e| self.remember(e))
-    }
-}
-
-impl Drop for FileSink {
-    /// The held bytes, written (the crate's footer writer flushes its own buffer into this
-    /// sink as it is dropped, without flushing the sink); a failure is kept for `finish`.
-    fn drop(&mut self) {
-        if !self.held.is_empty() {
-            let _ = self.flush();
-        }
     }
 }
 
@@ -980,8 +901,8 @@ impl ResultSink for ParquetFile {
     /// run fills the first: handing the first group over then allocates nothing, and the
     /// run's thread never waits for the kernel to zero it.
     ///
-    /// The groups are made for the rows announced: a run of fewer rows than a group holds,
-    /// and its last group, take the memory of their rows alone.
+    /// The groups are made for the rows announced (`group_rows`: shared evenly between as
+    /// few groups as hold them), each buffer for its group's rows alone.
     fn expect_rows(&mut self, rows: u64) {
         let width = self.columns.width;
         if width == 0 || self.announced.is_some() {
@@ -1135,9 +1056,9 @@ mod thread_tests {
         }
     }
 
-    /// The groups are made for the rows announced (a short run's group and the last group
-    /// take the memory of their rows alone), and a run going on past the rows it announced
-    /// still writes every row, in full groups again.
+    /// The groups are made for the rows announced (even groups, each buffer for its group's
+    /// rows alone), and a run going on past the rows it announced still writes every row, in
+    /// full groups again.
     #[test]
     fn groups_are_made_for_the_rows_announced() {
         use parquet::file::reader::{FileReader, SerializedFileReader};
@@ -1464,23 +1385,6 @@ mod thread_tests {
         let plain_bytes = rows * 7 * 8;
         let size = std::fs::metadata(&path).unwrap().len() as usize;
         assert!(size < plain_bytes - 4 * rows * 8, "{size} of {plain_bytes}");
-    }
-
-    /// The footer writer's last flush happens as it is dropped, where its error cannot be
-    /// returned: the sink keeps it for `finish` to return.
-    #[test]
-    fn a_failed_write_on_drop_is_kept() {
-        let file = std::fs::OpenOptions::new()
-            .write(true)
-            .open("/dev/full")
-            .unwrap();
-        let failure = Arc::new(Mutex::new(None));
-        {
-            let mut w = TrackedWrite::new(FileSink::new(Arc::new(file), Arc::clone(&failure)));
-            w.write_all(b"the footer's tail").unwrap();
-        }
-        let kept = failure.lock().unwrap().take().expect("the failure is kept");
-        assert!(kept.to_string().contains("No space left"), "{kept}");
     }
 
     /// A file whose writes fail (`/dev/full`: no space left) with `columns` columns.

@@ -56,6 +56,7 @@ impl Points {
 
     /// Appends a point; it must have [`width`](Self::width) values (checked: `false`, and
     /// nothing appended, when it has not).
+    #[must_use = "a point of another width is not appended"]
     pub fn push(&mut self, point: &[f64]) -> bool {
         if point.len() != self.width {
             return false;
@@ -555,7 +556,9 @@ fn read_csv_from(
                 )),
             }
         }
-        points.push(&point);
+        // `point` has one slot per parameter (made so above).
+        let pushed = points.push(&point);
+        debug_assert!(pushed, "a CSV point of another width");
     }
     if points.is_empty() && problems.is_empty() {
         problems.push(problem(0, "empty design: the CSV has no points".into()));
