@@ -12,6 +12,15 @@ fn kneebench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kneebench"))
 }
 
+/// `kneebench emulate --bind BIND --duration DURATION --fmu PLANT`, for more options.
+fn emulate_command(bind: &str, duration: &str, plant: &Path) -> Command {
+    let mut command = kneebench();
+    command
+        .args(["emulate", "--bind", bind, "--duration", duration, "--fmu"])
+        .arg(plant);
+    command
+}
+
 /// The bench's FMUs, exported once for the whole test binary.
 fn fmus() -> &'static Path {
     static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
@@ -604,16 +613,7 @@ fn a_fraction_for_an_integer_valued_parameter_is_a_usage_error() {
     assert!(!out.exists());
     assert_usage(
         "emulate",
-        kneebench()
-            .args([
-                "emulate",
-                "--bind",
-                "127.0.0.1:0",
-                "--duration",
-                "5",
-                "--fmu",
-            ])
-            .arg(&plant)
+        emulate_command("127.0.0.1:0", "5", &plant)
             .arg("--new-key")
             .arg(&key)
             .args(["--param", "encoderCountsPerRevolution=1000.5"]),
@@ -742,14 +742,8 @@ fn emulate_checks_param_names_and_values_before_starting() {
     let plant = fmus().join("BenchPlant.fmu");
     let key = dir.path().join("new.key");
     let emulate = |param: &str, duration: &str| {
-        let mut command = kneebench();
-        command
-            .args(["emulate", "--bind", "127.0.0.1:0", "--duration", duration])
-            .arg("--fmu")
-            .arg(&plant)
-            .arg("--new-key")
-            .arg(&key)
-            .args(["--param", param]);
+        let mut command = emulate_command("127.0.0.1:0", duration, &plant);
+        command.arg("--new-key").arg(&key).args(["--param", param]);
         command
     };
     for (param, needles) in [
@@ -792,10 +786,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
     ] {
         assert_usage(
             fault,
-            kneebench()
-                .args(["emulate", "--bind", "127.0.0.1:0", "--duration", "5"])
-                .arg("--fmu")
-                .arg(&plant)
+            emulate_command("127.0.0.1:0", "5", &plant)
                 .arg("--new-key")
                 .arg(&key)
                 .args(["--fault", fault]),
@@ -809,16 +800,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
     for (file, needle) in refused_key_files(dir.path()) {
         let o = assert_usage(
             needle,
-            kneebench()
-                .args([
-                    "emulate",
-                    "--bind",
-                    "127.0.0.1:0",
-                    "--duration",
-                    "5",
-                    "--fmu",
-                ])
-                .arg(&plant)
+            emulate_command("127.0.0.1:0", "5", &plant)
                 .arg("--key")
                 .arg(&file),
             &[&format!("--key key file {}", file.display()), needle],
@@ -829,9 +811,7 @@ fn emulate_checks_param_names_and_values_before_starting() {
     // Serving off loopback without a key: a usage error naming the remedy (it was exit 1).
     assert_usage(
         "--bind 0.0.0.0:0",
-        kneebench()
-            .args(["emulate", "--bind", "0.0.0.0:0", "--duration", "5", "--fmu"])
-            .arg(&plant),
+        &mut emulate_command("0.0.0.0:0", "5", &plant),
         &[
             "--bind 0.0.0.0:0: refusing to serve on 0.0.0.0:0 without a key",
             "--key FILE",
