@@ -12,6 +12,25 @@ fn kneebench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kneebench"))
 }
 
+/// `kneebench study --fmus FMUS --cycles 2 --actuators sea --bench 127.0.0.1:9 --key KEY`
+/// (nothing listens there: each use is refused before it connects), for more options.
+fn study_on_bench(fmus_dir: &str, key: &Path) -> Command {
+    let mut command = kneebench();
+    command
+        .args([
+            "study",
+            "--fmus",
+            fmus_dir,
+            "--cycles",
+            "2",
+            "--actuators",
+            "sea",
+        ])
+        .args(["--bench", "127.0.0.1:9", "--key"])
+        .arg(key);
+    command
+}
+
 /// `kneebench emulate --bind BIND --duration DURATION --fmu PLANT`, for more options.
 fn emulate_command(bind: &str, duration: &str, plant: &Path) -> Command {
     let mut command = kneebench();
@@ -661,18 +680,7 @@ fn bench_params_the_fmu_would_refuse_are_usage_errors() {
     ] {
         assert_usage(
             param,
-            kneebench()
-                .args([
-                    "study",
-                    "--fmus",
-                    fmus_dir,
-                    "--cycles",
-                    "2",
-                    "--actuators",
-                    "sea",
-                ])
-                .args(["--bench", "127.0.0.1:9", "--key"])
-                .arg(&key)
+            study_on_bench(fmus_dir, &key)
                 .args(["--bench-param", param, "--out"])
                 .arg(&out),
             needles,
@@ -709,20 +717,8 @@ fn a_refused_study_key_file_is_a_usage_error() {
     for (file, needle) in refused_key_files(dir.path()) {
         assert_usage(
             needle,
-            kneebench()
-                .args([
-                    "study",
-                    "--fmus",
-                    fmus_dir,
-                    "--cycles",
-                    "2",
-                    "--actuators",
-                    "sea",
-                    "--scenario",
-                    "bench-full",
-                ])
-                .args(["--bench", "127.0.0.1:9", "--key"])
-                .arg(&file)
+            study_on_bench(fmus_dir, &file)
+                .args(["--scenario", "bench-full"])
                 .arg("--out")
                 .arg(&out),
             &[&format!("--key key file {}", file.display()), needle],
