@@ -552,3 +552,44 @@ fn an_identified_set_name_with_a_path_is_refused() {
     }
     assert!(!out.exists() && !d.path().join("escaped.ssv").exists());
 }
+
+/// `run` prints the recorded signals' min, max and final values, and `-q` prints nothing
+/// (the summary is then not kept at all).
+#[test]
+fn run_prints_the_summary_unless_quiet() {
+    let d = tempfile::tempdir().unwrap();
+    let fmu = common::kbtest_fmu(d.path());
+    let csv = d.path().join("r.csv");
+    let run = |extra: &[&str]| {
+        kneebench()
+            .arg("run")
+            .arg(&fmu)
+            .args(["--stop-time", "1", "--step", "0.1", "--param", "u=1"])
+            .args(["--variables", "x", "--output"])
+            .arg(&csv)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let loud = run(&[]);
+    assert_eq!(loud.status.code(), Some(0));
+    let stdout = String::from_utf8_lossy(&loud.stdout);
+    let lines: Vec<Vec<&str>> = stdout
+        .lines()
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    // x rises from 0 by 1 per 0.1 s step (`exit_codes_and_partial_results`): min 0, max and
+    // final 10.
+    assert_eq!(
+        lines,
+        [
+            vec!["signal", "min", "max", "final"],
+            vec!["x", "0.000000", "10.000000", "10.000000"],
+            vec![],
+        ],
+        "{stdout}"
+    );
+    let quiet = run(&["-q"]);
+    assert_eq!(quiet.status.code(), Some(0));
+    assert!(quiet.stdout.is_empty(), "{quiet:?}");
+}

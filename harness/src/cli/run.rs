@@ -423,7 +423,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             .watch(timeout)
             .context("starting the --timeout watchdog")?;
     }
-    let mut sink = Tee(file, RunningSummary::new());
+    // The summary table is printed unless --quiet: only then is it kept.
+    let mut sink = Tee(file, (!a.quiet).then(RunningSummary::new));
     let summary = system.run_into(&config, &mut sink);
     // Unloaded while still armed: an FMU whose unloading calls exit() is reported too.
     drop(system);
@@ -459,8 +460,10 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         file.keep_partial()?
     };
     guard.0 = None;
-    if !a.quiet && summary.rows > 0 {
-        println!("{}", summary_table(table.summaries()));
+    if let Some(table) = table
+        && summary.rows > 0
+    {
+        println!("{}", summary_table(&table.summaries()));
     }
     eprintln!(
         "{} {} rows to {} ({elapsed:.3} s wall time)",

@@ -175,9 +175,16 @@ pub trait ResultSink {
 }
 
 /// A sink that keeps only the [`SignalSummary`] of every column (bounded memory).
+///
+/// The minima, maxima and last values are kept column by column, so that a row's update is
+/// two passes the compiler vectorises (packed min and max, then a copy); the summaries are
+/// made when asked for.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RunningSummary {
-    summaries: Vec<SignalSummary>,
+    names: Vec<String>,
+    min: Vec<f64>,
+    max: Vec<f64>,
+    last: Vec<f64>,
     rows: u64,
 }
 
@@ -188,8 +195,19 @@ impl RunningSummary {
     }
 
     /// Min, max and last value of every column so far.
-    pub fn summaries(&self) -> &[SignalSummary] {
-        &self.summaries
+    pub fn summaries(&self) -> Vec<SignalSummary> {
+        self.names
+            .iter()
+            .zip(&self.min)
+            .zip(&self.max)
+            .zip(&self.last)
+            .map(|(((name, &min), &max), &last)| SignalSummary {
+                name: name.clone(),
+                min,
+                max,
+                last,
+            })
+            .collect()
     }
 
     /// Rows seen.
@@ -198,40 +216,74 @@ impl RunningSummary {
     }
 }
 
+/// Folds `v` into a column's running `min` and `max`: a NaN changes neither (both comparisons
+/// are false), and a zero of the other sign than an equal extreme does not replace it. Written
+/// as comparisons rather than [`f64::min`] (whose choice between equal zeros is unspecified) so
+/// that [`RunningSummary`] and [`Results::summary`] agree bit for bit, and so that a row's
+/// update compiles to packed min and max instructions.
+#[inline(always)]
+fn fold_extremes(min: &mut f64, max: &mut f64, v: f64) {
+    if v < *min {
+        *min = v;
+    }
+    if v > *max {
+        *max = v;
+    }
+}
+
 impl ResultSink for RunningSummary {
     fn begin(&mut self, names: &[String], _kinds: &[ColumnKind]) -> Result<(), ResultsError> {
-        self.summaries = names
-            .iter()
-            .map(|n| SignalSummary {
-                name: n.clone(),
-                min: f64::INFINITY,
-                max: f64::NEG_INFINITY,
-                last: f64::NAN,
-            })
-            .collect();
+        self.names = names.to_vec();
+        self.min = vec![f64::INFINITY; names.len()];
+        self.max = vec![f64::NEG_INFINITY; names.len()];
+        self.last = vec![f64::NAN; names.len()];
         Ok(())
     }
 
     fn push_row(&mut self, _time: f64, values: &[f64]) -> Result<(), ResultsError> {
-        if values.len() != self.summaries.len() {
+        if values.len() != self.names.len() {
             return Err(ResultsError::RowLength {
-                expected: self.summaries.len(),
+                expected: self.names.len(),
                 got: values.len(),
             });
         }
-        for (s, &v) in self.summaries.iter_mut().zip(values) {
-            if !v.is_nan() {
-                s.min = s.min.min(v);
-                s.max = s.max.max(v);
-            }
-            s.last = v;
+        for ((min, max), &v) in self.min.iter_mut().zip(&mut self.max).zip(values) {
+            fold_extremes(min, max, v);
         }
+        self.last.copy_from_slice(values);
         self.rows += 1;
         Ok(())
     }
 
     fn flush(&mut self) -> Result<(), ResultsError> {
         Ok(())
+    }
+}
+
+/// A sink that may be absent: `None` takes every row and keeps nothing (a summary nobody will
+/// print, for example), `Some` is the sink itself.
+impl<S: ResultSink> ResultSink for Option<S> {
+    fn begin(&mut self, names: &[String], kinds: &[ColumnKind]) -> Result<(), ResultsError> {
+        self.as_mut().map_or(Ok(()), |s| s.begin(names, kinds))
+    }
+
+    #[inline]
+    fn push_row(&mut self, time: f64, values: &[f64]) -> Result<(), ResultsError> {
+        self.as_mut().map_or(Ok(()), |s| s.push_row(time, values))
+    }
+
+    fn flush(&mut self) -> Result<(), ResultsError> {
+        self.as_mut().map_or(Ok(()), |s| s.flush())
+    }
+
+    fn wants_periodic_flush(&self) -> bool {
+        self.as_ref().is_some_and(|s| s.wants_periodic_flush())
+    }
+
+    fn expect_rows(&mut self, rows: u64) {
+        if let Some(s) = self.as_mut() {
+            s.expect_rows(rows);
+        }
     }
 }
 
@@ -757,10 +809,7 @@ impl Results {
                 let mut last = f64::NAN;
                 for r in self.rows() {
                     let v = r[j + 1];
-                    if !v.is_nan() {
-                        min = min.min(v);
-                        max = max.max(v);
-                    }
+                    fold_extremes(&mut min, &mut max, v);
                     last = v;
                 }
                 SignalSummary {
@@ -839,6 +888,52 @@ pub mod plot;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The running summary (what `kneebench run` prints) is the in-memory one bit for bit, and
+    /// both are the extremes of the non-NaN values and the last value, whatever the values:
+    /// NaN, signed zeros, infinities, subnormals, and a column that is only NaN.
+    #[test]
+    fn the_running_summary_is_the_summary_of_the_rows() {
+        let columns = 9;
+        let names: Vec<String> = (0..=columns).map(|c| format!("c{c}")).collect();
+        let kinds = vec![ColumnKind::Real; names.len()];
+        let mut running = RunningSummary::new();
+        let mut all = Results::with_capacity(Vec::new(), Vec::new(), 0);
+        running.begin(&names, &kinds).unwrap();
+        ResultSink::begin(&mut all, &names, &kinds).unwrap();
+        for k in 0..60 {
+            let (t, mut values) = test_rows::row(k, columns);
+            values.push(f64::NAN);
+            running.push_row(t, &values).unwrap();
+            ResultSink::push_row(&mut all, t, &values).unwrap();
+        }
+        let bits = |s: &SignalSummary| (s.min.to_bits(), s.max.to_bits(), s.last.to_bits());
+        let from_rows = all.summary();
+        let kept = running.summaries();
+        assert_eq!(running.rows(), 60);
+        assert_eq!(kept.len(), names.len());
+        for (j, (a, b)) in kept.iter().zip(&from_rows).enumerate() {
+            assert_eq!(a.name, b.name);
+            assert_eq!(bits(a), bits(b), "column {j}");
+            let mut finite: Vec<f64> = all
+                .rows()
+                .map(|r| r[j + 1])
+                .filter(|v| !v.is_nan())
+                .collect();
+            finite.sort_by(f64::total_cmp);
+            let last = all.rows().last().unwrap()[j + 1];
+            assert_eq!(a.last.to_bits(), last.to_bits(), "column {j}");
+            match (finite.first(), finite.last()) {
+                (Some(&lo), Some(&hi)) => assert!(a.min == lo && a.max == hi, "column {j}"),
+                _ => assert!(a.min == f64::INFINITY && a.max == f64::NEG_INFINITY),
+            }
+        }
+        assert!(
+            running
+                .push_row(0.0, &[0.0])
+                .is_err_and(|e| matches!(e, ResultsError::RowLength { .. }))
+        );
+    }
 
     /// `read_file` reads Parquet by its magic bytes whatever the file's name, CSV otherwise:
     /// the same rows from both formats.

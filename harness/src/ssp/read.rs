@@ -22,6 +22,44 @@ fn line_of(xml: &str, position: u64) -> usize {
         .count()
 }
 
+/// The 1-based lines of positions that mostly move forward (an XML reader's events), each
+/// counted from the last one asked for: a reader's pass then counts the document's newlines
+/// once, not once per element.
+struct Lines<'a> {
+    xml: &'a str,
+    /// The byte up to which newlines are counted, and the line it is on.
+    counted: usize,
+    line: usize,
+}
+
+impl<'a> Lines<'a> {
+    fn new(xml: &'a str) -> Self {
+        Lines {
+            xml,
+            counted: 0,
+            line: 1,
+        }
+    }
+
+    /// The line of byte `position` of the document: [`line_of`], counting on from the last
+    /// position asked for (from the start if `position` is before it).
+    fn of(&mut self, position: u64) -> usize {
+        let end = usize::try_from(position)
+            .unwrap_or(usize::MAX)
+            .min(self.xml.len());
+        if end < self.counted {
+            self.counted = 0;
+            self.line = 1;
+        }
+        self.line += self.xml.as_bytes()[self.counted..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        self.counted = end;
+        self.line
+    }
+}
+
 /// Where an event the reader reads from byte `position` of `xml` starts: after the blanks it
 /// skips (ASCII, so counted in bytes: `position` need not be a character boundary).
 fn skip_blanks(xml: &str, position: u64) -> u64 {
@@ -95,6 +133,7 @@ fn read_parameter_set(
         |position: u64, message: String| xml_error(doc, file, offset + position, message);
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
+    let mut lines = Lines::new(doc);
     let mut out = Vec::new();
     let mut current: Option<String> = None;
     // Open elements: one still open at the end is malformed XML (the reader does not say).
@@ -112,7 +151,7 @@ fn read_parameter_set(
                 let local = e.local_name();
                 let a = attrs(doc, &e, offset + pos, file)?;
                 // The file and the line of the element, for errors about its value.
-                let here = format!("{file} line {}", line_of(doc, offset + pos));
+                let here = format!("{file} line {}", lines.of(offset + pos));
                 match local.as_ref().as_bytes() {
                     b"Parameter" => current = a.get("name").cloned(),
                     t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
@@ -219,6 +258,7 @@ pub(super) fn read_ssd_labelled(
     }
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
+    let mut lines = Lines::new(xml);
     let mut ssd = Ssd::default();
     // The open elements' local names, and where each starts (the reader does not say when the
     // document ends inside one).
@@ -241,7 +281,7 @@ pub(super) fn read_ssd_labelled(
             .map_err(|e| xml_error(xml, file, r.error_position(), e.to_string()))?;
         let start = skip_blanks(xml, pos);
         // The file and the line of the element, for errors about it.
-        let here = format!("{file} line {}", line_of(xml, start));
+        let here = format!("{file} line {}", lines.of(start));
         let (e, empty) = match ev {
             Event::Start(e) => (e, false),
             Event::Empty(e) => (e, true),
@@ -515,4 +555,22 @@ pub fn read_ssd(xml: &str) -> Result<Ssd, SspError> {
             what: format!("parameter binding source '{src}' (no file access)"),
         })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Lines, line_of};
+
+    #[test]
+    fn lines_counted_on_are_the_lines_counted_from_the_start() {
+        let xml = "<a>\n<b/>\n\n<c x=\"1\"/>\r\n</a>\n";
+        let len = xml.len() as u64;
+        // Forward, on a newline and just past it, backwards (a parameter set read after its
+        // system), past the end.
+        let positions = [0, 3, 4, 5, 9, 10, 11, 2, 0, 20, len, len + 7, 1, u64::MAX];
+        let mut lines = Lines::new(xml);
+        for p in positions {
+            assert_eq!(lines.of(p), line_of(xml, p), "byte {p}");
+        }
+    }
 }
