@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 
 use kneebench_harness::master::{Outcome, RunConfig, RunControl, System, Value};
+use kneebench_harness::params::check_system_start_value;
 use kneebench_harness::results::columns::{ColumnMajor, Columns};
 use kneebench_harness::study::{
     Actuator, ActuatorReport, StudyConfig, StudyScenario, run_study_with,
@@ -274,6 +275,11 @@ fn run_inner(
                  variable: give its value as a str"
             ));
         }
+        // What `kneebench run --param` refuses before the run (NaN, outside [min, max], no
+        // item, not settable before initialization), refused here too: the FMU would refuse
+        // it only as the run starts, with a message that does not name the parameter.
+        check_system_start_value(&sys, &reference, &parsed)
+            .map_err(|problem| format!("params['{name}']: {problem}"))?;
         sys.set_value(&reference, parsed)
             .map_err(|e| format!("params['{name}']: {e}"))?;
     }
@@ -586,21 +592,20 @@ fn decode_rows(
 }
 
 /// Rows from a dict of `rows_dict` (a batch's rows gathered from a Dask worker): an error if
-/// its fingerprint is not `p`'s (the worker prepared another spec, points or FMUs).
+/// its fingerprint is missing or not `p`'s (the worker prepared another spec, points or FMUs).
 fn rows_of_dict(what: &str, p: &Prepared, d: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
     let item = |key: &str| {
         d.get_item(key)
             .map_err(|_| err(format!("{what}: rows without '{key}'")))
     };
-    if let Ok(f) = d.get_item("fingerprint") {
-        let f: String = f.extract()?;
-        if f != p.fingerprint {
-            return Err(err(format!(
-                "{what}: rows of another sweep (the spec, its points or the FMUs' GUIDs \
-                 differ): fingerprint {f} != {}",
-                p.fingerprint
-            )));
-        }
+    // Required: rows that do not say which sweep they are of cannot be checked against it.
+    let f: String = item("fingerprint")?.extract()?;
+    if f != p.fingerprint {
+        return Err(err(format!(
+            "{what}: rows of another sweep (the spec, its points or the FMUs' GUIDs \
+             differ): fingerprint {f} != {}",
+            p.fingerprint
+        )));
     }
     let point: Vec<u64> = item("point")?.extract()?;
     let columns: Vec<Vec<u8>> = item("columns")?.extract()?;

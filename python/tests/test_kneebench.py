@@ -120,6 +120,20 @@ def test_run_raises_with_the_rust_message(fmus: Path):
         kneebench.run(gait, stop_time=1.0, step=0.3)  # stop time off the step grid
 
 
+def test_run_refuses_the_values_the_cli_refuses_before_running(fmus: Path):
+    # What `kneebench run --param` refuses as a usage error is refused before the run, naming
+    # the parameter (not by the FMU as the run starts).
+    gait = fmus / "GaitReference.fmu"
+    for value, problem in [
+        (float("nan"), "NaN is not a finite number"),
+        (-1.0, r"-1 is outside \[0, 1000\]"),
+    ]:
+        with pytest.raises(kneebench.KneebenchError, match=rf"params\['fadeInTime'\]: {problem}"):
+            kneebench.run(gait, params={"fadeInTime": value}, stop_time=0.01)
+    with pytest.raises(kneebench.KneebenchError, match=r"params\['kneeAngleReference'\]: .*takes no value"):
+        kneebench.run(gait, params={"kneeAngleReference": 0.1}, stop_time=0.01)
+
+
 def test_study_reports_one_row_per_actuator(fmus: Path, tmp_path: Path):
     df = kneebench.study(fmus, tmp_path / "study", actuators=["SEA"], cycles=2)
     assert list(df.index) == ["SEA"]
@@ -223,6 +237,19 @@ def test_rows_of_a_worker_that_sees_other_fmus_are_refused(
     try:
         with pytest.raises(kneebench.KneebenchError, match="rows of another sweep"):
             journal.record(rows)
+    finally:
+        journal.close()
+
+
+def test_rows_that_do_not_say_their_sweep_are_refused(sweep_spec, tmp_path: Path):
+    spec = sweep_spec(2)
+    rows = kneebench._native.sweep_points(str(spec), [0])
+    del rows["fingerprint"]
+    journal = kneebench._native.SweepJournal(str(spec), str(tmp_path / "t.parquet"))
+    try:
+        with pytest.raises(kneebench.KneebenchError, match="rows without 'fingerprint'"):
+            journal.record(rows)
+        assert journal.pending() == [0, 1]
     finally:
         journal.close()
 
