@@ -2,10 +2,31 @@
 
 mod common;
 
-use std::process::Command;
+use std::path::Path;
+use std::process::{Command, Output};
 
 fn kneebench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kneebench"))
+}
+
+/// `kneebench run` of the test FMU `fmu` for 1 s at 0.1 s with `u = 1`, into `csv`.
+fn run_kbtest(fmu: &Path, csv: &Path, extra: &[&str]) -> Output {
+    kneebench()
+        .arg("run")
+        .arg(fmu)
+        .args([
+            "--stop-time",
+            "1",
+            "--step",
+            "0.1",
+            "--param",
+            "u=1",
+            "--output",
+        ])
+        .arg(csv)
+        .args(extra)
+        .output()
+        .unwrap()
 }
 
 #[test]
@@ -13,17 +34,7 @@ fn exit_codes_and_partial_results() {
     let d = tempfile::tempdir().unwrap();
     let fmu = common::kbtest_fmu(d.path());
     let csv = d.path().join("r.csv");
-    let run = |extra: &[&str]| {
-        kneebench()
-            .arg("run")
-            .arg(&fmu)
-            .args(["--stop-time", "1", "--step", "0.1", "--param", "u=1", "-q"])
-            .arg("--output")
-            .arg(&csv)
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    let run = |extra: &[&str]| run_kbtest(&fmu, &csv, &[&["-q"], extra].concat());
     let ok = run(&[]);
     assert_eq!(
         ok.status.code(),
@@ -560,17 +571,7 @@ fn run_prints_the_summary_unless_quiet() {
     let d = tempfile::tempdir().unwrap();
     let fmu = common::kbtest_fmu(d.path());
     let csv = d.path().join("r.csv");
-    let run = |extra: &[&str]| {
-        kneebench()
-            .arg("run")
-            .arg(&fmu)
-            .args(["--stop-time", "1", "--step", "0.1", "--param", "u=1"])
-            .args(["--variables", "x", "--output"])
-            .arg(&csv)
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    let run = |extra: &[&str]| run_kbtest(&fmu, &csv, &[&["--variables", "x"], extra].concat());
     let loud = run(&[]);
     assert_eq!(loud.status.code(), Some(0));
     let stdout = String::from_utf8_lossy(&loud.stdout);
