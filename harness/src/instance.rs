@@ -973,6 +973,65 @@ impl Instance {
         self.check("fmi2GetBoolean", s)
     }
 
+    /// The master's read of one component's outputs after a step: `fmi2GetReal` of `vrs[0]`
+    /// into `real`, `fmi2GetInteger` of `vrs[1]` into `int`, `fmi2GetBoolean` of `vrs[2]`
+    /// into `boolean`, in that order, each left out when its list is empty. The same calls,
+    /// checks and errors as [`get_real`](Self::get_real), [`get_integer`](Self::get_integer)
+    /// and [`get_boolean_raw`](Self::get_boolean_raw) one after the other (the first error
+    /// ends the read; a status other than an error is not reported), in one function: the
+    /// master calls it for every component and step.
+    #[inline]
+    pub fn get_outputs(
+        &mut self,
+        vrs: [&[u32]; 3],
+        real: &mut [f64],
+        int: &mut [i32],
+        boolean: &mut [fmi2Boolean],
+    ) -> Result<(), FmuError> {
+        if vrs[0].len() != real.len() {
+            return Err(mismatch("fmi2GetReal", vrs[0].len(), real.len()));
+        }
+        if !vrs[0].is_empty() {
+            let s = dispatch!(self, &"fmi2GetReal",
+                l => {
+                    // SAFETY: arrays of the given length.
+                    unsafe { (l.f.get_real)(l.c, vrs[0].as_ptr(), vrs[0].len(), real.as_mut_ptr()) }
+                },
+                (r, ctx) => r.get_real(ctx, vrs[0], real)
+            );
+            self.check("fmi2GetReal", s)?;
+        }
+        if vrs[1].len() != int.len() {
+            return Err(mismatch("fmi2GetInteger", vrs[1].len(), int.len()));
+        }
+        if !vrs[1].is_empty() {
+            let s = dispatch!(self, &"fmi2GetInteger",
+                l => {
+                    // SAFETY: arrays of the given length.
+                    unsafe { (l.f.get_integer)(l.c, vrs[1].as_ptr(), vrs[1].len(), int.as_mut_ptr()) }
+                },
+                (r, ctx) => r.get_ints(ctx, CALL_GET_INTEGER, vrs[1], int)
+            );
+            self.check("fmi2GetInteger", s)?;
+        }
+        if vrs[2].len() != boolean.len() {
+            return Err(mismatch("fmi2GetBoolean", vrs[2].len(), boolean.len()));
+        }
+        if !vrs[2].is_empty() {
+            let s = dispatch!(self, &"fmi2GetBoolean",
+                l => {
+                    // SAFETY: arrays of the given length.
+                    unsafe {
+                        (l.f.get_boolean)(l.c, vrs[2].as_ptr(), vrs[2].len(), boolean.as_mut_ptr())
+                    }
+                },
+                (r, ctx) => r.get_ints(ctx, CALL_GET_BOOLEAN, vrs[2], boolean)
+            );
+            self.check("fmi2GetBoolean", s)?;
+        }
+        Ok(())
+    }
+
     /// `fmi2GetBoolean` into `bool`s.
     pub fn get_boolean(&mut self, vrs: &[u32], values: &mut [bool]) -> Result<Status, FmuError> {
         let mut raw = vec![0; vrs.len()];

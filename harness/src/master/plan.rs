@@ -101,6 +101,67 @@ pub(super) fn row_runs(columns: &[(usize, usize)]) -> Vec<RowRun> {
         .collect()
 }
 
+/// One copy of consecutive `Real` bus values into the recorded row: `len` values from bus
+/// index `bus` to row index `row`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct RowCopy {
+    pub(super) bus: usize,
+    pub(super) row: usize,
+    pub(super) len: usize,
+}
+
+/// How a recorded row is built from the [`Bus`] (made once per run from the [`RowRun`]s):
+/// every value to its fixed place in a row buffer of `len` values, the `Real`s by runs (one
+/// copy each), the few `Integer`s and `Boolean`s one by one (runs of one or two values, where
+/// a loop per run costs more than the values), so [`fill_row`] is three tight loops without a
+/// branch per run or a push per value.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(super) struct RowCopies {
+    /// The number of columns.
+    pub(super) len: usize,
+    /// When every column is a `Real` and the columns are consecutive on the bus: their range
+    /// (the bus slice is the row, nothing to copy).
+    pub(super) whole: Option<(usize, usize)>,
+    /// `Real` values, copied as they are.
+    pub(super) real: Vec<RowCopy>,
+    /// `Integer` values, converted to `f64`: (bus index, row index).
+    pub(super) int: Vec<(usize, usize)>,
+    /// `Boolean` values, recorded as 0.0 or 1.0: (bus index, row index).
+    pub(super) boolean: Vec<(usize, usize)>,
+}
+
+impl RowCopies {
+    /// The copies of `runs`, in row order.
+    pub(super) fn new(runs: &[RowRun]) -> RowCopies {
+        let mut c = RowCopies::default();
+        for run in runs {
+            let (a, b) = match *run {
+                RowRun::Real(a, b) => {
+                    c.real.push(RowCopy {
+                        bus: a,
+                        row: c.len,
+                        len: b - a,
+                    });
+                    (a, b)
+                }
+                RowRun::Integer(a, b) => {
+                    c.int.extend((a..b).zip(c.len..));
+                    (a, b)
+                }
+                RowRun::Boolean(a, b) => {
+                    c.boolean.extend((a..b).zip(c.len..));
+                    (a, b)
+                }
+            };
+            c.len += b - a;
+        }
+        if let [RowRun::Real(a, b)] = runs[..] {
+            c.whole = Some((a, b));
+        }
+        c
+    }
+}
+
 /// What one component reads and writes, as indices (built once per run by [`Plan::new`]).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub(super) struct Ports {
@@ -117,9 +178,6 @@ pub(super) struct Ports {
     pub(super) in_from: [Vec<usize>; 3],
     /// The signal-fed inputs: (type index, position in `in_vrs[type]`, signal index).
     pub(super) in_signals: Vec<(usize, usize, usize)>,
-    /// Whether there are `Integer` or `Boolean` outputs to read (the hot path reads `Real`s
-    /// only).
-    pub(super) out_other: bool,
     /// Whether there are `Integer` or `Boolean` inputs to set.
     pub(super) in_other: bool,
     /// Whether there are `Integer` or `Boolean` inputs or signal-fed inputs to gather.
@@ -135,6 +193,8 @@ pub(super) struct Plan {
     pub(super) bus_len: [usize; 3],
     /// The recorded columns, as runs of bus values.
     pub(super) row: Vec<RowRun>,
+    /// The same runs as copies to their places in the row.
+    pub(super) copies: RowCopies,
 }
 
 impl Plan {
@@ -192,7 +252,6 @@ impl Plan {
             p.in_vrs[t].push(d.vr);
         }
         for p in &mut ports {
-            p.out_other = !(p.out_vrs[1].is_empty() && p.out_vrs[2].is_empty());
             p.in_other = !(p.in_vrs[1].is_empty() && p.in_vrs[2].is_empty());
             p.in_rare = p.in_other || !p.in_signals.is_empty();
         }
@@ -204,6 +263,7 @@ impl Plan {
         Plan {
             ports,
             bus_len,
+            copies: RowCopies::new(&row),
             row,
         }
     }
@@ -305,33 +365,21 @@ impl Rt {
     /// Reads the outputs into the component's part of the bus.
     #[inline(always)]
     pub(super) fn read(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
-        let (a, b) = self.ports.out[0];
-        self.inst
-            .get_real(&self.ports.out_vrs[0], &mut bus.real[a..b])?;
-        if self.ports.out_other {
-            self.read_other(bus)?;
-        }
-        Ok(())
+        let [(a, b), (c, d), (e, f)] = self.ports.out;
+        self.read_into(Outs {
+            real: &mut bus.real[a..b],
+            int: &mut bus.int[c..d],
+            boolean: &mut bus.boolean[e..f],
+        })
     }
 
-    /// The `Integer` and `Boolean` part of [`read`](Self::read).
-    #[inline(never)]
-    pub(super) fn read_other(&mut self, bus: &mut Bus) -> Result<(), FmuError> {
-        let [_, (a, b), (c, d)] = self.ports.out;
-        self.inst
-            .get_integer(&self.ports.out_vrs[1], &mut bus.int[a..b])?;
-        self.inst
-            .get_boolean_raw(&self.ports.out_vrs[2], &mut bus.boolean[c..d])?;
-        Ok(())
-    }
-
-    /// Reads the outputs into `out` (the component's part of the bus).
+    /// Reads the outputs into `out` (the component's part of the bus): one
+    /// [`Instance::get_outputs`] for the three types.
+    #[inline(always)]
     pub(super) fn read_into(&mut self, out: Outs<'_>) -> Result<(), FmuError> {
-        self.inst.get_real(&self.ports.out_vrs[0], out.real)?;
-        self.inst.get_integer(&self.ports.out_vrs[1], out.int)?;
+        let [real, int, boolean] = &self.ports.out_vrs;
         self.inst
-            .get_boolean_raw(&self.ports.out_vrs[2], out.boolean)?;
-        Ok(())
+            .get_outputs([real, int, boolean], out.real, out.int, out.boolean)
     }
 
     /// Sets the input values.
@@ -392,17 +440,16 @@ pub(super) fn steps_at(n: u64, multiple: u64) -> bool {
     multiple == 1 || n.is_multiple_of(multiple)
 }
 
-/// Fills `values` with the recorded values on `bus` (the columns in `row`).
+/// Fills `values` (a row buffer of [`RowCopies::len`] values) with the recorded values on `bus`.
 #[inline]
-pub(super) fn fill_row(values: &mut Vec<f64>, row: &[RowRun], bus: &Bus) {
-    values.clear();
-    for run in row {
-        match *run {
-            RowRun::Real(a, b) => values.extend_from_slice(&bus.real[a..b]),
-            RowRun::Integer(a, b) => values.extend(bus.int[a..b].iter().map(|&v| v as f64)),
-            RowRun::Boolean(a, b) => {
-                values.extend(bus.boolean[a..b].iter().map(|&v| (v != 0) as i32 as f64))
-            }
-        }
+pub(super) fn fill_row(values: &mut [f64], copies: &RowCopies, bus: &Bus) {
+    for c in &copies.real {
+        values[c.row..c.row + c.len].copy_from_slice(&bus.real[c.bus..c.bus + c.len]);
+    }
+    for &(k, r) in &copies.int {
+        values[r] = f64::from(bus.int[k]);
+    }
+    for &(k, r) in &copies.boolean {
+        values[r] = f64::from(u8::from(bus.boolean[k] != 0));
     }
 }

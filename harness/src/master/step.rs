@@ -2,7 +2,7 @@
 //! stop requests and the end of the run; the ticker thread that asks for flushes and keeps the
 //! time limit.
 
-use super::plan::{Bus, Outs, RowRun, Rt, StepEnd, fill_row, steps_at};
+use super::plan::{Bus, Outs, RowCopies, Rt, StepEnd, fill_row, steps_at};
 use super::{Algorithm, MasterError, Outcome, RunConfig, Signal, System, Value, VarType};
 use crate::control::RunControl;
 use crate::instance::FmuError;
@@ -102,8 +102,8 @@ pub(super) struct Run<'a> {
     pub(super) rts: Vec<Rt>,
     pub(super) bus: Bus,
     pub(super) signals: Vec<Signal>,
-    pub(super) row: Vec<RowRun>,
-    /// The row being recorded (values only).
+    pub(super) row: RowCopies,
+    /// The row being recorded (values only, [`RowCopies::len`] of them).
     pub(super) row_buf: Vec<f64>,
     /// Rows handed to the sink.
     pub(super) rows: u64,
@@ -146,7 +146,7 @@ impl Run<'_> {
         t: f64,
     ) -> Result<(), MasterError> {
         // Every recorded column a Real and consecutive on the bus: the bus slice is the row.
-        if let [RowRun::Real(a, b)] = self.row[..] {
+        if let Some((a, b)) = self.row.whole {
             sink.push_row(t, &self.bus.real[a..b])?;
         } else {
             fill_row(&mut self.row_buf, &self.row, &self.bus);
