@@ -8,14 +8,22 @@ use crate::control::RunControl;
 use crate::instance::FmuError;
 use crate::results::ResultSink;
 use crate::time::Grid;
-/// Whether every value is finite: one OR over the exponent tests, without early exit, so the
-/// compiler vectorizes it (a short-circuiting `all` costs a branch per value on the hot path).
+/// Whether every value is finite (its exponent bits not all ones): one OR over all values,
+/// without early exit (a short-circuiting `all` costs a branch per value on the hot path),
+/// with only 64-bit AND, ADD and OR per value, which baseline x86-64 (SSE2) vectorizes: the
+/// exponent bits plus one exponent unit carry into the sign bit exactly when they are all
+/// ones. (A 64-bit equality per value needs SSE4.1: the loop stayed scalar, ~3.6 instructions
+/// per value.) Equal to `values.iter().all(|v| v.is_finite())` (tested).
 #[inline(always)]
 pub(super) fn all_finite(values: &[f64]) -> bool {
     const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
-    values.iter().fold(0u64, |any, v| {
-        any | u64::from(v.to_bits() & EXPONENT == EXPONENT)
-    }) == 0
+    const ONE: u64 = 1 << 52;
+    const SIGN: u64 = 1 << 63;
+    values
+        .iter()
+        .fold(0u64, |any, v| any | ((v.to_bits() & EXPONENT) + ONE))
+        & SIGN
+        == 0
 }
 
 /// Flushes `sink` at the end of a run; a failed flush fails a run that had not failed.

@@ -547,3 +547,39 @@ fn a_single_fmus_run_takes_its_default_experiments_times_and_tolerance() {
         (0.0, 2.0, 0.01, Some(1e-5))
     );
 }
+
+#[test]
+fn all_finite_is_every_value_finite() {
+    use super::step::all_finite;
+    let specials = [
+        0.0,
+        -0.0,
+        1.0,
+        -1.5,
+        f64::MAX,
+        f64::MIN,
+        f64::MIN_POSITIVE,
+        f64::from_bits(1),
+        f64::from_bits(0x7fef_ffff_ffff_ffff),
+        f64::from_bits(0xffef_ffff_ffff_ffff),
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NAN,
+        -f64::NAN,
+        f64::from_bits(0x7ff0_0000_0000_0001),
+        f64::from_bits(0xfff8_0000_0000_0001),
+    ];
+    // Every special value alone and at every place of a longer run of finite values (the
+    // vectorized loop's body and its remainder).
+    for &x in &specials {
+        assert_eq!(all_finite(&[x]), x.is_finite(), "{x:?}");
+        for len in 1..20 {
+            for at in 0..len {
+                let mut v: Vec<f64> = (0..len).map(|k| k as f64 * 0.75 - 3.0).collect();
+                v[at] = x;
+                assert_eq!(all_finite(&v), x.is_finite(), "{x:?} at {at} of {len}");
+            }
+        }
+    }
+    assert!(all_finite(&[]));
+}
