@@ -223,12 +223,9 @@ impl RunningSummary {
 /// update compiles to packed min and max instructions.
 #[inline(always)]
 fn fold_extremes(min: &mut f64, max: &mut f64, v: f64) {
-    if v < *min {
-        *min = v;
-    }
-    if v > *max {
-        *max = v;
-    }
+    // Selects stored unconditionally: a conditional store would keep the loop scalar.
+    *min = if v < *min { v } else { *min };
+    *max = if v > *max { v } else { *max };
 }
 
 impl ResultSink for RunningSummary {
