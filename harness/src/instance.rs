@@ -915,6 +915,13 @@ impl Instance {
     /// `fmi2GetReal` into `values` (same length as `vrs`).
     #[inline]
     pub fn get_real(&mut self, vrs: &[u32], values: &mut [f64]) -> Result<Status, FmuError> {
+        self.get_real_inlined(vrs, values)
+    }
+
+    /// [`get_real`](Self::get_real), inlined where it is called: in
+    /// [`get_outputs`](Self::get_outputs), the master's read of every step.
+    #[inline(always)]
+    fn get_real_inlined(&mut self, vrs: &[u32], values: &mut [f64]) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
             return Err(mismatch("fmi2GetReal", vrs.len(), values.len()));
         }
@@ -934,6 +941,13 @@ impl Instance {
     /// `fmi2GetInteger` into `values`.
     #[inline]
     pub fn get_integer(&mut self, vrs: &[u32], values: &mut [i32]) -> Result<Status, FmuError> {
+        self.get_integer_inlined(vrs, values)
+    }
+
+    /// [`get_integer`](Self::get_integer), inlined where it is called (as
+    /// [`get_real_inlined`](Self::get_real_inlined)).
+    #[inline(always)]
+    fn get_integer_inlined(&mut self, vrs: &[u32], values: &mut [i32]) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
             return Err(mismatch("fmi2GetInteger", vrs.len(), values.len()));
         }
@@ -957,6 +971,17 @@ impl Instance {
         vrs: &[u32],
         values: &mut [fmi2Boolean],
     ) -> Result<Status, FmuError> {
+        self.get_boolean_raw_inlined(vrs, values)
+    }
+
+    /// [`get_boolean_raw`](Self::get_boolean_raw), inlined where it is called (as
+    /// [`get_real_inlined`](Self::get_real_inlined)).
+    #[inline(always)]
+    fn get_boolean_raw_inlined(
+        &mut self,
+        vrs: &[u32],
+        values: &mut [fmi2Boolean],
+    ) -> Result<Status, FmuError> {
         if vrs.len() != values.len() {
             return Err(mismatch("fmi2GetBoolean", vrs.len(), values.len()));
         }
@@ -973,13 +998,11 @@ impl Instance {
         self.check("fmi2GetBoolean", s)
     }
 
-    /// The master's read of one component's outputs after a step: `fmi2GetReal` of `vrs[0]`
-    /// into `real`, `fmi2GetInteger` of `vrs[1]` into `int`, `fmi2GetBoolean` of `vrs[2]`
-    /// into `boolean`, in that order, each left out when its list is empty. The same calls,
-    /// checks and errors as [`get_real`](Self::get_real), [`get_integer`](Self::get_integer)
-    /// and [`get_boolean_raw`](Self::get_boolean_raw) one after the other (the first error
-    /// ends the read; a status other than an error is not reported), in one function: the
-    /// master calls it for every component and step.
+    /// The master's read of one component's outputs after a step: [`get_real`](Self::get_real)
+    /// of `vrs[0]` into `real`, [`get_integer`](Self::get_integer) of `vrs[1]` into `int`,
+    /// [`get_boolean_raw`](Self::get_boolean_raw) of `vrs[2]` into `boolean`, in that order
+    /// (each leaves out an empty list; the first error ends the read; a status other than an
+    /// error is not reported), in one function the master calls for every component and step.
     #[inline]
     pub fn get_outputs(
         &mut self,
@@ -988,47 +1011,9 @@ impl Instance {
         int: &mut [i32],
         boolean: &mut [fmi2Boolean],
     ) -> Result<(), FmuError> {
-        if vrs[0].len() != real.len() {
-            return Err(mismatch("fmi2GetReal", vrs[0].len(), real.len()));
-        }
-        if !vrs[0].is_empty() {
-            let s = dispatch!(self, &"fmi2GetReal",
-                l => {
-                    // SAFETY: arrays of the given length.
-                    unsafe { (l.f.get_real)(l.c, vrs[0].as_ptr(), vrs[0].len(), real.as_mut_ptr()) }
-                },
-                (r, ctx) => r.get_real(ctx, vrs[0], real)
-            );
-            self.check("fmi2GetReal", s)?;
-        }
-        if vrs[1].len() != int.len() {
-            return Err(mismatch("fmi2GetInteger", vrs[1].len(), int.len()));
-        }
-        if !vrs[1].is_empty() {
-            let s = dispatch!(self, &"fmi2GetInteger",
-                l => {
-                    // SAFETY: arrays of the given length.
-                    unsafe { (l.f.get_integer)(l.c, vrs[1].as_ptr(), vrs[1].len(), int.as_mut_ptr()) }
-                },
-                (r, ctx) => r.get_ints(ctx, CALL_GET_INTEGER, vrs[1], int)
-            );
-            self.check("fmi2GetInteger", s)?;
-        }
-        if vrs[2].len() != boolean.len() {
-            return Err(mismatch("fmi2GetBoolean", vrs[2].len(), boolean.len()));
-        }
-        if !vrs[2].is_empty() {
-            let s = dispatch!(self, &"fmi2GetBoolean",
-                l => {
-                    // SAFETY: arrays of the given length.
-                    unsafe {
-                        (l.f.get_boolean)(l.c, vrs[2].as_ptr(), vrs[2].len(), boolean.as_mut_ptr())
-                    }
-                },
-                (r, ctx) => r.get_ints(ctx, CALL_GET_BOOLEAN, vrs[2], boolean)
-            );
-            self.check("fmi2GetBoolean", s)?;
-        }
+        self.get_real_inlined(vrs[0], real)?;
+        self.get_integer_inlined(vrs[1], int)?;
+        self.get_boolean_raw_inlined(vrs[2], boolean)?;
         Ok(())
     }
 

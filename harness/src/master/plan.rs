@@ -135,24 +135,16 @@ impl RowCopies {
     pub(super) fn new(runs: &[RowRun]) -> RowCopies {
         let mut c = RowCopies::default();
         for run in runs {
-            let (a, b) = match *run {
-                RowRun::Real(a, b) => {
-                    c.real.push(RowCopy {
-                        bus: a,
-                        row: c.len,
-                        len: b - a,
-                    });
-                    (a, b)
-                }
-                RowRun::Integer(a, b) => {
-                    c.int.extend((a..b).zip(c.len..));
-                    (a, b)
-                }
-                RowRun::Boolean(a, b) => {
-                    c.boolean.extend((a..b).zip(c.len..));
-                    (a, b)
-                }
-            };
+            match *run {
+                RowRun::Real(a, b) => c.real.push(RowCopy {
+                    bus: a,
+                    row: c.len,
+                    len: b - a,
+                }),
+                RowRun::Integer(a, b) => c.int.extend((a..b).zip(c.len..)),
+                RowRun::Boolean(a, b) => c.boolean.extend((a..b).zip(c.len..)),
+            }
+            let (RowRun::Real(a, b) | RowRun::Integer(a, b) | RowRun::Boolean(a, b)) = *run;
             c.len += b - a;
         }
         if let [RowRun::Real(a, b)] = runs[..] {

@@ -13,13 +13,7 @@ use crate::master::{Algorithm, Value};
 
 /// The 1-based line of byte `position` of `xml`.
 fn line_of(xml: &str, position: u64) -> usize {
-    let end = usize::try_from(position)
-        .unwrap_or(usize::MAX)
-        .min(xml.len());
-    1 + xml.as_bytes()[..end]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
+    Lines::new(xml).of(position)
 }
 
 /// The 1-based lines of positions that mostly move forward (an XML reader's events), each
@@ -41,8 +35,8 @@ impl<'a> Lines<'a> {
         }
     }
 
-    /// The line of byte `position` of the document: [`line_of`], counting on from the last
-    /// position asked for (from the start if `position` is before it).
+    /// The 1-based line of byte `position` of the document (of its end, past it), counting
+    /// on from the last position asked for (from the start if `position` is before it).
     fn of(&mut self, position: u64) -> usize {
         let end = usize::try_from(position)
             .unwrap_or(usize::MAX)
