@@ -108,4 +108,11 @@ impl ResultSink for OutputFile {
             OutputFile::Parquet(f) => f.wants_periodic_flush(),
         }
     }
+
+    fn expect_rows(&mut self, rows: u64) {
+        match self {
+            OutputFile::Csv(f) => f.expect_rows(rows),
+            OutputFile::Parquet(f) => f.expect_rows(rows),
+        }
+    }
 }

@@ -719,6 +719,10 @@ impl ResultSink for CsvFile {
     fn wants_periodic_flush(&self) -> bool {
         true
     }
+
+    /// Nothing to reserve: the rows go out in blocks of a fixed size, whatever the run's
+    /// length.
+    fn expect_rows(&mut self, _rows: u64) {}
 }
 
 #[cfg(test)]

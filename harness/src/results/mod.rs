@@ -170,8 +170,12 @@ pub trait ResultSink {
     }
 
     /// Told before the first row how many rows the run will push at most (a hint: the run may
-    /// end earlier). A sink may reserve room for them; the default ignores it.
-    fn expect_rows(&mut self, _rows: u64) {}
+    /// end earlier). A sink may reserve room for them.
+    ///
+    /// Required, with no default, so that a sink wrapping another cannot drop the hint
+    /// unnoticed: `kneebench run`'s output file once did, and its Parquet file then made its
+    /// second row-group buffer on the run's thread instead of its writer's.
+    fn expect_rows(&mut self, rows: u64);
 }
 
 /// A sink that keeps only the [`SignalSummary`] of every column (bounded memory).
@@ -255,6 +259,9 @@ impl ResultSink for RunningSummary {
     fn flush(&mut self) -> Result<(), ResultsError> {
         Ok(())
     }
+
+    /// Nothing to reserve: a summary's memory does not grow with the rows.
+    fn expect_rows(&mut self, _rows: u64) {}
 }
 
 /// A sink that may be absent: `None` takes every row and keeps nothing (a summary nobody will
