@@ -10,12 +10,13 @@
 //! formats the message and calls a Rust sink that records it in a bounded ring (the last
 //! [`RECENT_MESSAGES`]) and forwards it to the instance's [`LogHandler`]. A panic in a handler is
 //! caught; it never unwinds into the FMU.
+//!
+//! The modules: `log` (the callbacks handed to the FMU, the messages), `error` (what a call
+//! gives), `state` (saved FMU states); the instance and its calls here.
 
-use std::collections::VecDeque;
-use std::ffi::{CString, c_char, c_int, c_void};
+use std::ffi::CString;
 use std::fmt;
-use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use crate::embedded_python::ThreadStateUser;
 use crate::fmi2::*;
@@ -23,73 +24,13 @@ use crate::isolate::remote::{RemoteFail, RemoteInstance};
 use crate::isolate::{HostFailure, *};
 use crate::load::{Exec, Fmu, FmuShared, Functions, LoadError, cstr_lossy};
 
-/// How many of an instance's most recent log messages are kept (and attached to errors).
-pub const RECENT_MESSAGES: usize = 32;
+mod error;
+mod log;
 
-/// The status an FMU passed to the logger.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum LogStatus {
-    /// `fmi2OK`.
-    Ok,
-    /// `fmi2Warning`.
-    Warning,
-    /// `fmi2Discard`.
-    Discard,
-    /// `fmi2Error`.
-    Error,
-    /// `fmi2Fatal`.
-    Fatal,
-    /// `fmi2Pending` or a value outside the enumeration.
-    Other,
-}
-
-impl LogStatus {
-    fn from_c(s: c_int) -> LogStatus {
-        match s {
-            0 => LogStatus::Ok,
-            1 => LogStatus::Warning,
-            2 => LogStatus::Discard,
-            3 => LogStatus::Error,
-            4 => LogStatus::Fatal,
-            _ => LogStatus::Other,
-        }
-    }
-}
-
-/// One message an FMU sent to the logger, already formatted.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct LogMessage {
-    /// The instance name the FMU passed.
-    pub instance: String,
-    /// The status it passed.
-    pub status: LogStatus,
-    /// The category it passed.
-    pub category: String,
-    /// The formatted message.
-    pub message: String,
-}
-
-impl fmt::Display for LogMessage {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "[{}] {:?} {}: {}",
-            self.instance, self.status, self.category, self.message
-        )
-    }
-}
-
-/// Receives every log message of an instance (from any thread the FMU logs on).
-pub type LogHandler = Arc<dyn Fn(&LogMessage) + Send + Sync>;
-
-/// A handler that prints messages with at least `min` status to standard error.
-pub fn stderr_log_handler(min: LogStatus) -> LogHandler {
-    Arc::new(move |m: &LogMessage| {
-        if m.status >= min {
-            eprintln!("{m}");
-        }
-    })
-}
+pub use error::{ErrorStatus, FmuError, HostError, Status};
+pub(crate) use log::{LogContext, callbacks_for};
+pub use log::{LogHandler, LogMessage, LogStatus, RECENT_MESSAGES, stderr_log_handler};
+pub use state::FmuState;
 
 /// Options of [`Fmu::instantiate`].
 #[derive(Clone, Default)]
@@ -114,259 +55,6 @@ impl fmt::Debug for InstanceOptions {
     }
 }
 
-/// The non-error outcomes of an FMI call.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Status {
-    /// `fmi2OK`.
-    Ok,
-    /// `fmi2Warning`: done, with a warning (see the log).
-    Warning,
-    /// `fmi2Discard`: not done (for `fmi2DoStep`: the step was rejected; the FMU may have
-    /// terminated, see `fmi2GetBooleanStatus(fmi2Terminated)`).
-    Discard,
-}
-
-/// Which error status an FMU returned.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ErrorStatus {
-    /// `fmi2Error`: the instance can only be reset or freed.
-    Error,
-    /// `fmi2Fatal`: no further call is allowed (not even free).
-    Fatal,
-    /// `fmi2Pending`: an asynchronous step, which this harness never requests.
-    Pending,
-    /// A value that is not an `fmi2Status` at all (a broken FMU); handled like `fmi2Error`.
-    Invalid(i32),
-}
-
-/// An FMI call that failed.
-#[derive(Debug, thiserror::Error)]
-pub enum FmuError {
-    /// The FMU returned an error status.
-    #[error("{function} returned {status:?} (instance '{instance}'){}", format_messages(.messages))]
-    Call {
-        /// The FMI function.
-        function: &'static str,
-        /// The instance name.
-        instance: String,
-        /// The status.
-        status: ErrorStatus,
-        /// The instance's last log messages, oldest first.
-        messages: Vec<LogMessage>,
-    },
-    /// `fmi2Instantiate` returned NULL.
-    #[error("fmi2Instantiate returned NULL for instance '{instance}'{}", format_messages(.messages))]
-    Instantiate {
-        /// The instance name.
-        instance: String,
-        /// The FMU's log messages.
-        messages: Vec<LogMessage>,
-    },
-    /// The binary does not export an optional function this call needs.
-    #[error("the FMU does not export {0}")]
-    Unsupported(&'static str),
-    /// The model description does not promise the capability of this optional function
-    /// (e.g. `canGetAndSetFMUstate` is not `true`): the call is not made.
-    #[error(
-        "the FMU does not provide {function}: its model description does not declare {flag}=\"true\""
-    )]
-    NotPromised {
-        /// The FMI function.
-        function: &'static str,
-        /// The capability flag of the model description that would promise it.
-        flag: &'static str,
-    },
-    /// `fmi2GetRealOutputDerivatives` asked for an order the model description's
-    /// `maxOutputDerivativeOrder` (absent: 0) does not reach, or an order below 1: the call is
-    /// not made.
-    #[error(
-        "the FMU does not provide {function} of order {order}: its model description declares maxOutputDerivativeOrder=\"{max}\""
-    )]
-    DerivativeOrderNotPromised {
-        /// The FMI function.
-        function: &'static str,
-        /// The order asked for (the first one refused).
-        order: i32,
-        /// The model description's `maxOutputDerivativeOrder` (0 when absent).
-        max: u32,
-    },
-    /// The instance is unusable after an earlier `fmi2Fatal`.
-    #[error("instance '{0}' returned fmi2Fatal earlier; no further call is allowed")]
-    AfterFatal(String),
-    /// Value references and values of different lengths.
-    #[error("{function}: {refs} value references but {values} values")]
-    LengthMismatch {
-        /// The FMI function.
-        function: &'static str,
-        /// Number of value references.
-        refs: usize,
-        /// Number of values.
-        values: usize,
-    },
-    /// A string to pass contains a NUL byte.
-    #[error("string value contains a NUL byte")]
-    NulInString,
-    /// The host process of an isolated instance crashed, exited, hung or broke the protocol
-    /// during a call ([`crate::isolate`]). The instance is unusable afterwards.
-    #[error("{0}")]
-    Host(Box<HostError>),
-}
-
-/// The details of [`FmuError::Host`].
-#[derive(Debug, thiserror::Error)]
-#[error("FMU '{model}', instance '{instance}': {function}{}: {failure}{}", queued_note(*.queued), format_messages(.messages))]
-pub struct HostError {
-    /// The model name of the FMU.
-    pub model: String,
-    /// The instance name.
-    pub instance: String,
-    /// The FMI function the master was waiting for.
-    pub function: &'static str,
-    /// How many queued calls (sets) were sent in the same request before it.
-    pub queued: usize,
-    /// How the host failed.
-    pub failure: HostFailure,
-    /// The instance's last log messages, oldest first (those logged before a crash included).
-    pub messages: Vec<LogMessage>,
-}
-
-fn queued_note(queued: usize) -> String {
-    match queued {
-        0 => String::new(),
-        1 => " (sent with 1 queued set before it)".into(),
-        n => format!(" (sent with {n} queued sets before it)"),
-    }
-}
-
-impl FmuError {
-    /// The FMU's log messages attached to this error.
-    pub fn messages(&self) -> &[LogMessage] {
-        match self {
-            FmuError::Call { messages, .. } | FmuError::Instantiate { messages, .. } => messages,
-            FmuError::Host(h) => &h.messages,
-            _ => &[],
-        }
-    }
-}
-
-fn format_messages(messages: &[LogMessage]) -> String {
-    if messages.is_empty() {
-        return String::new();
-    }
-    let mut s = String::from("; FMU log: ");
-    // The last few are what explains an error.
-    let skip = messages.len().saturating_sub(5);
-    for (i, m) in messages.iter().skip(skip).enumerate() {
-        if i > 0 {
-            s.push_str(" | ");
-        }
-        s.push_str(&format!("{:?} {}: {}", m.status, m.category, m.message));
-    }
-    s
-}
-
-/// The per-instance context the FMU's `componentEnvironment` points to.
-pub(crate) struct LogContext {
-    handler: Option<LogHandler>,
-    debug_print: bool,
-    recent: Mutex<VecDeque<LogMessage>>,
-}
-
-impl LogContext {
-    pub(crate) fn new(handler: Option<LogHandler>, debug_print: bool) -> Box<LogContext> {
-        Box::new(LogContext {
-            handler,
-            debug_print,
-            recent: Mutex::new(VecDeque::with_capacity(RECENT_MESSAGES)),
-        })
-    }
-    fn take_recent(&self) -> Vec<LogMessage> {
-        match self.recent.lock() {
-            Ok(mut r) => r.drain(..).collect(),
-            Err(p) => p.into_inner().drain(..).collect(),
-        }
-    }
-    fn clear(&self) {
-        match self.recent.lock() {
-            Ok(mut r) => r.clear(),
-            Err(p) => p.into_inner().clear(),
-        }
-    }
-    /// Prints (with `KNEEBENCH_DEBUG`), hands to the handler and keeps one message.
-    pub(crate) fn deliver(&self, msg: LogMessage) {
-        if self.debug_print {
-            eprintln!("{msg}");
-        }
-        if let Some(h) = &self.handler {
-            h(&msg);
-        }
-        let mut recent = match self.recent.lock() {
-            Ok(r) => r,
-            Err(p) => p.into_inner(),
-        };
-        if recent.len() == RECENT_MESSAGES {
-            recent.pop_front();
-        }
-        recent.push_back(msg);
-    }
-}
-
-/// The callbacks passed to `fmi2Instantiate`: the logging shim with `ctx` as the environment,
-/// libc's allocator. Boxed: the FMU may keep the pointer.
-pub(crate) fn callbacks_for(ctx: &LogContext) -> Box<fmi2CallbackFunctions> {
-    // SAFETY: kneebench_logger has the C signature of fmi2CallbackLogger (the status is a C
-    // enum, passed as int).
-    let logger: fmi2CallbackLogger = Some(kneebench_logger);
-    Box::new(fmi2CallbackFunctions {
-        logger,
-        allocateMemory: Some(fmi_calloc),
-        freeMemory: Some(fmi_free),
-        stepFinished: None,
-        componentEnvironment: ctx as *const LogContext as *mut c_void,
-    })
-}
-
-unsafe extern "C" {
-    // The C shim (src/logger_shim.c): formats and calls kneebench_log_sink.
-    fn kneebench_logger(
-        env: fmi2ComponentEnvironment,
-        instance_name: fmi2String,
-        status: fmi2Status,
-        category: fmi2String,
-        message: fmi2String,
-        ...
-    );
-}
-
-/// Called by the C shim with the formatted message. Never unwinds.
-#[unsafe(no_mangle)]
-extern "C" fn kneebench_log_sink(
-    env: *mut c_void,
-    instance_name: *const c_char,
-    status: c_int,
-    category: *const c_char,
-    formatted: *const c_char,
-) {
-    let _ = catch_unwind(AssertUnwindSafe(|| {
-        if env.is_null() {
-            return;
-        }
-        // SAFETY: env is the LogContext we passed as componentEnvironment; it lives in a Box
-        // owned by the Instance (or the host) until after fmi2FreeInstance returns. The strings
-        // are NUL-terminated or NULL (cstr_lossy checks NULL).
-        let ctx = unsafe { &*(env as *const LogContext) };
-        let msg = unsafe {
-            LogMessage {
-                instance: cstr_lossy(instance_name),
-                status: LogStatus::from_c(status),
-                category: cstr_lossy(category),
-                message: cstr_lossy(formatted),
-            }
-        };
-        ctx.deliver(msg);
-    }));
-}
-
 /// Where an instance is in the FMI 2.0 co-simulation state machine (as far as the harness
 /// needs to know for cleanup).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -383,13 +71,6 @@ pub enum Phase {
     Error,
     /// After an `fmi2Fatal`: only leaking the instance is safe.
     Fatal,
-}
-
-/// A saved FMU state (`fmi2FMUstate`), valid for the instance that made it until freed with
-/// [`Instance::free_fmu_state`] or the instance is dropped.
-#[derive(Debug)]
-pub struct FmuState {
-    ptr: fmi2FMUstate,
 }
 
 /// One FMI 2.0 co-simulation instance. Dropping it terminates it when it is initialized and
@@ -544,21 +225,6 @@ impl Fmu {
     }
 }
 
-unsafe extern "C" fn fmi_calloc(nobj: usize, size: usize) -> *mut c_void {
-    // SAFETY: plain libc calloc.
-    unsafe { libc_calloc(nobj, size) }
-}
-unsafe extern "C" fn fmi_free(obj: *mut c_void) {
-    // SAFETY: plain libc free of memory from fmi_calloc.
-    unsafe { libc_free(obj) }
-}
-unsafe extern "C" {
-    #[link_name = "calloc"]
-    fn libc_calloc(nobj: usize, size: usize) -> *mut c_void;
-    #[link_name = "free"]
-    fn libc_free(obj: *mut c_void);
-}
-
 /// Runs `$local` (an expression over the in-process `Local` `$l`, marked as the call
 /// `$function` in progress for [`crate::inflight`]) or `$remote` (over the
 /// `RemoteInstance` `$r` and the `LogContext` `$ctx`, giving `Result<T, RemoteFail>`), mapping
@@ -580,6 +246,9 @@ macro_rules! dispatch {
         }
     };
 }
+
+// After `dispatch!`, which it uses.
+mod state;
 
 impl Local {
     /// Before each FMI call: the calling thread's Python thread state for a binary with an
@@ -1257,144 +926,6 @@ impl Instance {
             })
         );
         self.check(NAME, s)
-    }
-
-    /// `fmi2GetFMUstate` into `ptr` (NULL: a new state).
-    fn get_state_into(&mut self, ptr: &mut fmi2FMUstate) -> Result<Status, FmuError> {
-        const NAME: &str = "fmi2GetFMUstate";
-        self.alive()?;
-        self.has(NAME)?;
-        self.promises_state(NAME, false)?;
-        let s = dispatch!(self, &NAME,
-            l => {
-                let f = l.f.get_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
-                // SAFETY: valid component; the state is NULL or one made by this instance.
-                unsafe { f(l.c, ptr) }
-            },
-            (r, ctx) => r
-                .call(ctx, CALL_GET_FMU_STATE, |e| e.u64(*ptr as usize as u64), false, |d| d.u64())
-                .map(|(s, p)| {
-                    *ptr = p as usize as fmi2FMUstate;
-                    s
-                })
-        );
-        self.check(NAME, s)
-    }
-
-    /// `fmi2GetFMUstate`: a new saved state.
-    pub fn get_fmu_state(&mut self) -> Result<FmuState, FmuError> {
-        let mut ptr: fmi2FMUstate = std::ptr::null_mut();
-        self.get_state_into(&mut ptr)?;
-        Ok(FmuState { ptr })
-    }
-
-    /// `fmi2GetFMUstate` into an existing state (overwrites it).
-    pub fn update_fmu_state(&mut self, state: &mut FmuState) -> Result<Status, FmuError> {
-        self.get_state_into(&mut state.ptr)
-    }
-
-    /// `fmi2SetFMUstate`.
-    pub fn set_fmu_state(&mut self, state: &FmuState) -> Result<Status, FmuError> {
-        const NAME: &str = "fmi2SetFMUstate";
-        self.alive()?;
-        self.has(NAME)?;
-        self.promises_state(NAME, false)?;
-        let s = dispatch!(self, &NAME,
-            l => {
-                let f = l.f.set_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
-                // SAFETY: valid component and a state made by this instance.
-                unsafe { f(l.c, state.ptr) }
-            },
-            (r, ctx) => plain(r, ctx, CALL_SET_FMU_STATE, |e| e.u64(state.ptr as usize as u64))
-        );
-        self.check(NAME, s)
-    }
-
-    /// `fmi2FreeFMUstate`.
-    pub fn free_fmu_state(&mut self, state: FmuState) -> Result<Status, FmuError> {
-        const NAME: &str = "fmi2FreeFMUstate";
-        self.alive()?;
-        self.has(NAME)?;
-        self.promises_state(NAME, false)?;
-        let mut ptr = state.ptr;
-        let s = dispatch!(self, &NAME,
-            l => {
-                let f = l.f.free_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
-                // SAFETY: valid component and a state made by this instance.
-                unsafe { f(l.c, &mut ptr) }
-            },
-            (r, ctx) => plain(r, ctx, CALL_FREE_FMU_STATE, |e| e.u64(ptr as usize as u64))
-        );
-        self.check(NAME, s)
-    }
-
-    /// `fmi2SerializedFMUstateSize` + `fmi2SerializeFMUstate`.
-    pub fn serialize_fmu_state(&mut self, state: &FmuState) -> Result<Vec<u8>, FmuError> {
-        self.alive()?;
-        self.has("fmi2SerializedFMUstateSize")?;
-        self.has("fmi2SerializeFMUstate")?;
-        self.promises_state("fmi2SerializeFMUstate", true)?;
-        let (s, buf, name) = dispatch!(self, &"fmi2SerializeFMUstate",
-            l => {
-                let size_f = l
-                    .f
-                    .serialized_fmu_state_size
-                    .ok_or(FmuError::Unsupported("fmi2SerializedFMUstateSize"))?;
-                let ser_f = l
-                    .f
-                    .serialize_fmu_state
-                    .ok_or(FmuError::Unsupported("fmi2SerializeFMUstate"))?;
-                let mut size = 0usize;
-                // SAFETY: valid component and state.
-                let s = unsafe { size_f(l.c, state.ptr, &mut size) };
-                if s.0 > 1 {
-                    (s, Vec::new(), "fmi2SerializedFMUstateSize")
-                } else {
-                    let mut buf = vec![0u8; size];
-                    // SAFETY: buffer of the announced size.
-                    let s = unsafe {
-                        ser_f(l.c, state.ptr, buf.as_mut_ptr() as *mut fmi2Byte, size)
-                    };
-                    (s, buf, "fmi2SerializeFMUstate")
-                }
-            },
-            (r, ctx) => r
-                .call(
-                    ctx,
-                    CALL_SERIALIZE_FMU_STATE,
-                    |e| e.u64(state.ptr as usize as u64),
-                    false,
-                    |d| d.bytes().map(<[u8]>::to_vec),
-                )
-                .map(|(s, b)| (s, b, "fmi2SerializeFMUstate"))
-        );
-        self.check(name, s)?;
-        Ok(buf)
-    }
-
-    /// `fmi2DeSerializeFMUstate`: a new state from bytes made by
-    /// [`serialize_fmu_state`](Self::serialize_fmu_state).
-    pub fn deserialize_fmu_state(&mut self, bytes: &[u8]) -> Result<FmuState, FmuError> {
-        const NAME: &str = "fmi2DeSerializeFMUstate";
-        self.alive()?;
-        self.has(NAME)?;
-        self.promises_state(NAME, true)?;
-        let (s, ptr) = dispatch!(self, &NAME,
-            l => {
-                let f = l.f.deserialize_fmu_state.ok_or(FmuError::Unsupported(NAME))?;
-                let mut ptr: fmi2FMUstate = std::ptr::null_mut();
-                // SAFETY: buffer of the given length, out pointer NULL (asks for a new state).
-                let s = unsafe {
-                    f(l.c, bytes.as_ptr() as *const fmi2Byte, bytes.len(), &mut ptr)
-                };
-                (s, ptr)
-            },
-            (r, ctx) => r
-                .call(ctx, CALL_DESERIALIZE_FMU_STATE, |e| e.bytes(bytes), false, |d| d.u64())
-                .map(|(s, p)| (s, p as usize as fmi2FMUstate))
-        );
-        self.check(NAME, s)?;
-        Ok(FmuState { ptr })
     }
 
     /// A status query: `op` remotely, `local` in this process; the value decoded by `decode`.
