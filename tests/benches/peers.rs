@@ -69,6 +69,10 @@ use kneebench_harness::package::export_all;
 use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, System};
 use kneebench_tests::pythonfmu::{self, PythonRuntime};
 use kneebench_tests::*;
+
+#[path = "shared/process.rs"]
+mod process;
+use process::{Timing, build_kneebench, process_cpu, time_process};
 use model_description::{Causality, ModelDescription, VariableKind};
 
 /// Communication step (1 kHz).
@@ -163,64 +167,6 @@ fn read_inputs(path: &Path) -> Inputs {
 // ---------------------------------------------------------------------------------------------
 // Measurements
 // ---------------------------------------------------------------------------------------------
-
-/// Wall and CPU seconds of one run.
-#[derive(Clone, Copy)]
-struct Timing {
-    wall: f64,
-    cpu: f64,
-}
-
-/// This process's CPU time (all threads), seconds.
-fn process_cpu() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: a valid out-pointer.
-    let r = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    assert_eq!(r, 0, "clock_gettime");
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
-/// User + system CPU seconds of the waited-for children of this process so far.
-fn children_cpu() -> f64 {
-    // SAFETY: a zeroed rusage is a valid out-value.
-    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: a valid out-pointer.
-    let r = unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut u) };
-    assert_eq!(r, 0, "getrusage");
-    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    s(u.ru_utime) + s(u.ru_stime)
-}
-
-/// Runs `cmd` to completion as a whole process: its wall and CPU time, or a message.
-fn time_process(cmd: &mut Command) -> Result<(Timing, String), String> {
-    let program = Path::new(cmd.get_program())
-        .file_name()
-        .unwrap_or_default()
-        .to_string_lossy()
-        .into_owned();
-    let cpu0 = children_cpu();
-    let t0 = Instant::now();
-    let out = cmd
-        .output()
-        .map_err(|e| format!("cannot start {program}: {e}"))?;
-    let wall = t0.elapsed().as_secs_f64();
-    let cpu = children_cpu() - cpu0;
-    if !out.status.success() {
-        return Err(format!(
-            "{program} failed ({}):\n{}{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ));
-    }
-    Ok((
-        Timing { wall, cpu },
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-    ))
-}
 
 /// The last row of a results CSV (`time` first), by column name.
 fn last_row_of_csv(path: &Path) -> Result<BTreeMap<String, f64>, String> {
@@ -962,26 +908,6 @@ fn env_steps() -> [u64; 2] {
         }
         Err(_) => DEFAULT_STEPS,
     }
-}
-
-/// Builds the `kneebench` and `kneebench-fmu-host` binaries of this source tree.
-fn build_kneebench() -> Result<PathBuf, String> {
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let status = Command::new(&cargo)
-        .current_dir(repo_root())
-        .args(["build", "--release", "-p", "kneebench-harness", "--bins"])
-        .status()
-        .map_err(|e| format!("cannot run cargo: {e}"))?;
-    if !status.success() {
-        return Err(format!(
-            "cargo build --release -p kneebench-harness: {status}"
-        ));
-    }
-    let exe = repo_root().join("target/release/kneebench");
-    if !exe.is_file() {
-        return Err(format!("{} missing after the build", exe.display()));
-    }
-    Ok(exe)
 }
 
 fn main() {
