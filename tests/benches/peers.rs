@@ -72,8 +72,8 @@ use kneebench_tests::*;
 
 #[path = "shared/process.rs"]
 mod process;
-use process::{Timing, build_kneebench, process_cpu, time_process};
 use model_description::{Causality, ModelDescription, VariableKind};
+use process::{Timing, build_kneebench, time_process};
 
 /// Communication step (1 kHz).
 const H: f64 = 1e-3;
@@ -167,6 +167,18 @@ fn read_inputs(path: &Path) -> Inputs {
 // ---------------------------------------------------------------------------------------------
 // Measurements
 // ---------------------------------------------------------------------------------------------
+
+/// This process's CPU time (all threads), seconds.
+fn process_cpu() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: a valid out-pointer.
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    assert_eq!(r, 0, "clock_gettime");
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
 
 /// The last row of a results CSV (`time` first), by column name.
 fn last_row_of_csv(path: &Path) -> Result<BTreeMap<String, f64>, String> {

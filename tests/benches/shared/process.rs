@@ -1,6 +1,6 @@
 //! Timing whole processes, shared by the benches that run `kneebench` as a user does
-//! (`peers`, `whole_run`): wall and CPU time of a child process, this process's CPU time, and
-//! the build of the `kneebench` binaries.
+//! (`peers`, `whole_run`): wall and CPU time of a child process, and the build of the
+//! `kneebench` binaries.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -15,18 +15,6 @@ pub struct Timing {
     pub wall: f64,
     /// CPU seconds (user + system).
     pub cpu: f64,
-}
-
-/// This process's CPU time (all threads), seconds.
-pub fn process_cpu() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: a valid out-pointer.
-    let r = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    assert_eq!(r, 0, "clock_gettime");
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
 /// User + system CPU seconds of the waited-for children of this process so far.
