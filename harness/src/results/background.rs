@@ -46,6 +46,9 @@ pub(super) trait BlockEncoder: Send + 'static {
     fn finish(self) -> Result<(), ResultsError>;
 }
 
+/// Makes an empty block on a writer thread ([`Background::spawn`]).
+pub(super) type Prepare<B> = Box<dyn FnOnce() -> B + Send>;
+
 /// What the caller hands the thread.
 enum Job<B> {
     /// A full block.
@@ -68,14 +71,14 @@ pub(super) struct Background<E: BlockEncoder> {
 
 impl<E: BlockEncoder> Background<E> {
     /// Starts the thread `name` with `encoder`; the encoder comes back if the thread cannot
-    /// start (the caller may then do the work itself). `prepare`, if given, makes an empty
-    /// block on the thread before anything else, returned as a written one would be
-    /// ([`spare`](Self::spare)): the memory's first touch (zeroing, page faults) is then the
-    /// thread's, while the caller fills its own block.
+    /// start (the caller may then do the work itself). Each of `prepare`, in order, makes an
+    /// empty block on the thread before anything else, returned as a written one would be
+    /// ([`spare`](Self::spare), [`wait_spare`](Self::wait_spare)): the memory's first touch
+    /// (zeroing, page faults) is then the thread's, while the caller does its own work.
     pub(super) fn spawn(
         encoder: E,
         name: &str,
-        prepare: Option<Box<dyn FnOnce() -> E::Block + Send>>,
+        prepare: Vec<Prepare<E::Block>>,
     ) -> Result<Background<E>, (E, io::Error)> {
         // Rendezvous: a handover waits until the thread takes the block.
         let (jobs, job_rx) = sync_channel::<Job<E::Block>>(0);
@@ -89,7 +92,7 @@ impl<E: BlockEncoder> Background<E> {
                 let Ok(mut encoder) = encoder_rx.recv() else {
                     return Ok(());
                 };
-                if let Some(make) = prepare {
+                for make in prepare {
                     spare_tx.send(make()).ok();
                 }
                 for job in job_rx {
@@ -139,6 +142,12 @@ impl<E: BlockEncoder> Background<E> {
     /// A block the thread has written and emptied (or prepared), if one is back.
     pub(super) fn spare(&self) -> Option<E::Block> {
         self.spare.try_recv().ok()
+    }
+
+    /// The next block the thread prepares or empties, waiting for it; `None` if the thread
+    /// has ended (its error by [`join`](Self::join)).
+    pub(super) fn wait_spare(&self) -> Option<E::Block> {
+        self.spare.recv().ok()
     }
 
     /// Hands `block` over and waits until it is written and flushed. `false`: the thread has

@@ -516,7 +516,7 @@ impl CsvFile {
             partial: self.partial.clone(),
         };
         // A thread that cannot start hands the writer back: the caller formats.
-        match Background::spawn(encoder, "csv-writer", None) {
+        match Background::spawn(encoder, "csv-writer", Vec::new()) {
             Ok(background) => {
                 let sent = background.send(std::mem::take(&mut block));
                 self.out = Out::Blocks(Blocks {

@@ -26,7 +26,8 @@
 //! fills: the memory of two groups), and the emptied buffers come back for the next group.
 //! The thread starts when it is first needed: a run that announces more rows than a group
 //! holds ([`expect_rows`](ResultSink::expect_rows)) starts it before its first row, and it
-//! makes and faults in the second group's buffer while the run fills the first; otherwise
+//! makes and faults in the first group's buffer while the run starts its FMUs and the
+//! second's while the run fills the first; otherwise
 //! the first full group starts it; a file closed before its first group is full is encoded by
 //! the caller, with no thread (and should a thread fail to start, the caller encodes). An
 //! error of the thread (a full disk) is returned by the next handover, and by
@@ -67,7 +68,7 @@ use parquet::file::writer::{SerializedPageWriter, TrackedWrite};
 use parquet::schema::types::{ColumnDescPtr, ColumnPath, SchemaDescPtr, SchemaDescriptor, Type};
 
 pub use super::background::EncodeOn;
-use super::background::{Background, BlockEncoder, closed_error};
+use super::background::{Background, BlockEncoder, Prepare, closed_error};
 use super::column_buffer::ColumnBuffer;
 use super::csv::{check_output_path, partial_path};
 use super::parquet_dictionary::{Dictionary, dictionary_of};
@@ -684,7 +685,7 @@ impl ParquetFile {
 
     /// Writes the row group filled so far (a full one, in [`push_row`](ResultSink::push_row)).
     fn write_group(&mut self) -> Result<(), ResultsError> {
-        self.start_thread(None);
+        let _ = self.start_thread(Vec::new());
         let (width, limit) = (self.columns.width, self.next_group_rows());
         match self.writer.as_mut() {
             Some(Writer::Caller(encoder)) => {
@@ -729,28 +730,35 @@ impl ParquetFile {
         }
     }
 
-    /// Starts the writer thread of an [`Writer::Idle`] file, which first makes the group
-    /// `prepare` gives, if any. A thread that cannot start leaves the caller encoding.
-    fn start_thread(&mut self, prepare: Option<Box<dyn FnOnce() -> Group + Send>>) {
+    /// Starts the writer thread of an [`Writer::Idle`] file, which first makes the groups
+    /// `prepare` gives, in order; whether it started now (with them). A thread that cannot
+    /// start leaves the caller encoding.
+    fn start_thread(&mut self, prepare: Vec<Prepare<Group>>) -> bool {
         if !matches!(self.writer, Some(Writer::Idle(_))) {
-            return;
+            return false;
         }
         let Some(Writer::Idle(encoder)) = self.writer.take() else {
             unreachable!("matched above")
         };
-        self.writer = Some(
-            match Background::spawn(*encoder, "parquet-writer", prepare) {
-                Ok(background) => Writer::Thread(background),
-                Err((encoder, _)) => Writer::Caller(Box::new(encoder)),
-            },
-        );
+        let (writer, started) = match Background::spawn(*encoder, "parquet-writer", prepare) {
+            Ok(background) => (Writer::Thread(background), true),
+            Err((encoder, _)) => (Writer::Caller(Box::new(encoder)), false),
+        };
+        self.writer = Some(writer);
+        started
     }
 
-    /// Room for the next row in a full group: the group's buffer made if it is not yet, else
-    /// the group written and a new one begun.
+    /// Room for the next row in a full group: the group's buffer made if it is not yet (the
+    /// writer thread's first prepared one when it runs: [`expect_rows`](ResultSink::expect_rows)),
+    /// else the group written and a new one begun.
     fn make_room(&mut self) -> Result<(), ResultsError> {
         if self.columns.capacity == 0 {
-            self.columns = Group::new(self.columns.width, self.next_group_rows());
+            let prepared = match &self.writer {
+                Some(Writer::Thread(background)) => background.wait_spare(),
+                _ => None,
+            };
+            // A thread that ended without it: made here (its error comes at the next handover).
+            self.columns = Group::begun(prepared, self.columns.width, self.next_group_rows());
             Ok(())
         } else {
             self.write_group()
@@ -897,25 +905,41 @@ impl ResultSink for ParquetFile {
     }
 
     /// A run of more rows than one group holds starts the writer thread now, before its
-    /// first step, and the thread makes and faults in the second group's buffer while the
-    /// run fills the first: handing the first group over then allocates nothing, and the
-    /// run's thread never waits for the kernel to zero it.
+    /// first step, and the thread makes and faults in the first two groups' buffers: the
+    /// first while the run instantiates and initializes its FMUs (its first row takes it
+    /// from the thread), the second while the run fills the first. Handing the first group
+    /// over then allocates nothing, and the run's thread never waits for the kernel to zero
+    /// a buffer (up to 20 ms on this machine's virtual CPUs when the host backs fresh huge
+    /// pages) unless its first row comes before the thread has made the first one.
     ///
     /// The groups are made for the rows announced (`group_rows`: shared evenly between as
-    /// few groups as hold them), each buffer for its group's rows alone.
+    /// few groups as hold them), each buffer for its group's rows alone. A run of one group,
+    /// or a file encoded by the caller, has its buffer made here.
     fn expect_rows(&mut self, rows: u64) {
         let width = self.columns.width;
         if width == 0 || self.announced.is_some() {
             return;
         }
         self.announced = Some(rows.saturating_add(self.rows));
-        if self.columns.capacity == 0 {
-            self.columns = Group::new(width, self.next_group_rows());
-        }
-        let second = self.rows + self.columns.limit as u64;
+        let unmade = self.columns.capacity == 0;
+        let first = if unmade {
+            self.next_group_rows()
+        } else {
+            self.columns.limit
+        };
+        let second = self.rows + first as u64;
+        let mut first_on_thread = false;
         if self.announced > Some(second) {
             let rows = group_rows(self.announced, second);
-            self.start_thread(Some(Box::new(move || Group::new(width, rows))));
+            let mut prepare: Vec<Prepare<Group>> = Vec::with_capacity(2);
+            if unmade {
+                prepare.push(Box::new(move || Group::new(width, first)));
+            }
+            prepare.push(Box::new(move || Group::new(width, rows)));
+            first_on_thread = self.start_thread(prepare) && unmade;
+        }
+        if unmade && !first_on_thread {
+            self.columns = Group::new(width, first);
         }
     }
 }
@@ -1037,7 +1061,7 @@ mod thread_tests {
         f.begin(&names, &vec![ColumnKind::Real; columns]).unwrap();
         if announce {
             // A run of more than a group starts the writer thread now, which makes the
-            // second buffer.
+            // first two buffers.
             f.expect_rows(rows as u64);
         }
         assert_eq!(
@@ -1080,8 +1104,17 @@ mod thread_tests {
             let announced = ROW_GROUP_ROWS + 17;
             let (first, second) = (announced.div_ceil(2), announced / 2);
             let mut f = begun(encode_on, announced as u64);
+            // The writer thread makes the first group's buffer too, while the run starts its
+            // FMUs: the caller holds none before its first row (the caller encoding makes it).
+            let made_by_caller = if encode_on == EncodeOn::Thread {
+                0
+            } else {
+                first
+            };
+            assert_eq!(f.columns.capacity, made_by_caller, "{encode_on:?}");
+            f.push_row(0.0, &[1.0]).unwrap();
             assert_eq!((f.columns.capacity, f.columns.limit), (first, first));
-            for k in 0..=first {
+            for k in 1..=first {
                 f.push_row(k as f64, &[1.0]).unwrap();
             }
             // The caller reuses its buffer; the thread made one for the last group's rows.
