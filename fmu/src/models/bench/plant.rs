@@ -161,6 +161,9 @@ struct Derived {
     /// The friction laws and their static capacities (clutch disengaged) when neither depends
     /// on the state (every model but the loss surface, whose law moves with the load torque).
     static_laws: Option<([SideLaw; 2], [[f64; 2]; 2])>,
+    /// Whether each side's friction law depends on the speed (a property of the law's kind,
+    /// which the parameters alone decide: the loss surface's load torque never changes it).
+    speed_dependent: [bool; 2],
 }
 
 impl Derived {
@@ -181,7 +184,10 @@ impl Derived {
                 p.load_current_limit,
             ),
         ];
+        let speed_dependent =
+            [Side::Actuation, Side::Load].map(|side| SideLaw::of(p, side, 0.0).speed_dependent());
         Self {
+            speed_dependent,
             torque_per_ampere: [
                 p.harmonic_drive_ratio * p.test_motor_torque_constant,
                 p.reduction_ratio * p.load_motor_torque_constant,
@@ -349,16 +355,17 @@ impl BenchPlant {
         }
         self.state.clutch = inputs.clutch_engage;
         let start = self.state.time;
-        // One sub-step when the communication step fits (the common case, no division).
-        let substeps = if h <= self.params.max_internal_step {
-            1.0
+        // One sub-step when the communication step fits (the common case, no division and no
+        // conversion of the count).
+        let (substeps, n) = if h <= self.params.max_internal_step {
+            (1.0, 1)
         } else {
-            (h / self.params.max_internal_step * (1.0 - 1e-12))
+            let substeps = (h / self.params.max_internal_step * (1.0 - 1e-12))
                 .ceil()
-                .max(1.0)
+                .max(1.0);
+            (substeps, substeps as u64)
         };
         let sub_h = if substeps == 1.0 { h } else { h / substeps };
-        let n = substeps as u64;
         for k in 0..n {
             if let Err((interlock, time)) = self.substep::<WIDE>(sub_h) {
                 return self.latch(interlock, time);
@@ -524,6 +531,13 @@ impl BenchPlant {
         }
     }
 
+    /// Whether the friction law of body `j` depends on the speed (`self.law(held,
+    /// j).speed_dependent()` for any `held`: the law's kind is the parameters').
+    #[inline(always)]
+    pub(crate) fn speed_dependent(&self, j: usize) -> bool {
+        self.derived.speed_dependent[j]
+    }
+
     fn has_friction(held: &Held, j: usize) -> bool {
         held.capacity[j][0] > 0.0 && held.capacity[j][1] > 0.0
     }
@@ -567,19 +581,24 @@ impl BenchPlant {
     }
 
     /// Makes the discrete state consistent at the start of a segment and reports an interlock
-    /// already beyond its threshold.
+    /// already beyond its threshold; with the held values, the current loops' voltage demands
+    /// at the state ([`Self::demands`]: the segment's start powers read them).
     #[inline(always)]
-    fn resolve(&mut self) -> Result<Held, (Interlock, f64)> {
+    fn resolve(&mut self) -> Result<(Held, [f64; 2]), (Interlock, f64)> {
         let mut held = self.hold();
         self.classify_sticking(&held);
         held.mode.stuck = self.state.stuck;
+        // The voltage demands at the state (they read the currents, the speeds and the held
+        // references, which nothing below changes): both the loops' saturation and the trips
+        // read them.
+        let demand = self.demands(&held, &self.state.z);
         for n in 0..2 {
             if !held.current_loop[n] {
                 self.state.saturation[n] = 0.0;
                 continue;
             }
             let (_, _, _, supply, _) = self.motor(n);
-            let demand = self.voltage_demand(&held, n, &self.state.z);
+            let demand = demand[n];
             let s = self.state.saturation[n];
             let new = if s != 0.0 && s * demand >= supply {
                 s
@@ -599,20 +618,20 @@ impl BenchPlant {
         }
         self.set_friction(&mut held, None);
         self.state.last_clamped = false;
-        if self.law(&held, 0).speed_dependent() || self.law(&held, 1).speed_dependent() {
+        if self.speed_dependent(0) || self.speed_dependent(1) {
             self.state.last_clamped = self.friction_clamped(&held);
             if self.state.last_clamped {
                 self.state.clamp_count += 1;
             }
         }
-        let z = self.input_state(&held);
-        let demand = self.demands(&held, &z);
+        // The trips read the angles, the currents and the demands, not the held inputs'
+        // entries of the input state: the state itself serves.
         for interlock in Interlock::CHECKED {
-            if self.event_value_with(&held, Event::Trip(interlock), &z, &demand) > 0.0 {
+            if self.event_value_with(&held, Event::Trip(interlock), &self.state.z, &demand) > 0.0 {
                 return Err((interlock, self.state.time));
             }
         }
-        Ok(held)
+        Ok((held, demand))
     }
 
     fn friction_clamped(&self, held: &Held) -> bool {
@@ -690,9 +709,8 @@ impl BenchPlant {
     #[inline(always)]
     fn substep<const WIDE: bool>(&mut self, h: f64) -> Result<(), (Interlock, f64)> {
         let start_time = self.state.time;
-        let mut held = self.resolve()?;
-        let speed_dependent =
-            (0..2).any(|j| !held.mode.stuck[j] && self.law(&held, j).speed_dependent());
+        let (mut held, demand0) = self.resolve()?;
+        let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && self.speed_dependent(j));
         let active = self.active_events(&held);
         let index = self.discretization(held.mode, h);
         let mut z0 = self.input_state(&held);
@@ -702,11 +720,14 @@ impl BenchPlant {
             z0 = self.input_state(&held);
             (z1, currents) = self.cache[index].advance_with_currents(&z0);
         }
-        if self.any_positive(&held, active, &z1) {
+        // The demands at both ends (the currents, speeds and references they read are those
+        // of `z0` and `z1`), read by the end's event check and both ends' powers.
+        let demand1 = self.demands(&held, &z1);
+        if self.any_positive_with(&held, active, &z1, &demand1) {
             return self.event_substep(held, h, start_time);
         }
-        let p0 = self.powers(&held, &z0);
-        let p1 = self.powers(&held, &z1);
+        let p0 = self.powers_with(&held, &z0, &demand0);
+        let p1 = self.powers_with(&held, &z1, &demand1);
         let sign_change = p0.iter().zip(p1.iter()).any(|(a, b)| a * b < 0.0);
         let rates = if sign_change {
             let m = &self.matrix(held.mode).0;

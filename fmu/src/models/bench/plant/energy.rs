@@ -86,9 +86,23 @@ impl BenchPlant {
     /// electrical.
     #[inline(always)]
     pub(super) fn powers(&self, held: &Held, z: &AugVector) -> [f64; 5] {
+        self.powers_with(held, z, &self.demands(held, z))
+    }
+
+    /// [`Self::powers`] given the voltage demands at `z` ([`Self::demands`]): a current loop's
+    /// armature voltage is its demand ([`Self::armature_voltage`]).
+    #[inline(always)]
+    pub(super) fn powers_with(&self, held: &Held, z: &AugVector, demand: &[f64; 2]) -> [f64; 5] {
         let tpa = self.torque_per_ampere();
-        let el1 = self.armature_voltage(held, 0, z) * z[CURRENT1];
-        let el2 = self.armature_voltage(held, 1, z) * z[CURRENT2];
+        let voltage = |n: usize| {
+            if held.mode.voltage_row[n] {
+                held.drive[n]
+            } else {
+                demand[n]
+            }
+        };
+        let el1 = voltage(0) * z[CURRENT1];
+        let el2 = voltage(1) * z[CURRENT2];
         [
             tpa[0] * z[CURRENT1] * z[OMEGA1],
             tpa[1] * z[CURRENT2] * z[OMEGA2],

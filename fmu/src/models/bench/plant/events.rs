@@ -72,16 +72,28 @@ impl BenchPlant {
         ]
     }
 
-    /// Whether any trip or any of the `active` switching events is positive at `z`. The trips
+    /// [`Self::any_positive_with`] with the demands at `z` computed here (the tests' form).
+    #[cfg(test)]
+    pub(super) fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
+        self.any_positive_with(held, active, z, &self.demands(held, z))
+    }
+
+    /// Whether any trip or any of the `active` switching events is positive at `z`, given the
+    /// voltage demands there (`demand`, [`Self::demands`]: the caller reuses them). The trips
     /// are checked with constant arguments, so their dispatch folds away.
     ///
     /// Straight-line code, no iterator: every trip is evaluated (a branch-free `|`), then every
     /// switching event ([`Self::positive_switching`]), masked by the active set. The answer is
-    /// [`Self::any_positive_listed`]'s, the plain form over [`Self::event_list`] (tested).
+    /// that of the plain form over [`Self::event_list`] (`any_positive_listed`, tested).
     #[inline(always)]
-    pub(super) fn any_positive(&self, held: &Held, active: ActiveEvents, z: &AugVector) -> bool {
-        let demand = self.demands(held, z);
-        let trip = |i: Interlock| self.event_value_with(held, Event::Trip(i), z, &demand) > 0.0;
+    pub(super) fn any_positive_with(
+        &self,
+        held: &Held,
+        active: ActiveEvents,
+        z: &AugVector,
+        demand: &[f64; 2],
+    ) -> bool {
+        let trip = |i: Interlock| self.event_value_with(held, Event::Trip(i), z, demand) > 0.0;
         if trip(Interlock::SpringDeflection)
             | trip(Interlock::TestMotorTorque)
             | trip(Interlock::LoadMotorTorque)
@@ -91,7 +103,7 @@ impl BenchPlant {
         {
             return true;
         }
-        self.positive_switching(held, z, &demand) & active.0 != 0
+        self.positive_switching(held, z, demand) & active.0 != 0
     }
 
     /// The bit set of the switching events positive at `z`, every one of the twelve evaluated
@@ -276,10 +288,9 @@ impl BenchPlant {
             self.state.time = start_time + elapsed;
             let mut held = match next_held.take() {
                 Some(held) => held,
-                None => self.resolve()?,
+                None => self.resolve()?.0,
             };
-            let speed_dependent =
-                (0..2).any(|j| !held.mode.stuck[j] && self.law(&held, j).speed_dependent());
+            let speed_dependent = (0..2).any(|j| !held.mode.stuck[j] && self.speed_dependent(j));
             let active = self.active_events(&held);
             let (m, rate) = *self.matrix(held.mode);
             let mut z0 = self.input_state(&held);
