@@ -351,16 +351,27 @@ impl<M: Model> Instance<M> {
         );
     }
 
-    /// Recomputes outputs if a set or a step made them stale.
+    /// Recomputes outputs if a set or a step made them stale. Inlined into the getters, so a
+    /// get of outputs already computed (the second and third get of a step: Integer, Boolean)
+    /// costs one test, not a call.
+    #[inline(always)]
     fn refresh(&mut self, function: &str) -> Result<(), fmi2Status> {
         if self.dirty {
-            if let Err(e) = self.model.calculate(self.time) {
-                // `calculate` changes no state (its contract), so whatever went wrong, the
-                // instance is as it was: refuse, and compute again at the next get.
-                return Err(self.refuse(function, &e.message));
-            }
-            self.dirty = false;
+            self.recompute(function)
+        } else {
+            Ok(())
         }
+    }
+
+    /// [`Self::refresh`]'s computation: the model's outputs at the current time.
+    #[inline(never)]
+    fn recompute(&mut self, function: &str) -> Result<(), fmi2Status> {
+        if let Err(e) = self.model.calculate(self.time) {
+            // `calculate` changes no state (its contract), so whatever went wrong, the
+            // instance is as it was: refuse, and compute again at the next get.
+            return Err(self.refuse(function, &e.message));
+        }
+        self.dirty = false;
         Ok(())
     }
 

@@ -245,7 +245,7 @@ pub const TORQUE_WEIGHTS: SeriesWeights = SeriesWeights::of(&TORQUE_SERIES);
 
 /// [`fourier`] from precomputed [`Harmonics`] of the same `t` and `period` and the series'
 /// [`SeriesWeights`] (inlined, so the two channels' sums can overlap).
-#[inline]
+#[inline(always)]
 pub fn fourier_with(weights: &SeriesWeights, harmonics: &Harmonics, t: f64, period: f64) -> Shape {
     let k = TAU / period;
     let inverse_k = period * (1.0 / TAU);
@@ -791,7 +791,13 @@ impl Model for GaitReference {
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
         let cycles = t / self.period;
         let harmonics = Harmonics::at_cycles(cycles);
-        let motion = self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?;
+        // The gait series (the common case) evaluated here, against the constant weights;
+        // `shape` evaluates the same `fourier_with` for it.
+        let motion = if self.motion_waveform == Waveform::Gait as i32 {
+            fourier_with(&ANGLE_WEIGHTS, &harmonics, t, self.period)
+        } else {
+            self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?
+        };
         // The torque channel needs only value and rate: the gait series skips the rest.
         let (torque_value, torque_rate) = if self.torque_waveform == Waveform::Gait as i32 {
             fourier_rate(&TORQUE_WEIGHTS, &harmonics, self.period)

@@ -98,23 +98,23 @@ impl PidSignals {
     /// Fails naming the first output (by its FMI name) that is NaN or infinite at time `t`:
     /// gains or inputs so large that the law overflows never pass as fmi2OK.
     pub fn check_finite(&self, t: f64) -> Result<(), ModelError> {
-        const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
-        let values = [
-            self.output,
-            self.reference,
-            self.error,
-            self.proportional,
-            self.integral,
-            self.derivative,
-            self.feed_forward,
-            self.unsaturated,
-        ];
-        // Every sample: one OR over the exponent tests (no early exit, no names); the names
-        // only when one is not finite.
-        let any = values.iter().fold(0u64, |any, v| {
-            any | u64::from(v.to_bits() & EXPONENT == EXPONENT)
-        });
-        if any == 0 { Ok(()) } else { self.not_finite(t) }
+        // Every sample: one sum. A sum with a NaN or infinite term is NaN or infinite (a
+        // partial sum, once not finite, stays so), so a finite sum means every output is
+        // finite; a sum that is not finite (or overflowed) goes to the naming check, which
+        // also answers Ok when every output is finite after all.
+        let sum = self.output
+            + self.reference
+            + self.error
+            + self.proportional
+            + self.integral
+            + self.derivative
+            + self.feed_forward
+            + self.unsaturated;
+        if sum.abs() <= f64::MAX {
+            Ok(())
+        } else {
+            self.not_finite(t)
+        }
     }
 
     /// The error of [`check_finite`](Self::check_finite), naming the first output that is NaN
@@ -144,6 +144,15 @@ impl PidSignals {
 /// One PID sample: the signals at this instant and the state for the next (the `pid`
 /// module docs).
 pub fn pid_sample(s: &PidSettings, state: &PidState, input: &PidInputs) -> (PidSignals, PidState) {
+    law(s, state, input)
+}
+
+/// [`pid_sample`]'s body, inlined into the controller's `calculate` and `do_step` (the one
+/// law: `pid_sample` calls it too), so that a sample's signals and state are stored where
+/// they go instead of returned through the stack and copied (and `calculate` leaves out the
+/// next state it does not use).
+#[inline(always)]
+pub(super) fn law(s: &PidSettings, state: &PidState, input: &PidInputs) -> (PidSignals, PidState) {
     let sign = if s.reverse_acting { -1.0 } else { 1.0 };
     let ts = s.sample_period;
     let mut reference = input.setpoint;

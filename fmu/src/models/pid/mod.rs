@@ -144,7 +144,7 @@ use crate::model::{
     EnumerationType, Model, ModelError, StateError, StateReader, StateWriter, StepOutcome, Variable,
 };
 use crate::registry::ReferenceInputs;
-use law::{load_signals, save_signals};
+use law::{law, load_signals, save_signals};
 use variables::{ENUMERATIONS, VARIABLES};
 
 /// The PID controller FMU. Fields are its variables (see [`Model::variables`]) and state.
@@ -279,9 +279,9 @@ impl Model for PidController {
         let Some(settings) = &self.cached_settings else {
             return Err(ModelError::new("the PID settings are not available"));
         };
-        self.signals = self.clock.outputs_at(t, self.held, |_| {
-            pid_sample(settings, &self.state, &self.inputs).0
-        });
+        self.signals = self
+            .clock
+            .outputs_at(t, self.held, |_| law(settings, &self.state, &self.inputs).0);
         self.signals.check_finite(t)
     }
 
@@ -297,7 +297,7 @@ impl Model for PidController {
         let inputs = &self.inputs;
         self.clock
             .run_step(t, h, &mut self.state, &mut self.held, |_, state| {
-                pid_sample(settings, state, inputs)
+                law(settings, state, inputs)
             })?;
         self.signals = self.held;
         self.signals.check_finite(t + h)?;

@@ -71,6 +71,7 @@ impl SampleClock {
     /// executes it. A memo keyed on the index, the inputs, the state and the settings hit 0
     /// of 315,000 PID samples in the closed-loop bench and cost instructions (README,
     /// Performance, issue 16).
+    #[inline]
     pub fn outputs_at<S>(&self, t: f64, held: S, sample: impl FnOnce(u64) -> S) -> S {
         if self.period == 0.0 || self.is_next_sample_instant(t) {
             sample(self.next)
@@ -84,6 +85,7 @@ impl SampleClock {
     /// between two instants (the clock then waits for the next one). Refuses a step outside the
     /// grid's exact range (not finite, before sample 0, beyond 2^52 periods) without changing
     /// anything.
+    #[inline]
     pub fn run_step<S, X>(
         &mut self,
         t: f64,

@@ -382,6 +382,9 @@ fn a_parameter_set_through_the_variable_table_takes_effect_at_once() {
     assert_eq!(m.signals.output, 5.0, "limit 5");
 }
 
+/// The fast check (one sum) answers as the naming check for every pair of outputs taking
+/// special values: non-finite ones (alone, or two that cancel into NaN) and finite ones whose
+/// sum overflows (then the naming check finds every output finite: Ok).
 #[test]
 fn the_finiteness_check_agrees_with_the_naming_one() {
     let specials = [
@@ -389,30 +392,43 @@ fn the_finiteness_check_agrees_with_the_naming_one() {
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::MAX,
+        f64::MIN,
         f64::MIN_POSITIVE / 2.0,
         -0.0,
         1.5,
     ];
-    for field in 0..8 {
-        for x in specials {
-            let mut s = PidSignals::default();
-            let slot = match field {
-                0 => &mut s.output,
-                1 => &mut s.reference,
-                2 => &mut s.error,
-                3 => &mut s.proportional,
-                4 => &mut s.integral,
-                5 => &mut s.derivative,
-                6 => &mut s.feed_forward,
-                _ => &mut s.unsaturated,
-            };
-            *slot = x;
-            let fast = s.check_finite(1.0).map_err(|e| e.message);
-            let plain = s.not_finite(1.0).map_err(|e| e.message);
-            assert_eq!(fast, plain, "field {field}, {x}");
-            assert_eq!(fast.is_ok(), x.is_finite(), "field {field}, {x}");
+    fn slot(s: &mut PidSignals, field: usize) -> &mut f64 {
+        match field {
+            0 => &mut s.output,
+            1 => &mut s.reference,
+            2 => &mut s.error,
+            3 => &mut s.proportional,
+            4 => &mut s.integral,
+            5 => &mut s.derivative,
+            6 => &mut s.feed_forward,
+            _ => &mut s.unsaturated,
         }
     }
+    let mut overflowing = 0;
+    for (a, b) in (0..8).flat_map(|a| (0..8).map(move |b| (a, b))) {
+        for x in specials {
+            for y in specials {
+                let mut s = PidSignals::default();
+                *slot(&mut s, a) = x;
+                *slot(&mut s, b) = y;
+                // With a == b the field holds y.
+                let finite = y.is_finite() && (a == b || x.is_finite());
+                let fast = s.check_finite(1.0).map_err(|e| e.message);
+                let plain = s.not_finite(1.0).map_err(|e| e.message);
+                assert_eq!(fast, plain, "fields {a} {b}, {x} {y}");
+                assert_eq!(fast.is_ok(), finite, "fields {a} {b}, {x} {y}");
+                if finite && a != b && !(x + y).is_finite() {
+                    overflowing += 1;
+                }
+            }
+        }
+    }
+    assert!(overflowing > 0, "sums that overflow are among the cases");
 }
 
 #[test]
