@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 
 use kneebench_harness::isolate::{HostOptions, Isolation, serve_if_host};
 use kneebench_harness::package::export_all;
-use kneebench_harness::study::{Actuator, Columns, Gait, StudyGains, gait_scenario, write_ssp};
+use kneebench_harness::study::Columns;
 use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, RunOutput, System, ssp};
 use kneebench_tests::*;
 
@@ -133,14 +133,7 @@ fn main() {
     );
 
     // The study's SEA loop.
-    let scenario = gait_scenario(
-        Actuator::Sea,
-        Gait::bench_full(),
-        StudyGains::for_actuator(Actuator::Sea),
-        1,
-    );
-    let path = dir.path().join("SEA.ssp");
-    write_ssp(&scenario, &fmu_dir, &path).unwrap();
+    let (scenario, path) = write_sea_ssp(&fmu_dir, dir.path());
     let analysed = Columns::default().names();
     let names: Vec<&str> = analysed.iter().map(String::as_str).collect();
     let load = |path: &Path, isolation| {

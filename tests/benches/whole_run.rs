@@ -28,8 +28,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use kneebench_harness::package::export_all;
-use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
-use kneebench_tests::fmu_library;
+use kneebench_tests::{fmu_library, write_sea_ssp};
 
 #[path = "shared/process.rs"]
 mod process;
@@ -157,14 +156,7 @@ fn main() {
     let dir = tempfile::tempdir().unwrap();
     let fmus = dir.path().join("fmus");
     export_all(&fmu_library(), &fmus).expect("export");
-    let scenario = gait_scenario(
-        Actuator::Sea,
-        Gait::bench_full(),
-        StudyGains::for_actuator(Actuator::Sea),
-        1,
-    );
-    let ssp = dir.path().join("SEA.ssp");
-    write_ssp(&scenario, &fmus, &ssp).unwrap();
+    let (_, ssp) = write_sea_ssp(&fmus, dir.path());
 
     println!(
         "kneebench run SEA.ssp, whole process: {} (baseline: {}); {repeats} repeats, outputs in {}",

@@ -12,6 +12,21 @@ pub mod pythonfmu;
 
 pub use kneebench_fmu::fmi2::types::*;
 
+/// The study's SEA gait scenario (one cycle, the study's gains) written as `dir/SEA.ssp` from
+/// the exported FMUs in `fmus`: the system the benches run, and its path.
+pub fn write_sea_ssp(fmus: &Path, dir: &Path) -> (kneebench_harness::study::Scenario, PathBuf) {
+    use kneebench_harness::study::{Actuator, Gait, StudyGains, gait_scenario, write_ssp};
+    let scenario = gait_scenario(
+        Actuator::Sea,
+        Gait::bench_full(),
+        StudyGains::for_actuator(Actuator::Sea),
+        1,
+    );
+    let path = dir.join("SEA.ssp");
+    write_ssp(&scenario, fmus, &path).expect("the SEA scenario is written");
+    (scenario, path)
+}
+
 /// The repository root.
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
