@@ -11,19 +11,24 @@ fn kneebench() -> Command {
 
 /// `kneebench run` of the test FMU `fmu` for 1 s at 0.1 s with `u = 1`, into `csv`.
 fn run_kbtest(fmu: &Path, csv: &Path, extra: &[&str]) -> Output {
+    run_kbtest_until("1", fmu, csv, extra)
+}
+
+/// [`run_kbtest`] for `stop_time` seconds, into `output` (CSV, or Parquet by its extension).
+fn run_kbtest_until(stop_time: &str, fmu: &Path, output: &Path, extra: &[&str]) -> Output {
     kneebench()
         .arg("run")
         .arg(fmu)
         .args([
             "--stop-time",
-            "1",
+            stop_time,
             "--step",
             "0.1",
             "--param",
             "u=1",
             "--output",
         ])
-        .arg(csv)
+        .arg(output)
         .args(extra)
         .output()
         .unwrap()
@@ -607,22 +612,7 @@ fn run_announces_its_rows_to_the_parquet_file() {
     let fmu = common::kbtest_fmu(d.path());
     let out = d.path().join("r.parquet");
     // 1,000 s at 0.1 s: 10,001 rows.
-    let run = kneebench()
-        .arg("run")
-        .arg(&fmu)
-        .args([
-            "--stop-time",
-            "1000",
-            "--step",
-            "0.1",
-            "--param",
-            "u=1",
-            "-q",
-        ])
-        .arg("--output")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let run = run_kbtest_until("1000", &fmu, &out, &["-q"]);
     assert_eq!(run.status.code(), Some(0), "{run:?}");
     let reader = SerializedFileReader::new(std::fs::File::open(&out).unwrap()).unwrap();
     let groups: Vec<i64> = reader

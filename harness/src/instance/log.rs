@@ -32,7 +32,9 @@ pub enum LogStatus {
 }
 
 impl LogStatus {
-    fn from_c(s: c_int) -> LogStatus {
+    /// The status of a logger call's `fmi2Status` argument (also what an isolated FMU's host
+    /// sends for it).
+    pub(crate) fn from_c(s: c_int) -> LogStatus {
         match s {
             0 => LogStatus::Ok,
             1 => LogStatus::Warning,

@@ -320,14 +320,7 @@ enum Exchange {
 
 fn decode_log(b: &[u8]) -> Result<LogMessage, ProtocolError> {
     let mut d = Dec::new(b);
-    let status = match d.u8()? {
-        0 => LogStatus::Ok,
-        1 => LogStatus::Warning,
-        2 => LogStatus::Discard,
-        3 => LogStatus::Error,
-        4 => LogStatus::Fatal,
-        _ => LogStatus::Other,
-    };
+    let status = LogStatus::from_c(std::ffi::c_int::from(d.u8()?));
     Ok(LogMessage {
         status,
         instance: d.string()?,

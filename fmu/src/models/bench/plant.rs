@@ -433,10 +433,17 @@ impl BenchPlant {
 
     /// Armature voltage applied to motor `n` at state `z`.
     fn armature_voltage(&self, held: &Held, n: usize, z: &AugVector) -> f64 {
+        Self::armature_voltage_or(held, n, || self.voltage_demand(held, n, z))
+    }
+
+    /// [`Self::armature_voltage`] with the current loop's voltage demand from `demand`, asked
+    /// for only when the loop is in current mode (a caller may already hold it).
+    #[inline(always)]
+    pub(super) fn armature_voltage_or(held: &Held, n: usize, demand: impl FnOnce() -> f64) -> f64 {
         if held.mode.voltage_row[n] {
             held.drive[n]
         } else {
-            self.voltage_demand(held, n, z)
+            demand()
         }
     }
 

@@ -94,13 +94,7 @@ impl BenchPlant {
     #[inline(always)]
     pub(super) fn powers_with(&self, held: &Held, z: &AugVector, demand: &[f64; 2]) -> [f64; 5] {
         let tpa = self.torque_per_ampere();
-        let voltage = |n: usize| {
-            if held.mode.voltage_row[n] {
-                held.drive[n]
-            } else {
-                demand[n]
-            }
-        };
+        let voltage = |n: usize| Self::armature_voltage_or(held, n, || demand[n]);
         let el1 = voltage(0) * z[CURRENT1];
         let el2 = voltage(1) * z[CURRENT2];
         [
