@@ -425,6 +425,26 @@ pub struct GaitReference {
     stance: bool,
     sweep_frequency: f64,
     harmonics: i32,
+    /// Which build of [`Model::calculate`] runs (not a variable).
+    build: CalculateBuild,
+}
+
+/// Which build of the gait's [`Model::calculate`] runs: the AVX2 one where the CPU has it
+/// (the two channels' weighted sums four lanes wide, `floor` one instruction instead of a
+/// call), else the baseline one. The same operations in the same order (no fused
+/// multiply-add), so both give the same bits (tested).
+#[derive(Debug, Clone, Copy)]
+struct CalculateBuild {
+    /// True only where the CPU reports AVX2 (a soundness condition for `calculate_wide`).
+    wide: bool,
+}
+
+impl Default for CalculateBuild {
+    fn default() -> Self {
+        Self {
+            wide: crate::models::bench::plant::cpu_has_wide_vectors(),
+        }
+    }
 }
 
 /// Value references (stable; never reuse a retired number).
@@ -649,6 +669,99 @@ static ENUMERATIONS: &[EnumerationType] = &[
 ];
 
 impl GaitReference {
+    /// [`Model::calculate`] compiled for AVX2 (see [`CalculateBuild`]).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn calculate_wide(&mut self, t: f64) -> Result<(), ModelError> {
+        self.calculate_inline(t)
+    }
+
+    /// The outputs at `t` ([`Model::calculate`]), inlined into each build.
+    #[inline(always)]
+    fn calculate_inline(&mut self, t: f64) -> Result<(), ModelError> {
+        let cycles = t / self.period;
+
+        let harmonics = Harmonics::at_cycles(cycles);
+        // The gait series (the common case) evaluated here, against the constant weights;
+        // `shape` evaluates the same `fourier_with` for it.
+        let motion = if self.motion_waveform == Waveform::Gait as i32 {
+            fourier_with(&ANGLE_WEIGHTS, &harmonics, t, self.period)
+        } else {
+            self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?
+        };
+        // The torque channel needs only value and rate: the gait series skips the rest.
+        let (torque_value, torque_rate) = if self.torque_waveform == Waveform::Gait as i32 {
+            fourier_rate(&TORQUE_WEIGHTS, &harmonics, self.period)
+        } else {
+            let shape = self.shape(self.torque_waveform, &TORQUE_WEIGHTS, &harmonics, t)?;
+            (shape.value, shape.d1)
+        };
+        // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
+        // rule keeps velocity, acceleration and jerk the exact derivatives.
+        // In velocity mode the angle is the waveform's exact integral, so the motion channel is
+        // not faded there.
+        let r = fade_in(t, self.fade_in_time);
+        let m = if self.motion_quantity == MotionQuantity::Position as i32 {
+            r
+        } else {
+            [1.0, 0.0, 0.0, 0.0]
+        };
+        let motion = Shape {
+            value: m[0] * motion.value,
+            d1: m[1] * motion.value + m[0] * motion.d1,
+            d2: m[2] * motion.value + 2.0 * m[1] * motion.d1 + m[0] * motion.d2,
+            d3: m[3] * motion.value
+                + 3.0 * m[2] * motion.d1
+                + 3.0 * m[1] * motion.d2
+                + m[0] * motion.d3,
+            integral: motion.integral,
+        };
+        let torque_value_faded = r[0] * torque_value;
+        let torque_rate_faded = r[1] * torque_value + r[0] * torque_rate;
+        match self.motion_quantity {
+            1 => {
+                let a = self.angle_amplitude;
+                self.knee_angle = self.angle_offset + a * motion.value;
+                self.knee_velocity = a * motion.d1;
+                self.knee_acceleration = a * motion.d2;
+                self.knee_jerk = a * motion.d3;
+            }
+            2 => {
+                let a = self.velocity_amplitude;
+                self.knee_angle = self.angle_offset + a * motion.integral;
+                self.knee_velocity = a * motion.value;
+                self.knee_acceleration = a * motion.d1;
+                self.knee_jerk = a * motion.d2;
+            }
+            other => {
+                return Err(ModelError::refused(format!(
+                    "motionQuantity {other} is not an item of MotionQuantity"
+                )));
+            }
+        }
+        // The amplitude is the external torque's peak (module docs, "Torque scaling").
+        let scale = if self.torque_waveform == Waveform::Gait as i32 {
+            self.torque_amplitude / TORQUE_EXTERNAL_PEAK
+        } else {
+            self.torque_amplitude
+        };
+        self.knee_torque = self.torque_offset + scale * torque_value_faded;
+        self.knee_torque_rate = scale * torque_rate_faded;
+        self.load_torque = -self.knee_torque;
+        self.gait_phase = (cycles - cycles.floor()).clamp(0.0, 1.0 - f64::EPSILON);
+        self.stance = if self.stance_start < self.stance_end {
+            (self.stance_start..self.stance_end).contains(&self.gait_phase)
+        } else {
+            self.gait_phase >= self.stance_start || self.gait_phase < self.stance_end
+        };
+        self.sweep_frequency = if self.sweeping() {
+            self.sweep().frequency(self.sweep().stage(t))
+        } else {
+            0.0
+        };
+        Ok(())
+    }
+
     fn sweep(&self) -> Sweep {
         Sweep {
             start_frequency: self.sweep_start_frequency,
@@ -789,86 +902,13 @@ impl Model for GaitReference {
     }
 
     fn calculate(&mut self, t: f64) -> Result<(), ModelError> {
-        let cycles = t / self.period;
-        let harmonics = Harmonics::at_cycles(cycles);
-        // The gait series (the common case) evaluated here, against the constant weights;
-        // `shape` evaluates the same `fourier_with` for it.
-        let motion = if self.motion_waveform == Waveform::Gait as i32 {
-            fourier_with(&ANGLE_WEIGHTS, &harmonics, t, self.period)
-        } else {
-            self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?
-        };
-        // The torque channel needs only value and rate: the gait series skips the rest.
-        let (torque_value, torque_rate) = if self.torque_waveform == Waveform::Gait as i32 {
-            fourier_rate(&TORQUE_WEIGHTS, &harmonics, self.period)
-        } else {
-            let shape = self.shape(self.torque_waveform, &TORQUE_WEIGHTS, &harmonics, t)?;
-            (shape.value, shape.d1)
-        };
-        // The soft start scales the waveforms (not the offsets) by a ramp r(t); the product
-        // rule keeps velocity, acceleration and jerk the exact derivatives.
-        // In velocity mode the angle is the waveform's exact integral, so the motion channel is
-        // not faded there.
-        let r = fade_in(t, self.fade_in_time);
-        let m = if self.motion_quantity == MotionQuantity::Position as i32 {
-            r
-        } else {
-            [1.0, 0.0, 0.0, 0.0]
-        };
-        let motion = Shape {
-            value: m[0] * motion.value,
-            d1: m[1] * motion.value + m[0] * motion.d1,
-            d2: m[2] * motion.value + 2.0 * m[1] * motion.d1 + m[0] * motion.d2,
-            d3: m[3] * motion.value
-                + 3.0 * m[2] * motion.d1
-                + 3.0 * m[1] * motion.d2
-                + m[0] * motion.d3,
-            integral: motion.integral,
-        };
-        let torque_value_faded = r[0] * torque_value;
-        let torque_rate_faded = r[1] * torque_value + r[0] * torque_rate;
-        match self.motion_quantity {
-            1 => {
-                let a = self.angle_amplitude;
-                self.knee_angle = self.angle_offset + a * motion.value;
-                self.knee_velocity = a * motion.d1;
-                self.knee_acceleration = a * motion.d2;
-                self.knee_jerk = a * motion.d3;
-            }
-            2 => {
-                let a = self.velocity_amplitude;
-                self.knee_angle = self.angle_offset + a * motion.integral;
-                self.knee_velocity = a * motion.value;
-                self.knee_acceleration = a * motion.d1;
-                self.knee_jerk = a * motion.d2;
-            }
-            other => {
-                return Err(ModelError::refused(format!(
-                    "motionQuantity {other} is not an item of MotionQuantity"
-                )));
-            }
+        #[cfg(target_arch = "x86_64")]
+        if self.build.wide {
+            // SAFETY: `build.wide` is true only where the CPU reports AVX2
+            // (`CalculateBuild::default`), the one feature `calculate_wide` is compiled for.
+            return unsafe { self.calculate_wide(t) };
         }
-        // The amplitude is the external torque's peak (module docs, "Torque scaling").
-        let scale = if self.torque_waveform == Waveform::Gait as i32 {
-            self.torque_amplitude / TORQUE_EXTERNAL_PEAK
-        } else {
-            self.torque_amplitude
-        };
-        self.knee_torque = self.torque_offset + scale * torque_value_faded;
-        self.knee_torque_rate = scale * torque_rate_faded;
-        self.load_torque = -self.knee_torque;
-        self.gait_phase = (cycles - cycles.floor()).clamp(0.0, 1.0 - f64::EPSILON);
-        self.stance = if self.stance_start < self.stance_end {
-            (self.stance_start..self.stance_end).contains(&self.gait_phase)
-        } else {
-            self.gait_phase >= self.stance_start || self.gait_phase < self.stance_end
-        };
-        self.sweep_frequency = if self.sweeping() {
-            self.sweep().frequency(self.sweep().stage(t))
-        } else {
-            0.0
-        };
-        Ok(())
+        self.calculate_inline(t)
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
@@ -1336,5 +1376,66 @@ mod tests {
         assert!(m.stance);
         m.calculate(0.5 * m.period).unwrap();
         assert!(!m.stance);
+    }
+
+    /// Every output of the model, as bits (to compare the two builds of `calculate`).
+    fn all_output_bits(m: &GaitReference) -> [u64; 10] {
+        [
+            m.knee_angle,
+            m.knee_velocity,
+            m.knee_acceleration,
+            m.knee_jerk,
+            m.knee_torque,
+            m.knee_torque_rate,
+            m.load_torque,
+            m.gait_phase,
+            m.sweep_frequency,
+            f64::from(u8::from(m.stance)),
+        ]
+        .map(f64::to_bits)
+    }
+
+    #[test]
+    fn the_avx2_build_of_calculate_is_the_baseline_bit_for_bit() {
+        if !crate::models::bench::plant::cpu_has_wide_vectors() {
+            eprintln!("skipped: this CPU has no AVX2, so only the baseline build runs");
+            return;
+        }
+        let mut compared = 0;
+        for motion in 1..=7 {
+            for torque in [1, 4, 6] {
+                for quantity in [1, 2] {
+                    for fade in [0.0, 1.3] {
+                        let mut wide = model();
+                        wide.motion_waveform = motion;
+                        wide.torque_waveform = torque;
+                        wide.motion_quantity = quantity;
+                        wide.fade_in_time = fade;
+                        wide.period = 2.5;
+                        wide.step_time = 0.7;
+                        assert!(wide.build.wide);
+                        let mut baseline = wide.clone();
+                        baseline.build.wide = false;
+                        for k in 0..400 {
+                            // Irregular instants over two periods, and negative and
+                            // whole-cycle ones.
+                            let t =
+                                -0.3 + f64::from(k) * 0.013_7 + (f64::from(k) * 0.37).sin() * 1e-3;
+                            for t in [t, 2.5 * f64::from(k % 3)] {
+                                wide.calculate(t).unwrap();
+                                baseline.calculate(t).unwrap();
+                                assert_eq!(
+                                    all_output_bits(&wide),
+                                    all_output_bits(&baseline),
+                                    "motion {motion} torque {torque} quantity {quantity} fade {fade} t {t}"
+                                );
+                                compared += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(compared, 7 * 3 * 2 * 2 * 800);
     }
 }
