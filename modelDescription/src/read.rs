@@ -391,7 +391,7 @@ impl<'a> Parser<'a> {
 
     /// Consumes an element that must have no child elements.
     fn leaf(&mut self, e: &Elem<'a>) -> Result<(), ParseError> {
-        self.children(e, |_, child| Err(unexpected(&child, &e.name)))
+        self.children(e, |_, child| Err(unexpected(&child, e.name)))
     }
 
     /// Consumes an element and returns its inner XML verbatim.
@@ -492,14 +492,14 @@ impl<'a> Parser<'a> {
                         md.unit_definitions.push(p.unit(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "TypeDefinitions" => p.children(&e, |p, c| match c.name {
                     "SimpleType" => {
                         md.type_definitions.push(p.simple_type(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "LogCategories" => p.children(&e, |p, c| match c.name {
                     "Category" => {
@@ -510,7 +510,7 @@ impl<'a> Parser<'a> {
                         });
                         p.leaf(&c)
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "DefaultExperiment" => {
                     let a = Attrs::new(&e);
@@ -528,7 +528,7 @@ impl<'a> Parser<'a> {
                         md.model_variables.push(p.scalar_variable(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "ModelStructure" => md.model_structure = p.model_structure(&e)?,
                 _ => return Err(unexpected(&e, "fmiModelDescription")),
@@ -536,7 +536,7 @@ impl<'a> Parser<'a> {
             Ok(())
         })?;
         for required in ["ModelVariables", "ModelStructure"] {
-            if !seen.iter().any(|s| *s == required) {
+            if !seen.contains(&required) {
                 return Err(ParseError::Structure {
                     message: format!("<fmiModelDescription> has no <{required}> element"),
                     line: root.line,
@@ -560,7 +560,7 @@ impl<'a> Parser<'a> {
                     _ => Err(unexpected(&f, "SourceFiles")),
                 })
             }
-            _ => Err(unexpected(&c, &e.name)),
+            _ => Err(unexpected(&c, e.name)),
         })?;
         Ok(files)
     }
@@ -707,7 +707,7 @@ impl<'a> Parser<'a> {
                 tools.push(ToolAnnotation { name, content });
                 Ok(())
             }
-            _ => Err(unexpected(&c, &e.name)),
+            _ => Err(unexpected(&c, e.name)),
         })?;
         Ok(tools)
     }
@@ -827,7 +827,7 @@ impl<'a> Parser<'a> {
                     list.push(unknown(&u)?);
                     p.leaf(&u)
                 }
-                _ => Err(unexpected(&u, &c.name)),
+                _ => Err(unexpected(&u, c.name)),
             })
         })?;
         Ok(ms)

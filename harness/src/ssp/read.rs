@@ -417,7 +417,7 @@ pub(super) fn read_ssd_labelled(
                 let name = a.owned("name").unwrap_or_default();
                 let kind = a
                     .get("kind")
-                    .and_then(|k| ConnectorKind::parse(k))
+                    .and_then(ConnectorKind::parse)
                     .ok_or_else(|| {
                         invalid(here(), format!("connector '{name}' has no valid kind"))
                     })?;
