@@ -25,8 +25,11 @@
 //! enumeration values may carry surrounding whitespace (the XSD types collapse it); strings are
 //! kept exactly.
 
+use std::borrow::Cow;
+
 use quick_xml::Reader;
 use quick_xml::XmlVersion;
+use quick_xml::events::attributes::Attributes;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::name::QName;
 
@@ -194,15 +197,17 @@ impl ModelDescription {
 }
 
 /// A start (or empty) tag with its attributes already normalized.
-struct Elem {
-    name: String,
-    attrs: Vec<(String, String)>,
+/// Borrowed from the document: the name, the attribute names, and the values that need no
+/// normalizing.
+struct Elem<'a> {
+    name: &'a str,
+    attrs: Vec<(&'a str, Cow<'a, str>)>,
     line: usize,
     empty: bool,
 }
 
-enum Item {
-    Start(Elem),
+enum Item<'a> {
+    Start(Elem<'a>),
     End,
     Eof,
 }
@@ -255,7 +260,7 @@ impl<'a> Parser<'a> {
         }
     }
 
-    fn next(&mut self) -> Result<Item, ParseError> {
+    fn next(&mut self) -> Result<Item<'a>, ParseError> {
         loop {
             let pos = to_usize(self.reader.buffer_position());
             let event = match self.reader.read_event() {
@@ -282,7 +287,12 @@ impl<'a> Parser<'a> {
         }
     }
 
-    fn elem(&mut self, e: &BytesStart<'_>, pos: usize, empty: bool) -> Result<Elem, ParseError> {
+    fn elem(
+        &mut self,
+        e: &BytesStart<'_>,
+        pos: usize,
+        empty: bool,
+    ) -> Result<Elem<'a>, ParseError> {
         let line = self.line_at(pos);
         let raw_name = e.name();
         let too_large = |what: String, size: usize, limit: usize| ParseError::TooLarge {
@@ -298,12 +308,18 @@ impl<'a> Parser<'a> {
                 MAX_NAME_BYTES,
             ));
         }
-        let name = raw_name.as_ref().to_owned();
-        if let Some(problem) = malformed_tag(e.as_ref()) {
+        // The tag as the document's own text (the reader lends it from there), so that the
+        // name, the attribute names and the values that need no normalizing are borrowed.
+        let Some(tag) = within(self.src, e.as_ref()) else {
+            let name = raw_name.as_ref().to_owned();
+            return Err(self.xml_error(format!("bad tag span in <{name}>"), pos));
+        };
+        let name = &tag[..raw_name.as_ref().len()];
+        if let Some(problem) = malformed_tag(tag) {
             return Err(self.xml_error(format!("in <{name}>: {problem}"), pos));
         }
         let mut attrs = Vec::new();
-        for attr in e.attributes() {
+        for attr in Attributes::new(tag, name.len()) {
             let attr = match attr {
                 Ok(a) => a,
                 Err(err) => return Err(self.xml_error(format!("in <{name}>: {err}"), pos)),
@@ -316,7 +332,7 @@ impl<'a> Parser<'a> {
                     line,
                 });
             }
-            let key = attr.key.as_ref();
+            let key = attr.key.into_inner();
             if key.len() > MAX_NAME_BYTES {
                 return Err(too_large(
                     format!("an attribute name in <{name}>"),
@@ -332,10 +348,10 @@ impl<'a> Parser<'a> {
                 ));
             }
             let value = match attr.normalized_value(XmlVersion::Implicit1_0) {
-                Ok(v) => v.into_owned(),
+                Ok(v) => v,
                 Err(err) => return Err(self.xml_error(format!("in <{name}>: {err}"), pos)),
             };
-            attrs.push((attr.key.as_ref().to_owned(), value));
+            attrs.push((key, value));
         }
         Ok(Elem {
             name,
@@ -349,8 +365,8 @@ impl<'a> Parser<'a> {
     /// `f` must consume the child completely.
     fn children(
         &mut self,
-        parent: &Elem,
-        mut f: impl FnMut(&mut Self, Elem) -> Result<(), ParseError>,
+        parent: &Elem<'a>,
+        mut f: impl FnMut(&mut Self, Elem<'a>) -> Result<(), ParseError>,
     ) -> Result<(), ParseError> {
         if parent.empty {
             return Ok(());
@@ -374,16 +390,16 @@ impl<'a> Parser<'a> {
     }
 
     /// Consumes an element that must have no child elements.
-    fn leaf(&mut self, e: &Elem) -> Result<(), ParseError> {
-        self.children(e, |_, child| Err(unexpected(&child, &e.name)))
+    fn leaf(&mut self, e: &Elem<'a>) -> Result<(), ParseError> {
+        self.children(e, |_, child| Err(unexpected(&child, e.name)))
     }
 
     /// Consumes an element and returns its inner XML verbatim.
-    fn raw_content(&mut self, e: &Elem) -> Result<String, ParseError> {
+    fn raw_content(&mut self, e: &Elem<'a>) -> Result<String, ParseError> {
         if e.empty {
             return Ok(String::new());
         }
-        let span = match self.reader.read_to_end(QName(&e.name)) {
+        let span = match self.reader.read_to_end(QName(e.name)) {
             Ok(span) => span,
             Err(err) => {
                 let at = to_usize(self.reader.error_position());
@@ -419,7 +435,7 @@ impl<'a> Parser<'a> {
         };
         if root.name != "fmiModelDescription" {
             return Err(ParseError::WrongRoot {
-                element: root.name,
+                element: root.name.to_owned(),
                 line: root.line,
             });
         }
@@ -437,7 +453,7 @@ impl<'a> Parser<'a> {
         }
     }
 
-    fn model_description(&mut self, root: Elem) -> Result<ModelDescription, ParseError> {
+    fn model_description(&mut self, root: Elem<'a>) -> Result<ModelDescription, ParseError> {
         let a = Attrs::new(&root);
         let fmi_version = a.req("fmiVersion")?.to_owned();
         if fmi_version.trim() != "2.0" {
@@ -462,30 +478,30 @@ impl<'a> Parser<'a> {
             number_of_event_indicators: a.u32("numberOfEventIndicators")?,
             ..ModelDescription::default()
         };
-        let mut seen: Vec<String> = Vec::new();
+        let mut seen: Vec<&str> = Vec::new();
         self.children(&root, |p, e| {
             if seen.contains(&e.name) {
                 return Err(unexpected(&e, "fmiModelDescription"));
             }
-            seen.push(e.name.clone());
-            match e.name.as_str() {
+            seen.push(e.name);
+            match e.name {
                 "ModelExchange" => md.model_exchange = Some(p.model_exchange(e)?),
                 "CoSimulation" => md.co_simulation = Some(p.co_simulation(e)?),
-                "UnitDefinitions" => p.children(&e, |p, c| match c.name.as_str() {
+                "UnitDefinitions" => p.children(&e, |p, c| match c.name {
                     "Unit" => {
                         md.unit_definitions.push(p.unit(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
-                "TypeDefinitions" => p.children(&e, |p, c| match c.name.as_str() {
+                "TypeDefinitions" => p.children(&e, |p, c| match c.name {
                     "SimpleType" => {
                         md.type_definitions.push(p.simple_type(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
-                "LogCategories" => p.children(&e, |p, c| match c.name.as_str() {
+                "LogCategories" => p.children(&e, |p, c| match c.name {
                     "Category" => {
                         let a = Attrs::new(&c);
                         md.log_categories.push(LogCategory {
@@ -494,7 +510,7 @@ impl<'a> Parser<'a> {
                         });
                         p.leaf(&c)
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "DefaultExperiment" => {
                     let a = Attrs::new(&e);
@@ -507,12 +523,12 @@ impl<'a> Parser<'a> {
                     p.leaf(&e)?;
                 }
                 "VendorAnnotations" => md.vendor_annotations = p.annotations(&e)?,
-                "ModelVariables" => p.children(&e, |p, c| match c.name.as_str() {
+                "ModelVariables" => p.children(&e, |p, c| match c.name {
                     "ScalarVariable" => {
                         md.model_variables.push(p.scalar_variable(c)?);
                         Ok(())
                     }
-                    _ => Err(unexpected(&c, &e.name)),
+                    _ => Err(unexpected(&c, e.name)),
                 })?,
                 "ModelStructure" => md.model_structure = p.model_structure(&e)?,
                 _ => return Err(unexpected(&e, "fmiModelDescription")),
@@ -520,7 +536,7 @@ impl<'a> Parser<'a> {
             Ok(())
         })?;
         for required in ["ModelVariables", "ModelStructure"] {
-            if !seen.iter().any(|s| s == required) {
+            if !seen.contains(&required) {
                 return Err(ParseError::Structure {
                     message: format!("<fmiModelDescription> has no <{required}> element"),
                     line: root.line,
@@ -530,13 +546,13 @@ impl<'a> Parser<'a> {
         Ok(md)
     }
 
-    fn source_files(&mut self, e: &Elem) -> Result<Vec<String>, ParseError> {
+    fn source_files(&mut self, e: &Elem<'a>) -> Result<Vec<String>, ParseError> {
         let mut files = Vec::new();
         let mut seen = false;
-        self.children(e, |p, c| match c.name.as_str() {
+        self.children(e, |p, c| match c.name {
             "SourceFiles" if !seen => {
                 seen = true;
-                p.children(&c, |p, f| match f.name.as_str() {
+                p.children(&c, |p, f| match f.name {
                     "File" => {
                         files.push(Attrs::new(&f).req("name")?.to_owned());
                         p.leaf(&f)
@@ -544,12 +560,12 @@ impl<'a> Parser<'a> {
                     _ => Err(unexpected(&f, "SourceFiles")),
                 })
             }
-            _ => Err(unexpected(&c, &e.name)),
+            _ => Err(unexpected(&c, e.name)),
         })?;
         Ok(files)
     }
 
-    fn model_exchange(&mut self, e: Elem) -> Result<ModelExchange, ParseError> {
+    fn model_exchange(&mut self, e: Elem<'a>) -> Result<ModelExchange, ParseError> {
         let a = Attrs::new(&e);
         let mut me = ModelExchange {
             model_identifier: a.req("modelIdentifier")?.to_owned(),
@@ -568,7 +584,7 @@ impl<'a> Parser<'a> {
         Ok(me)
     }
 
-    fn co_simulation(&mut self, e: Elem) -> Result<CoSimulation, ParseError> {
+    fn co_simulation(&mut self, e: Elem<'a>) -> Result<CoSimulation, ParseError> {
         let a = Attrs::new(&e);
         let mut cs = CoSimulation {
             model_identifier: a.req("modelIdentifier")?.to_owned(),
@@ -591,7 +607,7 @@ impl<'a> Parser<'a> {
         Ok(cs)
     }
 
-    fn unit(&mut self, e: Elem) -> Result<Unit, ParseError> {
+    fn unit(&mut self, e: Elem<'a>) -> Result<Unit, ParseError> {
         let mut unit = Unit {
             name: Attrs::new(&e).req("name")?.to_owned(),
             base_unit: None,
@@ -599,7 +615,7 @@ impl<'a> Parser<'a> {
         };
         self.children(&e, |p, c| {
             let a = Attrs::new(&c);
-            match c.name.as_str() {
+            match c.name {
                 "BaseUnit" if unit.base_unit.is_none() => {
                     unit.base_unit = Some(BaseUnit {
                         kg: a.i32("kg")?,
@@ -626,14 +642,14 @@ impl<'a> Parser<'a> {
         Ok(unit)
     }
 
-    fn simple_type(&mut self, e: Elem) -> Result<SimpleType, ParseError> {
+    fn simple_type(&mut self, e: Elem<'a>) -> Result<SimpleType, ParseError> {
         let a = Attrs::new(&e);
         let name = a.req("name")?.to_owned();
         let description = a.string("description");
         let mut kind: Option<SimpleTypeKind> = None;
         self.children(&e, |p, c| {
             let a = Attrs::new(&c);
-            let k = match c.name.as_str() {
+            let k = match c.name {
                 "Real" => SimpleTypeKind::Real(a.real_attributes()?),
                 "Integer" => SimpleTypeKind::Integer(a.integer_attributes()?),
                 "Boolean" => SimpleTypeKind::Boolean,
@@ -641,7 +657,7 @@ impl<'a> Parser<'a> {
                 "Enumeration" => {
                     let quantity = a.string("quantity");
                     let mut items = Vec::new();
-                    p.children(&c, |p, i| match i.name.as_str() {
+                    p.children(&c, |p, i| match i.name {
                         "Item" => {
                             let a = Attrs::new(&i);
                             items.push(EnumerationItem {
@@ -682,21 +698,21 @@ impl<'a> Parser<'a> {
         }
     }
 
-    fn annotations(&mut self, e: &Elem) -> Result<Vec<ToolAnnotation>, ParseError> {
+    fn annotations(&mut self, e: &Elem<'a>) -> Result<Vec<ToolAnnotation>, ParseError> {
         let mut tools = Vec::new();
-        self.children(e, |p, c| match c.name.as_str() {
+        self.children(e, |p, c| match c.name {
             "Tool" => {
                 let name = Attrs::new(&c).req("name")?.to_owned();
                 let content = p.raw_content(&c)?;
                 tools.push(ToolAnnotation { name, content });
                 Ok(())
             }
-            _ => Err(unexpected(&c, &e.name)),
+            _ => Err(unexpected(&c, e.name)),
         })?;
         Ok(tools)
     }
 
-    fn scalar_variable(&mut self, e: Elem) -> Result<ScalarVariable, ParseError> {
+    fn scalar_variable(&mut self, e: Elem<'a>) -> Result<ScalarVariable, ParseError> {
         let a = Attrs::new(&e);
         let name = a.req("name")?.to_owned();
         let value_reference = a.req_u32("valueReference")?;
@@ -729,7 +745,7 @@ impl<'a> Parser<'a> {
                 return Ok(());
             }
             let a = Attrs::new(&c);
-            let k = match c.name.as_str() {
+            let k = match c.name {
                 "Real" => VariableKind::Real {
                     declared_type: a.string("declaredType"),
                     attributes: a.real_attributes()?,
@@ -792,33 +808,33 @@ impl<'a> Parser<'a> {
         })
     }
 
-    fn model_structure(&mut self, e: &Elem) -> Result<ModelStructure, ParseError> {
+    fn model_structure(&mut self, e: &Elem<'a>) -> Result<ModelStructure, ParseError> {
         let mut ms = ModelStructure::default();
-        let mut seen: Vec<String> = Vec::new();
+        let mut seen: Vec<&str> = Vec::new();
         self.children(e, |p, c| {
             if seen.contains(&c.name) {
                 return Err(unexpected(&c, "ModelStructure"));
             }
-            seen.push(c.name.clone());
-            let list = match c.name.as_str() {
+            seen.push(c.name);
+            let list = match c.name {
                 "Outputs" => &mut ms.outputs,
                 "Derivatives" => &mut ms.derivatives,
                 "InitialUnknowns" => &mut ms.initial_unknowns,
                 _ => return Err(unexpected(&c, "ModelStructure")),
             };
-            p.children(&c, |p, u| match u.name.as_str() {
+            p.children(&c, |p, u| match u.name {
                 "Unknown" => {
                     list.push(unknown(&u)?);
                     p.leaf(&u)
                 }
-                _ => Err(unexpected(&u, &c.name)),
+                _ => Err(unexpected(&u, c.name)),
             })
         })?;
         Ok(ms)
     }
 }
 
-fn unknown(e: &Elem) -> Result<Unknown, ParseError> {
+fn unknown(e: &Elem<'_>) -> Result<Unknown, ParseError> {
     let a = Attrs::new(e);
     let index = a.req_u32("index")?;
     let dependencies = match a.get("dependencies") {
@@ -855,9 +871,9 @@ fn unknown(e: &Elem) -> Result<Unknown, ParseError> {
     })
 }
 
-fn unexpected(e: &Elem, parent: &str) -> ParseError {
+fn unexpected(e: &Elem<'_>, parent: &str) -> ParseError {
     ParseError::UnexpectedElement {
-        element: e.name.clone(),
+        element: e.name.to_owned(),
         parent: parent.to_owned(),
         line: e.line,
     }
@@ -865,13 +881,20 @@ fn unexpected(e: &Elem, parent: &str) -> ParseError {
 
 /// Whether `name` is an XML name (of an element or attribute; namespace prefixes included).
 /// Non-ASCII characters are taken as name characters.
+///
+/// Checked byte by byte: every byte of a non-ASCII character is a non-ASCII byte, so a byte
+/// taken as a name byte when it is not ASCII takes the character as a name character.
 fn is_xml_name(name: &str) -> bool {
-    let mut chars = name.chars();
-    let Some(first) = chars.next() else {
-        return false;
-    };
-    let start = |c: char| !c.is_ascii() || c.is_ascii_alphabetic() || c == '_' || c == ':';
-    start(first) && chars.all(|c| start(c) || c.is_ascii_digit() || c == '-' || c == '.')
+    let start = |b: u8| !b.is_ascii() || b.is_ascii_alphabetic() || b == b'_' || b == b':';
+    match name.as_bytes() {
+        [] => false,
+        [first, rest @ ..] => {
+            start(*first)
+                && rest
+                    .iter()
+                    .all(|&b| start(b) || b.is_ascii_digit() || b == b'-' || b == b'.')
+        }
+    }
 }
 
 /// Why the text of a start tag (between `<` and `>`, without an empty element's closing `/`)
@@ -988,17 +1011,24 @@ pub fn malformed_declaration(text: &str) -> Option<String> {
     (!any).then(|| "the XML declaration has no version".to_string())
 }
 
+/// `part` as the slice of `src` it is (the same bytes, borrowed for `src`'s lifetime), or
+/// `None` when it does not lie within `src`.
+fn within<'a>(src: &'a str, part: &str) -> Option<&'a str> {
+    let start = (part.as_ptr() as usize).checked_sub(src.as_ptr() as usize)?;
+    src.get(start..start.checked_add(part.len())?)
+}
+
 fn to_usize(pos: u64) -> usize {
     usize::try_from(pos).unwrap_or(usize::MAX)
 }
 
 /// Typed access to an element's attributes.
-struct Attrs<'e> {
-    e: &'e Elem,
+struct Attrs<'e, 'a> {
+    e: &'e Elem<'a>,
 }
 
-impl<'e> Attrs<'e> {
-    fn new(e: &'e Elem) -> Self {
+impl<'e, 'a> Attrs<'e, 'a> {
+    fn new(e: &'e Elem<'a>) -> Self {
         Attrs { e }
     }
 
@@ -1006,13 +1036,13 @@ impl<'e> Attrs<'e> {
         self.e
             .attrs
             .iter()
-            .find(|(k, _)| k == key)
-            .map(|(_, v)| v.as_str())
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v.as_ref())
     }
 
     fn req(&self, key: &str) -> Result<&'e str, ParseError> {
         self.get(key).ok_or_else(|| ParseError::MissingAttribute {
-            element: self.e.name.clone(),
+            element: self.e.name.to_owned(),
             attribute: key.to_owned(),
             line: self.e.line,
         })
@@ -1020,7 +1050,7 @@ impl<'e> Attrs<'e> {
 
     fn invalid(&self, key: &str, value: &str, expected: &str) -> ParseError {
         ParseError::InvalidValue {
-            element: self.e.name.clone(),
+            element: self.e.name.to_owned(),
             attribute: key.to_owned(),
             value: value.to_owned(),
             expected: expected.to_owned(),

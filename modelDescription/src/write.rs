@@ -19,50 +19,60 @@
 //!   inner XML and are written verbatim between `<Tool name="...">` and `</Tool>`. The content
 //!   must be well-formed XML content; [`ModelDescription::check`] reports it when it is not.
 
-use std::borrow::Cow;
+//!
+//! The document is written straight into one `String`, in the layout quick-xml's indenting
+//! writer gives (which wrote it before, and which the tests keep as the reference it must
+//! equal byte for byte: `tests/common/plain_writer.rs`): a line break and two spaces per
+//! level before every tag, except the end tag right after a tool annotation's raw content.
 
-use quick_xml::Writer;
-use quick_xml::events::attributes::Attribute;
-use quick_xml::events::{BytesDecl, BytesEnd, BytesStart, BytesText, Event};
-use quick_xml::name::QName;
+use std::borrow::Cow;
+use std::fmt::Write as _;
 
 use crate::types::*;
-
-type W = Writer<Vec<u8>>;
-type IoResult = std::io::Result<()>;
 
 impl ModelDescription {
     /// Writes the description as a `modelDescription.xml` document (see the [module
     /// docs](crate::write) for the exact format).
     pub fn to_xml(&self) -> String {
-        let mut writer = Writer::new_with_indent(Vec::new(), b' ', 2);
-        // Writing into a Vec<u8> cannot fail: the io::Error branch is unreachable.
-        if write_document(&mut writer, self).is_err() {
-            return String::new();
-        }
-        let mut bytes = writer.into_inner();
-        bytes.push(b'\n');
-        // Every piece written comes from a `String`, so the bytes are UTF-8.
-        match String::from_utf8(bytes) {
-            Ok(s) => s,
-            Err(e) => String::from_utf8_lossy(e.as_bytes()).into_owned(),
-        }
+        let mut w = W {
+            out: String::with_capacity(256 + 256 * self.model_variables.len()),
+            depth: 0,
+            line_break: false,
+        };
+        write_document(&mut w, self);
+        w.out.push('\n');
+        w.out
     }
 }
 
 /// Formats an `f64` as an `xs:double` that parses back to the same value (NaN payloads aside).
 pub fn format_f64(value: f64) -> String {
+    let mut s = String::new();
+    push_f64(&mut s, value);
+    s
+}
+
+/// Appends [`format_f64`] of `value` to `out`.
+fn push_f64(out: &mut String, value: f64) {
     if value.is_nan() {
-        return "NaN".to_owned();
+        out.push_str("NaN");
+    } else if value.is_infinite() {
+        out.push_str(if value > 0.0 { "INF" } else { "-INF" });
+    } else {
+        let start = out.len();
+        // Writing into a String cannot fail.
+        let _ = write!(out, "{value:?}");
+        if out[start..].ends_with(".0") {
+            out.truncate(out.len() - 2);
+        }
     }
-    if value.is_infinite() {
-        return if value > 0.0 { "INF" } else { "-INF" }.to_owned();
-    }
-    let s = format!("{value:?}");
-    match s.strip_suffix(".0") {
-        Some(stripped) => stripped.to_owned(),
-        None => s,
-    }
+}
+
+/// Whether `value` holds a character that [`escape_attribute`] replaces.
+fn needs_escape(value: &str) -> bool {
+    value
+        .bytes()
+        .any(|b| matches!(b, b'&' | b'<' | b'>' | b'"' | b'\'' | b'\t' | b'\n' | b'\r'))
 }
 
 /// Escapes a string for use inside a double-quoted XML attribute value.
@@ -70,13 +80,20 @@ pub fn format_f64(value: f64) -> String {
 /// Besides the five predefined entities, tab, line feed and carriage return are written as
 /// character references, because a reader normalizes literal ones to spaces.
 pub fn escape_attribute(value: &str) -> Cow<'_, str> {
-    if !value
-        .bytes()
-        .any(|b| matches!(b, b'&' | b'<' | b'>' | b'"' | b'\'' | b'\t' | b'\n' | b'\r'))
-    {
+    if !needs_escape(value) {
         return Cow::Borrowed(value);
     }
     let mut out = String::with_capacity(value.len() + 16);
+    push_escaped(&mut out, value);
+    Cow::Owned(out)
+}
+
+/// Appends `value` to `out`, escaped as [`escape_attribute`] does.
+fn push_escaped(out: &mut String, value: &str) {
+    if !needs_escape(value) {
+        out.push_str(value);
+        return;
+    }
     for c in value.chars() {
         match c {
             '&' => out.push_str("&amp;"),
@@ -90,22 +107,53 @@ pub fn escape_attribute(value: &str) -> Cow<'_, str> {
             c => out.push(c),
         }
     }
-    Cow::Owned(out)
 }
 
-/// An element under construction: attributes are pushed in call order.
-struct El(BytesStart<'static>);
+/// The document being written.
+struct W {
+    out: String,
+    /// Open elements.
+    depth: usize,
+    /// Whether the next tag starts a new line (not after raw text).
+    line_break: bool,
+}
 
-impl El {
-    fn new(name: &'static str) -> Self {
-        El(BytesStart::new(name))
+impl W {
+    /// The line break and indentation before a tag.
+    fn indent(&mut self) {
+        if self.line_break {
+            self.out.push('\n');
+            for _ in 0..self.depth {
+                self.out.push_str("  ");
+            }
+        }
+    }
+}
+
+/// An element whose start tag is being written: attributes are appended in call order, then
+/// [`El::empty`] or [`El::start`] closes the tag.
+struct El<'w>(&'w mut W);
+
+impl<'w> El<'w> {
+    fn new(w: &'w mut W, name: &'static str) -> Self {
+        w.indent();
+        w.out.push('<');
+        w.out.push_str(name);
+        El(w)
+    }
+
+    /// ` key="`, the value to be appended, then [`Self::close`].
+    fn key(&mut self, key: &'static str) -> &mut String {
+        let out = &mut self.0.out;
+        out.push(' ');
+        out.push_str(key);
+        out.push_str("=\"");
+        out
     }
 
     fn raw(mut self, key: &'static str, value: &str) -> Self {
-        self.0.push_attribute(Attribute {
-            key: QName(key),
-            value: escape_attribute(value),
-        });
+        push_escaped(self.key(key), value);
+        self.0.out.push('"');
         self
     }
 
@@ -120,61 +168,89 @@ impl El {
         self.s(key, value.map(|v| if v { "true" } else { "false" }))
     }
 
-    fn u(self, key: &'static str, value: Option<u32>) -> Self {
-        match value {
-            Some(v) => self.raw(key, &v.to_string()),
-            None => self,
+    /// A number, written by `Display` (never escaped: digits and a sign).
+    fn num(mut self, key: &'static str, value: Option<impl std::fmt::Display>) -> Self {
+        if let Some(v) = value {
+            let _ = write!(self.key(key), "{v}\"");
         }
+        self
+    }
+
+    fn u(self, key: &'static str, value: Option<u32>) -> Self {
+        self.num(key, value)
     }
 
     fn i(self, key: &'static str, value: Option<i32>) -> Self {
-        match value {
-            Some(v) => self.raw(key, &v.to_string()),
-            None => self,
+        self.num(key, value)
+    }
+
+    fn f(mut self, key: &'static str, value: Option<f64>) -> Self {
+        if let Some(v) = value {
+            push_f64(self.key(key), v);
+            self.0.out.push('"');
         }
+        self
     }
 
-    fn f(self, key: &'static str, value: Option<f64>) -> Self {
-        match value {
-            Some(v) => self.raw(key, &format_f64(v)),
-            None => self,
+    /// A space-separated list of `items`.
+    fn list<T>(
+        mut self,
+        key: &'static str,
+        items: &[T],
+        mut item: impl FnMut(&mut String, &T),
+    ) -> Self {
+        let out = self.key(key);
+        for (n, x) in items.iter().enumerate() {
+            if n > 0 {
+                out.push(' ');
+            }
+            item(out, x);
         }
+        out.push('"');
+        self
     }
 
-    fn empty(self, w: &mut W) -> IoResult {
-        w.write_event(Event::Empty(self.0))
+    /// Closes the tag as an empty element.
+    fn empty(self) {
+        self.0.out.push_str("/>");
+        self.0.line_break = true;
     }
 
-    fn start(self, w: &mut W) -> IoResult {
-        w.write_event(Event::Start(self.0))
+    /// Closes the start tag; the element's content follows.
+    fn start(self) -> &'w mut W {
+        let w = self.0;
+        w.out.push('>');
+        w.depth += 1;
+        w.line_break = true;
+        w
     }
 }
 
-fn end(w: &mut W, name: &'static str) -> IoResult {
-    w.write_event(Event::End(BytesEnd::new(name)))
+fn end(w: &mut W, name: &'static str) {
+    w.depth = w.depth.saturating_sub(1);
+    w.indent();
+    w.out.push_str("</");
+    w.out.push_str(name);
+    w.out.push('>');
+    w.line_break = true;
 }
 
 /// Writes `el` with the children written by `children`, or as an empty element when
 /// `has_children` is false.
-fn element(
-    w: &mut W,
-    el: El,
-    name: &'static str,
-    has_children: bool,
-    children: impl FnOnce(&mut W) -> IoResult,
-) -> IoResult {
+fn element(el: El<'_>, name: &'static str, has_children: bool, children: impl FnOnce(&mut W)) {
     if has_children {
-        el.start(w)?;
-        children(w)?;
+        let w = el.start();
+        children(w);
         end(w, name)
     } else {
-        el.empty(w)
+        el.empty()
     }
 }
 
-fn write_document(w: &mut W, md: &ModelDescription) -> IoResult {
-    w.write_event(Event::Decl(BytesDecl::new("1.0", Some("UTF-8"), None)))?;
-    let root = El::new("fmiModelDescription")
+fn write_document(w: &mut W, md: &ModelDescription) {
+    w.out.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>");
+    w.line_break = true;
+    let root = El::new(w, "fmiModelDescription")
         .raw("fmiVersion", &md.fmi_version)
         .raw("modelName", &md.model_name)
         .raw("guid", &md.guid)
@@ -193,10 +269,10 @@ fn write_document(w: &mut W, md: &ModelDescription) -> IoResult {
             md.variable_naming_convention.map(|c| c.as_str()),
         )
         .u("numberOfEventIndicators", md.number_of_event_indicators);
-    root.start(w)?;
+    let w = root.start();
 
     if let Some(me) = &md.model_exchange {
-        let el = El::new("ModelExchange")
+        let el = El::new(w, "ModelExchange")
             .raw("modelIdentifier", &me.model_identifier)
             .b("needsExecutionTool", me.needs_execution_tool)
             .b(
@@ -217,11 +293,11 @@ fn write_document(w: &mut W, md: &ModelDescription) -> IoResult {
                 "providesDirectionalDerivative",
                 me.provides_directional_derivative,
             );
-        write_with_source_files(w, el, "ModelExchange", &me.source_files)?;
+        write_with_source_files(el, "ModelExchange", &me.source_files);
     }
 
     if let Some(cs) = &md.co_simulation {
-        let el = El::new("CoSimulation")
+        let el = El::new(w, "CoSimulation")
             .raw("modelIdentifier", &cs.model_identifier)
             .b("needsExecutionTool", cs.needs_execution_tool)
             .b(
@@ -245,94 +321,91 @@ fn write_document(w: &mut W, md: &ModelDescription) -> IoResult {
                 "providesDirectionalDerivative",
                 cs.provides_directional_derivative,
             );
-        write_with_source_files(w, el, "CoSimulation", &cs.source_files)?;
+        write_with_source_files(el, "CoSimulation", &cs.source_files);
     }
 
     if !md.unit_definitions.is_empty() {
-        El::new("UnitDefinitions").start(w)?;
+        El::new(w, "UnitDefinitions").start();
         for unit in &md.unit_definitions {
-            write_unit(w, unit)?;
+            write_unit(w, unit);
         }
-        end(w, "UnitDefinitions")?;
+        end(w, "UnitDefinitions");
     }
 
     if !md.type_definitions.is_empty() {
-        El::new("TypeDefinitions").start(w)?;
+        El::new(w, "TypeDefinitions").start();
         for simple_type in &md.type_definitions {
-            write_simple_type(w, simple_type)?;
+            write_simple_type(w, simple_type);
         }
-        end(w, "TypeDefinitions")?;
+        end(w, "TypeDefinitions");
     }
 
     if !md.log_categories.is_empty() {
-        El::new("LogCategories").start(w)?;
+        El::new(w, "LogCategories").start();
         for category in &md.log_categories {
-            El::new("Category")
+            El::new(w, "Category")
                 .raw("name", &category.name)
                 .s("description", category.description.as_deref())
-                .empty(w)?;
+                .empty();
         }
-        end(w, "LogCategories")?;
+        end(w, "LogCategories");
     }
 
     if let Some(de) = &md.default_experiment {
-        El::new("DefaultExperiment")
+        El::new(w, "DefaultExperiment")
             .f("startTime", de.start_time)
             .f("stopTime", de.stop_time)
             .f("tolerance", de.tolerance)
             .f("stepSize", de.step_size)
-            .empty(w)?;
+            .empty();
     }
 
-    write_annotations(w, "VendorAnnotations", &md.vendor_annotations)?;
+    write_annotations(w, "VendorAnnotations", &md.vendor_annotations);
 
     element(
-        w,
-        El::new("ModelVariables"),
+        El::new(w, "ModelVariables"),
         "ModelVariables",
         !md.model_variables.is_empty(),
         |w| {
             for variable in &md.model_variables {
-                write_variable(w, variable)?;
+                write_variable(w, variable);
             }
-            Ok(())
         },
-    )?;
+    );
 
     let ms = &md.model_structure;
     let has_structure =
         !(ms.outputs.is_empty() && ms.derivatives.is_empty() && ms.initial_unknowns.is_empty());
     element(
-        w,
-        El::new("ModelStructure"),
+        El::new(w, "ModelStructure"),
         "ModelStructure",
         has_structure,
         |w| {
-            write_unknowns(w, "Outputs", &ms.outputs)?;
-            write_unknowns(w, "Derivatives", &ms.derivatives)?;
+            write_unknowns(w, "Outputs", &ms.outputs);
+            write_unknowns(w, "Derivatives", &ms.derivatives);
             write_unknowns(w, "InitialUnknowns", &ms.initial_unknowns)
         },
-    )?;
+    );
 
     end(w, "fmiModelDescription")
 }
 
-fn write_with_source_files(w: &mut W, el: El, name: &'static str, files: &[String]) -> IoResult {
-    element(w, el, name, !files.is_empty(), |w| {
-        El::new("SourceFiles").start(w)?;
+fn write_with_source_files(el: El<'_>, name: &'static str, files: &[String]) {
+    element(el, name, !files.is_empty(), |w| {
+        El::new(w, "SourceFiles").start();
         for file in files {
-            El::new("File").raw("name", file).empty(w)?;
+            El::new(w, "File").raw("name", file).empty();
         }
         end(w, "SourceFiles")
     })
 }
 
-fn write_unit(w: &mut W, unit: &Unit) -> IoResult {
-    let el = El::new("Unit").raw("name", &unit.name);
+fn write_unit(w: &mut W, unit: &Unit) {
+    let el = El::new(w, "Unit").raw("name", &unit.name);
     let has_children = unit.base_unit.is_some() || !unit.display_units.is_empty();
-    element(w, el, "Unit", has_children, |w| {
+    element(el, "Unit", has_children, |w| {
         if let Some(bu) = &unit.base_unit {
-            El::new("BaseUnit")
+            El::new(w, "BaseUnit")
                 .i("kg", bu.kg)
                 .i("m", bu.m)
                 .i("s", bu.s)
@@ -343,20 +416,19 @@ fn write_unit(w: &mut W, unit: &Unit) -> IoResult {
                 .i("rad", bu.rad)
                 .f("factor", bu.factor)
                 .f("offset", bu.offset)
-                .empty(w)?;
+                .empty();
         }
         for du in &unit.display_units {
-            El::new("DisplayUnit")
+            El::new(w, "DisplayUnit")
                 .raw("name", &du.name)
                 .f("factor", du.factor)
                 .f("offset", du.offset)
-                .empty(w)?;
+                .empty();
         }
-        Ok(())
     })
 }
 
-fn real_attributes(el: El, a: &RealAttributes) -> El {
+fn real_attributes<'w>(el: El<'w>, a: &RealAttributes) -> El<'w> {
     el.s("quantity", a.quantity.as_deref())
         .s("unit", a.unit.as_deref())
         .s("displayUnit", a.display_unit.as_deref())
@@ -367,43 +439,42 @@ fn real_attributes(el: El, a: &RealAttributes) -> El {
         .b("unbounded", a.unbounded)
 }
 
-fn integer_attributes(el: El, a: &IntegerAttributes) -> El {
+fn integer_attributes<'w>(el: El<'w>, a: &IntegerAttributes) -> El<'w> {
     el.s("quantity", a.quantity.as_deref())
         .i("min", a.min)
         .i("max", a.max)
 }
 
-fn write_simple_type(w: &mut W, t: &SimpleType) -> IoResult {
-    El::new("SimpleType")
+fn write_simple_type(w: &mut W, t: &SimpleType) {
+    El::new(w, "SimpleType")
         .raw("name", &t.name)
         .s("description", t.description.as_deref())
-        .start(w)?;
+        .start();
     match &t.kind {
-        SimpleTypeKind::Real(a) => real_attributes(El::new("Real"), a).empty(w)?,
-        SimpleTypeKind::Integer(a) => integer_attributes(El::new("Integer"), a).empty(w)?,
-        SimpleTypeKind::Boolean => El::new("Boolean").empty(w)?,
-        SimpleTypeKind::String => El::new("String").empty(w)?,
+        SimpleTypeKind::Real(a) => real_attributes(El::new(w, "Real"), a).empty(),
+        SimpleTypeKind::Integer(a) => integer_attributes(El::new(w, "Integer"), a).empty(),
+        SimpleTypeKind::Boolean => El::new(w, "Boolean").empty(),
+        SimpleTypeKind::String => El::new(w, "String").empty(),
         SimpleTypeKind::Enumeration { quantity, items } => {
-            let el = El::new("Enumeration").s("quantity", quantity.as_deref());
-            element(w, el, "Enumeration", !items.is_empty(), |w| {
+            let el = El::new(w, "Enumeration").s("quantity", quantity.as_deref());
+            element(el, "Enumeration", !items.is_empty(), |w| {
                 for item in items {
-                    El::new("Item")
+                    El::new(w, "Item")
                         .raw("name", &item.name)
-                        .raw("value", &item.value.to_string())
+                        .num("value", Some(item.value))
                         .s("description", item.description.as_deref())
-                        .empty(w)?;
+                        .empty();
                 }
-                Ok(())
-            })?;
+            });
         }
     }
     end(w, "SimpleType")
 }
 
-fn write_variable(w: &mut W, v: &ScalarVariable) -> IoResult {
-    El::new("ScalarVariable")
+fn write_variable(w: &mut W, v: &ScalarVariable) {
+    El::new(w, "ScalarVariable")
         .raw("name", &v.name)
-        .raw("valueReference", &v.value_reference.to_string())
+        .num("valueReference", Some(v.value_reference))
         .s("description", v.description.as_deref())
         .s("causality", v.causality.map(|c| c.as_str()))
         .s("variability", v.variability.map(|c| c.as_str()))
@@ -412,7 +483,7 @@ fn write_variable(w: &mut W, v: &ScalarVariable) -> IoResult {
             "canHandleMultipleSetPerTimeInstant",
             v.can_handle_multiple_set_per_time_instant,
         )
-        .start(w)?;
+        .start();
     let type_element = match &v.kind {
         VariableKind::Real {
             declared_type,
@@ -421,7 +492,7 @@ fn write_variable(w: &mut W, v: &ScalarVariable) -> IoResult {
             derivative,
             reinit,
         } => real_attributes(
-            El::new("Real").s("declaredType", declared_type.as_deref()),
+            El::new(w, "Real").s("declaredType", declared_type.as_deref()),
             attributes,
         )
         .f("start", *start)
@@ -432,20 +503,20 @@ fn write_variable(w: &mut W, v: &ScalarVariable) -> IoResult {
             attributes,
             start,
         } => integer_attributes(
-            El::new("Integer").s("declaredType", declared_type.as_deref()),
+            El::new(w, "Integer").s("declaredType", declared_type.as_deref()),
             attributes,
         )
         .i("start", *start),
         VariableKind::Boolean {
             declared_type,
             start,
-        } => El::new("Boolean")
+        } => El::new(w, "Boolean")
             .s("declaredType", declared_type.as_deref())
             .b("start", *start),
         VariableKind::String {
             declared_type,
             start,
-        } => El::new("String")
+        } => El::new(w, "String")
             .s("declaredType", declared_type.as_deref())
             .s("start", start.as_deref()),
         VariableKind::Enumeration {
@@ -454,53 +525,54 @@ fn write_variable(w: &mut W, v: &ScalarVariable) -> IoResult {
             min,
             max,
             start,
-        } => El::new("Enumeration")
+        } => El::new(w, "Enumeration")
             .raw("declaredType", declared_type)
             .s("quantity", quantity.as_deref())
             .i("min", *min)
             .i("max", *max)
             .i("start", *start),
     };
-    type_element.empty(w)?;
-    write_annotations(w, "Annotations", &v.annotations)?;
+    type_element.empty();
+    write_annotations(w, "Annotations", &v.annotations);
     end(w, "ScalarVariable")
 }
 
-fn write_annotations(w: &mut W, container: &'static str, tools: &[ToolAnnotation]) -> IoResult {
+fn write_annotations(w: &mut W, container: &'static str, tools: &[ToolAnnotation]) {
     if tools.is_empty() {
-        return Ok(());
+        return;
     }
-    El::new(container).start(w)?;
+    El::new(w, container).start();
     for tool in tools {
-        let el = El::new("Tool").raw("name", &tool.name);
+        let el = El::new(w, "Tool").raw("name", &tool.name);
         if tool.content.is_empty() {
-            el.empty(w)?;
+            el.empty();
         } else {
-            el.start(w)?;
-            // Raw inner XML, verbatim: a Text event suppresses the indentation of `</Tool>`.
-            w.write_event(Event::Text(BytesText::from_escaped(tool.content.as_str())))?;
-            end(w, "Tool")?;
+            let w = el.start();
+            // Raw inner XML, verbatim: no indentation before `</Tool>` after it.
+            w.out.push_str(&tool.content);
+            w.line_break = false;
+            end(w, "Tool");
         }
     }
     end(w, container)
 }
 
-fn write_unknowns(w: &mut W, name: &'static str, unknowns: &[Unknown]) -> IoResult {
+fn write_unknowns(w: &mut W, name: &'static str, unknowns: &[Unknown]) {
     if unknowns.is_empty() {
-        return Ok(());
+        return;
     }
-    El::new(name).start(w)?;
+    El::new(w, name).start();
     for unknown in unknowns {
-        let mut el = El::new("Unknown").raw("index", &unknown.index.to_string());
+        let mut el = El::new(w, "Unknown").num("index", Some(unknown.index));
         if let Some(deps) = &unknown.dependencies {
-            let list: Vec<String> = deps.iter().map(u32::to_string).collect();
-            el = el.raw("dependencies", &list.join(" "));
+            el = el.list("dependencies", deps, |out, d| {
+                let _ = write!(out, "{d}");
+            });
         }
         if let Some(kinds) = &unknown.dependencies_kind {
-            let list: Vec<&str> = kinds.iter().map(|k| k.as_str()).collect();
-            el = el.raw("dependenciesKind", &list.join(" "));
+            el = el.list("dependenciesKind", kinds, |out, k| out.push_str(k.as_str()));
         }
-        el.empty(w)?;
+        el.empty();
     }
     end(w, name)
 }

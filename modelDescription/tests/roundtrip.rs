@@ -572,3 +572,80 @@ fn unknown_attributes_and_namespaces_are_dropped_on_write() {
     assert!(!xml.contains("someFutureFlag"));
     assert!(!xml.contains("xmlns:xsi"));
 }
+
+/// The writer gives the bytes of the quick-xml writer it replaced (`common/plain_writer.rs`)
+/// on every fixture: the full and minimal descriptions, the third-party one, and variants
+/// with escaped characters, every kind of float and tool annotations at both levels.
+#[test]
+fn the_writer_gives_the_reference_writers_bytes() {
+    let minimal = ModelDescription::new("m", "g");
+    let mut escaped = full();
+    escaped.model_name = "a&b<c>d\"e'f\tg\nh\ri \u{e9}\u{1F600}".into();
+    escaped.description = Some(" two  spaces & <tags> ".into());
+    for (i, v) in escaped.model_variables.iter_mut().enumerate() {
+        v.description = Some(format!("variable {i}: \"quoted\" & 'single'\n"));
+    }
+    let mut floats = full();
+    let values = [
+        0.0,
+        -0.0,
+        1.0,
+        -1.0,
+        0.1,
+        1e-5,
+        1e-7,
+        1e15,
+        1e16,
+        1e17,
+        123.456,
+        5e-324,
+        f64::MAX,
+        f64::MIN_POSITIVE,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NAN,
+        0.1 + 0.2,
+        -2.5e-300,
+    ];
+    let mut extra = Vec::new();
+    for (i, &x) in values.iter().enumerate() {
+        let mut v = real(&format!("f{i}"), 1000 + i as u32, None, None, None, Some(x));
+        if let VariableKind::Real { attributes, .. } = &mut v.kind {
+            attributes.min = Some(x);
+            attributes.max = Some(-x);
+            attributes.nominal = Some(x * 3.0);
+        }
+        v.annotations = vec![
+            ToolAnnotation {
+                name: format!("tool{i}"),
+                content: format!("<x v=\"{i}\"/>"),
+            },
+            ToolAnnotation {
+                name: "empty".into(),
+                content: String::new(),
+            },
+        ];
+        extra.push(v);
+    }
+    floats.model_variables.extend(extra);
+    floats.default_experiment = Some(DefaultExperiment {
+        start_time: Some(-0.0),
+        stop_time: Some(1e300),
+        tolerance: Some(f64::NAN),
+        step_size: Some(1e-9),
+    });
+    floats.vendor_annotations.push(ToolAnnotation {
+        name: "nested".into(),
+        content: "\n  <a>\n    <b c=\"&amp;\"/>\n  </a>\n".into(),
+    });
+    let third = ModelDescription::from_xml(THIRD_PARTY).unwrap();
+    for (name, md) in [
+        ("full", full()),
+        ("minimal", minimal),
+        ("third party", third),
+        ("escaped", escaped),
+        ("floats", floats),
+    ] {
+        assert_eq!(md.to_xml(), plain_writer::to_xml(&md), "{name}");
+    }
+}

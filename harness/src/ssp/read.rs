@@ -1,8 +1,6 @@
 //! Reading SSP 1.0: `SystemStructure.ssd` and inline or `.ssv` parameter sets, every error
 //! naming its file and line (see the module above).
 
-use std::collections::HashMap;
-
 use quick_xml::events::{BytesStart, Event};
 
 use super::{
@@ -76,39 +74,64 @@ fn xml_error(xml: &str, file: &str, position: u64, message: String) -> SspError 
     }
 }
 
+/// The attributes of a tag by local name, borrowed from the tag (a value is copied only when
+/// normalizing it changes it); a local name given twice (under two prefixes) reads as its
+/// last value.
+struct Attrs<'e>(Vec<(&'e str, std::borrow::Cow<'e, str>)>);
+
+impl Attrs<'_> {
+    /// The value of the attribute with local name `key`.
+    fn get(&self, key: &str) -> Option<&str> {
+        self.0
+            .iter()
+            .rev()
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v.as_ref())
+    }
+
+    /// [`Self::get`], copied.
+    fn owned(&self, key: &str) -> Option<String> {
+        self.get(key).map(str::to_string)
+    }
+}
+
 /// The attributes of the tag `e`, which starts at byte `position` of `xml`, by local name. A
 /// tag that no well-formed document holds (a bad attribute name, an unquoted or duplicated
 /// attribute, a `<` or a bad reference in a value) is malformed XML.
-fn attrs(
+fn attrs<'e>(
     xml: &str,
-    e: &BytesStart<'_>,
+    e: &'e BytesStart<'_>,
     position: u64,
     file: &str,
-) -> Result<HashMap<String, String>, SspError> {
+) -> Result<Attrs<'e>, SspError> {
     let malformed = |message: String| xml_error(xml, file, position, message);
-    let element = e.name().as_ref().to_string();
+    let element = || e.name().as_ref().to_string();
     if let Some(problem) = model_description::read::malformed_tag(e.as_ref()) {
-        return Err(malformed(format!("in <{element}>: {problem}")));
+        return Err(malformed(format!("in <{}>: {problem}", element())));
     }
-    let mut m = HashMap::new();
+    let mut m = Vec::new();
     for a in e.attributes() {
-        let a = a.map_err(|err| malformed(format!("in <{element}>: {err}")))?;
-        let key = a.key.local_name().as_ref().to_string();
+        let a = a.map_err(|err| malformed(format!("in <{}>: {err}", element())))?;
+        let key = a.key.local_name().into_inner();
         let v = a
             .normalized_value(quick_xml::XmlVersion::Implicit1_0)
-            .map_err(|err| malformed(format!("in <{element}>: {err}")))?
-            .into_owned();
-        m.insert(key, v);
+            .map_err(|err| malformed(format!("in <{}>: {err}", element())))?;
+        m.push((key, v));
     }
-    Ok(m)
+    Ok(Attrs(m))
 }
 
-fn parse_f64(file: &str, what: &str, s: &str) -> Result<f64, SspError> {
+/// `s` as an `xs:double`; `file` labels the error.
+fn parse_f64(
+    file: impl FnOnce() -> String,
+    what: impl std::fmt::Display,
+    s: &str,
+) -> Result<f64, SspError> {
     match s.trim() {
         "INF" => Ok(f64::INFINITY),
         "-INF" => Ok(f64::NEG_INFINITY),
         t => t.parse().map_err(|_| SspError::Invalid {
-            file: file.to_string(),
+            file: file(),
             problem: format!("{what}: '{s}' is not a number"),
         }),
     }
@@ -127,7 +150,6 @@ fn read_parameter_set(
         |position: u64, message: String| xml_error(doc, file, offset + position, message);
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
-    let mut lines = Lines::new(doc);
     let mut out = Vec::new();
     let mut current: Option<String> = None;
     // Open elements: one still open at the end is malformed XML (the reader does not say).
@@ -144,22 +166,23 @@ fn read_parameter_set(
             Event::Start(e) | Event::Empty(e) => {
                 let local = e.local_name();
                 let a = attrs(doc, &e, offset + pos, file)?;
-                // The file and the line of the element, for errors about its value.
-                let here = format!("{file} line {}", lines.of(offset + pos));
+                // The file and the line of the element, for errors about its value (counted
+                // only for an error).
+                let here = || format!("{file} line {}", line_of(doc, offset + pos));
                 match local.as_ref().as_bytes() {
-                    b"Parameter" => current = a.get("name").cloned(),
+                    b"Parameter" => current = a.owned("name"),
                     t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration") => {
                         let Some(name) = current.clone() else {
                             continue;
                         };
-                        let v = a.get("value").cloned().unwrap_or_default();
+                        let v = a.owned("value").unwrap_or_default();
                         let value = match t {
                             b"Real" => {
-                                Value::Real(parse_f64(&here, &format!("parameter {name}"), &v)?)
+                                Value::Real(parse_f64(here, format_args!("parameter {name}"), &v)?)
                             }
                             b"Integer" => {
                                 Value::Integer(v.trim().parse().map_err(|_| SspError::Invalid {
-                                    file: here.clone(),
+                                    file: here(),
                                     problem: format!("parameter {name}: '{v}' is not an Integer"),
                                 })?)
                             }
@@ -170,7 +193,7 @@ fn read_parameter_set(
                                 "false" | "0" => false,
                                 _ => {
                                     return Err(SspError::Invalid {
-                                        file: here,
+                                        file: here(),
                                         problem: format!(
                                             "parameter {name}: '{v}' is not a Boolean (true, \
                                              false, 1 or 0)"
@@ -181,7 +204,7 @@ fn read_parameter_set(
                             b"String" => Value::String(v),
                             _ => {
                                 return Err(SspError::Unsupported {
-                                    file: here,
+                                    file: here(),
                                     what: format!("Enumeration parameter value ({name})"),
                                 });
                             }
@@ -252,7 +275,6 @@ pub(super) fn read_ssd_labelled(
     }
     let mut r = quick_xml::Reader::from_str(xml);
     r.config_mut().trim_text(true);
-    let mut lines = Lines::new(xml);
     let mut ssd = Ssd::default();
     // The open elements' local names, and where each starts (the reader does not say when the
     // document ends inside one).
@@ -264,8 +286,8 @@ pub(super) fn read_ssd_labelled(
     let mut comp: Option<SspComponent> = None;
     let mut connector: Option<SspConnector> = None;
     let mut binding_prefix = String::new();
-    let invalid = |here: &str, p: String| SspError::Invalid {
-        file: here.to_string(),
+    let invalid = |here: String, p: String| SspError::Invalid {
+        file: here,
         problem: p,
     };
     loop {
@@ -274,17 +296,17 @@ pub(super) fn read_ssd_labelled(
             .read_event()
             .map_err(|e| xml_error(xml, file, r.error_position(), e.to_string()))?;
         let start = skip_blanks(xml, pos);
-        // The file and the line of the element, for errors about it.
-        let here = format!("{file} line {}", lines.of(start));
+        // The file and the line of the element, for errors about it (counted only for an
+        // error).
+        let here = || format!("{file} line {}", line_of(xml, start));
         let (e, empty) = match ev {
             Event::Start(e) => (e, false),
             Event::Empty(e) => (e, true),
             Event::End(e) => {
-                let name = e.local_name().as_ref().as_bytes().to_vec();
                 stack.pop();
                 opened.pop();
                 let parent = stack.last().map(Vec::as_slice).unwrap_or_default();
-                match name.as_slice() {
+                match e.local_name().as_ref().as_bytes() {
                     b"Component" if parent == b"Elements" => {
                         if let Some(c) = comp.take() {
                             ssd.system.components.push(c);
@@ -319,7 +341,7 @@ pub(super) fn read_ssd_labelled(
         if stack.is_empty() && (root.is_some() || local != b"SystemStructureDescription") {
             let name = String::from_utf8_lossy(&local);
             return Err(invalid(
-                &here,
+                here(),
                 if root.is_some() {
                     format!("an element <{name}> after the root element")
                 } else {
@@ -328,15 +350,17 @@ pub(super) fn read_ssd_labelled(
             ));
         }
         let a = attrs(xml, &e, start, file)?;
-        let parent = stack.last().cloned().unwrap_or_default();
-        let in_annotation = parent.as_slice() == b"Annotation";
+        let parent = stack.last().map(Vec::as_slice).unwrap_or_default();
+        let in_annotation = parent == b"Annotation";
+        let in_elements = parent == b"Elements";
+        let in_connector = parent == b"Connector";
         match local.as_slice() {
             // kb:Component in a component's annotation: the step multiple.
             b"Component" if in_annotation => {
                 if let (Some(c), Some(m)) = (comp.as_mut(), a.get("stepMultiple")) {
                     c.step_multiple = Some(m.trim().parse().map_err(|_| {
                         invalid(
-                            &here,
+                            here(),
                             format!("stepMultiple '{m}' is not a positive integer"),
                         )
                     })?);
@@ -344,11 +368,11 @@ pub(super) fn read_ssd_labelled(
             }
             b"SystemStructureDescription" if stack.is_empty() => {
                 root = Some(start);
-                ssd.name = a.get("name").cloned().unwrap_or_default();
-                ssd.version = a.get("version").cloned().unwrap_or_default();
+                ssd.name = a.owned("name").unwrap_or_default();
+                ssd.version = a.owned("version").unwrap_or_default();
                 if !ssd.version.starts_with("1.") {
                     return Err(invalid(
-                        &here,
+                        here(),
                         format!("version '{}' is not an SSP 1.x version", ssd.version),
                     ));
                 }
@@ -356,27 +380,25 @@ pub(super) fn read_ssd_labelled(
             b"System" => {
                 if system_depth.is_some() {
                     return Err(SspError::Unsupported {
-                        file: here.clone(),
+                        file: here(),
                         what: "nested systems".into(),
                     });
                 }
                 system_depth = Some(stack.len());
-                ssd.system.name = a.get("name").cloned().unwrap_or_default();
+                ssd.system.name = a.owned("name").unwrap_or_default();
             }
-            b"Component" if parent.as_slice() == b"Elements" => {
+            b"Component" if in_elements => {
                 let name = a
-                    .get("name")
-                    .cloned()
-                    .ok_or_else(|| invalid(&here, "a Component has no name".into()))?;
+                    .owned("name")
+                    .ok_or_else(|| invalid(here(), "a Component has no name".into()))?;
                 let source = a
-                    .get("source")
-                    .cloned()
-                    .ok_or_else(|| invalid(&here, format!("Component '{name}' has no source")))?;
+                    .owned("source")
+                    .ok_or_else(|| invalid(here(), format!("Component '{name}' has no source")))?;
                 if let Some(t) = a.get("type")
                     && t != "application/x-fmu-sharedlibrary"
                 {
                     return Err(SspError::Unsupported {
-                        file: here.clone(),
+                        file: here(),
                         what: format!("component '{name}' of type '{t}' (only FMUs)"),
                     });
                 }
@@ -392,12 +414,12 @@ pub(super) fn read_ssd_labelled(
                 }
             }
             b"Connector" => {
-                let name = a.get("name").cloned().unwrap_or_default();
+                let name = a.owned("name").unwrap_or_default();
                 let kind = a
                     .get("kind")
-                    .and_then(|k| ConnectorKind::parse(k))
+                    .and_then(ConnectorKind::parse)
                     .ok_or_else(|| {
-                        invalid(&here, format!("connector '{name}' has no valid kind"))
+                        invalid(here(), format!("connector '{name}' has no valid kind"))
                     })?;
                 let k = SspConnector {
                     name,
@@ -413,12 +435,12 @@ pub(super) fn read_ssd_labelled(
                 }
             }
             t @ (b"Real" | b"Integer" | b"Boolean" | b"String" | b"Enumeration")
-                if parent.as_slice() == b"Connector" =>
+                if in_connector =>
             {
                 if let Some(k) = connector.as_mut() {
                     k.ty = Some(match t {
                         b"Real" => ConnectorType::Real {
-                            unit: a.get("unit").cloned(),
+                            unit: a.owned("unit"),
                         },
                         b"Integer" => ConnectorType::Integer,
                         b"Boolean" => ConnectorType::Boolean,
@@ -428,14 +450,14 @@ pub(super) fn read_ssd_labelled(
                 }
             }
             b"ParameterBinding" => {
-                binding_prefix = a.get("prefix").cloned().unwrap_or_default();
+                binding_prefix = a.owned("prefix").unwrap_or_default();
                 if let Some(src) = a.get("source") {
                     if let Some(c) = comp.as_mut() {
-                        c.parameter_sources.push(src.clone());
+                        c.parameter_sources.push(src.to_string());
                     }
                     let text = read_file(src)?;
                     let params = read_parameter_set(&text, 0..text.len(), &source_label(src))?;
-                    push_params(comp.as_mut(), params, &binding_prefix, &here)?;
+                    push_params(comp.as_mut(), params, &binding_prefix, here)?;
                 }
             }
             b"ParameterSet" if !empty => {
@@ -450,45 +472,45 @@ pub(super) fn read_ssd_labelled(
                 // boundaries (a second byte order mark).
                 xml.get(start..end).ok_or_else(|| {
                     invalid(
-                        &here,
+                        here(),
                         format!("a ParameterSet at byte {start} the reader cannot cut out"),
                     )
                 })?;
                 let params = read_parameter_set(xml, start..end, file)?;
-                push_params(comp.as_mut(), params, &binding_prefix, &here)?;
+                push_params(comp.as_mut(), params, &binding_prefix, here)?;
                 continue; // the end tag was consumed
             }
             b"Connection" => {
                 let c = SspConnection {
-                    start_element: a.get("startElement").cloned(),
-                    start_connector: a.get("startConnector").cloned().unwrap_or_default(),
-                    end_element: a.get("endElement").cloned(),
-                    end_connector: a.get("endConnector").cloned().unwrap_or_default(),
+                    start_element: a.owned("startElement"),
+                    start_connector: a.owned("startConnector").unwrap_or_default(),
+                    end_element: a.owned("endElement"),
+                    end_connector: a.owned("endConnector").unwrap_or_default(),
                 };
                 ssd.system.connections.push(c);
             }
             b"DefaultExperiment" => {
                 let d = ssd.default_experiment.get_or_insert_with(Default::default);
                 if let Some(v) = a.get("startTime") {
-                    d.start_time = Some(parse_f64(&here, "startTime", v)?);
+                    d.start_time = Some(parse_f64(here, "startTime", v)?);
                 }
                 if let Some(v) = a.get("stopTime") {
-                    d.stop_time = Some(parse_f64(&here, "stopTime", v)?);
+                    d.stop_time = Some(parse_f64(here, "stopTime", v)?);
                 }
             }
             b"Master" => {
                 let d = ssd.default_experiment.get_or_insert_with(Default::default);
                 if let Some(v) = a.get("stepSize") {
-                    d.step_size = Some(parse_f64(&here, "stepSize", v)?);
+                    d.step_size = Some(parse_f64(here, "stepSize", v)?);
                 }
-                d.algorithm = match a.get("algorithm").map(String::as_str) {
+                d.algorithm = match a.get("algorithm") {
                     Some("jacobi") => Some(Algorithm::Jacobi),
                     Some("gauss-seidel") => Some(Algorithm::GaussSeidel),
                     None => d.algorithm,
                     // A misspelt algorithm ran the default silently.
                     Some(other) => {
                         return Err(invalid(
-                            &here,
+                            here(),
                             format!(
                                 "kb:Master algorithm '{other}' is not one of jacobi, gauss-seidel"
                             ),
@@ -507,13 +529,13 @@ pub(super) fn read_ssd_labelled(
     // root), or of the end of the document where there is no element at all.
     let Some(root) = root else {
         return Err(invalid(
-            &format!("{file} line {}", line_of(xml, xml.len() as u64)),
+            format!("{file} line {}", line_of(xml, xml.len() as u64)),
             "the document has no root element (SystemStructureDescription)".into(),
         ));
     };
     if system_depth.is_none() {
         return Err(invalid(
-            &format!("{file} line {}", line_of(xml, root)),
+            format!("{file} line {}", line_of(xml, root)),
             "no System element in the SystemStructureDescription".into(),
         ));
     }
@@ -524,11 +546,11 @@ fn push_params(
     comp: Option<&mut SspComponent>,
     params: Vec<SspParameter>,
     prefix: &str,
-    file: &str,
+    file: impl FnOnce() -> String,
 ) -> Result<(), SspError> {
     let Some(c) = comp else {
         return Err(SspError::Unsupported {
-            file: file.to_string(),
+            file: file(),
             what: "parameter bindings on the system (only on components)".into(),
         });
     };

@@ -3,6 +3,8 @@
 
 use model_description::*;
 
+pub mod plain_writer;
+
 pub fn real(
     name: &str,
     vr: u32,
