@@ -69,7 +69,10 @@ pub fn build_kneebench() -> Result<PathBuf, String> {
             "cargo build --release -p kneebench-harness: {status}"
         ));
     }
-    let exe = repo_root().join("target/release/kneebench");
+    // Where cargo put it: `CARGO_TARGET_DIR` (relative to the root it was built from) when set.
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map_or_else(|| repo_root().join("target"), |dir| repo_root().join(dir));
+    let exe = target.join("release/kneebench");
     if !exe.is_file() {
         return Err(format!("{} missing after the build", exe.display()));
     }
