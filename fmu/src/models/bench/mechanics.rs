@@ -757,6 +757,7 @@ const IN_STRUCTURE: [[bool; STATE_ROWS]; NZ] = {
 /// sum of a `+0.0` and a `-0.0` is `+0.0`, and an exact cancellation gives `+0.0`: the sum is
 /// never `-0.0`), so the non-zero products are added in the same order to the same values
 /// (tested, [`TermRows::dense`] the plain form).
+#[allow(clippy::large_enum_variant)] // one local per rebuild, built in place: never moved
 enum TermRows {
     Sparse([f64; 18]),
     Dense([[f64; STATE_ROWS]; NZ]),
