@@ -712,6 +712,115 @@ pub(crate) const MAX_TERMS: usize = 48;
 /// see [`TaylorSegment::new`]; one that needs more is split).
 pub(crate) const PIECE_TERMS: usize = 32;
 
+/// Entries of the plant's system matrix that can be non-zero in some mode (rows 0..6, see
+/// [`system_matrix`]), row by row in column order: `(row, column)`.
+const STRUCTURE: [(usize, usize); 18] = [
+    (THETA1, OMEGA1),
+    (THETA2, OMEGA2),
+    (OMEGA1, THETA1),
+    (OMEGA1, THETA2),
+    (OMEGA1, OMEGA1),
+    (OMEGA1, CURRENT1),
+    (OMEGA1, FRICTION1),
+    (OMEGA2, THETA1),
+    (OMEGA2, THETA2),
+    (OMEGA2, OMEGA2),
+    (OMEGA2, CURRENT2),
+    (OMEGA2, FRICTION2),
+    (CURRENT1, OMEGA1),
+    (CURRENT1, CURRENT1),
+    (CURRENT1, DRIVE1),
+    (CURRENT2, OMEGA2),
+    (CURRENT2, CURRENT2),
+    (CURRENT2, DRIVE2),
+];
+
+/// Whether `(r, c)` is in [`STRUCTURE`], by column `c` and row `r`.
+const IN_STRUCTURE: [[bool; STATE_ROWS]; NZ] = {
+    let mut mask = [[false; STATE_ROWS]; NZ];
+    let mut k = 0;
+    while k < STRUCTURE.len() {
+        let (r, c) = STRUCTURE[k];
+        mask[c][r] = true;
+        k += 1;
+    }
+    mask
+};
+
+/// The state rows of `M` as a Taylor term's recurrence reads them: `sums[r] = sum_c M[r][c]
+/// prev[c]`, each row's products added in column order to a sum that starts at `+0.0`.
+///
+/// `Sparse` when every entry of rows 0..6 outside [`STRUCTURE`] is zero (every matrix of
+/// [`system_matrix`]): only the entries of [`STRUCTURE`] are multiplied, 18 products instead
+/// of 60. Bit for bit the dense sums: a product of a zero entry and a finite `prev[c]` is a
+/// zero, and adding a zero of either sign leaves such a sum unchanged (it starts at `+0.0`, a
+/// sum of a `+0.0` and a `-0.0` is `+0.0`, and an exact cancellation gives `+0.0`: the sum is
+/// never `-0.0`), so the non-zero products are added in the same order to the same values
+/// (tested, [`TermRows::dense`] the plain form).
+#[allow(clippy::large_enum_variant)] // one local per rebuild, built in place: never moved
+enum TermRows {
+    Sparse([f64; 18]),
+    Dense([[f64; STATE_ROWS]; NZ]),
+}
+
+impl TermRows {
+    #[inline(always)]
+    fn of(m: &AugMatrix) -> Self {
+        let mut outside = false;
+        for c in 0..NZ {
+            for r in 0..STATE_ROWS {
+                outside |= m[(r, c)] != 0.0 && !IN_STRUCTURE[c][r];
+            }
+        }
+        if outside {
+            Self::dense(m)
+        } else {
+            Self::Sparse(STRUCTURE.map(|(r, c)| m[(r, c)]))
+        }
+    }
+
+    /// The plain form: every entry of rows 0..6 by column (each term a sweep over the columns
+    /// adding column `c` times `prev[c]` into all six rows at once).
+    #[inline(always)]
+    fn dense(m: &AugMatrix) -> Self {
+        Self::Dense(std::array::from_fn(|c| std::array::from_fn(|r| m[(r, c)])))
+    }
+
+    #[inline(always)]
+    fn sums(&self, prev: &AugVector) -> [f64; STATE_ROWS] {
+        match self {
+            Self::Sparse(e) => {
+                let p = prev;
+                [
+                    0.0 + e[0] * p[OMEGA1],
+                    0.0 + e[1] * p[OMEGA2],
+                    0.0 + e[2] * p[THETA1]
+                        + e[3] * p[THETA2]
+                        + e[4] * p[OMEGA1]
+                        + e[5] * p[CURRENT1]
+                        + e[6] * p[FRICTION1],
+                    0.0 + e[7] * p[THETA1]
+                        + e[8] * p[THETA2]
+                        + e[9] * p[OMEGA2]
+                        + e[10] * p[CURRENT2]
+                        + e[11] * p[FRICTION2],
+                    0.0 + e[12] * p[OMEGA1] + e[13] * p[CURRENT1] + e[14] * p[DRIVE1],
+                    0.0 + e[15] * p[OMEGA2] + e[16] * p[CURRENT2] + e[17] * p[DRIVE2],
+                ]
+            }
+            Self::Dense(columns) => {
+                let mut sums = [0.0; STATE_ROWS];
+                for (column, pv) in columns.iter().zip(prev.iter()) {
+                    for (s, m) in sums.iter_mut().zip(column) {
+                        *s += m * pv;
+                    }
+                }
+                sums
+            }
+        }
+    }
+}
+
 /// Pieces whose storage a [`TaylorSegment`] keeps between rebuilds (a 1 ms sub-step of the
 /// stiffest mode needs a handful).
 const SPARE_PIECES: usize = 64;
@@ -734,6 +843,23 @@ impl Piece {
                 *o = *o * s + c;
             }
         }
+        out
+    }
+
+    /// [`Self::eval`] of the six state components (angles, speeds, currents) only, bit for bit
+    /// theirs; the held inputs' entries are the piece's start values (what an event function
+    /// reads, which never reads them: 6 of the 10 chains of the Horner form).
+    #[inline(always)]
+    pub(crate) fn eval_states(&self, s: f64) -> AugVector {
+        let mut out = self.coefficients[0];
+        let mut states: [f64; STATE_ROWS] = [0.0; STATE_ROWS];
+        states.copy_from_slice(&self.coefficients[self.terms - 1][..STATE_ROWS]);
+        for n in (0..self.terms - 1).rev() {
+            for (o, c) in states.iter_mut().zip(self.coefficients[n].iter()) {
+                *o = *o * s + c;
+            }
+        }
+        out[..STATE_ROWS].copy_from_slice(&states);
         out
     }
 
@@ -773,11 +899,13 @@ impl TaylorSegment {
     /// until every piece's series converges within [`PIECE_TERMS`] terms.
     #[inline(always)]
     pub(crate) fn rebuild(&mut self, m: &AugMatrix, rate: f64, z0: &AugVector, duration: f64) {
-        // The state rows of `m` by column: each term is a sweep over the columns that adds
-        // column `c` times the previous term's entry `c` into all six rows at once (the rows'
-        // sums are taken in column order, as a row-by-row dot product takes them).
-        let columns: [[f64; STATE_ROWS]; NZ] =
-            std::array::from_fn(|c| std::array::from_fn(|r| m[(r, c)]));
+        self.rebuild_with(&TermRows::of(m), rate, z0, duration);
+    }
+
+    /// [`Self::rebuild`] with the terms' recurrence read from `rows` (its sparse form for the
+    /// plant's matrices; the tests compare it with the dense one).
+    #[inline(always)]
+    fn rebuild_with(&mut self, rows: &TermRows, rate: f64, z0: &AugVector, duration: f64) {
         let mut count = ((duration * rate / 2.0).ceil() as usize).clamp(1, 1_000_000);
         'retry: loop {
             let pieces_wanted = count;
@@ -803,13 +931,7 @@ impl TaylorSegment {
                 let mut small_in_a_row = 0;
                 let mut converged = false;
                 for n in 1..PIECE_TERMS {
-                    let prev = piece.coefficients[n - 1];
-                    let mut sums = [0.0; STATE_ROWS];
-                    for (column, pv) in columns.iter().zip(prev.iter()) {
-                        for (s, m) in sums.iter_mut().zip(column) {
-                            *s += m * pv;
-                        }
-                    }
+                    let sums = rows.sums(&piece.coefficients[n - 1]);
                     let mut next = [0.0; NZ];
                     for (v, s) in next.iter_mut().zip(sums) {
                         *v = s * len / n as f64;
@@ -867,6 +989,14 @@ impl TaylorSegment {
     pub(crate) fn state_at(&self, t: f64) -> AugVector {
         let (piece, s) = self.locate(t);
         piece.eval(s)
+    }
+
+    /// [`Self::state_at`] of the six state components, for an event function (see
+    /// [`Piece::eval_states`]: the held inputs' entries are not the flow's).
+    #[inline(always)]
+    pub(crate) fn states_at(&self, t: f64) -> AugVector {
+        let (piece, s) = self.locate(t);
+        piece.eval_states(s)
     }
 
     /// Ends of the pieces (for sign-change scanning), excluding 0.
@@ -1024,6 +1154,69 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The sparse recurrence of the Taylor terms builds the dense one's segments bit for bit
+    /// (and a piece's state components alone are its full evaluation's): every mode of DA and SEA, states with zeros and negative zeros (a stuck body, held
+    /// inputs of either sign), mixed magnitudes, short and long segments; a matrix with an
+    /// entry outside the structure takes the dense form.
+    #[test]
+    fn sparse_taylor_terms_are_the_dense_ones_bit_for_bit() {
+        use crate::models::bench::Configuration;
+        let states: [AugVector; 4] = [
+            [0.1, -0.05, 0.3, -0.2, 2.0, -1.0, 12.0, 0.5, -5.0, 0.35],
+            [0.0, -0.0, 0.0, -0.0, -0.0, 3.5, -0.0, -24.0, -0.0, 0.0],
+            [
+                -3e-3, 2.9e-3, -150.0, 80.0, -14.0, 5.5, -24.0, 48.0, 2.5, -1.3,
+            ],
+            [
+                1e-12, 2e-12, -1e-9, 1e-9, 1e-6, -1e-6, 1e-3, -1e-3, 1e-2, -1e-2,
+            ],
+        ];
+        let mut checked = 0;
+        for configuration in [Configuration::Da, Configuration::Sea] {
+            let p = BenchParameters {
+                configuration,
+                ..BenchParameters::default()
+            };
+            for key in 0..16u8 {
+                let m = system_matrix(&p, LinearMode::from_key(key));
+                assert!(matches!(TermRows::of(&m), TermRows::Sparse(_)), "{key}");
+                let rate = rate_scale(&m);
+                for z0 in &states {
+                    for duration in [1e-5, 3.7e-4, 1e-3, 2.5e-2] {
+                        let mut sparse = TaylorSegment::default();
+                        sparse.rebuild(&m, rate, z0, duration);
+                        let mut dense = TaylorSegment::default();
+                        dense.rebuild_with(&TermRows::dense(&m), rate, z0, duration);
+                        assert_eq!(sparse.pieces().len(), dense.pieces().len());
+                        for (a, b) in sparse.pieces().iter().zip(dense.pieces()) {
+                            assert_eq!(a.terms, b.terms, "{configuration:?} {key}");
+                            for n in 0..a.terms {
+                                for v in 0..NZ {
+                                    assert_eq!(
+                                        a.coefficients[n][v].to_bits(),
+                                        b.coefficients[n][v].to_bits(),
+                                        "{configuration:?} mode {key} z0 {z0:?} term {n} {v}"
+                                    );
+                                    checked += usize::from(a.coefficients[n][v] != 0.0);
+                                }
+                            }
+                            for s in [0.0, 0.3, 0.999, 1.0] {
+                                let (all, states) = (a.eval(s), a.eval_states(s));
+                                for v in 0..STATE_ROWS {
+                                    assert_eq!(all[v].to_bits(), states[v].to_bits(), "{s} {v}");
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
+        let mut m = system_matrix(&BenchParameters::default(), test_mode());
+        m[(CURRENT1, THETA2)] = 0.5;
+        assert!(matches!(TermRows::of(&m), TermRows::Dense(_)));
     }
 
     #[test]

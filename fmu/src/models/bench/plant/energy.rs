@@ -251,9 +251,14 @@ impl BenchPlant {
     }
 
     /// Energies over `[0, stop]` of a Taylor segment, positive parts split at sign changes
-    /// (per piece [`PieceWork::integrals`]).
+    /// (per piece [`PieceWork::integrals`]); returns the state at `stop` (which they read).
     #[inline(always)]
-    pub(super) fn accumulate_segment(&mut self, held: &Held, segment: &TaylorSegment, stop: f64) {
+    pub(super) fn accumulate_segment(
+        &mut self,
+        held: &Held,
+        segment: &TaylorSegment,
+        stop: f64,
+    ) -> AugVector {
         let mut signed = [0.0; 5];
         let mut positive = [0.0; 5];
         let mut squares = [0.0; 2];
@@ -281,6 +286,7 @@ impl BenchPlant {
         let z0 = segment.state_at(0.0);
         let z1 = segment.state_at(stop);
         self.add_energy(held, &z0, &z1, signed, positive, squares, copper, emf, stop);
+        z1
     }
 
     /// The held mode's power laws: what [`PieceWork`] needs to form the powers of a piece.

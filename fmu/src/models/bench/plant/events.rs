@@ -5,8 +5,11 @@
 use super::{BenchPlant, EVENT_BUDGET, Held, sign};
 use crate::models::bench::Interlock;
 use crate::models::bench::mechanics::{
-    AugVector, CURRENT1, CURRENT2, OMEGA1, THETA1, THETA2, TaylorSegment,
+    AugVector, CURRENT1, CURRENT2, NZ, OMEGA1, THETA1, THETA2, TaylorSegment,
 };
+
+/// Pieces of a segment whose end states [`BenchPlant::earliest_event`] keeps on the stack.
+const FEW_PIECES: usize = 8;
 
 /// What an event function describes; positive value = happened.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -307,8 +310,7 @@ impl BenchPlant {
                 None
             };
             let stop = earliest.map_or(remaining, |(t, _)| t);
-            self.accumulate_segment(&held, segment, stop);
-            let z1 = segment.state_at(stop);
+            let z1 = self.accumulate_segment(&held, segment, stop);
             self.commit(z1);
             elapsed += stop;
             remaining -= stop;
@@ -364,15 +366,27 @@ impl BenchPlant {
         segment: &TaylorSegment,
     ) -> Option<(f64, Event)> {
         let mut best: Option<(f64, Event)> = None;
-        let z0 = segment.state_at(0.0);
-        let ends: Vec<(f64, AugVector)> = segment
-            .piece_ends()
-            .map(|b| (b, segment.state_at(b)))
-            .collect();
+        let z0 = segment.states_at(0.0);
+        // The states at the piece ends, on the stack for a segment of a few pieces (the
+        // usual event sub-step; a heap list for a longer one).
+        let mut few = [(0.0, [0.0; NZ]); FEW_PIECES];
+        let many: Vec<(f64, AugVector)>;
+        let ends: &[(f64, AugVector)] = if segment.pieces().len() <= FEW_PIECES {
+            for (end, b) in few.iter_mut().zip(segment.piece_ends()) {
+                *end = (b, segment.states_at(b));
+            }
+            &few[..segment.pieces().len()]
+        } else {
+            many = segment
+                .piece_ends()
+                .map(|b| (b, segment.states_at(b)))
+                .collect();
+            &many
+        };
         for event in events {
             let mut a = 0.0;
             let mut ga = self.event_value(held, event, &z0).min(0.0);
-            for (b, zb) in &ends {
+            for (b, zb) in ends {
                 if let Some((t, _)) = best
                     && a >= t
                 {
@@ -417,7 +431,7 @@ impl BenchPlant {
             if !(t > a && t < b) {
                 t = 0.5 * (a + b);
             }
-            let g = self.event_value(held, event, &segment.state_at(t));
+            let g = self.event_value(held, event, &segment.states_at(t));
             if g >= 0.0 {
                 b = t;
                 gb = g;
@@ -522,6 +536,36 @@ mod tests {
             positive > 1000 && negative > 1000,
             "{positive} / {negative}"
         );
+    }
+
+    /// The event functions read only the six state components (angles, speeds, currents),
+    /// never the held inputs' entries: the event search evaluates only those
+    /// ([`TaylorSegment::states_at`]).
+    #[test]
+    fn event_functions_read_only_the_state_components() {
+        let mut plant = BenchPlant::new(BenchParameters::default()).unwrap();
+        let base = plant.hold();
+        let z = [0.05, -0.04, 1e-3, -1e-3, 3.0, 2.0, 3.0, 2.0, 0.0, 0.0];
+        let mut scrambled = z;
+        scrambled[6..].copy_from_slice(&[f64::NAN, -7.5, f64::INFINITY, 1e300]);
+        for saturation in [0.0, 1.0, -1.0] {
+            plant.state.saturation = [saturation; 2];
+            for voltage_row in [false, true] {
+                let mut held = base;
+                held.mode.voltage_row = [voltage_row; 2];
+                let events = Interlock::CHECKED
+                    .into_iter()
+                    .map(Event::Trip)
+                    .chain(SWITCHING_EVENTS);
+                for event in events {
+                    assert_eq!(
+                        plant.event_value(&held, event, &z).to_bits(),
+                        plant.event_value(&held, event, &scrambled).to_bits(),
+                        "{event:?}"
+                    );
+                }
+            }
+        }
     }
 
     /// The active set lists the same events in the same order (the order decides which of two
