@@ -84,16 +84,22 @@ pub fn escape_attribute(value: &str) -> Cow<'_, str> {
         return Cow::Borrowed(value);
     }
     let mut out = String::with_capacity(value.len() + 16);
-    push_escaped(&mut out, value);
+    push_escaped_chars(&mut out, value);
     Cow::Owned(out)
 }
 
 /// Appends `value` to `out`, escaped as [`escape_attribute`] does.
 fn push_escaped(out: &mut String, value: &str) {
-    if !needs_escape(value) {
+    if needs_escape(value) {
+        push_escaped_chars(out, value);
+    } else {
         out.push_str(value);
-        return;
     }
+}
+
+/// Appends `value` to `out` character by character, each one [`needs_escape`] names replaced
+/// (the callers have already scanned `value` once).
+fn push_escaped_chars(out: &mut String, value: &str) {
     for c in value.chars() {
         match c {
             '&' => out.push_str("&amp;"),
