@@ -9,47 +9,16 @@ use super::{
 };
 use crate::master::{Algorithm, Value};
 
-/// The 1-based line of byte `position` of `xml`.
+/// The 1-based line of byte `position` of `xml` (of its end, past it): counted only for an
+/// error message, so from the start each time.
 fn line_of(xml: &str, position: u64) -> usize {
-    Lines::new(xml).of(position)
-}
-
-/// The 1-based lines of positions that mostly move forward (an XML reader's events), each
-/// counted from the last one asked for: a reader's pass then counts the document's newlines
-/// once, not once per element.
-struct Lines<'a> {
-    xml: &'a str,
-    /// The byte up to which newlines are counted, and the line it is on.
-    counted: usize,
-    line: usize,
-}
-
-impl<'a> Lines<'a> {
-    fn new(xml: &'a str) -> Self {
-        Lines {
-            xml,
-            counted: 0,
-            line: 1,
-        }
-    }
-
-    /// The 1-based line of byte `position` of the document (of its end, past it), counting
-    /// on from the last position asked for (from the start if `position` is before it).
-    fn of(&mut self, position: u64) -> usize {
-        let end = usize::try_from(position)
-            .unwrap_or(usize::MAX)
-            .min(self.xml.len());
-        if end < self.counted {
-            self.counted = 0;
-            self.line = 1;
-        }
-        self.line += self.xml.as_bytes()[self.counted..end]
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count();
-        self.counted = end;
-        self.line
-    }
+    let end = usize::try_from(position)
+        .unwrap_or(usize::MAX)
+        .min(xml.len());
+    1 + xml.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
 }
 
 /// Where an event the reader reads from byte `position` of `xml` starts: after the blanks it
@@ -575,18 +544,30 @@ pub fn read_ssd(xml: &str) -> Result<Ssd, SspError> {
 
 #[cfg(test)]
 mod tests {
-    use super::{Lines, line_of};
+    use super::line_of;
 
     #[test]
-    fn lines_counted_on_are_the_lines_counted_from_the_start() {
+    fn lines_are_counted_from_the_start_to_the_byte() {
         let xml = "<a>\n<b/>\n\n<c x=\"1\"/>\r\n</a>\n";
         let len = xml.len() as u64;
-        // Forward, on a newline and just past it, backwards (a parameter set read after its
-        // system), past the end.
-        let positions = [0, 3, 4, 5, 9, 10, 11, 2, 0, 20, len, len + 7, 1, u64::MAX];
-        let mut lines = Lines::new(xml);
-        for p in positions {
-            assert_eq!(lines.of(p), line_of(xml, p), "byte {p}");
+        // On a newline and just past it, past the end.
+        let expected = [
+            (0, 1),
+            (3, 1),
+            (4, 2),
+            (5, 2),
+            (9, 3),
+            (10, 4),
+            (11, 4),
+            (2, 1),
+            (20, 4),
+            (len, 6),
+            (len + 7, 6),
+            (1, 1),
+            (u64::MAX, 6),
+        ];
+        for (p, line) in expected {
+            assert_eq!(line_of(xml, p), line, "byte {p}");
         }
     }
 }
