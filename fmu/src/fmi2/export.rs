@@ -4,7 +4,9 @@
 //! never cross `extern "C"`: it would abort the importer), checks the call sequence, and
 //! converts C arguments into slices and `&str`s before the generic [`FmiInstance`] sees them.
 //! The gets, sets and `fmi2DoStep` leave the sequence check to the instance (see
-//! [`FmiInstance`]), which makes it after the arguments are converted.
+//! [`FmiInstance`]), which makes it after the arguments are converted, and the `catch_unwind`
+//! too: their instance methods never unwind, so a call with valid pointers is a jump into the
+//! instance (a NULL pointer takes the checking path that names it).
 //! This is the only module with `unsafe` pointer handling.
 //!
 //! # Freed and foreign component pointers
@@ -47,7 +49,7 @@ use std::borrow::Cow;
 use std::ffi::{CStr, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
-use super::instance::{FmiInstance, Func};
+use super::instance::{FmiInstance, Func, panic_message};
 use super::live;
 use super::logging::{Category, Logger};
 use super::types::*;
@@ -89,16 +91,6 @@ fn with_instance(
             component.poison();
             component.refuse(name, &format!("internal error (panic): {what}"))
         }
-    }
-}
-
-fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
-    if let Some(s) = payload.downcast_ref::<&str>() {
-        (*s).to_string()
-    } else if let Some(s) = payload.downcast_ref::<String>() {
-        s.clone()
-    } else {
-        "unknown panic".into()
     }
 }
 
@@ -438,6 +430,16 @@ pub unsafe extern "C" fn fmi2Reset(c: fmi2Component) -> fmi2Status {
     with_instance(c, "fmi2Reset", Some(Func::Reset), |inst| inst.reset())
 }
 
+/// The instance behind a non-NULL component, for the per-step functions' direct calls.
+///
+/// # Safety
+/// As in [`with_instance`]: `c` was returned by fmi2Instantiate and not yet freed, and the
+/// importer calls an instance from one thread at a time.
+unsafe fn component<'a>(c: fmi2Component) -> &'a mut dyn FmiInstance {
+    // SAFETY: the caller's contract.
+    unsafe { &mut **c.cast::<Component>() }
+}
+
 macro_rules! getter {
     ($name:ident, $ty:ty, $method:ident) => {
         #[doc = concat!("The FMI 2.0 function `", stringify!($name), "`: see the module documentation.")]
@@ -448,17 +450,38 @@ macro_rules! getter {
             nvr: usize,
             value: *mut $ty,
         ) -> fmi2Status {
-            let f = stringify!($name);
-            // The instance checks the call sequence itself (inlined there).
-            with_instance(c, f, None, |inst| {
-                // SAFETY: FMI contract: vr and value hold nvr elements.
-                let (Some(vrs), Some(out)) = (unsafe { slice(vr, nvr) }, unsafe {
-                    slice_mut(value, nvr)
-                }) else {
-                    return null_arg(inst, f, "vr or value");
-                };
-                inst.$method(vrs, out)
-            })
+            // The per-step path: a component and both arrays (or none, nvr = 0) go straight to
+            // the instance, which checks the call sequence and catches its own panics
+            // ([`FmiInstance`]); a NULL takes the checking path below.
+            // SAFETY: FMI contract: vr and value hold nvr elements.
+            if !c.is_null()
+                && let (Some(vrs), Some(out)) =
+                    (unsafe { slice(vr, nvr) }, unsafe { slice_mut(value, nvr) })
+            {
+                // SAFETY: a non-NULL component (see `component`).
+                return unsafe { component(c) }.$method(vrs, out);
+            }
+            #[cold]
+            #[inline(never)]
+            fn refuse_null(
+                c: fmi2Component,
+                vr: *const fmi2ValueReference,
+                nvr: usize,
+                value: *mut $ty,
+            ) -> fmi2Status {
+                let f = stringify!($name);
+                // The instance checks the call sequence itself (inlined there).
+                with_instance(c, f, None, |inst| {
+                    // SAFETY: FMI contract: vr and value hold nvr elements.
+                    let (Some(vrs), Some(out)) = (unsafe { slice(vr, nvr) }, unsafe {
+                        slice_mut(value, nvr)
+                    }) else {
+                        return null_arg(inst, f, "vr or value");
+                    };
+                    inst.$method(vrs, out)
+                })
+            }
+            refuse_null(c, vr, nvr, value)
         }
     };
 }
@@ -478,17 +501,36 @@ macro_rules! setter {
             nvr: usize,
             value: *const $ty,
         ) -> fmi2Status {
-            let f = stringify!($name);
-            // The instance checks the call sequence itself (inlined there).
-            with_instance(c, f, None, |inst| {
-                // SAFETY: FMI contract: vr and value hold nvr elements.
-                let (Some(vrs), Some(values)) =
+            // The per-step path, as for the getters.
+            // SAFETY: FMI contract: vr and value hold nvr elements.
+            if !c.is_null()
+                && let (Some(vrs), Some(values)) =
                     (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
-                else {
-                    return null_arg(inst, f, "vr or value");
-                };
-                inst.$method(vrs, values)
-            })
+            {
+                // SAFETY: a non-NULL component (see `component`).
+                return unsafe { component(c) }.$method(vrs, values);
+            }
+            #[cold]
+            #[inline(never)]
+            fn refuse_null(
+                c: fmi2Component,
+                vr: *const fmi2ValueReference,
+                nvr: usize,
+                value: *const $ty,
+            ) -> fmi2Status {
+                let f = stringify!($name);
+                // The instance checks the call sequence itself (inlined there).
+                with_instance(c, f, None, |inst| {
+                    // SAFETY: FMI contract: vr and value hold nvr elements.
+                    let (Some(vrs), Some(values)) =
+                        (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
+                    else {
+                        return null_arg(inst, f, "vr or value");
+                    };
+                    inst.$method(vrs, values)
+                })
+            }
+            refuse_null(c, vr, nvr, value)
         }
     };
 }
@@ -792,10 +834,13 @@ pub unsafe extern "C" fn fmi2DoStep(
     communicationStepSize: fmi2Real,
     _noSetFMUStatePriorToCurrentPoint: fmi2Boolean,
 ) -> fmi2Status {
-    // The instance checks the call sequence itself (inlined there).
-    with_instance(c, "fmi2DoStep", None, |inst| {
-        inst.do_step(currentCommunicationPoint, communicationStepSize)
-    })
+    if c.is_null() {
+        return fmi2Error;
+    }
+    // The instance checks the call sequence itself and catches its own panics
+    // ([`FmiInstance`]).
+    // SAFETY: a non-NULL component (see `component`).
+    unsafe { component(c) }.do_step(currentCommunicationPoint, communicationStepSize)
 }
 
 /// The FMI 2.0 function `fmi2CancelStep`: see the module documentation.

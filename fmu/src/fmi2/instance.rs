@@ -12,6 +12,7 @@
 //! changed its state answers `fmi2Error` and moves the instance to the error state.
 
 use std::ffi::CString;
+use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::logging::{Category, Logger};
 use super::types::{fmi2Boolean, fmi2Status, fmi2String};
@@ -182,6 +183,9 @@ fn same_time(a: f64, b: f64) -> bool {
 /// The get, set and `do_step` methods check the call sequence themselves (with
 /// [`FmiInstance::allow`], statically dispatched and inlined there), so the per-step calls pay
 /// one dynamic dispatch, not two; the export layer checks the other functions before calling.
+/// They also never unwind: a panic inside (a model's) is caught, logged and answered with
+/// `fmi2Error`, and the instance enters the error state, so the export layer calls them
+/// directly, without a `catch_unwind` of its own.
 pub trait FmiInstance: Send {
     /// The logger (for messages the export layer produces itself).
     fn logger(&self) -> &Logger;
@@ -248,6 +252,17 @@ pub trait FmiInstance: Send {
     }
     /// Moves the instance to the error state (after a panic inside a call).
     fn poison(&mut self);
+}
+
+/// The message of a caught panic's payload.
+pub(super) fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "unknown panic".into()
+    }
 }
 
 /// The generic instance of model `M`.
@@ -859,209 +874,35 @@ impl<M: Model> FmiInstance for Instance<M> {
     }
 
     fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status {
-        let f = "fmi2GetReal";
-        if !self.allow(Func::Get, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.refresh(f) {
-            return s;
-        }
-        // One pass: an unknown reference fails the call (the output array is then unspecified,
-        // as the standard allows); the model itself is not changed by a get.
-        for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.real_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = get(&self.model),
-                _ => return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error),
-            }
-        }
-        fmi2OK
+        self.guarded("fmi2GetReal", |s| s.get_real_unguarded(vrs, out))
     }
 
     fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
-        let f = "fmi2GetInteger";
-        if !self.allow(Func::Get, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.refresh(f) {
-            return s;
-        }
-        // One pass: an unknown reference fails the call (the output array is then unspecified,
-        // as the standard allows); the model itself is not changed by a get.
-        for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.integer_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = get(&self.model),
-                _ => return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error),
-            }
-        }
-        fmi2OK
+        self.guarded("fmi2GetInteger", |s| s.get_integer_unguarded(vrs, out))
     }
 
     fn get_boolean(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status {
-        let f = "fmi2GetBoolean";
-        if !self.allow(Func::Get, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.refresh(f) {
-            return s;
-        }
-        // One pass: an unknown reference fails the call (the output array is then unspecified,
-        // as the standard allows); the model itself is not changed by a get.
-        for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.boolean_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = fmi2Boolean::from(get(&self.model)),
-                _ => return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error),
-            }
-        }
-        fmi2OK
+        self.guarded("fmi2GetBoolean", |s| s.get_boolean_unguarded(vrs, out))
     }
 
     fn get_string(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status {
-        let f = "fmi2GetString";
-        if !self.allow(Func::Get, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.refresh(f) {
-            return s;
-        }
-        // One pass: an unknown reference fails the call (the output array is then unspecified,
-        // as the standard allows); the model itself is not changed by a get.
-        let info = self.info;
-        let idx = vrs.iter().map(move |vr| info.find(3, *vr));
-        let vars = M::variables();
-        self.strings.clear();
-        for i in idx {
-            let Some(i) = i else {
-                return self.check_known(f, 3, vrs).err().unwrap_or(fmi2Error);
-            };
-            if let Access::String(get, _) = vars[i].access {
-                let s = get(&self.model).replace('\0', "");
-                self.strings.push(CString::new(s).unwrap_or_default());
-            }
-        }
-        for (o, s) in out.iter_mut().zip(&self.strings) {
-            *o = s.as_ptr();
-        }
-        fmi2OK
+        self.guarded("fmi2GetString", |s| s.get_string_unguarded(vrs, out))
     }
 
     fn set_real(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
-        let f = "fmi2SetReal";
-        if !self.allow(Func::Set, f) {
-            return fmi2Error;
-        }
-        // Fast path: every reference known, settable now, finite and in range. Anything else
-        // takes the checking path, which names the problem.
-        let phase = phase_index(self.phase());
-        let table = &self.real_setters;
-        let ok = vrs.iter().zip(values).all(|(vr, x)| {
-            table
-                .get(*vr as usize)
-                .is_some_and(|e| e.accepts(phase, *x))
-        });
-        if !ok {
-            return self.set_real_checked(vrs, values);
-        }
-        for (vr, x) in vrs.iter().zip(values) {
-            if let Some(e) = self.real_setters.get(*vr as usize) {
-                (e.set)(&mut self.model, *x);
-            }
-        }
-        self.after_set();
-        fmi2OK
+        self.guarded("fmi2SetReal", |s| s.set_real_unguarded(vrs, values))
     }
 
     fn set_integer(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status {
-        let f = "fmi2SetInteger";
-        if !self.allow(Func::Set, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.check_known(f, 1, vrs) {
-            return s;
-        }
-        let info = self.info;
-        let idx = vrs.iter().filter_map(move |vr| info.find(1, *vr));
-        if let Err(s) = self.check_settable(f, idx.clone()) {
-            return s;
-        }
-        let vars = M::variables();
-        for (i, &x) in idx.clone().zip(values) {
-            let v = &vars[i];
-            let check = match v.access {
-                Access::Enumeration(..) => self.check_enumeration(f, v, x),
-                _ => self.check_range(f, v, f64::from(x)),
-            };
-            if let Err(s) = check {
-                return s;
-            }
-        }
-        for (i, &x) in idx.clone().zip(values) {
-            if let Access::Integer(_, set) | Access::Enumeration(_, set) = vars[i].access {
-                set(&mut self.model, x);
-            }
-        }
-        self.after_set();
-        fmi2OK
+        self.guarded("fmi2SetInteger", |s| s.set_integer_unguarded(vrs, values))
     }
 
     fn set_boolean(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status {
-        let f = "fmi2SetBoolean";
-        if !self.allow(Func::Set, f) {
-            return fmi2Error;
-        }
-        // Fast path: every reference known and settable now. Anything else takes the checking
-        // path below, which names the problem.
-        let phase = phase_index(self.phase());
-        let ok = vrs.iter().all(
-            |vr| matches!(self.boolean_setters.get(*vr as usize), Some(Some(e)) if e.phases[phase]),
-        );
-        if ok {
-            for (vr, x) in vrs.iter().zip(values) {
-                if let Some(Some(e)) = self.boolean_setters.get(*vr as usize) {
-                    (e.set)(&mut self.model, *x != 0);
-                }
-            }
-            self.after_set();
-            return fmi2OK;
-        }
-        if let Err(s) = self.check_known(f, 2, vrs) {
-            return s;
-        }
-        let info = self.info;
-        let idx = vrs.iter().filter_map(move |vr| info.find(2, *vr));
-        if let Err(s) = self.check_settable(f, idx.clone()) {
-            return s;
-        }
-        let vars = M::variables();
-        for (i, &x) in idx.clone().zip(values) {
-            if let Access::Boolean(_, set) = vars[i].access {
-                set(&mut self.model, x != 0);
-            }
-        }
-        self.after_set();
-        fmi2OK
+        self.guarded("fmi2SetBoolean", |s| s.set_boolean_unguarded(vrs, values))
     }
 
     fn set_string(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status {
-        let f = "fmi2SetString";
-        if !self.allow(Func::Set, f) {
-            return fmi2Error;
-        }
-        if let Err(s) = self.check_known(f, 3, vrs) {
-            return s;
-        }
-        let info = self.info;
-        let idx = vrs.iter().filter_map(move |vr| info.find(3, *vr));
-        if let Err(s) = self.check_settable(f, idx.clone()) {
-            return s;
-        }
-        let vars = M::variables();
-        for (i, &x) in idx.clone().zip(values) {
-            if let Access::String(_, set) = vars[i].access {
-                set(&mut self.model, x);
-            }
-        }
-        self.after_set();
-        fmi2OK
+        self.guarded("fmi2SetString", |s| s.set_string_unguarded(vrs, values))
     }
 
     fn save_state(&mut self) -> Vec<u8> {
@@ -1134,6 +975,267 @@ impl<M: Model> FmiInstance for Instance<M> {
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> fmi2Status {
+        self.guarded("fmi2DoStep", |s| s.do_step_unguarded(t, h))
+    }
+
+    fn terminated(&self) -> bool {
+        self.terminated
+    }
+
+    fn last_successful_time(&self) -> f64 {
+        self.last_successful_time
+    }
+
+    fn poison(&mut self) {
+        self.state = State::Error;
+    }
+}
+
+/// The bodies of the gets, sets and `fmi2DoStep`, which may unwind (a model panics): the
+/// [`FmiInstance`] methods run them through [`Instance::guarded`].
+impl<M: Model> Instance<M> {
+    /// Runs `body` (the call `name`), catching a panic: it is logged and answered with
+    /// `fmi2Error`, and the instance enters the error state (from which `fmi2Reset` recovers),
+    /// as the export layer does for the other functions. Inside the method, so that the
+    /// exported get, set and `fmi2DoStep` functions reach it with a jump, not a frame of their
+    /// own around a second call.
+    #[inline(always)]
+    fn guarded(
+        &mut self,
+        name: &'static str,
+        body: impl FnOnce(&mut Self) -> fmi2Status,
+    ) -> fmi2Status {
+        match catch_unwind(AssertUnwindSafe(|| body(self))) {
+            Ok(status) => status,
+            Err(payload) => self.panicked(name, payload),
+        }
+    }
+
+    /// [`Instance::guarded`]'s answer to a panic.
+    #[cold]
+    #[inline(never)]
+    fn panicked(&mut self, name: &str, payload: Box<dyn std::any::Any + Send>) -> fmi2Status {
+        let what = panic_message(&payload);
+        self.poison();
+        self.refuse(name, &format!("internal error (panic): {what}"))
+    }
+
+    #[inline(always)]
+    fn get_real_unguarded(&mut self, vrs: &[u32], out: &mut [f64]) -> fmi2Status {
+        let f = "fmi2GetReal";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.real_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = get(&self.model),
+                _ => return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error),
+            }
+        }
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn get_integer_unguarded(&mut self, vrs: &[u32], out: &mut [i32]) -> fmi2Status {
+        let f = "fmi2GetInteger";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.integer_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = get(&self.model),
+                _ => return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error),
+            }
+        }
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn get_boolean_unguarded(&mut self, vrs: &[u32], out: &mut [fmi2Boolean]) -> fmi2Status {
+        let f = "fmi2GetBoolean";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        for (o, vr) in out.iter_mut().zip(vrs) {
+            match self.boolean_getters.get(*vr as usize) {
+                Some(Some(get)) => *o = fmi2Boolean::from(get(&self.model)),
+                _ => return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error),
+            }
+        }
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn get_string_unguarded(&mut self, vrs: &[u32], out: &mut [fmi2String]) -> fmi2Status {
+        let f = "fmi2GetString";
+        if !self.allow(Func::Get, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.refresh(f) {
+            return s;
+        }
+        // One pass: an unknown reference fails the call (the output array is then unspecified,
+        // as the standard allows); the model itself is not changed by a get.
+        let info = self.info;
+        let idx = vrs.iter().map(move |vr| info.find(3, *vr));
+        let vars = M::variables();
+        self.strings.clear();
+        for i in idx {
+            let Some(i) = i else {
+                return self.check_known(f, 3, vrs).err().unwrap_or(fmi2Error);
+            };
+            if let Access::String(get, _) = vars[i].access {
+                let s = get(&self.model).replace('\0', "");
+                self.strings.push(CString::new(s).unwrap_or_default());
+            }
+        }
+        for (o, s) in out.iter_mut().zip(&self.strings) {
+            *o = s.as_ptr();
+        }
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn set_real_unguarded(&mut self, vrs: &[u32], values: &[f64]) -> fmi2Status {
+        let f = "fmi2SetReal";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
+        // Fast path: every reference known, settable now, finite and in range. Anything else
+        // takes the checking path, which names the problem.
+        let phase = phase_index(self.phase());
+        let table = &self.real_setters;
+        let ok = vrs.iter().zip(values).all(|(vr, x)| {
+            table
+                .get(*vr as usize)
+                .is_some_and(|e| e.accepts(phase, *x))
+        });
+        if !ok {
+            return self.set_real_checked(vrs, values);
+        }
+        for (vr, x) in vrs.iter().zip(values) {
+            if let Some(e) = self.real_setters.get(*vr as usize) {
+                (e.set)(&mut self.model, *x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn set_integer_unguarded(&mut self, vrs: &[u32], values: &[i32]) -> fmi2Status {
+        let f = "fmi2SetInteger";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.check_known(f, 1, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(1, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
+            return s;
+        }
+        let vars = M::variables();
+        for (i, &x) in idx.clone().zip(values) {
+            let v = &vars[i];
+            let check = match v.access {
+                Access::Enumeration(..) => self.check_enumeration(f, v, x),
+                _ => self.check_range(f, v, f64::from(x)),
+            };
+            if let Err(s) = check {
+                return s;
+            }
+        }
+        for (i, &x) in idx.clone().zip(values) {
+            if let Access::Integer(_, set) | Access::Enumeration(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn set_boolean_unguarded(&mut self, vrs: &[u32], values: &[fmi2Boolean]) -> fmi2Status {
+        let f = "fmi2SetBoolean";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
+        // Fast path: every reference known and settable now. Anything else takes the checking
+        // path below, which names the problem.
+        let phase = phase_index(self.phase());
+        let ok = vrs.iter().all(
+            |vr| matches!(self.boolean_setters.get(*vr as usize), Some(Some(e)) if e.phases[phase]),
+        );
+        if ok {
+            for (vr, x) in vrs.iter().zip(values) {
+                if let Some(Some(e)) = self.boolean_setters.get(*vr as usize) {
+                    (e.set)(&mut self.model, *x != 0);
+                }
+            }
+            self.after_set();
+            return fmi2OK;
+        }
+        if let Err(s) = self.check_known(f, 2, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(2, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
+            return s;
+        }
+        let vars = M::variables();
+        for (i, &x) in idx.clone().zip(values) {
+            if let Access::Boolean(_, set) = vars[i].access {
+                set(&mut self.model, x != 0);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn set_string_unguarded(&mut self, vrs: &[u32], values: &[&str]) -> fmi2Status {
+        let f = "fmi2SetString";
+        if !self.allow(Func::Set, f) {
+            return fmi2Error;
+        }
+        if let Err(s) = self.check_known(f, 3, vrs) {
+            return s;
+        }
+        let info = self.info;
+        let idx = vrs.iter().filter_map(move |vr| info.find(3, *vr));
+        if let Err(s) = self.check_settable(f, idx.clone()) {
+            return s;
+        }
+        let vars = M::variables();
+        for (i, &x) in idx.clone().zip(values) {
+            if let Access::String(_, set) = vars[i].access {
+                set(&mut self.model, x);
+            }
+        }
+        self.after_set();
+        fmi2OK
+    }
+
+    #[inline(always)]
+    fn do_step_unguarded(&mut self, t: f64, h: f64) -> fmi2Status {
         let f = "fmi2DoStep";
         if !self.allow(Func::DoStep, f) {
             return fmi2Error;
@@ -1217,18 +1319,6 @@ impl<M: Model> FmiInstance for Instance<M> {
             Err(e) if e.is_refused() => self.refuse(f, &e.message),
             Err(e) => self.fail(f, &e.message),
         }
-    }
-
-    fn terminated(&self) -> bool {
-        self.terminated
-    }
-
-    fn last_successful_time(&self) -> f64 {
-        self.last_successful_time
-    }
-
-    fn poison(&mut self) {
-        self.state = State::Error;
     }
 }
 

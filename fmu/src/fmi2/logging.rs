@@ -43,6 +43,11 @@ pub struct Logger {
     debug_logging: bool,
     /// Bit i set: category i of [`LOG_CATEGORIES`] is enabled.
     enabled: u32,
+    /// [`Logger::enabled`] of every category at once: `enabled` when there is a callback and
+    /// debug logging is on, else 0. Kept by [`Logger::refresh_passing`] whenever a field it
+    /// depends on changes, so that the per-call test of the getters, setters and
+    /// `fmi2DoStep` (is `logCalls` on?) is one bit test instead of three.
+    passing: u32,
     /// The messages passed on, kept in test builds so unit tests can read what a call logged
     /// (the importer's callback is variadic, which a Rust test cannot define).
     #[cfg(test)]
@@ -61,15 +66,27 @@ impl Logger {
         instance_name: &CStr,
         debug_logging: bool,
     ) -> Self {
-        Self {
+        let mut logger = Self {
             callback,
             environment,
             instance_name: instance_name.to_owned(),
             debug_logging,
             enabled: (1 << LOG_CATEGORIES.len()) - 1,
+            passing: 0,
             #[cfg(test)]
             captured: std::sync::Mutex::default(),
-        }
+        };
+        logger.refresh_passing();
+        logger
+    }
+
+    /// Recomputes [`Logger::passing`] from the callback, `debug_logging` and `enabled`.
+    fn refresh_passing(&mut self) {
+        self.passing = if self.callback.is_some() && self.debug_logging {
+            self.enabled
+        } else {
+            0
+        };
     }
 
     /// The instance name given to `fmi2Instantiate`.
@@ -108,11 +125,20 @@ impl Logger {
                 self.debug_logging = false;
             }
         }
+        self.refresh_passing();
         Ok(())
     }
 
-    /// Whether a message of `category` would be passed on.
+    /// Whether a message of `category` would be passed on: there is a callback, debug logging
+    /// is on and the category is enabled (one bit test of [`Logger::passing`]).
+    #[inline]
     pub fn enabled(&self, category: Category) -> bool {
+        self.passing & (1 << category as u32) != 0
+    }
+
+    /// [`Logger::enabled`] computed from its definition, for the test of the cached form.
+    #[cfg(test)]
+    fn enabled_plain(&self, category: Category) -> bool {
         self.callback.is_some() && self.debug_logging && self.enabled & (1 << category as u32) != 0
     }
 
@@ -156,5 +182,95 @@ impl Logger {
                 text.as_ptr(),
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fmi2::types::{fmi2ComponentEnvironment, fmi2String};
+
+    /// A callback with the logger's fixed arguments; never called by the test (it only asks
+    /// which categories would pass).
+    unsafe extern "C" fn silent(
+        _: fmi2ComponentEnvironment,
+        _: fmi2String,
+        _: fmi2Status,
+        _: fmi2String,
+        _: fmi2String,
+    ) {
+    }
+
+    const ALL: [Category; 6] = [
+        Category::Events,
+        Category::Warning,
+        Category::Discard,
+        Category::Error,
+        Category::Fatal,
+        Category::Calls,
+    ];
+
+    /// The cached [`Logger::enabled`] (one bit test of `passing`) answers what its definition
+    /// answers, for every category, with and without a callback, logging on or off from the
+    /// start, after every call of a sequence of `fmi2SetDebugLogging`s (all categories, some,
+    /// an unknown one, which changes nothing).
+    #[test]
+    fn the_cached_category_test_is_the_definition() {
+        // SAFETY: only the fixed arguments differ from the variadic type, and the test never
+        // calls the callback (no message is logged).
+        let callback: fmi2CallbackLogger = Some(unsafe {
+            std::mem::transmute::<
+                unsafe extern "C" fn(
+                    fmi2ComponentEnvironment,
+                    fmi2String,
+                    fmi2Status,
+                    fmi2String,
+                    fmi2String,
+                ),
+                unsafe extern "C" fn(
+                    fmi2ComponentEnvironment,
+                    fmi2String,
+                    fmi2Status,
+                    fmi2String,
+                    fmi2String,
+                    ...
+                ),
+            >(silent)
+        });
+        let calls: [(bool, &[&str]); 9] = [
+            (true, &[]),
+            (false, &["logCalls"]),
+            (false, &[]),
+            (true, &["logCalls", "logStatusWarning"]),
+            (true, &["no such category"]),
+            (false, &["logStatusWarning"]),
+            (true, &["logEvents"]),
+            (false, &[]),
+            (true, &["logCalls"]),
+        ];
+        let mut passing = 0;
+        for callback in [None, callback] {
+            for on in [false, true] {
+                let mut logger = Logger::new(callback, std::ptr::null_mut(), c"test", on);
+                let check = |logger: &Logger, step: usize| {
+                    for c in ALL {
+                        assert_eq!(
+                            logger.enabled(c),
+                            logger.enabled_plain(c),
+                            "{c:?} after call {step}, callback {}, on {on}",
+                            callback.is_some()
+                        );
+                    }
+                };
+                check(&logger, 0);
+                for (step, (on, categories)) in calls.iter().enumerate() {
+                    let _ = logger.set_debug_logging(*on, categories);
+                    check(&logger, step + 1);
+                    passing += ALL.iter().filter(|c| logger.enabled(**c)).count();
+                }
+            }
+        }
+        // Both answers occur.
+        assert!(passing > 10, "{passing}");
     }
 }

@@ -8,6 +8,8 @@ pub mod instance;
 mod live;
 pub mod logging;
 #[cfg(test)]
+mod panic_tests;
+#[cfg(test)]
 mod refusal_tests;
 #[cfg(test)]
 mod structure_tests;
