@@ -15,6 +15,7 @@ use std::ffi::CString;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::logging::{Category, Logger};
+use super::step_args;
 use super::types::{fmi2Boolean, fmi2Status, fmi2String};
 use super::value_tables::{
     BooleanGetter, BooleanSetter, IntegerGetter, RealGetter, RealSetter, boolean_getter_table,
@@ -174,7 +175,7 @@ fn state_name(s: State) -> &'static str {
 /// 0.20000000000000107 for 0.2.
 pub const TIME_TOLERANCE: f64 = 1e-9;
 
-fn same_time(a: f64, b: f64) -> bool {
+pub(super) fn same_time(a: f64, b: f64) -> bool {
     (a - b).abs() <= TIME_TOLERANCE * a.abs().max(b.abs()).max(1.0)
 }
 
@@ -1031,9 +1032,10 @@ impl<M: Model> Instance<M> {
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
+        let (model, table) = (&self.model, &self.real_getters[..]);
         for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.real_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = get(&self.model),
+            match table.get(*vr as usize) {
+                Some(Some(get)) => *o = get(model),
                 _ => return self.check_known(f, 0, vrs).err().unwrap_or(fmi2Error),
             }
         }
@@ -1051,9 +1053,10 @@ impl<M: Model> Instance<M> {
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
+        let (model, table) = (&self.model, &self.integer_getters[..]);
         for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.integer_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = get(&self.model),
+            match table.get(*vr as usize) {
+                Some(Some(get)) => *o = get(model),
                 _ => return self.check_known(f, 1, vrs).err().unwrap_or(fmi2Error),
             }
         }
@@ -1071,9 +1074,10 @@ impl<M: Model> Instance<M> {
         }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
+        let (model, table) = (&self.model, &self.boolean_getters[..]);
         for (o, vr) in out.iter_mut().zip(vrs) {
-            match self.boolean_getters.get(*vr as usize) {
-                Some(Some(get)) => *o = fmi2Boolean::from(get(&self.model)),
+            match table.get(*vr as usize) {
+                Some(Some(get)) => *o = fmi2Boolean::from(get(model)),
                 _ => return self.check_known(f, 2, vrs).err().unwrap_or(fmi2Error),
             }
         }
@@ -1119,7 +1123,7 @@ impl<M: Model> Instance<M> {
         // Fast path: every reference known, settable now, finite and in range. Anything else
         // takes the checking path, which names the problem.
         let phase = phase_index(self.phase());
-        let table = &self.real_setters;
+        let table = &self.real_setters[..];
         let ok = vrs.iter().zip(values).all(|(vr, x)| {
             table
                 .get(*vr as usize)
@@ -1128,9 +1132,12 @@ impl<M: Model> Instance<M> {
         if !ok {
             return self.set_real_checked(vrs, values);
         }
+        // The table and the model as locals: the setters' calls do not make the loop reload
+        // them from the instance.
+        let (model, table) = (&mut self.model, &self.real_setters[..]);
         for (vr, x) in vrs.iter().zip(values) {
-            if let Some(e) = self.real_setters.get(*vr as usize) {
-                (e.set)(&mut self.model, *x);
+            if let Some(e) = table.get(*vr as usize) {
+                (e.set)(model, *x);
             }
         }
         self.after_set();
@@ -1240,56 +1247,14 @@ impl<M: Model> Instance<M> {
         if !self.allow(Func::DoStep, f) {
             return fmi2Error;
         }
-        if !(t.is_finite() && h.is_finite()) {
-            return self.refuse(
-                f,
-                &format!(
-                    "currentCommunicationPoint {} and communicationStepSize {} must be finite",
-                    num(t),
-                    num(h)
-                ),
-            );
-        }
-        if h <= 0.0 {
-            return self.refuse(
-                f,
-                &format!("communicationStepSize {} must be positive", num(h)),
-            );
-        }
+        // The ordinary step passes a few comparisons; any other takes the plain checks, which
+        // name the first problem (`step_args`).
         let max = self.model.max_step_size();
-        if h > max {
-            return self.refuse(
-                f,
-                &format!(
-                    "communicationStepSize {} s exceeds this model's largest step per call, {} s ({} internal steps with the current parameters); split the step",
-                    num(h),
-                    num(max),
-                    crate::model::MAX_INTERNAL_STEPS_PER_CALL
-                ),
-            );
-        }
-        if !same_time(t, self.time) {
-            return self.refuse(
-                f,
-                &format!(
-                    "currentCommunicationPoint {} is not the last communication point {}",
-                    num(t),
-                    num(self.time)
-                ),
-            );
-        }
-        if let Some(stop) = self.stop_time
-            && t + h > stop
-            && !same_time(t + h, stop)
-        {
-            return self.refuse(
-                f,
-                &format!(
-                    "the step to {} ends after the stopTime {} given in fmi2SetupExperiment",
-                    num(t + h),
-                    num(stop)
-                ),
-            );
+        if !step_args::fits(t, h, self.time, self.stop_time, max) {
+            let problem = step_args::problem(t, h, self.time, self.stop_time, max);
+            if let Some(why) = problem {
+                return self.refuse_step(&why);
+            }
         }
         let outcome = self.model.do_step(t, h);
         for warning in self.model.take_warnings() {
@@ -1303,21 +1268,44 @@ impl<M: Model> Instance<M> {
                 self.dirty = true;
                 fmi2OK
             }
-            Ok(StepOutcome::Terminated { at, reason }) => {
-                self.time = at;
-                self.last_successful_time = at;
-                self.terminated = true;
-                self.dirty = true;
-                self.state = State::StepFailed;
-                self.logger.log(
-                    fmi2Discard,
-                    Category::Discard,
-                    &format!("{f}: simulation ended at t = {}: {reason}", num(at)),
-                );
-                fmi2Discard
-            }
-            Err(e) if e.is_refused() => self.refuse(f, &e.message),
-            Err(e) => self.fail(f, &e.message),
+            Ok(StepOutcome::Terminated { at, reason }) => self.step_terminated(at, reason),
+            Err(e) => self.step_failed(e),
+        }
+    }
+
+    /// Refuses a step whose arguments do not pass (`why`, from [`step_args::problem`]).
+    #[cold]
+    #[inline(never)]
+    fn refuse_step(&self, why: &str) -> fmi2Status {
+        self.refuse("fmi2DoStep", why)
+    }
+
+    /// The model ended the simulation inside the step, at `at`.
+    #[cold]
+    #[inline(never)]
+    fn step_terminated(&mut self, at: f64, reason: &str) -> fmi2Status {
+        self.time = at;
+        self.last_successful_time = at;
+        self.terminated = true;
+        self.dirty = true;
+        self.state = State::StepFailed;
+        self.logger.log(
+            fmi2Discard,
+            Category::Discard,
+            &format!("fmi2DoStep: simulation ended at t = {}: {reason}", num(at)),
+        );
+        fmi2Discard
+    }
+
+    /// The model refused the step (unchanged) or failed.
+    #[cold]
+    #[inline(never)]
+    fn step_failed(&mut self, e: crate::model::ModelError) -> fmi2Status {
+        let f = "fmi2DoStep";
+        if e.is_refused() {
+            self.refuse(f, &e.message)
+        } else {
+            self.fail(f, &e.message)
         }
     }
 }

@@ -11,6 +11,7 @@ pub mod logging;
 mod panic_tests;
 #[cfg(test)]
 mod refusal_tests;
+mod step_args;
 #[cfg(test)]
 mod structure_tests;
 pub mod types;

@@ -60,15 +60,16 @@ pub(super) fn boolean_getter_table<M: Model>() -> Vec<Option<BooleanGetter<M>>> 
 /// `the_real_setters_accept_what_the_checking_path_accepts`).
 pub(super) struct RealSetter<M> {
     pub(super) set: fn(&mut M, f64),
-    /// Settable in [instantiated, initialization, stepping] (all false for a value reference
-    /// that is no Real variable: such an entry accepts nothing).
-    phases: [bool; 3],
     /// The variable's min, at least `-f64::MAX`: `low <= x` is false for NaN and -inf.
     low: f64,
     /// The variable's max, at most `f64::MAX`: `x <= high` is false for NaN and +inf.
     high: f64,
-    /// Only whole numbers ([`Variable::integer_valued`]).
-    integer_valued: bool,
+    /// Bit `1 << phase_index(p)` set: settable in phase `p`, any value in range (0 for a value
+    /// reference that is no Real variable: such an entry accepts nothing).
+    any_value: u8,
+    /// Bit `1 << phase_index(p)` set: settable in phase `p`, whole numbers only
+    /// ([`Variable::integer_valued`]).
+    whole_only: u8,
 }
 
 /// Index of `phase` in the `phases` of a setter table entry.
@@ -96,22 +97,25 @@ impl<M> RealSetter<M> {
     fn refusing() -> Self {
         Self {
             set: |_, _| {},
-            phases: [false; 3],
             low: f64::INFINITY,
             high: f64::NEG_INFINITY,
-            integer_valued: false,
+            any_value: 0,
+            whole_only: 0,
         }
     }
 
-    /// Whether `x` may be set now (phase index `phase`, [`phase_index`]): finite, within the
-    /// bounds and whole if it must be (the bounds' clamping to the finite doubles makes the
-    /// two comparisons the finiteness check too).
+    /// Whether `x` may be set now (phase index `phase`, [`phase_index`]): settable in the
+    /// phase, finite, within the bounds and whole if it must be (the bounds' clamping to the
+    /// finite doubles makes the two comparisons the finiteness check too). A variable that
+    /// takes any value in range pays one bit test and the two comparisons.
     #[inline(always)]
     pub(super) fn accepts(&self, phase: usize, x: f64) -> bool {
-        self.phases[phase]
-            && self.low <= x
-            && x <= self.high
-            && (!self.integer_valued || is_whole(x))
+        let bit = 1u8 << phase;
+        let in_range = self.low <= x && x <= self.high;
+        if self.any_value & bit != 0 {
+            return in_range;
+        }
+        self.whole_only & bit != 0 && in_range && is_whole(x)
     }
 }
 
@@ -284,13 +288,19 @@ pub(super) fn boolean_setter_table<M: Model>() -> Vec<Option<BooleanSetter<M>>> 
 /// a value reference is no Real variable).
 pub(super) fn real_setter_table<M: Model>() -> Vec<RealSetter<M>> {
     vr_table::<M, _>(|v| match v.access {
-        Access::Real(_, set) => Some(RealSetter {
-            set,
-            phases: settable_phases(v),
-            low: v.min.unwrap_or(f64::NEG_INFINITY).max(-f64::MAX),
-            high: v.max.unwrap_or(f64::INFINITY).min(f64::MAX),
-            integer_valued: v.integer_valued,
-        }),
+        Access::Real(_, set) => {
+            let phases = settable_phases(v)
+                .iter()
+                .enumerate()
+                .fold(0u8, |bits, (i, &settable)| bits | (u8::from(settable) << i));
+            Some(RealSetter {
+                set,
+                low: v.min.unwrap_or(f64::NEG_INFINITY).max(-f64::MAX),
+                high: v.max.unwrap_or(f64::INFINITY).min(f64::MAX),
+                any_value: if v.integer_valued { 0 } else { phases },
+                whole_only: if v.integer_valued { phases } else { 0 },
+            })
+        }
         _ => None,
     })
     .into_iter()
