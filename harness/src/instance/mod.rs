@@ -12,7 +12,8 @@
 //! caught; it never unwinds into the FMU.
 //!
 //! The modules: `log` (the callbacks handed to the FMU, the messages), `error` (what a call
-//! gives), `state` (saved FMU states); the instance and its calls here.
+//! gives), `state` (saved FMU states), `exchange` (the master's set-step-get of one component
+//! in one call); the instance and its calls here.
 
 use std::ffi::CString;
 use std::fmt;
@@ -25,9 +26,11 @@ use crate::isolate::{HostFailure, *};
 use crate::load::{Exec, Fmu, FmuShared, Functions, LoadError, cstr_lossy};
 
 mod error;
+mod exchange;
 mod log;
 
 pub use error::{ErrorStatus, FmuError, HostError, Status};
+pub use exchange::Exchange;
 pub(crate) use log::{LogContext, callbacks_for};
 pub use log::{LogHandler, LogMessage, LogStatus, RECENT_MESSAGES, stderr_log_handler};
 pub use state::FmuState;

@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 
 use super::{Signal, VarRef, VarType};
-use crate::instance::{FmuError, Instance, Status};
+use crate::instance::{Exchange, FmuError, Instance, Status};
 /// The index of a type's buffer: 0 `Real`, 1 `Integer` (and `Enumeration`), 2 `Boolean`.
 pub(super) fn ty_index(ty: VarType) -> usize {
     match ty {
@@ -395,31 +395,39 @@ impl Rt {
         Ok(())
     }
 
-    /// Sets the inputs and steps from `t`.
-    #[inline(always)]
-    pub(super) fn write_step(&mut self, t: f64) -> Result<StepEnd, FmuError> {
-        self.write()?;
-        self.steps += 1;
-        match self.inst.do_step(t, self.h)? {
-            Status::Discard => Ok(StepEnd::Discard),
-            Status::Ok | Status::Warning => Ok(StepEnd::Done),
-        }
-    }
-
     /// Sets the inputs, steps from `t` and reads the outputs onto the bus.
     #[inline(always)]
     pub(super) fn step_read(&mut self, bus: &mut Bus, t: f64) -> Result<StepEnd, FmuError> {
-        match self.write_step(t)? {
-            StepEnd::Discard => Ok(StepEnd::Discard),
-            StepEnd::Done => self.read(bus).map(|_| StepEnd::Done),
-        }
+        let [(a, b), (c, d), (e, f)] = self.ports.out;
+        self.step_read_into(
+            Outs {
+                real: &mut bus.real[a..b],
+                int: &mut bus.int[c..d],
+                boolean: &mut bus.boolean[e..f],
+            },
+            t,
+        )
     }
 
-    /// [`step_read`](Self::step_read) into the component's part of the bus (on a thread).
+    /// [`step_read`](Self::step_read) into the component's part of the bus `out` (also on a
+    /// thread): one [`Instance::step_exchange`] (the inputs set, the step counted and done,
+    /// the outputs read unless the step was discarded).
+    #[inline(always)]
     pub(super) fn step_read_into(&mut self, out: Outs<'_>, t: f64) -> Result<StepEnd, FmuError> {
-        match self.write_step(t)? {
-            StepEnd::Discard => Ok(StepEnd::Discard),
-            StepEnd::Done => self.read_into(out).map(|_| StepEnd::Done),
+        let (p, v) = (&self.ports, &self.inputs);
+        let x = Exchange {
+            in_vrs: &p.in_vrs,
+            real_in: &v.real,
+            int_in: &v.int,
+            bool_in: &v.boolean,
+            out_vrs: &p.out_vrs,
+            real_out: out.real,
+            int_out: out.int,
+            bool_out: out.boolean,
+        };
+        match self.inst.step_exchange(x, t, self.h, &mut self.steps)? {
+            Status::Discard => Ok(StepEnd::Discard),
+            Status::Ok | Status::Warning => Ok(StepEnd::Done),
         }
     }
 }
