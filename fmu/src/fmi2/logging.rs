@@ -130,7 +130,7 @@ impl Logger {
     }
 
     /// Whether a message of `category` would be passed on: there is a callback, debug logging
-    /// is on and the category is enabled (one bit test of [`Logger::passing`]).
+    /// is on and the category is enabled (one bit test of the cached mask `passing`).
     #[inline]
     pub fn enabled(&self, category: Category) -> bool {
         self.passing & (1 << category as u32) != 0
