@@ -49,7 +49,7 @@ use std::borrow::Cow;
 use std::ffi::{CStr, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
-use super::instance::{FmiInstance, Func, panic_message};
+use super::instance::{FmiInstance, Func, answer_panic};
 use super::live;
 use super::logging::{Category, Logger};
 use super::types::*;
@@ -86,11 +86,7 @@ fn with_instance(
     }));
     match result {
         Ok(status) => status,
-        Err(payload) => {
-            let what = panic_message(&payload);
-            component.poison();
-            component.refuse(name, &format!("internal error (panic): {what}"))
-        }
+        Err(payload) => answer_panic(component.as_mut(), name, payload),
     }
 }
 
@@ -440,104 +436,50 @@ unsafe fn component<'a>(c: fmi2Component) -> &'a mut dyn FmiInstance {
     unsafe { &mut **c.cast::<Component>() }
 }
 
-macro_rules! getter {
-    ($name:ident, $ty:ty, $method:ident) => {
+/// A get or set's answer when the fast path of [`per_step_access`] did not apply: a NULL
+/// component (`fmi2Error`) or a NULL array for a non-empty call (refused, named).
+#[cold]
+#[inline(never)]
+fn refuse_null(c: fmi2Component, function: &'static str) -> fmi2Status {
+    with_instance(c, function, None, |inst| {
+        null_arg(inst, function, "vr or value")
+    })
+}
+
+/// A get or set whose value array is a `$ptr` (`$slice` turns it into a slice).
+macro_rules! per_step_access {
+    ($name:ident, $method:ident, $ptr:ty, $slice:ident) => {
         #[doc = concat!("The FMI 2.0 function `", stringify!($name), "`: see the module documentation.")]
         #[unsafe(no_mangle)]
         pub unsafe extern "C" fn $name(
             c: fmi2Component,
             vr: *const fmi2ValueReference,
             nvr: usize,
-            value: *mut $ty,
+            value: $ptr,
         ) -> fmi2Status {
             // The per-step path: a component and both arrays (or none, nvr = 0) go straight to
             // the instance, which checks the call sequence and catches its own panics
-            // ([`FmiInstance`]); a NULL takes the checking path below.
-            // SAFETY: FMI contract: vr and value hold nvr elements.
-            if !c.is_null()
-                && let (Some(vrs), Some(out)) =
-                    (unsafe { slice(vr, nvr) }, unsafe { slice_mut(value, nvr) })
-            {
-                // SAFETY: a non-NULL component (see `component`).
-                return unsafe { component(c) }.$method(vrs, out);
-            }
-            #[cold]
-            #[inline(never)]
-            fn refuse_null(
-                c: fmi2Component,
-                vr: *const fmi2ValueReference,
-                nvr: usize,
-                value: *mut $ty,
-            ) -> fmi2Status {
-                let f = stringify!($name);
-                // The instance checks the call sequence itself (inlined there).
-                with_instance(c, f, None, |inst| {
-                    // SAFETY: FMI contract: vr and value hold nvr elements.
-                    let (Some(vrs), Some(out)) = (unsafe { slice(vr, nvr) }, unsafe {
-                        slice_mut(value, nvr)
-                    }) else {
-                        return null_arg(inst, f, "vr or value");
-                    };
-                    inst.$method(vrs, out)
-                })
-            }
-            refuse_null(c, vr, nvr, value)
-        }
-    };
-}
-
-getter!(fmi2GetReal, fmi2Real, get_real);
-getter!(fmi2GetInteger, fmi2Integer, get_integer);
-getter!(fmi2GetBoolean, fmi2Boolean, get_boolean);
-getter!(fmi2GetString, fmi2String, get_string);
-
-macro_rules! setter {
-    ($name:ident, $ty:ty, $method:ident) => {
-        #[doc = concat!("The FMI 2.0 function `", stringify!($name), "`: see the module documentation.")]
-        #[unsafe(no_mangle)]
-        pub unsafe extern "C" fn $name(
-            c: fmi2Component,
-            vr: *const fmi2ValueReference,
-            nvr: usize,
-            value: *const $ty,
-        ) -> fmi2Status {
-            // The per-step path, as for the getters.
+            // ([`FmiInstance`]); a NULL takes `refuse_null`.
             // SAFETY: FMI contract: vr and value hold nvr elements.
             if !c.is_null()
                 && let (Some(vrs), Some(values)) =
-                    (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
+                    (unsafe { slice(vr, nvr) }, unsafe { $slice(value, nvr) })
             {
                 // SAFETY: a non-NULL component (see `component`).
                 return unsafe { component(c) }.$method(vrs, values);
             }
-            #[cold]
-            #[inline(never)]
-            fn refuse_null(
-                c: fmi2Component,
-                vr: *const fmi2ValueReference,
-                nvr: usize,
-                value: *const $ty,
-            ) -> fmi2Status {
-                let f = stringify!($name);
-                // The instance checks the call sequence itself (inlined there).
-                with_instance(c, f, None, |inst| {
-                    // SAFETY: FMI contract: vr and value hold nvr elements.
-                    let (Some(vrs), Some(values)) =
-                        (unsafe { slice(vr, nvr) }, unsafe { slice(value, nvr) })
-                    else {
-                        return null_arg(inst, f, "vr or value");
-                    };
-                    inst.$method(vrs, values)
-                })
-            }
-            refuse_null(c, vr, nvr, value)
+            refuse_null(c, stringify!($name))
         }
     };
 }
 
-setter!(fmi2SetReal, fmi2Real, set_real);
-setter!(fmi2SetInteger, fmi2Integer, set_integer);
-setter!(fmi2SetBoolean, fmi2Boolean, set_boolean);
+per_step_access!(fmi2GetReal, get_real, *mut fmi2Real, slice_mut);
+per_step_access!(fmi2GetInteger, get_integer, *mut fmi2Integer, slice_mut);
+per_step_access!(fmi2GetBoolean, get_boolean, *mut fmi2Boolean, slice_mut);
+per_step_access!(fmi2GetString, get_string, *mut fmi2String, slice_mut);
+per_step_access!(fmi2SetReal, set_real, *const fmi2Real, slice);
+per_step_access!(fmi2SetInteger, set_integer, *const fmi2Integer, slice);
+per_step_access!(fmi2SetBoolean, set_boolean, *const fmi2Boolean, slice);
 
 /// The FMI 2.0 function `fmi2SetString`: see the module documentation.
 #[unsafe(no_mangle)]

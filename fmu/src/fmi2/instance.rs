@@ -255,15 +255,25 @@ pub trait FmiInstance: Send {
     fn poison(&mut self);
 }
 
-/// The message of a caught panic's payload.
-pub(super) fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
-    if let Some(s) = payload.downcast_ref::<&str>() {
+/// The answer to a panic caught in the call `name`: the panic is logged as an internal error,
+/// the instance enters the error state (from which `fmi2Reset` recovers) and the call answers
+/// `fmi2Error`. Shared by the export layer's guard and [`Instance::guarded`].
+#[cold]
+#[inline(never)]
+pub(super) fn answer_panic(
+    inst: &mut dyn FmiInstance,
+    name: &str,
+    payload: Box<dyn std::any::Any + Send>,
+) -> fmi2Status {
+    let what = if let Some(s) = payload.downcast_ref::<&str>() {
         (*s).to_string()
     } else if let Some(s) = payload.downcast_ref::<String>() {
         s.clone()
     } else {
         "unknown panic".into()
-    }
+    };
+    inst.poison();
+    inst.refuse(name, &format!("internal error (panic): {what}"))
 }
 
 /// The generic instance of model `M`.
@@ -1008,17 +1018,8 @@ impl<M: Model> Instance<M> {
     ) -> fmi2Status {
         match catch_unwind(AssertUnwindSafe(|| body(self))) {
             Ok(status) => status,
-            Err(payload) => self.panicked(name, payload),
+            Err(payload) => answer_panic(self, name, payload),
         }
-    }
-
-    /// [`Instance::guarded`]'s answer to a panic.
-    #[cold]
-    #[inline(never)]
-    fn panicked(&mut self, name: &str, payload: Box<dyn std::any::Any + Send>) -> fmi2Status {
-        let what = panic_message(&payload);
-        self.poison();
-        self.refuse(name, &format!("internal error (panic): {what}"))
     }
 
     #[inline(always)]
