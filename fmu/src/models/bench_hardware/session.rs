@@ -303,6 +303,18 @@ impl BenchHardwareModel {
             return Err(ModelError::new("not initialized"));
         };
         rt.trip = Some((code, at));
+        // How far the master had fallen behind its schedule before the trip: a loop that ran
+        // late (a loaded host) holds its commands longer than a period, which an interlock may
+        // answer; the log says so next to the trip (only the first overruns are logged singly).
+        let pacing = rt.pacer.stats;
+        if pacing.overruns > 0 {
+            rt.warnings.push(format!(
+                "pacing before trip {code}: {} overruns in {} steps, largest lateness {:.0} us",
+                pacing.overruns,
+                pacing.steps,
+                pacing.max_lateness * 1e6
+            ));
+        }
         // No more pacing: the thread goes back to its own scheduling.
         rt.realtime = None;
         let name = trip::name(code);

@@ -159,6 +159,43 @@ fn interlocks_trip_latch_and_never_drive_again() {
 }
 
 #[test]
+fn a_trip_after_overruns_logs_how_late_the_loop_ran() {
+    let h = 1e-3;
+    // Soft real time: a host stall of 5 ms before the second step makes it 4 ms late or more.
+    let mut m = started(|m| m.pacing = 1);
+    assert_eq!(m.do_step(0.0, h).unwrap(), StepOutcome::Completed);
+    std::thread::sleep(std::time::Duration::from_millis(5));
+    assert_eq!(m.do_step(h, h).unwrap(), StepOutcome::Completed);
+    m.take_warnings();
+    m.commands.emergency_stop = true;
+    let outcome = m.do_step(2.0 * h, h).unwrap();
+    assert!(
+        matches!(outcome, StepOutcome::Terminated { .. }),
+        "{outcome:?}"
+    );
+    let warnings = m.take_warnings().join("\n");
+    let stats = m.runtime.0.as_ref().unwrap().pacer.stats;
+    assert!(
+        stats.overruns >= 1 && stats.max_lateness >= 4e-3,
+        "{stats:?}"
+    );
+    assert!(
+        warnings.contains(&format!(
+            "pacing before trip 7: {} overruns in {} steps, largest lateness {:.0} us",
+            stats.overruns,
+            stats.steps,
+            stats.max_lateness * 1e6
+        )),
+        "{warnings}"
+    );
+    // Without pacing there is no schedule to fall behind: the trip says nothing of it.
+    let mut m = started(|_| {});
+    m.commands.emergency_stop = true;
+    run(&mut m, 1, h).unwrap();
+    assert!(m.take_warnings().is_empty());
+}
+
+#[test]
 fn realtime_priority_and_lock_memory_are_honoured_or_refused_with_a_warning() {
     use crate::hardware::realtime::current_policy;
     // On a thread of its own: the test harness's threads keep their scheduling.
