@@ -18,7 +18,9 @@ log=$(mktemp)
 # read nor fill the user's cache; removed with the log at the end.
 export KNEEBENCH_CACHE_DIR=$(mktemp -d)
 trap 'rm -f "$log"; rm -rf "$KNEEBENCH_CACHE_DIR"' EXIT
-cargo test --workspace --locked --release 2>&1 | tee "$log"
+# Every test binary runs even after one fails, so that a red run names all its failures (the
+# exit status is still cargo's: nonzero when anything failed).
+cargo test --workspace --locked --release --no-fail-fast 2>&1 | tee "$log"
 echo "== python package (maturin wheel into the venv, pytest)"
 # The kneebench binaries and the FMU library next to them (the Python tests compare with the
 # CLI and export the FMUs with it; `cargo test` does not put libkneebench_fmu.so there), then
