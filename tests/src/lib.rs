@@ -620,6 +620,21 @@ pub fn ended_by_host(reason: &str) -> bool {
     reason.contains("link watchdog") || reason.contains("stopped itself")
 }
 
+/// How late the master's loop ran behind its real-time schedule before an interlock ended the
+/// run \[s\], as `BenchHardware` logs it next to the trip ("pacing before trip C: N overruns in
+/// M steps, largest lateness L us"); `None` when the run did not end so or never ran late.
+pub fn master_lateness(outcome: &kneebench_harness::Outcome) -> Option<f64> {
+    let kneebench_harness::Outcome::Terminated { messages, .. } = outcome else {
+        return None;
+    };
+    messages.iter().rev().find_map(|m| {
+        let (_, rest) = m.split_once("pacing before trip")?;
+        let (_, late) = rest.split_once("largest lateness ")?;
+        let us: f64 = late.strip_suffix(" us")?.parse().ok()?;
+        Some(us * 1e-6)
+    })
+}
+
 /// Runs `experiment` on `BenchHardware` over a fresh emulator of the plant with
 /// `plant_params` ([`hardware_bench_over_emulator`]), in a fresh directory. An attempt the host
 /// disturbed is run again on a fresh emulator, at most `attempts`: one that the link watchdog

@@ -13,7 +13,8 @@ use kneebench_harness::study::{
     Actuator, BenchLink, StudyConfig, StudyScenario, gait_scenario, run_study,
 };
 use kneebench_tests::{
-    HOST_DISTURBANCE, bench_key_file, exported_fmu, exported_fmus, one_real_time_test_at_a_time,
+    HOST_DISTURBANCE, bench_key_file, exported_fmu, exported_fmus, master_lateness,
+    one_real_time_test_at_a_time,
 };
 
 fn config(
@@ -78,21 +79,6 @@ fn link(address: std::net::SocketAddr) -> BenchLink {
 
 /// The study's communication step \[s\].
 const PERIOD: f64 = 1e-3;
-
-/// How late the master's loop ran behind its real-time schedule before an interlock ended the
-/// run \[s\], as `BenchHardware` logs it next to the trip ("pacing before trip C: N overruns in
-/// M steps, largest lateness L us"); `None` when the run did not end so or never ran late.
-fn master_lateness(outcome: &Outcome) -> Option<f64> {
-    let Outcome::Terminated { messages, .. } = outcome else {
-        return None;
-    };
-    messages.iter().rev().find_map(|m| {
-        let (_, rest) = m.split_once("pacing before trip")?;
-        let (_, late) = rest.split_once("largest lateness ")?;
-        let us: f64 = late.strip_suffix(" us")?.parse().ok()?;
-        Some(us * 1e-6)
-    })
-}
 
 /// **Disturbed runs.** A host stall of several periods (10 ms ones were seen in CI on a loaded
 /// 2-core machine) can make the emulated bench stop itself (its heartbeat watchdog, or its
