@@ -646,6 +646,21 @@ pub fn master_lateness(outcome: &kneebench_harness::Outcome) -> Option<f64> {
 pub fn experiment_over_emulator<T>(
     plant_params: &[(&str, &str)],
     attempts: usize,
+    experiment: impl FnMut(
+        &kneebench_harness::experiment::Bench,
+        &Path,
+    ) -> Result<(T, Option<String>), String>,
+) -> Option<T> {
+    experiment_over_emulator_within(plant_params, attempts, HOST_DISTURBANCE, experiment)
+}
+
+/// [`experiment_over_emulator`] with its own limit on the bench's longest pause between two
+/// of the master's frames (\[s\], instead of [`HOST_DISTURBANCE`]), for an experiment whose
+/// result a shorter stall already spoils.
+pub fn experiment_over_emulator_within<T>(
+    plant_params: &[(&str, &str)],
+    attempts: usize,
+    largest_pause: f64,
     mut experiment: impl FnMut(
         &kneebench_harness::experiment::Bench,
         &Path,
@@ -662,7 +677,7 @@ pub fn experiment_over_emulator<T>(
         let outcome = experiment(&bench, out.path());
         let gap = emu.stop().map(|s| s.largest_frame_gap).unwrap_or(0.0);
         let reason = match outcome {
-            _ if gap > HOST_DISTURBANCE => Some(format!("a pause of {:.0} us", gap * 1e6)),
+            _ if gap > largest_pause => Some(format!("a pause of {:.0} us", gap * 1e6)),
             Ok((result, reason)) if !reason.as_deref().is_some_and(ended_by_host) => {
                 return Some(result);
             }

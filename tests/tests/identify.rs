@@ -398,7 +398,8 @@ fn bad_logs_are_refused_with_the_file_and_line() {
 /// the sensors' noise added as for the simulated logs. The logs' time column is the nominal one
 /// while the emulated bench integrated over the wall-time intervals between frames: the I/O
 /// jitter is part of what the identification must tolerate here. A stall is not: a run with a
-/// pause of more than 5 ms between two frames (the bench's own measure) is run again, at most
+/// pause of more than 2 ms (two periods) between two frames (the bench's own measure) is run
+/// again, at most
 /// five attempts per sweep; when every attempt was disturbed nothing is identified, and the
 /// test says so. Such logs cannot be identified: CI failed on them (static friction off by
 /// 55 %, inertia by 78 %), and two runs here with pauses of 7-14 ms accepted gave the stiffness
@@ -406,7 +407,11 @@ fn bad_logs_are_refused_with_the_file_and_line() {
 #[test]
 fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() {
     const ATTEMPTS: usize = 5;
-    use kneebench_tests::experiment_over_emulator;
+    use kneebench_tests::experiment_over_emulator_within;
+    // Two periods: logs with pauses of 2-5 ms failed the identification here (1 run in 3 on
+    // a machine building in the background, and once in CI), every parameter "not
+    // identifiable".
+    const LARGEST_PAUSE: f64 = 2e-3;
     let _real_time = kneebench_tests::one_real_time_test_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let mut logs = Vec::new();
@@ -422,13 +427,15 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
         let truth: Vec<(&str, String)> =
             TRUTH.iter().map(|(n, v)| (*n, format!("{v:?}"))).collect();
         let truth: Vec<(&str, &str)> = truth.iter().map(|(n, v)| (*n, v.as_str())).collect();
-        let Some((end, run)) = experiment_over_emulator(&truth, ATTEMPTS, |bench, out| {
-            let r = bode::run_bode(bench, &short_sweep(input, amplitude, 3.0, 3), out)
-                .map_err(|e| e.to_string())?;
-            let reason = kneebench_tests::reason_of(&r.end);
-            let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
-            Ok(((r.end, run), reason))
-        }) else {
+        let Some((end, run)) =
+            experiment_over_emulator_within(&truth, ATTEMPTS, LARGEST_PAUSE, |bench, out| {
+                let r = bode::run_bode(bench, &short_sweep(input, amplitude, 3.0, 3), out)
+                    .map_err(|e| e.to_string())?;
+                let reason = kneebench_tests::reason_of(&r.end);
+                let run = Results::read_csv_file(out.join("bode.csv")).unwrap();
+                Ok(((r.end, run), reason))
+            })
+        else {
             return;
         };
         assert_eq!(end, RunEnd::Completed);
