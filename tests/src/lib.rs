@@ -620,6 +620,19 @@ pub fn ended_by_host(reason: &str) -> bool {
     reason.contains("link watchdog") || reason.contains("stopped itself")
 }
 
+/// Whether a safety interlock latched the emulated bench's run, whichever side latched first:
+/// the emulated plant's trip, the bench's protection, or the master's own interlock (its safe
+/// state asked as a client request). After a stall of more than two periods such a trip is the
+/// host's: a torque command held for milliseconds in a 1 kHz loop.
+pub fn interlock_latched(stats: &kneebench_harness::emulator::EmulatorStats) -> bool {
+    use kneebench_harness::bench_protocol::reason;
+    stats.plant_trip.is_some()
+        || matches!(
+            stats.safe_reason,
+            Some(r) if r == reason::BENCH_PROTECTION || r == reason::CLIENT_REQUEST
+        )
+}
+
 /// How late the master's loop ran behind its real-time schedule before an interlock ended the
 /// run \[s\], as `BenchHardware` logs it next to the trip ("pacing before trip C: N overruns in
 /// M steps, largest lateness L us"); `None` when the run did not end so or never ran late.

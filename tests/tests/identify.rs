@@ -399,11 +399,10 @@ fn bad_logs_are_refused_with_the_file_and_line() {
 /// while the emulated bench integrated over the wall-time intervals between frames: the I/O
 /// jitter is part of what the identification must tolerate here. A stall is not: a run with a
 /// pause of more than 2 ms (two periods) between two frames (the bench's own measure) is run
-/// again, at most
-/// five attempts per sweep; when every attempt was disturbed nothing is identified, and the
-/// test says so. Such logs cannot be identified: CI failed on them (static friction off by
-/// 55 %, inertia by 78 %), and two runs here with pauses of 7-14 ms accepted gave the stiffness
-/// 9 % and 200 % off, the static friction 7 % and 77 %.
+/// again, at most five attempts per sweep; when every attempt was disturbed nothing is
+/// identified, and the test says so. Such logs cannot be identified: CI failed on them
+/// (static friction off by 55 %, inertia by 78 %), and two runs here with pauses of 7-14 ms
+/// accepted gave the stiffness 9 % and 200 % off, the static friction 7 % and 77 %.
 #[test]
 fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() {
     const ATTEMPTS: usize = 5;

@@ -13,8 +13,8 @@ use kneebench_harness::study::{
     Actuator, BenchLink, StudyConfig, StudyScenario, gait_scenario, run_study,
 };
 use kneebench_tests::{
-    HOST_DISTURBANCE, bench_key_file, exported_fmu, exported_fmus, master_lateness,
-    one_real_time_test_at_a_time,
+    HOST_DISTURBANCE, bench_key_file, exported_fmu, exported_fmus, interlock_latched,
+    master_lateness, one_real_time_test_at_a_time,
 };
 
 fn config(
@@ -90,9 +90,9 @@ const PERIOD: f64 = 1e-3;
 /// too (a torque command held for milliseconds), whether the bench's protection or the
 /// master's own interlock latched first; the stall is the longer of the bench's longest pause
 /// between frames and how far the master fell behind its schedule (its largest lateness plus
-/// the period it held the command, logged by `BenchHardware` at the trip). A run without such a measurement is
-/// always asserted on; when all five were disturbed, nothing is compared and the test says
-/// NOT COMPARED.
+/// the period it held the command, logged by `BenchHardware` at the trip). A run without such
+/// a measurement is always asserted on; when all five were disturbed, nothing is compared and
+/// the test says NOT COMPARED.
 #[test]
 fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
     let _real_time = one_real_time_test_at_a_time();
@@ -135,24 +135,16 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
             .zip(&planned)
             .map(|(x, y)| (x - y).abs())
             .fold(0.0f64, f64::max);
-        // A safety interlock ending a run the host held up by more than two periods (a held
-        // torque command in a 1 kHz loop: CI saw four such regen-power trips in a row, the
-        // last after a 4.7 ms pause) is the host's too, whichever side's interlock latched
-        // first: the bench's protection, or the master's own (a client request; CI saw the
-        // master trip on the load driver's regenerated power after a 3.8 ms pause, the
-        // emulated plant tripping on the same limit).
         // The host's stall as either side measured it: the bench's longest pause between two
         // frames, or how far the master fell behind its schedule (a loop whose steps each
         // take a little over a period never pauses long, but holds every command longer; CI
-        // saw one fall 3.3 ms behind over a dozen steps while no gap exceeded 1.9 ms, and the
-        // bench's protection trip on the regenerated power).
+        // saw one fall 3.3 ms behind over a dozen steps while no gap exceeded 1.9 ms). An
+        // interlock's trip after a stall above two periods is the host's (CI saw regen-power
+        // trips after pauses of 3.8 and 4.7 ms, latched by the bench's protection or the
+        // master's own interlock).
         let lag = master_lateness(&bench_run.outcome).map_or(0.0, |late| late + PERIOD);
         let stall = stats.largest_frame_gap.max(lag);
-        let interlock = stats.plant_trip.is_some()
-            || matches!(
-                stats.safe_reason,
-                Some(r) if r == reason::BENCH_PROTECTION || r == reason::CLIENT_REQUEST
-            );
+        let interlock = interlock_latched(&stats);
         let protected = interlock && stall > 2.0 * PERIOD;
         let disturbed = stall > disturbance
             || protected
