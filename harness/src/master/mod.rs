@@ -510,6 +510,17 @@ struct VarRef {
     name: String,
 }
 
+/// How close to `t` a sample counts as at `t`: sample times written as decimals (0.001*k) and
+/// grid times computed from integer ticks may differ in the last bit.
+fn tolerance(t: f64) -> f64 {
+    1e-9 * t.abs().max(1.0)
+}
+
+/// The latest sample time that counts as at or before `t`.
+fn reach(t: f64) -> f64 {
+    t + tolerance(t)
+}
+
 /// A time series fed into an input (from a CSV file, for example).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Signal {
@@ -526,19 +537,61 @@ impl Signal {
     /// The value at time `t`. At a time that appears twice (a discontinuity) the later sample
     /// wins.
     pub fn at(&self, t: f64) -> f64 {
-        let n = self.times.len();
-        if n == 0 {
+        if self.times.is_empty() {
             return 0.0;
         }
-        // Sample times written as decimals (0.001*k) and grid times computed from integer
-        // ticks may differ in the last bit: a sample within this tolerance of t counts as at t.
-        let tolerance = 1e-9 * t.abs().max(1.0);
         // Index of the first sample with time > t.
-        let i = self.times.partition_point(|&x| x <= t + tolerance);
+        let i = self.times.partition_point(|&x| x <= reach(t));
+        self.value_after(i, t)
+    }
+
+    /// [`Signal::at`] for a run that samples at non-decreasing times, its search starting at
+    /// `cursor`, the index this signal's previous sample found (0 at first), which it updates:
+    /// a step or two forward instead of a binary search over the whole series every step.
+    /// Equals `at(t)` bit for bit whenever [`Signal::has_sorted_times`] (the index searched for,
+    /// the first sample after `t`, is then unique; a time earlier than the cursor's falls back
+    /// to the whole search).
+    pub(crate) fn at_from(&self, t: f64, cursor: &mut usize) -> f64 {
+        let times = &self.times[..];
+        if times.is_empty() {
+            return 0.0;
+        }
+        let reach = reach(t);
+        let mut i = (*cursor).min(times.len());
+        // A NaN time takes the whole search too, as in `at`.
+        if i > 0 && (times[i - 1] > reach || reach.is_nan()) {
+            i = times.partition_point(|&x| x <= reach);
+        } else {
+            // A few samples by hand (one per step when the series has the run's grid), the
+            // rest of a long jump by bisection.
+            let mut walked = 0;
+            while i < times.len() && times[i] <= reach {
+                i += 1;
+                walked += 1;
+                if walked == 4 {
+                    i += times[i..].partition_point(|&x| x <= reach);
+                    break;
+                }
+            }
+        }
+        *cursor = i;
+        self.value_after(i, t)
+    }
+
+    /// Whether the sample times are non-decreasing and none is NaN: the condition under which
+    /// [`Signal::at_from`] equals [`Signal::at`].
+    pub(crate) fn has_sorted_times(&self) -> bool {
+        self.times.is_sorted_by(|a, b| a <= b)
+    }
+
+    /// The value at `t`, `i` being the index of the first sample with time after `t` (within
+    /// the tolerance of [`reach`]).
+    fn value_after(&self, i: usize, t: f64) -> f64 {
+        let n = self.times.len();
         if i == 0 {
             return self.values[0];
         }
-        if i == n || !self.interpolate || (t - self.times[i - 1]).abs() <= tolerance {
+        if i == n || !self.interpolate || (t - self.times[i - 1]).abs() <= tolerance(t) {
             return self.values[i - 1];
         }
         let (t0, t1) = (self.times[i - 1], self.times[i]);

@@ -268,7 +268,16 @@ pub(super) struct InValues {
     pub(super) real: Vec<f64>,
     pub(super) int: Vec<i32>,
     pub(super) boolean: Vec<i32>,
+    /// Per signal-fed input (`Ports::in_signals`), where its signal's search starts
+    /// ([`Signal::at_from`]): [`UNSEEN`] before the first sample, [`UNSORTED`] for a signal
+    /// whose times are not sorted (always [`Signal::at`]).
+    signal_cursors: Vec<usize>,
 }
+
+/// A signal cursor before the first sample.
+const UNSEEN: usize = usize::MAX;
+/// The cursor of a signal whose sample times are not non-decreasing (or hold a NaN).
+const UNSORTED: usize = usize::MAX - 1;
 
 impl InValues {
     /// Zeroed buffers for the inputs of `ports`.
@@ -277,6 +286,7 @@ impl InValues {
             real: vec![0.0; ports.in_vrs[0].len()],
             int: vec![0; ports.in_vrs[1].len()],
             boolean: vec![0; ports.in_vrs[2].len()],
+            signal_cursors: vec![UNSEEN; ports.in_signals.len()],
         }
     }
 
@@ -310,8 +320,19 @@ impl InValues {
     #[cold]
     #[inline(never)]
     pub(super) fn sample_signals(&mut self, ports: &Ports, signals: &[Signal], t: f64) {
-        for &(ty, k, s) in &ports.in_signals {
-            let x = signals[s].at(t);
+        for (&(ty, k, s), cursor) in ports.in_signals.iter().zip(&mut self.signal_cursors) {
+            let signal = &signals[s];
+            if *cursor == UNSEEN {
+                *cursor = if signal.has_sorted_times() {
+                    0
+                } else {
+                    UNSORTED
+                };
+            }
+            let x = match *cursor {
+                UNSORTED => signal.at(t),
+                _ => signal.at_from(t, cursor),
+            };
             match ty {
                 0 => self.real[k] = x,
                 1 => self.int[k] = x.round() as i32,

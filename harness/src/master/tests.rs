@@ -583,3 +583,140 @@ fn all_finite_is_every_value_finite() {
     }
     assert!(all_finite(&[]));
 }
+
+/// A small deterministic generator (xorshift64*) for the signal tests.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+}
+
+/// Sorted series as input files give them: decimal times on a grid (some repeated, a
+/// discontinuity), times a last bit off the grid, irregular gaps, one sample, none.
+fn sorted_signals(rng: &mut Rng) -> Vec<Signal> {
+    let mut out = Vec::new();
+    for case in 0..40 {
+        let n = match case {
+            0 => 0,
+            1 => 1,
+            _ => 2 + rng.below(300) as usize,
+        };
+        let mut times = Vec::with_capacity(n);
+        let mut t = if case % 5 == 0 { -1.5 } else { 0.0 };
+        for k in 0..n {
+            match rng.below(10) {
+                // A discontinuity: the same time twice.
+                0 if k > 0 => {}
+                // Within the tolerance of the previous sample.
+                1 if k > 0 => t += 1e-12,
+                2 => t += 0.001 * (1 + rng.below(7)) as f64,
+                _ => t = (t * 1000.0).round() / 1000.0 + 0.001,
+            }
+            times.push(t);
+        }
+        let values = (0..n)
+            .map(|_| (rng.below(2001) as f64 - 1000.0) * 0.37)
+            .collect();
+        out.push(Signal {
+            times,
+            values,
+            interpolate: case % 3 != 0,
+        });
+    }
+    out
+}
+
+#[test]
+fn the_cursor_search_is_the_whole_search_bit_for_bit() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    for signal in sorted_signals(&mut rng) {
+        assert!(signal.has_sorted_times());
+        // The run's grid (times from integer ticks) at steps finer than, equal to and coarser
+        // than the series', from before its start to past its end; then random times, mostly
+        // forward, sometimes back, sometimes far ahead, and a NaN.
+        for h in [0.0003, 0.001, 0.0025, 0.04] {
+            let mut cursor = 0;
+            for k in -5..((0.5 / h) as i64) {
+                let t = k as f64 * h;
+                let (fast, plain) = (signal.at_from(t, &mut cursor), signal.at(t));
+                assert_eq!(fast.to_bits(), plain.to_bits(), "t = {t}, h = {h}");
+            }
+        }
+        let mut cursor = 0;
+        let mut t = -2.0;
+        for _ in 0..2000 {
+            t = match rng.below(20) {
+                0 => t - 0.001 * rng.below(100) as f64,
+                1 => t + 0.01 * rng.below(100) as f64,
+                2 => f64::NAN,
+                _ if t.is_nan() => 0.0,
+                _ => t + 0.0005 * rng.below(4) as f64,
+            };
+            let (fast, plain) = (signal.at_from(t, &mut cursor), signal.at(t));
+            assert_eq!(fast.to_bits(), plain.to_bits(), "t = {t}");
+        }
+    }
+}
+
+#[test]
+fn an_unsorted_signal_is_sampled_by_the_whole_search() {
+    let unsorted = [
+        Signal {
+            times: vec![0.0, 0.002, 0.001, 0.003],
+            values: vec![1.0, 2.0, 3.0, 4.0],
+            interpolate: true,
+        },
+        Signal {
+            times: vec![0.0, f64::NAN, 0.002],
+            values: vec![1.0, 2.0, 3.0],
+            interpolate: false,
+        },
+    ];
+    for signal in &unsorted {
+        assert!(!signal.has_sorted_times());
+    }
+    assert!(
+        Signal {
+            times: vec![0.0, 0.001, 0.001, 0.002],
+            values: vec![0.0; 4],
+            interpolate: true
+        }
+        .has_sorted_times()
+    );
+    // Through the master's gather: the case's signal-fed inputs, their signals replaced by
+    // the unsorted ones, take exactly `at`'s values at every time.
+    let c = case();
+    let p = plan(&c);
+    let q = &p.ports[2];
+    let mut signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
+    signals[0] = unsorted[0].clone();
+    signals[1] = unsorted[1].clone();
+    let bus = Bus::new(p.bus_len);
+    let mut v = InValues::for_ports(q);
+    for k in 0..5 {
+        let t = k as f64 * 0.0007;
+        v.gather(q, &bus, &signals, t);
+        for &(ty, k, s) in &q.in_signals {
+            let want = signals[s].at(t);
+            let got = match ty {
+                0 => v.real[k],
+                1 => v.int[k] as f64,
+                _ => v.boolean[k] as f64,
+            };
+            let want = match ty {
+                0 => want,
+                1 => want.round(),
+                _ => (want != 0.0) as i32 as f64,
+            };
+            assert_eq!(got.to_bits(), want.to_bits(), "t = {t}, signal {s}");
+        }
+    }
+}
