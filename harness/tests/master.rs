@@ -621,3 +621,30 @@ fn a_later_value_replaces_the_earlier_one() {
     s.set_value("pid.kp", Value::Real(3.0)).unwrap();
     assert_eq!(u(&s.run(&config).unwrap()), 3.0);
 }
+
+#[test]
+fn record_also_appends_to_the_outputs_or_to_the_chosen_variables() {
+    let (_d, fmu) = fmu();
+    let mut s = System::new();
+    s.add_component("a", fmu.clone()).unwrap();
+    s.set_value_str("a.u", "1").unwrap();
+    s.set_value_str("a.k", "3").unwrap();
+    // Without an earlier choice: every output, then the parameter and the input.
+    s.record_also(&["a.k", "a.u"]).unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.2)).unwrap();
+    let r = &out.results;
+    assert_eq!(
+        r.names(),
+        [
+            "a.y", "a.x", "a.t", "a.steps", "a.i_out", "a.b_out", "a.k", "a.u"
+        ]
+    );
+    assert_eq!(r.column("a.k").unwrap(), [3.0; 3]);
+    assert_eq!(r.column("a.u").unwrap(), [1.0; 3]);
+    // After a choice: appended to it. A bad reference is refused and changes nothing.
+    s.record(&["a.x"]).unwrap();
+    assert!(s.record_also(&["a.k", "a.nope"]).is_err());
+    s.record_also(&["a.steps"]).unwrap();
+    let out = s.run(&config(Algorithm::GaussSeidel, 0.2)).unwrap();
+    assert_eq!(out.results.names(), ["a.x", "a.steps"]);
+}

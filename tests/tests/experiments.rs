@@ -39,10 +39,29 @@ fn assert_files(w: &kneebench_harness::experiment::Written) {
         let len = std::fs::metadata(f).map(|m| m.len()).unwrap_or(0);
         assert!(len > 100, "{} missing or empty", f.display());
     }
+    // The pacing (a run on the hardware's) is in the raw run's columns and in the section.
+    if w.data[0].extension().is_some_and(|e| e == "csv") {
+        let mut header = String::new();
+        let file = std::fs::File::open(&w.data[0]).unwrap();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(file), &mut header).unwrap();
+        assert_eq!(
+            w.pacing.is_some(),
+            header.contains("plant.maxLateness"),
+            "{header}"
+        );
+    }
     let png = w.figures.iter().find(|f| f.extension().unwrap() == "png");
     let bytes = std::fs::read(png.expect("a PNG")).unwrap();
     assert_eq!(&bytes[1..4], b"PNG");
     let md = std::fs::read_to_string(&w.markdown).unwrap();
+    assert_eq!(
+        w.pacing.is_some(),
+        md.contains("**Pacing on the hardware.**"),
+        "{md}"
+    );
+    if let Some(p) = &w.pacing {
+        assert!(md.contains(&p.to_string()), "{md}");
+    }
     let dir = w.markdown.parent().unwrap();
     // Every linked file of the section exists next to it (relative links).
     for link in md.split("](").skip(1) {
@@ -303,6 +322,8 @@ fn step_identifies_damping_and_inertia_and_measures_the_position_step() {
     let out = tempfile::tempdir().unwrap();
     let r = step::run_step(&bench, &step::StepConfig::default(), out.path()).unwrap();
     assert_eq!(r.ends, [RunEnd::Completed, RunEnd::Completed]);
+    // The simulated bench has no pacing to report (and writes none: `assert_files` below).
+    assert_eq!(r.written.pacing, None);
     // c1 + c2 = 13 N m s/rad, I1 + I2 = 1.43 kg m^2.
     assert!((r.damping - 13.0).abs() < 0.02 * 13.0, "{r:?}");
     assert!((r.inertia - 1.43).abs() < 0.02 * 1.43, "{r:?}");
@@ -354,6 +375,7 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
         let r = step::run_step(bench, &step_config, out).map_err(|e| e.to_string())?;
         assert_files(&r.written);
         let reason = r.ends.iter().find_map(reason_of);
+        assert_recorded_pacing(&r.written);
         Ok((r, reason))
     }) else {
         return;
@@ -374,6 +396,15 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
         why.contains("counts per sample") && why.contains("0.0196"),
         "{why}"
     );
+}
+
+/// Every run on the hardware records its pacing, and its steps were paced: a lateness above
+/// zero (a paced step continues at or after its deadline, never to the nanosecond on it).
+/// (Stale replies are possible on loopback too, after a host stall longer than the reply
+/// timeout.)
+fn assert_recorded_pacing(w: &kneebench_harness::experiment::Written) {
+    let p = w.pacing.expect("a run on the hardware records its pacing");
+    assert!(p.largest_lateness > 0.0, "{p}");
 }
 
 /// [`experiment_over_emulator`] with three attempts (these runs take seconds each). A pause
@@ -469,6 +500,7 @@ fn map_runs_unchanged_against_the_hardware_over_the_emulator() {
             let r = map::run_map(bench, &config, out).map_err(|e| e.to_string())?;
             assert_files(&r.written);
             let reason = reason_of(&r.end);
+            assert_recorded_pacing(&r.written);
             Ok((r, reason))
         },
     ) else {
@@ -511,6 +543,7 @@ fn triangle_runs_unchanged_against_the_hardware_over_the_emulator() {
         let r = triangle::run_triangle(bench, &config, out).map_err(|e| e.to_string())?;
         assert_files(&r.written);
         let reason = r.trip.as_ref().map(|t| t.2.clone());
+        assert_recorded_pacing(&r.written);
         Ok((r, reason))
     }) else {
         return;
@@ -544,6 +577,7 @@ fn calibration_runs_unchanged_against_the_hardware_over_the_emulator() {
         let r = calibration::run_calibration(bench, &config, out).map_err(|e| e.to_string())?;
         assert_files(&r.written);
         let reason = reason_of(&r.end);
+        assert_recorded_pacing(&r.written);
         Ok((r, reason))
     }) else {
         return;

@@ -37,7 +37,10 @@ The same schedule runs on BenchPlant and on BenchHardware (which runs in real ti
 the bench or `kneebench emulate`). On BenchHardware the experiment refuses to start unless
 every interlock is armed at or inside the bench's limits. Written into --out: <name>.csv (the
 run; <name>.parquet with --format parquet), <name>-result.csv (the analysed table), <name>.svg
-and .png, <name>.md. Other FMUs (GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
+and .png, <name>.md. On BenchHardware the run also records the FMU's pacing and link counts
+(plant.overrunCount, plant.maxLateness, plant.rejectedFrames, plant.staleReplies), printed
+as `pacing:` and written into <name>.md, with a warning when the loop fell a whole period
+behind its schedule. Other FMUs (GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
 Exit code 3 when an interlock ended the run (the triangle test's trip is its result: 0).")]
 pub struct Args {
     /// The experiment and its options.
@@ -287,6 +290,17 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     for f in written.data.iter().chain(&written.figures) {
         println!("written: {}", f.display());
+    }
+    if let Some(p) = &written.pacing {
+        println!("pacing: {p}");
+        if !p.kept_schedule() {
+            eprintln!(
+                "warning: the loop fell up to {:.1} ms behind its 1 ms schedule: the bench got \
+                 its commands at uneven intervals (run it again on a quieter host where the \
+                 results matter)",
+                p.largest_lateness * 1e3
+            );
+        }
     }
     if let Some(set) = &set {
         super::identify::append_set_line(&written.markdown, set)?;

@@ -233,7 +233,7 @@ pub fn run_bode(
     system.connect("gait.kneeTorqueReference", "drive.feedForward")?;
     system.connect("drive.u", command)?;
     let stop = config.dwell * f64::from(config.stages);
-    let (output, end) = run(&system, stop)?;
+    let (output, end) = run(bench, &mut system, stop)?;
     let r = &output.results;
     let times = r.times();
     let torque = column(r, torque_column)?;

@@ -201,7 +201,7 @@ pub fn run_calibration(
     system.connect("position.u", "plant.testCurrentCommand")?;
     system.add_signal("plant.loadCurrentCommand", schedule(load_schedule, true))?;
     let stop = (t / super::STEP).ceil() * super::STEP;
-    let (output, end) = run(&system, stop)?;
+    let (output, end) = run(bench, &mut system, stop)?;
     let r = &output.results;
     let times = r.times();
     let vt = column(r, "plant.transducerVoltage")?;

@@ -301,7 +301,7 @@ pub fn run_map(
     system.connect("plant.actuationVelocity", "velocity.measurement")?;
     system.connect("velocity.u", "plant.testCurrentCommand")?;
     system.add_signal("plant.loadCurrentCommand", schedule(current_schedule, true))?;
-    let (output, end) = run(&system, stop)?;
+    let (output, end) = run(bench, &mut system, stop)?;
     let r = &output.results;
     let times = r.times();
     let c = |n: &str| column(r, &format!("plant.{n}"));

@@ -118,7 +118,7 @@ pub fn run_step(
         "plant.testCurrentCommand",
         schedule(vec![(0.0, 0.0), (config.step_time, config.current)], false),
     )?;
-    let (open, open_end) = run(&system, stop)?;
+    let (open, open_end) = run(bench, &mut system, stop)?;
     if let RunEnd::Tripped { time, reason } = &open_end {
         return Err(ExperimentError::Run(format!(
             "step: the open-loop run was ended at {time:.3} s: {reason}"
@@ -173,7 +173,7 @@ pub fn run_step(
     system.connect("gait.kneeAngleReference", "position.setpoint")?;
     system.connect("plant.actuationEncoderAngle", "position.measurement")?;
     system.connect("position.u", "plant.testCurrentCommand")?;
-    let (closed, closed_end) = run(&system, stop)?;
+    let (closed, closed_end) = run(bench, &mut system, stop)?;
     let (t_closed, theta) = after(
         &closed.results.times(),
         &column(&closed.results, "plant.actuationAngle")?,

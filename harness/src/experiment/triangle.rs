@@ -156,7 +156,7 @@ pub fn run_triangle(
     system.connect("position.u", "plant.testCurrentCommand")?;
     system.add_signal("plant.loadCurrentCommand", schedule(stairs, false))?;
     let stop = config.period * f64::from(config.max_cycles);
-    let (output, end) = run(&system, stop)?;
+    let (output, end) = run(bench, &mut system, stop)?;
     let r = &output.results;
     let times = r.times();
     let regen = column(r, "plant.loadRegeneratedPower")?;

@@ -914,7 +914,24 @@ impl System {
     /// Chooses the recorded variables (`component.variable`, any causality, not `String`).
     /// Without a call, every output of every component is recorded.
     pub fn record(&mut self, references: &[&str]) -> Result<(), MasterError> {
-        let mut out = Vec::new();
+        self.record = Some(self.resolve_recorded(Vec::new(), references)?);
+        Ok(())
+    }
+
+    /// Records `references` after the variables recorded now (every output of the components
+    /// added so far, without an earlier [`Self::record`]): a local variable next to the outputs,
+    /// for example. A component added later is not recorded.
+    pub fn record_also(&mut self, references: &[&str]) -> Result<(), MasterError> {
+        self.record = Some(self.resolve_recorded(self.recorded(), references)?);
+        Ok(())
+    }
+
+    /// `out` followed by the recordable variables `references`.
+    fn resolve_recorded(
+        &self,
+        mut out: Vec<VarRef>,
+        references: &[&str],
+    ) -> Result<Vec<VarRef>, MasterError> {
         for r in references {
             let (v, _) = self.resolve(r)?;
             if v.ty == VarType::String {
@@ -925,8 +942,7 @@ impl System {
             }
             out.push(v);
         }
-        self.record = Some(out);
-        Ok(())
+        Ok(out)
     }
 
     fn recorded(&self) -> Vec<VarRef> {
