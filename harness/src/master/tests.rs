@@ -584,20 +584,8 @@ fn all_finite_is_every_value_finite() {
     assert!(all_finite(&[]));
 }
 
-/// A small deterministic generator (xorshift64*) for the signal tests.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
+/// A fixed-seed generator for the signal tests (`fastrand`'s, already tempfile's dependency).
+type Rng = fastrand::Rng;
 
 /// Sorted series as input files give them: decimal times on a grid (some repeated, a
 /// discontinuity), times a last bit off the grid, irregular gaps, one sample, none.
@@ -607,23 +595,23 @@ fn sorted_signals(rng: &mut Rng) -> Vec<Signal> {
         let n = match case {
             0 => 0,
             1 => 1,
-            _ => 2 + rng.below(300) as usize,
+            _ => 2 + rng.u64(..300) as usize,
         };
         let mut times = Vec::with_capacity(n);
         let mut t = if case % 5 == 0 { -1.5 } else { 0.0 };
         for k in 0..n {
-            match rng.below(10) {
+            match rng.u64(..10) {
                 // A discontinuity: the same time twice.
                 0 if k > 0 => {}
                 // Within the tolerance of the previous sample.
                 1 if k > 0 => t += 1e-12,
-                2 => t += 0.001 * (1 + rng.below(7)) as f64,
+                2 => t += 0.001 * (1 + rng.u64(..7)) as f64,
                 _ => t = (t * 1000.0).round() / 1000.0 + 0.001,
             }
             times.push(t);
         }
         let values = (0..n)
-            .map(|_| (rng.below(2001) as f64 - 1000.0) * 0.37)
+            .map(|_| (rng.u64(..2001) as f64 - 1000.0) * 0.37)
             .collect();
         out.push(Signal {
             times,
@@ -636,7 +624,7 @@ fn sorted_signals(rng: &mut Rng) -> Vec<Signal> {
 
 #[test]
 fn the_cursor_search_is_the_whole_search_bit_for_bit() {
-    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut rng = Rng::with_seed(0x9e37_79b9_7f4a_7c15);
     for signal in sorted_signals(&mut rng) {
         assert!(signal.has_sorted_times());
         // The run's grid (times from integer ticks) at steps finer than, equal to and coarser
@@ -653,12 +641,12 @@ fn the_cursor_search_is_the_whole_search_bit_for_bit() {
         let mut cursor = 0;
         let mut t = -2.0;
         for _ in 0..2000 {
-            t = match rng.below(20) {
-                0 => t - 0.001 * rng.below(100) as f64,
-                1 => t + 0.01 * rng.below(100) as f64,
+            t = match rng.u64(..20) {
+                0 => t - 0.001 * rng.u64(..100) as f64,
+                1 => t + 0.01 * rng.u64(..100) as f64,
                 2 => f64::NAN,
                 _ if t.is_nan() => 0.0,
-                _ => t + 0.0005 * rng.below(4) as f64,
+                _ => t + 0.0005 * rng.u64(..4) as f64,
             };
             let (fast, plain) = (signal.at_from(t, &mut cursor), signal.at(t));
             assert_eq!(fast.to_bits(), plain.to_bits(), "t = {t}");
