@@ -20,13 +20,20 @@ export KNEEBENCH_CACHE_DIR=$(mktemp -d)
 trap 'rm -f "$log"; rm -rf "$KNEEBENCH_CACHE_DIR"' EXIT
 # Every test binary runs even after one fails, so that a red run names all its failures (the
 # exit status is still cargo's: nonzero when anything failed).
-cargo test --workspace --locked --release --no-fail-fast 2>&1 | tee "$log"
+# The Python package is not among them: it has no Rust tests, and maturin builds it below.
+cargo test --workspace --exclude kneebench-python --locked --release --no-fail-fast 2>&1 | tee "$log"
 echo "== python package (maturin wheel into the venv, pytest)"
 # The kneebench binaries and the FMU library next to them (the Python tests compare with the
-# CLI and export the FMUs with it; `cargo test` does not put libkneebench_fmu.so there), then
-# the wheel of python/ built by the pinned maturin and installed into the venv.
-cargo build --release --locked -p kneebench-harness --bins -p kneebench-fmu --lib --quiet
+# CLI and export the FMUs with it), then the wheel of python/ built by the pinned maturin and
+# installed into the venv. The binaries are the ones `cargo test` built for the harness's
+# integration tests, and the library the one it built for the tests crate (in deps/, not next
+# to them): a separate `cargo build` of those packages resolves their dependencies' features
+# without the dev-dependencies' and rebuilt about two minutes of the dependency graph.
 target_dir=${CARGO_TARGET_DIR:-$root/target}
+for bin in kneebench kneebench-fmu-host; do
+    [ -x "$target_dir/release/$bin" ] || { echo "cargo test built no $target_dir/release/$bin" >&2; exit 1; }
+done
+cp "$target_dir/release/deps/libkneebench_fmu.so" "$target_dir/release/libkneebench_fmu.so"
 rm -rf "$target_dir/wheels"
 # The FMU host of isolated FMUs ships in the wheel next to the native module
 # (kneebench.run(..., isolate="auto"), the default).
