@@ -193,54 +193,73 @@ fn angle_tolerance(stem: &str) -> f64 {
 fn fmpy_runs_every_study_scenario_with_the_readme_recipe() {
     let recipe = readme_recipe();
     let dir = tempfile::tempdir().unwrap();
+    // One scenario per thread: each waits on its fmpy processes (~8 s of Python apiece), and
+    // in turn they took the whole test ~40 s.
+    std::thread::scope(|scope| {
+        let checks: Vec<_> = study_ssps()
+            .iter()
+            .map(|(stem, path)| {
+                let (recipe, dir) = (&recipe, dir.path());
+                scope.spawn(move || fmpy_runs_the_scenario_with_the_recipe(recipe, dir, stem, path))
+            })
+            .collect();
+        for check in checks {
+            if let Err(panic) = check.join() {
+                std::panic::resume_unwind(panic);
+            }
+        }
+    });
+}
+
+/// [`fmpy_runs_every_study_scenario_with_the_readme_recipe`] for scenario `stem` (its SSP at
+/// `path`), with fmpy's files under `dir`.
+fn fmpy_runs_the_scenario_with_the_recipe(recipe: &str, dir: &Path, stem: &str, path: &Path) {
     let step = 1e-3;
-    for (stem, path) in study_ssps() {
-        let ours = run_jacobi(path);
-        let theirs = run_fmpy(&recipe, path, &dir.path().join(format!("{stem}.csv")));
-        // 10 s at 1 ms: our 10001 rows (t = 0 included); fmpy's rows start at its first step
-        // and its float time takes one step past the stop time.
-        assert_eq!(ours.len(), 10_001, "{stem}");
-        assert_eq!(theirs.len(), 10_001, "{stem}: fmpy completed every step");
-        let (our_t, their_t) = (ours.times(), theirs.times());
-        for k in 0..10_000 {
-            assert!(
-                (their_t[k] + step - our_t[k + 1]).abs() < 1e-9,
-                "{stem} row {k}"
-            );
-        }
-        let tol = angle_tolerance(stem);
-        for name in ["plant.loadAngle", "plant.actuationAngle"] {
-            let (a, b) = (column(&ours, name), column(&theirs, name));
-            let (worst, at) = (0..10_000)
-                .map(|k| ((a[k + 1] - b[k]).abs(), our_t[k + 1]))
-                .fold((0.0f64, 0.0), |m, x| if x.0 > m.0 { x } else { m });
-            eprintln!("{stem} {name}: largest difference {worst:e} rad at t = {at}");
-            assert!(
-                worst <= tol,
-                "{stem} {name}: fmpy differs by {worst:e} rad at t = {at} (tolerance {tol:e})"
-            );
-        }
-        // fmpy's plant ran the scenario's configuration and ended without a trip.
+    let ours = run_jacobi(path);
+    let theirs = run_fmpy(recipe, path, &dir.join(format!("{stem}.csv")));
+    // 10 s at 1 ms: our 10001 rows (t = 0 included); fmpy's rows start at its first step
+    // and its float time takes one step past the stop time.
+    assert_eq!(ours.len(), 10_001, "{stem}");
+    assert_eq!(theirs.len(), 10_001, "{stem}: fmpy completed every step");
+    let (our_t, their_t) = (ours.times(), theirs.times());
+    for k in 0..10_000 {
         assert!(
-            column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
-            "{stem}: an interlock tripped in fmpy's run"
-        );
-        // Without the recipe fmpy applies no binding, and an interlock ends the run (fmpy
-        // leaves its extraction directories behind then: under the test's TMPDIR).
-        let out = std::process::Command::new(kneebench_tests::python())
-            .arg("-c")
-            .arg(FMPY_WITHOUT_BINDINGS)
-            .arg(path)
-            .env("TMPDIR", dir.path())
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{stem}: {out:?}");
-        let bare = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            bare.contains("fmi2DoStep failed with status 2 (discard)"),
-            "{stem}: {bare}"
+            (their_t[k] + step - our_t[k + 1]).abs() < 1e-9,
+            "{stem} row {k}"
         );
     }
+    let tol = angle_tolerance(stem);
+    for name in ["plant.loadAngle", "plant.actuationAngle"] {
+        let (a, b) = (column(&ours, name), column(&theirs, name));
+        let (worst, at) = (0..10_000)
+            .map(|k| ((a[k + 1] - b[k]).abs(), our_t[k + 1]))
+            .fold((0.0f64, 0.0), |m, x| if x.0 > m.0 { x } else { m });
+        eprintln!("{stem} {name}: largest difference {worst:e} rad at t = {at}");
+        assert!(
+            worst <= tol,
+            "{stem} {name}: fmpy differs by {worst:e} rad at t = {at} (tolerance {tol:e})"
+        );
+    }
+    // fmpy's plant ran the scenario's configuration and ended without a trip.
+    assert!(
+        column(&theirs, "plant.tripCode").iter().all(|&c| c == 0.0),
+        "{stem}: an interlock tripped in fmpy's run"
+    );
+    // Without the recipe fmpy applies no binding, and an interlock ends the run (fmpy
+    // leaves its extraction directories behind then: under the test's TMPDIR).
+    let out = std::process::Command::new(kneebench_tests::python())
+        .arg("-c")
+        .arg(FMPY_WITHOUT_BINDINGS)
+        .arg(path)
+        .env("TMPDIR", dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{stem}: {out:?}");
+    let bare = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        bare.contains("fmi2DoStep failed with status 2 (discard)"),
+        "{stem}: {bare}"
+    );
 }
 
 /// fmpy's `simulate_ssp` without a `parameter_set` (as a new user would call it); prints the
