@@ -201,6 +201,23 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
         energy(&bench_run),
         energy(&simulated[0])
     );
+    // The run on the bench recorded its pacing, and the report says it; the twin's has none.
+    let pacing = bench_run
+        .pacing
+        .expect("the run on the bench records its pacing");
+    assert!(pacing.largest_lateness > 0.0, "{pacing}");
+    assert_eq!(simulated[0].pacing, None);
+    let section = kneebench_harness::study::ScenarioSection {
+        scenario: bench_run.study,
+        runs: std::slice::from_ref(&bench_run),
+        figures: &[],
+    };
+    let report = kneebench_harness::study::write_report(out.path(), &[section], "test").unwrap();
+    let text = std::fs::read_to_string(report).unwrap();
+    assert!(
+        text.contains(&format!("  - pacing on the bench: {pacing}\n")),
+        "{text}"
+    );
 }
 
 #[test]

@@ -372,9 +372,10 @@ impl std::fmt::Display for RunEnd {
     }
 }
 
-/// The `BenchHardware` locals recorded after the outputs in every run on the hardware: how the
-/// run kept its schedule and how its link fared ([`Pacing`]).
-const PACING_LOCALS: [&str; 4] = [
+/// The `BenchHardware` locals recorded after the outputs in every run on the hardware (the
+/// component `plant`, here and in the study on the bench): how the run kept its schedule and how
+/// its link fared ([`Pacing`]).
+pub(crate) const PACING_LOCALS: [&str; 4] = [
     "plant.overrunCount",
     "plant.maxLateness",
     "plant.rejectedFrames",

@@ -243,6 +243,8 @@ pub struct StudyRun {
     /// `component.parameter` values of the scenario not applied because the component ran on a
     /// replacement without them (the twin's own parameters on the bench: `--bench`).
     pub unapplied: Vec<String>,
+    /// How the run on the bench kept its schedule (recorded with it); `None` on the twin.
+    pub pacing: Option<crate::experiment::Pacing>,
 }
 
 impl StudyRun {
@@ -400,6 +402,14 @@ fn on_the_bench(
             .set_value_str(&format!("{PLANT}.{name}"), value)
             .map_err(|e| StudyError::BenchParameter(format!("{name} = {value}: {e}")))?;
     }
+    // The pacing and link counts after the outputs ([`StudyRun::pacing`]).
+    loaded
+        .system
+        .record_also(&crate::experiment::PACING_LOCALS)
+        .map_err(|e| StudyError::Fmu {
+            path: fmu_dir.join(HARDWARE_FMU),
+            message: e.to_string(),
+        })?;
     Ok(loaded)
 }
 
@@ -542,6 +552,7 @@ pub fn run_checked(
         }
         let csv = config.out_dir.join(format!("{stem}.csv"));
         output.results.write_csv_file(&csv)?;
+        let pacing = crate::experiment::Pacing::of(&output.results);
         runs.push(StudyRun {
             study: config.scenario,
             actuator,
@@ -555,6 +566,7 @@ pub fn run_checked(
             parameters_hash,
             plant_set: config.parameter_set.as_ref().map(|s| s.label()),
             unapplied: loaded.unapplied,
+            pacing,
         });
     }
     Ok(runs)
