@@ -293,13 +293,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     }
     if let Some(p) = &written.pacing {
         println!("pacing: {p}");
-        if !p.kept_schedule() {
-            eprintln!(
-                "warning: the loop fell up to {:.1} ms behind its 1 ms schedule: the bench got \
-                 its commands at uneven intervals (run it again on a quieter host where the \
-                 results matter)",
-                p.largest_lateness * 1e3
-            );
+        if let Some(w) = p.schedule_warning() {
+            eprintln!("warning: {w} (run it again on a quieter host where the results matter)");
         }
     }
     if let Some(set) = &set {

@@ -372,10 +372,9 @@ impl std::fmt::Display for RunEnd {
     }
 }
 
-/// The `BenchHardware` locals recorded after the outputs in every run on the hardware (the
-/// component `plant`, here and in the study on the bench): how the run kept its schedule and how
-/// its link fared ([`Pacing`]).
-pub(crate) const PACING_LOCALS: [&str; 4] = [
+/// The `BenchHardware` locals recorded after the outputs in every run on the hardware: how the
+/// run kept its schedule and how its link fared ([`Pacing`]).
+const PACING_LOCALS: [&str; 4] = [
     "plant.overrunCount",
     "plant.maxLateness",
     "plant.rejectedFrames",
@@ -435,6 +434,26 @@ impl Pacing {
     pub fn kept_schedule(&self) -> bool {
         self.largest_lateness < STEP
     }
+
+    /// What a run that did not keep its schedule ([`Self::kept_schedule`]) means for its
+    /// rows, one sentence (no final stop); `None` for one that did.
+    pub fn schedule_warning(&self) -> Option<String> {
+        (!self.kept_schedule()).then(|| {
+            format!(
+                "the loop fell up to {:.1} ms behind its {} ms schedule (steps that took longer \
+                 than the period, then ran back to back to catch up): the bench got its commands \
+                 at uneven intervals, while the rows are logged at the schedule's times",
+                self.largest_lateness * 1e3,
+                STEP * 1e3
+            )
+        })
+    }
+}
+
+/// Records the [`Pacing`] locals of the `BenchHardware` component `plant` after what `system`
+/// records now (every output by default): the experiments' runs and the study's on the bench.
+pub(crate) fn record_pacing(system: &mut System) -> Result<(), MasterError> {
+    system.record_also(&PACING_LOCALS)
 }
 
 impl std::fmt::Display for Pacing {
@@ -462,7 +481,7 @@ fn run(
 ) -> Result<(RunOutput, RunEnd), ExperimentError> {
     check_length("the schedule", stop_time)?;
     if bench.kind() == BenchKind::Hardware {
-        system.record_also(&PACING_LOCALS)?;
+        record_pacing(system)?;
     }
     let config = RunConfig {
         stop_time,
@@ -686,15 +705,13 @@ fn write_outputs(
     let pacing = Pacing::of(run);
     let pacing_text = match &pacing {
         None => String::new(),
-        Some(p) if p.kept_schedule() => format!("\n**Pacing on the hardware.** {p}.\n"),
-        Some(p) => format!(
-            "\n**Pacing on the hardware.** {p}. **The loop fell up to {:.1} ms behind its 1 ms \
-             schedule (steps that took longer than the period, then ran back to back to catch \
-             up): the bench got its commands at uneven intervals, while the rows are logged at \
-             the schedule's times. Where the results matter, run the experiment again on a \
-             quieter host (or a real-time one).**\n",
-            p.largest_lateness * 1e3
-        ),
+        Some(p) => match p.schedule_warning() {
+            None => format!("\n**Pacing on the hardware.** {p}.\n"),
+            Some(w) => format!(
+                "\n**Pacing on the hardware.** {p}. **Warning: {w}. Where the results matter, \
+                 run the experiment again on a quieter host (or a real-time one).**\n"
+            ),
+        },
     };
     write_file(
         &markdown,

@@ -556,20 +556,20 @@ impl Signal {
         if times.is_empty() {
             return 0.0;
         }
-        let reach = reach(t);
+        let limit = reach(t);
         let mut i = (*cursor).min(times.len());
         // A NaN time takes the whole search too, as in `at`.
-        if i > 0 && (times[i - 1] > reach || reach.is_nan()) {
-            i = times.partition_point(|&x| x <= reach);
+        if i > 0 && (times[i - 1] > limit || limit.is_nan()) {
+            i = times.partition_point(|&x| x <= limit);
         } else {
             // A few samples by hand (one per step when the series has the run's grid), the
             // rest of a long jump by bisection.
             let mut walked = 0;
-            while i < times.len() && times[i] <= reach {
+            while i < times.len() && times[i] <= limit {
                 i += 1;
                 walked += 1;
                 if walked == 4 {
-                    i += times[i..].partition_point(|&x| x <= reach);
+                    i += times[i..].partition_point(|&x| x <= limit);
                     break;
                 }
             }
@@ -1198,7 +1198,7 @@ impl System {
                 Ok(inst) => {
                     let h = (c.step_multiple * grid.step_ticks) as f64
                         / crate::time::TICKS_PER_SECOND as f64;
-                    rts.push(Rt::new(inst, c.step_multiple, h, ports));
+                    rts.push(Rt::new(inst, c.step_multiple, h, ports, &signals));
                 }
                 Err(e) => {
                     drop(ticker);

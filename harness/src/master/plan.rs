@@ -269,24 +269,23 @@ pub(super) struct InValues {
     pub(super) int: Vec<i32>,
     pub(super) boolean: Vec<i32>,
     /// Per signal-fed input (`Ports::in_signals`), where its signal's search starts
-    /// ([`Signal::at_from`]): [`UNSEEN`] before the first sample, [`UNSORTED`] for a signal
-    /// whose times are not sorted (always [`Signal::at`]).
-    signal_cursors: Vec<usize>,
+    /// ([`Signal::at_from`]); `None` for a signal whose times are not sorted (always
+    /// [`Signal::at`]).
+    signal_cursors: Vec<Option<usize>>,
 }
 
-/// A signal cursor before the first sample.
-const UNSEEN: usize = usize::MAX;
-/// The cursor of a signal whose sample times are not non-decreasing (or hold a NaN).
-const UNSORTED: usize = usize::MAX - 1;
-
 impl InValues {
-    /// Zeroed buffers for the inputs of `ports`.
-    pub(super) fn for_ports(ports: &Ports) -> InValues {
+    /// Zeroed buffers for the inputs of `ports`, whose signal-fed inputs take `signals`.
+    pub(super) fn for_ports(ports: &Ports, signals: &[Signal]) -> InValues {
         InValues {
             real: vec![0.0; ports.in_vrs[0].len()],
             int: vec![0; ports.in_vrs[1].len()],
             boolean: vec![0; ports.in_vrs[2].len()],
-            signal_cursors: vec![UNSEEN; ports.in_signals.len()],
+            signal_cursors: ports
+                .in_signals
+                .iter()
+                .map(|&(_, _, s)| signals[s].has_sorted_times().then_some(0))
+                .collect(),
         }
     }
 
@@ -322,16 +321,9 @@ impl InValues {
     pub(super) fn sample_signals(&mut self, ports: &Ports, signals: &[Signal], t: f64) {
         for (&(ty, k, s), cursor) in ports.in_signals.iter().zip(&mut self.signal_cursors) {
             let signal = &signals[s];
-            if *cursor == UNSEEN {
-                *cursor = if signal.has_sorted_times() {
-                    0
-                } else {
-                    UNSORTED
-                };
-            }
-            let x = match *cursor {
-                UNSORTED => signal.at(t),
-                _ => signal.at_from(t, cursor),
+            let x = match cursor {
+                Some(cursor) => signal.at_from(t, cursor),
+                None => signal.at(t),
             };
             match ty {
                 0 => self.real[k] = x,
@@ -358,12 +350,18 @@ pub(super) enum StepEnd {
 }
 
 impl Rt {
-    pub(super) fn new(inst: Instance, multiple: u64, h: f64, ports: Ports) -> Rt {
+    pub(super) fn new(
+        inst: Instance,
+        multiple: u64,
+        h: f64,
+        ports: Ports,
+        signals: &[Signal],
+    ) -> Rt {
         Rt {
             inst,
             multiple,
             h,
-            inputs: InValues::for_ports(&ports),
+            inputs: InValues::for_ports(&ports, signals),
             ports,
             steps: 0,
         }

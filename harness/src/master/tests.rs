@@ -159,7 +159,11 @@ fn run_on_bus(c: &Case, jacobi: bool, steps: u64) -> Results {
     let plan = plan(c);
     let signals: Vec<Signal> = c.signals.iter().map(|(_, s)| s.clone()).collect();
     let mut bus = Bus::new(plan.bus_len);
-    let mut inputs: Vec<InValues> = plan.ports.iter().map(InValues::for_ports).collect();
+    let mut inputs: Vec<InValues> = plan
+        .ports
+        .iter()
+        .map(|q| InValues::for_ports(q, &signals))
+        .collect();
     for (i, v) in inputs.iter().enumerate() {
         step_on_bus(&plan, &mut bus, i, 0, v);
     }
@@ -369,7 +373,7 @@ fn gathered_inputs_are_the_sources_values() {
     }
     let t = 0.3;
     for (i, q) in p.ports.iter().enumerate() {
-        let mut v = InValues::for_ports(q);
+        let mut v = InValues::for_ports(q, &signals);
         v.gather(q, &bus, &signals, t);
         let value = |ty: usize, vr: u32| -> f64 {
             let k = q.in_vrs[ty].iter().position(|&x| x == vr).unwrap();
@@ -688,7 +692,7 @@ fn an_unsorted_signal_is_sampled_by_the_whole_search() {
     signals[0] = unsorted[0].clone();
     signals[1] = unsorted[1].clone();
     let bus = Bus::new(p.bus_len);
-    let mut v = InValues::for_ports(q);
+    let mut v = InValues::for_ports(q, &signals);
     for k in 0..5 {
         let t = k as f64 * 0.0007;
         v.gather(q, &bus, &signals, t);

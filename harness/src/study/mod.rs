@@ -403,13 +403,10 @@ fn on_the_bench(
             .map_err(|e| StudyError::BenchParameter(format!("{name} = {value}: {e}")))?;
     }
     // The pacing and link counts after the outputs ([`StudyRun::pacing`]).
-    loaded
-        .system
-        .record_also(&crate::experiment::PACING_LOCALS)
-        .map_err(|e| StudyError::Fmu {
-            path: fmu_dir.join(HARDWARE_FMU),
-            message: e.to_string(),
-        })?;
+    crate::experiment::record_pacing(&mut loaded.system).map_err(|e| StudyError::Fmu {
+        path: fmu_dir.join(HARDWARE_FMU),
+        message: e.to_string(),
+    })?;
     Ok(loaded)
 }
 

@@ -330,14 +330,8 @@ pub fn write_report(
             }
             if let Some(p) = &r.pacing {
                 let _ = writeln!(s, "  - pacing on the bench: {p}");
-                if !p.kept_schedule() {
-                    let _ = writeln!(
-                        s,
-                        "  - **the loop fell up to {:.1} ms behind its 1 ms schedule: the bench got \
-                         its commands at uneven intervals, while the rows are logged at the \
-                         schedule's times**",
-                        p.largest_lateness * 1e3
-                    );
+                if let Some(w) = p.schedule_warning() {
+                    let _ = writeln!(s, "  - **warning: {w}**");
                 }
             }
         }
