@@ -373,12 +373,14 @@ impl std::fmt::Display for RunEnd {
 }
 
 /// The `BenchHardware` locals recorded after the outputs in every run on the hardware: how the
-/// run kept its schedule and how its link fared ([`Pacing`]).
-const PACING_LOCALS: [&str; 4] = [
+/// run kept its schedule and how its link fared ([`Pacing`]), and the bench's clock at each
+/// row's sample (`benchSampleTime`: `kneebench identify` resamples the log on it).
+const PACING_LOCALS: [&str; 5] = [
     "plant.overrunCount",
     "plant.maxLateness",
     "plant.rejectedFrames",
     "plant.staleReplies",
+    "plant.benchSampleTime",
 ];
 
 /// How a run on `BenchHardware` kept its control period and how its link fared: the FMU's own
@@ -450,8 +452,9 @@ impl Pacing {
     }
 }
 
-/// Records the [`Pacing`] locals of the `BenchHardware` component `plant` after what `system`
-/// records now (every output by default): the experiments' runs and the study's on the bench.
+/// Records the [`Pacing`] locals and the bench's sample clock (`benchSampleTime`) of the
+/// `BenchHardware` component `plant` after what `system` records now (every output by
+/// default): the experiments' runs and the study's on the bench.
 pub(crate) fn record_pacing(system: &mut System) -> Result<(), MasterError> {
     system.record_also(&PACING_LOCALS)
 }

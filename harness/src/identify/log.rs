@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use super::IdentifyError;
+use super::resample::{BENCH_SAMPLE_TIME, MAX_INTERPOLATED_GAP, Resampling};
 use super::smooth::derivatives;
 
 /// Channels a log must have (names of the bench FMU's outputs; a `plant.` prefix, as
@@ -43,7 +44,8 @@ pub struct Log {
     pub path: PathBuf,
     /// Sample period \[s\].
     pub dt: f64,
-    /// Times \[s\].
+    /// Times \[s\]: the log's, or a uniform grid of the bench's clock from the log's first
+    /// time when the log was resampled on it.
     pub time: Vec<f64>,
     /// Raw encoder angles, actuation and load side \[rad\].
     pub angle: [Vec<f64>; 2],
@@ -192,6 +194,9 @@ fn read_table(path: &Path, wanted: &[String]) -> Result<Table, String> {
 /// Reads and checks a log: every required channel present, time strictly increasing and
 /// uniformly sampled, no NaN or infinity, long enough for the smoothing window `m` and the
 /// regressions. Rows with a saturated driver or a tripped interlock are excluded with a note.
+/// A log with the bench's clock ([`BENCH_SAMPLE_TIME`], strictly increasing) that differs
+/// from its schedule is resampled onto a uniform grid of that clock ([`Resampling`]), with a
+/// note.
 pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let bad = |problem: String| IdentifyError::Log {
         path: path.to_path_buf(),
@@ -203,6 +208,8 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
         wanted.push(n.to_string());
     }
     wanted.push(COMMAND.to_string());
+    wanted.push(format!("plant.{BENCH_SAMPLE_TIME}"));
+    wanted.push(BENCH_SAMPLE_TIME.to_string());
     let table = read_table(path, &wanted).map_err(bad)?;
     let find = |name: &str| -> Option<Vec<f64>> {
         let k = wanted.iter().position(|w| *w == format!("plant.{name}"))?;
@@ -221,7 +228,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
             missing.join(", ")
         )));
     }
-    let time = table.time.clone();
+    let mut time = table.time.clone();
     let line = |i: usize| table.lines[i];
     let place = table.place;
     let min_rows = 2 * m + 1 + 200;
@@ -266,14 +273,15 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let req = |name: &str| -> Result<Vec<f64>, IdentifyError> {
         get(name).map(|v| v.expect("required channels were checked"))
     };
-    let angle = [req(REQUIRED[0])?, req(REQUIRED[1])?];
-    let current = [req(REQUIRED[2])?, req(REQUIRED[3])?];
-    let torque = req(REQUIRED[4])?;
-    let voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
-    let load_cell = get(OPTIONAL[5])?;
-    let current_sense = [get(OPTIONAL[6])?, get(OPTIONAL[7])?];
-    let command = checked(COMMAND, table.columns[wanted.len() - 1].clone())?;
-    let n = time.len();
+    let mut angle = [req(REQUIRED[0])?, req(REQUIRED[1])?];
+    let mut current = [req(REQUIRED[2])?, req(REQUIRED[3])?];
+    let mut torque = req(REQUIRED[4])?;
+    let mut voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
+    let mut load_cell = get(OPTIONAL[5])?;
+    let mut current_sense = [get(OPTIONAL[6])?, get(OPTIONAL[7])?];
+    let mut command = checked(COMMAND, table.columns[wanted.len() - 3].clone())?;
+    let bench_time = get(BENCH_SAMPLE_TIME)?;
+    let mut n = time.len();
     let mut usable = vec![true; n];
     let mut notes = Vec::new();
     for (flag, what) in [
@@ -300,6 +308,45 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
                 ));
             }
             i += 1;
+        }
+    }
+    // On the bench's clock when the log has it and it differs from the schedule.
+    if let Some(bench) = &bench_time {
+        let plan = Resampling::plan(bench, dt)
+            .map_err(|(i, why)| bad(format!("{place} {}: {why}", line(i))))?;
+        if !plan.is_identity(n) {
+            let on_grid = |v: &mut Vec<f64>| *v = plan.apply(v);
+            angle.iter_mut().for_each(on_grid);
+            current.iter_mut().for_each(on_grid);
+            on_grid(&mut torque);
+            voltage.iter_mut().flatten().for_each(on_grid);
+            load_cell.iter_mut().for_each(on_grid);
+            current_sense.iter_mut().flatten().for_each(on_grid);
+            command.iter_mut().for_each(on_grid);
+            usable = plan.usable(&usable);
+            let (gap, ends) = plan.largest_gap();
+            let mut note = format!(
+                "{}: resampled onto the bench's clock ({BENCH_SAMPLE_TIME}): {n} rows logged on the schedule, {} rows of {} ms on the clock; the longest gap between samples {:.2} ms ({place} {})",
+                path.display(),
+                plan.len(),
+                dt * 1e3,
+                gap * 1e3,
+                line(ends)
+            );
+            if plan.inside_long_gaps() > 0 {
+                note.push_str(&format!(
+                    "; {} rows inside gaps longer than {MAX_INTERPOLATED_GAP} periods not used",
+                    plan.inside_long_gaps()
+                ));
+            }
+            notes.push(note);
+            n = plan.len();
+            time = (0..n).map(|j| time[0] + j as f64 * dt).collect();
+            if n < min_rows {
+                return Err(bad(format!(
+                    "too short on the bench's clock: {n} rows, identification needs at least {min_rows}"
+                )));
+            }
         }
     }
     let [_, v1, a1] = derivatives(&angle[0], dt, m);

@@ -6,7 +6,9 @@
 //! logged the drivers' voltages ([`log::REQUIRED`], [`log::OPTIONAL`]). Each log is checked
 //! ([`log::read`]): missing channels, non-monotonic or non-uniform time, NaN and too-short logs
 //! are refused with the file and line (row in Parquet); rows with a saturated driver or a tripped interlock are
-//! excluded with a note in the report.
+//! excluded with a note in the report. A log that carries the bench's clock at each sample
+//! (`benchSampleTime`, which `BenchHardware` records) is resampled onto it ([`resample`]): a
+//! master that ran late logged its rows at the schedule's times, not at the readings' times.
 //!
 //! **Stage 1, linear least squares** (the bench's own method: inverse dynamics on smoothed
 //! encoder signals, [`smooth`]). With `tau` the transducer's shaft torque, `w`, `a` the
@@ -75,6 +77,7 @@ pub mod lsq;
 mod offsets;
 mod refine;
 mod report;
+pub mod resample;
 pub mod smooth;
 pub mod stribeck;
 pub mod surface;

@@ -190,7 +190,11 @@
 //! controller PC should run a `PREEMPT_RT` (or `preempt=full`) kernel on bare metal. Lateness
 //! statistics are in the local variables `lastLateness` and `maxLateness`, the reply time of
 //! the samples (request to arrival) in `lastReplyTime` and `maxReplyTime`, the link's rejected
-//! frames in `rejectedFrames` and late replies in `staleReplies`.
+//! frames in `rejectedFrames` and late replies in `staleReplies`. `benchSampleTime` is the
+//! bench's own clock when it took the last sample (the server's, to the microsecond): a row
+//! logged at the schedule's time `t` holds readings taken at that bench time, which differs
+//! from `t` by more than jitter only when the loop ran late (a stall, then steps back to back
+//! to catch up). `kneebench identify` resamples a log that has it onto the bench's clock.
 //!
 //! ## FMU state
 //! None: the model description declares `canGetAndSetFMUstate="false"` and
@@ -314,6 +318,8 @@ pub struct BenchHardwareModel {
     stale_replies: i32,
     last_reply_time: f64,
     max_reply_time: f64,
+    /// The bench's clock at the last sample \[s\] (`benchSampleTime`).
+    bench_sample_time: f64,
     runtime: Slot,
 }
 

@@ -293,6 +293,7 @@ impl BenchHardwareModel {
         let prev = BenchOutputs::default();
         self.outputs = measure(&rt, &s, &safe, None, &prev, [false; 2]);
         self.runtime = Slot(Some(Box::new(rt)));
+        self.sync_statistics();
         Ok(())
     }
 
@@ -348,6 +349,7 @@ impl BenchHardwareModel {
             self.rejected_frames = saturate(rt.io.counters().rejected());
             self.stale_replies = saturate(rt.io.stale_replies());
             (self.last_reply_time, self.max_reply_time) = rt.reply_time;
+            self.bench_sample_time = rt.server_us as f64 * 1e-6;
         }
     }
 

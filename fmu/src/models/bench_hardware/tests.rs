@@ -379,9 +379,20 @@ fn a_sample_right_after_a_late_one_does_not_read_as_a_speed_spike() {
     rt.server_us = 0;
     m.commands.test_current = 3.0;
     let mut speeds = Vec::new();
+    let mut bench_times = Vec::new();
     for k in 0..402 {
         assert_eq!(m.do_step(k as f64 * h, h).unwrap(), StepOutcome::Completed);
         speeds.push(m.outputs.actuation_velocity);
+        bench_times.push(m.bench_sample_time);
+    }
+    // `benchSampleTime` is the bench's clock at each sample: on the schedule until the late
+    // one (the row at 400 ms read at 402 ms), then 0.1 ms after it (the row at 401 ms).
+    for (k, expected) in [(398, 0.399), (399, 0.402), (400, 0.4021), (401, 0.4031)] {
+        assert!(
+            (bench_times[k] - expected).abs() < 1e-9,
+            "step {k}: {} against {expected}",
+            bench_times[k]
+        );
     }
     let (before, caught_up) = (speeds[398], speeds[400]);
     assert!(before > 0.1, "{before}");

@@ -292,6 +292,7 @@ pub(super) static VARIABLES: Lazy<Vec<Variable<BenchHardwareModel>>> = unsafe {
         local!(int "staleReplies", 454, stale_replies, "Replies that came too late for their request and were ignored"),
         local!(real "lastReplyTime", 455, last_reply_time, "s", "How long the last step's sample took to arrive after its request"),
         local!(real "maxReplyTime", 456, max_reply_time, "s", "Longest reply time so far"),
+        local!(real "benchSampleTime", 457, bench_sample_time, "s", "The bench's clock when it took the last sample, since the session began (Udp: the server's, to the microsecond; Simulated: the simulated bench's time): when the loop ran late, the true time of the row's readings, which identification resamples on"),
     ];
         // The plant's parameters that the measurements need (calibration, conversions, limits),
         // from the plant's own list: same name, value reference, unit, range and meaning; fixed
