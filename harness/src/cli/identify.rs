@@ -58,7 +58,10 @@ Fits the plant's parameters to logs of the bench's experiments (the CSV or Parqu
 `kneebench experiment` writes; a .parquet extension reads Parquet): linear least squares on the smoothed encoder signals (inertias, viscous and Coulomb
 friction per side, spring stiffness, motor torque constants; resistance, inductance and
 back-emf constant where the driver's voltage is logged; the transducer's torque offset), then
-an output-error refinement that re-runs the plant FMU over the logged currents. Writes
+an output-error refinement that re-runs the plant FMU over the logged currents. A log with
+the bench's clock at each sample (plant.benchSampleTime: every experiment on BenchHardware
+logs it) is first resampled onto a uniform grid of that clock, as a master that fell behind
+its schedule logged its rows at the schedule's times; the report notes it. Writes
 <out>/<name>.ssv (the prior set with every identified value replaced), <out>/identify.md
 (estimates with 95 % intervals, residuals, correlations, what is not identifiable and which
 experiment to add) and the measured-vs-twin figure identify-fit.png/.svg.")]

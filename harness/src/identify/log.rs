@@ -279,7 +279,11 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
     let mut voltage = [get(OPTIONAL[0])?, get(OPTIONAL[1])?];
     let mut load_cell = get(OPTIONAL[5])?;
     let mut current_sense = [get(OPTIONAL[6])?, get(OPTIONAL[7])?];
-    let mut command = checked(COMMAND, table.columns[wanted.len() - 3].clone())?;
+    let command_column = wanted.iter().position(|w| w == COMMAND);
+    let mut command = checked(
+        COMMAND,
+        command_column.and_then(|k| table.columns[k].clone()),
+    )?;
     let bench_time = get(BENCH_SAMPLE_TIME)?;
     let mut n = time.len();
     let mut usable = vec![true; n];
@@ -326,7 +330,7 @@ pub fn read(path: &Path, m: usize) -> Result<Log, IdentifyError> {
             usable = plan.usable(&usable);
             let (gap, ends) = plan.largest_gap();
             let mut note = format!(
-                "{}: resampled onto the bench's clock ({BENCH_SAMPLE_TIME}): {n} rows logged on the schedule, {} rows of {} ms on the clock; the longest gap between samples {:.2} ms ({place} {})",
+                "{}: resampled onto the bench's clock ({BENCH_SAMPLE_TIME}): {n} rows logged on the schedule, {} rows of {:.3} ms on the clock; the longest gap between samples {:.2} ms ({place} {})",
                 path.display(),
                 plan.len(),
                 dt * 1e3,
