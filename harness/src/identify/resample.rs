@@ -31,6 +31,14 @@ pub const BENCH_SAMPLE_TIME: &str = "benchSampleTime";
 /// across for use (a longer one's rows are interpolated but not used).
 pub const MAX_INTERPOLATED_GAP: f64 = 5.0;
 
+/// The largest bench time accepted \[s\] (about 31 years: its nanoseconds fit an `i64` many
+/// times over).
+pub const MAX_CLOCK: f64 = 1e9;
+
+/// Periods a bench's clock may span beyond twice a log's rows (a long pause before the first
+/// step, say) before it is refused as not the log's.
+pub const SPARE_ROWS: i64 = 10_000;
+
 /// Where each row of the bench clock's grid falls among the logged samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Resampling {
@@ -61,10 +69,22 @@ fn nanoseconds(seconds: f64) -> i64 {
 
 impl Resampling {
     /// The grid of step `dt` \[s\] over the bench's sample times `bench` \[s\], which must be
-    /// finite and strictly increasing; otherwise the offending row and what is wrong.
+    /// finite, within [`MAX_CLOCK`] of zero and strictly increasing, and span at most twice
+    /// the log's rows and [`SPARE_ROWS`] periods (a clock that is not this log's would make a
+    /// grid of any size);
+    /// otherwise the offending row and what is wrong.
     pub fn plan(bench: &[f64], dt: f64) -> Result<Resampling, (usize, String)> {
         if let Some(i) = bench.iter().position(|t| !t.is_finite()) {
             return Err((i, format!("{BENCH_SAMPLE_TIME} is {}", bench[i])));
+        }
+        if let Some(i) = bench.iter().position(|t| t.abs() > MAX_CLOCK) {
+            return Err((
+                i,
+                format!(
+                    "{BENCH_SAMPLE_TIME} {} s is beyond {MAX_CLOCK:e} s: not a bench's clock",
+                    bench[i]
+                ),
+            ));
         }
         let step = nanoseconds(dt);
         if step <= 0 {
@@ -83,6 +103,17 @@ impl Resampling {
             ));
         }
         let last = *offsets.last().unwrap_or(&0);
+        let rows = last / step + 1;
+        if rows > 2 * offsets.len() as i64 + SPARE_ROWS {
+            return Err((
+                offsets.len() - 1,
+                format!(
+                    "{BENCH_SAMPLE_TIME} spans {} s over {} rows of {dt} s: more than twice the rows' time and {SPARE_ROWS} periods, not the clock of this log's samples",
+                    last as f64 * 1e-9,
+                    offsets.len()
+                ),
+            ));
+        }
         let long = (MAX_INTERPOLATED_GAP * step as f64) as i64;
         let mut at = Vec::with_capacity(offsets.len());
         let mut inside_long_gaps = 0;
@@ -282,5 +313,21 @@ mod tests {
         let (row, why) = Resampling::plan(&[0.0, 2e-3, 1e-3], 1e-3).unwrap_err();
         assert_eq!(row, 2);
         assert!(why.contains("does not increase"), "{why}");
+        // Times whose nanoseconds would not fit, and a clock that would make a huge grid.
+        let (row, why) = Resampling::plan(&[0.0, 1e-3, 1e19], 1e-3).unwrap_err();
+        assert_eq!(row, 2);
+        assert!(why.contains("not a bench's clock"), "{why}");
+        let (row, why) = Resampling::plan(&[0.0, 1e-3, 1e6], 1e-3).unwrap_err();
+        assert_eq!(row, 2);
+        assert!(why.contains("more than twice"), "{why}");
+        // Twice the rows' time and more is still a clock (a master that lost half its rows'
+        // time, a pause before the first step).
+        assert_eq!(
+            Resampling::plan(&micros(&[0, 2000, 4000, 5000]), 1e-3)
+                .unwrap()
+                .len(),
+            6
+        );
+        assert_eq!(Resampling::plan(&[0.0, 10.0], 1e-3).unwrap().len(), 10_001);
     }
 }
