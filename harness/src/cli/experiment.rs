@@ -295,7 +295,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     if let Some(p) = &written.pacing {
         println!("pacing: {p}");
         if let Some(w) = p.schedule_warning() {
-            eprintln!("warning: {w} (run it again on a quieter host where the results matter)");
+            eprintln!(
+                "warning: {w} (run it again on a quieter host where the results matter; as a log \
+                 for `kneebench identify` it is usable as it is: identify resamples it on the \
+                 bench's clock, plant.benchSampleTime)"
+            );
         }
     }
     if let Some(set) = &set {

@@ -712,7 +712,9 @@ fn write_outputs(
             None => format!("\n**Pacing on the hardware.** {p}.\n"),
             Some(w) => format!(
                 "\n**Pacing on the hardware.** {p}. **Warning: {w}. Where the results matter, \
-                 run the experiment again on a quieter host (or a real-time one).**\n"
+                 run the experiment again on a quieter host (or a real-time one).** As a log for \
+                 `kneebench identify` the run is usable as it is: identification resamples it \
+                 on the bench's clock (`plant.benchSampleTime`).\n"
             ),
         },
     };
