@@ -14,7 +14,9 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use kneebench_harness::experiment::{Bench, RunEnd, bode};
-use kneebench_harness::identify::{IdentifyConfig, Status, identify, write_outputs};
+use kneebench_harness::identify::{
+    Identification, IdentifyConfig, Status, identify, write_outputs,
+};
 use kneebench_harness::master::Value;
 use kneebench_harness::params::ParameterSet;
 use kneebench_harness::results::{ColumnKind, Results};
@@ -471,7 +473,25 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
         logs.push(path);
     }
     let id = identify(&logs, &plant_path(), None, &IdentifyConfig::default()).unwrap();
+    let (estimates, mut report) = against_truth(&id);
+    for note in id.notes.iter().filter(|n| n.contains("resampled")) {
+        report.push_str(note);
+        report.push('\n');
+    }
+    eprintln!("{report}");
+    for ((v, ci, status), (name, truth)) in estimates.into_iter().zip(TRUTH) {
+        assert_eq!(status, Status::Identified, "{name}\n{report}");
+        let within_3 = ((v - truth) / truth).abs() <= 0.03;
+        let within_ci = (v - truth).abs() <= ci && ci < 0.1 * truth;
+        assert!(within_3 || within_ci, "{name}\n{report}");
+    }
+}
+
+/// Each parameter of [`TRUTH`] as `id` estimated it (value, 95 % interval, status), in that
+/// order, and one report line per parameter.
+fn against_truth(id: &Identification) -> (Vec<(f64, f64, Status)>, String) {
     let mut report = String::new();
+    let mut estimates = Vec::new();
     for (name, truth) in TRUTH {
         let e = id
             .estimates
@@ -484,24 +504,9 @@ fn perturbed_parameters_are_recovered_from_logs_recorded_through_the_hardware() 
             100.0 * (v - truth) / truth,
             e.status
         ));
+        estimates.push((v, ci, e.status.clone()));
     }
-    for note in id.notes.iter().filter(|n| n.contains("resampled")) {
-        report.push_str(note);
-        report.push('\n');
-    }
-    eprintln!("{report}");
-    for (name, truth) in TRUTH {
-        let e = id
-            .estimates
-            .iter()
-            .find(|e| e.quantity.parameter == Some(name))
-            .unwrap();
-        let (v, ci) = e.value();
-        assert_eq!(e.status, Status::Identified, "{name}\n{report}");
-        let within_3 = ((v - truth) / truth).abs() <= 0.03;
-        let within_ci = (v - truth).abs() <= ci && ci < 0.1 * truth;
-        assert!(within_3 || within_ci, "{name}\n{report}");
-    }
+    (estimates, report)
 }
 
 /// The bench's clock of a master that runs late now and then, in ticks of 0.1 ms, for `rows`
@@ -641,22 +646,11 @@ fn logs_of_a_late_master_are_identified_on_the_bench_clock() {
     }
     let estimates = |logs: &[PathBuf]| {
         let id = identify(logs, &plant_path(), None, &IdentifyConfig::default()).unwrap();
-        let mut text = String::new();
-        let mut values = Vec::new();
-        for (name, truth) in TRUTH {
-            let e = id
-                .estimates
-                .iter()
-                .find(|e| e.quantity.parameter == Some(name))
-                .unwrap();
-            let (v, ci) = e.value();
-            text.push_str(&format!(
-                "{name}: {v} +- {ci} (truth {truth}, {:.3} %) {:?}\n",
-                100.0 * (v - truth) / truth,
-                e.status
-            ));
-            values.push((v, ci, e.status == Status::Identified));
-        }
+        let (estimates, text) = against_truth(&id);
+        let values: Vec<(f64, f64, bool)> = estimates
+            .into_iter()
+            .map(|(v, ci, status)| (v, ci, status == Status::Identified))
+            .collect();
         (values, text, id.notes.join("\n"))
     };
     let (reference, reference_text, reference_notes) = estimates(&on_time);
