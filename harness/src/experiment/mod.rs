@@ -29,8 +29,12 @@ pub mod analysis;
 pub mod bode;
 pub mod calibration;
 pub mod map;
+mod pacing;
 pub mod step;
 pub mod triangle;
+
+pub use pacing::Pacing;
+pub(crate) use pacing::record_pacing;
 
 use std::path::{Path, PathBuf};
 
@@ -372,108 +376,6 @@ impl std::fmt::Display for RunEnd {
     }
 }
 
-/// The `BenchHardware` locals recorded after the outputs in every run on the hardware: how the
-/// run kept its schedule and how its link fared ([`Pacing`]), and the bench's clock at each
-/// row's sample (`benchSampleTime`: `kneebench identify` resamples the log on it).
-const PACING_LOCALS: [&str; 5] = [
-    "plant.overrunCount",
-    "plant.maxLateness",
-    "plant.rejectedFrames",
-    "plant.staleReplies",
-    "plant.benchSampleTime",
-];
-
-/// How a run on `BenchHardware` kept its control period and how its link fared: the FMU's own
-/// counts (`overrunCount`, `maxLateness`, `rejectedFrames`, `staleReplies`), recorded with the
-/// run (in its raw file too). A loop that fell a period or more behind its schedule (steps
-/// that took longer than the period, then ran back to back to catch up) sent the bench its
-/// commands at uneven intervals, not every 1 ms ([`Pacing::kept_schedule`]): the rows are
-/// logged at the schedule's times, the bench moved in real time.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pacing {
-    /// Steps that reached their deadline already late (the period's work took longer).
-    pub overruns: u64,
-    /// How far behind its deadline the latest step continued \[s\].
-    pub largest_lateness: f64,
-    /// Frames from the bench the FMU rejected (unauthenticated, malformed, replayed, ...).
-    pub rejected_frames: u64,
-    /// Replies that came too late for their request and were ignored.
-    pub stale_replies: u64,
-}
-
-impl Pacing {
-    /// The pacing of the runs recorded in `run`: its `plant.<local>` columns, or the
-    /// `<prefix>.plant.<local>` columns of several runs side by side (the step experiment's
-    /// `open.` and `closed.`), the counts added up and the largest lateness of all. `None`
-    /// when `run` holds none (a run on the simulated bench).
-    pub fn of(run: &Results) -> Option<Pacing> {
-        // Every local is a running count or maximum: a column's largest value is its last.
-        let columns = |local: &str| -> Vec<f64> {
-            let name = format!("plant.{local}");
-            let prefixed = format!(".{name}");
-            run.names()
-                .iter()
-                .filter(|c| **c == name || c.ends_with(&prefixed))
-                .filter_map(|c| run.column(c))
-                .map(|values| values.iter().copied().fold(0.0, f64::max))
-                .collect()
-        };
-        let lateness = columns("maxLateness");
-        if lateness.is_empty() {
-            return None;
-        }
-        let count = |local: &str| columns(local).iter().sum::<f64>() as u64;
-        Some(Pacing {
-            overruns: count("overrunCount"),
-            largest_lateness: lateness.iter().copied().fold(0.0, f64::max),
-            rejected_frames: count("rejectedFrames"),
-            stale_replies: count("staleReplies"),
-        })
-    }
-
-    /// Whether every step continued less than one control period ([`STEP`]) after its
-    /// deadline: the loop never fell a whole period behind its schedule.
-    pub fn kept_schedule(&self) -> bool {
-        self.largest_lateness < STEP
-    }
-
-    /// What a run that did not keep its schedule ([`Self::kept_schedule`]) means for its
-    /// rows, one sentence (no final stop); `None` for one that did.
-    pub fn schedule_warning(&self) -> Option<String> {
-        (!self.kept_schedule()).then(|| {
-            format!(
-                "the loop fell up to {:.1} ms behind its {} ms schedule (steps that took longer \
-                 than the period, then ran back to back to catch up): the bench got its commands \
-                 at uneven intervals, while the rows are logged at the schedule's times",
-                self.largest_lateness * 1e3,
-                STEP * 1e3
-            )
-        })
-    }
-}
-
-/// Records the [`Pacing`] locals and the bench's sample clock (`benchSampleTime`) of the
-/// `BenchHardware` component `plant` after what `system` records now (every output by
-/// default): the experiments' runs and the study's on the bench.
-pub(crate) fn record_pacing(system: &mut System) -> Result<(), MasterError> {
-    system.record_also(&PACING_LOCALS)
-}
-
-impl std::fmt::Display for Pacing {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "{} overruns of the {} ms period, largest lateness {:.0} us; {} frames rejected, {} \
-             stale replies",
-            self.overruns,
-            STEP * 1e3,
-            self.largest_lateness * 1e6,
-            self.rejected_frames,
-            self.stale_replies
-        )
-    }
-}
-
 /// Runs `system` (holding `bench` as `plant`) to `stop_time` at 1 ms steps (Gauss-Seidel),
 /// recording the [`Pacing`] locals after the outputs on the hardware. A run ended by the bench
 /// keeps its rows and says why; a failure is an error.
@@ -738,73 +640,5 @@ fn num(v: f64, decimals: usize) -> String {
         format!("{v:.decimals$}")
     } else {
         "-".into()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn table(names: &[&str], rows: &[&[f64]]) -> Results {
-        let mut r = Results::with_capacity(
-            names.iter().map(|n| n.to_string()).collect(),
-            vec![ColumnKind::Real; names.len()],
-            rows.len(),
-        );
-        for (k, row) in rows.iter().enumerate() {
-            r.push_row(k as f64 * STEP, row);
-        }
-        r
-    }
-
-    #[test]
-    fn pacing_is_read_from_the_hardware_locals_and_added_up_over_runs() {
-        // The simulated bench records none of the locals.
-        let plant = table(&["plant.actuationAngle"], &[&[0.0], &[1.0]]);
-        assert_eq!(Pacing::of(&plant), None);
-        // One run: the running counts' last values.
-        let names = [
-            "plant.actuationAngle",
-            "plant.overrunCount",
-            "plant.maxLateness",
-            "plant.rejectedFrames",
-            "plant.staleReplies",
-        ];
-        let one = table(
-            &names,
-            &[&[0.0, 0.0, 2e-5, 0.0, 0.0], &[0.1, 2.0, 4.5e-4, 1.0, 3.0]],
-        );
-        let p = Pacing::of(&one).unwrap();
-        assert_eq!(
-            p,
-            Pacing {
-                overruns: 2,
-                largest_lateness: 4.5e-4,
-                rejected_frames: 1,
-                stale_replies: 3
-            }
-        );
-        assert!(p.kept_schedule());
-        assert_eq!(
-            p.to_string(),
-            "2 overruns of the 1 ms period, largest lateness 450 us; 1 frames rejected, 3 stale \
-             replies"
-        );
-        // Two runs side by side (the step experiment): counts added, the larger lateness.
-        let mut both: Vec<String> = names.iter().map(|n| format!("open.{n}")).collect();
-        both.extend(names.iter().map(|n| format!("closed.{n}")));
-        let both: Vec<&str> = both.iter().map(String::as_str).collect();
-        let two = table(
-            &both,
-            &[&[0.0, 1.0, 1e-4, 0.0, 0.0, 0.0, 5.0, 1.2e-3, 2.0, 0.0]],
-        );
-        let p = Pacing::of(&two).unwrap();
-        assert_eq!((p.overruns, p.rejected_frames, p.stale_replies), (6, 2, 0));
-        assert_eq!(p.largest_lateness, 1.2e-3);
-        // A whole period late is a command held two periods: not the 1 ms loop any more.
-        assert!(!p.kept_schedule());
-        // A column that only ends like a local (another component's) is not one.
-        let other = table(&["gait.maxLateness"], &[&[1.0]]);
-        assert_eq!(Pacing::of(&other), None);
     }
 }
