@@ -206,6 +206,10 @@ pub(super) fn measure(
         p.load_motor_back_emf_constant * wm2 * i2,
     ];
     if let Some(h) = h {
+        // Over the time the bench's clock says passed since the last sample (the step size
+        // on the simulated bench): a late sample ends a longer interval, and the samples that
+        // follow it while the loop catches up end shorter ones.
+        let h = if rt.dt[0] > 0.0 { rt.dt[0] } else { h };
         o.kinetic_energy_rate = (o.kinetic_energy - prev.kinetic_energy) / h;
         o.potential_energy_rate = (o.potential_energy - prev.potential_energy) / h;
         let trap = |acc: f64, a: f64, b: f64| acc + 0.5 * h * (a + b);

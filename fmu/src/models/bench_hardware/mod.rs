@@ -109,7 +109,9 @@
 //!   and output torques (`Km i`, ratios), armature voltages (the set value in voltage mode;
 //!   `R i + Ke w_m` in current mode and for a disabled driver), driver saturation (that voltage at the measured supply),
 //!   mechanical and electrical powers, regenerated power, energies (trapezoidal integrals over
-//!   the period), `E_k`, `E_p` and their rates, friction torques and loss powers from each
+//!   the time between the two samples, as the velocities: a late sample ends a longer
+//!   interval, the samples that catch up shorter ones, so that the energy per cycle counts
+//!   the time the bench ran), `E_k`, `E_p` and their rates, friction torques and loss powers from each
 //!   side's torque and power balance (model parameters `I`, `c`, `k`), copper and back-emf
 //!   energies.
 //! * `actuationStuck`/`loadStuck`: the encoder did not move during the period.

@@ -348,14 +348,24 @@ fn a_late_sample_does_not_read_as_a_speed_jump() {
     m.commands.test_current = 3.0;
     let h = 1e-3;
     let mut speeds = Vec::new();
+    let mut energy = Vec::new();
     for k in 0..402 {
         assert_eq!(m.do_step(k as f64 * h, h).unwrap(), StepOutcome::Completed);
         speeds.push(m.outputs.actuation_velocity);
+        energy.push(m.outputs.test_electrical_energy);
     }
     let (before, late) = (speeds[398], speeds[399]);
     assert!(before > 0.1, "{before}");
     // The late sample covers 3 ms of motion; its speed is still the shaft's.
     assert!((late - before).abs() < 0.1 * before, "{before} {late}");
+    // And 3 ms of the driver's energy: the power is nearly steady, the interval three times
+    // a period.
+    let (period, late_interval) = (energy[398] - energy[397], energy[399] - energy[398]);
+    assert!(period > 0.0, "{period}");
+    assert!(
+        (late_interval / period - 3.0).abs() < 0.1,
+        "{period} {late_interval}"
+    );
 }
 
 #[test]
