@@ -71,9 +71,11 @@ impl Resampling {
     /// The grid of step `dt` \[s\] over the bench's sample times `bench` \[s\], which must be
     /// finite, within [`MAX_CLOCK`] of zero and strictly increasing, and span at most twice
     /// the log's rows and [`SPARE_ROWS`] periods (a clock that is not this log's would make a
-    /// grid of any size);
-    /// otherwise the offending row and what is wrong.
+    /// grid of any size); otherwise the offending row and what is wrong.
     pub fn plan(bench: &[f64], dt: f64) -> Result<Resampling, (usize, String)> {
+        if bench.is_empty() {
+            return Err((0, format!("{BENCH_SAMPLE_TIME} has no rows")));
+        }
         if let Some(i) = bench.iter().position(|t| !t.is_finite()) {
             return Err((i, format!("{BENCH_SAMPLE_TIME} is {}", bench[i])));
         }
@@ -184,7 +186,8 @@ impl Resampling {
     }
 
     /// A logged channel on the grid: interpolated between the samples around each grid time,
-    /// the sample itself where the grid time is its time.
+    /// the sample itself where the grid time is its time. `logged` has a value per logged row
+    /// (the length of the clock planned on); a shorter one is a caller's error and panics.
     pub fn apply(&self, logged: &[f64]) -> Vec<f64> {
         self.at
             .iter()
@@ -313,6 +316,18 @@ mod tests {
         let (row, why) = Resampling::plan(&[0.0, 2e-3, 1e-3], 1e-3).unwrap_err();
         assert_eq!(row, 2);
         assert!(why.contains("does not increase"), "{why}");
+        assert!(
+            Resampling::plan(&[], 1e-3)
+                .unwrap_err()
+                .1
+                .contains("no rows")
+        );
+        assert!(
+            Resampling::plan(&[0.0, 1e-3], f64::NAN)
+                .unwrap_err()
+                .1
+                .contains("below a nanosecond")
+        );
         // Times whose nanoseconds would not fit, and a clock that would make a huge grid.
         let (row, why) = Resampling::plan(&[0.0, 1e-3, 1e19], 1e-3).unwrap_err();
         assert_eq!(row, 2);
