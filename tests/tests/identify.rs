@@ -15,7 +15,7 @@ use std::sync::OnceLock;
 
 use kneebench_harness::experiment::{Bench, RunEnd, bode};
 use kneebench_harness::identify::{
-    Identification, IdentifyConfig, Status, identify, write_outputs,
+    Identification, IdentifyConfig, Status, identify, log, write_outputs,
 };
 use kneebench_harness::master::Value;
 use kneebench_harness::params::ParameterSet;
@@ -645,6 +645,33 @@ fn logs_of_a_late_master_are_identified_on_the_bench_clock() {
         std::fs::write(&path, cut).unwrap();
         on_schedule.push(path);
     }
+    // The same late log as Parquet is resampled to the same rows, bit for bit.
+    let parquet = dir.path().join("late-0.parquet");
+    Results::read_csv_file(&on_clock[0])
+        .unwrap()
+        .write_parquet_file(&parquet, vec![])
+        .unwrap();
+    let window = IdentifyConfig::default().window;
+    let (from_csv, from_parquet) = (
+        log::read(&on_clock[0], window).unwrap(),
+        log::read(&parquet, window).unwrap(),
+    );
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&from_csv.time), bits(&from_parquet.time));
+    for side in 0..2 {
+        assert_eq!(bits(&from_csv.angle[side]), bits(&from_parquet.angle[side]));
+        assert_eq!(
+            bits(&from_csv.current[side]),
+            bits(&from_parquet.current[side])
+        );
+    }
+    assert_eq!(bits(&from_csv.torque), bits(&from_parquet.torque));
+    assert_eq!(from_csv.usable, from_parquet.usable);
+    assert!(
+        from_parquet.notes.iter().any(|n| n.contains("resampled")),
+        "{:?}",
+        from_parquet.notes
+    );
     let estimates = |logs: &[PathBuf]| {
         let id = identify(logs, &plant_path(), None, &IdentifyConfig::default()).unwrap();
         let (estimates, text) = against_truth(&id);
