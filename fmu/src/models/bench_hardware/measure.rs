@@ -81,13 +81,17 @@ pub(super) fn measure(
     o.load_encoder_angle = th2;
     o.actuation_angle = th1;
     o.load_angle = th2;
-    let (w1, w2, a1, a2) = match h {
-        Some(h) => {
+    // The time since the last sample on the bench's clock (the step size on the simulated
+    // bench): the velocities' differences and the energies' trapezoids both span it, so a late
+    // sample ends a longer interval and the samples that follow it while the loop catches up
+    // end shorter ones.
+    let interval = h.map(|h| if rt.dt[0] > 0.0 { rt.dt[0] } else { h });
+    let (w1, w2, a1, a2) = match (h, interval) {
+        (Some(h), Some(dt)) => {
             // From integer count differences, so that equal movements give exactly zero
             // acceleration whatever rounding the step size carries.
             let [now, before] = rt.delta;
-            let [dt, dt_before] = rt.dt;
-            let dt = if dt > 0.0 { dt } else { h };
+            let dt_before = rt.dt[1];
             if dt < 0.5 * h && dt_before > 0.0 {
                 // The loop catching up after a stall: this sample follows the last by much
                 // less than a period, too short for its counts to make a velocity (one count
@@ -124,7 +128,7 @@ pub(super) fn measure(
                 )
             }
         }
-        None => (0.0, 0.0, 0.0, 0.0),
+        _ => (0.0, 0.0, 0.0, 0.0),
     };
     o.actuation_velocity = w1;
     o.load_velocity = w2;
@@ -205,11 +209,7 @@ pub(super) fn measure(
         p.test_motor_back_emf_constant * wm1 * i1,
         p.load_motor_back_emf_constant * wm2 * i2,
     ];
-    if let Some(h) = h {
-        // Over the time the bench's clock says passed since the last sample (the step size
-        // on the simulated bench): a late sample ends a longer interval, and the samples that
-        // follow it while the loop catches up end shorter ones.
-        let h = if rt.dt[0] > 0.0 { rt.dt[0] } else { h };
+    if let Some(h) = interval {
         o.kinetic_energy_rate = (o.kinetic_energy - prev.kinetic_energy) / h;
         o.potential_energy_rate = (o.potential_energy - prev.potential_energy) / h;
         let trap = |acc: f64, a: f64, b: f64| acc + 0.5 * h * (a + b);
