@@ -35,6 +35,7 @@ pub mod columns;
 pub mod csv;
 pub mod parquet;
 mod parquet_dictionary;
+mod parquet_group;
 pub mod parquet_read;
 mod parquet_sink;
 

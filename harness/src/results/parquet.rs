@@ -72,6 +72,7 @@ use super::background::{Background, BlockEncoder, Prepare, closed_error};
 use super::column_buffer::ColumnBuffer;
 use super::csv::{check_output_path, partial_path};
 use super::parquet_dictionary::{Dictionary, dictionary_of};
+use super::parquet_group::Group;
 use super::parquet_sink::FileSink;
 use super::{ColumnKind, ResultSink, ResultsError};
 
@@ -82,31 +83,6 @@ use super::{ColumnKind, ResultSink, ResultsError};
 /// `kneebench run` recording every output of the SEA scenario for 100 s takes 2 400 page faults instead of 13 900 with 65 536 rows (53 MB of
 /// buffers instead of 6.6 MB), 36 400 with each column handed over in one batch.
 pub const ROW_GROUP_ROWS: usize = 8192;
-
-/// One row group's values, column by column in one buffer: `time`'s slots, then each
-/// signal's.
-///
-/// A row is stored in [`push`](Self::push) (one store per value at a known place), and the
-/// encoder reads each column as one contiguous slice. Growing one `Vec` per column instead
-/// cost a length and capacity check per value: 12.6 instructions per value against about 4
-/// (callgrind, the writers bench), on the simulation's thread.
-///
-/// A group takes [`ROW_GROUP_ROWS`] rows, or fewer when the run has announced its rows: they
-/// are then shared evenly between as few groups as hold them ([`group_rows`]), and each
-/// group's buffer takes the memory (and the kernel's zeroing) of the rows it will hold. Where
-/// the groups end depends
-/// on the rows announced and pushed alone, never on which buffer is reused, so the writer
-/// thread and the caller write the same groups.
-struct Group {
-    /// `width` columns of [`stride`](Self::stride) slots, of which the first `rows` are filled.
-    values: ColumnBuffer,
-    width: usize,
-    /// Rows a column of the buffer holds (none before it is made).
-    capacity: usize,
-    /// Rows this group takes (at most `capacity`): it is full at this many.
-    limit: usize,
-    rows: usize,
-}
 
 /// The rows a group begun once `pushed` rows are in takes: [`ROW_GROUP_ROWS`] if the run has
 /// announced no rows still to come (or has gone past them), else the rows still announced
@@ -124,97 +100,6 @@ fn group_rows(announced: Option<u64>, pushed: u64) -> usize {
             left.div_ceil(groups) as usize
         }
         _ => ROW_GROUP_ROWS,
-    }
-}
-
-/// Slots per 4 KiB page: a column's slots in a [`Group`]'s buffer are rounded up to whole pages.
-const PAGE_SLOTS: usize = 4096 / size_of::<f64>();
-
-/// Slots past a column's pages in a [`Group`]'s buffer, a cache line: so that the columns do
-/// not start 4 KiB (or 64 KiB) apart, where the stores of one row would all fall in the same
-/// cache sets and evict each other, and each column starts one cache line further into its
-/// page than the one before. With the rows' slots rounded up to whole pages first, every
-/// group has this layout, whatever its rows: a full group of 8,192 rows had it by its size,
-/// and the even groups of an announced run (7,693 rows for 100,001: 61,608 bytes per column)
-/// ran the whole `kneebench run` recording every signal 8-10 % slower in wall time without it
-/// (25 interleaved runs each).
-const COLUMN_PADDING: usize = 8;
-
-/// Slots per column of a group buffer of `capacity` rows.
-fn column_stride(capacity: usize) -> usize {
-    capacity.next_multiple_of(PAGE_SLOTS) + COLUMN_PADDING
-}
-
-impl Group {
-    /// An empty group of `width` columns (`time` included) of `capacity` rows, its buffer
-    /// allocated in full (on huge pages when it is big: [`ColumnBuffer`]).
-    fn new(width: usize, capacity: usize) -> Group {
-        Group {
-            values: ColumnBuffer::zeroed(width * column_stride(capacity)),
-            width,
-            capacity,
-            limit: capacity,
-            rows: 0,
-        }
-    }
-
-    /// An empty group of `width` columns taking `limit` rows: `reuse`'s buffer if it is one
-    /// of as many columns and holds as many rows, else a new one.
-    fn begun(reuse: Option<Group>, width: usize, limit: usize) -> Group {
-        match reuse {
-            Some(mut group) if group.width == width && group.capacity >= limit => {
-                group.limit = limit;
-                group.rows = 0;
-                group
-            }
-            _ => Group::new(width, limit),
-        }
-    }
-
-    /// A group of `width` columns whose buffer is not made yet (full at once).
-    fn unmade(width: usize) -> Group {
-        Group {
-            width,
-            ..Group::default()
-        }
-    }
-
-    /// Slots per column in the buffer.
-    fn stride(&self) -> usize {
-        column_stride(self.capacity)
-    }
-
-    /// Stores a row (`values.len() + 1 == width`, checked by the caller) in the next slot
-    /// (the group is not full, checked by the caller).
-    #[inline]
-    fn push(&mut self, time: f64, values: &[f64]) {
-        let row = self.rows;
-        let stride = self.stride();
-        let mut columns = self.values.chunks_exact_mut(stride);
-        if let Some(time_column) = columns.next() {
-            time_column[row] = time;
-        }
-        for (column, &v) in columns.zip(values) {
-            column[row] = v;
-        }
-        self.rows += 1;
-    }
-
-    fn is_full(&self) -> bool {
-        self.rows >= self.limit
-    }
-}
-
-impl Default for Group {
-    /// A group of no column (before [`begin`](ResultSink::begin), and once closed).
-    fn default() -> Group {
-        Group {
-            values: ColumnBuffer::default(),
-            width: 0,
-            capacity: 0,
-            limit: 0,
-            rows: 0,
-        }
     }
 }
 
@@ -300,6 +185,7 @@ impl Encoder {
         if group.rows == 0 {
             return Ok(());
         }
+        group.settle();
         let rows = std::mem::take(&mut group.rows);
         // The buffer is lent to the pages (no copy) and taken back once they are written;
         // the page writer keeps none of them, so the buffer is never shared by then.
@@ -1098,6 +984,7 @@ mod thread_tests {
     /// full groups again.
     #[test]
     fn groups_are_made_for_the_rows_announced() {
+        use super::super::parquet_group::{COLUMN_PADDING, PAGE_SLOTS};
         use parquet::file::reader::{FileReader, SerializedFileReader};
         use parquet::record::RowAccessor;
         let dir = tempfile::tempdir().unwrap();
