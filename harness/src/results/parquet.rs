@@ -3,7 +3,8 @@
 //! system, its parameters, the kneebench version, the FMUs' GUIDs).
 //!
 //! Rows are buffered per column as they come (one buffer holding every column of the row group,
-//! on huge pages when it is big: `column_buffer`)
+//! on huge pages when it is big: `column_buffer`; the rows staged and stored eight at a time,
+//! a whole cache line of each column: `parquet_group`)
 //! and written in row groups of at most [`ROW_GROUP_ROWS`] rows (a run's announced rows shared
 //! evenly between as few groups as hold them: `group_rows`): plain encoding, uncompressed (the
 //! values of a recording are mostly full-precision doubles: Snappy saved a fifth of the bytes
