@@ -289,6 +289,16 @@ pub trait Model: Default + Clone + Send + 'static {
     /// instance usable); any other error moves the instance to the error state.
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError>;
 
+    /// Reads the Real variables `vrs` into `out` (as long as each other) in one pass, where the
+    /// model can do better than a getter call per value: the glue's fast path of
+    /// `fmi2GetReal`, tried after [`Model::calculate`] and before the getters. It answers
+    /// `true` with every value written, each bit for bit what its getter reads, or `false`
+    /// with nothing promised of `out` (a reference it does not cover: the glue then reads
+    /// every value through the getters). Default: `false`.
+    fn read_reals(&self, _vrs: &[u32], _out: &mut [f64]) -> bool {
+        false
+    }
+
     /// The largest communication step [`Model::do_step`] accepts, in seconds, with the
     /// current parameters: [`MAX_INTERNAL_STEPS_PER_CALL`] internal steps for a model whose
     /// work grows with the step. The glue refuses a larger `communicationStepSize` before

@@ -1031,6 +1031,9 @@ impl<M: Model> Instance<M> {
         if let Err(s) = self.refresh(f) {
             return s;
         }
+        if self.model.read_reals(vrs, out) {
+            return fmi2OK;
+        }
         // One pass: an unknown reference fails the call (the output array is then unspecified,
         // as the standard allows); the model itself is not changed by a get.
         let (model, table) = (&self.model, &self.real_getters[..]);

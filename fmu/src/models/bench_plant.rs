@@ -714,6 +714,8 @@ pub struct BenchPlantModel {
     /// [`SignalGroup::bit`]s of the groups of `outputs` computed since the last step, and
     /// [`RATES`] once `rates` is.
     fresh: Cell<u8>,
+    /// The reference list of the last block read, resolved (`block_read`).
+    read_plan: RefCell<block_read::ReadPlan>,
     start_time: f64,
     /// The physics, built at initialization (and on demand for outputs before it).
     plant: Option<super::bench::BenchPlant>,
@@ -1235,6 +1237,11 @@ impl Model for BenchPlantModel {
         crate::model::MAX_INTERNAL_STEPS_PER_CALL * self.params.max_internal_step
     }
 
+    /// The outputs' block read (`block_read`).
+    fn read_reals(&self, vrs: &[u32], out: &mut [f64]) -> bool {
+        self.read_output_block(vrs, out)
+    }
+
     fn do_step(&mut self, _t: f64, h: f64) -> Result<StepOutcome, ModelError> {
         if self.parameters_changed {
             let p = self.parameters()?;
@@ -1328,7 +1335,13 @@ mod lazy_output_tests {
 
     /// A plant mid-run: moving, currents flowing, energies accumulated.
     fn running() -> BenchPlantModel {
+        running_in(1)
+    }
+
+    /// A plant of `configuration` (0 DA, 1 SEA, 2 CSEA) mid-run, as [`running`].
+    pub(super) fn running_in(configuration: i32) -> BenchPlantModel {
         let mut m = crate::fmi2::instance::fresh_model::<BenchPlantModel>();
+        m.configuration = configuration;
         m.calculate(0.0).unwrap();
         m.initialize(0.0).unwrap();
         m.commands.test_current = 3.0;
@@ -1460,3 +1473,5 @@ mod lazy_output_tests {
 
 #[cfg(test)]
 mod derivative_tests;
+
+mod block_read;

@@ -316,7 +316,7 @@ mod state;
 mod tests;
 
 pub use self::derivatives::BenchOutputDerivatives;
-pub use self::outputs::{BenchOutputs, SignalGroup, signal_group};
+pub use self::outputs::{BenchOutputs, REAL_OUTPUTS, SignalGroup, signal_group};
 pub use self::params::{BenchParameters, ParameterError};
 pub use self::plant::BenchPlant;
 pub use self::state::StateError;

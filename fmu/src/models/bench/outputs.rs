@@ -7,7 +7,11 @@ use super::{BenchPlant, sensors};
 /// (knee) axis unless the name says `motor`; powers in W (positive = into the named element's
 /// port from its source: motor power delivered to the shaft, electrical power drawn from the
 /// supply); energies in J since the start.
+///
+/// The doubles come first, in declaration order (`repr(C)`): [`BenchOutputs::reals`] reads
+/// them as one array, the FMU's block read of its Real outputs.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[repr(C)]
 pub struct BenchOutputs {
     /// theta1, actuation-side angle \[rad\].
     pub actuation_angle: f64,
@@ -69,16 +73,6 @@ pub struct BenchOutputs {
     pub test_current_sense_voltage: f64,
     /// Load current-sensor voltage \[V\].
     pub load_current_sense_voltage: f64,
-    /// Clutch engaged.
-    pub clutch_engaged: bool,
-    /// Actuation side held by static friction.
-    pub actuation_stuck: bool,
-    /// Load side held by static friction.
-    pub load_stuck: bool,
-    /// Test current loop saturated at the supply.
-    pub test_driver_saturated: bool,
-    /// Load current loop saturated at the supply.
-    pub load_driver_saturated: bool,
     /// P_test = i_HD Km1 i1 omega1 \[W\].
     pub test_mechanical_power: f64,
     /// P_load = i_RED Km2 i2 omega2 \[W\].
@@ -155,10 +149,47 @@ pub struct BenchOutputs {
     pub load_back_emf_energy: f64,
     /// Number of loss-surface evaluations that had to be clamped [-].
     pub hd_surface_clamp_count: f64,
+    /// Clutch engaged.
+    pub clutch_engaged: bool,
+    /// Actuation side held by static friction.
+    pub actuation_stuck: bool,
+    /// Load side held by static friction.
+    pub load_stuck: bool,
+    /// Test current loop saturated at the supply.
+    pub test_driver_saturated: bool,
+    /// Load current loop saturated at the supply.
+    pub load_driver_saturated: bool,
     /// The last loss-surface evaluation was clamped.
     pub hd_surface_clamped: bool,
     /// Trip status: 0 running, else [`super::Interlock::code`].
     pub trip_code: i32,
+}
+
+/// How many doubles [`BenchOutputs`] starts with.
+pub const REAL_OUTPUTS: usize = 67;
+
+// The doubles are the first REAL_OUTPUTS fields, without a gap: the first field after them
+// starts right after the last, and the struct is aligned for doubles.
+const _: () = {
+    assert!(std::mem::offset_of!(BenchOutputs, actuation_angle) == 0);
+    assert!(
+        std::mem::offset_of!(BenchOutputs, hd_surface_clamp_count)
+            == (REAL_OUTPUTS - 1) * size_of::<f64>()
+    );
+    assert!(std::mem::offset_of!(BenchOutputs, clutch_engaged) == REAL_OUTPUTS * size_of::<f64>());
+    assert!(align_of::<BenchOutputs>() == align_of::<f64>());
+};
+
+impl BenchOutputs {
+    /// The doubles, `actuation_angle` to `hd_surface_clamp_count` in declaration order.
+    pub fn reals(&self) -> &[f64; REAL_OUTPUTS] {
+        // SAFETY: `BenchOutputs` is `repr(C)` and its first REAL_OUTPUTS fields are doubles
+        // (declared so, and checked above: the first at offset 0, the last at
+        // (REAL_OUTPUTS - 1) * 8, the next field right after it, so no other field or padding
+        // lies between them); an array of as many doubles has that layout and the struct's
+        // alignment. The borrow of `self` bounds the array's.
+        unsafe { &*(self as *const BenchOutputs).cast::<[f64; REAL_OUTPUTS]>() }
+    }
 }
 
 /// The parts in which the plant computes its outputs on demand: an importer that reads a few

@@ -1,0 +1,256 @@
+//! The plant's block read of its Real outputs ([`Model::read_reals`]): the fast path of
+//! `fmi2GetReal` for this model.
+//!
+//! Through the getters, each value costs a table lookup, an indirect call, its group's
+//! freshness test and a borrow of the outputs: about 14 instructions, for the 67 outputs
+//! an importer recording every one reads at every step. A master asks for the same list at
+//! every step, so the block read resolves a list once ([`ReadPlan`]: each reference's index
+//! in [`BenchOutputs::reals`](crate::models::bench::BenchOutputs::reals) and the groups the
+//! list needs) and, while the list is the same, compares it, tests the groups once, borrows
+//! once and copies each value by its index.
+//!
+//! Where each output sits is found from the variables' own accessors, not from a second
+//! list: a model whose outputs are all fresh gets a marker through the output's setter (the
+//! index is the one double that changed), and a model whose outputs are all stale reads it
+//! through the getter (the group is the one freshness bit the read set; the value must be
+//! the marker). An output whose accessors do not read one double of one group has no slot,
+//! and a call naming it (or any other variable) takes the getters. Test
+//! `the_block_read_is_the_getters_bit_for_bit`.
+
+use super::BenchPlantModel;
+use crate::model::{Access, Model};
+use crate::models::bench::{REAL_OUTPUTS, SignalGroup};
+use crate::release::Lazy;
+use model_description::Causality;
+
+/// Where a Real output's value is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Slot {
+    /// Its index in [`BenchOutputs::reals`](crate::models::bench::BenchOutputs::reals).
+    index: u8,
+    /// The [`SignalGroup::bit`] of the group that computes it.
+    group: u8,
+}
+
+const _: () = assert!(REAL_OUTPUTS <= u8::MAX as usize);
+
+/// The slot of each Real output, indexed by value reference (`None` for any other value
+/// reference, and for an output that has none).
+fn slots() -> Vec<Option<Slot>> {
+    let mut table = Vec::new();
+    for v in BenchPlantModel::variables() {
+        if v.causality != Causality::Output {
+            continue;
+        }
+        let Access::Real(get, set) = v.access else {
+            continue;
+        };
+        if let Some(slot) = probe(get, set) {
+            let vr = v.value_reference as usize;
+            if table.len() <= vr {
+                table.resize(vr + 1, None);
+            }
+            table[vr] = Some(slot);
+        }
+    }
+    table
+}
+
+/// The slot the accessors `get` and `set` of one Real output use (module docs).
+fn probe(get: fn(&BenchPlantModel) -> f64, set: fn(&mut BenchPlantModel, f64)) -> Option<Slot> {
+    // A value no output holds by default (they are all zero in a model never built).
+    const MARKER: f64 = -1.234_567_890_123e-7;
+    let mut model = BenchPlantModel::default();
+    set(&mut model, MARKER);
+    let marked: Vec<usize> = {
+        let outputs = model.outputs.borrow();
+        let reals = outputs.reals();
+        (0..REAL_OUTPUTS)
+            .filter(|&i| reals[i].to_bits() == MARKER.to_bits())
+            .collect()
+    };
+    let [index] = marked[..] else {
+        return None;
+    };
+    // Every group stale: the read computes its own (with no plant built, only its bit is set)
+    // and must read the marker.
+    model.fresh.set(0);
+    let read = get(&model);
+    let group = model.fresh.get();
+    let one_group = SignalGroup::ALL.iter().any(|g| g.bit() == group);
+    (one_group && read.to_bits() == MARKER.to_bits()).then_some(Slot {
+        index: index as u8,
+        group,
+    })
+}
+
+// SAFETY: a static (Lazy registers its address for the release at unload).
+static SLOTS: Lazy<Vec<Option<Slot>>> = unsafe { Lazy::new(slots) };
+
+/// The reference list of the last block read, resolved (module docs).
+#[derive(Debug, Clone, Default)]
+pub(super) struct ReadPlan {
+    /// The value references, as last asked for.
+    vrs: Vec<u32>,
+    /// Whether each of them has a slot (else the getters read the list).
+    covered: bool,
+    /// The index of each in `BenchOutputs::reals` (when `covered`).
+    indices: Vec<u8>,
+    /// The [`SignalGroup::bit`]s of the groups they need (when `covered`).
+    groups: u8,
+}
+
+impl ReadPlan {
+    /// Resolves `vrs`: `covered` if each of them has a slot. A list that is not is
+    /// remembered too, so that asking for it again costs the comparison alone.
+    fn resolve(&mut self, vrs: &[u32]) {
+        self.vrs.clear();
+        self.vrs.extend_from_slice(vrs);
+        self.indices.clear();
+        self.groups = 0;
+        let slots = &SLOTS[..];
+        self.covered = vrs.iter().all(|&vr| match slots.get(vr as usize) {
+            Some(Some(slot)) => {
+                self.indices.push(slot.index);
+                self.groups |= slot.group;
+                true
+            }
+            _ => false,
+        });
+    }
+}
+
+impl BenchPlantModel {
+    /// [`Model::read_reals`] for the plant (module docs): `false` if any of `vrs` has no slot.
+    pub(super) fn read_output_block(&self, vrs: &[u32], out: &mut [f64]) -> bool {
+        let mut plan = self.read_plan.borrow_mut();
+        if plan.vrs[..] != *vrs {
+            plan.resolve(vrs);
+        }
+        if !plan.covered {
+            return false;
+        }
+        let stale = plan.groups & !self.fresh.get();
+        if stale != 0 {
+            for group in SignalGroup::ALL {
+                if stale & group.bit() != 0 {
+                    self.compute_group(group);
+                }
+            }
+        }
+        let outputs = self.outputs.borrow();
+        let reals = outputs.reals();
+        for (o, &index) in out.iter_mut().zip(&plan.indices) {
+            *o = reals[usize::from(index)];
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::models::bench_plant::lazy_output_tests::running_in;
+
+    /// A Real output's value reference, name and getter.
+    type RealOutput = (u32, &'static str, fn(&BenchPlantModel) -> f64);
+
+    /// The Real outputs of the plant.
+    fn real_outputs() -> Vec<RealOutput> {
+        BenchPlantModel::variables()
+            .iter()
+            .filter(|v| v.causality == Causality::Output)
+            .filter_map(|v| match v.access {
+                Access::Real(get, _) => Some((v.value_reference, v.name, get)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Every Real output has a slot, each its own double.
+    #[test]
+    fn every_real_output_has_a_slot_of_its_own() {
+        let outputs = real_outputs();
+        assert!(outputs.len() > 60, "{}", outputs.len());
+        let mut indices = Vec::new();
+        for (vr, name, _) in &outputs {
+            let slot = SLOTS
+                .get(*vr as usize)
+                .copied()
+                .flatten()
+                .unwrap_or_else(|| panic!("{name} has no slot"));
+            indices.push(slot.index);
+        }
+        indices.sort_unstable();
+        indices.dedup();
+        assert_eq!(indices.len(), outputs.len(), "two outputs share a double");
+    }
+
+    /// The block read equals the getters bit for bit: every output, in each configuration,
+    /// mid-run and right after a step (every group stale), read all at once, one by one, in
+    /// reverse and in a scattered order of repeats; a call naming anything else is left to
+    /// the getters.
+    #[test]
+    fn the_block_read_is_the_getters_bit_for_bit() {
+        let outputs = real_outputs();
+        for configuration in 0..3 {
+            let mut model = running_in(configuration);
+            for step in 0..3 {
+                if step > 0 {
+                    model.do_step(0.3 + step as f64 * 1e-3, 1e-3).unwrap();
+                    model.calculate(0.3 + step as f64 * 1e-3).unwrap();
+                }
+                let all: Vec<u32> = outputs.iter().map(|o| o.0).collect();
+                let reversed: Vec<u32> = all.iter().rev().copied().collect();
+                let scattered: Vec<u32> = (0..all.len() * 2)
+                    .map(|k| all[(k * 37 + 11) % all.len()])
+                    .collect();
+                let mut calls = vec![all, reversed, scattered];
+                calls.extend(outputs.iter().map(|o| vec![o.0]));
+                for vrs in calls {
+                    // Each call on a model as the step left it, so every group's first read
+                    // is in the call.
+                    let fresh_copy = model.clone();
+                    let mut block = vec![f64::NAN; vrs.len()];
+                    assert!(fresh_copy.read_output_block(&vrs, &mut block));
+                    let plain = model.clone();
+                    for (k, vr) in vrs.iter().enumerate() {
+                        let (_, name, get) = outputs.iter().find(|o| o.0 == *vr).unwrap();
+                        assert_eq!(
+                            block[k].to_bits(),
+                            get(&plain).to_bits(),
+                            "configuration {configuration}, step {step}: {name}"
+                        );
+                    }
+                }
+            }
+            // Any other reference: the getters' path (which refuses an unknown one).
+            let parameter = BenchPlantModel::variables()
+                .iter()
+                .find(|v| {
+                    v.causality == Causality::Parameter && matches!(v.access, Access::Real(..))
+                })
+                .unwrap()
+                .value_reference;
+            let mut out = [0.0; 2];
+            assert!(!model.read_output_block(&[outputs[0].0, parameter], &mut out));
+            assert!(!model.read_output_block(&[outputs[0].0, u32::MAX], &mut out));
+            // After a refused list, and after another list, a list is read afresh.
+            let two = [outputs[1].0, outputs[0].0];
+            for _ in 0..2 {
+                let mut block = [f64::NAN; 2];
+                assert!(model.read_output_block(&two, &mut block));
+                assert!(!model.read_output_block(&[parameter], &mut out[..1]));
+                assert!(model.read_output_block(&[], &mut []));
+                let plain = model.clone();
+                assert_eq!(
+                    block.map(f64::to_bits),
+                    [
+                        (outputs[1].2)(&plain).to_bits(),
+                        (outputs[0].2)(&plain).to_bits()
+                    ]
+                );
+            }
+        }
+    }
+}
