@@ -1238,6 +1238,7 @@ impl Model for BenchPlantModel {
     }
 
     /// The outputs' block read (`block_read`).
+    #[inline]
     fn read_reals(&self, vrs: &[u32], out: &mut [f64]) -> bool {
         self.read_output_block(vrs, out)
     }
