@@ -27,6 +27,8 @@ use std::f64::consts::{PI, TAU};
 use crate::model::{EnumerationType, Model, ModelError, Start, StepOutcome, Variable};
 use crate::registry::ReferenceInputs;
 
+mod sums;
+
 /// Number of harmonics of the gait series.
 pub const HARMONICS: usize = 8;
 
@@ -247,25 +249,50 @@ pub const TORQUE_WEIGHTS: SeriesWeights = SeriesWeights::of(&TORQUE_SERIES);
 /// [`SeriesWeights`] (inlined, so the two channels' sums can overlap).
 #[inline(always)]
 pub fn fourier_with(weights: &SeriesWeights, harmonics: &Harmonics, t: f64, period: f64) -> Shape {
+    let sums = [
+        weights.value.of(harmonics),
+        weights.rate.of(harmonics),
+        weights.acceleration.of(harmonics),
+        weights.jerk.of(harmonics),
+        weights.integral.of(harmonics),
+    ];
+    fourier_from_sums(weights, sums, t, period)
+}
+
+/// [`fourier_with`] from its five weighted sums (value, rate, acceleration, jerk and
+/// integral, each [`Weights::of`] the harmonics), however they were computed.
+#[inline(always)]
+fn fourier_from_sums(weights: &SeriesWeights, sums: [f64; 5], t: f64, period: f64) -> Shape {
+    let [value, rate, acceleration, jerk, integral] = sums;
     let k = TAU / period;
     let inverse_k = period * (1.0 / TAU);
     Shape {
-        value: weights.mean + weights.value.of(harmonics),
-        d1: k * weights.rate.of(harmonics),
-        d2: k * k * weights.acceleration.of(harmonics),
-        d3: k * k * k * weights.jerk.of(harmonics),
-        integral: weights.mean * t
-            + inverse_k * (weights.integral.of(harmonics) + weights.integral_constant),
+        value: weights.mean + value,
+        d1: k * rate,
+        d2: k * k * acceleration,
+        d3: k * k * k * jerk,
+        integral: weights.mean * t + inverse_k * (integral + weights.integral_constant),
     }
 }
 
 /// Value and rate of the series only (what the torque channel uses): `(f, df/dt)`.
 #[inline]
 pub fn fourier_rate(weights: &SeriesWeights, harmonics: &Harmonics, period: f64) -> (f64, f64) {
-    (
-        weights.mean + weights.value.of(harmonics),
-        TAU / period * weights.rate.of(harmonics),
+    fourier_rate_from_sums(
+        weights,
+        [weights.value.of(harmonics), weights.rate.of(harmonics)],
+        period,
     )
+}
+
+/// [`fourier_rate`] from its two weighted sums (value and rate).
+#[inline(always)]
+fn fourier_rate_from_sums(
+    weights: &SeriesWeights,
+    [value, rate]: [f64; 2],
+    period: f64,
+) -> (f64, f64) {
+    (weights.mean + value, TAU / period * rate)
 }
 
 /// The waveforms the bench UI offers.
@@ -673,25 +700,39 @@ impl GaitReference {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn calculate_wide(&mut self, t: f64) -> Result<(), ModelError> {
-        self.calculate_inline(t)
+        self.calculate_inline::<true>(t)
     }
 
-    /// The outputs at `t` ([`Model::calculate`]), inlined into each build.
+    /// The outputs at `t` ([`Model::calculate`]), inlined into each build (`WIDE`: the
+    /// AVX2 one, whose gait sums are [`sums::gait_sums`]'s vector form).
     #[inline(always)]
-    fn calculate_inline(&mut self, t: f64) -> Result<(), ModelError> {
+    fn calculate_inline<const WIDE: bool>(&mut self, t: f64) -> Result<(), ModelError> {
         let cycles = t / self.period;
 
         let harmonics = Harmonics::at_cycles(cycles);
-        // The gait series (the common case) evaluated here, against the constant weights;
-        // `shape` evaluates the same `fourier_with` for it.
-        let motion = if self.motion_waveform == Waveform::Gait as i32 {
-            fourier_with(&ANGLE_WEIGHTS, &harmonics, t, self.period)
+        // The gait series (the common case) evaluated here, both channels' sums at once
+        // against the constant weights; `shape` evaluates the same `fourier_with` for it.
+        let motion_gait = self.motion_waveform == Waveform::Gait as i32;
+        let torque_gait = self.torque_waveform == Waveform::Gait as i32;
+        let gait = if motion_gait || torque_gait {
+            sums::gait_sums::<WIDE>(&harmonics)
+        } else {
+            [0.0; sums::GAIT_SUMS]
+        };
+        let motion = if motion_gait {
+            let [value, rate, acceleration, jerk, integral, ..] = gait;
+            fourier_from_sums(
+                &ANGLE_WEIGHTS,
+                [value, rate, acceleration, jerk, integral],
+                t,
+                self.period,
+            )
         } else {
             self.shape(self.motion_waveform, &ANGLE_WEIGHTS, &harmonics, t)?
         };
         // The torque channel needs only value and rate: the gait series skips the rest.
-        let (torque_value, torque_rate) = if self.torque_waveform == Waveform::Gait as i32 {
-            fourier_rate(&TORQUE_WEIGHTS, &harmonics, self.period)
+        let (torque_value, torque_rate) = if torque_gait {
+            fourier_rate_from_sums(&TORQUE_WEIGHTS, [gait[5], gait[6]], self.period)
         } else {
             let shape = self.shape(self.torque_waveform, &TORQUE_WEIGHTS, &harmonics, t)?;
             (shape.value, shape.d1)
@@ -908,7 +949,7 @@ impl Model for GaitReference {
             // (`CalculateBuild::default`), the one feature `calculate_wide` is compiled for.
             return unsafe { self.calculate_wide(t) };
         }
-        self.calculate_inline(t)
+        self.calculate_inline::<false>(t)
     }
 
     fn do_step(&mut self, t: f64, h: f64) -> Result<StepOutcome, ModelError> {
