@@ -106,6 +106,52 @@ pub(super) struct ReadPlan {
     indices: Vec<u8>,
     /// The [`SignalGroup::bit`]s of the groups they need (when `covered`).
     groups: u8,
+    /// `indices` as runs of consecutive indices (when `covered`), or empty where the list has
+    /// too many runs for copying them to pay ([`Runs::worth_it`]).
+    runs: Vec<Run>,
+}
+
+/// Consecutive outputs read into consecutive places: `len` values from index `from` of
+/// `BenchOutputs::reals` into the call's values from `to`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Run {
+    from: u8,
+    to: u8,
+    len: u8,
+}
+
+/// The runs of a resolved list (see [`ReadPlan::runs`]).
+struct Runs;
+
+impl Runs {
+    /// A list read in declaration order (every output, as a recording master asks for them)
+    /// is one or a few runs: each is one slice copy instead of a load, a bounds check and a
+    /// store per value. A scattered list (many runs of one) is copied value by value: a
+    /// copy per run would cost more there.
+    fn worth_it(runs: usize, values: usize) -> bool {
+        runs * 4 <= values
+    }
+
+    /// The runs of `indices`.
+    fn of(indices: &[u8]) -> Vec<Run> {
+        let mut runs: Vec<Run> = Vec::new();
+        for (to, &from) in indices.iter().enumerate() {
+            match runs.last_mut() {
+                Some(run)
+                    if usize::from(run.from) + usize::from(run.len) == usize::from(from)
+                        && run.len < u8::MAX =>
+                {
+                    run.len += 1;
+                }
+                _ => runs.push(Run {
+                    from,
+                    to: to as u8,
+                    len: 1,
+                }),
+            }
+        }
+        runs
+    }
 }
 
 impl ReadPlan {
@@ -115,16 +161,25 @@ impl ReadPlan {
         self.vrs.clear();
         self.vrs.extend_from_slice(vrs);
         self.indices.clear();
+        self.runs.clear();
         self.groups = 0;
         let slots = &SLOTS[..];
-        self.covered = vrs.iter().all(|&vr| match slots.get(vr as usize) {
-            Some(Some(slot)) => {
-                self.indices.push(slot.index);
-                self.groups |= slot.group;
-                true
+        // A list longer than a run can say where it goes (`Run::to`) is copied value by value.
+        self.covered = vrs.len() <= usize::from(u8::MAX)
+            && vrs.iter().all(|&vr| match slots.get(vr as usize) {
+                Some(Some(slot)) => {
+                    self.indices.push(slot.index);
+                    self.groups |= slot.group;
+                    true
+                }
+                _ => false,
+            });
+        if self.covered {
+            let runs = Runs::of(&self.indices);
+            if Runs::worth_it(runs.len(), self.indices.len()) {
+                self.runs = runs;
             }
-            _ => false,
-        });
+        }
     }
 }
 
@@ -140,6 +195,9 @@ impl BenchPlantModel {
     /// [`Self::read_output_block`] of a list of [`BLOCK_READ_FROM`] references or more.
     #[inline(never)]
     fn read_long_list(&self, vrs: &[u32], out: &mut [f64]) -> bool {
+        if out.len() != vrs.len() {
+            return false;
+        }
         let mut plan = self.read_plan.borrow_mut();
         if plan.vrs[..] != *vrs {
             plan.resolve(vrs);
@@ -157,8 +215,19 @@ impl BenchPlantModel {
         }
         let outputs = self.outputs.borrow();
         let reals = outputs.reals();
-        for (o, &index) in out.iter_mut().zip(&plan.indices) {
-            *o = reals[usize::from(index)];
+        if plan.runs.is_empty() {
+            for (o, &index) in out.iter_mut().zip(&plan.indices) {
+                *o = reals[usize::from(index)];
+            }
+        } else {
+            for run in &plan.runs {
+                let (from, to, len) = (
+                    usize::from(run.from),
+                    usize::from(run.to),
+                    usize::from(run.len),
+                );
+                out[to..to + len].copy_from_slice(&reals[from..from + len]);
+            }
         }
         true
     }
@@ -203,6 +272,41 @@ mod tests {
         assert_eq!(indices.len(), outputs.len(), "two outputs share a double");
     }
 
+    /// Runs join consecutive indices only, and each value lands where its index says.
+    #[test]
+    fn runs_are_the_consecutive_stretches_of_the_indices() {
+        let runs = Runs::of(&[3, 4, 5, 9, 2, 3, 3]);
+        let run = |from, to, len| Run { from, to, len };
+        assert_eq!(
+            runs,
+            vec![run(3, 0, 3), run(9, 3, 1), run(2, 4, 2), run(3, 6, 1)]
+        );
+        assert!(Runs::of(&[]).is_empty());
+        assert!(Runs::worth_it(2, 8) && !Runs::worth_it(3, 8));
+    }
+
+    /// The outputs asked for in declaration order (a recording master's list) are copied as
+    /// runs, a scattered list value by value: both paths of the block read are taken (and the
+    /// test below compares each with the getters).
+    #[test]
+    fn a_list_in_declaration_order_is_copied_as_runs() {
+        let all: Vec<u32> = real_outputs().iter().map(|o| o.0).collect();
+        let mut plan = ReadPlan::default();
+        plan.resolve(&all);
+        assert!(plan.covered);
+        assert!(
+            !plan.runs.is_empty() && plan.runs.len() * 4 <= all.len(),
+            "{} runs for {} outputs",
+            plan.runs.len(),
+            all.len()
+        );
+        let scattered: Vec<u32> = (0..all.len())
+            .map(|k| all[(k * 37 + 11) % all.len()])
+            .collect();
+        plan.resolve(&scattered);
+        assert!(plan.covered && plan.runs.is_empty());
+    }
+
     /// The block read equals the getters bit for bit: every output, in each configuration,
     /// mid-run and right after a step (every group stale), read all at once, in reverse, in a
     /// scattered order of repeats and in lists of the shortest length read as a block; a
@@ -244,6 +348,12 @@ mod tests {
                         &format!("configuration {configuration}, step {step}"),
                     );
                 }
+                // Values and references of different lengths: left to the getters.
+                assert!(
+                    !model
+                        .clone()
+                        .read_output_block(&all, &mut vec![0.0; all.len() - 1])
+                );
                 let short = &all[..BLOCK_READ_FROM - 1];
                 assert!(!model.clone().read_output_block(short, &mut [0.0; 7]));
             }
