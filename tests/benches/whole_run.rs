@@ -19,8 +19,13 @@
 //! (simulated seconds over wall or CPU seconds). **Baseline**: set
 //! `KNEEBENCH_WHOLE_RUN_BASELINE` to another build's `kneebench` binary (e.g. a copy of the
 //! previous commit's `target/release/kneebench`) and every repeat runs both, interleaved, and
-//! prints baseline / this build (above 1: this build is faster). Without it, the one-step run
-//! is the baseline: the loop's own cost is a run's cost less the fixed cost.
+//! prints baseline / this build (above 1: this build is faster). That binary runs this build's
+//! FMUs: set `KNEEBENCH_WHOLE_RUN_BASELINE_FMUS` to a directory of another build's exported FMUs
+//! (`kneebench export --out <dir> --library <its libkneebench_fmu.so>`) and the baseline runs
+//! the same scenario written with those (with this build's binary unless
+//! `KNEEBENCH_WHOLE_RUN_BASELINE` names another), so that a change of the FMUs shows too.
+//! Without either, the one-step run is the baseline: the loop's own cost is a run's cost less
+//! the fixed cost.
 //!
 //! The bench builds `kneebench` first (`cargo build --release -p kneebench-harness --bins`).
 
@@ -143,6 +148,16 @@ fn main() {
             b.display()
         );
     }
+    let baseline_fmus = std::env::var_os("KNEEBENCH_WHOLE_RUN_BASELINE_FMUS").map(PathBuf::from);
+    if let Some(d) = &baseline_fmus {
+        assert!(
+            d.join("BenchPlant.fmu").is_file(),
+            "KNEEBENCH_WHOLE_RUN_BASELINE_FMUS: {} has no BenchPlant.fmu",
+            d.display()
+        );
+    }
+    // Other FMUs alone: this build's binary runs them.
+    let baseline = baseline.or_else(|| baseline_fmus.as_ref().map(|_| exe.clone()));
     let repeats = std::env::var("KNEEBENCH_WHOLE_RUN_REPEATS")
         .ok()
         .map(|r| {
@@ -157,13 +172,26 @@ fn main() {
     let fmus = dir.path().join("fmus");
     export_all(&fmu_library(), &fmus).expect("export");
     let (_, ssp) = write_sea_ssp(&fmus, dir.path());
+    // The baseline's scenario: the same one, written with its FMUs when they differ.
+    let base_ssp = match &baseline_fmus {
+        Some(d) => {
+            let base_dir = dir.path().join("baseline");
+            std::fs::create_dir_all(&base_dir).unwrap();
+            write_sea_ssp(d, &base_dir).1
+        }
+        None => ssp.clone(),
+    };
 
     println!(
-        "kneebench run SEA.ssp, whole process: {} (baseline: {}); {repeats} repeats, outputs in {}",
+        "kneebench run SEA.ssp, whole process: {} (baseline: {}{}); {repeats} repeats, outputs in {}",
         exe.display(),
         baseline
             .as_deref()
             .map_or("none".into(), |b| b.display().to_string()),
+        baseline_fmus.as_deref().map_or(String::new(), |d| format!(
+            " with the FMUs of {}",
+            d.display()
+        )),
         dir.path().display()
     );
     let mut fixed_cpu = None;
@@ -171,17 +199,17 @@ fn main() {
         // Warm up: the page cache, the per-user binary cache.
         run(&exe, &ssp, case, dir.path(), 0);
         if let Some(b) = &baseline {
-            run(b, &ssp, case, dir.path(), 0);
+            run(b, &base_ssp, case, dir.path(), 0);
         }
         let (mut this, mut base) = (Times::default(), Times::default());
         for repeat in 0..repeats {
             // Which binary goes first alternates, so neither always follows the other.
             if let Some(b) = baseline.as_deref().filter(|_| repeat % 2 == 1) {
-                base.push(run(b, &ssp, case, dir.path(), repeat));
+                base.push(run(b, &base_ssp, case, dir.path(), repeat));
             }
             this.push(run(&exe, &ssp, case, dir.path(), repeat));
             if let Some(b) = baseline.as_deref().filter(|_| repeat % 2 == 0) {
-                base.push(run(b, &ssp, case, dir.path(), repeat));
+                base.push(run(b, &base_ssp, case, dir.path(), repeat));
             }
         }
         println!("{}:", case.name);
