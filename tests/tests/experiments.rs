@@ -61,6 +61,15 @@ fn assert_files(w: &kneebench_harness::experiment::Written) {
     );
     if let Some(p) = &w.pacing {
         assert!(md.contains(&p.to_string()), "{md}");
+        // A late run's warning, and what its log is still good for, in the shared words.
+        assert_eq!(
+            p.schedule_warning().is_some(),
+            md.contains(kneebench_harness::experiment::LATE_LOG_USE),
+            "{md}"
+        );
+        if let Some(warning) = p.schedule_warning() {
+            assert!(md.contains(&warning), "{md}");
+        }
     }
     let dir = w.markdown.parent().unwrap();
     // Every linked file of the section exists next to it (relative links).

@@ -296,9 +296,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         println!("pacing: {p}");
         if let Some(w) = p.schedule_warning() {
             eprintln!(
-                "warning: {w} (run it again on a quieter host where the results matter; as a log \
-                 for `kneebench identify` it is usable as it is: identify resamples it on the \
-                 bench's clock, plant.benchSampleTime)"
+                "warning: {w} (run it again on a quieter host where the results matter; {})",
+                kneebench_harness::experiment::LATE_LOG_USE
             );
         }
     }

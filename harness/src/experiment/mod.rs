@@ -33,8 +33,8 @@ mod pacing;
 pub mod step;
 pub mod triangle;
 
-pub use pacing::Pacing;
 pub(crate) use pacing::record_pacing;
+pub use pacing::{LATE_LOG_USE, Pacing};
 
 use std::path::{Path, PathBuf};
 
@@ -614,9 +614,8 @@ fn write_outputs(
             None => format!("\n**Pacing on the hardware.** {p}.\n"),
             Some(w) => format!(
                 "\n**Pacing on the hardware.** {p}. **Warning: {w}. Where the results matter, \
-                 run the experiment again on a quieter host (or a real-time one).** As a log for \
-                 `kneebench identify` the run is usable as it is: identification resamples it \
-                 on the bench's clock (`plant.benchSampleTime`).\n"
+                 run the experiment again on a quieter host (or a real-time one)**; \
+                 {LATE_LOG_USE}.\n"
             ),
         },
     };

@@ -86,6 +86,12 @@ impl Pacing {
     }
 }
 
+/// What the log of a run that did not keep its schedule is still good for, one clause (no
+/// capital, no final stop): the experiment's section and `kneebench experiment`'s warning say it
+/// in these words.
+pub const LATE_LOG_USE: &str = "as a log for `kneebench identify` the run is usable as it is: \
+     identification resamples it on the bench's clock (`plant.benchSampleTime`)";
+
 /// Records the [`Pacing`] locals and the bench's sample clock (`benchSampleTime`) of the
 /// `BenchHardware` component `plant` after what `system` records now (every output by
 /// default): the experiments' runs and the study's on the bench.
