@@ -164,17 +164,16 @@ impl ReadPlan {
         self.runs.clear();
         self.groups = 0;
         let slots = &SLOTS[..];
+        self.covered = vrs.iter().all(|&vr| match slots.get(vr as usize) {
+            Some(Some(slot)) => {
+                self.indices.push(slot.index);
+                self.groups |= slot.group;
+                true
+            }
+            _ => false,
+        });
         // A list longer than a run can say where it goes (`Run::to`) is copied value by value.
-        self.covered = vrs.len() <= usize::from(u8::MAX)
-            && vrs.iter().all(|&vr| match slots.get(vr as usize) {
-                Some(Some(slot)) => {
-                    self.indices.push(slot.index);
-                    self.groups |= slot.group;
-                    true
-                }
-                _ => false,
-            });
-        if self.covered {
+        if self.covered && vrs.len() <= usize::from(u8::MAX) {
             let runs = Runs::of(&self.indices);
             if Runs::worth_it(runs.len(), self.indices.len()) {
                 self.runs = runs;
@@ -305,6 +304,18 @@ mod tests {
             .collect();
         plan.resolve(&scattered);
         assert!(plan.covered && plan.runs.is_empty());
+        // Longer than a run's place can say: covered, copied by index.
+        let long: Vec<u32> = all.iter().cycle().take(300).copied().collect();
+        plan.resolve(&long);
+        assert!(plan.covered && plan.runs.is_empty());
+        let model = running_in(1);
+        let mut block = vec![f64::NAN; long.len()];
+        assert!(model.read_output_block(&long, &mut block));
+        let getters = real_outputs();
+        for (vr, value) in long.iter().zip(&block) {
+            let (_, name, get) = getters.iter().find(|o| o.0 == *vr).unwrap();
+            assert_eq!(value.to_bits(), get(&model).to_bits(), "{name}");
+        }
     }
 
     /// The block read equals the getters bit for bit: every output, in each configuration,
