@@ -1438,8 +1438,7 @@ mod tests {
 
     #[test]
     fn the_avx2_build_of_calculate_is_the_baseline_bit_for_bit() {
-        if !crate::models::bench::plant::cpu_has_wide_vectors() {
-            eprintln!("skipped: this CPU has no AVX2, so only the baseline build runs");
+        if crate::models::bench::plant::no_wide_vectors_here("the baseline build") {
             return;
         }
         let mut compared = 0;

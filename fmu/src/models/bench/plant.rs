@@ -147,6 +147,17 @@ pub(crate) fn cpu_has_wide_vectors() -> bool {
     }
 }
 
+/// For a test comparing an AVX2 build with its baseline: whether this CPU has no AVX2, said on
+/// standard error (`only` names what runs then), so that the test skips.
+#[cfg(test)]
+pub(crate) fn no_wide_vectors_here(only: &str) -> bool {
+    let missing = !cpu_has_wide_vectors();
+    if missing {
+        eprintln!("skipped: this CPU has no AVX2, so only {only} runs");
+    }
+    missing
+}
+
 /// Products of parameters used in every step (same expressions as where they are used).
 #[derive(Debug, Clone, Copy)]
 struct Derived {

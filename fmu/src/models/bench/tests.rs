@@ -825,8 +825,7 @@ fn benchmark_gait_cycle() {
 
 #[test]
 fn the_avx2_build_of_the_step_gives_bit_identical_results() {
-    if !super::plant::cpu_has_wide_vectors() {
-        eprintln!("this CPU has no AVX2: the plant runs its baseline build only");
+    if crate::models::bench::plant::no_wide_vectors_here("the plant's baseline build") {
         return;
     }
     for configuration in [Configuration::Da, Configuration::Sea, Configuration::Csea] {

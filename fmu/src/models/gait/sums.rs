@@ -96,8 +96,7 @@ mod tests {
 
     #[test]
     fn the_vector_sums_are_the_plain_sums_bit_for_bit() {
-        if !crate::models::bench::plant::cpu_has_wide_vectors() {
-            eprintln!("skipped: this CPU has no AVX2, so only the plain form runs");
+        if crate::models::bench::plant::no_wide_vectors_here("the plain form") {
             return;
         }
         let mut compared = 0;
