@@ -77,7 +77,7 @@ for so in "$own" "$@"; do
             KNEEBENCH_PLANT_ABI_PROFILE="$configuration:@RUNS@")")
     done
     name=$so
-    [ "$so" = "$own" ] && name="this checkout ($own)"
+    [ "$so" = "$own" ] && name="this checkout"
     printf '%-40s %10s %10s %10s %10s %10s\n' "$name" "$loop" "$every" "${plant[@]}"
 done
 echo "instructions per step: the SEA closed loop recording the analysed signals (loop) and every"

@@ -107,7 +107,7 @@ pub(super) struct ReadPlan {
     /// The [`SignalGroup::bit`]s of the groups they need (when `covered`).
     groups: u8,
     /// `indices` as runs of consecutive indices (when `covered`), or empty where the list has
-    /// too many runs for copying them to pay ([`Runs::worth_it`]).
+    /// too many runs for copying them to pay ([`runs_pay`]).
     runs: Vec<Run>,
 }
 
@@ -120,38 +120,33 @@ struct Run {
     len: u8,
 }
 
-/// The runs of a resolved list (see [`ReadPlan::runs`]).
-struct Runs;
+/// Whether copying `runs` runs pays for a list of `values` values. A list read in declaration
+/// order (every output, as a recording master asks for them) is one or a few runs: each is one
+/// slice copy instead of a load, a bounds check and a store per value. A scattered list (many
+/// runs of one) is copied value by value: a copy per run would cost more there.
+fn runs_pay(runs: usize, values: usize) -> bool {
+    runs * 4 <= values
+}
 
-impl Runs {
-    /// A list read in declaration order (every output, as a recording master asks for them)
-    /// is one or a few runs: each is one slice copy instead of a load, a bounds check and a
-    /// store per value. A scattered list (many runs of one) is copied value by value: a
-    /// copy per run would cost more there.
-    fn worth_it(runs: usize, values: usize) -> bool {
-        runs * 4 <= values
-    }
-
-    /// The runs of `indices`.
-    fn of(indices: &[u8]) -> Vec<Run> {
-        let mut runs: Vec<Run> = Vec::new();
-        for (to, &from) in indices.iter().enumerate() {
-            match runs.last_mut() {
-                Some(run)
-                    if usize::from(run.from) + usize::from(run.len) == usize::from(from)
-                        && run.len < u8::MAX =>
-                {
-                    run.len += 1;
-                }
-                _ => runs.push(Run {
-                    from,
-                    to: to as u8,
-                    len: 1,
-                }),
+/// The runs of consecutive indices in `indices`.
+fn runs_of(indices: &[u8]) -> Vec<Run> {
+    let mut runs: Vec<Run> = Vec::new();
+    for (to, &from) in indices.iter().enumerate() {
+        match runs.last_mut() {
+            Some(run)
+                if usize::from(run.from) + usize::from(run.len) == usize::from(from)
+                    && run.len < u8::MAX =>
+            {
+                run.len += 1;
             }
+            _ => runs.push(Run {
+                from,
+                to: to as u8,
+                len: 1,
+            }),
         }
-        runs
     }
+    runs
 }
 
 impl ReadPlan {
@@ -174,8 +169,8 @@ impl ReadPlan {
         });
         // A list longer than a run can say where it goes (`Run::to`) is copied value by value.
         if self.covered && vrs.len() <= usize::from(u8::MAX) {
-            let runs = Runs::of(&self.indices);
-            if Runs::worth_it(runs.len(), self.indices.len()) {
+            let runs = runs_of(&self.indices);
+            if runs_pay(runs.len(), self.indices.len()) {
                 self.runs = runs;
             }
         }
@@ -274,14 +269,14 @@ mod tests {
     /// Runs join consecutive indices only, and each value lands where its index says.
     #[test]
     fn runs_are_the_consecutive_stretches_of_the_indices() {
-        let runs = Runs::of(&[3, 4, 5, 9, 2, 3, 3]);
+        let runs = runs_of(&[3, 4, 5, 9, 2, 3, 3]);
         let run = |from, to, len| Run { from, to, len };
         assert_eq!(
             runs,
             vec![run(3, 0, 3), run(9, 3, 1), run(2, 4, 2), run(3, 6, 1)]
         );
-        assert!(Runs::of(&[]).is_empty());
-        assert!(Runs::worth_it(2, 8) && !Runs::worth_it(3, 8));
+        assert!(runs_of(&[]).is_empty());
+        assert!(runs_pay(2, 8) && !runs_pay(3, 8));
     }
 
     /// The outputs asked for in declaration order (a recording master's list) are copied as
