@@ -12,7 +12,7 @@
 # binary runs under the same bench executables, built with line tables into
 # $KNEEBENCH_PROFILE_TARGET (default target/profile) so that callgrind_annotate can name lines.
 # Slow: about a minute and a half per profiled run (the benches export and load the FMUs under
-# valgrind before the counted part), ten runs per binary.
+# valgrind before the counted part), ten runs per binary, two at a time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -55,9 +55,15 @@ collected() {
 per_step() {
     local toggle=$1 exe=$2
     shift 2
-    local one three
-    one=$(collected "$toggle" "$exe" "${@//@RUNS@/1}")
+    local one three scratch
+    # The two runs side by side (instruction counts do not depend on the load): half the wait
+    # on a machine with two cores or more.
+    scratch=$(mktemp)
+    collected "$toggle" "$exe" "${@//@RUNS@/1}" > "$scratch" &
     three=$(collected "$toggle" "$exe" "${@//@RUNS@/3}")
+    wait $! || true
+    one=$(cat "$scratch")
+    rm -f "$scratch"
     if [ -z "$one" ] || [ -z "$three" ]; then
         echo "instructions.sh: a profiled run of $exe failed" >&2
         exit 1
