@@ -55,13 +55,14 @@ collected() {
 per_step() {
     local toggle=$1 exe=$2
     shift 2
-    local one three scratch
+    local one three scratch first
     # The two runs side by side (instruction counts do not depend on the load): half the wait
-    # on a machine with two cores or more.
+    # on a machine with two cores or more. A failed run leaves its count empty (checked below).
     scratch=$(mktemp)
     collected "$toggle" "$exe" "${@//@RUNS@/1}" > "$scratch" &
+    first=$!
     three=$(collected "$toggle" "$exe" "${@//@RUNS@/3}")
-    wait $! || true
+    wait "$first" || true
     one=$(cat "$scratch")
     rm -f "$scratch"
     if [ -z "$one" ] || [ -z "$three" ]; then
