@@ -30,8 +30,7 @@ use std::path::Path;
 
 use super::analysis::{least_squares, mean};
 use super::{
-    Bench, ExperimentError, RunEnd, Table, Written, column, num, run, schedule, set_reals,
-    write_outputs,
+    Bench, ExperimentError, RunEnd, Table, Written, column, num, run, schedule, write_outputs,
 };
 use crate::results::plot::PlotLabels;
 
@@ -182,20 +181,7 @@ pub fn run_calibration(
         previous = theta;
     }
     let mut system = bench.system()?;
-    system.add_component("position", bench.companion("PidController")?)?;
-    let limit = bench.real("testCurrentLimit")?;
-    set_reals(
-        &mut system,
-        "position",
-        &[
-            ("kp", config.gains.0),
-            ("ki", config.gains.1),
-            ("kd", config.gains.2),
-            ("derivativeFilterTime", 0.002),
-            ("outputMin", -limit),
-            ("outputMax", limit),
-        ],
-    )?;
+    bench.add_position_loop(&mut system, config.gains, &[])?;
     system.add_signal("position.setpoint", schedule(angle_schedule, true))?;
     system.connect("plant.actuationEncoderAngle", "position.measurement")?;
     system.connect("position.u", "plant.testCurrentCommand")?;

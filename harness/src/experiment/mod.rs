@@ -290,7 +290,40 @@ impl Bench {
     fn companion(&self, identifier: &str) -> Result<Fmu, ExperimentError> {
         load(&self.fmu_dir.join(format!("{identifier}.fmu")))
     }
+
+    /// Adds the experiments' position loop to `system` as component `position`: a
+    /// `PidController` with `gains` (kp, ki, kd), the derivative filter of
+    /// [`POSITION_DERIVATIVE_FILTER_TIME`], its output (the test motor's current command)
+    /// limited to the bench's `testCurrentLimit`, and the settings of `extra`. The caller
+    /// connects it.
+    fn add_position_loop(
+        &self,
+        system: &mut System,
+        gains: (f64, f64, f64),
+        extra: &[(&str, f64)],
+    ) -> Result<(), ExperimentError> {
+        system.add_component("position", self.companion("PidController")?)?;
+        let limit = self.real("testCurrentLimit")?;
+        set_reals(
+            system,
+            "position",
+            &[
+                ("kp", gains.0),
+                ("ki", gains.1),
+                ("kd", gains.2),
+                ("derivativeFilterTime", POSITION_DERIVATIVE_FILTER_TIME),
+                ("outputMin", -limit),
+                ("outputMax", limit),
+            ],
+        )?;
+        set_reals(system, "position", extra)
+    }
 }
+
+/// The derivative filter time constant of the experiments' position loop \[s\]: one place
+/// for the step, triangle and calibration experiments, whose identification reads their
+/// logs together.
+const POSITION_DERIVATIVE_FILTER_TIME: f64 = 0.002;
 
 fn load(path: &Path) -> Result<Fmu, ExperimentError> {
     Fmu::load(path, &LoadOptions::default()).map_err(|source| ExperimentError::Load {

@@ -157,19 +157,7 @@ pub fn run_step(
             ("stepTime", config.step_time),
         ],
     )?;
-    system.add_component("position", bench.companion("PidController")?)?;
-    set_reals(
-        &mut system,
-        "position",
-        &[
-            ("kp", config.gains.0),
-            ("ki", config.gains.1),
-            ("kd", config.gains.2),
-            ("derivativeFilterTime", 0.002),
-            ("outputMin", -limit),
-            ("outputMax", limit),
-        ],
-    )?;
+    bench.add_position_loop(&mut system, config.gains, &[])?;
     system.connect("gait.kneeAngleReference", "position.setpoint")?;
     system.connect("plant.actuationEncoderAngle", "position.measurement")?;
     system.connect("position.u", "plant.testCurrentCommand")?;

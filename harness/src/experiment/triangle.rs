@@ -132,23 +132,13 @@ pub fn run_triangle(
             ("fadeInTime", config.period),
         ],
     )?;
-    system.add_component("position", bench.companion("PidController")?)?;
-    let limit = bench.real("testCurrentLimit")?;
-    set_reals(
+    // The velocity feed-forward gives the current for the actuation damping's torque at the
+    // reference velocity (amperes per rad/s).
+    let feed_forward_gain = bench.real("actuationDamping")? / bench.test_torque_per_ampere()?;
+    bench.add_position_loop(
         &mut system,
-        "position",
-        &[
-            ("kp", config.gains.0),
-            ("ki", config.gains.1),
-            ("kd", config.gains.2),
-            ("derivativeFilterTime", 0.002),
-            ("outputMin", -limit),
-            ("outputMax", limit),
-            (
-                "feedForwardGain",
-                bench.real("actuationDamping")? / bench.test_torque_per_ampere()?,
-            ),
-        ],
+        config.gains,
+        &[("feedForwardGain", feed_forward_gain)],
     )?;
     system.connect("gait.kneeAngleReference", "position.setpoint")?;
     system.connect("gait.kneeVelocityReference", "position.feedForward")?;

@@ -9,24 +9,7 @@ use super::{
     SspError,
 };
 use crate::master::{Algorithm, Value};
-
-fn esc(s: &str) -> String {
-    let mut o = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => o.push_str("&amp;"),
-            '<' => o.push_str("&lt;"),
-            '>' => o.push_str("&gt;"),
-            '"' => o.push_str("&quot;"),
-            '\'' => o.push_str("&apos;"),
-            '\n' => o.push_str("&#10;"),
-            '\r' => o.push_str("&#13;"),
-            '\t' => o.push_str("&#9;"),
-            c => o.push(c),
-        }
-    }
-    o
-}
+use model_description::write::escape_attribute as esc;
 
 /// Formats a double as xs:double, round-trip exact.
 fn xs_double(v: f64) -> String {
