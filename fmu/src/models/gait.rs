@@ -329,6 +329,13 @@ impl Waveform {
     }
 }
 
+/// The last stage of a stepped sine whose waveform [`Sweep::shape`] computes: its integral
+/// sums the closed stages one by one, so a time far past the sweep (`t = 1e300`, or `1e4` s
+/// at the shortest dwell) took minutes to hours per `fmi2GetReal`. Later stages are refused
+/// (the get answers `fmi2Error`, the instance unchanged); a ratio above 1 has passed any
+/// bench frequency long before (1.0001^100000 is 2.2e4).
+pub const MAX_SWEEP_STAGES: u32 = 100_000;
+
 /// The stepped-sine sweep: frequency f0·rⁿ during stage n = ⌊t/dwell⌋, phase continuous.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sweep {
@@ -387,7 +394,8 @@ impl Sweep {
         };
         TAU * cycles
     }
-    /// The normalised sweep at t.
+    /// The normalised sweep at t: work in proportion to the stage (the caller bounds it,
+    /// [`MAX_SWEEP_STAGES`]).
     pub fn shape(&self, t: f64) -> Shape {
         let n = self.stage(t);
         let f = self.frequency(n);
@@ -868,7 +876,18 @@ impl GaitReference {
                 }
             }
             Waveform::Triangle => triangle(t, p),
-            Waveform::SteppedSine => self.sweep().shape(t),
+            Waveform::SteppedSine => {
+                let sweep = self.sweep();
+                let stage = sweep.stage(t);
+                if stage > MAX_SWEEP_STAGES {
+                    return Err(ModelError::refused(format!(
+                        "t = {t} is in stage {stage} of the stepped sine, past its last \
+                         computed stage {MAX_SWEEP_STAGES} (sweepDwellTime {})",
+                        sweep.dwell
+                    )));
+                }
+                sweep.shape(t)
+            }
         })
     }
 }
@@ -1348,6 +1367,34 @@ mod tests {
         let a = s.shape(20.0 - 1e-9).value;
         let b = s.shape(20.0 + 1e-9).value;
         assert!((a - b).abs() < 1e-7);
+    }
+
+    /// A time far past the sweep is refused at once, not summed stage by stage (found by
+    /// tests/tests/call_sequence_fuzz.rs: `t = 1e300` ran 4e9 stages per get, `1e9` 5e7);
+    /// the last computed stage is still computed, and the refusal changes nothing.
+    #[test]
+    fn a_stepped_sine_far_past_its_last_stage_is_refused_at_once() {
+        for waveform in ["motion", "torque"] {
+            let mut m = model();
+            if waveform == "motion" {
+                m.motion_waveform = Waveform::SteppedSine as i32;
+            } else {
+                m.torque_waveform = Waveform::SteppedSine as i32;
+            }
+            m.sweep_dwell = 0.5;
+            let last = f64::from(MAX_SWEEP_STAGES) * 0.5;
+            assert!(m.calculate(last).is_ok(), "{waveform}");
+            let before = m.knee_angle.to_bits();
+            // Without the bound the first is computed (1e5 stages), the last hangs.
+            for t in [last + 0.5, 1e9, 1e300] {
+                let e = m.calculate(t).expect_err(waveform);
+                assert!(
+                    e.is_refused() && e.message.contains("past its last"),
+                    "{e:?}"
+                );
+            }
+            assert_eq!(m.knee_angle.to_bits(), before, "{waveform}");
+        }
     }
 
     #[test]
