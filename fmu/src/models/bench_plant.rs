@@ -19,7 +19,7 @@ use super::bench::{
 };
 use crate::model::{
     Access, EnumerationType, Model, ModelError, Start, StateError, StateReader, StateWriter,
-    StepOutcome, Variable,
+    StepOutcome, Variability, Variable,
 };
 use crate::registry::ReferenceInputs;
 
@@ -698,6 +698,9 @@ pub fn io_variables<M: BenchSignals>() -> Vec<Variable<M>> {
     ]
 }
 
+/// The getter and setter of a tunable Real parameter.
+type TunableAccess = (fn(&BenchPlantModel) -> f64, fn(&mut BenchPlantModel, f64));
+
 /// The bench plant FMU.
 #[derive(Debug, Clone, Default)]
 pub struct BenchPlantModel {
@@ -1150,6 +1153,35 @@ impl BenchPlantModel {
             .map_err(ModelError::refused)
     }
 
+    /// A model holding `params` and this model's enumerations, and nothing else: what the
+    /// tunable parameters' own getters and setters read and write.
+    fn parameter_view(&self, params: BenchParameters) -> Self {
+        Self {
+            params,
+            configuration: self.configuration,
+            friction_model: self.friction_model,
+            test_driver_mode: self.test_driver_mode,
+            load_driver_mode: self.load_driver_mode,
+            ..Self::default()
+        }
+    }
+
+    /// The getter and setter of every tunable Real parameter, in declaration order.
+    fn tunable_accessors() -> impl Iterator<Item = TunableAccess> {
+        Self::variables().iter().filter_map(|v| match v.access {
+            Access::Real(get, set) if v.variability == Variability::Tunable => Some((get, set)),
+            _ => None,
+        })
+    }
+
+    /// The tunable Real parameters' values in `params`, in declaration order.
+    fn tunable_values(&self, params: &BenchParameters) -> Vec<f64> {
+        let view = self.parameter_view(params.clone());
+        Self::tunable_accessors()
+            .map(|(get, _)| get(&view))
+            .collect()
+    }
+
     fn build(&mut self) -> Result<(), ModelError> {
         let p = self.parameters()?;
         let plant =
@@ -1293,6 +1325,13 @@ impl Model for BenchPlantModel {
                 plant.encode_state(&mut bytes);
                 w.u32(bytes.len() as u32);
                 w.bytes.extend_from_slice(&bytes);
+                // A tunable change waiting for the next step: the plant runs on the values
+                // in force until then, which the variables no longer hold.
+                if self.parameters_changed {
+                    for value in self.tunable_values(plant.parameters()) {
+                        w.f64(value);
+                    }
+                }
             }
             None => w.bool(false),
         }
@@ -1305,7 +1344,18 @@ impl Model for BenchPlantModel {
         if r.bool()? {
             let len = r.u32()? as usize;
             let mut bytes = r.take(len)?;
-            let p = self.parameters().map_err(|e| StateError(e.message))?;
+            let p = if changed {
+                // The plant restarts on the values in force when the state was taken; the
+                // variables keep the pending ones, applied at the next step as before.
+                let mut in_force = self.parameter_view(self.params.clone());
+                for (_, set) in Self::tunable_accessors() {
+                    set(&mut in_force, r.f64()?);
+                }
+                in_force.parameters()
+            } else {
+                self.parameters()
+            }
+            .map_err(|e| StateError(e.message))?;
             let mut plant =
                 super::bench::BenchPlant::new(p).map_err(|e| StateError(e.to_string()))?;
             plant
@@ -1329,148 +1379,7 @@ impl Model for BenchPlantModel {
 }
 
 #[cfg(test)]
-mod lazy_output_tests {
-    use super::*;
-    use crate::model::Access;
-    use model_description::Causality;
-
-    /// A plant mid-run: moving, currents flowing, energies accumulated.
-    fn running() -> BenchPlantModel {
-        running_in(1)
-    }
-
-    /// A plant of `configuration` (0 DA, 1 SEA, 2 CSEA) mid-run, as [`running`].
-    pub(super) fn running_in(configuration: i32) -> BenchPlantModel {
-        let mut m = crate::fmi2::instance::fresh_model::<BenchPlantModel>();
-        m.configuration = configuration;
-        m.calculate(0.0).unwrap();
-        m.initialize(0.0).unwrap();
-        m.commands.test_current = 3.0;
-        m.commands.load_current = -0.5;
-        for k in 0..300 {
-            m.do_step(k as f64 * 1e-3, 1e-3).unwrap();
-        }
-        m.calculate(0.3).unwrap();
-        m
-    }
-
-    /// Every output read through its own group alone (the other groups holding sentinels)
-    /// equals the value in the full output set: each field is filled by the group its getter
-    /// names, so a field listed in the wrong group would read a sentinel.
-    #[test]
-    fn each_output_is_computed_by_its_own_group() {
-        let model = running();
-        let full = model.plant.as_ref().unwrap().outputs();
-        assert!(full.load_cell_voltage != 0.0 && full.test_mechanical_power != 0.0);
-        let sentinel = {
-            let mut lazy = model.clone();
-            lazy.fresh.set(u8::MAX);
-            // Fill the sentinel through the setters: every real -7.5e7, every bool the opposite
-            // of its value, every integer 77.
-            for v in BenchPlantModel::variables() {
-                if v.causality != Causality::Output {
-                    continue;
-                }
-                match v.access {
-                    Access::Real(_, set) => set(&mut lazy, -7.5e7),
-                    Access::Integer(_, set) => set(&mut lazy, 77),
-                    Access::Boolean(get, set) => {
-                        let b = {
-                            let mut probe = model.clone();
-                            *probe.outputs.get_mut() = full;
-                            probe.fresh.set(u8::MAX);
-                            get(&probe)
-                        };
-                        set(&mut lazy, !b)
-                    }
-                    _ => {}
-                }
-            }
-            *lazy.outputs.get_mut()
-        };
-        let mut checked = 0;
-        for v in BenchPlantModel::variables() {
-            if v.causality != Causality::Output {
-                continue;
-            }
-            let mut lazy = model.clone();
-            *lazy.outputs.get_mut() = sentinel;
-            lazy.fresh.set(0);
-            let mut reference = model.clone();
-            *reference.outputs.get_mut() = full;
-            reference.fresh.set(u8::MAX);
-            match v.access {
-                Access::Real(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
-                Access::Integer(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
-                Access::Boolean(get, _) => assert_eq!(get(&lazy), get(&reference), "{}", v.name),
-                _ => continue,
-            }
-            checked += 1;
-        }
-        assert!(checked > 70, "{checked}");
-        // A step makes every group stale again.
-        let mut m = model.clone();
-        let before = m.read_signal(SignalGroup::Motion, |o| o.actuation_angle);
-        m.do_step(0.3, 1e-3).unwrap();
-        let after = m.read_signal(SignalGroup::Motion, |o| o.actuation_angle);
-        assert_ne!(before, after);
-        assert_eq!(after, m.plant.as_ref().unwrap().outputs().actuation_angle);
-    }
-
-    /// Every Real output's derivative as `fmi2GetRealOutputDerivatives` reads it.
-    fn derivatives(m: &BenchPlantModel) -> Vec<f64> {
-        real_output_references()
-            .map(|vr| m.output_derivative(vr, 1).unwrap())
-            .collect()
-    }
-
-    /// Every Real output's derivative computed afresh from the plant's current state.
-    fn current_derivatives(m: &BenchPlantModel) -> Vec<f64> {
-        let rates = OutputRates {
-            commands: BenchCommands::default(),
-            rates: m.plant.as_ref().unwrap().output_derivatives(),
-        };
-        real_output_references()
-            .map(|vr| RATE_READERS[vr as usize].unwrap()(&rates))
-            .collect()
-    }
-
-    fn real_output_references() -> impl Iterator<Item = u32> {
-        BenchPlantModel::variables().iter().filter_map(|v| {
-            match (v.causality == Causality::Output, &v.access) {
-                (true, Access::Real(..)) => Some(v.value_reference),
-                _ => None,
-            }
-        })
-    }
-
-    /// The derivatives are evaluated once per communication point: read after a new input and a
-    /// step, or after an FMU state is restored, they are those of the new state, not the ones
-    /// read before.
-    #[test]
-    fn derivatives_read_again_after_a_step_or_a_restore_are_those_of_the_new_state() {
-        let mut m = running();
-        let saved = {
-            let mut w = StateWriter::default();
-            m.save_internal(&mut w);
-            w.bytes
-        };
-        let before = derivatives(&m);
-        assert_eq!(before.len(), 67);
-        assert_eq!(before, current_derivatives(&m));
-        assert_eq!(derivatives(&m), before, "read twice at one point");
-
-        m.commands.test_current = -4.0;
-        m.do_step(0.3, 1e-3).unwrap();
-        let after = derivatives(&m);
-        assert_eq!(after, current_derivatives(&m));
-        let changed = before.iter().zip(&after).filter(|(b, a)| b != a).count();
-        assert!(changed > 30, "{changed} derivatives changed over the step");
-
-        m.load_internal(&mut StateReader::new(&saved)).unwrap();
-        assert_eq!(derivatives(&m), before, "after the restore");
-    }
-}
+mod lazy_output_tests;
 
 #[cfg(test)]
 mod derivative_tests;
