@@ -1248,8 +1248,11 @@ impl Model for BenchPlantModel {
     }
 
     fn initialize(&mut self, start_time: f64) -> Result<(), ModelError> {
+        // Built first: parameters the plant refuses leave the instance as it was, start time
+        // included (found by tests/tests/call_sequence_fuzz).
+        self.build()?;
         self.start_time = start_time;
-        self.build()
+        Ok(())
     }
 
     fn calculate(&mut self, _t: f64) -> Result<(), ModelError> {

@@ -75,7 +75,8 @@ use oracle::S;
 /// The most calls of one case.
 const MAX_CALLS: usize = 40;
 
-/// Cases per model. The six models run as six tests in parallel.
+/// Cases per model in the suite (`PROPTEST_CASES=<n>` for a longer campaign). The six models
+/// run as six tests in parallel.
 const CASES: u32 = 128;
 
 /// FMU-state slots of a case (the importer's `fmi2FMUstate` variables).
@@ -111,11 +112,17 @@ fn run_case(identifier: &'static str, foreign: &'static str, calls: &[Call]) {
 }
 
 fn config() -> ProptestConfig {
+    let default = ProptestConfig::default();
     ProptestConfig {
-        cases: CASES,
+        // `PROPTEST_CASES` runs a longer campaign (proptest reads it into its default).
+        cases: if std::env::var_os("PROPTEST_CASES").is_some() {
+            default.cases
+        } else {
+            CASES
+        },
         // Shrinking replays whole sequences: bounded so that a failure reports in seconds.
         max_shrink_iters: 2000,
-        ..ProptestConfig::default()
+        ..default
     }
 }
 

@@ -203,3 +203,26 @@ fn a_state_taken_with_a_change_pending_restores_the_values_in_force() {
         .unwrap();
     assert_eq!(offset_power(&twin), in_force + 493.0);
 }
+
+/// Parameters the plant refuses at `fmi2ExitInitializationMode` leave the instance as it was,
+/// its start time included (found by `tests/tests/call_sequence_fuzz`: the start time was
+/// stored before the plant was built, so a refused exit changed the FMU state).
+#[test]
+fn a_refused_initialization_changes_nothing() {
+    let mut m = crate::fmi2::instance::fresh_model::<BenchPlantModel>();
+    m.params.load_cell_gain = 0.0;
+    let saved = |m: &BenchPlantModel| {
+        let mut w = StateWriter::default();
+        m.save_internal(&mut w);
+        w.bytes
+    };
+    let before = saved(&m);
+    let e = m
+        .initialize(5.0)
+        .expect_err("a zero calibration gain is refused");
+    assert!(
+        e.is_refused() && e.message.contains("calibration gains"),
+        "{e:?}"
+    );
+    assert_eq!(saved(&m), before);
+}
