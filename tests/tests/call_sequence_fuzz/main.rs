@@ -297,6 +297,33 @@ fn the_oracle_table_matches_the_instance_in_every_state() {
     }
 }
 
+/// Regression (found by a 150,000-case campaign, `PROPTEST_CASES=150000`): `BenchPlant` stored
+/// the start time before it built its plant, so an `fmi2ExitInitializationMode` refused for
+/// inconsistent parameters (a zero load-cell gain) changed the FMU state. The shrunk sequence.
+#[test]
+fn a_plant_refused_at_the_end_of_initialization_changes_nothing() {
+    run_case(
+        "BenchPlant",
+        "GaitReference",
+        &[
+            Call::SetupExperiment {
+                tolerance: None,
+                start: 1.5,
+                stop: None,
+            },
+            // loadCellGain (57) = 0.
+            Call::Set {
+                ty: Ty::Real,
+                refs: vec![Ref::Raw(57)],
+                values: vec![Value::Zero],
+                nulls: Nulls::None,
+            },
+            Call::EnterInitializationMode,
+            Call::ExitInitializationMode,
+        ],
+    );
+}
+
 /// Regression (found by these sequences): `GaitReference` with a stepped sine summed its
 /// integral stage by stage at every get, so a communication point far past the sweep (a
 /// `startTime` or a step of `1e300` s, 4e9 stages) hung the importer in `fmi2GetReal`. Past
