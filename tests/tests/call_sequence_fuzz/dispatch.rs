@@ -145,46 +145,18 @@ impl<'l> Case<'l> {
                     let mut ints = vec![0i32; n];
                     let mut strings: Vec<fmi2String> = vec![null(); n];
                     let status = match ty {
-                        Ty::Real => (f.get_real)(
-                            c,
-                            vr_ptr,
-                            n,
-                            if null_values {
-                                null_mut()
-                            } else {
-                                reals.as_mut_ptr()
-                            },
-                        ),
-                        Ty::Integer => (f.get_integer)(
-                            c,
-                            vr_ptr,
-                            n,
-                            if null_values {
-                                null_mut()
-                            } else {
-                                ints.as_mut_ptr()
-                            },
-                        ),
-                        Ty::Boolean => (f.get_boolean)(
-                            c,
-                            vr_ptr,
-                            n,
-                            if null_values {
-                                null_mut()
-                            } else {
-                                ints.as_mut_ptr()
-                            },
-                        ),
-                        Ty::String => (f.get_string)(
-                            c,
-                            vr_ptr,
-                            n,
-                            if null_values {
-                                null_mut()
-                            } else {
-                                strings.as_mut_ptr()
-                            },
-                        ),
+                        Ty::Real => {
+                            (f.get_real)(c, vr_ptr, n, out_or_null(null_values, &mut reals))
+                        }
+                        Ty::Integer => {
+                            (f.get_integer)(c, vr_ptr, n, out_or_null(null_values, &mut ints))
+                        }
+                        Ty::Boolean => {
+                            (f.get_boolean)(c, vr_ptr, n, out_or_null(null_values, &mut ints))
+                        }
+                        Ty::String => {
+                            (f.get_string)(c, vr_ptr, n, out_or_null(null_values, &mut strings))
+                        }
                     };
                     let e = self.expect(F::Get, || Expect::Exactly(want));
                     if matches!(e, Expect::Exactly(fmi2OK)) && status == fmi2OK {
@@ -581,5 +553,14 @@ impl<'l> Case<'l> {
                 }
             }
         }
+    }
+}
+
+/// The output array of a get, or NULL when the case passes NULL for it.
+fn out_or_null<T>(null: bool, values: &mut [T]) -> *mut T {
+    if null {
+        null_mut()
+    } else {
+        values.as_mut_ptr()
     }
 }
