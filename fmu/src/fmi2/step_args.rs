@@ -9,8 +9,9 @@ use model_description::num::num;
 use super::instance::{TIME_TOLERANCE, same_time};
 
 /// Why `fmi2DoStep(t, h)` is refused, the first of: `t` or `h` not finite, `h` not positive,
-/// `h` above the model's largest step `max`, `t` not the instance's time `time` (within
-/// [`TIME_TOLERANCE`]), the step ending after the `stopTime` `stop`; or `None`.
+/// the step's end `t + h` not finite, `h` above the model's largest step `max`, `t` not the
+/// instance's time `time` (within [`TIME_TOLERANCE`]), the step ending after the `stopTime`
+/// `stop`; or `None`.
 pub(super) fn problem(t: f64, h: f64, time: f64, stop: Option<f64>, max: f64) -> Option<String> {
     if !(t.is_finite() && h.is_finite()) {
         return Some(format!(
@@ -21,6 +22,14 @@ pub(super) fn problem(t: f64, h: f64, time: f64, stop: Option<f64>, max: f64) ->
     }
     if h <= 0.0 {
         return Some(format!("communicationStepSize {} must be positive", num(h)));
+    }
+    if !(t + h).is_finite() {
+        // The instance's time would overflow to infinity, which no state or output can hold.
+        return Some(format!(
+            "the step from {} by {} s ends past the largest representable time",
+            num(t),
+            num(h)
+        ));
     }
     if h > max {
         return Some(format!(
@@ -52,15 +61,16 @@ pub(super) fn problem(t: f64, h: f64, time: f64, stop: Option<f64>, max: f64) ->
 
 /// Whether [`problem`] certainly finds none: `t` within [`TIME_TOLERANCE`] of `time` (then
 /// `t` is finite, and [`same_time`], whose tolerance is at least that, holds), `h` positive
-/// and finite and at most `max`, the step ending by `stop`. False for some arguments that
-/// pass (a `t` within the relative tolerance only, a step ending just after `stop`): those
-/// take the plain checks.
+/// and finite and at most `max`, the step's end finite and by `stop`. False for some
+/// arguments that pass (a `t` within the relative tolerance only, a step ending just after
+/// `stop`): those take the plain checks.
 #[inline(always)]
 pub(super) fn fits(t: f64, h: f64, time: f64, stop: Option<f64>, max: f64) -> bool {
     (t - time).abs() <= TIME_TOLERANCE
         && h > 0.0
         && h <= max
         && h <= f64::MAX
+        && t + h <= f64::MAX
         && stop.is_none_or(|stop| t + h <= stop)
 }
 
@@ -91,6 +101,20 @@ mod tests {
         }
         v.extend([around.next_up(), around.next_down()]);
         v
+    }
+
+    /// A step whose end overflows to infinity is refused by both checks (found by
+    /// tests/tests/call_sequence_fuzz: GaitReference, which has no largest step, took a step
+    /// of f64::MAX from 1e300; its time became infinite and its FMU state could not be set
+    /// again).
+    #[test]
+    fn a_step_whose_end_overflows_is_refused() {
+        for (t, h) in [(1e300, f64::MAX), (f64::MAX, f64::MAX / 1e15)] {
+            assert!(!fits(t, h, t, None, f64::INFINITY));
+            let why = problem(t, h, t, None, f64::INFINITY).expect("refused");
+            assert!(why.contains("largest representable time"), "{why}");
+        }
+        assert_eq!(problem(1e300, 1e300, 1e300, None, f64::INFINITY), None);
     }
 
     /// Every combination of probes: the fast test accepts only arguments the plain checks

@@ -324,6 +324,35 @@ fn a_plant_refused_at_the_end_of_initialization_changes_nothing() {
     );
 }
 
+/// Regression (found by a 250,000-case campaign): `GaitReference`, which has no largest step,
+/// took a step of `f64::MAX` from 1e300, so its time became infinite and an FMU state taken
+/// then could not be set again. A step whose end is not finite is refused now. The shrunk
+/// sequence.
+#[test]
+fn a_step_whose_end_overflows_is_refused() {
+    run_case(
+        "GaitReference",
+        "PidController",
+        &[
+            Call::EnterInitializationMode,
+            Call::ExitInitializationMode,
+            Call::DoStep {
+                at: At::Now,
+                h: 1e300,
+            },
+            Call::DoStep {
+                at: At::Now,
+                h: f64::MAX,
+            },
+            Call::GetFmuState {
+                slot: 2,
+                null_out: false,
+            },
+            Call::SetFmuState { slot: 2 },
+        ],
+    );
+}
+
 /// Regression (found by these sequences): `GaitReference` with a stepped sine summed its
 /// integral stage by stage at every get, so a communication point far past the sweep (a
 /// `startTime` or a step of `1e300` s, 4e9 stages) hung the importer in `fmi2GetReal`. Past

@@ -119,12 +119,11 @@ fn same_time(a: f64, b: f64) -> bool {
 }
 
 /// Whether `fmi2DoStep(t, h)` has arguments the glue refuses whatever the model: not finite,
-/// a step size not positive, not the last communication point, past the stop time (the
-/// model's largest step is the model's: a step the oracle passes may still be refused).
+/// a step size not positive, an end `t + h` not finite, not the last communication point,
+/// past the stop time (the model's largest step is the model's: a step the oracle passes may
+/// still be refused).
 pub(crate) fn bad_step(m: &Machine, t: f64, h: f64) -> bool {
-    !(t.is_finite() && h.is_finite())
-        || h <= 0.0
-        || !same_time(t, m.time)
+    !(t.is_finite() && h.is_finite() && h > 0.0 && (t + h).is_finite() && same_time(t, m.time))
         || m.stop
             .is_some_and(|stop| t + h > stop && !same_time(t + h, stop))
 }
