@@ -394,10 +394,17 @@ impl Sweep {
         };
         TAU * cycles
     }
-    /// The normalised sweep at t: work in proportion to the stage (the caller bounds it,
-    /// [`MAX_SWEEP_STAGES`]).
-    pub fn shape(&self, t: f64) -> Shape {
+    /// The normalised sweep at t: work in proportion to the stage, so a time past
+    /// [`MAX_SWEEP_STAGES`] is refused.
+    pub fn shape(&self, t: f64) -> Result<Shape, ModelError> {
         let n = self.stage(t);
+        if n > MAX_SWEEP_STAGES {
+            return Err(ModelError::refused(format!(
+                "t = {t} is in stage {n} of the stepped sine, past its last computed stage \
+                 {MAX_SWEEP_STAGES} (sweepDwellTime {})",
+                self.dwell
+            )));
+        }
         let f = self.frequency(n);
         let w = TAU * f;
         let phase = self.stage_phase(n) + w * (t - n as f64 * self.dwell);
@@ -409,13 +416,13 @@ impl Sweep {
             integral += (self.stage_phase(j).cos() - self.stage_phase(j + 1).cos()) / wj;
         }
         integral += (self.stage_phase(n).cos() - cos) / w;
-        Shape {
+        Ok(Shape {
             value: sin,
             d1: w * cos,
             d2: -w * w * sin,
             d3: -w * w * w * cos,
             integral,
-        }
+        })
     }
 }
 
@@ -876,18 +883,7 @@ impl GaitReference {
                 }
             }
             Waveform::Triangle => triangle(t, p),
-            Waveform::SteppedSine => {
-                let sweep = self.sweep();
-                let stage = sweep.stage(t);
-                if stage > MAX_SWEEP_STAGES {
-                    return Err(ModelError::refused(format!(
-                        "t = {t} is in stage {stage} of the stepped sine, past its last \
-                         computed stage {MAX_SWEEP_STAGES} (sweepDwellTime {})",
-                        sweep.dwell
-                    )));
-                }
-                sweep.shape(t)
-            }
+            Waveform::SteppedSine => self.sweep().shape(t)?,
         })
     }
 }
@@ -1364,8 +1360,8 @@ mod tests {
         assert_eq!(s.stage(20.0), 1);
         assert!((s.frequency(30) - 0.5).abs() < 1e-12);
         // Phase is continuous at a stage boundary.
-        let a = s.shape(20.0 - 1e-9).value;
-        let b = s.shape(20.0 + 1e-9).value;
+        let a = s.shape(20.0 - 1e-9).unwrap().value;
+        let b = s.shape(20.0 + 1e-9).unwrap().value;
         assert!((a - b).abs() < 1e-7);
     }
 
