@@ -238,8 +238,19 @@ pub struct ReactionCurve {
     pub time_constant: f64,
 }
 
+/// The final value of a step response: the mean of the record's last tenth (at least its last
+/// sample). One last sample carries its noise whole: a speed differenced from encoder counts
+/// is off by up to a count per sample, 2 % of the bench's open-loop step (0.0196 rad/s in
+/// 0.91 rad/s), and the damping identified from it moved by that much between runs.
+pub fn final_value(values: &[f64]) -> f64 {
+    let k = (values.len() / 10).max(1);
+    let tail = &values[values.len().saturating_sub(k)..];
+    tail.iter().sum::<f64>() / tail.len() as f64
+}
+
 /// Fits the reaction curve (tangent at the point of steepest slope) of the response to an
-/// input step of size `input_step` applied at the first sample.
+/// input step of size `input_step` applied at the first sample; the response's change is its
+/// [`final_value`] less its first sample.
 pub fn reaction_curve(
     times: &[f64],
     values: &[f64],
@@ -251,8 +262,8 @@ pub fn reaction_curve(
             "input step {input_step} must be finite and non-zero"
         )));
     }
-    let (initial, last) = (values[0], values[values.len() - 1]);
-    let change = last - initial;
+    let initial = values[0];
+    let change = final_value(values) - initial;
     if change == 0.0 {
         return Err(MetricsError::NoStep(initial));
     }
@@ -458,6 +469,33 @@ mod tests {
             (c.gain - k).abs() < 1e-3 && (c.time_constant - tau).abs() < 1e-3,
             "{c:?}"
         );
+    }
+
+    /// The gain is read from the record's settled tail, not from its last sample alone: a
+    /// speed quantised to encoder counts alternates by a count (here 2 % of the step) from
+    /// sample to sample, which the last sample passed on whole to the gain.
+    #[test]
+    fn the_reaction_curve_gain_is_the_tail_mean_not_the_last_sample() {
+        let (k, tau, count) = (2.0, 0.1, 0.04);
+        let t = grid(1501, 1e-3);
+        let y: Vec<f64> = t
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| {
+                let dither = if i % 2 == 0 { 0.5 } else { -0.5 };
+                k * (1.0 - (-t / tau).exp()) + dither * count
+            })
+            .collect();
+        assert_eq!(final_value(&y), {
+            let tail = &y[1501 - 150..];
+            tail.iter().sum::<f64>() / 150.0
+        });
+        let c = reaction_curve(&t, &y, 1.0).unwrap();
+        // The last sample is half a count high (1 %); the tail's 150 samples average out.
+        assert!((y[1500] - k - 0.5 * count).abs() < 1e-5);
+        assert!((c.gain - (k - y[0])).abs() < 1e-4 * k, "{c:?}");
+        // A record of one sample's tail is that sample.
+        assert_eq!(final_value(&[3.0, 5.0]), 5.0);
     }
 
     /// A response rising from its first sample (a ramp) has no dead time, not the rounding

@@ -370,15 +370,28 @@ fn step_identifies_damping_and_inertia_and_measures_the_position_step() {
     let bytes = std::fs::read(&path).unwrap();
     let text = String::from_utf8_lossy(&bytes);
     assert!(text.contains("kneebench.bench_guid") && text.contains("kneebench.experiment"));
+    // Cut 0.8 s after the step, the SEA's spring mode still swings by a few per cent: its last
+    // two tenths' mean speeds differ by 2.5 %, and the inertia read from it was 7.8 % low.
+    // Refused, with the remedy.
+    let cut = step::StepConfig {
+        duration: 0.8,
+        ..step::StepConfig::default()
+    };
+    let e = step::run_step(&plant(&[("frictionModel", "0")]), &cut, out.path())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("differs from that of the") && e.contains("lengthen --duration (now 0.8 s)"),
+        "{e}"
+    );
 }
 
 #[test]
 fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
     let _rt = real_time();
-    let step_config = step::StepConfig {
-        duration: 0.8,
-        ..step::StepConfig::default()
-    };
+    // The default 1.5 s after the step: cut at 0.8 s the SEA's spring mode still swings, and
+    // the inertia came out 7.8 % low (now refused, as the simulated test shows).
+    let step_config = step::StepConfig::default();
     // A run the host disturbed (link watchdog) is run again, as for the other experiments.
     let Some(r) = over_emulator(&[("frictionModel", "0")], |bench, out| {
         let r = step::run_step(bench, &step_config, out).map_err(|e| e.to_string())?;
@@ -390,9 +403,12 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
         return;
     };
     assert_eq!(r.ends, [RunEnd::Completed, RunEnd::Completed]);
-    // The velocities are encoder differences over a networked loop: the identification
-    // within 10 %, the step reached.
-    assert!((r.damping - 13.0).abs() < 0.1 * 13.0, "{r:?}");
+    // The velocities are encoder differences over a networked loop, and a host stall below
+    // HOST_DISTURBANCE is counted in one period: up to 4 ms of extra travel, 2.4 % of the
+    // tail's mean speed, about 4 % of the residence time's area. The damping (from the tail's
+    // mean, 13.003 in ten runs, two of them beside two busy loops) within 5 %, the inertia
+    // (1.429-1.450) within 10 %, the step reached.
+    assert!((r.damping - 13.0).abs() < 0.05 * 13.0, "{r:?}");
     assert!((r.inertia - 1.43).abs() < 0.1 * 1.43, "{r:?}");
     assert!(r.position.rise_time.is_some(), "{:?}", r.position);
     // The encoder-differenced speed (0.0196 rad/s per count) changes by about a quarter of a

@@ -225,7 +225,9 @@ pub struct StepArgs {
     /// Closed-loop position step (deg).
     #[arg(long, default_value_t = 5.0, value_parser = super::values::positive)]
     pub step_angle: f64,
-    /// Record length after the step (s); the open-loop speed must settle within it.
+    /// Record length after the step (s); the open-loop speed must settle within it (its rate
+    /// over the last tenth under 2 % of its steepest, and the means of its last two tenths
+    /// within 0.5 % of the step's change).
     #[arg(long, default_value_t = 1.5, value_parser = super::values::positive)]
     pub duration: f64,
 }

@@ -20,7 +20,8 @@ Examples:
 Ultimate-gain method: raise a P-only gain until the loop oscillates steadily; that gain is
 Ku, the period Tu: kp = 0.6 Ku, Ti = Tu/2, Td = Tu/8. Reaction-curve method: record the
 open-loop response to an input step of known size applied at the first row; the tangent at
-the steepest point gives the gain K, dead time L and time constant T: kp = 1.2 T/(K L),
+the steepest point gives the dead time L and time constant T, and the change from the first
+row to the mean of the record's last tenth (its final value) the gain K: kp = 1.2 T/(K L),
 Ti = 2 L, Td = L/2. Both are starting points for manual refinement, as in the bench study.
 Gains are printed in parallel form, u = kp e + ki integral(e) + kd de/dt, to 6 significant
 digits. Inputs whose gains overflow (or underflow to zero) are refused (exit code 2).")]

@@ -10,7 +10,8 @@
 //!    (`crate::metrics::ziegler_nichols_reaction`); on `BenchHardware`, whose speed is an
 //!    encoder difference, only when the response moves by 10 counts per sample or more (see
 //!    `unresolved_tangent`: at 1 kHz this bench's never does). The mean residence time
-//!    `T_ar = integral (w_end - w) dt / w_end` identifies the plant: without friction the
+//!    `T_ar = integral (w_end - w) dt / w_end` (`w_end` the mean of the record's last tenth,
+//!    `crate::metrics::final_value`, as for K) identifies the plant: without friction the
 //!    two-mass speed response has `K = i_HD Km1 / (c1 + c2)` and `T_ar = (I1 + I2)/(c1 + c2) -
 //!    c2^2 / (k (c1 + c2)) + tau_c` (current loop), so `c = i_HD Km1 / K` and
 //!    `I = c T_ar` are the bench's total damping and inertia (friction lowers K: on the plant,
@@ -26,7 +27,8 @@ use super::{
     set_reals, write_outputs,
 };
 use crate::metrics::{
-    PidGains, ReactionCurve, StepMetrics, reaction_curve, step_metrics, ziegler_nichols_reaction,
+    PidGains, ReactionCurve, StepMetrics, final_value, reaction_curve, step_metrics,
+    ziegler_nichols_reaction,
 };
 use crate::results::plot::PlotLabels;
 use model_description::num::Num;
@@ -131,7 +133,7 @@ pub fn run_step(
     check_settled(&t_open, &w, config.duration)?;
     let reaction = reaction_curve(&t_open, &w, config.current)
         .map_err(|e| ExperimentError::Analysis(e.to_string()))?;
-    let (w0, w_end) = (w[0], tail_mean(&w));
+    let (w0, w_end) = (w[0], final_value(&w));
     let area: f64 = t_open
         .windows(2)
         .zip(w.windows(2))
@@ -256,7 +258,6 @@ fn unresolved_tangent(
     }))
 }
 
-/// Mean of the last tenth of a record.
 /// Samples the open-loop record must hold after the step for its tail to say whether the
 /// speed has settled.
 const MIN_SETTLING_SAMPLES: usize = 50;
@@ -264,11 +265,19 @@ const MIN_SETTLING_SAMPLES: usize = 50;
 /// steepest rate, for the record to count as settled: a first-order response gets there
 /// after 3.9 time constants, within 2 % of its final value.
 const SETTLED_RATE: f64 = 0.02;
+/// How far the mean speed of the record's last tenth may lie from that of the tenth before
+/// it, as a fraction of the speed's change over the step, for the record to count as settled.
+/// The residence time integrates the final value's error over the whole record, so a small
+/// error becomes a large one in the inertia: the SEA plant's spring mode still swings by a few
+/// per cent 0.8 s after the step, its last two tenths' means differ by 2.5 % there, and its
+/// identified inertia was 7.8 % low (1.2 s: 0.08 % and 0.8 % low; the default 1.5 s: 0.12 %
+/// and 0.5 % low). The rate test above misses such a swing when the record ends on its crest.
+const SETTLED_MEAN_CHANGE: f64 = 0.005;
 
 /// Refuses an open-loop record whose speed `w` has not settled by its end: the reaction curve
-/// takes the last value as the final one, and the damping, residence time and inertia follow
-/// from it, so a record cut short (`--duration 0.0005` gave two samples and an "identified"
-/// inertia of 1.2 kg m^2) would be reported as identified values.
+/// takes the mean of the last tenth as the final value, and the damping, residence time and
+/// inertia follow from it, so a record cut short (`--duration 0.0005` gave two samples and an
+/// "identified" inertia of 1.2 kg m^2) would be reported as identified values.
 fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), ExperimentError> {
     let lengthen = |why: String| {
         Err(ExperimentError::Analysis(format!(
@@ -299,12 +308,19 @@ fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), Experime
             100.0 * end_rate / steepest
         ));
     }
+    let mean = super::analysis::mean;
+    let (last, before) = (mean(&w[n - k..]), mean(&w[n - 2 * k..n - k]));
+    let mean_change = ((last - before) / (last - w[0])).abs();
+    if mean_change.is_nan() || mean_change > SETTLED_MEAN_CHANGE {
+        return lengthen(format!(
+            "the mean of its last {:.3} s differs from that of the {:.3} s before by {:.2} % of \
+             the step's change",
+            times[n - 1] - times[n - k],
+            times[n - k - 1] - times[n - 2 * k],
+            100.0 * mean_change
+        ));
+    }
     Ok(())
-}
-
-fn tail_mean(v: &[f64]) -> f64 {
-    let k = (v.len() / 10).max(1);
-    super::analysis::mean(&v[v.len() - k..])
 }
 
 struct StepSummary<'a> {
@@ -333,7 +349,7 @@ fn write_step(
         "open-loop speed [rad/s]".into(),
         "closed-loop angle [rad]".into(),
     ];
-    let w_end = tail_mean(open.1);
+    let w_end = final_value(open.1);
     let n = open.0.len().min(closed.0.len());
     let table = Table {
         x: "time after the step [s]".into(),
@@ -431,6 +447,21 @@ mod tests {
         let e = check_settled(&t, &w, 0.2).unwrap_err().to_string();
         assert!(e.contains("still changes at"), "{e}");
         assert!(e.contains("lengthen --duration (now 0.2 s)"), "{e}");
+        // Flat over the last tenth, so the rate test passes, but the tenth before is 1 % higher:
+        // a swing that the record ended on its crest.
+        let (t, mut w) = response(0.05, 1.0);
+        for v in &mut w[801..901] {
+            *v += 0.01;
+        }
+        let e = check_settled(&t, &w, 1.0).unwrap_err().to_string();
+        assert!(e.contains("differs from that of the"), "{e}");
+        assert!(e.contains("by 1.00 % of the step's change"), "{e}");
+        // Half a per cent is within the bound.
+        let (t, mut w) = response(0.05, 1.0);
+        for v in &mut w[801..901] {
+            *v += 0.004;
+        }
+        assert!(check_settled(&t, &w, 1.0).is_ok());
         // Two samples (`--duration 0.0005`).
         let (t, w) = response(0.1, 0.001);
         let e = check_settled(&t, &w, 0.0005).unwrap_err().to_string();
