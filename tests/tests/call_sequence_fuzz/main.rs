@@ -122,6 +122,13 @@ fn config() -> ProptestConfig {
         },
         // Shrinking replays whole sequences: bounded so that a failure reports in seconds.
         max_shrink_iters: 2000,
+        // A failing case's seed next to this file, `main.proptest-regressions` (as
+        // `protocol_fuzz.proptest-regressions`), replayed first by every later run. proptest's
+        // default looks for the crate root above a `main.rs` and took this directory for one:
+        // it wrote `tests/tests/proptest-regressions/main.txt`, named after no test.
+        failure_persistence: Some(Box::new(
+            proptest::test_runner::FileFailurePersistence::WithSource("proptest-regressions"),
+        )),
         ..default
     }
 }
