@@ -403,12 +403,13 @@ fn step_runs_unchanged_against_the_hardware_over_the_emulator() {
         return;
     };
     assert_eq!(r.ends, [RunEnd::Completed, RunEnd::Completed]);
-    // The velocities are encoder differences over a networked loop, and a host stall below
-    // HOST_DISTURBANCE is counted in one period: up to 4 ms of extra travel, 2.4 % of the
-    // tail's mean speed, about 4 % of the residence time's area. The damping (from the tail's
-    // mean, 13.003 in ten runs, two of them beside two busy loops) within 5 %, the inertia
-    // (1.429-1.450) within 10 %, the step reached.
-    assert!((r.damping - 13.0).abs() < 0.05 * 13.0, "{r:?}");
+    // The velocities are encoder differences over a networked loop, each over the bench's own
+    // clock interval, so a host stall below HOST_DISTURBANCE leaves the settled speed as it
+    // is, but logged as one period it drops up to 4 ms of the rise from the residence time's
+    // area (about 4 % of the inertia). The damping (from the tail's mean: 13.003 in eleven
+    // runs, five of them beside two busy loops) within 2 %, the inertia (1.429-1.450) within
+    // 10 %, the step reached.
+    assert!((r.damping - 13.0).abs() < 0.02 * 13.0, "{r:?}");
     assert!((r.inertia - 1.43).abs() < 0.1 * 1.43, "{r:?}");
     assert!(r.position.rise_time.is_some(), "{:?}", r.position);
     // The encoder-differenced speed (0.0196 rad/s per count) changes by about a quarter of a

@@ -10,8 +10,8 @@
 //!    (`crate::metrics::ziegler_nichols_reaction`); on `BenchHardware`, whose speed is an
 //!    encoder difference, only when the response moves by 10 counts per sample or more (see
 //!    `unresolved_tangent`: at 1 kHz this bench's never does). The mean residence time
-//!    `T_ar = integral (w_end - w) dt / w_end` (`w_end` the mean of the record's last tenth,
-//!    `crate::metrics::final_value`, as for K) identifies the plant: without friction the
+//!    `T_ar = integral (w_end - w) dt / (w_end - w_0)` (`w_end` the mean of the record's last
+//!    tenth, `crate::metrics::final_value`, as for K) identifies the plant: without friction the
 //!    two-mass speed response has `K = i_HD Km1 / (c1 + c2)` and `T_ar = (I1 + I2)/(c1 + c2) -
 //!    c2^2 / (k (c1 + c2)) + tau_c` (current loop), so `c = i_HD Km1 / K` and
 //!    `I = c T_ar` are the bench's total damping and inertia (friction lowers K: on the plant,
@@ -308,6 +308,11 @@ fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), Experime
             100.0 * end_rate / steepest
         ));
     }
+    if steepest == 0.0 {
+        // A record that never moves is settled; the reaction curve then says that it does not
+        // move (not "lengthen --duration").
+        return Ok(());
+    }
     let mean = super::analysis::mean;
     let (last, before) = (mean(&w[n - k..]), mean(&w[n - 2 * k..n - k]));
     let mean_change = ((last - before) / (last - w[0])).abs();
@@ -315,8 +320,8 @@ fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), Experime
         return lengthen(format!(
             "the mean of its last {:.3} s differs from that of the {:.3} s before by {:.2} % of \
              the step's change",
-            times[n - 1] - times[n - k],
-            times[n - k - 1] - times[n - 2 * k],
+            times[n - 1] - times[n - 1 - k],
+            times[n - 1 - k] - times[n - 1 - 2 * k],
             100.0 * mean_change
         ));
     }
@@ -456,12 +461,19 @@ mod tests {
         let e = check_settled(&t, &w, 1.0).unwrap_err().to_string();
         assert!(e.contains("differs from that of the"), "{e}");
         assert!(e.contains("by 1.00 % of the step's change"), "{e}");
-        // Half a per cent is within the bound.
-        let (t, mut w) = response(0.05, 1.0);
-        for v in &mut w[801..901] {
-            *v += 0.004;
+        // The bound is half a per cent: 0.49 % passes, 0.51 % is refused.
+        for (offset, settled) in [(0.0049, true), (0.0051, false)] {
+            let (t, mut w) = response(0.05, 1.0);
+            for v in &mut w[801..901] {
+                *v += offset;
+            }
+            assert_eq!(check_settled(&t, &w, 1.0).is_ok(), settled, "{offset}");
         }
+        // A record that never moves passes here, and the reaction curve says it does not move.
+        let (t, w) = (response(0.05, 1.0).0, vec![0.25; 1001]);
         assert!(check_settled(&t, &w, 1.0).is_ok());
+        let e = reaction_curve(&t, &w, 2.0).unwrap_err().to_string();
+        assert!(e.contains("does not move") && e.contains("0.25"), "{e}");
         // Two samples (`--duration 0.0005`).
         let (t, w) = response(0.1, 0.001);
         let e = check_settled(&t, &w, 0.0005).unwrap_err().to_string();

@@ -41,7 +41,7 @@ pub const TORQUE_SERIES: [(f64, f64); HARMONICS + 1] = [
 /// largest value of `-TORQUE_SERIES` (its minimum -1.93555 lies at 13.3 % of the cycle; the
 /// positive peak is +1.0020). The bench scaled its gait "such that the maximum applied external
 /// torque is 9 N m", so the gait's torque series is divided by this before `kneeTorqueAmplitude`
-/// scales it (see the module docs, "Torque scaling"). Checked against the series in the tests.
+/// scales it (see the `gait` module's docs, "Torque scaling"). Checked against the series in the tests.
 pub const TORQUE_EXTERNAL_PEAK: f64 = 1.935_554_607_509_505_4;
 
 /// The Fourier series f(x) = a0 + Σ a_n cos(nωx) + b_n sin(nωx), ω = 2π, x = t/period.
