@@ -9,7 +9,7 @@
 //! that is not Python: `kneebench run`, a sweep's workers, the isolated host process),
 //! `PyGILState_Ensure` creates one and `PyGILState_Release` destroys it again, in every call:
 //! for the peer comparison's `FirstOrder` that is about 90 % of the cost of a step (37-44 us
-//! per step against 3.3-4.2 us with a thread state kept; `tests/benches/peers.rs`). In a Python
+//! per step against 3.3-4.2 us with a thread state kept; `tests/peers/benches/peers.rs`). In a Python
 //! host (fmpy) the calling thread has a thread state of its own and the pair is cheap.
 //!
 //! # What

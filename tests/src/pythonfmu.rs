@@ -1,5 +1,5 @@
 //! The PythonFMU export used as the foreign FMU of the tests (`tests/tests/foreign_fmu.rs`) and
-//! of the peer comparison (`tests/benches/peers.rs`): its Python source, the build through the
+//! of the peer comparison (`tests/peers/benches/peers.rs`): its Python source, the build through the
 //! venv's `pythonfmu`, and the Python runtime a non-Python host must provide (see the module
 //! documentation of `foreign_fmu.rs` for why).
 

@@ -1,4 +1,4 @@
-//! The peer comparison, one command, one run: `cargo bench -p kneebench-tests --bench peers`.
+//! The peer comparison, one command, one run: `cargo bench -p kneebench-peers --bench peers`.
 //!
 //! For each FMU of the table (our `GaitReference`, `PidController`, `BenchPlant` in its default
 //! SEA configuration, and the PythonFMU export `FirstOrder` of [`kneebench_tests::pythonfmu`])
@@ -70,7 +70,7 @@ use kneebench_harness::{Fmu, LoadOptions, Outcome, RunConfig, System};
 use kneebench_tests::pythonfmu::{self, PythonRuntime};
 use kneebench_tests::*;
 
-#[path = "shared/process.rs"]
+#[path = "../../benches/shared/process.rs"]
 mod process;
 use model_description::{Causality, ModelDescription, VariableKind};
 use process::{Timing, build_kneebench, time_process};
