@@ -30,6 +30,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 use model_description::ModelDescription;
+use zip::CompressionMethod;
 
 use crate::fmi2::*;
 use crate::isolate::remote::RemoteFmu;
@@ -181,6 +182,18 @@ pub enum LoadError {
         entry: String,
         /// What is wrong with it.
         reason: &'static str,
+    },
+    /// A file entry compressed with a method other than store or deflate.
+    #[error(
+        "refusing archive entry '{entry}': it is compressed with {method}; kneebench reads \
+         stored and deflated entries (zip the FMU again with deflate)"
+    )]
+    UnsupportedCompression {
+        /// The entry name.
+        entry: String,
+        /// The method's name and number ("Bzip2 (method 12)"), or its number alone for a
+        /// number no method was given ("method 77").
+        method: String,
     },
     /// A symbolic link entry.
     #[error("refusing archive entry '{entry}': symbolic links are not allowed in an FMU")]
@@ -470,6 +483,29 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
         let is_dir = entry.is_dir() || name.ends_with('/');
         if is_dir && !wanted(&rel) {
             continue;
+        }
+        // The zip crate is built with the deflate codec only, as FMU tools write them: another
+        // method (bzip2, LZMA, zstd...) is refused by name before anything is written, not
+        // met later as an I/O error of the target file ("cannot extract to ...").
+        let method = entry.compression();
+        if !is_dir
+            && !matches!(
+                method,
+                CompressionMethod::Stored | CompressionMethod::Deflated
+            )
+        {
+            // The crate gives the method's number only through a deprecated accessor.
+            #[expect(deprecated)]
+            let number = method.to_u16();
+            let known = method.to_string();
+            return Err(LoadError::UnsupportedCompression {
+                entry: name,
+                method: if known == "Unknown" {
+                    format!("method {number}")
+                } else {
+                    format!("{known} (method {number})")
+                },
+            });
         }
         if is_dir {
             fs::create_dir_all(&target).map_err(io_err("cannot create directory", &target))?;

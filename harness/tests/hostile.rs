@@ -127,6 +127,68 @@ fn symlink_entry_is_refused() {
     assert!(load_err(&p).to_string().contains("symbolic link"));
 }
 
+/// Sets the compression method of entry `name` of the archive at `path` to `method`, in its
+/// local header and its central directory record (the zip crate here writes only the methods
+/// it reads: store and deflate).
+fn set_method(path: &Path, name: &str, method: u16) {
+    let mut bytes = std::fs::read(path).unwrap();
+    let u16_at = |b: &[u8], at: usize| usize::from(u16::from_le_bytes([b[at], b[at + 1]]));
+    let mut patched = 0;
+    // (signature, offset of the method, offset of the name's length, offset of the name)
+    for (signature, method_at, length_at, name_at) in
+        [(b"PK\x03\x04", 8, 26, 30), (b"PK\x01\x02", 10, 28, 46)]
+    {
+        for start in 0..bytes.len().saturating_sub(name_at) {
+            if &bytes[start..start + 4] != signature {
+                continue;
+            }
+            let length = u16_at(&bytes, start + length_at);
+            let here = bytes.get(start + name_at..start + name_at + length);
+            if here == Some(name.as_bytes()) {
+                bytes[start + method_at..start + method_at + 2]
+                    .copy_from_slice(&method.to_le_bytes());
+                patched += 1;
+            }
+        }
+    }
+    assert_eq!(
+        patched, 2,
+        "{name}: one local header and one central record"
+    );
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// An entry compressed with a method the harness does not read (bzip2, as `zip -Z bzip2` or
+/// Python's `zipfile` writes it) is refused by name before anything of it is written, not
+/// reported as an I/O error of the file it was being extracted to.
+#[test]
+fn an_entry_compressed_with_another_method_is_refused_by_name() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("bzip2.fmu");
+    let stored = SimpleFileOptions::default().compression_method(zip::CompressionMethod::Stored);
+    archive(&p, |z| {
+        z.start_file("resources/table.csv", stored).unwrap();
+        z.write_all(b"t,v\n0,1\n").unwrap();
+    });
+    set_method(&p, "resources/table.csv", 12);
+    let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+    assert!(
+        matches!(&e, LoadError::UnsupportedCompression { entry, method }
+            if entry == "resources/table.csv" && method == "Bzip2 (method 12)"),
+        "{e}"
+    );
+    let e = load_err(&p).to_string();
+    assert!(
+        e.contains("'resources/table.csv': it is compressed with Bzip2 (method 12)")
+            && e.contains("deflate"),
+        "{e}"
+    );
+    // A method number nobody assigned is named as such.
+    set_method(&p, "resources/table.csv", 77);
+    let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+    assert!(e.to_string().contains("compressed with method 77;"), "{e}");
+}
+
 #[test]
 fn zip_bomb_entry_is_stopped_by_the_decompressed_size() {
     let d = tempfile::tempdir().unwrap();
