@@ -494,16 +494,12 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
                 CompressionMethod::Stored | CompressionMethod::Deflated
             )
         {
-            // The crate gives the method's number only through a deprecated accessor.
-            #[expect(deprecated)]
-            let number = method.to_u16();
-            let known = method.to_string();
+            let number = shared::method_code(method);
             return Err(LoadError::UnsupportedCompression {
                 entry: name,
-                method: if known == "Unknown" {
-                    format!("method {number}")
-                } else {
-                    format!("{known} (method {number})")
+                method: match CompressionMethod::name_from_u16(number) {
+                    "Unknown" => format!("method {number}"),
+                    known => format!("{known} (method {number})"),
                 },
             });
         }

@@ -171,10 +171,24 @@ fn an_entry_compressed_with_another_method_is_refused_by_name() {
         z.write_all(b"t,v\n0,1\n").unwrap();
     });
     set_method(&p, "resources/table.csv", 12);
-    let e = extract_in_sandbox(&p, &ArchiveLimits::default()).unwrap_err();
+    let sandbox = tempfile::tempdir().unwrap();
+    let e = extract_archive(&p, sandbox.path(), &ArchiveLimits::default()).unwrap_err();
     assert!(
         matches!(&e, LoadError::UnsupportedCompression { entry, method }
             if entry == "resources/table.csv" && method == "Bzip2 (method 12)"),
+        "{e}"
+    );
+    // Refused before anything of it was written (the entries before it were extracted).
+    assert!(sandbox.path().join("modelDescription.xml").is_file());
+    assert!(!sandbox.path().join("resources/table.csv").exists());
+    // So is an entry that a run leaves in the archive (a binary, read later from there).
+    let binary = d.path().join("bzip2-binary.fmu");
+    archive(&binary, |_| {});
+    set_method(&binary, "binaries/linux64/kbtest.so", 12);
+    let e = load_err(&binary);
+    assert!(
+        matches!(&e, LoadError::UnsupportedCompression { entry, .. }
+            if entry == "binaries/linux64/kbtest.so"),
         "{e}"
     );
     let e = load_err(&p).to_string();

@@ -398,8 +398,9 @@ fn prune(cache: &Path) {
     }
 }
 
-/// The zip compression method's number (the key compares methods).
-fn method_code(m: zip::CompressionMethod) -> u16 {
+/// The zip compression method's number (the key compares methods; `extract_entries` names a
+/// method it refuses by it). The crate gives it only through a deprecated accessor.
+pub(crate) fn method_code(m: zip::CompressionMethod) -> u16 {
     #[allow(deprecated)]
     m.to_u16()
 }
