@@ -484,16 +484,18 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
         if is_dir && !wanted(&rel) {
             continue;
         }
+        if is_dir {
+            fs::create_dir_all(&target).map_err(io_err("cannot create directory", &target))?;
+            continue;
+        }
         // The zip crate is built with the deflate codec only, as FMU tools write them: another
         // method (bzip2, LZMA, zstd...) is refused by name before anything is written, not
         // met later as an I/O error of the target file ("cannot extract to ...").
         let method = entry.compression();
-        if !is_dir
-            && !matches!(
-                method,
-                CompressionMethod::Stored | CompressionMethod::Deflated
-            )
-        {
+        if !matches!(
+            method,
+            CompressionMethod::Stored | CompressionMethod::Deflated
+        ) {
             let number = shared::method_code(method);
             return Err(LoadError::UnsupportedCompression {
                 entry: name,
@@ -502,10 +504,6 @@ pub(crate) fn extract_entries<R: Read + io::Seek>(
                     known => format!("{known} (method {number})"),
                 },
             });
-        }
-        if is_dir {
-            fs::create_dir_all(&target).map_err(io_err("cannot create directory", &target))?;
-            continue;
         }
         if entry.size() > limits.max_entry_bytes {
             return Err(LoadError::EntryTooLarge {

@@ -239,9 +239,10 @@ pub struct ReactionCurve {
 }
 
 /// The final value of a step response: the mean of the record's last tenth (at least its last
-/// sample; NaN for an empty record, which [`reaction_curve`] refuses before). One last sample carries its noise whole: a speed differenced from encoder counts
-/// is off by up to a count per sample, 2 % of the bench's open-loop step (0.0196 rad/s in
-/// 0.91 rad/s), and the damping identified from it moved by that much between runs.
+/// sample; NaN for an empty record, which [`reaction_curve`] refuses before). One last sample
+/// carries its noise whole: a speed differenced from encoder counts is off by up to a count
+/// per sample, 2 % of the bench's open-loop step (0.0196 rad/s in 0.91 rad/s), and the damping
+/// identified from it moved by that much between runs.
 pub fn final_value(values: &[f64]) -> f64 {
     let k = (values.len() / 10).max(1);
     let tail = &values[values.len().saturating_sub(k)..];

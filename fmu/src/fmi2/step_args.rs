@@ -69,7 +69,7 @@ pub(super) fn fits(t: f64, h: f64, time: f64, stop: Option<f64>, max: f64) -> bo
     (t - time).abs() <= TIME_TOLERANCE
         && h > 0.0
         && h <= max
-        && h <= f64::MAX
+        // With t finite (the first test), a finite end implies a finite h.
         && t + h <= f64::MAX
         && stop.is_none_or(|stop| t + h <= stop)
 }

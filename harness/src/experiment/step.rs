@@ -313,8 +313,8 @@ fn check_settled(times: &[f64], w: &[f64], duration: f64) -> Result<(), Experime
         // move (not "lengthen --duration").
         return Ok(());
     }
-    let mean = super::analysis::mean;
-    let (last, before) = (mean(&w[n - k..]), mean(&w[n - 2 * k..n - k]));
+    // The final value the reaction curve reads (the last tenth's mean) against the tenth before.
+    let (last, before) = (final_value(w), super::analysis::mean(&w[n - 2 * k..n - k]));
     let mean_change = ((last - before) / (last - w[0])).abs();
     if mean_change.is_nan() || mean_change > SETTLED_MEAN_CHANGE {
         return lengthen(format!(
