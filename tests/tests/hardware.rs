@@ -296,10 +296,16 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 ///   extra loop delay of about `delta = mean(lastLateness + lastReplyTime) + d`, with the
 ///   FMU's own per-step measurements and `d` = 50 us for the master's and controllers' work;
 ///   a trajectory whose input and sampling are shifted by `delta` moves by at most
-///   `2 delta max|dx/dt|`. A single stall (a late wake-up or reply of `s_k` at row `k`, from
-///   the same measurements) adds `max|dx/dt| s_k` to that row's sample, and holding the
-///   previous command for up to `s = max s_k` adds at most `max|d2x/dt2| s^2 / 2` to the
-///   trajectory;
+///   `2 delta max|dx/dt|`. A single stall (a late wake-up or reply of `s_j` at row `j`, from
+///   the same measurements) adds `max|dx/dt| s_j` to that row's sample, and holding the
+///   previous command for up to `s = max s_j` adds at most `max|d2x/dt2| s^2 / 2` to the
+///   trajectory. The loop acts on that displaced sample, so the trajectory carries the
+///   displacement until the position loop has rejected it: its **memory** `W`, three time
+///   constants `3 / (zeta omega_n)` of the actuation side under the position PID (49 rows with
+///   the study's gains; [`stall_memory_rows`]). Row `k` therefore allows for
+///   `s'_k = max s_j` over `k - W <= j <= k`. With `s_k` alone the bound failed in CI and here
+///   once in three runs on a loaded host: a run of 25 late rows (1 to 3 ms) left it by up to
+///   30 % in the 10 rows after the last late one;
 /// * the emulator's discretisation: it integrates the plant exactly (matrix exponential for a
 ///   held input) over the wall-time intervals between frames, so it adds nothing beyond the
 ///   timing above;
@@ -307,7 +313,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 ///   most the peak sensitivity `Ms`, taken as 2 (gain margin 2 or more; the study's loops are
 ///   well damped).
 ///
-/// So row `k` must agree within `Ms (2 q + 2 delta R + R s_k + A s^2 / 2)`, `R` and `A` the
+/// So row `k` must agree within `Ms (2 q + 2 delta R + R s'_k + A s^2 / 2)`, `R` and `A` the
 /// largest rate and acceleration of `x` in the plant run (the acceleration from a 10-period
 /// stencil, past the encoders' quantisation). For the spring deflection and the shaft torque,
 /// two more things: the plant records the true deflection and the hardware the difference of
@@ -564,8 +570,19 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let hw_col = |c: &str| hw.column(&format!("{name}.{c}")).unwrap();
     let stall = stalls(&hw);
     let s_max = stall.iter().cloned().fold(0.0, f64::max);
+    // The loop's memory of a stall: the largest stall of the rows that the position loop has
+    // not yet recovered from (see the doc comment's "memory").
+    let memory = stall_memory_rows(&StudyGains::for_actuator(Actuator::Sea));
+    let recent_stall: Vec<f64> = (0..stall.len())
+        .map(|k| {
+            stall[k.saturating_sub(memory)..=k]
+                .iter()
+                .cloned()
+                .fold(0.0, f64::max)
+        })
+        .collect();
     eprintln!(
-        "hardware run (attempt {attempt}): {} overruns, mean shift {:.0} us, largest stall {:.0} us: the comparison sees {} period(s) of extra delay",
+        "hardware run (attempt {attempt}): {} overruns, mean shift {:.0} us, largest stall {:.0} us: the comparison sees {} period(s) of extra delay; a stall is remembered for {memory} rows",
         hw_col("overrunCount").last().unwrap(),
         delta * 1e6,
         s_max * 1e6,
@@ -598,7 +615,8 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         let rate = own_rate.max(angle_share * rate1.max(rate2));
         let accel = own_accel.max(angle_share * accel1.max(accel2));
         let sustained = sustained_of(recorded, quantum, rate, delta);
-        let tol = |k: usize| sustained + ms * (rate * stall[k] + 0.5 * accel * s_max * s_max);
+        let tol =
+            |k: usize| sustained + ms * (rate * recent_stall[k] + 0.5 * accel * s_max * s_max);
         let (mut worst, mut worst_ratio, mut largest_tol) = (0.0f64, 0.0f64, 0.0f64);
         for (k, (x, y)) in a.iter().zip(&b).enumerate() {
             let d = (x - y).abs();
@@ -621,6 +639,20 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             "{signal}: range {range} vs sustained tolerance {quiet} on a quiet host"
         );
     }
+}
+
+/// How many rows after a stall the study's SEA position loop still carries its effect: three
+/// time constants `3 / (zeta omega_n)` of the actuation side under the position PID (gains in
+/// amperes per radian, through the test motor's torque per ampere), the spring and the
+/// integral term neglected: with the study's gains `omega_n` = 85 rad/s, `zeta` = 0.72, 49 ms.
+fn stall_memory_rows(gains: &kneebench_harness::study::StudyGains) -> usize {
+    use kneebench_harness::study::{ACTUATION_DAMPING, ACTUATION_INERTIA, TEST_TORQUE_PER_AMPERE};
+    let (kp, _, kd) = gains.position;
+    let stiffness = kp * TEST_TORQUE_PER_AMPERE;
+    let damping = kd * TEST_TORQUE_PER_AMPERE + ACTUATION_DAMPING;
+    let omega_n = (stiffness / ACTUATION_INERTIA).sqrt();
+    let zeta = damping / (2.0 * (stiffness * ACTUATION_INERTIA).sqrt());
+    (3.0 / (zeta * omega_n) / H).ceil() as usize
 }
 
 /// How a hardware run driven step by step ended.
