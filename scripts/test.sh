@@ -22,11 +22,11 @@ trap 'rm -f "$log"; rm -rf "$KNEEBENCH_CACHE_DIR"' EXIT
 # exit status is still cargo's: nonzero when anything failed).
 # The Python package is selected although it has no Rust tests (cargo builds nothing of it
 # here): its dependencies' features (pyo3's syn, numpy's num-complex) then unify into this
-# build, and with getrandom's (python/Cargo.toml) the maturin build below resolves the
-# harness exactly as this one did and reuses its compiled units (23 s where it rebuilt the
-# harness and its dependency graph in 115-190 s).
-# The peer comparison is not among them (tests/peers): a benchmark with no tests, whose fmi-rs would turn
-# on codecs of `zip` in the harness under test that the shipped `kneebench` does not have.
+# build, and with the feature reuse-test-build (python/Cargo.toml) the maturin build below
+# resolves the harness exactly as this one did and reuses its compiled units (23 s where it
+# rebuilt the harness and its dependency graph in 115-190 s).
+# The peer comparison (tests/peers) is excluded: a benchmark with no tests, whose fmi-rs
+# would turn on codecs of `zip` in the harness under test that the shipped `kneebench` lacks.
 cargo test --workspace --exclude kneebench-peers --locked --release --no-fail-fast 2>&1 | tee "$log"
 echo "== python package (maturin wheel into the venv, pytest)"
 # The kneebench binaries and the FMU library next to them (the Python tests compare with the
@@ -44,7 +44,7 @@ rm -rf "$target_dir/wheels"
 # The FMU host of isolated FMUs ships in the wheel next to the native module
 # (kneebench.run(..., isolate="auto"), the default).
 install -m 0755 "$target_dir/release/kneebench-fmu-host" python/kneebench/kneebench-fmu-host
-"$KNEEBENCH_PYTHON" -m maturin build --release --locked --quiet -i "$KNEEBENCH_PYTHON" -m python/Cargo.toml -o "$target_dir/wheels" >&2
+"$KNEEBENCH_PYTHON" -m maturin build --release --locked --quiet --features reuse-test-build -i "$KNEEBENCH_PYTHON" -m python/Cargo.toml -o "$target_dir/wheels" >&2
 "$KNEEBENCH_PYTHON" -m pip install --quiet --disable-pip-version-check --no-deps --force-reinstall "$target_dir"/wheels/kneebench-*.whl
 "$KNEEBENCH_PYTHON" -m pytest python/tests -q -p no:cacheprovider 2>&1 | tee -a "$log"
 # One closing line for the whole suite (cargo prints one per test binary, pytest one).
