@@ -212,7 +212,11 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
             ("springDeflection", res1 + res2, 0.0),
             ("testMotorCurrent", 1e-9, 0.0),
             ("loadMotorCurrent", 1e-9, 0.0),
-            ("transducerTorque", 340.54 * (res1 + res2), bias),
+            (
+                "transducerTorque",
+                kneebench_harness::study::SPRING_STIFFNESS * (res1 + res2),
+                bias,
+            ),
         ] {
             let a = col(&plant.results, name).unwrap();
             let b = col(&hw.results, name).unwrap();
@@ -300,11 +304,14 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 ///   the same measurements) displaces that row's sample beyond that shift by up to
 ///   `max|dx/dt| (s_j - s_mean)` (the run's mean stall is in `delta`), and holding the
 ///   previous command for `s_j` displaces the trajectory by up to `max|d2x/dt2| s_j^2 / 2`:
-///   `D_j = R max(s_j - s_mean, 0) + A s_j^2 / 2`. The controllers act on the displaced sample and trajectory,
-///   so the loop carries the displacement on, fading as its slowest mode does (its **memory**,
-///   the decay rate `lambda` from [`slowest_decay`]: 60.6/s for the angles, through the
-///   position loop; 10.6/s for the deflection and the torque, through the torque loop). Row
-///   `k` therefore allows for `D'_k = max D_j exp(-lambda (k - j) h)` over `j <= k`. With each
+///   `D_j = R max(s_j - s_mean, 0) + A s_j^2 / 2`. The controllers act on the displaced
+///   sample and trajectory, so the loop carries the displacement on, fading as its slowest
+///   mode does (its **memory**, the decay rate `lambda` from [`slowest_decay`]: 60.6/s for the
+///   actuation angle, through the position loop; 10.6/s for the load angle, the deflection
+///   and the torque, through the torque loop, whose modes move the load side). Row `k`
+///   therefore allows for `D'_k = max D_j exp(-lambda (k - j) h)` over `j <= k`. The largest,
+///   not the sum: the lateness is measured against the fixed schedule, so a run of late rows
+///   is one lag that each of its rows' stalls holds whole, not stalls that add up. With each
 ///   row's own stall alone (and `A s^2 / 2` for the run's largest stall on every row) the bound
 ///   failed in CI (stop 43: 0.0038 > 0.0032 rad after a 4.6 ms stall) and here in 2 of 3 runs
 ///   on a loaded host: a run of 25 late rows (1 to 3 ms) left it by up to 30 % in the 10 rows
@@ -330,9 +337,10 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// mean shift `delta` of 100 us) the sustained part `Ms (2 q + 2 delta R)` is finer than `R h`,
 /// what one extra period of delay in the hardware path would make (for the two angles), and
 /// every signal moves by more than 5 times its sustained tolerance. A stall widens the rows it
-/// is carried into: the kept run prints on what share of its rows one period of delay at the
-/// largest rate still exceeds the tolerance, and the same share with each row's own stall only
-/// (the bound before the memory), so that the power the memory costs is seen.
+/// is carried into: the kept run prints on what share of the swing's rows (where an angle
+/// moves at half its largest rate or more) one period of delay, the angle's rate there times
+/// `h`, still exceeds the row's tolerance, for the weaker of the two angles, and the same share
+/// as if each stall counted on its own row only, so that the power the memory costs is seen.
 ///
 /// **Disturbed runs.** A busy host widens the tolerance with its mean shift: 240 us already
 /// hides one period (seen on CI, and on this machine idle, where a SCHED_FIFO thread's 1 ms
@@ -340,14 +348,17 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// periods can make the emulated bench stop itself (its protection or its heartbeat watchdog).
 /// So the hardware run is tried up to five times on a fresh emulator: a run that ended early
 /// having measured its own disturbance (a stall above 5 ms, the watchdog's reason, or a safety
-/// interlock's trip after a stall above two periods, the stall of the tripping step read from
-/// the trip's log, or a trip while the loops still carried more than a period of the host's
-/// stalls, at the torque loop's decay) is run again, one that ended early without it fails the
+/// interlock's trip after a stall above two periods, the run's largest lateness read from the
+/// trip's log, or a trip while the loops still carried half a period of lag or more from the
+/// host's stalls at the last recorded row, at the torque loop's decay: seen once, the master up
+/// to 0.95 ms behind over 8 rows just before a regenerated-power trip, where the plant run
+/// peaks at a quarter of the limit) is run again, one that ended early without it fails the
 /// test; a completed run is kept (the least shifted one) and the attempts stop at the first
 /// that sees one period of delay. The kept run is always asserted on, with the number of
 /// periods its tolerance sees printed. A completed run with a stall above 5 ms is disturbed
 /// too: the single-stall terms bound a stall of a few periods (one run left them by 2 % after
-/// an 8.9 ms stall). Only when every attempt measured a host that cannot hold a 1 kHz loop
+/// an 8.9 ms stall); so is one on which one period of delay would show on less than a quarter
+/// of the swing. Only when every attempt measured a host that cannot hold a 1 kHz loop
 /// (each disturbed, or a mean shift of 2 ms or more) is nothing compared, and the test says
 /// so.
 #[test]
@@ -466,10 +477,10 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let column = |signal: &str| plant.column(&format!("{name}.{signal}")).unwrap();
     let (rate1, accel1) = rate_and_acceleration(&column("actuationEncoderAngle"));
     let (rate2, accel2) = rate_and_acceleration(&column("loadEncoderAngle"));
-    // The mean shift `delta` of a hardware run (the mean stall of its rows after the initial
-    // one, plus the master's work).
-    let mean_shift =
-        |stall: &[f64]| stall[1..].iter().sum::<f64>() / (stall.len() - 1) as f64 + 50e-6;
+    // The mean stall `s_mean` of a hardware run's rows after the initial one, and its mean
+    // shift `delta` (that plus the master's work).
+    let mean_stall = |stall: &[f64]| stall[1..].iter().sum::<f64>() / (stall.len() - 1) as f64;
+    let mean_shift = |stall: &[f64]| mean_stall(stall) + 50e-6;
     // The sustained tolerance of a signal of count `quantum` moving at `rate`, and the smallest
     // whole number of periods of extra delay in the hardware path that it would not hide
     // (`n R h > sustained`) for the slower-reaching of the two angles.
@@ -492,9 +503,9 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         1,
         "the tolerance hides one period of delay"
     );
-    // How long the loops carry a stall's displaced sample (the doc comment's "memory"): the
-    // angles through the position loop, the deflection and the torque through the slower of
-    // it and the torque loop (the load side against the spring, the actuation side held).
+    // How long the loops carry a stall's displacement (the doc comment's "memory"): the
+    // actuation angle through the position loop; the load angle, the deflection and the torque
+    // through the slower of it and the torque loop, whose modes move the load side.
     let (position_decay, torque_decay) = sea_loop_decays();
     let torque_decay = torque_decay.min(position_decay);
     // Row by row, the larger of the row's own value (a stall, or the displacement it makes) and
@@ -515,7 +526,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     // covers, and its held command's) is carried on.
     let row_tolerances =
         |sustained: f64, rate: f64, accel: f64, stall: &[f64], decay: f64| -> Vec<f64> {
-            let mean = stall[1..].iter().sum::<f64>() / (stall.len() - 1) as f64;
+            let mean = mean_stall(stall);
             let displaced: Vec<f64> = stall
                 .iter()
                 .map(|s| rate * (s - mean).max(0.0) + 0.5 * accel * s * s)
@@ -525,17 +536,32 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
                 .map(|d| sustained + ms * d)
                 .collect()
         };
-    // The share of a run's rows on which one period of extra delay at an angle's largest rate
-    // (`R h`) would leave the row's tolerance, the smaller of the two angles': the power of the
-    // comparison with this run's stalls (reported; with `decay` infinite, without the memory).
-    let seen_share = |stall: &[f64], delta: f64, decay: f64| {
-        [(res1, rate1, accel1), (res2, rate2, accel2)]
-            .iter()
-            .map(|&(q, r, a)| {
-                let tol = row_tolerances(sustained_of(0.0, q, r, delta), r, a, stall, decay);
-                tol.iter().filter(|&&t| r * H > t).count() as f64 / tol.len() as f64
-            })
-            .fold(1.0, f64::min)
+    // The share of the swing's rows (where an angle moves at half its largest rate or more, its
+    // rate from a 10-period stencil of the plant run) on which one period of extra delay, the
+    // angle's rate there times `h`, would leave the row's tolerance, the smaller of the two
+    // angles': the power of the comparison with this run's stalls (`memory` false: as if
+    // each stall counted on its own row only).
+    let seen_share = |stall: &[f64], delta: f64, memory: bool| {
+        [
+            ("actuationEncoderAngle", res1, rate1, accel1, position_decay),
+            ("loadEncoderAngle", res2, rate2, accel2, torque_decay),
+        ]
+        .iter()
+        .map(|&(signal, q, r, a, decay)| {
+            let decay = if memory { decay } else { f64::INFINITY };
+            let tol = row_tolerances(sustained_of(0.0, q, r, delta), r, a, stall, decay);
+            let x = column(signal);
+            let (mut swing, mut seen) = (0usize, 0usize);
+            for k in 5..x.len().saturating_sub(5) {
+                let local = ((x[k + 5] - x[k - 5]) / (10.0 * H)).abs();
+                if local >= 0.5 * r {
+                    swing += 1;
+                    seen += usize::from(local * H > tol[k]);
+                }
+            }
+            seen as f64 / swing.max(1) as f64
+        })
+        .fold(1.0, f64::min)
     };
     // The hardware run, at most five attempts (the rules: the doc comment's "Disturbed runs").
     const ATTEMPTS: usize = 5;
@@ -570,9 +596,12 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         if matches!(out.outcome, Outcome::Completed { .. }) {
             let shift = mean_shift(&stall);
             let seen = periods_seen(shift);
+            let share = seen_share(&stall, shift, true);
             // The single-stall terms bound a stall of a few periods; one above 5 ms
-            // (disturbed, as below) left the bound by 2 % once, at 8.9 ms.
-            let comparable = seen <= 8 && largest <= disturbance;
+            // (disturbed, as below) left the bound by 2 % once, at 8.9 ms. A run whose stalls
+            // leave less than a quarter of the swing able to show one period of delay compares
+            // too little (34-62 % in runs without a stall above 5 ms here).
+            let comparable = seen <= 8 && largest <= disturbance && share >= 0.25;
             if comparable && best.as_ref().is_none_or(|b| shift < b.3) {
                 best = Some((out.results, stats, attempt, shift));
             }
@@ -580,10 +609,11 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
                 break;
             }
             eprintln!(
-                "attempt {attempt}: the host's mean shift of {:.0} us hides {} period(s) of delay, largest stall {:.0} us; run again",
+                "attempt {attempt}: the host's mean shift of {:.0} us hides {} period(s) of delay, largest stall {:.0} us, one shows on {:.0} % of the swing; run again",
                 shift * 1e6,
                 seen - 1,
-                largest * 1e6
+                largest * 1e6,
+                share * 100.0
             );
             continue;
         }
@@ -593,12 +623,13 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         // The step that tripped is not a recorded row: its lateness is in the trip's log.
         let tripping = master_lateness(&out.outcome).map_or(0.0, |late| late + H);
         let largest = largest.max(tripping);
-        // The displacement the loops still carried from the host's stalls when the run ended
-        // (the slower loop's memory): a run of late rows, none above two periods, was seen to
-        // end in the regenerative-power interlock (stalls of 0.1-1.9 ms in the 14 rows before).
+        // The lag the loops still carried from the host's stalls at the last recorded row (the
+        // slower loop's memory): a run of late rows, none above two periods, was seen to end in
+        // the regenerative-power interlock (the master up to 0.95 ms behind over the 8 rows
+        // ending 6 rows before the trip).
         let carried_at_end = carried(&stall, torque_decay).last().copied().unwrap_or(0.0);
         let disturbed = largest > disturbance
-            || (interlock && (largest > 2.0 * H || carried_at_end.max(tripping) > H))
+            || (interlock && (largest > 2.0 * H || carried_at_end > 0.5 * H))
             || matches!(stats.safe_reason, Some(r) if r == reason::HEARTBEAT_TIMEOUT);
         assert!(
             disturbed,
@@ -631,13 +662,13 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let stall = stalls(&hw);
     let s_max = stall.iter().cloned().fold(0.0, f64::max);
     eprintln!(
-        "hardware run (attempt {attempt}): {} overruns, mean shift {:.0} us, largest stall {:.0} us: the comparison sees {} period(s) of extra delay; one at the largest rate on {:.0} % of the rows ({:.0} % without the memory; stalls carried at {position_decay:.1}/s and {torque_decay:.1}/s)",
+        "hardware run (attempt {attempt}): {} overruns, mean shift {:.0} us, largest stall {:.0} us: the comparison sees {} period(s) of extra delay; one on {:.0} % of the swing ({:.0} % without the memory; stalls carried at {position_decay:.1}/s and {torque_decay:.1}/s)",
         hw_col("overrunCount").last().unwrap(),
         delta * 1e6,
         s_max * 1e6,
         periods_seen(delta),
-        seen_share(&stall, delta, position_decay) * 100.0,
-        seen_share(&stall, delta, f64::INFINITY) * 100.0
+        seen_share(&stall, delta, true) * 100.0,
+        seen_share(&stall, delta, false) * 100.0
     );
     let stiffness = SPRING_STIFFNESS;
     // (signal, the count of what the controllers see, what the two runs' records differ by in
@@ -651,7 +682,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     //   of its own rate and the angles' (scaled by the stiffness for the torque).
     for (signal, quantum, recorded, angle_share, decay) in [
         ("actuationEncoderAngle", res1, 0.0, 0.0, position_decay),
-        ("loadEncoderAngle", res2, 0.0, 0.0, position_decay),
+        ("loadEncoderAngle", res2, 0.0, 0.0, torque_decay),
         (
             "springDeflection",
             res1 + res2,
@@ -706,9 +737,12 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
 /// `J s^3 + (b + G kd) s^2 + (k + G kp) s + G ki`, less a real root within 5 % of a real zero
 /// of the PID (`kd s^2 + kp s + ki`). Such a root is the integral's slow pole, which the
 /// controller's zero nearly cancels: it carries almost nothing of a disturbance (in the
-/// study's position loop a pole at -1.02/s beside a zero at -1.017/s, its share of a
-/// displaced sample's effect about 0.2 %). The study's SEA: the position loop 60.6/s (time
-/// constant 16.5 ms), the torque loop 10.6/s (94 ms; poles -22.9 and -10.6 +- 28.5j).
+/// study's position loop a pole at -1.0175/s beside a zero at -1.0155/s, its share of a
+/// displaced sample's effect about 0.2 %, of a held command's about 1.2 %). The study's SEA:
+/// the position loop 60.6/s (time constant 16.5 ms), the torque loop 10.6/s (94 ms; poles
+/// -22.9 and -10.6 +- 28.5j; the load side alone against the spring: with the actuation side
+/// free the coupled loops' slowest mode is 9.7/s, and the derivative filters and the period's
+/// delay, left out, make the modes faster). Panics on an unstable loop.
 fn slowest_decay(mass: [f64; 3], loop_gain: f64, (kp, ki, kd): (f64, f64, f64)) -> f64 {
     let [inertia, damping, stiffness] = mass;
     // The monic cubic s^3 + a2 s^2 + a1 s + a0.
@@ -746,13 +780,18 @@ fn slowest_decay(mass: [f64; 3], loop_gain: f64, (kp, ki, kd): (f64, f64, f64)) 
     } else {
         Vec::new()
     };
-    modes
+    let decay = modes
         .iter()
         .filter(|&&(p, is_real)| {
             !(is_real && zeros.iter().any(|z| (p - z).abs() <= 0.05 * z.abs() + 1e-9))
         })
         .map(|&(p, _)| -p)
-        .fold(f64::INFINITY, f64::min)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        decay > 0.0 && decay.is_finite(),
+        "the loop is not stable: slowest decay {decay}/s"
+    );
+    decay
 }
 
 /// The decay rates of the study's SEA loops' slowest modes \[1/s\]: the position loop (the
