@@ -521,9 +521,9 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             })
             .collect()
     };
-    // The tolerance of each row of a signal (the doc comment's bound).
-    // Each stall's displacement (its sample's beyond the mean stall, which the sustained part
-    // covers, and its held command's) is carried on.
+    // The tolerance of each row of a signal (the doc comment's bound): each stall's
+    // displacement (its sample's beyond the mean stall, which the sustained part covers, and
+    // its held command's) is carried on.
     let row_tolerances =
         |sustained: f64, rate: f64, accel: f64, stall: &[f64], decay: f64| -> Vec<f64> {
             let mean = mean_stall(stall);
@@ -541,32 +541,48 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     // angle's rate there times `h`, would leave the row's tolerance, the smaller of the two
     // angles': the power of the comparison with this run's stalls (`memory` false: as if
     // each stall counted on its own row only).
+    // The swing's rows of each angle and the angle's rate there, from the plant run once.
+    let swing_of = |signal: &str, rate: f64| -> Vec<(usize, f64)> {
+        let x = column(signal);
+        (5..x.len().saturating_sub(5))
+            .map(|k| (k, ((x[k + 5] - x[k - 5]) / (10.0 * H)).abs()))
+            .filter(|&(_, local)| local >= 0.5 * rate)
+            .collect()
+    };
+    let angles = [
+        (
+            res1,
+            rate1,
+            accel1,
+            position_decay,
+            swing_of("actuationEncoderAngle", rate1),
+        ),
+        (
+            res2,
+            rate2,
+            accel2,
+            torque_decay,
+            swing_of("loadEncoderAngle", rate2),
+        ),
+    ];
     let seen_share = |stall: &[f64], delta: f64, memory: bool| {
-        [
-            ("actuationEncoderAngle", res1, rate1, accel1, position_decay),
-            ("loadEncoderAngle", res2, rate2, accel2, torque_decay),
-        ]
-        .iter()
-        .map(|&(signal, q, r, a, decay)| {
-            let decay = if memory { decay } else { f64::INFINITY };
-            let tol = row_tolerances(sustained_of(0.0, q, r, delta), r, a, stall, decay);
-            let x = column(signal);
-            let (mut swing, mut seen) = (0usize, 0usize);
-            for k in 5..x.len().saturating_sub(5) {
-                let local = ((x[k + 5] - x[k - 5]) / (10.0 * H)).abs();
-                if local >= 0.5 * r {
-                    swing += 1;
-                    seen += usize::from(local * H > tol[k]);
-                }
-            }
-            seen as f64 / swing.max(1) as f64
-        })
-        .fold(1.0, f64::min)
+        angles
+            .iter()
+            .map(|(q, r, a, decay, swing)| {
+                let decay = if memory { *decay } else { f64::INFINITY };
+                let tol = row_tolerances(sustained_of(0.0, *q, *r, delta), *r, *a, stall, decay);
+                let seen = swing
+                    .iter()
+                    .filter(|&&(k, local)| local * H > tol[k])
+                    .count();
+                seen as f64 / swing.len().max(1) as f64
+            })
+            .fold(1.0, f64::min)
     };
     // The hardware run, at most five attempts (the rules: the doc comment's "Disturbed runs").
     const ATTEMPTS: usize = 5;
     let disturbance = HOST_DISTURBANCE;
-    let mut best: Option<(Results, EmulatorStats, usize, f64)> = None;
+    let mut best: Option<(Results, EmulatorStats, usize, f64, f64)> = None;
     for attempt in 1..=ATTEMPTS {
         let mut config = EmulatorConfig::new("127.0.0.1:0", exported_fmu("BenchPlant"));
         config.parameters = plant_params.clone();
@@ -603,7 +619,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             // too little (34-62 % in runs without a stall above 5 ms here).
             let comparable = seen <= 8 && largest <= disturbance && share >= 0.25;
             if comparable && best.as_ref().is_none_or(|b| shift < b.3) {
-                best = Some((out.results, stats, attempt, shift));
+                best = Some((out.results, stats, attempt, shift, share));
             }
             if comparable && seen == 1 {
                 break;
@@ -621,8 +637,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         // saw such trips in CI).
         let interlock = interlock_latched(&stats);
         // The step that tripped is not a recorded row: its lateness is in the trip's log.
-        let tripping = master_lateness(&out.outcome).map_or(0.0, |late| late + H);
-        let largest = largest.max(tripping);
+        let largest = largest.max(master_lateness(&out.outcome).map_or(0.0, |late| late + H));
         // The lag the loops still carried from the host's stalls at the last recorded row (the
         // slower loop's memory): a run of late rows, none above two periods, was seen to end in
         // the regenerative-power interlock (the master up to 0.95 ms behind over the 8 rows
@@ -647,7 +662,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             out.outcome
         );
     }
-    let Some((hw, stats, attempt, delta)) = best else {
+    let Some((hw, stats, attempt, delta, share)) = best else {
         // Every attempt measured a host that cannot hold a 1 kHz loop: nothing to compare.
         eprintln!(
             "NOT COMPARED: the host disturbed all {ATTEMPTS} hardware runs (stalls above {:.0} ms or a mean shift above 2 ms)",
@@ -667,7 +682,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         delta * 1e6,
         s_max * 1e6,
         periods_seen(delta),
-        seen_share(&stall, delta, true) * 100.0,
+        share * 100.0,
         seen_share(&stall, delta, false) * 100.0
     );
     let stiffness = SPRING_STIFFNESS;
@@ -705,14 +720,13 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         let accel = own_accel.max(angle_share * accel1.max(accel2));
         let sustained = sustained_of(recorded, quantum, rate, delta);
         let tolerances = row_tolerances(sustained, rate, accel, &stall, decay);
-        let tol = |k: usize| tolerances[k];
         let (mut worst, mut worst_ratio, mut largest_tol) = (0.0f64, 0.0f64, 0.0f64);
-        for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        for (k, ((x, y), &tol)) in a.iter().zip(&b).zip(&tolerances).enumerate() {
             let d = (x - y).abs();
             worst = worst.max(d);
-            worst_ratio = worst_ratio.max(d / tol(k));
-            largest_tol = largest_tol.max(tol(k));
-            assert!(d <= tol(k), "{signal} at row {k}: {d} > {}", tol(k));
+            worst_ratio = worst_ratio.max(d / tol);
+            largest_tol = largest_tol.max(tol);
+            assert!(d <= tol, "{signal} at row {k}: {d} > {tol}");
         }
         let range = a.iter().cloned().fold(0.0, |m: f64, x| m.max(x.abs()));
         eprintln!(
@@ -763,7 +777,8 @@ fn slowest_decay(mass: [f64; 3], loop_gain: f64, (kp, ki, kd): (f64, f64, f64)) 
     }
     let real = 0.5 * (lo + hi);
     // The other two: the quadratic left by dividing out (s - real).
-    let (b1, b0) = (a2 + real, a1 + real * (a2 + real));
+    let b1 = a2 + real;
+    let b0 = a1 + real * b1;
     let discriminant = b1 * b1 - 4.0 * b0;
     let mut modes = vec![(real, true)];
     if discriminant < 0.0 {

@@ -779,6 +779,20 @@ struct Setup {
     scratch: PathBuf,
 }
 
+/// The venv's Python running one of the fmpy scripts on `case`'s FMU and its inputs file
+/// (empty: none); the caller adds the script's other arguments.
+fn fmpy_script(
+    setup: &Setup,
+    script: &str,
+    case: &Case,
+    inputs: &std::ffi::OsStr,
+) -> Result<Command, String> {
+    let python = setup.python.as_ref().ok_or("no Python")?;
+    let mut cmd = Command::new(python);
+    cmd.arg("-c").arg(script).arg(&case.fmu).arg(inputs);
+    Ok(cmd)
+}
+
 /// One run of `engine` on `case` for `steps` steps.
 fn run_once(
     setup: &Setup,
@@ -838,25 +852,14 @@ fn run_once(
             Ok((timing, last_row_of_csv(&out_csv)?))
         }
         Engine::FmpySimulate => {
-            let python = setup.python.as_ref().ok_or("no Python")?;
-            let mut cmd = Command::new(python);
-            cmd.arg("-c")
-                .arg(FMPY_SIMULATE)
-                .arg(&case.fmu)
-                .arg(&inputs)
-                .args([&stop, &H.to_string()])
-                .arg(&out_csv);
+            let mut cmd = fmpy_script(setup, FMPY_SIMULATE, case, &inputs)?;
+            cmd.args([&stop, &H.to_string()]).arg(&out_csv);
             let (timing, _) = time_process(&mut cmd)?;
             Ok((timing, last_row_of_csv(&out_csv)?))
         }
         Engine::FmpyLoop => {
-            let python = setup.python.as_ref().ok_or("no Python")?;
-            let mut cmd = Command::new(python);
-            cmd.arg("-c")
-                .arg(FMPY_LOOP)
-                .arg(&case.fmu)
-                .arg(&inputs)
-                .args([steps.to_string(), H.to_string()]);
+            let mut cmd = fmpy_script(setup, FMPY_LOOP, case, &inputs)?;
+            cmd.args([steps.to_string(), H.to_string()]);
             let (_, stdout) = time_process(&mut cmd)?;
             parse_report(&stdout)
         }
