@@ -8,6 +8,7 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 pub mod campaign;
+pub mod loop_memory;
 pub mod pythonfmu;
 
 pub use kneebench_fmu::fmi2::types::*;

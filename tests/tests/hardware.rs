@@ -18,6 +18,7 @@ use kneebench_harness::master::Signal;
 use kneebench_harness::{
     Fmu, InstanceOptions, LoadOptions, Outcome, Results, RunConfig, RunOutput, Status, System,
 };
+use kneebench_tests::loop_memory::{carried, row_stalls, sea_loop_decays};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
@@ -306,7 +307,7 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 ///   previous command for `s_j` displaces the trajectory by up to `max|d2x/dt2| s_j^2 / 2`:
 ///   `D_j = R max(s_j - s_mean, 0) + A s_j^2 / 2`. The controllers act on the displaced
 ///   sample and trajectory, so the loop carries the displacement on, fading as its slowest
-///   mode does (its **memory**, the decay rate `lambda` from [`slowest_decay`]: 60.6/s for the
+///   mode does (its **memory**, the decay rate `lambda` from `loop_memory::slowest_decay`: 60.6/s for the
 ///   actuation angle, through the position loop; 10.6/s for the load angle, the deflection
 ///   and the torque, through the torque loop, whose modes move the load side). Row `k`
 ///   therefore allows for `D'_k = max D_j exp(-lambda (k - j) h)` over `j <= k`. The largest,
@@ -449,14 +450,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let plant = plant.results;
     // Per-row stall of a hardware run: wake-up lateness plus reply time (row 0 is the initial
     // sample).
-    let stalls = |hw: &Results| -> Vec<f64> {
-        let c = |v: &str| hw.column(&format!("{name}.{v}")).unwrap();
-        c("lastLateness")
-            .iter()
-            .zip(c("lastReplyTime"))
-            .map(|(l, r)| l + r)
-            .collect()
-    };
+    let stalls = |hw: &Results| row_stalls(hw, &name).expect("the hardware run records its timing");
     let ms = 2.0;
     let res1 = std::f64::consts::TAU / (2000.0 * 160.0);
     let res2 = std::f64::consts::TAU / (2000.0 * 66.0);
@@ -510,17 +504,7 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let torque_decay = torque_decay.min(position_decay);
     // Row by row, the larger of the row's own value (a stall, or the displacement it makes) and
     // the carried one decayed by a period.
-    let carried = |stall: &[f64], decay: f64| -> Vec<f64> {
-        let fade = (-decay * H).exp();
-        let mut carried = 0.0f64;
-        stall
-            .iter()
-            .map(|&s| {
-                carried = s.max(carried * fade);
-                carried
-            })
-            .collect()
-    };
+    let carried = |values: &[f64], decay: f64| carried(values, decay, H);
     // The tolerance of each row of a signal (the doc comment's bound): each stall's
     // displacement (its sample's beyond the mean stall, which the sustained part covers, and
     // its held command's) is carried on.
@@ -742,121 +726,6 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
             "{signal}: range {range} vs sustained tolerance {quiet} on a quiet host"
         );
     }
-}
-
-/// The decay rate \[1/s\] of the slowest mode a displaced sample excites in a PID loop around
-/// a mass `[inertia, damping, stiffness]`, the controller's output (amperes) reaching the mass
-/// through `loop_gain` (torque per ampere, times the stiffness when the loop measures a
-/// spring's torque): the roots of the closed loop's characteristic polynomial
-/// `J s^3 + (b + G kd) s^2 + (k + G kp) s + G ki`, less a real root within 5 % of a real zero
-/// of the PID (`kd s^2 + kp s + ki`). Such a root is the integral's slow pole, which the
-/// controller's zero nearly cancels: it carries almost nothing of a disturbance (in the
-/// study's position loop a pole at -1.0175/s beside a zero at -1.0155/s, its share of a
-/// displaced sample's effect about 0.2 %, of a held command's about 1.2 %). The study's SEA:
-/// the position loop 60.6/s (time constant 16.5 ms), the torque loop 10.6/s (94 ms; poles
-/// -22.9 and -10.6 +- 28.5j; the load side alone against the spring: with the actuation side
-/// free the coupled loops' slowest mode is 9.7/s, and the derivative filters and the period's
-/// delay, left out, make the modes faster). Panics on an unstable loop.
-fn slowest_decay(mass: [f64; 3], loop_gain: f64, (kp, ki, kd): (f64, f64, f64)) -> f64 {
-    let [inertia, damping, stiffness] = mass;
-    // The monic cubic s^3 + a2 s^2 + a1 s + a0.
-    let a2 = (damping + loop_gain * kd) / inertia;
-    let a1 = (stiffness + loop_gain * kp) / inertia;
-    let a0 = loop_gain * ki / inertia;
-    let cubic = |s: f64| ((s + a2) * s + a1) * s + a0;
-    // A real root, by bisection between the Cauchy bound and 0 (a0 >= 0: the cubic is not
-    // positive below the bound and not negative at 0).
-    let (mut lo, mut hi) = (-(1.0 + a2.abs().max(a1.abs()).max(a0.abs())), 0.0f64);
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if cubic(mid) > 0.0 {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    let real = 0.5 * (lo + hi);
-    // The other two: the quadratic left by dividing out (s - real).
-    let b1 = a2 + real;
-    let b0 = a1 + real * b1;
-    let discriminant = b1 * b1 - 4.0 * b0;
-    let mut modes = vec![(real, true)];
-    if discriminant < 0.0 {
-        modes.push((-0.5 * b1, false));
-    } else {
-        modes.push((0.5 * (-b1 + discriminant.sqrt()), true));
-        modes.push((0.5 * (-b1 - discriminant.sqrt()), true));
-    }
-    let zeros: Vec<f64> = if kd == 0.0 {
-        vec![-ki / kp]
-    } else if kp * kp >= 4.0 * kd * ki {
-        let d = (kp * kp - 4.0 * kd * ki).sqrt();
-        vec![(-kp + d) / (2.0 * kd), (-kp - d) / (2.0 * kd)]
-    } else {
-        Vec::new()
-    };
-    let decay = modes
-        .iter()
-        .filter(|&&(p, is_real)| {
-            !(is_real && zeros.iter().any(|z| (p - z).abs() <= 0.05 * z.abs() + 1e-9))
-        })
-        .map(|&(p, _)| -p)
-        .fold(f64::INFINITY, f64::min);
-    assert!(
-        decay > 0.0 && decay.is_finite(),
-        "the loop is not stable: slowest decay {decay}/s"
-    );
-    decay
-}
-
-/// The decay rates of the study's SEA loops' slowest modes \[1/s\]: the position loop (the
-/// actuation side under the test motor) and the torque loop (the load side against the spring,
-/// the actuation side held, under the load motor).
-fn sea_loop_decays() -> (f64, f64) {
-    use kneebench_harness::study::{
-        ACTUATION_DAMPING, ACTUATION_INERTIA, Actuator, LOAD_DAMPING, LOAD_INERTIA,
-        LOAD_TORQUE_PER_AMPERE, SPRING_STIFFNESS, StudyGains, TEST_TORQUE_PER_AMPERE,
-    };
-    let gains = StudyGains::for_actuator(Actuator::Sea);
-    let position = slowest_decay(
-        [ACTUATION_INERTIA, ACTUATION_DAMPING, 0.0],
-        TEST_TORQUE_PER_AMPERE,
-        gains.position,
-    );
-    let torque = slowest_decay(
-        [LOAD_INERTIA, LOAD_DAMPING, SPRING_STIFFNESS],
-        LOAD_TORQUE_PER_AMPERE * SPRING_STIFFNESS,
-        gains.torque,
-    );
-    (position, torque)
-}
-
-/// [`slowest_decay`] against closed forms: a PD loop around a mass-damper is the second-order
-/// `s^2 + (b + kd) s + kp` (its integral-free root at 0 is the PID's zero there), decaying at
-/// half its damping when underdamped and at its slower real root when overdamped; a real pole
-/// far from the PID's zeros is kept; and the study's SEA loops decay as the doc comment says.
-#[test]
-fn the_loops_slowest_decay_is_the_closed_forms() {
-    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs();
-    // s (s^2 + 2 s + 100): roots 0 and -1 +- 9.95j.
-    assert!(close(
-        slowest_decay([1.0, 1.0, 0.0], 1.0, (100.0, 0.0, 1.0)),
-        1.0
-    ));
-    // s (s^2 + 10 s + 16): roots 0, -2, -8.
-    assert!(close(
-        slowest_decay([1.0, 10.0, 0.0], 1.0, (16.0, 0.0, 0.0)),
-        2.0
-    ));
-    // (s + 1)(s + 2)(s + 3) = s^3 + 6 s^2 + 11 s + 6, the PID's zeros at -2 +- 1.41j: all three
-    // kept, the slowest -1.
-    assert!(close(
-        slowest_decay([1.0, 5.0, 7.0], 1.0, (4.0, 6.0, 1.0)),
-        1.0
-    ));
-    let (position, torque) = sea_loop_decays();
-    assert!((position - 60.6).abs() < 0.05, "{position}");
-    assert!((torque - 10.6).abs() < 0.05, "{torque}");
 }
 
 /// How a hardware run driven step by step ended.

@@ -7,13 +7,18 @@ use crate::master::{MasterError, System};
 use crate::results::Results;
 
 /// The `BenchHardware` locals recorded after the outputs in every run on the hardware: how the
-/// run kept its schedule and how its link fared ([`Pacing`]), and the bench's clock at each
-/// row's sample (`benchSampleTime`: `kneebench identify` resamples the log on it).
-const PACING_LOCALS: [&str; 5] = [
+/// run kept its schedule and how its link fared ([`Pacing`]), each row's own timing (how late
+/// its step's deadline was, `lastLateness`, and how long its sample took to arrive,
+/// `lastReplyTime`: where in the run the host held the loop up, which a row's difference from
+/// the simulated twin or a trip can then be read against), and the bench's clock at each row's
+/// sample (`benchSampleTime`: `kneebench identify` resamples the log on it).
+const PACING_LOCALS: [&str; 7] = [
     "plant.overrunCount",
     "plant.maxLateness",
     "plant.rejectedFrames",
     "plant.staleReplies",
+    "plant.lastLateness",
+    "plant.lastReplyTime",
     "plant.benchSampleTime",
 ];
 
@@ -92,8 +97,8 @@ impl Pacing {
 pub const LATE_LOG_USE: &str = "as a log for `kneebench identify` the run is usable as it is: \
      identification resamples it on the bench's clock (`plant.benchSampleTime`)";
 
-/// Records the [`Pacing`] locals and the bench's sample clock (`benchSampleTime`) of the
-/// `BenchHardware` component `plant` after what `system` records now (every output by
+/// Records the [`Pacing`] locals, each row's lateness and reply time, and the bench's sample
+/// clock (`benchSampleTime`) of the `BenchHardware` component `plant` after what `system` records now (every output by
 /// default): the experiments' runs and the study's on the bench.
 pub(crate) fn record_pacing(system: &mut System) -> Result<(), MasterError> {
     system.record_also(&PACING_LOCALS)
