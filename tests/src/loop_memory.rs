@@ -132,6 +132,19 @@ pub fn row_stalls(run: &kneebench_harness::Results, component: &str) -> Option<V
     Some(lateness.iter().zip(&reply).map(|(l, r)| l + r).collect())
 }
 
+/// Each of `stalls` less the run's mean stall (over the rows after the initial one), none below
+/// zero: what a row's stall displaced beyond the steady shift that every row has (a loaded
+/// host's mean stall is a sustained delay, which the comparisons allow for on their own).
+pub fn beyond_mean(stalls: &[f64]) -> Vec<f64> {
+    let rest = stalls.get(1..).unwrap_or_default();
+    let mean = if rest.is_empty() {
+        0.0
+    } else {
+        rest.iter().sum::<f64>() / rest.len() as f64
+    };
+    stalls.iter().map(|s| (s - mean).max(0.0)).collect()
+}
+
 /// `values` (one per row, `period` apart) carried on at `decay` \[1/s\]: row `k` holds the
 /// largest of `values[j] exp(-decay (k - j) period)` over `j <= k`. The largest and not the
 /// sum: a host's lateness is measured against the fixed schedule, so a run of late rows is one
@@ -167,4 +180,17 @@ fn a_stall_is_carried_at_the_decay_and_the_largest_is_kept() {
     // A later, larger stall takes over.
     assert_eq!(carried(&[1e-3, 3e-3], 10.0, 1e-3)[1], 3e-3);
     assert!(carried(&[], 10.0, 1e-3).is_empty());
+}
+
+#[cfg(test)]
+#[test]
+fn a_stall_beyond_the_mean_is_what_the_mean_does_not_cover() {
+    // The initial row is not in the mean: rows 1-4 average 1e-4.
+    let beyond = beyond_mean(&[5e-3, 1e-4, 0.0, 1e-4, 2e-4]);
+    let expected = [5e-3 - 1e-4, 0.0, 0.0, 0.0, 1e-4];
+    for (k, (a, b)) in beyond.iter().zip(expected).enumerate() {
+        assert!((a - b).abs() <= 1e-15, "row {k}: {a} vs {b}");
+    }
+    assert_eq!(beyond_mean(&[3e-4]), vec![3e-4]);
+    assert!(beyond_mean(&[]).is_empty());
 }

@@ -44,11 +44,14 @@ fn assert_files(w: &kneebench_harness::experiment::Written) {
         let mut header = String::new();
         let file = std::fs::File::open(&w.data[0]).unwrap();
         std::io::BufRead::read_line(&mut std::io::BufReader::new(file), &mut header).unwrap();
-        assert_eq!(
-            w.pacing.is_some(),
-            header.contains("plant.maxLateness"),
-            "{header}"
-        );
+        // With it, each row's timing (where the host held the loop up).
+        for column in [
+            "plant.maxLateness",
+            "plant.lastLateness",
+            "plant.lastReplyTime",
+        ] {
+            assert_eq!(w.pacing.is_some(), header.contains(column), "{header}");
+        }
     }
     let png = w.figures.iter().find(|f| f.extension().unwrap() == "png");
     let bytes = std::fs::read(png.expect("a PNG")).unwrap();

@@ -18,7 +18,7 @@ use kneebench_harness::master::Signal;
 use kneebench_harness::{
     Fmu, InstanceOptions, LoadOptions, Outcome, Results, RunConfig, RunOutput, Status, System,
 };
-use kneebench_tests::loop_memory::{carried, row_stalls, sea_loop_decays};
+use kneebench_tests::loop_memory::{beyond_mean, carried, row_stalls, sea_loop_decays};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
@@ -351,7 +351,8 @@ fn sea_run_with_plant_and_hardware_agree_within_the_derived_tolerance() {
 /// having measured its own disturbance (a stall above 5 ms, the watchdog's reason, or a safety
 /// interlock's trip after a stall above two periods, the run's largest lateness read from the
 /// trip's log, or a trip while the loops still carried half a period of lag or more from the
-/// host's stalls at the last recorded row, at the torque loop's decay: seen once, the master up
+/// host's stalls at the last recorded row, each beyond the run's mean stall, at the torque
+/// loop's decay: seen once, the master up
 /// to 0.95 ms behind over 8 rows just before a regenerated-power trip, where the plant run
 /// peaks at a quarter of the limit) is run again, one that ended early without it fails the
 /// test; a completed run is kept (the least shifted one) and the attempts stop at the first
@@ -626,7 +627,10 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
         // slower loop's memory): a run of late rows, none above two periods, was seen to end in
         // the regenerative-power interlock (the master up to 0.95 ms behind over the 8 rows
         // ending 6 rows before the trip).
-        let carried_at_end = carried(&stall, torque_decay).last().copied().unwrap_or(0.0);
+        let carried_at_end = carried(&beyond_mean(&stall), torque_decay)
+            .last()
+            .copied()
+            .unwrap_or(0.0);
         let disturbed = largest > disturbance
             || (interlock && (largest > 2.0 * H || carried_at_end > 0.5 * H))
             || matches!(stats.safe_reason, Some(r) if r == reason::HEARTBEAT_TIMEOUT);

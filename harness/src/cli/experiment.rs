@@ -40,7 +40,8 @@ run; <name>.parquet with --format parquet), <name>-result.csv (the analysed tabl
 and .png, <name>.md. On BenchHardware the run also records the FMU's pacing and link counts
 (plant.overrunCount, plant.maxLateness, plant.rejectedFrames, plant.staleReplies), printed
 as `pacing:` and written into <name>.md, with a warning when the loop fell a whole period
-behind its schedule, each row's timing (plant.lastLateness, plant.lastReplyTime), and the bench's clock at each sample (plant.benchSampleTime, which
+behind its schedule; each row's timing (plant.lastLateness, plant.lastReplyTime: where the
+host held the loop up); and the bench's clock at each sample (plant.benchSampleTime, which
 `kneebench identify` resamples the log on). Other FMUs (GaitReference, PidController) are taken from --fmus, default the bench FMU's directory.
 Exit code 3 when an interlock ended the run (the triangle test's trip is its result: 0).")]
 pub struct Args {

@@ -1,6 +1,7 @@
 //! How a run on `BenchHardware` kept its schedule: the FMU's pacing and link counts recorded
 //! with every experiment's run on the hardware and the study's on the bench, read back from
-//! the rows ([`Pacing`]), and the bench's clock recorded beside them.
+//! the rows ([`Pacing`]), and each row's lateness and reply time and the bench's clock recorded
+//! beside them.
 
 use super::STEP;
 use crate::master::{MasterError, System};

@@ -402,7 +402,8 @@ fn on_the_bench(
             .set_value_str(&format!("{PLANT}.{name}"), value)
             .map_err(|e| StudyError::BenchParameter(format!("{name} = {value}: {e}")))?;
     }
-    // The pacing and link counts after the outputs ([`StudyRun::pacing`]).
+    // The pacing and link counts ([`StudyRun::pacing`]), each row's timing and the bench's
+    // clock after the outputs.
     crate::experiment::record_pacing(&mut loaded.system).map_err(|e| StudyError::Fmu {
         path: fmu_dir.join(HARDWARE_FMU),
         message: e.to_string(),
