@@ -317,30 +317,12 @@ fn c_loop(fmu: &Fmu, raw: &Raw, inputs: Option<&Inputs>, steps: u64) {
         Outputs::vrs(&out.boolean),
     );
     let in_vrs = inputs.map(|i| input_vrs(md, i)).unwrap_or_default();
-    let name = CString::new("m").unwrap();
-    let guid = CString::new(md.guid.as_str()).unwrap();
-    let uri = CString::new(fmu.resource_uri()).unwrap();
-    let callbacks = fmi2CallbackFunctions {
-        logger: test_logger(),
-        allocateMemory: None,
-        freeMemory: None,
-        stepFinished: None,
-        componentEnvironment: std::ptr::null_mut(),
-    };
+    let args = InstanceArgs::of(fmu, "m");
     let (t0, c0) = (Instant::now(), process_cpu());
-    // SAFETY: valid strings and callbacks that outlive the instance; arrays of the right
-    // lengths; the instance is used only between instantiation and freeing.
+    // SAFETY: `raw` is loaded from this FMU's binary (`child`); arrays of the right lengths;
+    // the instance is used only between instantiation and freeing, while `args` stays put.
     unsafe {
-        let c: *mut c_void = (raw.instantiate)(
-            name.as_ptr(),
-            fmi2Type::fmi2CoSimulation as i32,
-            guid.as_ptr(),
-            uri.as_ptr(),
-            &callbacks,
-            fmi2False,
-            fmi2False,
-        );
-        assert!(!c.is_null(), "fmi2Instantiate");
+        let c = args.instantiate(raw);
         check(
             (raw.setup_experiment)(c, fmi2False, 0.0, 0.0, fmi2False, 0.0),
             "setupExperiment",
@@ -394,30 +376,62 @@ fn c_loop(fmu: &Fmu, raw: &Raw, inputs: Option<&Inputs>, steps: u64) {
 
 /// Instantiates and frees one instance (a PythonFMU binary initializes its interpreter then).
 fn c_loop_prepare(fmu: &Fmu, raw: &Raw) {
-    let md = fmu.model_description();
-    let name = CString::new("warm-up").unwrap();
-    let guid = CString::new(md.guid.as_str()).unwrap();
-    let uri = CString::new(fmu.resource_uri()).unwrap();
-    let callbacks = fmi2CallbackFunctions {
-        logger: test_logger(),
-        allocateMemory: None,
-        freeMemory: None,
-        stepFinished: None,
-        componentEnvironment: std::ptr::null_mut(),
-    };
-    // SAFETY: valid strings and callbacks; the instance is freed at once.
+    let args = InstanceArgs::of(fmu, "warm-up");
+    // SAFETY: `raw` is loaded from this FMU's binary (`child`); the instance is freed at
+    // once, while `args` stays put.
     unsafe {
-        let c = (raw.instantiate)(
-            name.as_ptr(),
-            fmi2Type::fmi2CoSimulation as i32,
-            guid.as_ptr(),
-            uri.as_ptr(),
-            &callbacks,
-            fmi2False,
-            fmi2False,
-        );
-        assert!(!c.is_null(), "fmi2Instantiate");
+        let c = args.instantiate(raw);
         (raw.free_instance)(c);
+    }
+}
+
+/// What `fmi2Instantiate` is given for an instance of `fmu` (its name, the GUID, the resource
+/// URI and the callbacks), kept for as long as the instance lives: the FMU may hold the
+/// callbacks' address.
+struct InstanceArgs {
+    name: CString,
+    guid: CString,
+    uri: CString,
+    callbacks: fmi2CallbackFunctions,
+}
+
+impl InstanceArgs {
+    fn of(fmu: &Fmu, name: &str) -> InstanceArgs {
+        InstanceArgs {
+            name: CString::new(name).unwrap(),
+            guid: CString::new(fmu.model_description().guid.as_str()).unwrap(),
+            uri: CString::new(fmu.resource_uri()).unwrap(),
+            callbacks: fmi2CallbackFunctions {
+                logger: test_logger(),
+                allocateMemory: None,
+                freeMemory: None,
+                stepFinished: None,
+                componentEnvironment: std::ptr::null_mut(),
+            },
+        }
+    }
+
+    /// A co-simulation instance, not visible and without logging; panics when refused.
+    ///
+    /// # Safety
+    /// `raw` is the FMU's own functions, and the instance must be freed before `self` is
+    /// moved or dropped (it may keep the address of `self`'s strings and callbacks).
+    unsafe fn instantiate(&self, raw: &Raw) -> *mut c_void {
+        // SAFETY: valid NUL-terminated strings and callbacks that outlive the instance (the
+        // caller's promise).
+        let c = unsafe {
+            (raw.instantiate)(
+                self.name.as_ptr(),
+                fmi2Type::fmi2CoSimulation as i32,
+                self.guid.as_ptr(),
+                self.uri.as_ptr(),
+                &self.callbacks,
+                fmi2False,
+                fmi2False,
+            )
+        };
+        assert!(!c.is_null(), "fmi2Instantiate");
+        c
     }
 }
 
