@@ -265,6 +265,15 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
         .pacing
         .expect("the run on the bench records its pacing");
     assert!(pacing.largest_lateness > 0.0, "{pacing}");
+    // It says when: the row that first recorded the largest lateness, whose own lateness it is.
+    let at = pacing
+        .largest_lateness_time
+        .expect("a real-time run is late somewhere");
+    let times = bench_run.results.times();
+    let row = times.iter().position(|&t| t == at).expect("a row's time");
+    let late = bench_run.results.column("plant.lastLateness").unwrap();
+    assert_eq!(late[row], pacing.largest_lateness, "{pacing}");
+    assert!(late[..row].iter().all(|&l| l < pacing.largest_lateness));
     assert_eq!(simulated[0].pacing, None);
     let section = kneebench_harness::study::ScenarioSection {
         scenario: bench_run.study,

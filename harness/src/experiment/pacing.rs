@@ -35,6 +35,9 @@ pub struct Pacing {
     pub overruns: u64,
     /// How far behind its deadline the latest step continued \[s\].
     pub largest_lateness: f64,
+    /// When: the time of the first row that recorded [`Self::largest_lateness`] \[s\] (on the
+    /// runs' shared time axis when several are side by side); `None` when no step was late.
+    pub largest_lateness_time: Option<f64>,
     /// Frames from the bench the FMU rejected (unauthenticated, malformed, replayed, ...).
     pub rejected_frames: u64,
     /// Replies that came too late for their request and were ignored.
@@ -47,25 +50,45 @@ impl Pacing {
     /// `open.` and `closed.`), the counts added up and the largest lateness of all. `None`
     /// when `run` holds none (a run on the simulated bench).
     pub fn of(run: &Results) -> Option<Pacing> {
-        // Every local is a running count or maximum: a column's largest value is its last.
-        let columns = |local: &str| -> Vec<f64> {
+        let columns = |local: &str| -> Vec<Vec<f64>> {
             let name = format!("plant.{local}");
             let prefixed = format!(".{name}");
             run.names()
                 .iter()
                 .filter(|c| **c == name || c.ends_with(&prefixed))
                 .filter_map(|c| run.column(c))
-                .map(|values| values.iter().copied().fold(0.0, f64::max))
                 .collect()
         };
+        // Every local is a running count or maximum: a column's largest value is its last.
+        let largest = |values: &[f64]| values.iter().copied().fold(0.0, f64::max);
         let lateness = columns("maxLateness");
         if lateness.is_empty() {
             return None;
         }
-        let count = |local: &str| columns(local).iter().sum::<f64>() as u64;
+        let count = |local: &str| {
+            columns(local)
+                .iter()
+                .map(|values| largest(values))
+                .sum::<f64>() as u64
+        };
+        let largest_lateness = lateness
+            .iter()
+            .map(|values| largest(values))
+            .fold(0.0, f64::max);
+        // The running maximum first reaches its final value at the row of the latest step.
+        let largest_lateness_time = (largest_lateness > 0.0)
+            .then(|| {
+                let times = run.times();
+                lateness.iter().find_map(|values| {
+                    let k = values.iter().position(|&v| v >= largest_lateness)?;
+                    times.get(k).copied()
+                })
+            })
+            .flatten();
         Some(Pacing {
             overruns: count("overrunCount"),
-            largest_lateness: lateness.iter().copied().fold(0.0, f64::max),
+            largest_lateness,
+            largest_lateness_time,
             rejected_frames: count("rejectedFrames"),
             stale_replies: count("staleReplies"),
         })
@@ -109,11 +132,14 @@ impl std::fmt::Display for Pacing {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} overruns of the {} ms period, largest lateness {:.0} us; {} frames rejected, {} \
-             stale replies",
+            "{} overruns of the {} ms period, largest lateness {:.0} us{}; {} frames rejected, \
+             {} stale replies",
             self.overruns,
             STEP * 1e3,
             self.largest_lateness * 1e6,
+            self.largest_lateness_time
+                .map(|t| format!(" at t = {t:.3} s"))
+                .unwrap_or_default(),
             self.rejected_frames,
             self.stale_replies
         )
@@ -152,7 +178,11 @@ mod tests {
         ];
         let one = table(
             &names,
-            &[&[0.0, 0.0, 2e-5, 0.0, 0.0], &[0.1, 2.0, 4.5e-4, 1.0, 3.0]],
+            &[
+                &[0.0, 0.0, 2e-5, 0.0, 0.0],
+                &[0.1, 2.0, 4.5e-4, 1.0, 3.0],
+                &[0.2, 2.0, 4.5e-4, 1.0, 3.0],
+            ],
         );
         let p = Pacing::of(&one).unwrap();
         assert_eq!(
@@ -160,6 +190,8 @@ mod tests {
             Pacing {
                 overruns: 2,
                 largest_lateness: 4.5e-4,
+                // The row that first recorded it (the second, at 1 ms), not a later one.
+                largest_lateness_time: Some(STEP),
                 rejected_frames: 1,
                 stale_replies: 3
             }
@@ -167,7 +199,16 @@ mod tests {
         assert!(p.kept_schedule());
         assert_eq!(
             p.to_string(),
-            "2 overruns of the 1 ms period, largest lateness 450 us; 1 frames rejected, 3 stale \
+            "2 overruns of the 1 ms period, largest lateness 450 us at t = 0.001 s; 1 frames \
+             rejected, 3 stale replies"
+        );
+        // A run that was never late says no time.
+        let on_time = table(&names[1..3], &[&[0.0, 0.0], &[0.0, 0.0]]);
+        let p = Pacing::of(&on_time).unwrap();
+        assert_eq!(p.largest_lateness_time, None);
+        assert_eq!(
+            p.to_string(),
+            "0 overruns of the 1 ms period, largest lateness 0 us; 0 frames rejected, 0 stale \
              replies"
         );
         // Two runs side by side (the step experiment): counts added, the larger lateness.
@@ -176,11 +217,17 @@ mod tests {
         let both: Vec<&str> = both.iter().map(String::as_str).collect();
         let two = table(
             &both,
-            &[&[0.0, 1.0, 1e-4, 0.0, 0.0, 0.0, 5.0, 1.2e-3, 2.0, 0.0]],
+            &[
+                &[0.0, 1.0, 1e-4, 0.0, 0.0, 0.0, 5.0, 2e-4, 2.0, 0.0],
+                &[0.0, 1.0, 3e-4, 0.0, 0.0, 0.0, 5.0, 2e-4, 2.0, 0.0],
+                &[0.0, 1.0, 3e-4, 0.0, 0.0, 0.0, 5.0, 1.2e-3, 2.0, 0.0],
+            ],
         );
         let p = Pacing::of(&two).unwrap();
         assert_eq!((p.overruns, p.rejected_frames, p.stale_replies), (6, 2, 0));
         assert_eq!(p.largest_lateness, 1.2e-3);
+        // When: in the closed run, whose maximum came later than the open run's.
+        assert_eq!(p.largest_lateness_time, Some(2.0 * STEP));
         // A whole period late is a command held two periods: not the 1 ms loop any more.
         assert!(!p.kept_schedule());
         // A column that only ends like a local (another component's) is not one.
