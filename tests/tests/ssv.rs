@@ -348,6 +348,19 @@ fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
         text.contains(&format!("plant parameter set: {}", set.label())),
         "{text}"
     );
+    // The set's damping is not the one the study's controllers were built on: the report says
+    // so under the run (a friction the controllers do not model is not named).
+    assert_eq!(
+        kneebench_harness::study::tuning_differences(Actuator::Sea, &run.parameters),
+        vec![("actuationDamping".to_string(), 12.0, 12.5)]
+    );
+    assert!(
+        text.contains(
+            "  - **the controllers are the study's, tuned for its bench: this plant differs in \
+             `plant.actuationDamping` 12.5 (tuned for 12).**"
+        ),
+        "{text}"
+    );
     // A set the plant refuses stops the study before anything runs.
     let mut bad = set.clone();
     bad.set_real("actuationDamping", -1.0, Some("N.m.s/rad"));
@@ -394,4 +407,45 @@ fn a_mode_is_set_by_value_and_a_value_that_is_no_item_is_refused() {
         e.contains(":4: parameter 'configuration': 3 is outside [0, 2]"),
         "{e}"
     );
+}
+
+/// What the study's controllers are built on ([`kneebench_harness::study::tuned_for`]) is the
+/// plant's declared default of each parameter: the study's own plant differs in none, so its
+/// report carries no warning, and a change of a default shows here.
+#[test]
+fn the_controllers_assumptions_are_the_plants_defaults() {
+    use kneebench_harness::study::{tuned_for, tuning_differences};
+    use model_description::VariableKind;
+    let md = plant_md();
+    for actuator in [Actuator::Da, Actuator::Sea, Actuator::Csea] {
+        let mut lines = Vec::new();
+        for (name, assumed) in tuned_for(actuator) {
+            let variable = md
+                .model_variables
+                .iter()
+                .find(|v| v.name == name)
+                .unwrap_or_else(|| panic!("BenchPlant declares {name}"));
+            let VariableKind::Real {
+                start: Some(start), ..
+            } = variable.kind
+            else {
+                panic!("{name} is a Real with a start value");
+            };
+            assert!(
+                (start - assumed).abs() <= 1e-12 * assumed.abs(),
+                "{name}: the plant's default {start}, the study assumes {assumed}"
+            );
+            lines.push(format!("plant.{name} = {start}"));
+        }
+        assert_eq!(tuning_differences(actuator, &lines), Vec::new());
+        // Another value of each is named.
+        let other: Vec<String> = tuned_for(actuator)
+            .iter()
+            .map(|(name, assumed)| format!("plant.{name} = {}", assumed * 1.5))
+            .collect();
+        assert_eq!(
+            tuning_differences(actuator, &other).len(),
+            tuned_for(actuator).len()
+        );
+    }
 }

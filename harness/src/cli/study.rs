@@ -59,8 +59,10 @@ pub struct Args {
     #[arg(long, value_delimiter = ',')]
     pub actuators: Vec<String>,
     /// Set a scenario parameter, `component.name=value` (repeatable; a mode by its item name),
-    /// e.g. `--param plant.actuationDamping=10` for another bench; checked against the FMUs
-    /// (name, finite value inside [min, max], item) before anything runs.
+    /// e.g. `--param plant.actuationDamping=10` for another bench (the controllers stay
+    /// built on the study's bench: report.md names each plant parameter they were not built
+    /// for); checked against the FMUs (name, finite value inside [min, max], item) before
+    /// anything runs.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
     /// A parameter set (.ssv) for the plant (e.g. from `kneebench identify`): checked against

@@ -321,6 +321,20 @@ pub fn write_report(
             if let Some(set) = &r.plant_set {
                 let _ = writeln!(s, "  - plant parameter set: {set}");
             }
+            let differences = super::tuning_differences(r.actuator, &r.parameters);
+            if !differences.is_empty() {
+                let list = differences
+                    .iter()
+                    .map(|(name, assumed, value)| {
+                        format!("`plant.{name}` {value} (tuned for {assumed})")
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                let _ = writeln!(
+                    s,
+                    "  - **the controllers are the study's, tuned for its bench: this plant differs in {list}.** Its tracking and energy are those of the study's controllers on this plant, not of controllers tuned for it: their model-based weights, the controllers' feed-forward and setpoint weights in the parameters below, can be set with `--param`"
+                );
+            }
             if !r.unapplied.is_empty() {
                 let _ = writeln!(
                     s,

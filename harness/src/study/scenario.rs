@@ -309,6 +309,53 @@ pub const ACTUATION_INERTIA: f64 = 0.825;
 /// Actuation-side viscous damping c1 [N m s/rad] (the plant's default).
 pub const ACTUATION_DAMPING: f64 = 12.0;
 
+/// The plant's parameters whose values the study's controllers are built on for `actuator`
+/// (their feed-forwards, the load loop's current scaling and the deflection compensation of
+/// [`gait_scenario`]), with the value each assumes: the plant's defaults. The PID gains were
+/// tuned on that plant too. A study whose plant differs in one of these runs the study's
+/// controllers on another plant, not controllers tuned for it ([`tuning_differences`]).
+pub fn tuned_for(actuator: Actuator) -> Vec<(&'static str, f64)> {
+    let mut assumed = vec![
+        ("actuationInertia", ACTUATION_INERTIA),
+        ("loadInertia", LOAD_INERTIA),
+        ("actuationDamping", ACTUATION_DAMPING),
+        ("loadDamping", LOAD_DAMPING),
+        ("harmonicDriveRatio", 160.0),
+        ("testMotorTorqueConstant", 0.037),
+        ("reductionRatio", 66.0),
+        ("loadMotorTorqueConstant", 0.114),
+    ];
+    match actuator {
+        Actuator::Da => assumed.push(("directCouplingStiffness", DIRECT_COUPLING_STIFFNESS)),
+        Actuator::Sea => assumed.push(("springStiffness", SPRING_STIFFNESS)),
+        // The CSEA's impedance law is set in its own terms (stiffness and damping of the
+        // desired behaviour), not from the spring's.
+        Actuator::Csea => {}
+    }
+    assumed
+}
+
+/// The plant parameters among a run's `component.name = value` lines (`parameters`, as
+/// [`super::parameter_set`] writes them) that differ from what the study's controllers for
+/// `actuator` assume ([`tuned_for`]): `(name, assumed, this run's)`. Empty for the study's own
+/// plant.
+pub fn tuning_differences(actuator: Actuator, parameters: &[String]) -> Vec<(String, f64, f64)> {
+    tuned_for(actuator)
+        .into_iter()
+        .filter_map(|(name, assumed)| {
+            let prefix = format!("plant.{name} = ");
+            let value: f64 = parameters
+                .iter()
+                .find_map(|l| l.strip_prefix(&prefix))?
+                .trim()
+                .parse()
+                .ok()?;
+            ((value - assumed).abs() > 1e-9 * assumed.abs())
+                .then(|| (name.to_string(), assumed, value))
+        })
+        .collect()
+}
+
 /// The CSEA's clutch in the clutch comparison (Table 15): locked by gait phase from heel strike
 /// (0) to 0.45, the low-motion part of stance: there the normalised knee angle moves by less
 /// than 0.4 per cycle, and from 0.45 on it flexes fast (1.2 per cycle at 0.45, 2.0 at 0.5,
