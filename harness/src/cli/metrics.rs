@@ -11,7 +11,7 @@ use kneebench_harness::metrics::{step_metrics, tracking_error};
 Examples:
   kneebench metrics open-loop.csv --signal actuationVelocity --from 0
   kneebench metrics open-loop.csv --signal actuationVelocity --target 0.02 --from 0
-  kneebench metrics out/study/SEA.csv --signal plant.actuationAngle --reference gait.kneeAngleReference
+  kneebench metrics out/study/SEA.csv --signal plant.actuationAngle --reference gait.kneeAngleReference --from 2.5
 
 With --target (or neither option), the signal is treated as a step response starting at
 --from: rise time to 90 %, settling time in a 5 % band, overshoot and peak time (the bench

@@ -59,14 +59,15 @@ Examples:
   kneebench run out/fmus/GaitReference.fmu --stop-time 5 --output knee.csv --variables kneeAngleReference,gaitPhase
   kneebench run out/study/scenarios/SEA.ssp --stop-time 2.5 --output sea.csv --timeout 600
   kneebench run out/study/scenarios/SEA.ssp --replace plant=out/fmus/BenchHardware.fmu --param plant.backend=Simulated --param plant.pacing=None --stop-time 2.5 --output sea-hw.csv
-  printf 'time,setpoint,measurement\\n0,0,0\\n0.1,1,0\\n' > steps.csv
+  printf 'time,setpoint,measurement\\n0,0,0\\n0.099,0,0\\n0.1,1,0\\n' > steps.csv   # a step at 0.1 s
   kneebench run out/fmus/PidController.fmu --inputs steps.csv --param kp=120 --param ki=3 --output pid.csv
 
 Time is an integer count of nanoseconds: the step must be a whole number of ns and the stop
 time on the grid (stop - start a multiple of the step); otherwise it is a usage error. With
 --inputs, each CSV column named like an input of the FMU feeds it (first column: time,
 strictly increasing; every value finite); Real continuous inputs are interpolated linearly,
-others hold the last sample. Each row of the results is recorded after every component
+others hold the last sample (so a step needs a row just before it, as in steps.csv above:
+without it the input ramps between the two rows). Each row of the results is recorded after every component
 finished the step that ends at its time, before inputs for the next step are set. --param
 takes `var=value` for a single FMU, `component.var=value` for a system.
 

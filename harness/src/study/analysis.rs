@@ -185,7 +185,8 @@ pub struct ActuatorReport {
     pub max_error_knee: f64,
     /// Peak |test-motor output torque i_HD Km1 i1| \[N m\].
     pub peak_test_torque: f64,
-    /// Peak |shaft torque| \[N m\] (what the test-motor torque interlock watches).
+    /// Peak |shaft torque| over the analysed cycles \[N m\] (what the test-motor torque
+    /// interlock watches, over the whole run: the start-up, not analysed, can peak higher).
     pub peak_shaft_torque: f64,
     /// Peak |load-motor output torque| \[N m\].
     pub peak_load_torque: f64,
@@ -485,12 +486,12 @@ pub fn markdown_table(reports: &[ActuatorReport]) -> String {
     });
     row(
         &mut s,
-        "peak shaft (transducer) torque [N m], interlock 20",
+        "peak shaft (transducer) torque, analysed cycles [N m] (the interlock, 20, watches the start-up too)",
         &|r| format!("{:.2}", r.peak_shaft_torque),
     );
     row(
         &mut s,
-        "peak load-motor torque at the output [N m], interlock 20",
+        "peak load-motor torque at the output, analysed cycles [N m] (the interlock, 20, watches the start-up too)",
         &|r| format!("{:.2}", r.peak_load_torque),
     );
     let e = |s: &mut String, label: &str, f: &dyn Fn(&EnergyTerms) -> f64| {
