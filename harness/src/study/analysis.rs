@@ -188,8 +188,14 @@ pub struct ActuatorReport {
     /// Peak |shaft torque| over the analysed cycles \[N m\] (what the test-motor torque
     /// interlock watches, over the whole run: the start-up, not analysed, can peak higher).
     pub peak_shaft_torque: f64,
-    /// Peak |load-motor output torque| \[N m\].
+    /// Peak |load-motor output torque| over the analysed cycles \[N m\].
     pub peak_load_torque: f64,
+    /// Peak |shaft torque| over every recorded row, the start-up included (up to the trip in
+    /// a run an interlock ended) \[N m\]: the margin to the test-motor torque interlock, which
+    /// watches the whole run. NaN when the run recorded no row.
+    pub whole_run_peak_shaft_torque: f64,
+    /// Peak |load-motor output torque| over every recorded row, likewise \[N m\].
+    pub whole_run_peak_load_torque: f64,
     /// Energy per cycle by term (NaN when no cycle completed).
     pub energy: EnergyTerms,
     /// The interlock that ended the run, if any, and when.
@@ -241,6 +247,8 @@ impl ActuatorReport {
             peak_test_torque: nan,
             peak_shaft_torque: nan,
             peak_load_torque: nan,
+            whole_run_peak_shaft_torque: nan,
+            whole_run_peak_load_torque: nan,
             energy: EnergyTerms {
                 test_mechanical: nan,
                 test_mechanical_consumed: nan,
@@ -300,10 +308,22 @@ pub fn analyse(
         .rows()
         .find(|r| r[trip_code] != 0.0)
         .map(|r| (interlock_name(r[trip_code] as i64).to_string(), r[0]));
+    // Over every row, the start-up included (NaN without a row, or the column; a missing
+    // column is named by the analysis below).
+    let whole_run_peak = |name: &str| match results.column_index(name) {
+        Some(c) if !results.is_empty() => results.rows().fold(0.0f64, |m, r| m.max(r[c].abs())),
+        _ => f64::NAN,
+    };
+    let whole_run_peak_shaft_torque = whole_run_peak(&columns.shaft_torque);
+    let whole_run_peak_load_torque = whole_run_peak(&columns.load_torque);
     // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
     if complete < 2 {
         return match trip {
-            Some(trip) => Ok(ActuatorReport::unanalysed(name, Some(trip))),
+            Some(trip) => Ok(ActuatorReport {
+                whole_run_peak_shaft_torque,
+                whole_run_peak_load_torque,
+                ..ActuatorReport::unanalysed(name, Some(trip))
+            }),
             None => Err(StudyError::NoCycle { period, end }),
         };
     }
@@ -441,6 +461,8 @@ pub fn analyse(
         peak_test_torque: peak_test,
         peak_shaft_torque: peak_shaft,
         peak_load_torque: peak_load,
+        whole_run_peak_shaft_torque,
+        whole_run_peak_load_torque,
         energy,
         trip,
     })
@@ -486,13 +508,23 @@ pub fn markdown_table(reports: &[ActuatorReport]) -> String {
     });
     row(
         &mut s,
-        "peak shaft (transducer) torque, analysed cycles [N m] (the interlock, 20, watches the start-up too)",
+        "peak shaft (transducer) torque, analysed cycles [N m]",
         &|r| format!("{:.2}", r.peak_shaft_torque),
     );
     row(
         &mut s,
-        "peak load-motor torque at the output, analysed cycles [N m] (the interlock, 20, watches the start-up too)",
+        "peak shaft torque, whole run with the start-up [N m], interlock 20",
+        &|r| format!("{:.2}", r.whole_run_peak_shaft_torque),
+    );
+    row(
+        &mut s,
+        "peak load-motor torque at the output, analysed cycles [N m]",
         &|r| format!("{:.2}", r.peak_load_torque),
+    );
+    row(
+        &mut s,
+        "peak load-motor torque, whole run with the start-up [N m], interlock 20",
+        &|r| format!("{:.2}", r.whole_run_peak_load_torque),
     );
     let e = |s: &mut String, label: &str, f: &dyn Fn(&EnergyTerms) -> f64| {
         row(s, label, &|r| format!("{:.3}", f(&r.energy)));
@@ -617,6 +649,9 @@ mod tests {
                         }
                     } else if *n == columns.trip_code && t >= trip_at {
                         trip
+                    } else if *n == columns.shaft_torque {
+                        // The start-up peaks higher than the analysed cycles.
+                        if start_up { -16.0 } else { 11.0 }
                     } else {
                         0.0
                     }
@@ -636,6 +671,9 @@ mod tests {
     fn the_start_up_cycle_is_never_analysed() {
         let columns = Columns::default();
         let r = analyse("x", &results(3.0, 0.0, f64::INFINITY), 1.0, &columns).unwrap();
+        // The peaks: the analysed cycles' and, for the interlocks' margin, the whole run's.
+        assert_eq!(r.peak_shaft_torque, 11.0);
+        assert_eq!(r.whole_run_peak_shaft_torque, 16.0);
         assert_eq!(r.cycles, 2);
         assert_eq!((r.rms_error_knee, r.max_error_knee), (0.5, 0.5));
         assert!(
@@ -659,6 +697,10 @@ mod tests {
         assert_eq!(r.cycles, 0);
         assert_eq!(r.trip, Some(("test motor torque".to_string(), 1.2)));
         assert!(r.rms_error_knee.is_nan() && r.energy.test_mechanical.is_nan());
+        // The margin to the interlocks is the whole run's, even with nothing analysed.
+        assert!(r.peak_shaft_torque.is_nan());
+        assert_eq!(r.whole_run_peak_shaft_torque, 16.0);
+        assert_eq!(r.whole_run_peak_load_torque, 0.0);
     }
 
     /// The analysis as first defined: every column copied out of the rows, the analysed rows
@@ -683,9 +725,23 @@ mod tests {
             .zip(&times)
             .find(|(c, _)| **c != 0.0)
             .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
+        let whole_run_peak = |n: &str| -> Result<f64, StudyError> {
+            let c = col(n)?;
+            Ok(if c.is_empty() {
+                f64::NAN
+            } else {
+                c.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+            })
+        };
+        let whole_run_peak_shaft_torque = whole_run_peak(&columns.shaft_torque)?;
+        let whole_run_peak_load_torque = whole_run_peak(&columns.load_torque)?;
         if complete < 2 {
             return match trip {
-                Some(trip) => Ok(ActuatorReport::unanalysed(name, Some(trip))),
+                Some(trip) => Ok(ActuatorReport {
+                    whole_run_peak_shaft_torque,
+                    whole_run_peak_load_torque,
+                    ..ActuatorReport::unanalysed(name, Some(trip))
+                }),
                 None => Err(StudyError::NoCycle { period, end }),
             };
         }
@@ -755,6 +811,8 @@ mod tests {
             peak_test_torque: peak(&col(&columns.test_torque)?),
             peak_shaft_torque: peak(&col(&columns.shaft_torque)?),
             peak_load_torque: peak(&col(&columns.load_torque)?),
+            whole_run_peak_shaft_torque,
+            whole_run_peak_load_torque,
             energy,
             trip,
         })
@@ -766,6 +824,10 @@ mod tests {
         (
             crate::sweep::runner::study_metric_values(r)
                 .iter()
+                .chain([
+                    &r.whole_run_peak_shaft_torque,
+                    &r.whole_run_peak_load_torque,
+                ])
                 .map(|v| v.to_bits())
                 .collect(),
             r.trip.as_ref().map(|(n, _)| n.clone()),
