@@ -356,8 +356,8 @@ fn the_study_embeds_a_plant_set_and_names_it_in_its_report() {
     );
     assert!(
         text.contains(
-            "  - **the controllers are the study's, tuned for its bench: this plant differs in \
-             `plant.actuationDamping` 12.5 (tuned for 12).**"
+            "  - **this plant differs from the one the study's controller weights were derived \
+             for, in `plant.actuationDamping` 12.5 (tuned for 12).**"
         ),
         "{text}"
     );
@@ -417,9 +417,15 @@ fn the_controllers_assumptions_are_the_plants_defaults() {
     use kneebench_harness::study::{tuned_for, tuning_differences};
     use model_description::VariableKind;
     let md = plant_md();
+    // A run whose position loop leads the knee by the planned deflection (the coupling
+    // stiffness is then assumed too) and one without a position loop (the impedance law).
+    let leading = vec!["position.setpointWeight3 = 0.0029".to_string()];
+    assert_eq!(tuned_for(Actuator::Sea, &leading).len(), 11);
+    assert_eq!(tuned_for(Actuator::Sea, &[]).len(), 10);
+    assert!(tuned_for(Actuator::Da, &leading).contains(&("directCouplingStiffness", 1.3e4)));
     for actuator in [Actuator::Da, Actuator::Sea, Actuator::Csea] {
-        let mut lines = Vec::new();
-        for (name, assumed) in tuned_for(actuator) {
+        let mut lines = leading.clone();
+        for (name, assumed) in tuned_for(actuator, &leading) {
             let variable = md
                 .model_variables
                 .iter()
@@ -439,13 +445,14 @@ fn the_controllers_assumptions_are_the_plants_defaults() {
         }
         assert_eq!(tuning_differences(actuator, &lines), Vec::new());
         // Another value of each is named.
-        let other: Vec<String> = tuned_for(actuator)
+        let mut other: Vec<String> = tuned_for(actuator, &leading)
             .iter()
             .map(|(name, assumed)| format!("plant.{name} = {}", assumed * 1.5))
             .collect();
+        other.extend(leading.iter().cloned());
         assert_eq!(
             tuning_differences(actuator, &other).len(),
-            tuned_for(actuator).len()
+            tuned_for(actuator, &leading).len()
         );
     }
 }

@@ -278,10 +278,21 @@ fn empty_sum() -> f64 {
     std::iter::empty::<f64>().sum()
 }
 
+/// The peak |shaft torque| and |load-motor output torque| over every row of `results`, the
+/// start-up included (the margin to the interlocks, which watch the whole run); NaN for a run
+/// that recorded no row or lacks the column (a missing column is named by [`analyse`]).
+pub fn whole_run_peaks(results: &Results, columns: &Columns) -> (f64, f64) {
+    let peak = |name: &str| match results.column_index(name) {
+        Some(c) if !results.is_empty() => results.rows().fold(0.0f64, |m, r| m.max(r[c].abs())),
+        _ => f64::NAN,
+    };
+    (peak(&columns.shaft_torque), peak(&columns.load_torque))
+}
+
 /// Analyses one run with gait period `period`: every complete cycle after the first, which is
 /// the start-up (the gait's fade-in) and is never analysed. A run whose second cycle did not
 /// complete has nothing to analyse: with a trip code in its results (an interlock) its report
-/// is [`ActuatorReport::unanalysed`] naming the trip; without one it is
+/// is [`ActuatorReport::unanalysed`] naming the trip, with the [`whole_run_peaks`]; without one it is
 /// [`StudyError::NoCycle`] (the run was too short: the caller knows whether it failed or was
 /// ended by an interlock the results do not show). Cycles that hold no recorded row (a run
 /// recorded more sparsely than once per cycle) are [`StudyError::NoRows`].
@@ -308,14 +319,8 @@ pub fn analyse(
         .rows()
         .find(|r| r[trip_code] != 0.0)
         .map(|r| (interlock_name(r[trip_code] as i64).to_string(), r[0]));
-    // Over every row, the start-up included (NaN without a row, or the column; a missing
-    // column is named by the analysis below).
-    let whole_run_peak = |name: &str| match results.column_index(name) {
-        Some(c) if !results.is_empty() => results.rows().fold(0.0f64, |m, r| m.max(r[c].abs())),
-        _ => f64::NAN,
-    };
-    let whole_run_peak_shaft_torque = whole_run_peak(&columns.shaft_torque);
-    let whole_run_peak_load_torque = whole_run_peak(&columns.load_torque);
+    let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
+        whole_run_peaks(results, columns);
     // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
     if complete < 2 {
         return match trip {
@@ -725,16 +730,13 @@ mod tests {
             .zip(&times)
             .find(|(c, _)| **c != 0.0)
             .map(|(c, t)| (interlock_name(*c as i64).to_string(), *t));
-        let whole_run_peak = |n: &str| -> Result<f64, StudyError> {
-            let c = col(n)?;
-            Ok(if c.is_empty() {
-                f64::NAN
-            } else {
-                c.iter().fold(0.0f64, |m, v| m.max(v.abs()))
-            })
+        // A missing column is NaN here and named by the analysis below, as in `analyse`.
+        let whole_run_peak = |n: &str| match results.column(n) {
+            Some(c) if !c.is_empty() => c.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+            _ => f64::NAN,
         };
-        let whole_run_peak_shaft_torque = whole_run_peak(&columns.shaft_torque)?;
-        let whole_run_peak_load_torque = whole_run_peak(&columns.load_torque)?;
+        let whole_run_peak_shaft_torque = whole_run_peak(&columns.shaft_torque);
+        let whole_run_peak_load_torque = whole_run_peak(&columns.load_torque);
         if complete < 2 {
             return match trip {
                 Some(trip) => Ok(ActuatorReport {
@@ -926,6 +928,19 @@ mod tests {
                 .unwrap_err()
                 .to_string()
         );
+        // The shaft torque (a whole-run peak's column too) missing along with an earlier
+        // column: both name the earlier one.
+        let mut fewer = columns.clone();
+        fewer.reference = "plant.noReference".into();
+        fewer.shaft_torque = "plant.noShaft".into();
+        let one = analyse("x", results, 2.5, &fewer).unwrap_err().to_string();
+        assert_eq!(
+            one,
+            analyse_by_definition("x", results, 2.5, &fewer)
+                .unwrap_err()
+                .to_string()
+        );
+        assert!(one.contains("plant.noReference"), "{one}");
     }
 
     /// Analysed cycles without a recorded row (a run recorded once every 1.5 periods) are an

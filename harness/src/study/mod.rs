@@ -524,7 +524,13 @@ pub fn run_checked(
             Err(StudyError::NoCycle { .. })
                 if !matches!(output.outcome, crate::master::Outcome::Completed { .. }) =>
             {
-                ActuatorReport::unanalysed(actuator.name(), None)
+                let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
+                    whole_run_peaks(&output.results, &Columns::default());
+                ActuatorReport {
+                    whole_run_peak_shaft_torque,
+                    whole_run_peak_load_torque,
+                    ..ActuatorReport::unanalysed(actuator.name(), None)
+                }
             }
             r => r?,
         };

@@ -332,7 +332,7 @@ pub fn write_report(
                     .join(", ");
                 let _ = writeln!(
                     s,
-                    "  - **the controllers are the study's, tuned for its bench: this plant differs in {list}.** Its tracking and energy are those of the study's controllers on this plant, not of controllers tuned for it: their model-based weights, the controllers' feed-forward and setpoint weights in the parameters below, can be set with `--param`"
+                    "  - **this plant differs from the one the study's controller weights were derived for, in {list}.** Unless the controllers' model-based weights (feed-forward and setpoint weights, output limits) were set for this plant with `--param`, its tracking and energy are those of the study's controllers on this plant, not of controllers tuned for it"
                 );
             }
             if !r.unapplied.is_empty() {

@@ -291,10 +291,23 @@ impl StudyScenario {
     }
 }
 
+/// The harmonic drive's ratio i_HD (the plant's default `harmonicDriveRatio`).
+pub const HARMONIC_DRIVE_RATIO: f64 = 160.0;
+/// The test motor's torque constant Km1 [N m/A] (the plant's default).
+pub const TEST_MOTOR_TORQUE_CONSTANT: f64 = 0.037;
+/// The planetary gearbox's ratio i_RED (the plant's default `reductionRatio`).
+pub const REDUCTION_RATIO: f64 = 66.0;
+/// The load motor's torque constant Km2 [N m/A] (the plant's default).
+pub const LOAD_MOTOR_TORQUE_CONSTANT: f64 = 0.114;
+/// The test driver's current limit \[A\] (the plant's default): the test-side controllers'
+/// output limit.
+pub const TEST_CURRENT_LIMIT: f64 = 15.0;
+/// The load driver's current limit \[A\] (the plant's default): the torque loop's output limit.
+pub const LOAD_CURRENT_LIMIT: f64 = 6.0;
 /// Output torque per ampere of the test motor, i_HD Km1 = 160 x 0.037 [N m/A].
-pub const TEST_TORQUE_PER_AMPERE: f64 = 160.0 * 0.037;
+pub const TEST_TORQUE_PER_AMPERE: f64 = HARMONIC_DRIVE_RATIO * TEST_MOTOR_TORQUE_CONSTANT;
 /// Output torque per ampere of the load motor, i_RED Km2 = 66 x 0.114 [N m/A].
-pub const LOAD_TORQUE_PER_AMPERE: f64 = 66.0 * 0.114;
+pub const LOAD_TORQUE_PER_AMPERE: f64 = REDUCTION_RATIO * LOAD_MOTOR_TORQUE_CONSTANT;
 
 /// Load-side inertia I2 at the knee axis [kg m^2] (the plant's default `load_inertia`).
 pub const LOAD_INERTIA: f64 = 0.605;
@@ -309,47 +322,58 @@ pub const ACTUATION_INERTIA: f64 = 0.825;
 /// Actuation-side viscous damping c1 [N m s/rad] (the plant's default).
 pub const ACTUATION_DAMPING: f64 = 12.0;
 
-/// The plant's parameters whose values the study's controllers are built on for `actuator`
-/// (their feed-forwards, the load loop's current scaling and the deflection compensation of
-/// [`gait_scenario`]), with the value each assumes: the plant's defaults. The PID gains were
-/// tuned on that plant too. A study whose plant differs in one of these runs the study's
-/// controllers on another plant, not controllers tuned for it ([`tuning_differences`]).
-pub fn tuned_for(actuator: Actuator) -> Vec<(&'static str, f64)> {
+/// The plant's parameters whose values the study's controllers are built on in a run whose
+/// scenario parameters are `parameters` (its `component.name = value` lines, as
+/// [`super::parameter_set`] writes them), with the value each assumes: the plant's defaults.
+/// Every run's feed-forwards and load-loop scaling use the inertias, dampings, gear ratios and
+/// torque constants, and its controllers' output limits the current limits; the coupling
+/// stiffness (the DA's harmonic drive, the SEA's and CSEA's spring) only where a position loop
+/// leads the knee by the planned deflection (a non-zero `position.setpointWeight3`, 1/k: the
+/// impedance controller's law is in its own terms). The PID gains were tuned on that plant too.
+/// A run whose plant differs in one of these runs weights derived for another plant
+/// ([`tuning_differences`]).
+pub fn tuned_for(actuator: Actuator, parameters: &[String]) -> Vec<(&'static str, f64)> {
     let mut assumed = vec![
         ("actuationInertia", ACTUATION_INERTIA),
         ("loadInertia", LOAD_INERTIA),
         ("actuationDamping", ACTUATION_DAMPING),
         ("loadDamping", LOAD_DAMPING),
-        ("harmonicDriveRatio", 160.0),
-        ("testMotorTorqueConstant", 0.037),
-        ("reductionRatio", 66.0),
-        ("loadMotorTorqueConstant", 0.114),
+        ("harmonicDriveRatio", HARMONIC_DRIVE_RATIO),
+        ("testMotorTorqueConstant", TEST_MOTOR_TORQUE_CONSTANT),
+        ("reductionRatio", REDUCTION_RATIO),
+        ("loadMotorTorqueConstant", LOAD_MOTOR_TORQUE_CONSTANT),
+        ("testCurrentLimit", TEST_CURRENT_LIMIT),
+        ("loadCurrentLimit", LOAD_CURRENT_LIMIT),
     ];
-    match actuator {
-        Actuator::Da => assumed.push(("directCouplingStiffness", DIRECT_COUPLING_STIFFNESS)),
-        Actuator::Sea => assumed.push(("springStiffness", SPRING_STIFFNESS)),
-        // The CSEA's impedance law is set in its own terms (stiffness and damping of the
-        // desired behaviour), not from the spring's.
-        Actuator::Csea => {}
+    let leads = parameter_value(parameters, "position.setpointWeight3").is_some_and(|w| w != 0.0);
+    if leads {
+        assumed.push(match actuator {
+            Actuator::Da => ("directCouplingStiffness", DIRECT_COUPLING_STIFFNESS),
+            Actuator::Sea | Actuator::Csea => ("springStiffness", SPRING_STIFFNESS),
+        });
     }
     assumed
 }
 
-/// The plant parameters among a run's `component.name = value` lines (`parameters`, as
-/// [`super::parameter_set`] writes them) that differ from what the study's controllers for
-/// `actuator` assume ([`tuned_for`]): `(name, assumed, this run's)`. Empty for the study's own
-/// plant.
+/// The value of `reference` (`component.name`) among `component.name = value` lines.
+fn parameter_value(parameters: &[String], reference: &str) -> Option<f64> {
+    let prefix = format!("{reference} = ");
+    parameters
+        .iter()
+        .find_map(|l| l.strip_prefix(&prefix))?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// The plant parameters among a run's `component.name = value` lines that differ from what
+/// its controllers' weights were derived for ([`tuned_for`]): `(name, assumed, this run's)`.
+/// Empty for the study's own plant.
 pub fn tuning_differences(actuator: Actuator, parameters: &[String]) -> Vec<(String, f64, f64)> {
-    tuned_for(actuator)
+    tuned_for(actuator, parameters)
         .into_iter()
         .filter_map(|(name, assumed)| {
-            let prefix = format!("plant.{name} = ");
-            let value: f64 = parameters
-                .iter()
-                .find_map(|l| l.strip_prefix(&prefix))?
-                .trim()
-                .parse()
-                .ok()?;
+            let value = parameter_value(parameters, &format!("plant.{name}"))?;
             ((value - assumed).abs() > 1e-9 * assumed.abs())
                 .then(|| (name.to_string(), assumed, value))
         })
@@ -450,8 +474,9 @@ pub struct StudyGains {
     /// `-tau_knee + beta_w c2 w + beta_a I2 a` (the torque loop's feed-forward current) and the
     /// shaft torque the loop tracks as `tau_knee + (1 - beta_w) c2 w + (1 - beta_a) I2 a` (its
     /// setpoint). (0, 0) is the bare ground reaction (the shaft carries the load side's
-    /// dynamics too: 11.1-11.5 N m peak on the bench-full gait, `kneebench study --scenario
-    /// bench-full`, row "peak shaft torque"); (1, 1) makes the shaft carry exactly the knee
+    /// dynamics too: 11.1-12.1 N m peak over the analysed cycles of the bench-full gait,
+    /// `kneebench study --scenario bench-full`, row "peak shaft (transducer) torque, analysed
+    /// cycles"; up to 16.3 N m in the CSEA's start-up); (1, 1) makes the shaft carry exactly the knee
     /// torque, and the load driver then has to brake the load side's dynamics in swing, above
     /// its 5 W (module docs, "The budget").
     pub load_dynamics_share: (f64, f64),
@@ -478,7 +503,7 @@ impl StudyGains {
         let mut gains = StudyGains {
             position: (1000.0, 1000.0, 15.0),
             position_derivative_filter: 0.002,
-            position_limit: 15.0,
+            position_limit: TEST_CURRENT_LIMIT,
             test_feed_forward: (
                 ACTUATION_DAMPING / TEST_TORQUE_PER_AMPERE,
                 ACTUATION_INERTIA / TEST_TORQUE_PER_AMPERE,
@@ -487,7 +512,7 @@ impl StudyGains {
             deflection_compensation: true,
             torque: (0.2, 5.0, 0.005),
             torque_derivative_filter: 0.002,
-            torque_limit: 6.0,
+            torque_limit: LOAD_CURRENT_LIMIT,
             load_dynamics_share: (0.0, 0.0),
             test_controller: TestController::Position,
             csea: CseaGains {

@@ -28,8 +28,8 @@ use crate::results::Results;
 use crate::ssp::{self, LoadedSystem};
 use crate::study::{self, Columns};
 
-/// The study metrics' column names, in table order: [`study::ActuatorReport`] and its
-/// [`study::EnergyTerms`] (angles in rad, torques in N m, energies in J per gait cycle, the
+/// The study metrics' column names, in table order: [`study::ActuatorReport`] (but its
+/// whole-run peaks, which only the study's table gives) and its [`study::EnergyTerms`] (angles in rad, torques in N m, energies in J per gait cycle, the
 /// clutch's engaged fraction of the cycle, `trip_time` in s, NaN without a trip).
 pub const STUDY_METRICS: [&str; 25] = [
     "cycles",
