@@ -136,13 +136,19 @@ pub fn row_stalls(run: &kneebench_harness::Results, component: &str) -> Option<V
 /// zero: what a row's stall displaced beyond the steady shift that every row has (a loaded
 /// host's mean stall is a sustained delay, which the comparisons allow for on their own).
 pub fn beyond_mean(stalls: &[f64]) -> Vec<f64> {
+    let mean = mean_stall(stalls);
+    stalls.iter().map(|s| (s - mean).max(0.0)).collect()
+}
+
+/// The mean of `stalls` over the rows after the initial one (row 0 is the initial sample, no
+/// step's); 0 without such a row.
+pub fn mean_stall(stalls: &[f64]) -> f64 {
     let rest = stalls.get(1..).unwrap_or_default();
-    let mean = if rest.is_empty() {
+    if rest.is_empty() {
         0.0
     } else {
         rest.iter().sum::<f64>() / rest.len() as f64
-    };
-    stalls.iter().map(|s| (s - mean).max(0.0)).collect()
+    }
 }
 
 /// `values` (one per row, `period` apart) carried on at `decay` \[1/s\]: row `k` holds the

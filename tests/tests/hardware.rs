@@ -18,7 +18,7 @@ use kneebench_harness::master::Signal;
 use kneebench_harness::{
     Fmu, InstanceOptions, LoadOptions, Outcome, Results, RunConfig, RunOutput, Status, System,
 };
-use kneebench_tests::loop_memory::{beyond_mean, carried, row_stalls, sea_loop_decays};
+use kneebench_tests::loop_memory::{beyond_mean, carried, mean_stall, row_stalls, sea_loop_decays};
 use kneebench_tests::*;
 
 const H: f64 = 1e-3;
@@ -474,7 +474,6 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     let (rate2, accel2) = rate_and_acceleration(&column("loadEncoderAngle"));
     // The mean stall `s_mean` of a hardware run's rows after the initial one, and its mean
     // shift `delta` (that plus the master's work).
-    let mean_stall = |stall: &[f64]| stall[1..].iter().sum::<f64>() / (stall.len() - 1) as f64;
     let mean_shift = |stall: &[f64]| mean_stall(stall) + 50e-6;
     // The sustained tolerance of a signal of count `quantum` moving at `rate`, and the smallest
     // whole number of periods of extra delay in the hardware path that it would not hide
@@ -511,10 +510,10 @@ fn study_sea_closed_loop_with_plant_and_hardware_agree_within_the_derived_tolera
     // its held command's) is carried on.
     let row_tolerances =
         |sustained: f64, rate: f64, accel: f64, stall: &[f64], decay: f64| -> Vec<f64> {
-            let mean = mean_stall(stall);
-            let displaced: Vec<f64> = stall
+            let displaced: Vec<f64> = beyond_mean(stall)
                 .iter()
-                .map(|s| rate * (s - mean).max(0.0) + 0.5 * accel * s * s)
+                .zip(stall)
+                .map(|(beyond, s)| rate * beyond + 0.5 * accel * s * s)
                 .collect();
             carried(&displaced, decay)
                 .iter()

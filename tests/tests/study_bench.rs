@@ -150,11 +150,13 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
         let bench_run = on_bench.remove(0);
         let completed = matches!(bench_run.outcome, Outcome::Completed { .. });
         let measured = knee(&bench_run.results);
-        let worst = measured
+        // The worst row and its difference from the planned knee.
+        let (worst_row, worst) = measured
             .iter()
             .zip(&planned)
             .map(|(x, y)| (x - y).abs())
-            .fold(0.0f64, f64::max);
+            .enumerate()
+            .fold((0, 0.0f64), |b, (k, d)| if d > b.1 { (k, d) } else { b });
         // The host's stall as either side measured it: the bench's longest pause between two
         // frames, or how far the master fell behind its schedule (a loop whose steps each
         // take a little over a period never pauses long, but holds every command longer; CI
@@ -178,13 +180,6 @@ fn the_sea_study_runs_on_the_emulated_bench_and_tracks_like_the_plant() {
         // A completed run whose worst row left the tolerance by no more than the stalls
         // carried into that row can have moved it: half the tolerance (the encoders and the
         // steady shift, 0.2 deg in undisturbed runs here) plus the displacement, 2 R c.
-        let worst_row = measured
-            .iter()
-            .zip(&planned)
-            .map(|(x, y)| (x - y).abs())
-            .enumerate()
-            .fold((0, 0.0f64), |b, (k, d)| if d > b.1 { (k, d) } else { b })
-            .0;
         let carried_at_worst = carried_stall.get(worst_row).copied().unwrap_or(0.0);
         let explained = completed
             && worst >= tolerance

@@ -78,10 +78,9 @@ impl Pacing {
         // The running maximum first reaches its final value at the row of the latest step.
         let largest_lateness_time = (largest_lateness > 0.0)
             .then(|| {
-                let times = run.times();
                 lateness.iter().find_map(|values| {
                     let k = values.iter().position(|&v| v >= largest_lateness)?;
-                    times.get(k).copied()
+                    Some(run.row(k)[0])
                 })
             })
             .flatten();

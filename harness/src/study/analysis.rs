@@ -233,6 +233,24 @@ pub fn interlock_name(code: i64) -> &'static str {
 }
 
 impl ActuatorReport {
+    /// The report of a run that ended before a cycle could be analysed, with what its rows
+    /// still tell: its [`whole_run_peaks`] (the margin to the interlocks) beside
+    /// [`Self::unanalysed`]'s NaN metrics.
+    pub fn ended_early(
+        name: &str,
+        trip: Option<(String, f64)>,
+        results: &Results,
+        columns: &Columns,
+    ) -> ActuatorReport {
+        let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
+            whole_run_peaks(results, columns);
+        ActuatorReport {
+            whole_run_peak_shaft_torque,
+            whole_run_peak_load_torque,
+            ..ActuatorReport::unanalysed(name, trip)
+        }
+    }
+
     /// The report of a run with no cycle to analyse: no cycle, every metric NaN, `trip` as
     /// given.
     pub fn unanalysed(name: &str, trip: Option<(String, f64)>) -> ActuatorReport {
@@ -319,19 +337,20 @@ pub fn analyse(
         .rows()
         .find(|r| r[trip_code] != 0.0)
         .map(|r| (interlock_name(r[trip_code] as i64).to_string(), r[0]));
-    let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
-        whole_run_peaks(results, columns);
     // Cycle 0 is the start-up: the analysis needs cycle 1 complete.
     if complete < 2 {
         return match trip {
-            Some(trip) => Ok(ActuatorReport {
-                whole_run_peak_shaft_torque,
-                whole_run_peak_load_torque,
-                ..ActuatorReport::unanalysed(name, Some(trip))
-            }),
+            Some(trip) => Ok(ActuatorReport::ended_early(
+                name,
+                Some(trip),
+                results,
+                columns,
+            )),
             None => Err(StudyError::NoCycle { period, end }),
         };
     }
+    let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
+        whole_run_peaks(results, columns);
     let first = 1;
     let (t0, t1) = (first as f64 * period, complete as f64 * period);
     let tol = 1e-9 * t1.max(1.0);

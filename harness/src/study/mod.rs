@@ -524,13 +524,12 @@ pub fn run_checked(
             Err(StudyError::NoCycle { .. })
                 if !matches!(output.outcome, crate::master::Outcome::Completed { .. }) =>
             {
-                let (whole_run_peak_shaft_torque, whole_run_peak_load_torque) =
-                    whole_run_peaks(&output.results, &Columns::default());
-                ActuatorReport {
-                    whole_run_peak_shaft_torque,
-                    whole_run_peak_load_torque,
-                    ..ActuatorReport::unanalysed(actuator.name(), None)
-                }
+                ActuatorReport::ended_early(
+                    actuator.name(),
+                    None,
+                    &output.results,
+                    &Columns::default(),
+                )
             }
             r => r?,
         };
